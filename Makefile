@@ -1,0 +1,45 @@
+# cellrt — the two commands a user needs are `make run` and `make test`.
+SHELL := bash
+REBAR ?= rebar3
+# The apps Debian ships inside rabbitmq-server (cowboy, ranch, jsx ...) and the cured
+# PropEr live in _debdeps/; ERL_LIBS puts them on the code path, ahead of the system's.
+export ERL_LIBS := $(CURDIR)/_debdeps
+export CELLRT_ROOT ?= $(CURDIR)/var
+export CELLRT_TOP := $(CURDIR)
+
+.PHONY: all setup setup-test compile release run test bench dist clean
+
+all: compile
+
+setup:
+	@scripts/setup run
+
+setup-test:
+	@scripts/setup test
+
+compile: setup
+	@$(REBAR) compile
+
+release: setup
+	@$(REBAR) release
+
+## Builds the release and starts the default cell in the foreground; Ctrl-C stops it.
+run: release
+	@scripts/run
+
+## eunit (with PropEr properties), common_test suites, xref, dialyzer, system tests.
+test: setup-test
+	@scripts/test
+
+## Every benchmark, each beside its peer; rewrites docs/benchmarks.md.
+bench: setup-test
+	@scripts/bench
+
+## A self-contained tarball of the release with ERTS.
+dist: setup
+	@$(REBAR) as prod tar
+	@ls -1 _build/prod/rel/cellrt/cellrt-*.tar.gz
+
+clean:
+	@$(REBAR) clean -a
+	rm -rf _build

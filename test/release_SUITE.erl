@@ -1,0 +1,147 @@
+%% System tests of the built release: the start script's commands, the cell root
+%% folder, and a restart after the VM was killed with SIGKILL. The release is the one
+%% `make test' builds (`_build/default/rel/cellrt', or `$CELLRT_REL').
+-module(release_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
+         end_per_testcase/2]).
+-export([daemon_ping_eval_stop/1, root_folder_from_environment/1,
+         restart_after_sigkill/1, sigterm_stops_cleanly/1, bad_root_folder_is_refused/1]).
+
+all() ->
+    [daemon_ping_eval_stop, root_folder_from_environment, restart_after_sigkill,
+     sigterm_stops_cleanly, bad_root_folder_is_refused].
+
+init_per_suite(Config) ->
+    Rel = case os:getenv("CELLRT_REL") of
+              false -> filename:join([top(), "_build", "default", "rel", "cellrt"]);
+              Dir -> Dir
+          end,
+    Bin = filename:join([Rel, "bin", "cellrt"]),
+    case filelib:is_regular(Bin) of
+        true -> [{bin, filename:absname(Bin)} | Config];
+        false -> ct:fail("no release at ~s: build it with `rebar3 release` (make test does)",
+                         [Rel])
+    end.
+
+end_per_suite(Config) ->
+    Config.
+
+init_per_testcase(Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root"),
+    Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "@localhost",
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"}],
+    [{env, Env}, {root, Root}, {node, list_to_atom(Node)} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = cellrt(Config, ["stop"]),
+    ok.
+
+%% bin/cellrt daemon | ping | eval | stop.
+daemon_ping_eval_stop(Config) ->
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_pong(Config),
+    {0, Apps} = cellrt(Config, ["eval", "[A || {A, _, _} <- application:which_applications()]."]),
+    [?assertNotEqual(nomatch, string:find(Apps, atom_to_list(A)), A)
+     || A <- [cell, cell_base, lager, cowboy, ranch, jsx]],
+    {0, _} = cellrt(Config, ["stop"]),
+    ok = await_down(Config).
+
+%% The root folder and its sub-folders are created where $CELLRT_ROOT says, and the
+%% task log is written there.
+root_folder_from_environment(Config) ->
+    Root = ?config(root, Config),
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_pong(Config),
+    [?assert(filelib:is_dir(filename:join(Root, D)), D)
+     || D <- ["Settings", "Products", "Data", "Logs", "Databases"]],
+    {0, _} = cellrt(Config, ["eval", "cell_log:notice(release_suite, \"hello from the test\", [])."]),
+    {0, _} = cellrt(Config, ["stop"]),
+    ok = await_down(Config),
+    [Log] = filelib:wildcard(filename:join([Root, "Logs", "log *.log"])),
+    {ok, Bin} = file:read_file(Log),
+    ?assertNotEqual(nomatch, binary:match(Bin, <<"SILENT release_suite: hello from the test">>)).
+
+%% A VM killed with SIGKILL starts again without manual clean-up.
+restart_after_sigkill(Config) ->
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_pong(Config),
+    {0, Pid} = cellrt(Config, ["eval", "os:getpid()."]),
+    OsPid = string:trim(Pid, both, "\"\n "),
+    _ = os:cmd("kill -9 " ++ OsPid),
+    ok = await_down(Config),
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_pong(Config),
+    {0, Pid2} = cellrt(Config, ["eval", "os:getpid()."]),
+    ?assertNotEqual(Pid, Pid2).
+
+%% SIGTERM (what `make run' turns Ctrl-C into) stops the applications in order.
+sigterm_stops_cleanly(Config) ->
+    Root = ?config(root, Config),
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_pong(Config),
+    {0, Pid} = cellrt(Config, ["eval", "os:getpid()."]),
+    _ = os:cmd("kill -TERM " ++ string:trim(Pid, both, "\"\n ")),
+    ok = await_down(Config),
+    [Log] = filelib:wildcard(filename:join([Root, "Logs", "log *.log"])),
+    {ok, Bin} = file:read_file(Log),
+    ?assertNotEqual(nomatch, binary:match(Bin, <<"cellrt stopped">>)).
+
+%% A malformed root folder setting is refused with a message naming it; the node
+%% does not come up half-configured.
+bad_root_folder_is_refused(Config) ->
+    Env = lists:keystore("CELLRT_ROOT", 1, ?config(env, Config),
+                         {"CELLRT_ROOT", "/proc/cellrt-cannot-create-this"}),
+    {_, Out} = cellrt([{env, Env} | Config], ["foreground"], 60000),
+    ?assertNotEqual(nomatch, string:find(Out, "cell_root_folder")).
+
+%% Helpers
+
+%% The project folder: $CELLRT_TOP (set by the Makefile), else derived from this
+%% file's path, which rebar3 copies under _build/.
+top() ->
+    case os:getenv("CELLRT_TOP") of
+        false ->
+            case string:split(?FILE, "/_build/") of
+                [Top, _] -> Top;
+                [_] -> filename:dirname(filename:dirname(?FILE))
+            end;
+        Top -> Top
+    end.
+
+cellrt(Config, Args) ->
+    cellrt(Config, Args, 30000).
+
+cellrt(Config, Args, Timeout) ->
+    Port = open_port({spawn_executable, ?config(bin, Config)},
+                     [{args, Args}, {env, ?config(env, Config)}, exit_status,
+                      stderr_to_stdout, binary]),
+    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+
+collect(Port, Acc, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after Left ->
+        catch port_close(Port),
+        ct:fail("bin/cellrt timed out; output so far: ~s", [Acc])
+    end.
+
+await_pong(Config) ->
+    await(Config, fun(Out) -> string:trim(Out) =:= "pong" end, 100).
+
+await_down(Config) ->
+    await(Config, fun(Out) -> string:trim(Out) =/= "pong" end, 100).
+
+%% `ping' itself waits for its answer, so each try is a round trip, not a sleep.
+await(_Config, _Done, 0) ->
+    {error, timeout};
+await(Config, Done, N) ->
+    {_, Out} = cellrt(Config, ["ping"]),
+    case Done(Out) of
+        true -> ok;
+        false -> await(Config, Done, N - 1)
+    end.
