@@ -1,0 +1,142 @@
+%% @doc The benchmark runner behind `make bench'.
+%%
+%% Every module `bench/*_bench.erl' exports `run() -> [result()]'. Each result is one
+%% figure of ours measured beside a peer's figure in the same run, so the ratio holds
+%% even on a busy or slower machine. The runner prints every figure with its ratio and
+%% the command that reproduces it, and rewrites `docs/benchmarks.md' after a full run.
+%%
+%% `make bench' runs them all; `make bench BENCH=cell_task_bench' runs one module and
+%% only prints.
+-module(cell_bench).
+
+-export([main/1, stats/1, percentile/2, result/1]).
+
+-export_type([result/0]).
+
+-type result() :: #{title := iodata(),        %% what was measured, with its size
+                    unit := iodata(),         %% "ms", "transfers/s" ...
+                    ours := number(),
+                    peer := number() | undefined,
+                    peer_name := iodata(),    %% what the peer is
+                    better := higher | lower, %% which way is better
+                    goal => iodata(),         %% the issue's goal, said plainly
+                    note => iodata()}.
+
+%% @doc Entry point: `erl -run cell_bench main all' or `... main Mod1 Mod2'.
+-spec main([string()]) -> no_return().
+main(Args) ->
+    Mods = case Args of
+               ["all"] -> all_modules();
+               Names -> [list_to_atom(N) || N <- Names]
+           end,
+    Full = Args =:= ["all"],
+    Sections = [run_module(M) || M <- Mods],
+    Failed = [M || {M, {error, _}} <- Sections],
+    case Full andalso Failed =:= [] of
+        true -> ok = write_doc(Sections);
+        false -> ok
+    end,
+    io:format("~n~p benchmark module(s) run, ~p failed~n", [length(Mods), length(Failed)]),
+    erlang:halt(case Failed of [] -> 0; _ -> 1 end).
+
+all_modules() ->
+    Dir = filename:dirname(code:which(?MODULE)),
+    lists:sort([list_to_atom(filename:basename(F, ".beam"))
+                || F <- filelib:wildcard(filename:join(Dir, "*_bench.beam"))]).
+
+run_module(Mod) ->
+    io:format("~n== ~s~n", [Mod]),
+    T0 = erlang:monotonic_time(millisecond),
+    try Mod:run() of
+        Results ->
+            [print(R, Mod) || R <- Results],
+            io:format("   (~.1f s)~n", [(erlang:monotonic_time(millisecond) - T0) / 1000]),
+            {Mod, {ok, Results}}
+    catch
+        Class:Reason:Stack ->
+            io:format("   FAILED ~p:~tp~n   ~tp~n", [Class, Reason, Stack]),
+            {Mod, {error, Reason}}
+    end.
+
+print(R, Mod) ->
+    io:format("   ~ts~n      ours ~ts ~ts | ~ts ~ts | ratio ~ts~ts~n      reproduce: ~ts~n",
+              [maps:get(title, R), fmt(maps:get(ours, R)), maps:get(unit, R),
+               maps:get(peer_name, R), fmt(maps:get(peer, R)), ratio(R),
+               case maps:find(goal, R) of {ok, G} -> ["  (goal: ", G, ")"]; error -> "" end,
+               command(Mod)]).
+
+command(Mod) ->
+    io_lib:format("make bench BENCH=~s", [Mod]).
+
+%% @doc The ratio, oriented so that above 1 means ours is better.
+-spec result(result()) -> float() | undefined.
+result(#{peer := undefined}) -> undefined;
+result(#{peer := P}) when P == 0 -> undefined;
+result(#{ours := O, peer := P, better := higher}) -> O / P;
+result(#{ours := O, peer := _}) when O == 0 -> undefined;
+result(#{ours := O, peer := P, better := lower}) -> P / O.
+
+ratio(R) ->
+    case result(R) of
+        undefined -> "-";
+        X -> io_lib:format("~.2f", [X])
+    end.
+
+fmt(undefined) -> "-";
+fmt(X) when is_integer(X) -> integer_to_list(X);
+fmt(X) when abs(X) >= 100 -> io_lib:format("~.0f", [X]);
+fmt(X) when abs(X) >= 1 -> io_lib:format("~.2f", [X]);
+fmt(X) -> io_lib:format("~.4f", [X]).
+
+%% @doc Median, p99 and mean of a list of samples.
+-spec stats([number()]) -> #{median := number(), p99 := number(), mean := float(),
+                             n := non_neg_integer()}.
+stats(Samples) ->
+    Sorted = lists:sort(Samples),
+    #{median => percentile(Sorted, 50), p99 => percentile(Sorted, 99),
+      mean => lists:sum(Sorted) / max(1, length(Sorted)), n => length(Sorted)}.
+
+%% @doc The nearest-rank percentile of a sorted list.
+-spec percentile([number()], 0..100) -> number().
+percentile([], _) -> 0;
+percentile(Sorted, P) ->
+    N = length(Sorted),
+    Rank = max(1, min(N, ceil(P / 100 * N))),
+    lists:nth(Rank, Sorted).
+
+write_doc(Sections) ->
+    Top = case os:getenv("CELLRT_TOP") of false -> "."; T -> T end,
+    Path = filename:join([Top, "docs", "benchmarks.md"]),
+    Rows = [[section(Mod, Results)] || {Mod, {ok, Results}} <- Sections],
+    Doc = ["# Benchmarks\n\n",
+           "Written by `make bench` on ", machine(), ".\n",
+           "Each figure of ours is measured beside a peer's figure in the same run; the ",
+           "ratio is oriented so that above 1 means cellrt is better (faster, or less ",
+           "delay). Figures move from run to run on a shared 2-core machine: read the ",
+           "ratios, not the third digit.\n\n",
+           Rows],
+    file:write_file(Path, Doc).
+
+section(Mod, Results) ->
+    ["## ", atom_to_list(Mod), "\n\nReproduce: `", command(Mod), "`\n\n",
+     "| figure | ours | peer | peer figure | ratio | goal |\n",
+     "|---|---|---|---|---|---|\n",
+     [["| ", maps:get(title, R), " | ", fmt(maps:get(ours, R)), " ", maps:get(unit, R),
+       " | ", maps:get(peer_name, R), " | ", fmt(maps:get(peer, R)), " | ", ratio(R), " | ",
+       maps:get(goal, R, ""), " |\n"] || R <- Results],
+     [["\n", N, "\n"] || #{note := N} <- Results],
+     "\n"].
+
+machine() ->
+    {{Y, Mo, D}, _} = calendar:universal_time(),
+    Cpu = case file:read_file("/proc/cpuinfo") of
+              {ok, Bin} ->
+                  case re:run(Bin, "model name\\s*:\\s*([^\\n]+)", [{capture, all_but_first, binary}]) of
+                      {match, [M]} -> M;
+                      nomatch -> <<"unknown CPU">>
+                  end;
+              _ -> <<"unknown CPU">>
+          end,
+    io_lib:format("~4..0w-~2..0w-~2..0w, ~ts, ~p schedulers, OTP ~s",
+                  [Y, Mo, D, Cpu, erlang:system_info(schedulers_online),
+                   erlang:system_info(otp_release)]).
