@@ -1,4 +1,11 @@
-%% @doc The controller: the top-level supervisor of the cell runtime.
+%% @doc The controller: the top-level supervisor of the cell runtime, built from the
+%% cell spec (see {@link cell_spec}).
+%%
+%% rest_for_one, in dependency order: the registry owns the tables every later child
+%% uses; events and alarms are used by the tasks; the controller drives the tasks. A
+%% child that dies takes down only those started after it. Ten restarts a minute is a
+%% fault that will not go away by itself on an unattended machine: beyond that the node
+%% reports it instead of spinning.
 -module(cell_controller_sup).
 -behaviour(supervisor).
 
@@ -7,9 +14,18 @@
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
-    supervisor:start_link({local, ?MODULE}, ?MODULE, []).
+    case cell_spec:load() of
+        {ok, Spec} -> supervisor:start_link({local, ?MODULE}, ?MODULE, Spec);
+        {error, Reason} -> {error, {bad_cell_spec, Reason}}
+    end.
 
--spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init([]) ->
+-spec init(cell_spec:spec()) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init(#{tasks := Tasks}) ->
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
-    {ok, {Flags, []}}.
+    Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
+                #{id => cell_events, start => {cell_events, start_link, []}},
+                #{id => cell_alarms, start => {cell_alarms, start_link, []}},
+                #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
+                  type => supervisor, shutdown => infinity},
+                #{id => cell_controller, start => {cell_controller, start_link, []}}],
+    {ok, {Flags, Children}}.

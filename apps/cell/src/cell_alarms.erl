@@ -1,0 +1,281 @@
+%% @doc Errors, alarms and warnings of seed 000 §2.3.8 in one registry.
+%%
+%% <ul>
+%% <li>An <b>error</b> is an unexpected situation an operator must answer. Its owner
+%%     (a device task) waits in DOWN; the operator picks one of the error's allowed
+%%     solutions (retry, ignore, reset, close) and the owner receives
+%%     `{cell_alarm, answer, Id, Solution, Who}'.</li>
+%% <li>An <b>alarm</b> is an unrecoverable dangerous condition (an open emergency
+%%     circuit); code raises and clears it.</li>
+%% <li>A <b>warning</b> does not block: setting it again with the same id updates its
+%%     text; code can reset it, the operator can close it.</li>
+%% </ul>
+%%
+%% Ids are `<<"Task:LocalId">>', unique per task. Every answer and close records who,
+%% what and when, in the history and in the task log. Errors of an owner that exits are
+%% withdrawn (a restarted task raises its own).
+-module(cell_alarms).
+-behaviour(gen_server).
+
+-export([start_link/0, raise_error/3, withdraw/1, answer/3, warning/4, reset_warning/2,
+         close/2, alarm/4, clear_alarm/2, list/0, list/1, get/1, history/0,
+         has_error/0, has_error/1, has_alarm/0, has_alarm/1, has_warning/0,
+         has_warning/1, solutions/0]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-export_type([alarm/0, kind/0, solution/0, spec/0, answer_record/0]).
+
+-type kind() :: error | alarm | warning.
+-type solution() :: retry | ignore | reset | close.
+-type spec() :: #{id := binary(), caption := iodata(), description => iodata(),
+                  solutions := [solution()]}.
+-type alarm() :: #{id := binary(), local_id := binary(), kind := kind(),
+                   task := atom(), caption := binary(), description := binary(),
+                   solutions := [solution()], raised := integer()}.
+-type answer_record() :: #{id := binary(), task := atom(), caption := binary(),
+                           what := solution() | reset | cleared | withdrawn,
+                           who := binary(), time := integer()}.
+
+-define(TAB, cell_alarm_table).
+-define(HISTORY_MAX, 1000).
+
+-record(state, {owners = #{} :: #{reference() => binary()},
+                history = [] :: [answer_record()],
+                history_len = 0 :: non_neg_integer()}).
+
+-spec start_link() -> {ok, pid()} | ignore | {error, term()}.
+start_link() ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
+
+%% @doc The solutions an error may offer, in the seed's order.
+-spec solutions() -> [solution()].
+solutions() -> [retry, ignore, reset, close].
+
+%% @doc Raises an error owned by the calling process; answers its id.
+-spec raise_error(atom(), spec(), pid()) -> {ok, binary()} | {error, {bad_spec, term()}}.
+raise_error(Task, Spec, Owner) ->
+    case check_spec(Spec) of
+        ok -> gen_server:call(?MODULE, {raise_error, Task, Spec, Owner});
+        Error -> Error
+    end.
+
+%% @doc The owner takes an unanswered error back (it stopped waiting for an answer).
+-spec withdraw(binary()) -> ok.
+withdraw(Id) ->
+    gen_server:call(?MODULE, {withdraw, Id}).
+
+%% @doc An operator's answer to an error: only one of its solutions is accepted.
+-spec answer(binary(), solution(), binary()) ->
+          ok | {error, not_found | {not_allowed, [solution()]}}.
+answer(Id, Solution, Who) ->
+    gen_server:call(?MODULE, {answer, Id, Solution, Who}).
+
+%% @doc Sets a warning; setting it again with the same id updates caption and text.
+-spec warning(atom(), binary(), iodata(), iodata()) -> ok.
+warning(Task, LocalId, Caption, Description) ->
+    gen_server:cast(?MODULE, {set, warning, Task, LocalId, Caption, Description}).
+
+%% @doc Resets a warning from code; nothing happens if it is not set.
+-spec reset_warning(atom(), binary()) -> ok.
+reset_warning(Task, LocalId) ->
+    gen_server:cast(?MODULE, {reset, warning, Task, LocalId}).
+
+%% @doc Raises a dangerous condition; cleared by code only.
+-spec alarm(atom(), binary(), iodata(), iodata()) -> ok.
+alarm(Task, LocalId, Caption, Description) ->
+    gen_server:cast(?MODULE, {set, alarm, Task, LocalId, Caption, Description}).
+
+-spec clear_alarm(atom(), binary()) -> ok.
+clear_alarm(Task, LocalId) ->
+    gen_server:cast(?MODULE, {reset, alarm, Task, LocalId}).
+
+%% @doc An operator closes a warning (seed: warnings have only a Close button).
+-spec close(binary(), binary()) -> ok | {error, not_found | {not_allowed, [solution()]}}.
+close(Id, Who) ->
+    gen_server:call(?MODULE, {close, Id, Who}).
+
+%% @doc Every active error, alarm and warning, oldest first.
+-spec list() -> [alarm()].
+list() ->
+    lists:sort(fun(A, B) -> maps:get(raised, A) =< maps:get(raised, B) end,
+               [public(A) || {_, A} <- ets:tab2list(?TAB)]).
+
+%% @doc Those of one task.
+-spec list(atom()) -> [alarm()].
+list(Task) ->
+    [A || #{task := T} = A <- list(), T =:= Task].
+
+-spec get(binary()) -> {ok, alarm()} | {error, not_found}.
+get(Id) ->
+    case ets:lookup(?TAB, Id) of
+        [{Id, A}] -> {ok, public(A)};
+        [] -> {error, not_found}
+    end.
+
+%% @doc Recent answers, closes and clears, newest first: who, what, when.
+-spec history() -> [answer_record()].
+history() ->
+    gen_server:call(?MODULE, history).
+
+-spec has_error() -> boolean().
+has_error() -> any(error, '_').
+-spec has_error(atom()) -> boolean().
+has_error(Task) -> any(error, Task).
+-spec has_alarm() -> boolean().
+has_alarm() -> any(alarm, '_').
+-spec has_alarm(atom()) -> boolean().
+has_alarm(Task) -> any(alarm, Task).
+-spec has_warning() -> boolean().
+has_warning() -> any(warning, '_').
+-spec has_warning(atom()) -> boolean().
+has_warning(Task) -> any(warning, Task).
+
+any(Kind, Task) ->
+    ets:match(?TAB, {'_', #{kind => Kind, task => Task}}, 1) =/= '$end_of_table'.
+
+check_spec(#{id := Id, caption := _, solutions := [_ | _] = Sols} = Spec)
+  when is_binary(Id), Id =/= <<>> ->
+    case [S || S <- Sols, not lists:member(S, solutions())] of
+        [] -> ok;
+        Bad -> {error, {bad_spec, {unknown_solutions, Bad, Spec}}}
+    end;
+check_spec(Spec) ->
+    {error, {bad_spec, Spec}}.
+
+public(A) -> maps:without([owner, monitor], A).
+
+-spec init([]) -> {ok, #state{}}.
+init([]) ->
+    ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
+    {ok, #state{}}.
+
+-spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
+handle_call({raise_error, Task, Spec, Owner}, _From, State) ->
+    #{id := Local, caption := Caption, solutions := Sols} = Spec,
+    Id = global_id(Task, Local),
+    Alarm = #{id => Id, local_id => Local, kind => error, task => Task,
+              caption => text(Caption), description => text(maps:get(description, Spec, <<>>)),
+              solutions => Sols, raised => os:system_time(millisecond), owner => Owner},
+    State1 = case ets:lookup(?TAB, Id) of
+                 [{Id, _}] -> remove(Id, withdrawn, <<"cell">>, State);
+                 [] -> State
+             end,
+    Ref = monitor(process, Owner),
+    true = ets:insert(?TAB, {Id, Alarm#{monitor => Ref}}),
+    cell_log:error(Task, "~ts: ~ts", [maps:get(caption, Alarm), maps:get(description, Alarm)]),
+    ok = publish(alarm_raised, Alarm),
+    {reply, {ok, Id}, State1#state{owners = maps:put(Ref, Id, State1#state.owners)}};
+handle_call({withdraw, Id}, _From, State) ->
+    {reply, ok, remove(Id, withdrawn, <<"cell">>, State)};
+handle_call({answer, Id, Solution, Who}, _From, State) ->
+    case ets:lookup(?TAB, Id) of
+        [{Id, #{kind := error, solutions := Sols, owner := Owner} = A}] ->
+            case lists:member(Solution, Sols) of
+                true ->
+                    Owner ! {cell_alarm, answer, Id, Solution, Who},
+                    cell_log:notice(maps:get(task, A), "~ts answered \"~ts\" with ~ts",
+                                    [Who, maps:get(caption, A), solution_name(Solution)]),
+                    {reply, ok, remove(Id, Solution, Who, State)};
+                false ->
+                    {reply, {error, {not_allowed, Sols}}, State}
+            end;
+        [{Id, #{solutions := Sols}}] ->
+            {reply, {error, {not_allowed, Sols}}, State};
+        [] ->
+            {reply, {error, not_found}, State}
+    end;
+handle_call({close, Id, Who}, _From, State) ->
+    case ets:lookup(?TAB, Id) of
+        [{Id, #{kind := warning} = A}] ->
+            cell_log:notice(maps:get(task, A), "~ts closed the warning \"~ts\"",
+                            [Who, maps:get(caption, A)]),
+            {reply, ok, remove(Id, close, Who, State)};
+        [{Id, #{solutions := Sols}}] ->
+            {reply, {error, {not_allowed, Sols}}, State};
+        [] ->
+            {reply, {error, not_found}, State}
+    end;
+handle_call(history, _From, State) ->
+    {reply, State#state.history, State}.
+
+-spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({set, Kind, Task, Local, Caption, Description}, State) ->
+    Id = global_id(Task, Local),
+    New = #{id => Id, local_id => Local, kind => Kind, task => Task,
+            caption => text(Caption), description => text(Description),
+            solutions => case Kind of warning -> [close]; alarm -> [] end},
+    case ets:lookup(?TAB, Id) of
+        [{Id, #{kind := Kind} = Old}] ->
+            Updated = maps:merge(Old, maps:with([caption, description], New)),
+            case Updated =:= Old of
+                true -> ok;
+                false ->
+                    true = ets:insert(?TAB, {Id, Updated}),
+                    ok = publish(alarm_raised, Updated)
+            end,
+            {noreply, State};
+        _ ->
+            Alarm = New#{raised => os:system_time(millisecond)},
+            true = ets:insert(?TAB, {Id, Alarm}),
+            Log = case Kind of warning -> warning; alarm -> error end,
+            cell_log:log(Log, Task, "~ts: ~ts", [maps:get(caption, Alarm),
+                                                 maps:get(description, Alarm)]),
+            ok = publish(alarm_raised, Alarm),
+            {noreply, State}
+    end;
+handle_cast({reset, Kind, Task, Local}, State) ->
+    Id = global_id(Task, Local),
+    case ets:lookup(?TAB, Id) of
+        [{Id, #{kind := Kind}}] -> {noreply, remove(Id, cleared, <<"cell">>, State)};
+        _ -> {noreply, State}
+    end.
+
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'DOWN', Ref, process, _Pid, _Reason}, #state{owners = Owners} = State) ->
+    case maps:take(Ref, Owners) of
+        {Id, Owners1} -> {noreply, remove(Id, withdrawn, <<"cell">>, State#state{owners = Owners1})};
+        error -> {noreply, State}
+    end.
+
+remove(Id, What, Who, State) ->
+    case ets:lookup(?TAB, Id) of
+        [{Id, A}] ->
+            true = ets:delete(?TAB, Id),
+            Owners = case maps:find(monitor, A) of
+                         {ok, Ref} ->
+                             demonitor(Ref, [flush]),
+                             maps:remove(Ref, State#state.owners);
+                         error ->
+                             State#state.owners
+                     end,
+            Now = os:system_time(millisecond),
+            ok = publish(alarm_cleared, A#{cleared => What, who => Who}),
+            Record = #{id => Id, task => maps:get(task, A), caption => maps:get(caption, A),
+                       what => What, who => Who, time => Now},
+            record(Record, State#state{owners = Owners});
+        [] ->
+            State
+    end.
+
+record(Record, #state{history = H, history_len = N} = State) when N >= ?HISTORY_MAX ->
+    State#state{history = [Record | lists:sublist(H, ?HISTORY_MAX - 1)]};
+record(Record, #state{history = H, history_len = N} = State) ->
+    State#state{history = [Record | H], history_len = N + 1}.
+
+publish(Type, Alarm) ->
+    cell_events:publish(cell_events:new(Type, maps:get(task, Alarm),
+                                        #{alarm => maps:without([owner, monitor], Alarm)})).
+
+global_id(Task, Local) ->
+    <<(atom_to_binary(Task, utf8))/binary, ":", Local/binary>>.
+
+text(IoData) ->
+    case unicode:characters_to_binary(IoData) of
+        B when is_binary(B) -> B;
+        _ -> iolist_to_binary(io_lib:format("~tp", [IoData]))
+    end.
+
+solution_name(retry) -> "Retry";
+solution_name(ignore) -> "Ignore";
+solution_name(reset) -> "Reset";
+solution_name(close) -> "Close".

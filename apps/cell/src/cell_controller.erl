@@ -1,0 +1,226 @@
+%% @doc The controller's control interface (seed 000 §2.3.1) for the whole cell: the
+%% pending request (Start, Pause, Stop), the emergency stop, service mode; the cell
+%% state (the task state of highest priority) and the flags.
+%%
+%% Commands are written to the registry first (a task that restarts reads them there),
+%% then sent to every task. The emergency stop sets an atomic flag before anything
+%% else, so no task starts another step once it is raised; a task that has not reached
+%% OFF shortly after is killed (its restart secures its outputs), so one stuck task
+%% cannot hold up the stop.
+%%
+%% The cell state is kept from the tasks' `task_state' events: counts per state, so a
+%% change costs the same for 10 tasks or 10,000. Every change is published as a
+%% `cell_state' event.
+-module(cell_controller).
+-behaviour(gen_server).
+
+-export([start_link/0, start/0, start/1, pause/0, pause/1, stop/0, stop/1, estop/1,
+         estop/2, service_mode/1, service_mode/2, state/0, flags/0, tasks/0, sync/0]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-define(ESTOP_DEADLINE_MS, 1000).
+
+-record(state, {states = #{} :: #{atom() => cell_ipc:state()},
+                counts = #{} :: #{cell_ipc:state() => pos_integer()},
+                cell = off :: cell_ipc:state(),
+                estop_timer :: reference() | undefined}).
+
+-spec start_link() -> {ok, pid()} | ignore | {error, term()}.
+start_link() ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
+
+%% @doc Start (or resume after Pause): refused while the emergency stop is active.
+-spec start() -> ok | {error, estop_active}.
+start() -> start(<<"cell">>).
+
+-spec start(binary()) -> ok | {error, estop_active}.
+start(Who) -> gen_server:call(?MODULE, {request, start, Who}).
+
+%% @doc Pause: every task holds in DOWN at its next wait point.
+-spec pause() -> ok.
+pause() -> pause(<<"cell">>).
+
+-spec pause(binary()) -> ok.
+pause(Who) -> gen_server:call(?MODULE, {request, pause, Who}).
+
+%% @doc Stop: every task ends in OFF through uninit.
+-spec stop() -> ok.
+stop() -> stop(<<"cell">>).
+
+-spec stop(binary()) -> ok.
+stop(Who) -> gen_server:call(?MODULE, {request, stop, Who}).
+
+%% @doc Raises or releases the emergency stop. Raising it also sets the request to
+%% Stop: after a release the cell waits for a new Start.
+-spec estop(boolean()) -> ok.
+estop(On) -> estop(On, <<"cell">>).
+
+-spec estop(boolean(), binary()) -> ok.
+estop(On, Who) when is_boolean(On) ->
+    case On of
+        %% The flag first, from the caller, before any queueing: no task starts a step
+        %% from here on.
+        true -> ok = cell_registry:set_control(estop, true);
+        false -> ok
+    end,
+    gen_server:call(?MODULE, {estop, On, Who}).
+
+%% @doc Service mode: tasks pause after their current motion; a Start then runs them
+%% with the service flag set (speeds limited).
+-spec service_mode(boolean()) -> ok.
+service_mode(On) -> service_mode(On, <<"cell">>).
+
+-spec service_mode(boolean(), binary()) -> ok.
+service_mode(On, Who) when is_boolean(On) ->
+    gen_server:call(?MODULE, {service_mode, On, Who}).
+
+%% @doc The cell's IPC-2541 state.
+-spec state() -> cell_ipc:state().
+state() ->
+    cell_registry:control(cell_state).
+
+%% @doc The control interface's read-only properties for the cell.
+-spec flags() -> #{state := cell_ipc:state(), request := start | pause | stop,
+                   estop := boolean(), service_mode := boolean(), has_alarm := boolean(),
+                   has_error := boolean(), has_warning := boolean()}.
+flags() ->
+    #{state => state(), request => cell_registry:control(request),
+      estop => cell_registry:control(estop),
+      service_mode => cell_registry:control(service_mode),
+      has_alarm => cell_alarms:has_alarm(), has_error => cell_alarms:has_error(),
+      has_warning => cell_alarms:has_warning()}.
+
+%% @doc Every task: id, module, zone, lane, state, product serial, pid.
+-spec tasks() -> [map()].
+tasks() ->
+    cell_registry:tasks().
+
+%% @doc Returns once every task has handled every command the controller sent it
+%% before (the controller asks them itself, so its own messages come first).
+-spec sync() -> ok.
+sync() ->
+    gen_server:call(?MODULE, sync, infinity).
+
+-spec init([]) -> {ok, #state{}}.
+init([]) ->
+    ok = cell_events:subscribe([task_state]),
+    States = maps:from_list([{Id, maps:get(state, Row, off)}
+                             || #{id := Id} = Row <- cell_registry:tasks()]),
+    Counts = lists:foldl(fun(S, Acc) -> incr(S, Acc) end, #{}, maps:values(States)),
+    Cell = top(Counts),
+    ok = cell_registry:set_control(cell_state, Cell),
+    {ok, #state{states = States, counts = Counts, cell = Cell}}.
+
+-spec handle_call(term(), gen_server:from(), #state{}) ->
+          {reply, term(), #state{}} | {noreply, #state{}}.
+handle_call({request, start, Who}, _From, State) ->
+    case cell_registry:control(estop) of
+        true ->
+            {reply, {error, estop_active}, State};
+        false ->
+            ok = request(start, Who),
+            {reply, ok, State}
+    end;
+handle_call(sync, From, State) ->
+    _ = [catch cell_task_proc:sync(Pid) || #{pid := Pid} <- cell_registry:tasks()],
+    %% Each task's state events reached this mailbox before its answer above; answer
+    %% the caller after them, so the cell state is settled too.
+    self() ! {synced, From},
+    {noreply, State};
+handle_call({request, Request, Who}, _From, State) ->
+    ok = request(Request, Who),
+    {reply, ok, State};
+handle_call({estop, true, Who}, _From, State) ->
+    ok = cell_registry:set_control(estop, true),
+    ok = cell_registry:set_control(request, stop),
+    broadcast(estop, true),
+    broadcast(request, stop),
+    cell_log:error(cell, "emergency stop (~ts)", [Who]),
+    ok = cell_alarms:alarm(cell, <<"estop">>, "Emergency stop",
+                           "The emergency stop is active. Release it, then press Start."),
+    ok = publish(estop, #{active => true, who => Who}),
+    cancel(State#state.estop_timer),
+    TRef = erlang:start_timer(?ESTOP_DEADLINE_MS, self(), estop_deadline),
+    {reply, ok, State#state{estop_timer = TRef}};
+handle_call({estop, false, Who}, _From, State) ->
+    ok = cell_registry:set_control(estop, false),
+    broadcast(estop, false),
+    cell_log:notice(cell, "emergency stop released (~ts); press Start to go on", [Who]),
+    ok = cell_alarms:clear_alarm(cell, <<"estop">>),
+    ok = publish(estop, #{active => false, who => Who}),
+    {reply, ok, State};
+handle_call({service_mode, On, Who}, _From, State) ->
+    ok = cell_registry:set_control(service_mode, On),
+    broadcast(service_mode, On),
+    cell_log:notice(cell, "service mode ~ts (~ts)", [case On of true -> "on"; false -> "off" end,
+                                                     Who]),
+    ok = publish(service_mode, #{active => On, who => Who}),
+    {reply, ok, State}.
+
+-spec handle_cast(term(), #state{}) -> no_return().
+handle_cast(Msg, _State) ->
+    error({unexpected_cast, Msg}).
+
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({cell_event, #{type := task_state, task := Id, state := New}}, State) ->
+    {noreply, task_state(Id, New, State)};
+handle_info({timeout, TRef, estop_deadline}, #state{estop_timer = TRef} = State) ->
+    _ = [begin
+             cell_log:error(Id, "did not stop within ~p ms of the emergency stop; killed "
+                            "(its restart secures its outputs)", [?ESTOP_DEADLINE_MS]),
+             exit(Pid, kill)
+         end || #{id := Id, pid := Pid, state := S} <- cell_registry:tasks(), S =/= off,
+                cell_registry:control(estop)],
+    {noreply, State#state{estop_timer = undefined}};
+handle_info({timeout, _, estop_deadline}, State) ->
+    {noreply, State};
+handle_info({synced, From}, State) ->
+    gen_server:reply(From, ok),
+    {noreply, State}.
+
+request(Request, Who) ->
+    ok = cell_registry:set_control(request, Request),
+    broadcast(request, Request),
+    cell_log:notice(cell, "~ts requested (~ts)", [request_name(Request), Who]),
+    publish(request, #{request => Request, who => Who}).
+
+broadcast(Key, Value) ->
+    lists:foreach(fun(#{pid := Pid}) -> cell_task_proc:control(Pid, Key, Value);
+                     (_) -> ok
+                  end, cell_registry:tasks()).
+
+task_state(Id, New, #state{states = States, counts = Counts0} = State) ->
+    Old = maps:get(Id, States, undefined),
+    Counts = incr(New, decr(Old, Counts0)),
+    Cell = top(Counts),
+    case Cell =:= State#state.cell of
+        true ->
+            ok;
+        false ->
+            ok = cell_registry:set_control(cell_state, Cell),
+            cell_log:info(cell, "cell state ~ts", [cell_ipc:name(Cell)]),
+            ok = publish(cell_state, #{state => Cell, from => State#state.cell})
+    end,
+    State#state{states = maps:put(Id, New, States), counts = Counts, cell = Cell}.
+
+incr(S, Counts) -> maps:update_with(S, fun(N) -> N + 1 end, 1, Counts).
+
+decr(undefined, Counts) -> Counts;
+decr(S, Counts) ->
+    case maps:get(S, Counts, 0) of
+        N when N =< 1 -> maps:remove(S, Counts);
+        N -> maps:put(S, N - 1, Counts)
+    end.
+
+top(Counts) ->
+    cell_ipc:cell_state(maps:keys(Counts)).
+
+publish(Type, Fields) ->
+    cell_events:publish(cell_events:new(Type, cell, Fields)).
+
+cancel(undefined) -> ok;
+cancel(TRef) -> _ = erlang:cancel_timer(TRef), ok.
+
+request_name(start) -> "Start";
+request_name(pause) -> "Pause";
+request_name(stop) -> "Stop".

@@ -1,0 +1,192 @@
+%% @doc Owns the cell's shared tables, so they outlive any task or the controller:
+%%
+%% <ul>
+%% <li>`cell_tasks' — one row per device task: its pid and what the controller, the
+%%     panel and SHDR read without a process hop (state, flags, product serial);</li>
+%% <li>`cell_control' — the controller's commands to the tasks: the pending request,
+%%     the emergency stop, service mode, read by a task when it (re)starts;</li>
+%% <li>the emergency-stop flag, an atomic every task checks before each step, so no
+%%     step starts once the stop was observed, even before its message arrives.</li>
+%% </ul>
+%%
+%% It also tells a restarted task how its previous incarnation ended: it monitors
+%% every registered task and remembers a crash reason until the task registers again.
+-module(cell_registry).
+-behaviour(gen_server).
+
+-export([start_link/0, register_task/2, unregister_task/1, update/2, task/1, tasks/0,
+         task_ids/0, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-export_type([previous/0, control_key/0]).
+
+-type previous() :: fresh | clean | {crashed, term()}.
+-type control_key() :: request | estop | service_mode | cell_state.
+
+-define(TASKS, cell_tasks).
+-define(CONTROL, cell_control).
+-define(ESTOP_KEY, {?MODULE, estop}).
+
+-record(state, {monitors = #{} :: #{reference() => {atom(), pid()}},
+                ended = #{} :: #{atom() => previous()}}).
+
+-spec start_link() -> {ok, pid()} | ignore | {error, term()}.
+start_link() ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
+
+%% @doc Registers the calling task process; answers how the previous incarnation of
+%% the same task ended: `fresh' (none), `clean' (it stopped), `{crashed, Reason}'.
+-spec register_task(atom(), map()) -> previous().
+register_task(Id, Info) ->
+    gen_server:call(?MODULE, {register, Id, self(), Info}).
+
+%% @doc A task that ends cleanly says so before it goes.
+-spec unregister_task(atom()) -> ok.
+unregister_task(Id) ->
+    gen_server:call(?MODULE, {unregister, Id}).
+
+%% @doc Merges fields into a task's row; called by the task itself.
+-spec update(atom(), map()) -> ok.
+update(Id, Fields) ->
+    case ets:lookup(?TASKS, Id) of
+        [{Id, Row}] -> true = ets:insert(?TASKS, {Id, maps:merge(Row, Fields)}), ok;
+        [] -> ok
+    end.
+
+%% @doc One task's row.
+-spec task(atom()) -> {ok, map()} | {error, not_found}.
+task(Id) ->
+    case ets:lookup(?TASKS, Id) of
+        [{Id, Row}] -> {ok, Row};
+        [] -> {error, not_found}
+    end.
+
+%% @doc Every task's row, ordered by id.
+-spec tasks() -> [map()].
+tasks() ->
+    [Row#{id => Id} || {Id, Row} <- lists:sort(ets:tab2list(?TASKS))].
+
+-spec task_ids() -> [atom()].
+task_ids() ->
+    lists:sort([Id || {Id, _} <- ets:tab2list(?TASKS)]).
+
+%% @doc Every task's IPC-2541 state.
+-spec states() -> [cell_ipc:state()].
+states() ->
+    [maps:get(state, Row, off) || {_, Row} <- ets:tab2list(?TASKS)].
+
+%% @doc A controller command as the tasks see it.
+-spec control(control_key()) -> term().
+control(Key) ->
+    case ets:lookup(?CONTROL, Key) of
+        [{Key, V}] -> V;
+        [] -> default(Key)
+    end.
+
+default(request) -> stop;
+default(estop) -> false;
+default(service_mode) -> false;
+default(cell_state) -> off.
+
+-spec set_control(control_key(), term()) -> ok.
+set_control(estop, On) when is_boolean(On) ->
+    %% The atomic first: from this instant no task starts another step.
+    atomics:put(estop_flag(), 1, case On of true -> 1; false -> 0 end),
+    true = ets:insert(?CONTROL, {estop, On}),
+    ok;
+set_control(Key, Value) ->
+    true = ets:insert(?CONTROL, {Key, Value}),
+    ok.
+
+%% @doc The emergency-stop atomic (1 while the emergency stop is active).
+-spec estop_flag() -> atomics:atomics_ref().
+estop_flag() ->
+    persistent_term:get(?ESTOP_KEY).
+
+-spec estop_active() -> boolean().
+estop_active() ->
+    atomics:get(estop_flag(), 1) =:= 1.
+
+-spec init([]) -> {ok, #state{}}.
+init([]) ->
+    ?TASKS = ets:new(?TASKS, [named_table, public, {read_concurrency, true},
+                              {write_concurrency, true}]),
+    ?CONTROL = ets:new(?CONTROL, [named_table, public, {read_concurrency, true}]),
+    %% Created once per node: replacing a persistent term costs a global scan, and a
+    %% task holding the old reference would miss a stop.
+    case persistent_term:get(?ESTOP_KEY, undefined) of
+        undefined -> persistent_term:put(?ESTOP_KEY, atomics:new(1, []));
+        Ref -> atomics:put(Ref, 1, 0)
+    end,
+    {ok, #state{}}.
+
+-spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
+handle_call({register, Id, Pid, Info}, _From, State0) ->
+    State = collect_dead(Id, State0),
+    Previous = maps:get(Id, State#state.ended, fresh),
+    Ref = monitor(process, Pid),
+    true = ets:insert(?TASKS, {Id, Info#{pid => Pid}}),
+    {reply, Previous, State#state{monitors = maps:put(Ref, {Id, Pid}, State#state.monitors),
+                                  ended = maps:remove(Id, State#state.ended)}};
+handle_call({unregister, Id}, {Pid, _}, #state{monitors = Mons} = State) ->
+    Refs = [R || {R, {I, _}} <- maps:to_list(Mons), I =:= Id],
+    _ = [demonitor(R, [flush]) || R <- Refs],
+    case ets:lookup(?TASKS, Id) of
+        [{Id, #{pid := Pid} = Row}] -> true = ets:insert(?TASKS, {Id, maps:remove(pid, Row)});
+        _ -> ok
+    end,
+    {reply, ok, State#state{monitors = maps:without(Refs, Mons),
+                            ended = maps:put(Id, clean, State#state.ended)}}.
+
+-spec handle_cast(term(), #state{}) -> no_return().
+handle_cast(Msg, _State) ->
+    error({unexpected_cast, Msg}).
+
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'DOWN', Ref, process, _Pid, Reason}, State) ->
+    {noreply, down(Ref, Reason, State)}.
+
+%% A task restarted by its supervisor may register before this process has handled the
+%% old incarnation's 'DOWN'. An incarnation that is gone without unregistering crashed,
+%% and the monitor guarantees its 'DOWN' arrives: wait for exactly that message.
+collect_dead(Id, #state{monitors = Mons} = State) ->
+    case [{R, P} || {R, {I, P}} <- maps:to_list(Mons), I =:= Id] of
+        [{Ref, Pid}] ->
+            case is_process_alive(Pid) of
+                false ->
+                    receive
+                        {'DOWN', Ref, process, Pid, Reason} -> down(Ref, Reason, State)
+                    end;
+                true ->
+                    State
+            end;
+        [] ->
+            State
+    end.
+
+down(Ref, Reason, #state{monitors = Mons, ended = Ended} = State) ->
+    case maps:take(Ref, Mons) of
+        {{Id, Pid}, Mons1} ->
+            Previous = case Reason of
+                           normal -> clean;
+                           shutdown -> clean;
+                           {shutdown, _} -> clean;
+                           _ -> {crashed, Reason}
+                       end,
+            case ets:lookup(?TASKS, Id) of
+                [{Id, #{pid := Pid} = Row}] ->
+                    true = ets:insert(?TASKS, {Id, maps:remove(pid, Row#{state => off})}),
+                    %% The task's state went with its process: tell the cell.
+                    case maps:get(state, Row, off) of
+                        off -> ok;
+                        Old -> cell_events:publish(cell_events:new(task_state, Id,
+                                                                   #{state => off, from => Old,
+                                                                     cause => exited}))
+                    end;
+                _ ->
+                    ok
+            end,
+            State#state{monitors = Mons1, ended = maps:put(Id, Previous, Ended)};
+        error ->
+            State
+    end.

@@ -1,0 +1,280 @@
+%% @doc The device task behaviour (seed 000 §2.3), and the functions a task module uses
+%% on the task it is given.
+%%
+%% A device task covers a part of the machine small enough to need no parallelism
+%% inside (a conveyor segment, a robot). Its module implements three callbacks, run by
+%% the engine {@link cell_task_proc}:
+%%
+%% <ul>
+%% <li>`init(Task)' — once when the task leaves OFF on Start, and again after a Reset:
+%%     validate settings and hardware, check product presence. The engine has already
+%%     loaded the task's product from its file. Returns `{ok, Task}' or
+%%     `{error, ErrorSpec, Task}' for the operator (the task waits in DOWN).</li>
+%% <li>`step(Task)' — one step of the seed's DoStep body. It never blocks: it returns
+%%     what it waits for next, and the engine calls it again when that has happened.
+%%     `{continue, Task}' — step again at once; `{wait, Waits, Task}' — step again when
+%%     any of the waits holds (see `wait()'), {@link woken_by/1} tells which;
+%%     `{error, ErrorSpec, Task}' — an operator must answer (the seed's blocking
+%%     `Error()'); the step runs again after Retry, Ignore or Close, with
+%%     {@link answer/1} telling which; `{reset, Task}' — reinitialise (the seed's
+%%     ResetException: uninit, then init).</li>
+%% <li>`uninit(Task)' — on Stop, emergency stop or Reset: secure dangerous hardware,
+%%     release what init took. It must not fail; errors in it are logged and ignored.
+%%     The engine saves the product.</li>
+%% </ul>
+%%
+%% Waiting is waiting for a message: a waiting task costs no CPU. Between steps the
+%% engine honours the controller's requests (Pause holds the task in DOWN and Start
+%% resumes where it was; Stop ends in OFF through uninit) and the emergency stop.
+%%
+%% States change through the IPC-2541 events of §2.3.4, which a step raises with the
+%% functions below: {@link starved/1}, {@link unstarved/1}, {@link blocked/1},
+%% {@link unblocked/1}, {@link work_start/1}, {@link work_pause/2},
+%% {@link work_resume/1}, {@link work_complete/1} change the READY sub-state;
+%% {@link identifier_read/3}, {@link transfer_in/2}, {@link work_abort/2},
+%% {@link transfer_out/2} do not.
+-module(cell_task).
+
+-include("cell_task.hrl").
+
+-export([id/1, zone/1, lane/1, module/1, args/1, arg/3, settings/1, setting/3,
+         get/2, get/3, put/3, product/1, set_product/2, clear_product/1, state/1,
+         answer/1, woken_by/1, service_mode/1, io_groups/1]).
+-export([starved/1, unstarved/1, blocked/1, unblocked/1, identifier_read/3,
+         transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
+         work_abort/2, transfer_out/2]).
+-export([error_spec/4, warning/4, reset_warning/2, log/4]).
+%% For the engine.
+-export([new/1, set_state/3, publish/3]).
+
+-export_type([task/0, wait/0, step_result/0, spec/0]).
+
+%% Opaque to task modules: use the functions of this module on it.
+-type task() :: #task{}.
+-type wait() :: {timer, non_neg_integer()}
+              | {reply, reference()}.
+%% `{timer, Ms}': Ms milliseconds have passed. `{reply, Ref}': the task process
+%% received `{Ref, Term}' (an answer to an asynchronous request it made, such as a
+%% hardware object's).
+-type step_result() :: {continue, task()}
+                     | {wait, wait() | [wait()], task()}
+                     | {error, cell_alarms:spec(), task()}
+                     | {reset, task()}.
+-type spec() :: #{id := atom(), module := module(), zone := binary(), lane := binary(),
+                  io => [atom()], settings => map(), args => map()}.
+
+-callback init(task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
+-callback step(task()) -> step_result().
+-callback uninit(task()) -> task().
+%% Messages the engine does not know (an unsolicited message of a hardware object).
+-callback handle_info(term(), task()) -> {ok, task()}.
+-optional_callbacks([handle_info/2]).
+
+%% @private The task of a spec, before anything is loaded.
+-spec new(spec()) -> task().
+new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
+    #task{id = Id, module = Mod, zone = Zone, lane = Lane,
+          args = maps:get(args, Spec, #{}), io = maps:get(io, Spec, []),
+          settings = maps:get(settings, Spec, #{}),
+          product_path = cell_product:path(Zone, Lane)}.
+
+%% Accessors
+
+-spec id(task()) -> atom().
+id(#task{id = Id}) -> Id.
+
+-spec zone(task()) -> binary().
+zone(#task{zone = Z}) -> Z.
+
+-spec lane(task()) -> binary().
+lane(#task{lane = L}) -> L.
+
+-spec module(task()) -> module().
+module(#task{module = M}) -> M.
+
+%% @doc The arguments the cell spec gave the task.
+-spec args(task()) -> map().
+args(#task{args = A}) -> A.
+
+-spec arg(task(), term(), term()) -> term().
+arg(#task{args = A}, Key, Default) -> maps:get(Key, A, Default).
+
+%% @doc The task's settings, as the snapshot taken at the last Start.
+-spec settings(task()) -> map().
+settings(#task{settings = S}) -> S.
+
+-spec setting(task(), term(), term()) -> term().
+setting(#task{settings = S}, Key, Default) -> maps:get(Key, S, Default).
+
+%% @doc A field of the task module's own data.
+-spec get(task(), term()) -> term().
+get(#task{data = D}, Key) -> maps:get(Key, D).
+
+-spec get(task(), term(), term()) -> term().
+get(#task{data = D}, Key, Default) -> maps:get(Key, D, Default).
+
+-spec put(task(), term(), term()) -> task().
+put(#task{data = D} = T, Key, Value) -> T#task{data = maps:put(Key, Value, D)}.
+
+%% @doc The product the task holds, or `undefined'.
+-spec product(task()) -> cell_product:product() | undefined.
+product(#task{product = P}) -> P.
+
+%% @doc Takes or changes the product; it is on disk when this returns.
+-spec set_product(task(), cell_product:product()) -> task().
+set_product(T, Product) ->
+    case cell_product:validate(Product) of
+        ok -> store_product(T, Product);
+        {error, Reason} -> erlang:error(Reason)
+    end.
+
+%% @doc The task holds no product any more; its file is removed.
+-spec clear_product(task()) -> task().
+clear_product(T) ->
+    store_product(T, undefined).
+
+store_product(#task{product_path = Path, id = Id} = T, Product) ->
+    case cell_product:save(Path, Product) of
+        ok ->
+            ok = cell_registry:update(Id, #{serial => cell_product:serial(Product)}),
+            T#task{product = Product};
+        {error, Reason} ->
+            %% Nothing may go on as if the product were saved: the task crashes and
+            %% comes back DOWN with this reason for the operator.
+            erlang:error({product_not_saved, Reason})
+    end.
+
+%% @doc The task's IPC-2541 state.
+-spec state(task()) -> cell_ipc:state().
+state(#task{ipc = S}) -> S.
+
+%% @doc The operator's answer to the error the last step returned, in the step that
+%% runs after it; `undefined' otherwise.
+-spec answer(task()) -> cell_alarms:solution() | undefined.
+answer(#task{answer = A}) -> A.
+
+%% @doc What ended the wait before this step: `{timer, Ms}', `{reply, Ref, Term}',
+%% `{answer, Solution}', or `undefined' (the first step, or after `continue').
+-spec woken_by(task()) -> term().
+woken_by(#task{woken_by = W}) -> W.
+
+%% @doc True in service mode: movements must be limited to harmless speeds.
+-spec service_mode(task()) -> boolean().
+service_mode(#task{service_mode = S}) -> S.
+
+%% @doc The IO group instances of the task; the first is its default group.
+-spec io_groups(task()) -> [atom()].
+io_groups(#task{io = Io}) -> Io.
+
+%% IPC-2541 events (seed 000 §2.3.4)
+
+%% @doc The task waits for a product: READY-IDLE-STARVED.
+-spec starved(task()) -> task().
+starved(T) -> event(T, equipment_starved, #{}).
+
+%% @doc The previous device offers a product: READY-PROCESSING-ACTIVE.
+-spec unstarved(task()) -> task().
+unstarved(T) -> event(T, equipment_unstarved, #{}).
+
+%% @doc The task waits for the next device to take its product: READY-IDLE-BLOCKED.
+-spec blocked(task()) -> task().
+blocked(T) -> event(T, equipment_blocked, #{}).
+
+%% @doc The next device requests the product: READY-PROCESSING-ACTIVE.
+-spec unblocked(task()) -> task().
+unblocked(T) -> event(T, equipment_unblocked, #{}).
+
+%% @doc A product serial was read by a scanner. No state change.
+-spec identifier_read(task(), binary(), binary()) -> task().
+identifier_read(T, Serial, Scanner) ->
+    event(T, item_identifier_read, #{item => Serial, scanner => Scanner}).
+
+%% @doc The task received a product. No state change.
+-spec transfer_in(task(), binary()) -> task().
+transfer_in(T, Serial) -> event(T, item_transfer_in, #{item => Serial}).
+
+%% @doc Processing of the product starts: READY-PROCESSING-EXECUTING.
+-spec work_start(task()) -> task().
+work_start(T) -> event(T, item_work_start, item(T)).
+
+%% @doc Processing stops for a while: READY-PROCESSING-ACTIVE.
+-spec work_pause(task(), binary()) -> task().
+work_pause(T, PauseId) -> event(T, item_work_pause, (item(T))#{pause_id => PauseId}).
+
+%% @doc Processing goes on: READY-PROCESSING-EXECUTING.
+-spec work_resume(task()) -> task().
+work_resume(T) -> event(T, item_work_resume, item(T)).
+
+%% @doc Every instruction of the recipe is done: READY-PROCESSING-ACTIVE.
+-spec work_complete(task()) -> task().
+work_complete(T) -> event(T, item_work_complete, item(T)).
+
+%% @doc Processing is cancelled before completion. No state change.
+-spec work_abort(task(), binary()) -> task().
+work_abort(T, AbortId) -> event(T, item_work_abort, (item(T))#{abort_id => AbortId}).
+
+%% @doc The product has left the task's zone. No state change.
+-spec transfer_out(task(), binary()) -> task().
+transfer_out(T, Serial) -> event(T, item_transfer_out, #{item => Serial}).
+
+item(#task{product = undefined}) -> #{};
+item(#task{product = #{serial := S}}) -> #{item => S}.
+
+event(#task{ipc = From} = T, Type, Fields) ->
+    case cell_ipc:is_ready(From) of
+        true ->
+            ok = publish(T, Type, Fields),
+            set_state(T, cell_ipc:event_state(Type, From), {event, Type});
+        false when Type =:= item_identifier_read; Type =:= item_transfer_in;
+                   Type =:= item_work_abort; Type =:= item_transfer_out ->
+            ok = publish(T, Type, Fields),
+            T;
+        false ->
+            erlang:error({event_outside_ready, Type, From})
+    end.
+
+%% @private Changes the task's state, checked against the seed's table, and tells the
+%% cell: a `task_state' event and the registry row the controller reads.
+-spec set_state(task(), cell_ipc:state(), cell_ipc:cause()) -> task().
+set_state(#task{ipc = Same} = T, Same, _Cause) ->
+    T;
+set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
+    case cell_ipc:check(From, To, Cause) of
+        ok -> ok;
+        {error, Illegal} -> erlang:error(Illegal)
+    end,
+    ok = cell_registry:update(Id, #{state => To}),
+    ok = publish(T, task_state, #{state => To, from => From, cause => Cause}),
+    cell_log:debug(Id, "~ts -> ~ts", [cell_ipc:name(From), cell_ipc:name(To)]),
+    T#task{ipc = To}.
+
+%% @private
+-spec publish(task(), cell_events:type(), map()) -> ok.
+publish(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
+    cell_events:publish(cell_events:new(Type, Id, Fields#{zone => Z, lane => L})).
+
+%% Errors, warnings, log
+
+%% @doc An error for the operator, to return from `init' or `step':
+%% `{error, cell_task:error_spec(<<"lost">>, "Product lost", Text, [retry, ignore, reset]), T}'.
+-spec error_spec(binary(), iodata(), iodata(), [cell_alarms:solution()]) -> cell_alarms:spec().
+error_spec(Id, Caption, Description, Solutions) ->
+    #{id => Id, caption => Caption, description => Description, solutions => Solutions}.
+
+%% @doc Sets (or updates) a warning; the task goes on at once.
+-spec warning(task(), binary(), iodata(), iodata()) -> task().
+warning(#task{id = Id} = T, WarningId, Caption, Description) ->
+    ok = cell_alarms:warning(Id, WarningId, Caption, Description),
+    T.
+
+%% @doc Resets a warning this task set.
+-spec reset_warning(task(), binary()) -> task().
+reset_warning(#task{id = Id} = T, WarningId) ->
+    ok = cell_alarms:reset_warning(Id, WarningId),
+    T.
+
+%% @doc Logs to the task log at one of the seed's levels (silent, brief, verbose) or
+%% as error / warning.
+-spec log(task(), cell_log:level(), io:format(), [term()]) -> ok.
+log(#task{id = Id}, Level, Format, Args) ->
+    cell_log:log(Level, Id, Format, Args).

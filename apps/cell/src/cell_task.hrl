@@ -1,0 +1,18 @@
+%% The record a device task's callbacks receive; opaque to task modules, which use the
+%% functions of cell_task on it.
+-record(task, {
+    id :: atom(),
+    module :: module(),
+    zone :: binary(),
+    lane :: binary(),
+    args = #{} :: map(),
+    io = [] :: [atom()],                       %% IO group instances; the first is the default
+    settings = #{} :: map(),                   %% the snapshot taken at Start
+    data = #{} :: map(),                       %% the task module's own fields
+    product :: cell_product:product() | undefined,
+    product_path :: file:filename(),
+    ipc = off :: cell_ipc:state(),
+    answer :: cell_alarms:solution() | undefined,
+    woken_by :: term(),
+    service_mode = false :: boolean()
+}).

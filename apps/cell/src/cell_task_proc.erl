@@ -1,0 +1,540 @@
+%% @doc The engine of a device task: a gen_statem whose states are exactly the
+%% IPC-2541 states of seed 000 §2.2, running a {@link cell_task} module.
+%%
+%% <pre>
+%%  state                      what the engine does there
+%%  off                        nothing runs; Start (no emergency stop) → setup (arrow 0)
+%%  setup                      runs init: ok → READY (1), error → down (7)
+%%  {ready, _, _}              runs steps; a step waits for a message (IO, timer,
+%%                             reply), never sleeps. Pause, Stop and service mode are
+%%                             honoured between steps → down (6); Reset → setup (2)
+%%  down                       paused (Start → READY where it was, 5), or an error
+%%                             waits for the operator (Retry/Ignore/Close → READY 5,
+%%                             Reset → uninit, setup 8); Stop → uninit, off (9)
+%%  any                        emergency stop → uninit, off, at once
+%% </pre>
+%%
+%% The emergency stop is also an atomic flag checked before every step and every init,
+%% so no step starts after it was raised, even before its message arrives here.
+%%
+%% After a crash the supervisor restarts the task; it restores its product from its
+%% file, secures its outputs (uninit) and, if the cell was running, comes back in DOWN
+%% with an error naming the crash: nothing moves until an operator answers.
+-module(cell_task_proc).
+-behaviour(gen_statem).
+
+-include("cell_task.hrl").
+
+-export([start_link/1, child_spec/1, control/3, whereis/1, state/1, info/1, sync/1]).
+-export([callback_mode/0, init/1, handle_event/4, terminate/3]).
+
+-type down_reason() :: {paused, pause | service}
+                     | {error, binary(), origin()}.
+-type origin() :: init | step | crash | product_file.
+-type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
+-type armed() :: {timer, reference(), non_neg_integer()} | {reply, reference()}.
+
+-record(data, {
+    task :: #task{},
+    spec :: cell_task:spec(),
+    request = stop :: start | pause | stop,
+    estop = false :: boolean(),
+    initialized = false :: boolean(),    %% init ran, uninit has not yet
+    pending :: pending(),                 %% what READY does next
+    resume :: cell_ipc:ready() | undefined,
+    down :: down_reason() | undefined,
+    gen = 0 :: non_neg_integer(),         %% step messages and timers of older rounds are ignored
+    armed = [] :: [armed()],
+    load_error :: term(),                 %% the product file could not be read
+    crash :: term(),                      %% how the previous incarnation ended
+    settings = #{} :: map()               %% the snapshot for the next start
+}).
+
+-define(STEP(Gen), {'$cell_step', Gen}).
+-define(WAIT(Gen), {'$cell_wait', Gen}).
+
+%% API
+
+%% @doc Starts a task and returns once it has booted: registered with the cell, its
+%% product loaded, its state decided. The controller never sees a half-started task.
+-spec start_link(cell_task:spec()) -> gen_statem:start_ret().
+start_link(Spec) ->
+    case gen_statem:start_link(?MODULE, Spec, []) of
+        {ok, Pid} ->
+            %% boot is the first event the task handles; a call is answered after it.
+            ok = sync(Pid),
+            {ok, Pid};
+        Other ->
+            Other
+    end.
+
+%% @doc The child spec of a task under cell_task_sup.
+-spec child_spec(cell_task:spec()) -> supervisor:child_spec().
+child_spec(#{id := Id} = Spec) ->
+    %% uninit secures the hardware on shutdown: give it time.
+    #{id => Id, start => {?MODULE, start_link, [Spec]}, shutdown => 5000}.
+
+%% @doc A command of the controller: `request' (start | pause | stop), `estop'
+%% (boolean), `service_mode' (boolean), `settings' (the snapshot for the next start).
+-spec control(pid(), request | estop | service_mode | settings, term()) -> ok.
+control(Pid, Key, Value) ->
+    Pid ! {control, Key, Value},
+    ok.
+
+%% @doc The pid of a running task.
+-spec whereis(atom()) -> pid() | undefined.
+whereis(Id) ->
+    case cell_registry:task(Id) of
+        {ok, #{pid := Pid}} -> Pid;
+        _ -> undefined
+    end.
+
+%% @doc The task's IPC-2541 state, after every message sent to it before.
+-spec state(pid() | atom()) -> cell_ipc:state().
+state(Task) ->
+    gen_statem:call(pid(Task), state).
+
+%% @doc State, request, why it is DOWN, what it waits for, its product serial.
+-spec info(pid() | atom()) -> map().
+info(Task) ->
+    gen_statem:call(pid(Task), info).
+
+%% @doc Returns once the task has handled every message sent to it before.
+-spec sync(pid() | atom()) -> ok.
+sync(Task) ->
+    gen_statem:call(pid(Task), sync).
+
+pid(Pid) when is_pid(Pid) -> Pid;
+pid(Id) when is_atom(Id) ->
+    case ?MODULE:whereis(Id) of
+        undefined -> erlang:error({no_such_task, Id});
+        Pid -> Pid
+    end.
+
+%% gen_statem
+
+-spec callback_mode() -> gen_statem:callback_mode_result().
+callback_mode() ->
+    [handle_event_function, state_enter].
+
+-spec init(cell_task:spec()) -> gen_statem:init_result(cell_ipc:state()).
+init(Spec) ->
+    process_flag(trap_exit, true),
+    Task = cell_task:new(Spec),
+    {ok, off, #data{task = Task, spec = Spec, settings = Task#task.settings},
+     [{next_event, internal, boot}]}.
+
+-spec handle_event(gen_statem:event_type(), term(), cell_ipc:state(), #data{}) ->
+          gen_statem:event_handler_result(cell_ipc:state()).
+
+%% The engine's state is the task's state: every change went through cell_task:set_state/3,
+%% which checked it against the seed's table and told the cell.
+handle_event(enter, _Old, State, #data{task = #task{ipc = State}}) ->
+    keep_state_and_data;
+
+%% --------------------------------------------------------------------------------------
+%% off
+%% --------------------------------------------------------------------------------------
+handle_event(internal, boot, off, D) ->
+    boot(D);
+handle_event(info, {control, request, start}, off, D) ->
+    start_from_off(D#data{request = start});
+
+%% --------------------------------------------------------------------------------------
+%% setup: init runs within the event that entered the state
+%% --------------------------------------------------------------------------------------
+handle_event(internal, run_init, setup, D) ->
+    run_init(D);
+handle_event(internal, {crashed, Reason}, setup, D) ->
+    raise(setup, crash_error(Reason, D), crash, D);
+handle_event(internal, product_damaged, setup, D) ->
+    raise(setup, damaged_error(D), product_file, D);
+
+%% --------------------------------------------------------------------------------------
+%% READY: steps, waits, and the requests honoured between steps
+%% --------------------------------------------------------------------------------------
+handle_event(info, ?STEP(Gen), {ready, _, _} = S, #data{gen = Gen, pending = {step, _}} = D) ->
+    run_step(S, D);
+handle_event(internal, step, {ready, _, _} = S, D) ->
+    run_step(S, D);
+handle_event(info, {timeout, TRef, ?WAIT(Gen)}, {ready, _, _}, #data{gen = Gen, armed = Armed} = D) ->
+    case lists:keyfind(TRef, 2, Armed) of
+        {timer, TRef, Ms} -> wake({timer, Ms}, D);
+        false -> keep_state_and_data
+    end;
+handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
+  when is_reference(Ref) ->
+    case lists:member({reply, Ref}, Armed) of
+        true -> wake({reply, Ref, Term}, D);
+        false -> stray({Ref, Term}, D)
+    end;
+handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
+  when Request =:= pause; Request =:= stop ->
+    pause(S, pause, D#data{request = Request});
+handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
+    pause(S, service, service_flag(true, D));
+
+%% --------------------------------------------------------------------------------------
+%% down: paused, or an error waiting for the operator
+%% --------------------------------------------------------------------------------------
+handle_event(internal, stop, down, D) ->
+    stop_to_off(D);
+handle_event(info, {control, request, stop}, down, D) ->
+    stop_to_off(D#data{request = stop});
+handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
+    resume(D#data{request = start});
+handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
+             #data{down = {error, Id, Origin}} = D) ->
+    answered(Origin, Solution, Who, D#data{down = undefined});
+handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
+    %% An answer the task will wait for when it resumes: keep it for then.
+    case D#data.pending of
+        {waits, Waits} ->
+            case lists:member({reply, Ref}, Waits) of
+                true -> {keep_state_and_data, [postpone]};
+                false -> stray(Msg, D)
+            end;
+        _ ->
+            stray(Msg, D)
+    end;
+
+%% --------------------------------------------------------------------------------------
+%% every state
+%% --------------------------------------------------------------------------------------
+handle_event(info, {control, estop, true}, State, D) ->
+    estop(State, D#data{estop = true});
+handle_event(info, {control, estop, false}, _State, D) ->
+    {keep_state, D#data{estop = false}};
+handle_event(info, {control, service_mode, On}, _State, D) ->
+    {keep_state, service_flag(On, D)};
+handle_event(info, {control, request, Request}, _State, D) ->
+    {keep_state, D#data{request = Request}};
+handle_event(info, {control, settings, Settings}, _State, D) ->
+    {keep_state, D#data{settings = Settings}};
+handle_event(info, ?STEP(_), _State, _D) ->
+    keep_state_and_data;
+handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
+    keep_state_and_data;
+handle_event(info, {cell_alarm, answer, _Id, _Solution, _Who}, _State, _D) ->
+    %% An answer to an error this task has since withdrawn (stop, emergency stop).
+    keep_state_and_data;
+handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
+    {stop, Reason};
+handle_event(info, Msg, _State, D) ->
+    stray(Msg, D);
+handle_event({call, From}, state, State, _D) ->
+    {keep_state_and_data, [{reply, From, State}]};
+handle_event({call, From}, sync, _State, _D) ->
+    {keep_state_and_data, [{reply, From, ok}]};
+handle_event({call, From}, info, State, D) ->
+    {keep_state_and_data, [{reply, From, describe(State, D)}]}.
+
+-spec terminate(term(), cell_ipc:state(), #data{}) -> ok.
+terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
+    %% Whatever ended the task, its outputs are left safe.
+    _ = uninit(D),
+    case Reason of
+        normal -> cell_registry:unregister_task(Id);
+        shutdown -> cell_registry:unregister_task(Id);
+        {shutdown, _} -> cell_registry:unregister_task(Id);
+        _ -> ok
+    end.
+
+%% --------------------------------------------------------------------------------------
+%% Boot, start and init
+%% --------------------------------------------------------------------------------------
+
+boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
+    Previous = cell_registry:register_task(Id, #{module => Mod, zone => Z, lane => L,
+                                                 state => off, serial => undefined}),
+    D1 = D0#data{request = cell_registry:control(request),
+                 estop = cell_registry:control(estop)},
+    D2 = service_flag(cell_registry:control(service_mode), D1),
+    D = case cell_product:load(T#task.product_path) of
+            {ok, Product} ->
+                ok = cell_registry:update(Id, #{serial => cell_product:serial(Product)}),
+                D2#data{task = (D2#data.task)#task{product = Product}};
+            {error, Reason} ->
+                cell_log:error(Id, "the product file ~ts cannot be read (~tp); the "
+                               "operator is asked when the cell starts",
+                               [T#task.product_path, Reason]),
+                D2#data{load_error = Reason}
+        end,
+    case Previous of
+        {crashed, Why} ->
+            cell_log:error(Id, "task restarted after a crash: ~ts", [crash_text(Why)]),
+            ok = cell_task:publish(T, task_crashed, #{reason => crash_text(Why)}),
+            %% The outputs of the crashed incarnation may still be set.
+            D3 = uninit(D#data{initialized = true, crash = Why}),
+            start_from_off(D3);
+        _ ->
+            start_from_off(D)
+    end.
+
+start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) ->
+    cell_log:warning(Id, "not started: the emergency stop is active", []),
+    {keep_state, D};
+start_from_off(#data{request = start} = D0) ->
+    D = D0#data{task = (D0#data.task)#task{settings = D0#data.settings}},
+    {Event, D1} = case D of
+                      #data{crash = undefined, load_error = undefined} -> {run_init, D};
+                      #data{crash = undefined} -> {product_damaged, D};
+                      #data{crash = Why} -> {{crashed, Why}, D#data{crash = undefined}}
+                  end,
+    goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]);
+start_from_off(#data{request = pause, estop = false, crash = Why} = D)
+  when Why =/= undefined ->
+    %% Restarted while the cell is paused: the cell runs, so the operator is asked.
+    goto(setup, {arrow, 0}, D#data{crash = undefined}, [{next_event, internal, {crashed, Why}}]);
+start_from_off(D) ->
+    %% A task restarted while the cell is stopped stays OFF; its product is on disk.
+    {keep_state, D#data{crash = undefined}}.
+
+run_init(#data{task = #task{module = Mod} = T0} = D) ->
+    case estop_raised() of
+        true ->
+            estop(setup, D#data{estop = true});
+        false ->
+            T = T0#task{answer = undefined, woken_by = undefined},
+            case Mod:init(T) of
+                {ok, T1} ->
+                    ready_after_init(undefined, D#data{task = T1, initialized = true});
+                {error, Spec, T1} ->
+                    raise(setup, Spec, init, D#data{task = T1, initialized = true})
+            end
+    end.
+
+%% Arrow 1 (or 5 when an init error was ignored): READY-PROCESSING-ACTIVE with a
+%% product, READY-IDLE-STARVED without; the task's first events say more.
+ready_after_init(Woken, #data{task = T} = D) ->
+    Ready = case T#task.product of
+                undefined -> {ready, idle, starved};
+                _ -> {ready, processing, active}
+            end,
+    Arrow = case T#task.ipc of setup -> 1; down -> 5 end,
+    goto(Ready, {arrow, Arrow}, D#data{pending = {step, Woken}, resume = undefined},
+         [{next_event, internal, step}]).
+
+%% --------------------------------------------------------------------------------------
+%% Steps and waits
+%% --------------------------------------------------------------------------------------
+
+run_step(State, #data{task = #task{module = Mod} = T0, pending = {step, Woken}} = D) ->
+    case {estop_raised(), D#data.request} of
+        {true, _} ->
+            estop(State, D#data{estop = true});
+        {false, Request} when Request =/= start ->
+            %% Every step boundary is a wait point: a Pause or Stop that came while the
+            %% task was elsewhere (re-initialising after a Reset, say) is honoured here.
+            pause(State, pause, D);
+        {false, start} ->
+            Answer = case Woken of {answer, A} -> A; _ -> undefined end,
+            T = T0#task{woken_by = Woken, answer = Answer},
+            after_step(Mod:step(T), D)
+    end.
+
+after_step({continue, T}, #data{gen = Gen} = D) ->
+    self() ! ?STEP(Gen),
+    {next_state, T#task.ipc, D#data{task = clean(T), pending = {step, undefined}}};
+after_step({wait, Wait, T}, D) ->
+    Waits = case Wait of
+                L when is_list(L) -> L;
+                W -> [W]
+            end,
+    D1 = arm(Waits, D#data{task = clean(T), pending = {waits, Waits}}),
+    {next_state, T#task.ipc, D1};
+after_step({reset, T}, D) ->
+    %% The seed's ResetException: uninit, then arrow 2 to init again.
+    goto(setup, {arrow, 2}, uninit(D#data{task = clean(T)}),
+         [{next_event, internal, run_init}]);
+after_step({error, Spec, T}, D) ->
+    raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
+after_step(Other, #data{task = #task{module = Mod}}) ->
+    erlang:error({bad_step_result, Mod, Other}).
+
+clean(T) ->
+    T#task{answer = undefined, woken_by = undefined}.
+
+arm(Waits, #data{gen = Gen} = D) ->
+    Armed = [arm_one(W, Gen) || W <- Waits],
+    D#data{armed = Armed}.
+
+arm_one({timer, Ms}, Gen) when is_integer(Ms), Ms >= 0 ->
+    {timer, erlang:start_timer(Ms, self(), ?WAIT(Gen)), Ms};
+arm_one({reply, Ref}, _Gen) when is_reference(Ref) ->
+    {reply, Ref};
+arm_one(Other, _Gen) ->
+    erlang:error({bad_wait, Other}).
+
+disarm(#data{armed = Armed, gen = Gen} = D) ->
+    _ = [erlang:cancel_timer(TRef) || {timer, TRef, _} <- Armed],
+    %% A new generation: step messages and timer messages already sent are ignored.
+    D#data{armed = [], gen = Gen + 1}.
+
+wake(Woken, D) ->
+    {keep_state, (disarm(D))#data{pending = {step, Woken}}, [{next_event, internal, step}]}.
+
+%% --------------------------------------------------------------------------------------
+%% Pause, resume, stop, errors
+%% --------------------------------------------------------------------------------------
+
+%% Arrow 6, then for Stop arrow 9.
+pause(State, Why, #data{request = Request} = D0) ->
+    D = (disarm(D0))#data{down = {paused, Why}, resume = State},
+    case Request of
+        stop -> goto(down, {arrow, 6}, D, [{next_event, internal, stop}]);
+        _ -> goto(down, {arrow, 6}, D, [])
+    end.
+
+%% Arrow 5: back to the READY sub-state the task left, doing what it was doing.
+resume(#data{resume = Ready, pending = Pending} = D0) ->
+    D = D0#data{down = undefined, resume = undefined},
+    case Pending of
+        {waits, Waits} ->
+            goto(Ready, {arrow, 5}, arm(Waits, D), []);
+        {step, _} ->
+            goto(Ready, {arrow, 5}, D, [{next_event, internal, step}])
+    end.
+
+raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
+    {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
+    Arrow = case State of setup -> 7; {ready, _, _} -> 6 end,
+    goto(down, {arrow, Arrow}, (disarm(D))#data{down = {error, AlarmId, Origin}}, []).
+
+%% The operator answered an error.
+answered(step, Reset, _Who, D) when Reset =:= reset ->
+    reinit(D);
+answered(step, Solution, _Who, #data{request = start} = D) ->
+    resume(D#data{pending = {step, {answer, Solution}}});
+answered(step, Solution, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}, pending = {step, {answer, Solution}}}};
+answered(init, retry, _Who, D) ->
+    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
+answered(init, reset, _Who, D) ->
+    reinit(D);
+answered(init, Solution, _Who, D) ->
+    %% Ignore (or Close): go on as if init had succeeded.
+    ready_after_init({answer, Solution}, D);
+answered(crash, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+    cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
+                    [Who, serial_text(P)]),
+    reinit(D#data{task = cell_task:clear_product(T)});
+answered(crash, _Retry, _Who, D) ->
+    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
+answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
+    Aside = Path ++ ".damaged-" ++ integer_to_list(os:system_time(second)),
+    _ = file:rename(Path, Aside),
+    cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
+                    "without a product", [Who, Aside]),
+    goto(setup, {arrow, 8}, D#data{load_error = undefined}, [{next_event, internal, run_init}]);
+answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T} = D) ->
+    case cell_product:load(Path) of
+        {ok, Product} ->
+            D1 = D#data{task = T#task{product = Product}, load_error = undefined},
+            goto(setup, {arrow, 8}, D1, [{next_event, internal, run_init}]);
+        {error, Reason} ->
+            D1 = D#data{load_error = Reason},
+            goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
+    end.
+
+%% Reset: uninit, then arrow 8 (from DOWN) to init again.
+reinit(D) ->
+    goto(setup, {arrow, 8}, uninit(D), [{next_event, internal, run_init}]).
+
+stop_to_off(#data{down = Down} = D0) ->
+    case Down of
+        {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
+        _ -> ok
+    end,
+    D = uninit((disarm(D0))#data{down = undefined, pending = undefined, resume = undefined}),
+    goto(off, {arrow, 9}, D, []).
+
+%% From any state: leave at once, secure the outputs, OFF.
+estop(off, D) ->
+    {keep_state, D};
+estop(_State, #data{down = Down} = D0) ->
+    case Down of
+        {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
+        _ -> ok
+    end,
+    D = uninit((disarm(D0))#data{down = undefined, pending = undefined, resume = undefined}),
+    goto(off, estop, D, []).
+
+estop_raised() ->
+    cell_registry:estop_active().
+
+%% uninit is the seed's "must not fail": an error in it is logged, never raised, so
+%% a failing uninit cannot keep a task from stopping.
+uninit(#data{initialized = false} = D) ->
+    D;
+uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
+    T1 = try
+             Mod:uninit(T)
+         catch
+             Class:Reason:Stack ->
+                 cell_log:error(Id, "uninit failed (~tp:~tp); outputs may not be secured",
+                                [Class, Reason]),
+                 cell_log:trace(Id, "uninit failed: ~tp", [Stack]),
+                 T
+         end,
+    T2 = case T1 of
+             #task{} -> T1;
+             _ -> T
+         end,
+    D#data{task = T2, initialized = false}.
+
+goto(To, Cause, #data{task = T} = D, Actions) ->
+    {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
+
+service_flag(On, #data{task = T} = D) ->
+    D#data{task = T#task{service_mode = On}}.
+
+stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
+    case erlang:function_exported(Mod, handle_info, 2) of
+        true ->
+            {ok, T1} = Mod:handle_info(Msg, T),
+            {keep_state, D#data{task = T1}};
+        false ->
+            cell_log:trace(Id, "ignored a message the task does not expect: ~tp", [Msg]),
+            keep_state_and_data
+    end.
+
+%% --------------------------------------------------------------------------------------
+%% Errors the engine raises itself
+%% --------------------------------------------------------------------------------------
+
+crash_error(Why, #data{task = #task{product = P}}) ->
+    cell_task:error_spec(
+      <<"crashed">>, "Task restarted after a crash",
+      io_lib:format("The task stopped unexpectedly and was restarted: ~ts.~n"
+                    "Its product (~ts) was restored from its file and its outputs were "
+                    "secured.~nCheck the machine, then select RETRY to continue with the "
+                    "product as saved, or RESET to forget the product and start empty.",
+                    [crash_text(Why), serial_text(P)]),
+      [retry, reset]).
+
+damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
+    cell_task:error_spec(
+      <<"product_file">>, "Product file damaged",
+      io_lib:format("The product file ~ts cannot be read (~tp).~nSelect RETRY to read it "
+                    "again, or RESET to set it aside and start without a product.",
+                    [Path, Why]),
+      [retry, reset]).
+
+crash_text({{product_not_saved, {Path, Reason}}, _}) ->
+    io_lib:format("the product could not be saved to ~ts (~tp)", [Path, Reason]);
+crash_text({Reason, Stack}) when is_list(Stack) ->
+    io_lib:format("~tP", [Reason, 12]);
+crash_text(killed) ->
+    "it was killed";
+crash_text(Reason) ->
+    io_lib:format("~tP", [Reason, 12]).
+
+serial_text(undefined) -> "none";
+serial_text(#{serial := S}) -> S.
+
+describe(State, #data{task = T} = D) ->
+    #{id => T#task.id, state => State, request => D#data.request, estop => D#data.estop,
+      service_mode => T#task.service_mode, down => D#data.down,
+      pending => D#data.pending, product => T#task.product,
+      initialized => D#data.initialized}.

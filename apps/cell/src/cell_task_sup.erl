@@ -1,0 +1,50 @@
+%% @doc Supervises the device tasks of the cell: one gen_statem each, one_for_one, so
+%% one task's crash never disturbs another. A restarted task comes back DOWN with an
+%% error naming the crash, so restarts cannot run away on their own; the intensity
+%% below only stops a task that crashes while booting, over and over.
+-module(cell_task_sup).
+-behaviour(supervisor).
+
+-export([start_link/1, start_task/1, stop_task/1]).
+-export([init/1]).
+
+-spec start_link([cell_task:spec()]) -> {ok, pid()} | ignore | {error, term()}.
+start_link(Tasks) ->
+    supervisor:start_link({local, ?MODULE}, ?MODULE, Tasks).
+
+%% @doc Adds a task to the running cell (it starts OFF unless the cell runs).
+-spec start_task(cell_task:spec()) -> {ok, pid()} | {error, term()}.
+start_task(Spec) ->
+    case cell_spec:validate(#{tasks => [Spec]}) of
+        {ok, #{tasks := [Checked]}} ->
+            case supervisor:start_child(?MODULE, cell_task_proc:child_spec(Checked)) of
+                {ok, Pid} -> {ok, Pid};
+                {error, _} = Error -> Error
+            end;
+        {error, _} = Error ->
+            Error
+    end.
+
+%% @doc Removes a task: it stops (uninit runs) and is forgotten.
+-spec stop_task(atom()) -> ok | {error, not_found}.
+stop_task(Id) ->
+    case supervisor:terminate_child(?MODULE, Id) of
+        ok -> supervisor:delete_child(?MODULE, Id);
+        {error, _} = Error -> Error
+    end.
+
+-spec init([cell_task:spec()]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init(Tasks) ->
+    case cell_registry:control(request) of
+        stop ->
+            ok;
+        _ ->
+            %% The tasks' subtree is restarting while the cell was running (an internal
+            %% fault below the controller). The tasks come back OFF and wait for the
+            %% operator's Start rather than move on their own.
+            ok = cell_registry:set_control(request, stop),
+            cell_log:error(cell, "the cell's tasks were restarted after an internal fault; "
+                           "check the machine and press Start", [])
+    end,
+    Flags = #{strategy => one_for_one, intensity => 20, period => 60},
+    {ok, {Flags, [cell_task_proc:child_spec(T) || T <- Tasks]}}.
