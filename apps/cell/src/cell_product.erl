@@ -96,7 +96,9 @@ validate_test_() ->
      ?_assertMatch({error, _}, validate([]))].
 
 save_load_test() ->
-    Dir = filename:join(["/tmp", "cell_product_test", integer_to_list(erlang:unique_integer([positive]))]),
+    Dir = filename:join(["/tmp", "cell_product_test",
+                         os:getpid() ++ "-" ++ integer_to_list(erlang:unique_integer([positive]))]),
+    _ = file:del_dir_r(Dir),
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     P = filename:join(Dir, file_name(<<"Z">>, <<"L">>)),
     ?assertEqual({ok, undefined}, load(P)),

@@ -160,8 +160,11 @@ cleanup(Dir) ->
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
+%% A folder no earlier run has used: the OS pid and a per-VM unique number, emptied.
 tmp_dir() ->
-    Dir = filename:join(["/tmp", "cell_file_test", integer_to_list(erlang:unique_integer([positive]))]),
+    Dir = filename:join(["/tmp", "cell_file_test",
+                         os:getpid() ++ "-" ++ integer_to_list(erlang:unique_integer([positive]))]),
+    _ = file:del_dir_r(Dir),
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     Dir.
 
