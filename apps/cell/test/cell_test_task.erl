@@ -10,7 +10,7 @@
 -behaviour(cell_task).
 
 -export([init/1, step/1, uninit/1]).
--export([spec/3, command/3, counts/2]).
+-export([spec/3, command/3, counts/2, recorded/3]).
 
 %% A spec for a task of this module.
 -spec spec(atom(), ets:tid() | atom(), pid()) -> cell_task:spec().
@@ -51,8 +51,13 @@ step(T) ->
             {continue, cell_task:put(T, continue, N - 1)};
         0 ->
             case cell_task:woken_by(T) of
-                {reply, Ref, Command} -> do(Command, T, Ref);
-                _ -> {wait, {reply, Ref}, T}
+                {reply, Ref, Command} ->
+                    do(Command, T, Ref);
+                {answer, Answer} ->
+                    record(T, answers, Answer),
+                    {wait, {reply, Ref}, T};
+                _ ->
+                    {wait, {reply, Ref}, T}
             end
     end.
 
@@ -73,6 +78,20 @@ do({continue, N}, T, _Ref) -> {continue, cell_task:put(T, continue, N)};
 do({product, undefined}, T, Ref) -> {wait, {reply, Ref}, cell_task:clear_product(T)};
 do({product, P}, T, Ref) -> {wait, {reply, Ref}, cell_task:set_product(T, P)};
 do({timer, Ms}, T, _Ref) -> {wait, {timer, Ms}, T}.
+
+%% Values a task recorded (the answers its steps received), oldest first.
+-spec recorded(ets:tid() | atom(), atom(), atom()) -> [term()].
+recorded(Tab, Id, What) ->
+    case ets:lookup(Tab, {What, Id, list}) of
+        [{_, L}] -> lists:reverse(L);
+        [] -> []
+    end.
+
+record(T, What, Value) ->
+    Id = cell_task:id(T),
+    Tab = cell_task:arg(T, tab, undefined),
+    Old = case ets:lookup(Tab, {What, Id, list}) of [{_, L}] -> L; [] -> [] end,
+    true = ets:insert(Tab, {{What, Id, list}, [Value | Old]}).
 
 count(T, What) ->
     Id = cell_task:id(T),

@@ -1,0 +1,106 @@
+%% Product files under a real SIGKILL of a whole VM that is writing them, many times
+%% in a row: each file is always readable (never torn) and holds the last acknowledged
+%% product or the one being written when the VM died (never lost).
+-module(cell_product_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0]).
+-export([sigkill_while_writing/1]).
+
+-define(ROUNDS, 60).
+-define(FILES, 4).
+
+all() ->
+    [sigkill_while_writing].
+
+sigkill_while_writing(Config) ->
+    Dir = filename:join(?config(priv_dir, Config), "Data"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    rand:seed(exsss, erlang:phash2(make_ref())),
+    Acked = lists:foldl(fun(Round, Last) -> round(Dir, Round, Last) end, 0,
+                        lists:seq(1, ?ROUNDS)),
+    ct:comment("~p rounds, ~p operations acknowledged", [?ROUNDS, Acked]),
+    ?assert(Acked > ?ROUNDS).
+
+%% One VM: it goes on from operation Last + 1, is killed somewhere in its work, and
+%% the files are checked.
+round(Dir, Round, Last) ->
+    Port = writer(Dir, Last + 1),
+    OsPid = receive {Port, {data, {eol, "pid " ++ P}}} -> P
+            after 30000 -> ct:fail(writer_did_not_start)
+            end,
+    Acked = drive(Port, Last, Last + rand:uniform(12)),
+    %% Kill it while it is writing the next one: at once, or after up to 12 ms.
+    true = port_command(Port, "go\n"),
+    Delay = rand:uniform(13) - 1,
+    erlang:send_after(Delay, self(), kill),
+    receive kill -> os:cmd("kill -9 " ++ OsPid) end,
+    await_exit(Port),
+    check(Dir, Acked, Round),
+    Acked.
+
+drive(_Port, Acked, Acked) ->
+    Acked;
+drive(Port, Acked, Target) ->
+    true = port_command(Port, "go\n"),
+    receive
+        {Port, {data, {eol, "ack " ++ M}}} ->
+            N = list_to_integer(M),
+            ?assertEqual(Acked + 1, N),
+            drive(Port, N, Target);
+        {Port, {exit_status, S}} ->
+            ct:fail({writer_exited, S})
+    after 30000 ->
+        ct:fail(writer_silent)
+    end.
+
+await_exit(Port) ->
+    receive
+        {Port, {exit_status, _}} -> ok;
+        {Port, _} -> await_exit(Port)
+    after 30000 ->
+        ct:fail(writer_not_killed)
+    end.
+
+%% Every file decodes; it holds the state the last acknowledged operation on it left,
+%% or the state of operation Acked + 1 if that one targets it.
+check(Dir, Acked, Round) ->
+    Leftovers = cell_file:cleanup(Dir),
+    lists:foreach(
+      fun(F) ->
+              Path = filename:join(Dir, "task" ++ integer_to_list(F) ++ "@Lane.product"),
+              Allowed = [state_after(Acked, F)]
+                  ++ [P || {File, P} <- [cell_product_writer:op(Acked + 1, ?FILES)],
+                           File =:= filename:basename(Path)],
+              case cell_product:load(Path) of
+                  {ok, Product} ->
+                      case lists:member(Product, Allowed) of
+                          true -> ok;
+                          false -> ct:fail({lost, Round, F, Acked, got, summary(Product),
+                                            allowed, [summary(A) || A <- Allowed]})
+                      end;
+                  {error, Reason} ->
+                      ct:fail({torn, Round, F, Reason, leftovers, Leftovers})
+              end
+      end, lists:seq(0, ?FILES - 1)).
+
+%% The product file F holds after operations 1..M.
+state_after(M, F) ->
+    case [N || N <- lists:seq(M, 1, -1), N rem ?FILES =:= F] of
+        [] -> undefined;
+        [Last | _] -> element(2, cell_product_writer:op(Last, ?FILES))
+    end.
+
+summary(undefined) -> none;
+summary(#{op := M}) -> M.
+
+writer(Dir, First) ->
+    Erl = os:find_executable("erl"),
+    Paths = [filename:dirname(code:which(M)) || M <- [cell_file, cell_product, cell_config,
+                                                      cell_product_writer]],
+    Args = lists:append([["-pa", P] || P <- lists:usort(Paths)])
+        ++ ["-noshell", "-s", "cell_product_writer", "main", "-extra", Dir,
+            integer_to_list(?FILES), integer_to_list(First)],
+    open_port({spawn_executable, Erl}, [{args, Args}, {line, 1024}, exit_status, use_stdio,
+                                        stderr_to_stdout]).
