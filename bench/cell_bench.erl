@@ -84,7 +84,7 @@ ratio(R) ->
 
 fmt(undefined) -> "-";
 fmt(X) when is_integer(X) -> integer_to_list(X);
-fmt(X) when abs(X) >= 100 -> io_lib:format("~.0f", [X]);
+fmt(X) when abs(X) >= 100 -> integer_to_list(round(X));
 fmt(X) when abs(X) >= 1 -> io_lib:format("~.2f", [X]);
 fmt(X) -> io_lib:format("~.4f", [X]).
 

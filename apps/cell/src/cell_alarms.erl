@@ -20,7 +20,7 @@
 -export([start_link/0, raise_error/3, withdraw/1, answer/3, warning/4, reset_warning/2,
          close/2, alarm/4, clear_alarm/2, list/0, list/1, get/1, history/0,
          has_error/0, has_error/1, has_alarm/0, has_alarm/1, has_warning/0,
-         has_warning/1, solutions/0]).
+         has_warning/1, solutions/0, sync/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([alarm/0, kind/0, solution/0, spec/0, answer_record/0]).
@@ -93,6 +93,12 @@ clear_alarm(Task, LocalId) ->
 -spec close(binary(), binary()) -> ok | {error, not_found | {not_allowed, [solution()]}}.
 close(Id, Who) ->
     gen_server:call(?MODULE, {close, Id, Who}).
+
+%% @doc Returns once the registry has handled what the caller sent it before
+%% (warnings and alarms are set without waiting).
+-spec sync() -> ok.
+sync() ->
+    gen_server:call(?MODULE, sync).
 
 %% @doc Every active error, alarm and warning, oldest first.
 -spec list() -> [alarm()].
@@ -196,7 +202,9 @@ handle_call({close, Id, Who}, _From, State) ->
             {reply, {error, not_found}, State}
     end;
 handle_call(history, _From, State) ->
-    {reply, State#state.history, State}.
+    {reply, State#state.history, State};
+handle_call(sync, _From, State) ->
+    {reply, ok, State}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
 handle_cast({set, Kind, Task, Local, Caption, Description}, State) ->

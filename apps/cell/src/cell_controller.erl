@@ -20,8 +20,7 @@
 
 -define(ESTOP_DEADLINE_MS, 1000).
 
--record(state, {states = #{} :: #{atom() => cell_ipc:state()},
-                counts = #{} :: #{cell_ipc:state() => pos_integer()},
+-record(state, {counts = #{} :: #{cell_ipc:state() => pos_integer()},
                 cell = off :: cell_ipc:state(),
                 estop_timer :: reference() | undefined}).
 
@@ -104,12 +103,10 @@ sync() ->
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
     ok = cell_events:subscribe([task_state]),
-    States = maps:from_list([{Id, maps:get(state, Row, off)}
-                             || #{id := Id} = Row <- cell_registry:tasks()]),
-    Counts = lists:foldl(fun(S, Acc) -> incr(S, Acc) end, #{}, maps:values(States)),
+    Counts = lists:foldl(fun incr/2, #{}, cell_registry:states()),
     Cell = top(Counts),
     ok = cell_registry:set_control(cell_state, Cell),
-    {ok, #state{states = States, counts = Counts, cell = Cell}}.
+    {ok, #state{counts = Counts, cell = Cell}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) ->
           {reply, term(), #state{}} | {noreply, #state{}}.
@@ -132,12 +129,14 @@ handle_call({request, Request, Who}, _From, State) ->
     {reply, ok, State};
 handle_call({estop, true, Who}, _From, State) ->
     ok = cell_registry:set_control(estop, true),
+    %% A task that takes the emergency stop also takes Stop as its request: one
+    %% message each, the fastest fan-out there is.
     ok = cell_registry:set_control(request, stop),
     broadcast(estop, true),
-    broadcast(request, stop),
     cell_log:error(cell, "emergency stop (~ts)", [Who]),
     ok = cell_alarms:alarm(cell, <<"estop">>, "Emergency stop",
                            "The emergency stop is active. Release it, then press Start."),
+    ok = cell_alarms:sync(),
     ok = publish(estop, #{active => true, who => Who}),
     cancel(State#state.estop_timer),
     TRef = erlang:start_timer(?ESTOP_DEADLINE_MS, self(), estop_deadline),
@@ -147,6 +146,7 @@ handle_call({estop, false, Who}, _From, State) ->
     broadcast(estop, false),
     cell_log:notice(cell, "emergency stop released (~ts); press Start to go on", [Who]),
     ok = cell_alarms:clear_alarm(cell, <<"estop">>),
+    ok = cell_alarms:sync(),
     ok = publish(estop, #{active => false, who => Who}),
     {reply, ok, State};
 handle_call({service_mode, On, Who}, _From, State) ->
@@ -162,8 +162,8 @@ handle_cast(Msg, _State) ->
     error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({cell_event, #{type := task_state, task := Id, state := New}}, State) ->
-    {noreply, task_state(Id, New, State)};
+handle_info({cell_event, #{type := task_state, from := From, state := New}}, State) ->
+    {noreply, task_state(From, New, State)};
 handle_info({timeout, TRef, estop_deadline}, #state{estop_timer = TRef} = State) ->
     _ = [begin
              cell_log:error(Id, "did not stop within ~p ms of the emergency stop; killed "
@@ -185,13 +185,12 @@ request(Request, Who) ->
     publish(request, #{request => Request, who => Who}).
 
 broadcast(Key, Value) ->
-    lists:foreach(fun(#{pid := Pid}) -> cell_task_proc:control(Pid, Key, Value);
-                     (_) -> ok
-                  end, cell_registry:tasks()).
+    lists:foreach(fun(Pid) -> cell_task_proc:control(Pid, Key, Value) end,
+                  cell_registry:pids()).
 
-task_state(Id, New, #state{states = States, counts = Counts0} = State) ->
-    Old = maps:get(Id, States, undefined),
-    Counts = incr(New, decr(Old, Counts0)),
+%% A task's move from one state to another: only the counts per state are kept.
+task_state(From, New, #state{counts = Counts0} = State) ->
+    Counts = incr(New, decr(From, Counts0)),
     Cell = top(Counts),
     case Cell =:= State#state.cell of
         true ->
@@ -201,19 +200,22 @@ task_state(Id, New, #state{states = States, counts = Counts0} = State) ->
             cell_log:info(cell, "cell state ~ts", [cell_ipc:name(Cell)]),
             ok = publish(cell_state, #{state => Cell, from => State#state.cell})
     end,
-    State#state{states = maps:put(Id, New, States), counts = Counts, cell = Cell}.
+    State#state{counts = Counts, cell = Cell}.
 
 incr(S, Counts) -> maps:update_with(S, fun(N) -> N + 1 end, 1, Counts).
 
-decr(undefined, Counts) -> Counts;
 decr(S, Counts) ->
     case maps:get(S, Counts, 0) of
         N when N =< 1 -> maps:remove(S, Counts);
         N -> maps:put(S, N - 1, Counts)
     end.
 
+%% The highest state with a task in it: at most seven lookups.
 top(Counts) ->
-    cell_ipc:cell_state(maps:keys(Counts)).
+    case [S || S <- lists:reverse(cell_ipc:states()), maps:is_key(S, Counts)] of
+        [Top | _] -> Top;
+        [] -> off
+    end.
 
 publish(Type, Fields) ->
     cell_events:publish(cell_events:new(Type, cell, Fields)).

@@ -14,8 +14,8 @@
 -module(cell_registry).
 -behaviour(gen_server).
 
--export([start_link/0, register_task/2, unregister_task/1, update/2, task/1, tasks/0,
-         task_ids/0, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
+-export([start_link/0, register_task/2, unregister_task/1, update/2, set_state/2, task/1,
+         tasks/0, task_ids/0, pids/0, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([previous/0, control_key/0]).
@@ -24,6 +24,7 @@
 -type control_key() :: request | estop | service_mode | cell_state.
 
 -define(TASKS, cell_tasks).
+-define(STATES, cell_task_states).
 -define(CONTROL, cell_control).
 -define(ESTOP_KEY, {?MODULE, estop}).
 
@@ -53,18 +54,36 @@ update(Id, Fields) ->
         [] -> ok
     end.
 
+%% @doc A task's IPC-2541 state, kept in a table of its own: one insert per change,
+%% the cheapest write there is on the hot path of a thousand tasks.
+-spec set_state(atom(), cell_ipc:state()) -> ok.
+set_state(Id, State) ->
+    true = ets:insert(?STATES, {Id, State}),
+    ok.
+
 %% @doc One task's row.
 -spec task(atom()) -> {ok, map()} | {error, not_found}.
 task(Id) ->
     case ets:lookup(?TASKS, Id) of
-        [{Id, Row}] -> {ok, Row};
+        [{Id, Row}] -> {ok, Row#{state => state_of(Id)}};
         [] -> {error, not_found}
     end.
 
 %% @doc Every task's row, ordered by id.
 -spec tasks() -> [map()].
 tasks() ->
-    [Row#{id => Id} || {Id, Row} <- lists:sort(ets:tab2list(?TASKS))].
+    [Row#{id => Id, state => state_of(Id)} || {Id, Row} <- lists:sort(ets:tab2list(?TASKS))].
+
+state_of(Id) ->
+    case ets:lookup(?STATES, Id) of
+        [{Id, S}] -> S;
+        [] -> off
+    end.
+
+%% @doc The pids of every running task, in no order: what a broadcast needs.
+-spec pids() -> [pid()].
+pids() ->
+    ets:select(?TASKS, [{{'_', #{pid => '$1'}}, [], ['$1']}]).
 
 -spec task_ids() -> [atom()].
 task_ids() ->
@@ -73,7 +92,7 @@ task_ids() ->
 %% @doc Every task's IPC-2541 state.
 -spec states() -> [cell_ipc:state()].
 states() ->
-    [maps:get(state, Row, off) || {_, Row} <- ets:tab2list(?TASKS)].
+    [S || {_, S} <- ets:tab2list(?STATES)].
 
 %% @doc A controller command as the tasks see it.
 -spec control(control_key()) -> term().
@@ -111,6 +130,8 @@ estop_active() ->
 init([]) ->
     ?TASKS = ets:new(?TASKS, [named_table, public, {read_concurrency, true},
                               {write_concurrency, true}]),
+    ?STATES = ets:new(?STATES, [named_table, public, {read_concurrency, true},
+                                {write_concurrency, true}]),
     ?CONTROL = ets:new(?CONTROL, [named_table, public, {read_concurrency, true}]),
     %% Created once per node: replacing a persistent term costs a global scan, and a
     %% task holding the old reference would miss a stop.
@@ -125,7 +146,8 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     State = collect_dead(Id, State0),
     Previous = maps:get(Id, State#state.ended, fresh),
     Ref = monitor(process, Pid),
-    true = ets:insert(?TASKS, {Id, Info#{pid => Pid}}),
+    true = ets:insert(?TASKS, {Id, maps:remove(state, Info#{pid => Pid})}),
+    true = ets:insert(?STATES, {Id, maps:get(state, Info, off)}),
     {reply, Previous, State#state{monitors = maps:put(Ref, {Id, Pid}, State#state.monitors),
                                   ended = maps:remove(Id, State#state.ended)}};
 handle_call({unregister, Id}, {Pid, _}, #state{monitors = Mons} = State) ->
@@ -175,13 +197,15 @@ down(Ref, Reason, #state{monitors = Mons, ended = Ended} = State) ->
                        end,
             case ets:lookup(?TASKS, Id) of
                 [{Id, #{pid := Pid} = Row}] ->
-                    true = ets:insert(?TASKS, {Id, maps:remove(pid, Row#{state => off})}),
+                    true = ets:insert(?TASKS, {Id, maps:remove(pid, Row)}),
                     %% The task's state went with its process: tell the cell.
-                    case maps:get(state, Row, off) of
+                    case state_of(Id) of
                         off -> ok;
-                        Old -> cell_events:publish(cell_events:new(task_state, Id,
-                                                                   #{state => off, from => Old,
-                                                                     cause => exited}))
+                        Old ->
+                            ok = set_state(Id, off),
+                            cell_events:publish(cell_events:new(task_state, Id,
+                                                                #{state => off, from => Old,
+                                                                  cause => exited}))
                     end;
                 _ ->
                     ok

@@ -243,9 +243,12 @@ set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
         ok -> ok;
         {error, Illegal} -> erlang:error(Illegal)
     end,
-    ok = cell_registry:update(Id, #{state => To}),
+    ok = cell_registry:set_state(Id, To),
     ok = publish(T, task_state, #{state => To, from => From, cause => Cause}),
-    cell_log:debug(Id, "~ts -> ~ts", [cell_ipc:name(From), cell_ipc:name(To)]),
+    case cell_log:enabled(verbose, Id) of
+        true -> cell_log:debug(Id, "~ts -> ~ts", [cell_ipc:name(From), cell_ipc:name(To)]);
+        false -> ok
+    end,
     T#task{ipc = To}.
 
 %% @private

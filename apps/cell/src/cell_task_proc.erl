@@ -202,7 +202,7 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
 %% every state
 %% --------------------------------------------------------------------------------------
 handle_event(info, {control, estop, true}, State, D) ->
-    estop(State, D#data{estop = true});
+    estop(State, D#data{estop = true, request = stop});
 handle_event(info, {control, estop, false}, _State, D) ->
     {keep_state, D#data{estop = false}};
 handle_event(info, {control, service_mode, On}, _State, D) ->

@@ -219,8 +219,8 @@ product_survives_restart(Config) ->
     ok = cell_controller:sync(),
     ?assertNot(filelib:is_regular(cell_product:path(<<"unload">>, <<"Test">>))).
 
-%% Setting a warning does not block the task (seed 000 §2.3.8): it is a cast, so the
-%% test settles with a call to the registry before it reads it.
+%% Setting a warning does not block the task (seed 000 §2.3.8), so the test settles
+%% with the registry before it reads it.
 warnings(_Config) ->
     ok = cell_alarms:warning(load, <<"low">>, "Material low", "Add material."),
     ok = cell_alarms:warning(load, <<"low">>, "Material low", "Add material now."),
@@ -300,8 +300,7 @@ cmd(Config, Id, Command) ->
     ok = cell_test_task:command(Id, maps:get(Id, ?config(refs, Config)), Command).
 
 settle_alarms() ->
-    _ = cell_alarms:history(),
-    ok.
+    cell_alarms:sync().
 
 drain(Acc) ->
     receive

@@ -19,9 +19,9 @@
 -module(cell_log).
 
 -export([log/4, error/3, warning/3, notice/3, info/3, debug/3, trace/3]).
--export([set_level/2, level/1, reset_level/1, verbose_for/2]).
+-export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2]).
 -export([subscribe/0, unsubscribe/0]).
--export([format_line/1, parse_line/1, file_name/2, query/1]).
+-export([format_line/1, parse_line/1, file_name/2, query/1, default_level/0]).
 
 -export_type([level/0, threshold/0, source/0, line/0, query/0]).
 
@@ -41,6 +41,7 @@
 
 -define(LEVELS_TAB, cell_log_levels).
 -define(SUBS_KEY, '$subscribers').
+-define(DEFAULT_KEY, '$default').
 
 %% @doc Logs a message of the seed's levels for `Source', if its threshold allows.
 -spec log(level(), source(), io:format(), [term()]) -> ok.
@@ -75,6 +76,12 @@ debug(Source, Format, Args) -> log(verbose, Source, Format, Args).
 trace(Source, Format, Args) ->
     emit(trace, verbose, Source, Format, Args).
 
+%% @doc Whether a message of this level from this source would be logged: lets a
+%% caller skip building an expensive message nobody reads.
+-spec enabled(level(), source()) -> boolean().
+enabled(Level, Source) ->
+    loggable(Level, Source).
+
 %% @doc Sets the threshold of one source.
 -spec set_level(source(), threshold()) -> ok.
 set_level(Source, Level) when Level =:= silent; Level =:= brief; Level =:= verbose ->
@@ -90,7 +97,13 @@ reset_level(Source) ->
 level(Source) ->
     try ets:lookup(?LEVELS_TAB, key(Source)) of
         [{_, Level}] -> Level;
-        [] -> default_level()
+        [] ->
+            %% The default, kept in the table by the log server so a check costs two
+            %% lookups at most: it runs on every state change of every task.
+            case ets:lookup(?LEVELS_TAB, ?DEFAULT_KEY) of
+                [{_, Level}] -> Level;
+                [] -> default_level()
+            end
     catch
         error:badarg -> default_level()
     end.
@@ -117,6 +130,8 @@ rank(silent) -> 0;
 rank(brief) -> 1;
 rank(verbose) -> 2.
 
+%% @private The default threshold from the application environment.
+-spec default_level() -> threshold().
 default_level() ->
     case application:get_env(cell_base, log_level, brief) of
         L when L =:= silent; L =:= brief; L =:= verbose -> L;

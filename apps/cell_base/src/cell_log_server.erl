@@ -38,7 +38,7 @@ unsubscribe(Pid) -> gen_server:call(?MODULE, {unsubscribe, Pid}).
 init([]) ->
     process_flag(trap_exit, true),
     ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    true = ets:insert(?TAB, {?SUBS_KEY, []}),
+    true = ets:insert(?TAB, [{?SUBS_KEY, []}, {'$default', cell_log:default_level()}]),
     ok = install_handlers(),
     {ok, #state{}}.
 
