@@ -28,7 +28,7 @@
 -export([attr/2, attr/3, set_attr/3, item_type/1, exec_order/1, transform/1]).
 -export([items_by_type/2, primitives/1, count/1, apply_transform/2]).
 -export([identity/0, translation/3, rotation_z/1, scaling/3, multiply/2,
-         transform_point/2, matrix_to_text/1, parse_matrix/1]).
+         transform_point/2, matrix_to_text/1, parse_matrix/1, parse_number/1]).
 -export([validate/1, to_json/1, from_json/1, format_error/1]).
 
 -export_type([drawing/0, item/0, container/0, primitive/0, point/0, attrs/0, matrix/0]).
@@ -350,19 +350,27 @@ parse_matrix(Text) ->
             {error, {not_a_matrix, Text}}
     end.
 
-%% Numbers as people and CAD programs write them: 1, -2.5, .5, 1e3, 1.5E-3.
+%% @doc A number as people and CAD programs write it: 1, -2.5, .5, 1e3, 1.5E-3.
+-spec parse_number(binary()) -> float() | error.
 parse_number(Bin) ->
     case re:run(Bin, "^([+-]?)([0-9]*)(?:\\.([0-9]*))?(?:[eE]([+-]?[0-9]+))?$",
                 [{capture, all_but_first, binary}]) of
-        {match, [Sign, Int, Frac | Exp]} when Int =/= <<>>; Frac =/= <<>> ->
-            I = case Int of <<>> -> <<"0">>; _ -> Int end,
-            F = case Frac of <<>> -> <<"0">>; _ -> Frac end,
-            E = case Exp of [] -> <<"0">>; [<<>>] -> <<"0">>; [X] -> X end,
-            try binary_to_float(<<Sign/binary, I/binary, ".", F/binary, "e", E/binary>>)
-            catch error:badarg -> error  %% out of the float range
+        {match, Groups} ->
+            %% Groups left unmatched at the end are not returned at all.
+            [Sign, Int, Frac, Exp] = Groups ++ lists:duplicate(4 - length(Groups), <<>>),
+            case Int =:= <<>> andalso Frac =:= <<>> of
+                true -> error;
+                false -> to_float(Sign, Int, Frac, Exp)
             end;
-        _ ->
+        nomatch ->
             error
+    end.
+
+to_float(Sign, Int, Frac, Exp) ->
+    Digits = fun(<<>>) -> <<"0">>; (D) -> D end,
+    try binary_to_float(<<Sign/binary, (Digits(Int))/binary, ".", (Digits(Frac))/binary,
+                          "e", (Digits(Exp))/binary>>)
+    catch error:badarg -> error  %% beyond the range of a float
     end.
 
 %%====================================================================
