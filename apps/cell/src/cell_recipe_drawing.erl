@@ -148,7 +148,12 @@ item_type(Item) -> attr(Item, <<"ItemType">>).
 exec_order(Item) ->
     case attr(Item, <<"ExecOrder">>) of
         undefined -> undefined;
-        Text -> binary_to_integer(string:trim(Text))
+        Text -> {ok, N} = int_text(Text), N
+    end.
+
+int_text(Text) ->
+    try {ok, binary_to_integer(string:trim(Text))}
+    catch error:badarg -> error
     end.
 
 %% @doc The `Transform' attribute as a matrix (identity when there is none).
@@ -472,8 +477,9 @@ attrs(A, Path) when is_map(A) ->
                  end, A),
     case A of
         #{<<"ExecOrder">> := Order} ->
-            try binary_to_integer(string:trim(Order))
-            catch error:badarg -> bad(Path ++ [attrs, <<"ExecOrder">>], {not_an_integer, Order})
+            case int_text(Order) of
+                {ok, _} -> ok;
+                error -> bad(Path ++ [attrs, <<"ExecOrder">>], {not_an_integer, Order})
             end;
         _ ->
             ok
