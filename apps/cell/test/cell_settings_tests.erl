@@ -29,6 +29,7 @@ settings_test_() ->
       ?_test(snapshot_holds_until_next_start()),
       ?_test(bad_calls()),
       ?_test(durable_writes()),
+      ?_test(restarts_with_saved_settings_under_a_supervisor()),
       {timeout, 300, ?_assert(proper:quickcheck(prop_changes_persist(),
                                                 [{to_file, user}, {numtests, 40}]))}]}.
 
@@ -316,6 +317,36 @@ durable_writes() ->
          fun() -> ok = cell_settings:put(machine, #{cell_name => <<"router 7">>}, <<"anna">>) end),
     with(Dir, fun() -> ?assertEqual(<<"router 7">>, cell_settings:get(machine, cell_name)) end),
     ?assertEqual([], filelib:wildcard("*.tmp-*", Dir)).
+
+restarts_with_saved_settings_under_a_supervisor() ->
+    Dir = tmp_dir("sup"),
+    Spec = cell_settings:child_spec(#{dir => Dir, sync => false,
+                                      schemas => [cell_machine_settings, ?R]}),
+    {ok, Sup} = cell_test_sup:start_link([Spec]),
+    unlink(Sup),
+    try
+        ok = cell_settings:put(robot, #{retries => 7}, <<"anna">>),
+        Old = whereis(cell_settings),
+        Ref = monitor(process, Old),
+        exit(Old, kill),
+        receive {'DOWN', Ref, process, Old, killed} -> ok end,
+        New = restarted(Sup, Old, erlang:monotonic_time(millisecond) + 10000),
+        ?assert(is_process_alive(New)),
+        %% the table went with the old process; the new one reads the files
+        ?assertEqual(7, cell_settings:get(robot, retries)),
+        ?assertEqual([{2, <<"anna">>}, {1, <<"cellrt">>}], revs(robot))
+    after
+        ok = cell_test_sup:stop(Sup)
+    end.
+
+%% The child the supervisor runs once it has replaced Old: asked of the supervisor
+%% until then, with a deadline.
+restarted(Sup, Old, Deadline) ->
+    erlang:monotonic_time(millisecond) < Deadline orelse error(not_restarted),
+    case supervisor:which_children(Sup) of
+        [{cell_settings, New, worker, _}] when is_pid(New), New =/= Old -> New;
+        _ -> restarted(Sup, Old, Deadline)
+    end.
 
 wait_log(Needle) ->
     receive
