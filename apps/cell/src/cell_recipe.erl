@@ -367,7 +367,8 @@ entries(Bin, #{limits := Limits}, Wanted) ->
 
 expected(?FILES, folder) -> false;
 expected(?FILES ++ Name, Content) when is_binary(Content); Content =:= skipped ->
-    file_name_ok(list_to_binary(Name)) orelse throw({unexpected_entry, ?FILES ++ Name}),
+    (lists:all(fun(C) -> C < 128 end, Name) andalso file_name_ok(list_to_binary(Name)))
+        orelse throw({unexpected_entry, ?FILES ++ Name}),
     true;
 expected(Name, Content) when is_binary(Content); Content =:= skipped ->
     lists:member(Name, [?META, ?SETTINGS, ?DRAWING]) orelse throw({unexpected_entry, Name}),

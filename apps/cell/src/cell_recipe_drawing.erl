@@ -574,7 +574,7 @@ pt_json({X, Y, Z}) -> [X, Y, Z].
 from_json(Bin) ->
     case cell_settings_schema:json_decode(Bin) of
         {ok, Term} ->
-            try validate(from_term(Term, []))
+            try validate(from_term(Term, [], 0))
             catch throw:{invalid, _, _} = E -> {error, E}
             end;
         {error, _} = E ->
@@ -583,24 +583,27 @@ from_json(Bin) ->
 
 %% JSON objects onto the Erlang form: the field names and kinds are a fixed list, so
 %% no atom is ever made from the text.
-from_term(#{<<"kind">> := K} = Obj, Path) ->
+from_term(_Term, Path, Depth) when Depth > ?MAX_DEPTH ->
+    bad(Path, too_deep);
+from_term(#{<<"kind">> := K} = Obj, Path, Depth) ->
     Kind = case [A || A <- ?KINDS, atom_to_binary(A, utf8) =:= K] of
                [A] -> A;
                [] -> bad(Path ++ [kind], {unknown_kind, K})
            end,
     maps:fold(fun(<<"kind">>, _, Acc) -> Acc;
-                 (Key, V, Acc) -> field(Kind, Key, V, Path, Acc)
+                 (Key, V, Acc) -> field(Kind, Key, V, Path, Depth, Acc)
               end, #{kind => Kind}, Obj);
-from_term(Other, Path) ->
+from_term(Other, Path, _Depth) ->
     bad(Path, {not_an_item, Other}).
 
-field(container, <<"children">>, L, Path, Acc) when is_list(L) ->
-    {Children, _} = lists:mapfoldl(fun(C, I) -> {from_term(C, Path ++ [children, I]), I + 1}
+field(container, <<"children">>, L, Path, Depth, Acc) when is_list(L) ->
+    {Children, _} = lists:mapfoldl(fun(C, I) ->
+                                           {from_term(C, Path ++ [children, I], Depth + 1), I + 1}
                                    end, 1, L),
     Acc#{children => Children};
-field(_, <<"attributes">>, A, _Path, Acc) ->
+field(_, <<"attributes">>, A, _Path, _Depth, Acc) ->
     Acc#{attrs => A};
-field(_, Key, V, Path, Acc) ->
+field(_, Key, V, Path, _Depth, Acc) ->
     Fields = [children, from, to, center, radius, start_angle, end_angle, points, bulges,
               closed, vertices, faces],
     case [F || F <- Fields, atom_to_binary(F, utf8) =:= Key] of

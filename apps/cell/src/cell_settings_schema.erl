@@ -67,6 +67,7 @@
 
 -define(STRING_MAX, 1024).
 -define(MAX_DEPTH, 16).
+-define(JSON_DEPTH, 512).
 
 %%====================================================================
 %% Declarations
@@ -372,30 +373,34 @@ from_json(Mod, Bin, Base) ->
 
 %% @doc Parses JSON text: objects become maps with binary keys (a key given twice is
 %% refused: the file would mean two things), arrays lists, `null' the atom `null'.
--spec json_decode(binary()) -> {ok, term()} | {error, not_json | {invalid, path(), duplicate_field}}.
+%% Nesting deeper than any object here needs is refused as `too_deep'.
+-spec json_decode(binary()) ->
+          {ok, term()} | {error, not_json | {invalid, path(), duplicate_field | too_deep}}.
 json_decode(Bin) when is_binary(Bin) ->
     try jsx:decode(Bin, [{return_maps, false}]) of
-        Term -> to_maps(Term, [])
+        Term ->
+            try {ok, to_map(Term, [], 0)}
+            catch throw:{invalid, RevPath, Why} -> {error, {invalid, lists:reverse(RevPath), Why}}
+            end
     catch
         error:_ -> {error, not_json}
     end.
 
-to_maps(Term, Path) ->
-    try {ok, to_map(Term, Path)}
-    catch throw:{invalid, _, _} = E -> {error, E}
-    end.
-
-to_map([{}], _Path) ->
+%% The path is kept reversed while walking, so a deep document costs linear time.
+to_map(_Term, RevPath, Depth) when Depth > ?JSON_DEPTH ->
+    throw({invalid, RevPath, too_deep});
+to_map([{}], _RevPath, _Depth) ->
     #{};
-to_map([{K, _} | _] = Pairs, Path) when is_binary(K) ->
+to_map([{K, _} | _] = Pairs, RevPath, Depth) when is_binary(K) ->
     lists:foldl(fun({Key, V}, Acc) ->
-                        is_map_key(Key, Acc) andalso bad(Path ++ [Key], duplicate_field),
-                        Acc#{Key => to_map(V, Path ++ [Key])}
+                        is_map_key(Key, Acc) andalso throw({invalid, [Key | RevPath], duplicate_field}),
+                        Acc#{Key => to_map(V, [Key | RevPath], Depth + 1)}
                 end, #{}, Pairs);
-to_map(List, Path) when is_list(List) ->
-    {L, _} = lists:mapfoldl(fun(E, I) -> {to_map(E, Path ++ [I]), I + 1} end, 1, List),
+to_map(List, RevPath, Depth) when is_list(List) ->
+    {L, _} = lists:mapfoldl(fun(E, I) -> {to_map(E, [I | RevPath], Depth + 1), I + 1} end,
+                            1, List),
     L;
-to_map(V, _Path) ->
+to_map(V, _RevPath, _Depth) ->
     V.
 
 %%====================================================================

@@ -98,7 +98,14 @@ json_layout_test() ->
                                 "{\"kind\":\"line\",\"colour\":1}]}">>)),
     ?assertEqual({error, {invalid, [kind], {unknown_kind, <<"blob">>}}},
                  ?D:from_json(<<"{\"kind\":\"blob\"}">>)),
-    ?assertEqual({error, {invalid, [], {not_an_item, [1]}}}, ?D:from_json(<<"[1]">>)).
+    ?assertEqual({error, {invalid, [], {not_an_item, [1]}}}, ?D:from_json(<<"[1]">>)),
+    %% nesting without end is refused while reading, before it is walked
+    Deep = lists:foldl(fun(_, Inner) ->
+                               <<"{\"kind\":\"container\",\"attributes\":{},\"children\":[",
+                                 Inner/binary, "]}">>
+                       end, <<"{\"kind\":\"container\",\"attributes\":{},\"children\":[]}">>,
+                       lists:seq(1, 5000)),
+    ?assertMatch({error, {invalid, _, too_deep}}, ?D:from_json(Deep)).
 
 items_by_type_test() ->
     Cut = fun(Order, From, To) ->

@@ -227,6 +227,12 @@ unexpected_and_missing_test() ->
     Parts = good_parts(),
     ?assertEqual({unexpected_entry, "run.sh"},
                  refused(Dir, raw_zip(Parts ++ [{<<"run.sh">>, <<"rm -rf /">>, #{}}]), #{})),
+    %% names beyond ASCII, flagged as UTF-8 or not, are not machine files of ours
+    ?assertMatch({unexpected_entry, "files/Fr" ++ _},
+                 refused(Dir, raw_zip(Parts ++ [{<<"files/Fräs.nc"/utf8>>, <<"x">>,
+                                                 #{flags => 16#800}}]), #{})),
+    ?assertMatch({unexpected_entry, "files/Fr" ++ _},
+                 refused(Dir, raw_zip(Parts ++ [{<<"files/Fräs.nc"/utf8>>, <<"x">>, #{}}]), #{})),
     ?assertEqual({unexpected_entry, "files/sub/x"},
                  refused(Dir, raw_zip(Parts ++ [{<<"files/sub/x">>, <<"x">>, #{}}]), #{})),
     [?assertEqual({missing_part, binary_to_list(Part)},
