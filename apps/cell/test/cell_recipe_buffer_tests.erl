@@ -18,9 +18,7 @@ buffer_test_() ->
       fun restarts_empty_under_a_supervisor/1]}.
 
 setup() ->
-    Dir = filename:join(["/tmp", "cell_recipe_buffer_tests",
-                         os:getpid() ++ "-" ++ integer_to_list(erlang:unique_integer([positive])),
-                         "Products"]),
+    Dir = filename:join(cell_test_dir:new("recipe_buffer", "buffer"), "Products"),
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     Opts = #{dir => Dir, sync => false},
     {ok, Pid} = ?B:start_link(#{recipe => Opts}),

@@ -16,8 +16,7 @@
 %%====================================================================
 
 tmp_dir(What) ->
-    Dir = filename:join(["/tmp", "cell_recipe_tests", What ++ "-" ++ os:getpid() ++ "-"
-                         ++ integer_to_list(erlang:unique_integer([positive])), "Products"]),
+    Dir = filename:join(cell_test_dir:new("recipe", What), "Products"),
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     Dir.
 

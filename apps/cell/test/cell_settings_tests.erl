@@ -49,10 +49,7 @@ stop_base(Started) ->
     os:unsetenv("CELLRT_ROOT").
 
 tmp_dir(What) ->
-    Dir = filename:join(["/tmp", "cell_settings_tests", What ++ "-" ++ os:getpid() ++ "-"
-                         ++ integer_to_list(erlang:unique_integer([positive]))]),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    Dir.
+    cell_test_dir:new("settings", What).
 
 %% Runs Fun with a settings owner on Dir, and stops it after, whatever happens.
 with(Dir, Fun) ->
