@@ -389,8 +389,9 @@ to_float(Sign, Int, Frac, Exp) ->
 %% `Transform' an affine matrix, containers nested at most 64 deep.
 -spec validate(term()) -> {ok, drawing()} | {error, {invalid, list(), term()}}.
 validate(#{kind := container} = D) ->
+    %% Paths are built reversed while walking (cheap), and turned round on error.
     try {ok, item(D, [], 0)}
-    catch throw:{invalid, _, _} = E -> {error, E}
+    catch throw:{invalid, RevPath, Why} -> {error, {invalid, lists:reverse(RevPath), Why}}
     end;
 validate(Other) ->
     {error, {invalid, [], {not_a_container, kind_of(Other)}}}.
@@ -404,82 +405,88 @@ item(#{kind := container} = C, Path, Depth) ->
     keys(C, [attrs, children], Path),
     Children = case maps:get(children, C) of
                    L when is_list(L) -> L;
-                   X -> bad(Path ++ [children], {not_a_list, X})
+                   X -> bad([children | Path], {not_a_list, X})
                end,
     Attrs = attrs(maps:get(attrs, C), Path),
     {Items, _} = lists:mapfoldl(fun(Child, I) ->
-                                        {item(Child, Path ++ [children, I], Depth + 1), I + 1}
+                                        {item(Child, [I, children | Path], Depth + 1), I + 1}
                                 end, 1, Children),
     #{kind => container, attrs => Attrs, children => Items};
 item(#{kind := line} = L, Path, _) ->
     keys(L, [attrs, from, to], Path),
     L#{attrs := attrs(maps:get(attrs, L), Path),
-       from := pt(maps:get(from, L), Path ++ [from]),
-       to := pt(maps:get(to, L), Path ++ [to])};
+       from := pt(maps:get(from, L), [from | Path]),
+       to := pt(maps:get(to, L), [to | Path])};
 item(#{kind := circle} = C, Path, _) ->
     keys(C, [attrs, center, radius], Path),
     C#{attrs := attrs(maps:get(attrs, C), Path),
-       center := pt(maps:get(center, C), Path ++ [center]),
-       radius := radius(maps:get(radius, C), Path ++ [radius])};
+       center := pt(maps:get(center, C), [center | Path]),
+       radius := radius(maps:get(radius, C), [radius | Path])};
 item(#{kind := arc} = A, Path, _) ->
     keys(A, [attrs, center, radius, start_angle, end_angle], Path),
     A#{attrs := attrs(maps:get(attrs, A), Path),
-       center := pt(maps:get(center, A), Path ++ [center]),
-       radius := radius(maps:get(radius, A), Path ++ [radius]),
-       start_angle := num(maps:get(start_angle, A), Path ++ [start_angle]),
-       end_angle := num(maps:get(end_angle, A), Path ++ [end_angle])};
+       center := pt(maps:get(center, A), [center | Path]),
+       radius := radius(maps:get(radius, A), [radius | Path]),
+       start_angle := num(maps:get(start_angle, A), [start_angle | Path]),
+       end_angle := num(maps:get(end_angle, A), [end_angle | Path])};
 item(#{kind := polyline} = P, Path, _) ->
     keys(P, [attrs, points, bulges, closed], Path),
-    Points = pts(maps:get(points, P), Path ++ [points]),
-    length(Points) >= 2 orelse bad(Path ++ [points], fewer_than_two_points),
+    Points = pts(maps:get(points, P), [points | Path]),
+    length(Points) >= 2 orelse bad([points | Path], fewer_than_two_points),
     Bulges = case maps:get(bulges, P) of
                  Bs when is_list(Bs), length(Bs) =:= length(Points) ->
-                     indexed(fun(B, Pa) -> num(B, Pa) end, Bs, Path ++ [bulges]);
+                     indexed(fun(B, Pa) -> num(B, Pa) end, Bs, [bulges | Path]);
                  Bs ->
-                     bad(Path ++ [bulges], {not_one_per_point, Bs})
+                     bad([bulges | Path], {not_one_per_point, Bs})
              end,
     Closed = case maps:get(closed, P) of
                  B when is_boolean(B) -> B;
-                 B -> bad(Path ++ [closed], {not_a_boolean, B})
+                 B -> bad([closed | Path], {not_a_boolean, B})
              end,
     P#{attrs := attrs(maps:get(attrs, P), Path), points := Points, bulges := Bulges,
        closed := Closed};
 item(#{kind := polyface} = P, Path, _) ->
     keys(P, [attrs, vertices, faces], Path),
-    Vs = pts(maps:get(vertices, P), Path ++ [vertices]),
+    Vs = pts(maps:get(vertices, P), [vertices | Path]),
     N = length(Vs),
     Faces = case maps:get(faces, P) of
                 Fs when is_list(Fs) ->
-                    indexed(fun(F, Pa) -> face(F, N, Pa) end, Fs, Path ++ [faces]);
+                    indexed(fun(F, Pa) -> face(F, N, Pa) end, Fs, [faces | Path]);
                 Fs ->
-                    bad(Path ++ [faces], {not_a_list, Fs})
+                    bad([faces | Path], {not_a_list, Fs})
             end,
     P#{attrs := attrs(maps:get(attrs, P), Path), vertices := Vs, faces := Faces};
 item(#{kind := K}, Path, _) ->
-    bad(Path ++ [kind], {unknown_kind, K});
+    bad([kind | Path], {unknown_kind, K});
 item(Other, Path, _) ->
     bad(Path, {not_an_item, Other}).
 
 keys(Item, Required, Path) ->
     case [K || K <- Required, not is_map_key(K, Item)] of
         [] -> ok;
-        [Missing | _] -> bad(Path ++ [Missing], missing)
+        [Missing | _] -> bad([Missing | Path], missing)
     end,
-    case maps:keys(Item) -- [kind | Required] of
-        [] -> ok;
-        [Unknown | _] -> bad(Path ++ [Unknown], unknown_field)
+    %% Every required key is there: one more than kind and those means an unknown one.
+    case map_size(Item) =:= length(Required) + 1 of
+        true ->
+            ok;
+        false ->
+            [Unknown | _] = maps:keys(Item) -- [kind | Required],
+            bad([Unknown | Path], unknown_field)
     end.
 
+attrs(A, _Path) when map_size(A) =:= 0 ->
+    A;
 attrs(A, Path) when is_map(A) ->
     maps:foreach(fun(K, V) ->
-                         (is_binary(K) andalso utf8(K)) orelse bad(Path ++ [attrs], {bad_name, K}),
-                         (is_binary(V) andalso utf8(V)) orelse bad(Path ++ [attrs, K], {not_text, V})
+                         (is_binary(K) andalso utf8(K)) orelse bad([attrs | Path], {bad_name, K}),
+                         (is_binary(V) andalso utf8(V)) orelse bad([K, attrs | Path], {not_text, V})
                  end, A),
     case A of
         #{<<"ExecOrder">> := Order} ->
             case int_text(Order) of
                 {ok, _} -> ok;
-                error -> bad(Path ++ [attrs, <<"ExecOrder">>], {not_an_integer, Order})
+                error -> bad([<<"ExecOrder">>, attrs | Path], {not_an_integer, Order})
             end;
         _ ->
             ok
@@ -488,21 +495,21 @@ attrs(A, Path) when is_map(A) ->
         #{<<"Transform">> := T} ->
             case parse_matrix(T) of
                 {ok, _} -> ok;
-                {error, Why} -> bad(Path ++ [attrs, <<"Transform">>], Why)
+                {error, Why} -> bad([<<"Transform">>, attrs | Path], Why)
             end;
         _ ->
             ok
     end,
     A;
 attrs(A, Path) ->
-    bad(Path ++ [attrs], {not_a_map, A}).
+    bad([attrs | Path], {not_a_map, A}).
 
 utf8(B) -> is_binary(unicode:characters_to_binary(B)).
 
 pts(L, Path) when is_list(L) -> indexed(fun pt/2, L, Path);
 pts(L, Path) -> bad(Path, {not_a_list, L}).
 
-pt({X, Y, Z}, Path) -> {num(X, Path ++ [x]), num(Y, Path ++ [y]), num(Z, Path ++ [z])};
+pt({X, Y, Z}, Path) -> {num(X, [x | Path]), num(Y, [y | Path]), num(Z, [z | Path])};
 pt(P, Path) -> bad(Path, {not_a_point, P}).
 
 num(N, _Path) when is_number(N) -> float(N);
@@ -519,7 +526,7 @@ face(F, _N, Path) ->
     bad(Path, {not_a_face, F}).
 
 indexed(Fun, List, Path) ->
-    {Out, _} = lists:mapfoldl(fun(E, I) -> {Fun(E, Path ++ [I]), I + 1} end, 1, List),
+    {Out, _} = lists:mapfoldl(fun(E, I) -> {Fun(E, [I | Path]), I + 1} end, 1, List),
     Out.
 
 -spec bad(list(), term()) -> no_return().
@@ -572,35 +579,55 @@ pt_json({X, Y, Z}) -> [X, Y, Z].
 %% @doc Reads a drawing's JSON text and validates it (see {@link validate/1}).
 -spec from_json(binary()) -> {ok, drawing()} | {error, not_json | {invalid, list(), term()}}.
 from_json(Bin) ->
-    case cell_settings_schema:json_decode(Bin) of
-        {ok, Term} ->
+    %% jsx's object lists go straight into the Erlang form: a drawing is read on every
+    %% recipe load, and a map of every object first would double the work.
+    try jsx:decode(Bin, [{return_maps, false}]) of
+        Term ->
             try validate(from_term(Term, [], 0))
-            catch throw:{invalid, _, _} = E -> {error, E}
-            end;
-        {error, _} = E ->
-            E
+            catch throw:{invalid, RevPath, Why} -> {error, {invalid, lists:reverse(RevPath), Why}}
+            end
+    catch
+        error:_ -> {error, not_json}
     end.
 
-%% JSON objects onto the Erlang form: the field names and kinds are a fixed list, so
-%% no atom is ever made from the text.
+%% JSON objects (jsx's `[{Key, Value}]', `[{}]' when empty) onto the Erlang form: the
+%% field names and kinds are a fixed list, so no atom is ever made from the text.
 from_term(_Term, Path, Depth) when Depth > ?MAX_DEPTH ->
     bad(Path, too_deep);
-from_term(#{<<"kind">> := K} = Obj, Path, Depth) ->
-    Kind = case [A || A <- ?KINDS, atom_to_binary(A, utf8) =:= K] of
-               [A] -> A;
-               [] -> bad(Path ++ [kind], {unknown_kind, K})
-           end,
-    maps:fold(fun(<<"kind">>, _, Acc) -> Acc;
-                 (Key, V, Acc) -> field(Kind, Key, V, Path, Depth, Acc)
-              end, #{kind => Kind}, Obj);
+from_term([{K, _} | _] = Pairs, Path, Depth) when is_binary(K) ->
+    no_duplicates(Pairs, Path),
+    case lists:keyfind(<<"kind">>, 1, Pairs) of
+        {_, Name} ->
+            Kind = case [A || A <- ?KINDS, atom_to_binary(A, utf8) =:= Name] of
+                       [A] -> A;
+                       [] -> bad([kind | Path], {unknown_kind, Name})
+                   end,
+            lists:foldl(fun({<<"kind">>, _}, Acc) -> Acc;
+                           ({Key, V}, Acc) -> field(Kind, Key, V, Path, Depth, Acc)
+                        end, #{kind => Kind}, Pairs);
+        false ->
+            bad([kind | Path], missing)
+    end;
 from_term(Other, Path, _Depth) ->
     bad(Path, {not_an_item, Other}).
 
+no_duplicates(Pairs, Path) ->
+    Keys = lists:sort([K || {K, _} <- Pairs]),
+    case [K || {K, K} <- lists:zip(lists:droplast(Keys), tl(Keys))] of
+        [] -> ok;
+        [Dup | _] -> bad([Dup | Path], duplicate_field)
+    end.
+
 field(container, <<"children">>, L, Path, Depth, Acc) when is_list(L) ->
     {Children, _} = lists:mapfoldl(fun(C, I) ->
-                                           {from_term(C, Path ++ [children, I], Depth + 1), I + 1}
+                                           {from_term(C, [I, children | Path], Depth + 1), I + 1}
                                    end, 1, L),
     Acc#{children => Children};
+field(_, <<"attributes">>, [{}], _Path, _Depth, Acc) ->
+    Acc#{attrs => #{}};
+field(_, <<"attributes">>, [{K, _} | _] = Pairs, Path, _Depth, Acc) when is_binary(K) ->
+    no_duplicates(Pairs, [attrs | Path]),
+    Acc#{attrs => maps:from_list(Pairs)};
 field(_, <<"attributes">>, A, _Path, _Depth, Acc) ->
     Acc#{attrs => A};
 field(_, Key, V, Path, _Depth, Acc) ->
@@ -611,7 +638,7 @@ field(_, Key, V, Path, _Depth, Acc) ->
         [F] when (F =:= points orelse F =:= vertices), is_list(V) ->
             Acc#{F => [tuple_pt(P) || P <- V]};
         [F] -> Acc#{F => V};
-        [] -> bad(Path ++ [Key], unknown_field)
+        [] -> bad([Key | Path], unknown_field)
     end.
 
 tuple_pt([X, Y, Z]) -> {X, Y, Z};

@@ -99,6 +99,12 @@ json_layout_test() ->
     ?assertEqual({error, {invalid, [kind], {unknown_kind, <<"blob">>}}},
                  ?D:from_json(<<"{\"kind\":\"blob\"}">>)),
     ?assertEqual({error, {invalid, [], {not_an_item, [1]}}}, ?D:from_json(<<"[1]">>)),
+    ?assertEqual({error, {invalid, [<<"kind">>], duplicate_field}},
+                 ?D:from_json(<<"{\"kind\":\"line\",\"kind\":\"circle\"}">>)),
+    ?assertEqual({error, {invalid, [kind], missing}}, ?D:from_json(<<"{\"attributes\":{}}">>)),
+    ?assertEqual({error, {invalid, [attrs, <<"A">>], duplicate_field}},
+                 ?D:from_json(<<"{\"kind\":\"container\",\"children\":[],",
+                                "\"attributes\":{\"A\":\"1\",\"A\":\"2\"}}">>)),
     %% nesting without end is refused while reading, before it is walked
     Deep = lists:foldl(fun(_, Inner) ->
                                <<"{\"kind\":\"container\",\"attributes\":{},\"children\":[",
