@@ -42,8 +42,27 @@ import(Bin) ->
 
 %% @doc Imports a DXF text into a container of primitives.
 -spec import(binary(), options()) ->
-          {ok, cell_recipe_drawing:container(), report()} | {error, error()}.
+          {ok, cell_recipe_drawing:container(), report()} | {error, error() | {bad_option, term()}}.
 import(Bin, Opts) when is_binary(Bin) ->
+    case check_options(Opts) of
+        ok -> import1(Bin, Opts);
+        {error, _} = E -> E
+    end.
+
+check_options(Opts) when is_map(Opts) ->
+    Ok = fun(max_bytes, V) -> is_integer(V) andalso V > 0;
+            (max_entities, V) -> is_integer(V) andalso V > 0;
+            (item_type, V) -> is_binary(V);
+            (_, _) -> false
+         end,
+    case [K || {K, V} <- maps:to_list(Opts), not Ok(K, V)] of
+        [] -> ok;
+        [K | _] -> {error, {bad_option, K}}
+    end;
+check_options(_) ->
+    {error, {bad_option, options}}.
+
+import1(Bin, Opts) ->
     MaxBytes = maps:get(max_bytes, Opts, ?MAX_BYTES),
     case Bin of
         _ when byte_size(Bin) > MaxBytes ->

@@ -103,6 +103,8 @@ malformed_test_() ->
                    ?X:import(entities(["0", "LWPOLYLINE", "90", "2", "10", "0", "10", "1",
                                        "20", "1"]))),
      ?_assertEqual(Err(1, {unexpected, 5, <<"x">>}), ?X:import(<<"5\nx\n">>)),
+     ?_assertEqual({error, {bad_option, max_bytes}}, ?X:import(Good, #{max_bytes => -1})),
+     ?_assertEqual({error, {bad_option, colour}}, ?X:import(Good, #{colour => red})),
      ?_assertMatch({error, {dxf, _, _}}, ?X:import(<<0, 1, 2, 3, 255, 10, 13>>)),
      ?_assertEqual({ok, ?D:container(#{<<"ItemType">> => <<"PanelDrawing">>}, []),
                     #{imported => 0, skipped => #{}}},
