@@ -292,6 +292,10 @@ encode1(Recipe, #{schema := Schema}) ->
     Modified = maps:get(modified, Recipe, 0),
     Files = maps:get(files, Recipe, #{}),
     try
+        case maps:keys(Recipe) -- [description, author, modified, settings, drawing, files] of
+            [] -> ok;
+            [Unknown | _] -> throw({invalid, [Unknown], unknown_field})
+        end,
         text(Description, 4096) orelse throw({invalid, [description], {not_text, Description}}),
         text(Author, 256) orelse throw({invalid, [author], {not_text, Author}}),
         is_integer(Modified) orelse throw({invalid, [modified], {not_a_time, Modified}}),

@@ -456,7 +456,7 @@ last_good(Name, #obj{mod = Mod, revs = Revs}, State) ->
                           (_, Found) -> Found
                        end, none, Revs),
     case Good of
-        {R, S} -> {S, io_lib:format("revision ~p", [R])};
+        {R, S} -> {S, io_lib:format("the settings of revision ~p", [R])};
         none -> {cell_settings_schema:defaults(Mod), "the defaults"}
     end.
 

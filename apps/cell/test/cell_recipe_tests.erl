@@ -152,6 +152,10 @@ save_load_test() ->
     ?assertEqual({error, {invalid, [files, <<"../x">>], bad_file_name}},
                  ?R:save(<<"Panel 4711">>, #{files => #{<<"../x">> => <<>>}}, <<"bert">>, O)),
     ?assertEqual({error, {bad_who, <<>>}}, ?R:save(<<"Panel 4711">>, #{}, <<>>, O)),
+    ?assertEqual({error, {invalid, [colour], unknown_field}},
+                 ?R:save(<<"Panel 4711">>, #{colour => red}, <<"bert">>, O)),
+    ?assertEqual({error, {invalid, [description], {not_text, 42}}},
+                 ?R:save(<<"Panel 4711">>, #{description => 42}, <<"bert">>, O)),
     ?assertEqual({ok, R}, ?R:load(<<"Panel 4711">>, O)),
     %% the defaults make a recipe
     ok = ?R:save(<<"empty">>, #{}, <<"bert">>, O),
