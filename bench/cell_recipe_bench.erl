@@ -29,13 +29,14 @@ run() ->
         {ok, Recipe} = cell_recipe:load(<<"Bench panel">>, Opts),
         %% warm up, and put the recipe in the buffer
         {ok, Recipe} = cell_recipe_buffer:get(<<"Bench panel">>),
-        File = cell_bench:stats([time_s(fun() -> {ok, _} = cell_recipe:load(<<"Bench panel">>, Opts) end)
-                                 || _ <- lists:seq(1, ?FILE_RUNS)]),
-        Buffer = cell_bench:stats([time_s(fun() -> {ok, _} = cell_recipe_buffer:get(<<"Bench panel">>) end)
-                                   || _ <- lists:seq(1, ?BUFFER_RUNS)]),
-        Note = io_lib:format("The recipe file is ~p kB (zip of JSON); ~p file loads and ~p buffer "
-                             "reads measured. A buffer read copies the recipe out of ETS into "
-                             "the task's heap.", [byte_size(Bytes) div 1024, ?FILE_RUNS, ?BUFFER_RUNS]),
+        FromFile = fun() -> {ok, _} = cell_recipe:load(<<"Bench panel">>, Opts) end,
+        FromBuffer = fun() -> {ok, _} = cell_recipe_buffer:get(<<"Bench panel">>) end,
+        File = cell_bench:stats([time_s(FromFile) || _ <- lists:seq(1, ?FILE_RUNS)]),
+        Buffer = cell_bench:stats([time_s(FromBuffer) || _ <- lists:seq(1, ?BUFFER_RUNS)]),
+        Note = io_lib:format("The recipe file is ~p kB (zip of JSON); ~p file loads and ~p "
+                             "buffer reads measured. A buffer read copies the recipe out of "
+                             "ETS into the task's heap.",
+                             [byte_size(Bytes) div 1024, ?FILE_RUNS, ?BUFFER_RUNS]),
         [#{title => "recipe load, drawing of 10,000 primitives, median",
            unit => "s", ours => maps:get(median, Buffer), peer => maps:get(median, File),
            peer_name => "load from the .zprd file (cell_recipe:load/2)", better => lower,

@@ -259,8 +259,9 @@ import(Name, Bin, Opts) when is_binary(Bin) ->
             {{ok, Recipe}, false} ->
                 {ok, Out} = encode(Recipe, O),
                 ok = write(Path, Out, O),
+                #{author := Author, modified := Modified} = Recipe,
                 cell_log:info(?LOG, "recipe ~ts imported (by ~ts, ~ts)",
-                              [Name, maps:get(author, Recipe), iso_time(maps:get(modified, Recipe))])
+                              [Name, Author, iso_time(Modified)])
         end
     end).
 

@@ -174,7 +174,8 @@ convert(Entities) ->
         lists:foldl(fun({N, Type, Groups}, {Ps, Sk}) ->
                             case entity(Type, Groups, N) of
                                 {ok, P} -> {[P | Ps], Sk};
-                                {skip, Why} -> {Ps, maps:update_with(Why, fun(C) -> C + 1 end, 1, Sk)}
+                                {skip, Why} ->
+                                    {Ps, maps:update_with(Why, fun(C) -> C + 1 end, 1, Sk)}
                             end
                     end, {[], #{}}, Entities),
     {lists:reverse(Prims), Skipped}.

@@ -239,16 +239,17 @@ init(#{dir := Dir, history := History, sync := Sync, schemas := Schemas}) ->
 -spec handle_continue({register, [module()]}, #state{}) -> {noreply, #state{}}.
 handle_continue({register, Schemas}, State) ->
     _ = cell_file:cleanup(State#state.dir),
-    {noreply, lists:foldl(fun(Mod, S) ->
-                                  case do_register(Mod, S) of
-                                      {ok, S1} ->
-                                          S1;
-                                      {error, Why} ->
-                                          cell_log:error(?LOG, "settings schema ~p refused: ~ts",
-                                                         [Mod, cell_settings_schema:format_error(Why)]),
-                                          S
-                                  end
-                          end, State, Schemas)}.
+    {noreply, lists:foldl(fun register_at_start/2, State, Schemas)}.
+
+register_at_start(Mod, State) ->
+    case do_register(Mod, State) of
+        {ok, S1} ->
+            S1;
+        {error, Why} ->
+            cell_log:error(?LOG, "settings schema ~p refused: ~ts",
+                           [Mod, cell_settings_schema:format_error(Why)]),
+            State
+    end.
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
@@ -482,9 +483,9 @@ save(Name, New, Who, #state{objs = Objs} = State) ->
                 S1 ->
                     #obj{mod = Mod} = Obj,
                     Changes = cell_settings_schema:diff(Mod, Old, New),
+                    Lines = [cell_settings_schema:format_change(C) || C <- Changes],
                     cell_log:info(?LOG, "settings ~p changed by ~ts: ~ts",
-                                  [Name, Who, lists:join("; ", [cell_settings_schema:format_change(C)
-                                                                || C <- Changes])]),
+                                  [Name, Who, lists:join("; ", Lines)]),
                     {reply, ok, S1}
             catch
                 throw:{file, _, _} = Why -> {reply, {error, Why}, State}

@@ -393,7 +393,8 @@ to_map([{}], _RevPath, _Depth) ->
     #{};
 to_map([{K, _} | _] = Pairs, RevPath, Depth) when is_binary(K) ->
     lists:foldl(fun({Key, V}, Acc) ->
-                        is_map_key(Key, Acc) andalso throw({invalid, [Key | RevPath], duplicate_field}),
+                        is_map_key(Key, Acc)
+                            andalso throw({invalid, [Key | RevPath], duplicate_field}),
                         Acc#{Key => to_map(V, [Key | RevPath], Depth + 1)}
                 end, #{}, Pairs);
 to_map(List, RevPath, Depth) when is_list(List) ->
