@@ -31,7 +31,8 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), "root"),
-    Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "@localhost",
+    %% Unique per run: two checkouts may run this suite on one machine at once.
+    Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "_" ++ os:getpid() ++ "@localhost",
     Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"}],
     [{env, Env}, {root, Root}, {node, list_to_atom(Node)} | Config].
 

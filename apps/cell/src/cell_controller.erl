@@ -115,6 +115,10 @@ handle_call({request, start, Who}, _From, State) ->
         true ->
             {reply, {error, estop_active}, State};
         false ->
+            case State#state.cell of
+                off -> ok = snapshot();
+                _ -> ok
+            end,
             ok = request(start, Who),
             {reply, ok, State}
     end;
@@ -177,6 +181,21 @@ handle_info({timeout, _, estop_deadline}, State) ->
 handle_info({synced, From}, State) ->
     gen_server:reply(From, ok),
     {noreply, State}.
+
+%% Starting a stopped cell (seed 000 §3.1, §3.2.3): the tasks run on a snapshot of the
+%% settings taken now, so changes saved while the cell runs apply at the next Start; the
+%% machine's log level applies; the recipe buffer is emptied so recipes changed while
+%% the cell was stopped are read again.
+snapshot() ->
+    Snapshot = cell_settings:snapshot(),
+    Machine = maps:get(machine, Snapshot, #{}),
+    ok = cell_log:set_default_level(maps:get(log_level, Machine, brief)),
+    ok = cell_recipe_buffer:clear(),
+    lists:foreach(fun(#{pid := Pid, settings_key := Key}) when Key =/= undefined ->
+                          cell_task_proc:control(Pid, settings, maps:get(Key, Snapshot, #{}));
+                     (_) ->
+                          ok
+                  end, cell_registry:tasks()).
 
 request(Request, Who) ->
     ok = cell_registry:set_control(request, Request),

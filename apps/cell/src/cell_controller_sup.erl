@@ -2,7 +2,8 @@
 %% cell spec (see {@link cell_spec}).
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
-%% uses; events and alarms are used by the tasks; the controller drives the tasks. A
+%% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
+%% controller drives the tasks. A
 %% child that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by itself on an unattended machine: beyond that the node
 %% reports it instead of spinning.
@@ -20,11 +21,13 @@ start_link() ->
     end.
 
 -spec init(cell_spec:spec()) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init(#{tasks := Tasks}) ->
+init(#{tasks := Tasks, settings := Schemas}) ->
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
                 #{id => cell_events, start => {cell_events, start_link, []}},
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
+                cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
+                cell_recipe_buffer:child_spec(#{}),
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
                 #{id => cell_controller, start => {cell_controller, start_link, []}}],

@@ -4,8 +4,13 @@
 %% #{name => <<"Router">>,
 %%   tasks => [#{id => loading_front, module => router_loading_task,
 %%               zone => <<"Loading">>, lane => <<"Front">>,
-%%               io => [front_loading_io], settings => #{...}, args => #{...}}]}
+%%               io => [front_loading_io], settings => loading, args => #{...}}],
+%%   settings => [router_loading_settings]}
 %% '''
+%%
+%% A task's `settings' names the settings object (see {@link cell_settings}) whose
+%% snapshot it runs on, taken at each Start; a map gives fixed settings instead. The
+%% cell's `settings' lists the schema modules of its own settings objects.
 %%
 %% A cell application's own module returns it from the settings (seed 000 §2.3.3: one
 %% setting switches a cell between simulated and real tasks and IO): the `cell' app's
@@ -18,12 +23,12 @@
 
 -export_type([spec/0]).
 
--type spec() :: #{name := binary(), tasks := [cell_task:spec()]}.
+-type spec() :: #{name := binary(), tasks := [cell_task:spec()], settings := [module()]}.
 
 %% @doc A cell without tasks.
 -spec empty() -> spec().
 empty() ->
-    #{name => <<"cell">>, tasks => []}.
+    #{name => <<"cell">>, tasks => [], settings => []}.
 
 %% @doc The configured spec, validated.
 -spec load() -> {ok, spec()} | {error, term()}.
@@ -59,10 +64,17 @@ from_module(Mod) when is_atom(Mod) ->
 -spec validate(term()) -> {ok, spec()} | {error, term()}.
 validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
     Name = maps:get(name, Spec, <<"cell">>),
+    Schemas = maps:get(settings, Spec, []),
     case tasks(Tasks, [], #{}) of
-        {ok, Checked} when is_binary(Name) -> {ok, Spec#{name => Name, tasks => Checked}};
-        {ok, _} -> {error, {bad_cell_spec, name, Name}};
-        Error -> Error
+        {ok, _} when not is_binary(Name) ->
+            {error, {bad_cell_spec, name, Name}};
+        {ok, Checked} ->
+            case is_list(Schemas) andalso lists:all(fun is_schema/1, Schemas) of
+                true -> {ok, Spec#{name => Name, tasks => Checked, settings => Schemas}};
+                false -> {error, {bad_cell_spec, settings, Schemas}}
+            end;
+        Error ->
+            Error
     end;
 validate(Other) ->
     {error, {bad_cell_spec, "a cell spec is a map with a list of tasks", Other}}.
@@ -87,7 +99,7 @@ task(T) ->
               {zone, fun is_name/1},
               {lane, fun is_name/1}],
     Optional = [{io, [], fun(L) -> is_list(L) andalso lists:all(fun is_atom/1, L) end},
-                {settings, #{}, fun is_map/1},
+                {settings, #{}, fun(S) -> is_map(S) orelse is_atom(S) end},
                 {args, #{}, fun is_map/1}],
     case [K || {K, Ok} <- Checks, not (maps:is_key(K, T) andalso Ok(maps:get(K, T)))] of
         [] ->
@@ -107,6 +119,13 @@ task(T) ->
     end.
 
 is_name(B) -> is_binary(B) andalso B =/= <<>>.
+
+is_schema(Mod) when is_atom(Mod) ->
+    code:ensure_loaded(Mod) =:= {module, Mod}
+        andalso erlang:function_exported(Mod, name, 0)
+        andalso erlang:function_exported(Mod, fields, 0);
+is_schema(_) ->
+    false.
 
 is_task_module(Mod) when is_atom(Mod) ->
     case code:ensure_loaded(Mod) of
@@ -137,5 +156,9 @@ validate_test_() ->
                    validate(#{tasks => [Good#{colour => red}]})),
      ?_assertMatch({error, {bad_task, _, _}}, validate(#{tasks => [#{id => "a"}]})),
      ?_assertMatch({error, {bad_cell_spec, _, _}}, validate([])),
-     ?_assertMatch({ok, _}, validate(#{tasks => []}))].
+     ?_assertMatch({ok, _}, validate(#{tasks => []})),
+     ?_assertMatch({ok, #{tasks := [#{settings := loading}]}},
+                   validate(#{tasks => [Good#{settings => loading}]})),
+     ?_assertMatch({error, {bad_cell_spec, settings, _}},
+                   validate(#{tasks => [], settings => [lists]}))].
 -endif.

@@ -61,7 +61,7 @@
                      | {error, cell_alarms:spec(), task()}
                      | {reset, task()}.
 -type spec() :: #{id := atom(), module := module(), zone := binary(), lane := binary(),
-                  io => [atom()], settings => map(), args => map()}.
+                  io => [atom()], settings => map() | atom(), args => map()}.
 
 -callback init(task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
 -callback step(task()) -> step_result().
@@ -75,7 +75,10 @@
 new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
     #task{id = Id, module = Mod, zone = Zone, lane = Lane,
           args = maps:get(args, Spec, #{}), io = maps:get(io, Spec, []),
-          settings = maps:get(settings, Spec, #{}),
+          settings = case maps:get(settings, Spec, #{}) of
+                         Fixed when is_map(Fixed) -> Fixed;
+                         Name when is_atom(Name) -> cell_settings:get(Name)
+                     end,
           product_path = cell_product:path(Zone, Lane)}.
 
 %% Accessors

@@ -246,7 +246,8 @@ terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
 
 boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
     Previous = cell_registry:register_task(Id, #{module => Mod, zone => Z, lane => L,
-                                                 state => off, serial => undefined}),
+                                                 state => off, serial => undefined,
+                                                 settings_key => settings_key(D0)}),
     D1 = D0#data{request = cell_registry:control(request),
                  estop = cell_registry:control(estop)},
     D2 = service_flag(cell_registry:control(service_mode), D1),
@@ -485,6 +486,12 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
 
 goto(To, Cause, #data{task = T} = D, Actions) ->
     {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
+
+settings_key(#data{spec = Spec}) ->
+    case maps:get(settings, Spec, #{}) of
+        Name when is_atom(Name) -> Name;
+        _ -> undefined
+    end.
 
 service_flag(On, #data{task = T} = D) ->
     D#data{task = T#task{service_mode = On}}.

@@ -46,5 +46,9 @@ init(Tasks) ->
             cell_log:error(cell, "the cell's tasks were restarted after an internal fault; "
                            "check the machine and press Start", [])
     end,
+    Known = cell_settings:names(),
+    _ = [erlang:error({unknown_settings_object, Id, Name})
+         || #{id := Id, settings := Name} <- Tasks, is_atom(Name),
+            not lists:member(Name, Known)],
     Flags = #{strategy => one_for_one, intensity => 20, period => 60},
     {ok, {Flags, [cell_task_proc:child_spec(T) || T <- Tasks]}}.

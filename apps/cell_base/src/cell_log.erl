@@ -19,7 +19,8 @@
 -module(cell_log).
 
 -export([log/4, error/3, warning/3, notice/3, info/3, debug/3, trace/3]).
--export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2]).
+-export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2,
+         set_default_level/1]).
 -export([subscribe/0, unsubscribe/0]).
 -export([format_line/1, parse_line/1, file_name/2, query/1, default_level/0]).
 
@@ -81,6 +82,12 @@ trace(Source, Format, Args) ->
 -spec enabled(level(), source()) -> boolean().
 enabled(Level, Source) ->
     loggable(Level, Source).
+
+%% @doc Sets the threshold of every source without one of its own (the machine
+%% settings' log level, applied at each Start).
+-spec set_default_level(threshold()) -> ok.
+set_default_level(Level) when Level =:= silent; Level =:= brief; Level =:= verbose ->
+    cell_log_server:set_level(?DEFAULT_KEY, Level).
 
 %% @doc Sets the threshold of one source.
 -spec set_level(source(), threshold()) -> ok.

@@ -19,7 +19,7 @@
 start_link() ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
 
--spec set_level(binary(), cell_log:threshold()) -> ok.
+-spec set_level(binary() | '$default', cell_log:threshold()) -> ok.
 set_level(Source, Level) -> gen_server:call(?MODULE, {set_level, Source, Level}).
 
 -spec reset_level(binary()) -> ok.
