@@ -115,10 +115,7 @@ handle_call({request, start, Who}, _From, State) ->
         true ->
             {reply, {error, estop_active}, State};
         false ->
-            case State#state.cell of
-                off -> ok = snapshot();
-                _ -> ok
-            end,
+            ok = snapshot(),
             ok = request(start, Who),
             {reply, ok, State}
     end;
@@ -182,10 +179,12 @@ handle_info({synced, From}, State) ->
     gen_server:reply(From, ok),
     {noreply, State}.
 
-%% Starting a stopped cell (seed 000 §3.1, §3.2.3): the tasks run on a snapshot of the
-%% settings taken now, so changes saved while the cell runs apply at the next Start; the
-%% machine's log level applies; the recipe buffer is emptied so recipes changed while
-%% the cell was stopped are read again.
+%% At Start (seed 000 §3.1, §3.2.3) every task is handed a snapshot of its settings
+%% taken now; a task applies it only when it leaves OFF, so a task resuming after Pause
+%% keeps the settings it runs on and a change saved while the cell runs applies at the
+%% next Start. Deciding this per task, not by the cell state seen here, keeps a Start
+%% that follows a Stop at once from missing the snapshot. The machine's log level
+%% applies; the recipe buffer is emptied so recipes changed meanwhile are read again.
 snapshot() ->
     Snapshot = cell_settings:snapshot(),
     Machine = maps:get(machine, Snapshot, #{}),

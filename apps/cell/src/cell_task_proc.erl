@@ -544,4 +544,4 @@ describe(State, #data{task = T} = D) ->
     #{id => T#task.id, state => State, request => D#data.request, estop => D#data.estop,
       service_mode => T#task.service_mode, down => D#data.down,
       pending => D#data.pending, product => T#task.product,
-      initialized => D#data.initialized}.
+      initialized => D#data.initialized, settings => T#task.settings}.

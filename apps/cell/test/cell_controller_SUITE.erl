@@ -9,7 +9,7 @@
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
-         cell_state_follows_tasks/1, bad_spec_is_refused/1]).
+         cell_state_follows_tasks/1, bad_spec_is_refused/1, settings_snapshot_at_start/1]).
 
 -define(IDS, [load, work, unload, robot]).
 
@@ -17,14 +17,21 @@ all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, damaged_product_file,
      product_survives_restart, warnings, events_have_their_fields,
-     cell_state_follows_tasks, bad_spec_is_refused].
+     cell_state_follows_tasks, bad_spec_is_refused, settings_snapshot_at_start].
 
 init_per_testcase(bad_spec_is_refused, Config) ->
     Config;
-init_per_testcase(_Case, Config) ->
+init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), "root"),
     Tab = ets:new(cell_suite, [public]),
-    Specs = [cell_test_task:spec(Id, Tab, self()) || Id <- ?IDS],
+    Specs0 = [cell_test_task:spec(Id, Tab, self()) || Id <- ?IDS],
+    %% One task runs on the machine settings object: it gets its snapshot at Start.
+    Specs = case Case of
+                settings_snapshot_at_start ->
+                    [S#{settings => machine} || S <- Specs0];
+                _ ->
+                    Specs0
+            end,
     start_cell(Root, Specs),
     Refs = maps:from_list([{Id, maps:get(ref, maps:get(args, S))} || #{id := Id} = S <- Specs]),
     [{tab, Tab}, {refs, Refs}, {root, Root}, {specs, Specs} | Config].
@@ -287,6 +294,26 @@ bad_spec_is_refused(Config) ->
     ok = application:set_env(cell_base, root, Root),
     ?assertMatch({error, {cell, {{bad_cell_spec, {bad_task, x, {bad_option, module}}}, _}}},
                  application:ensure_all_started(cell)).
+
+%% Seed 000 §3.1: tasks run on a snapshot taken at Start; a change saved while the
+%% cell runs applies at the next Start, not at a resume after Pause.
+settings_snapshot_at_start(_Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertMatch(#{settings := #{speed_override := 50}}, cell_task_proc:info(robot)),
+    ok = cell_settings:put(machine, #{speed_override => 80}, <<"service">>),
+    ok = cell_controller:pause(),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertMatch(#{settings := #{speed_override := 50}}, cell_task_proc:info(robot)),
+    ok = cell_controller:stop(),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertMatch(#{settings := #{speed_override := 80}}, cell_task_proc:info(robot)),
+    %% A refused change leaves the settings in force and the tasks' snapshot alone.
+    ?assertMatch({error, {invalid, [speed_override], _}},
+                 cell_settings:put(machine, #{speed_override => 500}, <<"service">>)),
+    ?assertEqual(80, cell_settings:get(machine, speed_override)).
 
 %% -------------------------------------------------------------------------------------
 
