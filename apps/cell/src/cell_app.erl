@@ -6,8 +6,15 @@
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
-    cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
-    cell_controller_sup:start_link().
+    %% The folders may be new since cell_base started (another root, or removed).
+    case cell_config:ensure_root() of
+        ok ->
+            cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
+            _ = cell_file:cleanup(cell_config:dir(data)),
+            cell_controller_sup:start_link();
+        {error, Reason} ->
+            {error, {cell_root_folder, Reason}}
+    end.
 
 -spec stop(term()) -> ok.
 stop(_State) ->

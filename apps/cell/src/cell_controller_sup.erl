@@ -21,13 +21,16 @@ start_link() ->
     end.
 
 -spec init(cell_spec:spec()) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init(#{tasks := Tasks, settings := Schemas}) ->
+init(#{tasks := Tasks, settings := Schemas} = Spec) ->
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
                 #{id => cell_events, start => {cell_events, start_link, []}},
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
                 cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
                 cell_recipe_buffer:child_spec(#{}),
+                #{id => cell_handshake_sup,
+                  start => {cell_handshake_sup, start_link, [cell_spec:hosted_links(Spec)]},
+                  type => supervisor, shutdown => infinity},
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
                 #{id => cell_controller, start => {cell_controller, start_link, []}}],

@@ -7,13 +7,19 @@
 %% is removed when the task holds none. A damaged file is reported, never dropped.
 -module(cell_product).
 
--export([new/2, new/3, path/2, file_name/2, load/1, save/2, delete/1, serial/1,
-         validate/1]).
+-export([new/2, new/3, path/2, file_name/2, load/1, save/2, save/3, delete/1, delete/2,
+         serial/1, validate/1, stored/3]).
 
--export_type([product/0]).
+-export_type([product/0, stored/0, marker/0]).
 
 -type product() :: #{serial := binary(), recipe := binary(), failed := boolean(),
                      atom() => term()}.
+%% What a product file holds: the product, its generation and, while it moves
+%% between two tasks, a marker. The generation grows at every change of owner, so of
+%% two files naming the same serial the one with the higher generation is the owner;
+%% the other is a stale copy a crash left behind.
+-type stored() :: #{product := product(), gen := pos_integer(), marker := marker()}.
+-type marker() :: undefined | #{link := atom(), from := term(), phase := in_transit}.
 
 %% @doc A new good product.
 -spec new(binary(), binary()) -> product().
@@ -41,31 +47,54 @@ safe(Name) ->
          _ -> C
      end || C <- unicode:characters_to_list(Name)].
 
-%% @doc Loads a task's product: `undefined' when the task holds none.
+%% @doc What a file holds for a product of a generation and a marker.
+-spec stored(product(), pos_integer(), marker()) -> stored().
+stored(Product, Gen, Marker) ->
+    #{product => Product, gen => Gen, marker => Marker}.
+
+%% @doc Loads a task's product file: `undefined' when the task holds none.
 -spec load(file:filename()) ->
-          {ok, product() | undefined} | {error, {corrupt, atom()} | {bad_product, term()}
-                                         | {file:filename(), term()}}.
+          {ok, stored() | undefined} | {error, {corrupt, atom()} | {bad_product, term()}
+                                        | {file:filename(), term()}}.
 load(Path) ->
     case cell_file:read_term(Path) of
-        {ok, Product} ->
-            case validate(Product) of
-                ok -> {ok, Product};
-                Error -> Error
+        {ok, #{product := Product, gen := Gen, marker := Marker} = Stored}
+          when is_integer(Gen), Gen > 0 ->
+            case {validate(Product), valid_marker(Marker)} of
+                {ok, true} -> {ok, Stored};
+                {ok, false} -> {error, {bad_product, Marker}};
+                {Error, _} -> Error
             end;
+        {ok, Other} -> {error, {bad_product, Other}};
         {error, enoent} -> {ok, undefined};
         {error, _} = Error -> Error
     end.
 
+valid_marker(undefined) -> true;
+valid_marker(#{link := L, phase := in_transit}) -> is_atom(L);
+valid_marker(_) -> false.
+
 %% @doc Saves a product durably; `undefined' deletes the file.
--spec save(file:filename(), product() | undefined) -> ok | cell_file:error().
-save(Path, undefined) ->
-    delete(Path);
-save(Path, Product) ->
-    cell_file:write_term(Path, Product).
+-spec save(file:filename(), stored() | undefined) -> ok | cell_file:error().
+save(Path, Stored) ->
+    save(Path, Stored, #{}).
+
+%% @doc As {@link save/2}; `#{sync => false}' when a crash losing this write is
+%% harmless (a stale copy the generations recognise, a marker merely left set).
+-spec save(file:filename(), stored() | undefined, cell_file:options()) ->
+          ok | cell_file:error().
+save(Path, undefined, Opts) ->
+    delete(Path, Opts);
+save(Path, Stored, Opts) ->
+    cell_file:write_term(Path, Stored, Opts).
 
 -spec delete(file:filename()) -> ok | cell_file:error().
 delete(Path) ->
     cell_file:delete(Path).
+
+-spec delete(file:filename(), cell_file:options()) -> ok | cell_file:error().
+delete(Path, Opts) ->
+    cell_file:delete(Path, Opts).
 
 -spec serial(product() | undefined) -> binary() | undefined.
 serial(undefined) -> undefined;
@@ -102,13 +131,20 @@ save_load_test() ->
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     P = filename:join(Dir, file_name(<<"Z">>, <<"L">>)),
     ?assertEqual({ok, undefined}, load(P)),
-    Prod = new(<<"S1">>, <<"recipe-a">>, #{cuts_done => 3}),
+    Prod = stored(new(<<"S1">>, <<"recipe-a">>, #{cuts_done => 3}), 1, undefined),
     ok = save(P, Prod),
     ?assertEqual({ok, Prod}, load(P)),
+    Moving = stored(new(<<"S1">>, <<"r">>), 4, #{link => l1, from => a, phase => in_transit}),
+    ok = save(P, Moving, #{sync => false}),
+    ?assertEqual({ok, Moving}, load(P)),
     ok = save(P, undefined),
     ?assertEqual({ok, undefined}, load(P)),
     ok = file:write_file(P, <<"garbage">>),
     ?assertEqual({error, {corrupt, not_a_cellrt_file}}, load(P)),
     ok = cell_file:write_term(P, {not_a_product}),
+    ?assertMatch({error, {bad_product, _}}, load(P)),
+    ok = cell_file:write_term(P, Prod#{gen => 0}),
+    ?assertMatch({error, {bad_product, _}}, load(P)),
+    ok = cell_file:write_term(P, Prod#{marker => nonsense}),
     ?assertMatch({error, {bad_product, _}}, load(P)).
 -endif.

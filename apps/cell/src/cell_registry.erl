@@ -15,7 +15,7 @@
 -behaviour(gen_server).
 
 -export([start_link/0, register_task/2, unregister_task/1, update/2, set_state/2, task/1,
-         tasks/0, task_ids/0, pids/0, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
+         tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([previous/0, control_key/0]).
@@ -25,6 +25,7 @@
 
 -define(TASKS, cell_tasks).
 -define(STATES, cell_task_states).
+-define(PRODUCTS, cell_product_holders).
 -define(CONTROL, cell_control).
 -define(ESTOP_KEY, {?MODULE, estop}).
 
@@ -60,6 +61,33 @@ update(Id, Fields) ->
 set_state(Id, State) ->
     true = ets:insert(?STATES, {Id, State}),
     ok.
+
+%% @doc The task holds a product of a serial and generation now (`undefined': none).
+%% Of two tasks naming one serial, the higher generation owns it: a task holding a
+%% lower one is told `{cell_registry, stale, Serial, Gen}' and drops its copy.
+%% Answers the other holders of the serial.
+-spec hold(atom(), binary() | undefined, non_neg_integer()) -> ok.
+hold(Id, Serial, Gen) ->
+    true = ets:match_delete(?PRODUCTS, {'_', Id, '_'}),
+    case Serial of
+        undefined ->
+            ok;
+        _ ->
+            true = ets:insert(?PRODUCTS, {Serial, Id, Gen}),
+            lists:foreach(fun({_, Other, G}) when Other =/= Id, G < Gen ->
+                                  case ets:lookup(?TASKS, Other) of
+                                      [{_, #{pid := Pid}}] -> Pid ! {cell_registry, stale, Serial, Gen};
+                                      _ -> ok
+                                  end;
+                             (_) ->
+                                  ok
+                          end, ets:lookup(?PRODUCTS, Serial))
+    end.
+
+%% @doc Who holds a serial, and with which generation.
+-spec holders(binary()) -> [{atom(), non_neg_integer()}].
+holders(Serial) ->
+    [{Id, Gen} || {_, Id, Gen} <- ets:lookup(?PRODUCTS, Serial)].
 
 %% @doc One task's row.
 -spec task(atom()) -> {ok, map()} | {error, not_found}.
@@ -133,6 +161,7 @@ init([]) ->
     ?STATES = ets:new(?STATES, [named_table, public, {read_concurrency, true},
                                 {write_concurrency, true}]),
     ?CONTROL = ets:new(?CONTROL, [named_table, public, {read_concurrency, true}]),
+    ?PRODUCTS = ets:new(?PRODUCTS, [named_table, public, bag, {read_concurrency, true}]),
     %% Created once per node: replacing a persistent term costs a global scan, and a
     %% task holding the old reference would miss a stop.
     case persistent_term:get(?ESTOP_KEY, undefined) of

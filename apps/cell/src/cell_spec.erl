@@ -8,6 +8,12 @@
 %%   settings => [router_loading_settings]}
 %% '''
 %%
+%% `links' are the handshakes between tasks: `#{id => load_work, from => loading,
+%% to => work}'. An end may be a task of another node, `{Task, Node}' (a line of cells),
+%% or `undefined' for a master task that connects at run time (the seed's feeders).
+%% A link runs on the node of its downstream end (or of its upstream end when the
+%% downstream connects at run time), so two nodes naming one link start it once.
+%%
 %% A task's `settings' names the settings object (see {@link cell_settings}) whose
 %% snapshot it runs on, taken at each Start; a map gives fixed settings instead. The
 %% cell's `settings' lists the schema modules of its own settings objects.
@@ -19,16 +25,26 @@
 %% here; a bad spec stops the boot with an error that names the task and the field.
 -module(cell_spec).
 
--export([load/0, validate/1, empty/0]).
+-export([load/0, validate/1, empty/0, hosted_links/1]).
 
 -export_type([spec/0]).
 
--type spec() :: #{name := binary(), tasks := [cell_task:spec()], settings := [module()]}.
+-type spec() :: #{name := binary(), tasks := [cell_task:spec()], settings := [module()],
+                  links := [cell_handshake_link:spec()]}.
 
 %% @doc A cell without tasks.
 -spec empty() -> spec().
 empty() ->
-    #{name => <<"cell">>, tasks => [], settings => []}.
+    #{name => <<"cell">>, tasks => [], settings => [], links => []}.
+
+%% @doc The links this node runs.
+-spec hosted_links(spec()) -> [cell_handshake_link:spec()].
+hosted_links(#{links := Links}) ->
+    [L || #{from := From, to := To} = L <- Links, hosted_here(From, To)].
+
+hosted_here(_From, To) when is_atom(To), To =/= undefined -> true;
+hosted_here(From, undefined) -> is_atom(From) andalso From =/= undefined;
+hosted_here(_From, _To) -> false.
 
 %% @doc The configured spec, validated.
 -spec load() -> {ok, spec()} | {error, term()}.
@@ -70,14 +86,55 @@ validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
             {error, {bad_cell_spec, name, Name}};
         {ok, Checked} ->
             case is_list(Schemas) andalso lists:all(fun is_schema/1, Schemas) of
-                true -> {ok, Spec#{name => Name, tasks => Checked, settings => Schemas}};
-                false -> {error, {bad_cell_spec, settings, Schemas}}
+                true ->
+                    case links(maps:get(links, Spec, []), [T || #{id := T} <- Checked]) of
+                        {ok, Links} ->
+                            {ok, Spec#{name => Name, settings => Schemas, links => Links,
+                                       tasks => [with_links(T, Links) || T <- Checked]}};
+                        Error ->
+                            Error
+                    end;
+                false ->
+                    {error, {bad_cell_spec, settings, Schemas}}
             end;
         Error ->
             Error
     end;
 validate(Other) ->
     {error, {bad_cell_spec, "a cell spec is a map with a list of tasks", Other}}.
+
+links(Links, TaskIds) when is_list(Links) ->
+    links(Links, TaskIds, [], #{});
+links(Other, _) ->
+    {error, {bad_cell_spec, links, Other}}.
+
+links([], _TaskIds, Acc, _Seen) ->
+    {ok, lists:reverse(Acc)};
+links([#{id := Id} = L | Rest], TaskIds, Acc, Seen) when is_atom(Id) ->
+    From = maps:get(from, L, undefined),
+    To = maps:get(to, L, undefined),
+    Unknown = maps:keys(L) -- [id, from, to],
+    case {maps:is_key(Id, Seen), Unknown, end_ok(From, TaskIds), end_ok(To, TaskIds)} of
+        {true, _, _, _} -> {error, {bad_link, Id, duplicate_id}};
+        {_, [_ | _], _, _} -> {error, {bad_link, Id, {unknown_keys, Unknown}}};
+        {_, _, false, _} -> {error, {bad_link, Id, {bad_option, from}}};
+        {_, _, _, false} -> {error, {bad_link, Id, {bad_option, to}}};
+        _ when From =:= undefined, To =:= undefined -> {error, {bad_link, Id, no_ends}};
+        _ when From =:= To -> {error, {bad_link, Id, same_task_at_both_ends}};
+        _ -> links(Rest, TaskIds, [#{id => Id, from => From, to => To} | Acc], Seen#{Id => true})
+    end;
+links([Other | _], _TaskIds, _Acc, _Seen) ->
+    {error, {bad_link, Other, "a link needs an atom id"}}.
+
+%% A local end names a task of this spec; a remote one is {Task, Node}.
+end_ok(undefined, _) -> true;
+end_ok({Task, Node}, _) -> is_atom(Task) andalso is_atom(Node);
+end_ok(Task, TaskIds) -> is_atom(Task) andalso lists:member(Task, TaskIds).
+
+with_links(#{id := Id} = T, Links) ->
+    Mine = maps:from_list([{L, #{role => up}} || #{id := L, from := F} <- Links, F =:= Id]
+                          ++ [{L, #{role => down}} || #{id := L, to := To} <- Links, To =:= Id]),
+    T#{links => Mine}.
 
 tasks([], Acc, _Seen) ->
     {ok, lists:reverse(Acc)};
@@ -105,8 +162,8 @@ task(T) ->
         [] ->
             case [K || {K, _, Ok} <- Optional, maps:is_key(K, T), not Ok(maps:get(K, T))] of
                 [] ->
-                    Unknown = maps:keys(T) -- [id | [K || {K, _} <- Checks] ++
-                                                   [K || {K, _, _} <- Optional]],
+                    Unknown = maps:keys(T) -- [id, links | [K || {K, _} <- Checks] ++
+                                                          [K || {K, _, _} <- Optional]],
                     case Unknown of
                         [] -> {ok, maps:merge(maps:from_list([{K, D} || {K, D, _} <- Optional]), T)};
                         _ -> {error, {unknown_keys, Unknown}}
@@ -160,5 +217,24 @@ validate_test_() ->
      ?_assertMatch({ok, #{tasks := [#{settings := loading}]}},
                    validate(#{tasks => [Good#{settings => loading}]})),
      ?_assertMatch({error, {bad_cell_spec, settings, _}},
-                   validate(#{tasks => [], settings => [lists]}))].
+                   validate(#{tasks => [], settings => [lists]})),
+     ?_assertMatch({ok, #{tasks := [#{links := #{l := #{role := up}}},
+                                    #{links := #{l := #{role := down}}}]}},
+                   validate(#{tasks => [Good, Good#{id => b}],
+                              links => [#{id => l, from => a, to => b}]})),
+     ?_assertEqual({error, {bad_link, l, {bad_option, to}}},
+                   validate(#{tasks => [Good], links => [#{id => l, from => a, to => nobody}]})),
+     ?_assertEqual({error, {bad_link, l, same_task_at_both_ends}},
+                   validate(#{tasks => [Good], links => [#{id => l, from => a, to => a}]})),
+     ?_assertEqual({error, {bad_link, l, duplicate_id}},
+                   validate(#{tasks => [Good, Good#{id => b}],
+                              links => [#{id => l, from => a, to => b},
+                                        #{id => l, from => b, to => a}]})),
+     ?_assertMatch({ok, _}, validate(#{tasks => [Good],
+                                       links => [#{id => l, from => {x, 'n@h'}, to => a}]}))].
+
+hosted_links_test() ->
+    Links = [#{id => a, from => t1, to => t2}, #{id => b, from => t2, to => {t9, 'n@h'}},
+             #{id => c, from => {t0, 'n@h'}, to => t1}, #{id => d, from => t2, to => undefined}],
+    ?assertEqual([a, c, d], [I || #{id := I} <- hosted_links(#{links => Links})]).
 -endif.

@@ -44,24 +44,28 @@
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
          work_abort/2, transfer_out/2]).
 -export([error_spec/4, warning/4, reset_warning/2, log/4]).
-%% For the engine.
--export([new/1, set_state/3, publish/3]).
+%% For the engine and the handshake.
+-export([new/1, set_state/3, publish/3, store/5]).
 
 -export_type([task/0, wait/0, step_result/0, spec/0]).
 
 %% Opaque to task modules: use the functions of this module on it.
 -type task() :: #task{}.
 -type wait() :: {timer, non_neg_integer()}
-              | {reply, reference()}.
+              | {reply, reference()}
+              | {handshake, atom(), available | not_busy, boolean()}.
 %% `{timer, Ms}': Ms milliseconds have passed. `{reply, Ref}': the task process
 %% received `{Ref, Term}' (an answer to an asynchronous request it made, such as a
-%% hardware object's).
+%% hardware object's). `{handshake, Link, Signal, Value}': a signal of a handshake
+%% link has that value (see {@link cell_handshake}); a transfer on the link that ends
+%% (completed, aborted, interrupted) ends the wait too.
 -type step_result() :: {continue, task()}
                      | {wait, wait() | [wait()], task()}
                      | {error, cell_alarms:spec(), task()}
                      | {reset, task()}.
 -type spec() :: #{id := atom(), module := module(), zone := binary(), lane := binary(),
-                  io => [atom()], settings => map() | atom(), args => map()}.
+                  io => [atom()], settings => map() | atom(), args => map(),
+                  links => #{atom() => #{role := up | down}}}.
 
 -callback init(task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
 -callback step(task()) -> step_result().
@@ -79,6 +83,10 @@ new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
                          Fixed when is_map(Fixed) -> Fixed;
                          Name when is_atom(Name) -> cell_settings:get(Name)
                      end,
+          links = maps:map(fun(_, #{role := Role}) ->
+                                   #{role => Role, phase => idle, available => false,
+                                     not_busy => false}
+                           end, maps:get(links, Spec, #{})),
           product_path = cell_product:path(Zone, Lane)}.
 
 %% Accessors
@@ -123,24 +131,40 @@ put(#task{data = D} = T, Key, Value) -> T#task{data = maps:put(Key, Value, D)}.
 -spec product(task()) -> cell_product:product() | undefined.
 product(#task{product = P}) -> P.
 
-%% @doc Takes or changes the product; it is on disk when this returns.
+%% @doc Takes or changes the product; it is on disk when this returns. A product of
+%% another serial (a new panel read by a scanner, say) starts a new history.
 -spec set_product(task(), cell_product:product()) -> task().
-set_product(T, Product) ->
+set_product(#task{product = Old, gen = Gen, marker = Marker} = T, Product) ->
     case cell_product:validate(Product) of
-        ok -> store_product(T, Product);
-        {error, Reason} -> erlang:error(Reason)
+        ok ->
+            case cell_product:serial(Old) =:= cell_product:serial(Product) of
+                true -> store(T, Product, Gen, Marker, #{});
+                false -> store(T, Product, 1, undefined, #{})
+            end;
+        {error, Reason} ->
+            erlang:error(Reason)
     end.
 
 %% @doc The task holds no product any more; its file is removed.
 -spec clear_product(task()) -> task().
 clear_product(T) ->
-    store_product(T, undefined).
+    store(T, undefined, 0, undefined, #{}).
 
-store_product(#task{product_path = Path, id = Id} = T, Product) ->
-    case cell_product:save(Path, Product) of
+%% @private Stores the task's product with its generation and marker (`undefined'
+%% removes the file), and tells the registry.
+-spec store(task(), cell_product:product() | undefined, non_neg_integer(),
+            cell_product:marker(), cell_file:options()) -> task().
+store(#task{id = Id, product_path = Path} = T, Product, Gen, Marker, Opts) ->
+    Stored = case Product of
+                 undefined -> undefined;
+                 _ -> cell_product:stored(Product, Gen, Marker)
+             end,
+    case cell_product:save(Path, Stored, Opts) of
         ok ->
-            ok = cell_registry:update(Id, #{serial => cell_product:serial(Product)}),
-            T#task{product = Product};
+            Serial = cell_product:serial(Product),
+            ok = cell_registry:hold(Id, Serial, Gen),
+            ok = cell_registry:update(Id, #{serial => Serial}),
+            T#task{product = Product, gen = Gen, marker = Marker};
         {error, Reason} ->
             %% Nothing may go on as if the product were saved: the task crashes and
             %% comes back DOWN with this reason for the operator.

@@ -30,9 +30,10 @@
 
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | step | crash | product_file.
+-type origin() :: init | step | crash | product_file | transit.
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
--type armed() :: {timer, reference(), non_neg_integer()} | {reply, reference()}.
+-type armed() :: {timer, reference(), non_neg_integer()} | {reply, reference()}
+               | {handshake, reference(), atom(), atom(), term()}.
 
 -record(data, {
     task :: #task{},
@@ -47,7 +48,9 @@
     armed = [] :: [armed()],
     load_error :: term(),                 %% the product file could not be read
     crash :: term(),                      %% how the previous incarnation ended
-    settings = #{} :: map()               %% the snapshot for the next start
+    settings = #{} :: map(),              %% the snapshot for the next start
+    deferred :: pause | service | undefined, %% a pause a transfer holds back
+    reoffer = [] :: [atom()]              %% offers a pause withdrew, made again at resume
 }).
 
 -define(STEP(Gen), {'$cell_step', Gen}).
@@ -149,6 +152,8 @@ handle_event(internal, {crashed, Reason}, setup, D) ->
     raise(setup, crash_error(Reason, D), crash, D);
 handle_event(internal, product_damaged, setup, D) ->
     raise(setup, damaged_error(D), product_file, D);
+handle_event(internal, in_transit, setup, D) ->
+    raise(setup, transit_error(D), transit, D);
 
 %% --------------------------------------------------------------------------------------
 %% READY: steps, waits, and the requests honoured between steps
@@ -170,9 +175,9 @@ handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
     end;
 handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
   when Request =:= pause; Request =:= stop ->
-    pause(S, pause, D#data{request = Request});
+    hold_or_pause(S, D#data{request = Request});
 handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
-    pause(S, service, service_flag(true, D));
+    hold_or_pause(S, (service_flag(true, D))#data{deferred = service});
 
 %% --------------------------------------------------------------------------------------
 %% down: paused, or an error waiting for the operator
@@ -218,6 +223,16 @@ handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
 handle_event(info, {cell_alarm, answer, _Id, _Solution, _Who}, _State, _D) ->
     %% An answer to an error this task has since withdrawn (stop, emergency stop).
     keep_state_and_data;
+handle_event(info, {cell_handshake, _, _} = Msg, State, D) ->
+    handshake(Msg, State, D);
+handle_event(info, {cell_handshake, _, _, _} = Msg, State, D) ->
+    handshake(Msg, State, D);
+handle_event(info, {cell_handshake_watch, _, _, _, _} = Msg, State, D) ->
+    handshake(Msg, State, D);
+handle_event(info, {{'LINK_DOWN', _}, _, process, _, _} = Msg, State, D) ->
+    handshake(Msg, State, D);
+handle_event(info, {cell_registry, stale, Serial, Gen}, _State, D) ->
+    {keep_state, D#data{task = drop_stale(D#data.task, Serial, Gen)}};
 handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
     {stop, Reason};
 handle_event(info, Msg, _State, D) ->
@@ -252,14 +267,16 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
                  estop = cell_registry:control(estop)},
     D2 = service_flag(cell_registry:control(service_mode), D1),
     D = case cell_product:load(T#task.product_path) of
-            {ok, Product} ->
-                ok = cell_registry:update(Id, #{serial => cell_product:serial(Product)}),
-                D2#data{task = (D2#data.task)#task{product = Product}};
+            {ok, undefined} ->
+                D2#data{task = cell_handshake:attach_all(D2#data.task)};
+            {ok, #{product := Product, gen := Gen, marker := Marker}} ->
+                T1 = (D2#data.task)#task{product = Product, gen = Gen, marker = Marker},
+                D2#data{task = cell_handshake:attach_all(dedupe(T1))};
             {error, Reason} ->
                 cell_log:error(Id, "the product file ~ts cannot be read (~tp); the "
                                "operator is asked when the cell starts",
                                [T#task.product_path, Reason]),
-                D2#data{load_error = Reason}
+                D2#data{load_error = Reason, task = cell_handshake:attach_all(D2#data.task)}
         end,
     case Previous of
         {crashed, Why} ->
@@ -278,6 +295,8 @@ start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) 
 start_from_off(#data{request = start} = D0) ->
     D = D0#data{task = (D0#data.task)#task{settings = D0#data.settings}},
     {Event, D1} = case D of
+                      #data{crash = undefined, load_error = undefined,
+                            task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
                       #data{crash = undefined, load_error = undefined} -> {run_init, D};
                       #data{crash = undefined} -> {product_damaged, D};
                       #data{crash = Why} -> {{crashed, Why}, D#data{crash = undefined}}
@@ -320,19 +339,24 @@ ready_after_init(Woken, #data{task = T} = D) ->
 %% Steps and waits
 %% --------------------------------------------------------------------------------------
 
-run_step(State, #data{task = #task{module = Mod} = T0, pending = {step, Woken}} = D) ->
-    case {estop_raised(), D#data.request} of
-        {true, _} ->
-            estop(State, D#data{estop = true});
-        {false, Request} when Request =/= start ->
+run_step(State, D0) ->
+    case estop_raised() of
+        true ->
+            estop(State, D0#data{estop = true});
+        false ->
             %% Every step boundary is a wait point: a Pause or Stop that came while the
-            %% task was elsewhere (re-initialising after a Reset, say) is honoured here.
-            pause(State, pause, D);
-        {false, start} ->
-            Answer = case Woken of {answer, A} -> A; _ -> undefined end,
-            T = T0#task{woken_by = Woken, answer = Answer},
-            after_step(Mod:step(T), D)
+            %% task was elsewhere (re-initialising after a Reset, say) is honoured here,
+            %% unless a transfer holds it back.
+            case try_pause(State, D0) of
+                {paused, Result} -> Result;
+                {hold, D} -> do_step(D)
+            end
     end.
+
+do_step(#data{task = #task{module = Mod} = T0, pending = {step, Woken}} = D) ->
+    Answer = case Woken of {answer, A} -> A; _ -> undefined end,
+    T = T0#task{woken_by = Woken, answer = Answer},
+    after_step(Mod:step(T), D).
 
 after_step({continue, T}, #data{gen = Gen} = D) ->
     self() ! ?STEP(Gen),
@@ -343,7 +367,11 @@ after_step({wait, Wait, T}, D) ->
                 W -> [W]
             end,
     D1 = arm(Waits, D#data{task = clean(T), pending = {waits, Waits}}),
-    {next_state, T#task.ipc, D1};
+    State = (D1#data.task)#task.ipc,
+    case try_pause(State, D1) of
+        {paused, Result} -> Result;
+        {hold, D2} -> {next_state, State, D2}
+    end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
     goto(setup, {arrow, 2}, uninit(D#data{task = clean(T)}),
@@ -356,19 +384,32 @@ after_step(Other, #data{task = #task{module = Mod}}) ->
 clean(T) ->
     T#task{answer = undefined, woken_by = undefined}.
 
-arm(Waits, #data{gen = Gen} = D) ->
-    Armed = [arm_one(W, Gen) || W <- Waits],
-    D#data{armed = Armed}.
+arm(Waits, #data{gen = Gen, task = T0} = D) ->
+    {Armed, T} = lists:mapfoldl(fun(W, T) -> arm_one(W, Gen, T) end, T0, Waits),
+    D#data{armed = Armed, task = T}.
 
-arm_one({timer, Ms}, Gen) when is_integer(Ms), Ms >= 0 ->
-    {timer, erlang:start_timer(Ms, self(), ?WAIT(Gen)), Ms};
-arm_one({reply, Ref}, _Gen) when is_reference(Ref) ->
-    {reply, Ref};
-arm_one(Other, _Gen) ->
+arm_one({timer, Ms}, Gen, T) when is_integer(Ms), Ms >= 0 ->
+    {{timer, erlang:start_timer(Ms, self(), ?WAIT(Gen)), Ms}, T};
+arm_one({reply, Ref}, _Gen, T) when is_reference(Ref) ->
+    {{reply, Ref}, T};
+arm_one({handshake, Link, Signal, Value}, _Gen, T0)
+  when Signal =:= available; Signal =:= not_busy ->
+    {ok, Ref} = cell_handshake:arm(T0, Link, {Signal, Value}),
+    %% Seed 000 §2.3.4: a downstream task waiting for an offer is starved.
+    T = case {Signal, Value, cell_handshake:available(T0, Link), T0#task.ipc} of
+            {available, true, false, {ready, _, _} = S} when S =/= {ready, idle, starved} ->
+                cell_task:starved(T0);
+            _ ->
+                T0
+        end,
+    {{handshake, Ref, Link, Signal, Value}, T};
+arm_one(Other, _Gen, _T) ->
     erlang:error({bad_wait, Other}).
 
 disarm(#data{armed = Armed, gen = Gen} = D) ->
     _ = [erlang:cancel_timer(TRef) || {timer, TRef, _} <- Armed],
+    %% Watches on links are not cancelled: when one fires later its reference is no
+    %% longer armed and the message is ignored.
     %% A new generation: step messages and timer messages already sent are ignored.
     D#data{armed = [], gen = Gen + 1}.
 
@@ -379,22 +420,61 @@ wake(Woken, D) ->
 %% Pause, resume, stop, errors
 %% --------------------------------------------------------------------------------------
 
+%% A Pause, Stop or service mode reached a READY task. The seed allows stopping only
+%% before downstream commits: a transfer under way holds it back until it ends; an
+%% open offer is withdrawn first (and made again at resume), unless downstream has
+%% just begun to take it.
+hold_or_pause(State, D) ->
+    case try_pause(State, D) of
+        {paused, Result} -> Result;
+        {hold, D1} -> {keep_state, D1}
+    end.
+
+try_pause(State, #data{request = Request, deferred = Deferred, task = T0} = D) ->
+    Why = case Deferred of undefined -> pause; W -> W end,
+    case Request =/= start orelse Deferred =/= undefined of
+        false ->
+            {hold, D};
+        true ->
+            case cell_handshake:holding(T0) of
+                true ->
+                    {hold, D#data{deferred = Why}};
+                false ->
+                    Offers = cell_handshake:active_offers(T0),
+                    {Withdrawn, T} = lists:foldl(
+                                       fun(L, {Acc, TAcc}) ->
+                                               {Ok, TAcc1} = cell_handshake:try_abort_offering(TAcc, L),
+                                               {[{L, Ok} | Acc], TAcc1}
+                                       end, {[], T0}, Offers),
+                    case lists:all(fun({_, Ok}) -> Ok end, Withdrawn) of
+                        true ->
+                            {paused, pause(State, Why,
+                                           D#data{task = T, reoffer = [L || {L, _} <- Withdrawn]})};
+                        false ->
+                            {hold, D#data{task = T, deferred = Why}}
+                    end
+            end
+    end.
+
 %% Arrow 6, then for Stop arrow 9.
 pause(State, Why, #data{request = Request} = D0) ->
-    D = (disarm(D0))#data{down = {paused, Why}, resume = State},
+    D = (disarm(D0))#data{down = {paused, Why}, resume = State, deferred = undefined},
     case Request of
         stop -> goto(down, {arrow, 6}, D, [{next_event, internal, stop}]);
         _ -> goto(down, {arrow, 6}, D, [])
     end.
 
-%% Arrow 5: back to the READY sub-state the task left, doing what it was doing.
-resume(#data{resume = Ready, pending = Pending} = D0) ->
-    D = D0#data{down = undefined, resume = undefined},
+%% Arrow 5: back to the READY sub-state the task left, doing what it was doing, its
+%% withdrawn offers made again.
+resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
+    T = cell_handshake:reoffer(cell_task:set_state(T0, Ready, {arrow, 5}), Offers),
+    D = D0#data{down = undefined, resume = undefined, reoffer = [], task = T},
     case Pending of
         {waits, Waits} ->
-            goto(Ready, {arrow, 5}, arm(Waits, D), []);
+            D1 = arm(Waits, D),
+            {next_state, (D1#data.task)#task.ipc, D1};
         {step, _} ->
-            goto(Ready, {arrow, 5}, D, [{next_event, internal, step}])
+            {next_state, T#task.ipc, D, [{next_event, internal, step}]}
     end.
 
 raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
@@ -422,6 +502,15 @@ answered(crash, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) -
     reinit(D#data{task = cell_task:clear_product(T)});
 answered(crash, _Retry, _Who, D) ->
     goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
+answered(transit, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+    cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
+                    [Who, serial_text(P)]),
+    goto(setup, {arrow, 8}, D#data{task = cell_task:clear_product(T)},
+         [{next_event, internal, run_init}]);
+answered(transit, _Ignore, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
+    cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
+    goto(setup, {arrow, 8}, D#data{task = cell_task:store(T, P, G, undefined, #{})},
+         [{next_event, internal, run_init}]);
 answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
     Aside = Path ++ ".damaged-" ++ integer_to_list(os:system_time(second)),
     _ = file:rename(Path, Aside),
@@ -447,7 +536,9 @@ stop_to_off(#data{down = Down} = D0) ->
         {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
         _ -> ok
     end,
-    D = uninit((disarm(D0))#data{down = undefined, pending = undefined, resume = undefined}),
+    D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
+                           deferred = undefined, reoffer = []},
+    D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
     goto(off, {arrow, 9}, D, []).
 
 %% From any state: leave at once, secure the outputs, OFF.
@@ -458,7 +549,9 @@ estop(_State, #data{down = Down} = D0) ->
         {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
         _ -> ok
     end,
-    D = uninit((disarm(D0))#data{down = undefined, pending = undefined, resume = undefined}),
+    D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
+                           deferred = undefined, reoffer = []},
+    D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
     goto(off, estop, D, []).
 
 estop_raised() ->
@@ -507,6 +600,76 @@ stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
     end.
 
 %% --------------------------------------------------------------------------------------
+%% Handshakes and product ownership
+%% --------------------------------------------------------------------------------------
+
+%% A message of a link: the bookkeeping is cell_handshake's; a READY task waiting on
+%% that link wakes, with the events the seed raises there.
+handshake(Msg, State, #data{task = T0} = D0) ->
+    {T, Wakes} = cell_handshake:handle(Msg, T0),
+    D = D0#data{task = T},
+    case State of
+        {ready, _, _} ->
+            case woken(Wakes, D#data.armed) of
+                undefined ->
+                    %% A transfer that ended may free a Pause it held back.
+                    case try_pause(State, D) of
+                        {paused, Result} -> Result;
+                        {hold, D1} -> {next_state, (D1#data.task)#task.ipc, D1}
+                    end;
+                Woken ->
+                    {keep_state, D1, Actions} = wake(Woken, D),
+                    T1 = wake_events(Woken, D1#data.task),
+                    {next_state, T1#task.ipc, D1#data{task = T1}, Actions}
+            end;
+        _ ->
+            {keep_state, D}
+    end.
+
+woken([], _Armed) ->
+    undefined;
+woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed) ->
+    case lists:keymember(Ref, 2, [A || {handshake, _, _, _, _} = A <- Armed]) of
+        true -> {handshake, Link, Signal, Value};
+        false -> woken(Rest, Armed)
+    end;
+woken([{wake, Link, Outcome} | Rest], Armed) ->
+    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link] of
+        [_ | _] -> {handshake, Link, Outcome};
+        [] -> woken(Rest, Armed)
+    end.
+
+%% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
+%% seeing Available is unstarved.
+wake_events({handshake, _Link, not_busy, true}, #task{ipc = {ready, idle, blocked}} = T) ->
+    cell_task:unblocked(T);
+wake_events({handshake, _Link, available, true}, #task{ipc = {ready, idle, starved}} = T) ->
+    cell_task:unstarved(T);
+wake_events(_, T) ->
+    T.
+
+%% A product found at boot that another task holds in a newer record is a stale copy
+%% a crash left behind.
+dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
+    ok = cell_registry:hold(Id, S, G),
+    case [{Other, G2} || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
+        [] ->
+            ok = cell_registry:update(Id, #{serial => S}),
+            T;
+        [{Other, _} | _] ->
+            drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
+    end.
+
+drop_stale(#task{product = #{serial := S}, gen = G} = T, S, Newer) when G < Newer ->
+    drop(T, "another task holds it in a newer record");
+drop_stale(T, _Serial, _Gen) ->
+    T.
+
+drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
+    cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),
+    cell_task:store(T, undefined, 0, undefined, #{sync => false}).
+
+%% --------------------------------------------------------------------------------------
 %% Errors the engine raises itself
 %% --------------------------------------------------------------------------------------
 
@@ -528,6 +691,16 @@ damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
                     [Path, Why]),
       [retry, reset]).
 
+transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
+    cell_task:error_spec(
+      <<"in_transit">>, "Product transfer interrupted",
+      io_lib:format("Product ~ts was moving over the handshake ~ts when the transfer was "
+                    "interrupted.~nCheck where the product is. Select IGNORE if it is on "
+                    "this station: the task goes on with it. Select RESET if it is not: "
+                    "the task forgets it (take it out of the machine by hand).",
+                    [serial_text(P), Link]),
+      [ignore, reset]).
+
 crash_text({{product_not_saved, {Path, Reason}}, _}) ->
     io_lib:format("the product could not be saved to ~ts (~tp)", [Path, Reason]);
 crash_text({Reason, Stack}) when is_list(Stack) ->
@@ -544,4 +717,7 @@ describe(State, #data{task = T} = D) ->
     #{id => T#task.id, state => State, request => D#data.request, estop => D#data.estop,
       service_mode => T#task.service_mode, down => D#data.down,
       pending => D#data.pending, product => T#task.product,
-      initialized => D#data.initialized, settings => T#task.settings}.
+      initialized => D#data.initialized, settings => T#task.settings,
+      gen => T#task.gen, marker => T#task.marker,
+      links => maps:map(fun(_, V) -> maps:without([last_product, mref], V) end,
+                        T#task.links)}.

@@ -74,7 +74,11 @@ check(Dir, Acked, Round) ->
                   ++ [P || {File, P} <- [cell_product_writer:op(Acked + 1, ?FILES)],
                            File =:= filename:basename(Path)],
               case cell_product:load(Path) of
-                  {ok, Product} ->
+                  {ok, Stored} ->
+                      Product = case Stored of
+                                    undefined -> undefined;
+                                    #{product := P} -> P
+                                end,
                       case lists:member(Product, Allowed) of
                           true -> ok;
                           false -> ct:fail({lost, Round, F, Acked, got, summary(Product),

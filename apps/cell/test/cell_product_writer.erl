@@ -16,7 +16,11 @@ main() ->
 loop(Dir, Files, M) ->
     "go\n" = io:get_line(""),
     {File, Product} = op(M, Files),
-    ok = cell_product:save(filename:join(Dir, File), Product),
+    Stored = case Product of
+                 undefined -> undefined;
+                 _ -> cell_product:stored(Product, 1, undefined)
+             end,
+    ok = cell_product:save(filename:join(Dir, File), Stored),
     io:format("ack ~p~n", [M]),
     loop(Dir, Files, M + 1).
 

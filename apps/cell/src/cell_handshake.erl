@@ -1,0 +1,439 @@
+%% @doc The internal handshake between device tasks, as a task's step uses it (seed 000
+%% §2.3.6), and the bookkeeping behind it.
+%%
+%% Upstream (previous device), the seed's four phases:
+%% ```
+%% T1 = cell_handshake:offer(T, Link),                      % phase 1: Data + Available
+%% {wait, {handshake, Link, not_busy, true}, T1}             % blocked until committed
+%% ... run the conveyor until the product left the sensor ...
+%% T2 = cell_handshake:release(T, Link),                    % phase 3: Available off
+%% {wait, {handshake, Link, not_busy, false}, T2}            % until it arrived
+%% {Outcome, T3} = cell_handshake:finish(T, Link)           % completed | aborted | interrupted
+%% '''
+%% Downstream (next device):
+%% ```
+%% {wait, {handshake, Link, available, true}, T}             % starved until offered
+%% {ok, T1} = cell_handshake:commit(T, Link),               % phase 2: NotBusy on
+%% {wait, {handshake, Link, available, false}, T1}           % the product left upstream
+%% ... run the conveyor until the product is on the sensor ...
+%% T2 = cell_handshake:complete(T, Link)                    % phase 4: NotBusy off
+%% '''
+%% `try_abort_offering/2' withdraws an offer unless downstream has already begun to
+%% take it; `peek/2' looks without committing (adjust the conveyor width first).
+%% ItemTransferOut / ItemTransferIn, EquipmentBlocked / Unblocked and Starved /
+%% Unstarved come out of these calls and of the waits, where the seed's examples raise
+%% them.
+%%
+%% Ownership, durably: the product file with the highest generation owns a serial
+%% (see {@link cell_product}). The commit itself changes nothing on disk: until the
+%% product leaves upstream, upstream owns it. At release downstream writes it with a
+%% higher generation, marked in transit, before upstream forgets its copy; completion
+%% clears the mark. A transfer interrupted while the product moved leaves it with
+%% one side, marked, and the operator confirms where it is before that task goes on.
+-module(cell_handshake).
+
+-include("cell_task.hrl").
+
+-export([offer/2, try_abort_offering/2, release/2, finish/2,
+         available/2, not_busy/2, phase/2, peek/2, commit/2, complete/2, abort/2,
+         connect/3, disconnect/2, confirm_here/1, in_transit/1]).
+%% For the engine and the links.
+-export([attach_all/1, handle/2, holding/1, arm/3, hello/2, interrupt_all/1,
+         active_offers/1, reoffer/2]).
+
+-export_type([view/0]).
+
+-type view() :: #{role := cell_handshake_link:role(),
+                  phase := cell_handshake_link:phase(),
+                  available := boolean(), not_busy := boolean(),
+                  outcome => completed | aborted | interrupted,
+                  owned => boolean()}.
+
+-define(CALL_TIMEOUT, 5000).
+
+%% -------------------------------------------------------------------------------------
+%% Upstream
+%% -------------------------------------------------------------------------------------
+
+%% @doc Phase 1: offers the task's product on a link (Data and Available).
+%% EquipmentBlocked.
+-spec offer(cell_task:task(), atom()) -> cell_task:task().
+offer(#task{product = undefined, id = Id}, Link) ->
+    erlang:error({no_product_to_offer, Id, Link});
+offer(#task{product = P, gen = G} = T, Link) ->
+    ok = call(Link, {offer, self(), P, G}),
+    T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined}),
+    case T1#task.ipc of
+        {ready, idle, blocked} -> T1;
+        _ -> cell_task:blocked(T1)
+    end.
+
+%% @doc Withdraws the offer unless downstream has begun to take the product: `{false,
+%% T}' then, and the transfer must go on (seed: TryAbortOffering).
+-spec try_abort_offering(cell_task:task(), atom()) -> {boolean(), cell_task:task()}.
+try_abort_offering(T, Link) ->
+    case call(Link, {try_abort_offering, self()}) of
+        true -> {true, view(T, Link, #{phase => idle, available => false})};
+        false -> {false, T}
+    end.
+
+%% @doc Phase 3: the product has left this task (Available off). Downstream owns it
+%% from here; this task holds none.
+-spec release(cell_task:task(), atom()) -> cell_task:task().
+release(#task{id = Id, product = P, gen = G} = T, Link) ->
+    case call(Link, {release, self()}) of
+        ok ->
+            %% The file stays until downstream owns the product on disk.
+            ok = cell_registry:hold(Id, undefined, 0),
+            ok = cell_registry:update(Id, #{serial => undefined}),
+            view(T#task{product = undefined, gen = 0, marker = undefined}, Link,
+                 #{phase => released, available => false, owned => false});
+        {error, _} ->
+            %% Downstream stopped while the product was being moved out: it stays with
+            %% this task, marked in transit, for the operator to confirm.
+            Marker = #{link => Link, from => downstream, phase => in_transit},
+            view(store(T, P, G, Marker, #{}), Link,
+                 #{phase => idle, outcome => interrupted, available => false,
+                   not_busy => false})
+    end.
+
+%% @doc After NotBusy went off: how the transfer ended. `completed' raises
+%% ItemTransferOut; after `aborted' the task holds its product again.
+-spec finish(cell_task:task(), atom()) ->
+          {completed | aborted | interrupted | pending, cell_task:task()}.
+finish(T, Link) ->
+    case maps:get(outcome, link_view(T, Link), undefined) of
+        completed ->
+            #{serial := S} = maps:get(last_product, link_view(T, Link)),
+            T1 = view(T, Link, #{outcome => undefined}),
+            {completed, cell_task:transfer_out(T1, S)};
+        undefined ->
+            {pending, T};
+        Outcome ->
+            {Outcome, view(T, Link, #{outcome => undefined})}
+    end.
+
+%% -------------------------------------------------------------------------------------
+%% Downstream
+%% -------------------------------------------------------------------------------------
+
+%% @doc The last Available seen on a link.
+-spec available(cell_task:task(), atom()) -> boolean().
+available(T, Link) -> maps:get(available, link_view(T, Link), false).
+
+%% @doc The last NotBusy seen on a link.
+-spec not_busy(cell_task:task(), atom()) -> boolean().
+not_busy(T, Link) -> maps:get(not_busy, link_view(T, Link), false).
+
+-spec phase(cell_task:task(), atom()) -> cell_handshake_link:phase().
+phase(T, Link) -> maps:get(phase, link_view(T, Link), idle).
+
+%% @doc The product on offer, without committing to it (seed: PeekBoardAvailable).
+-spec peek(cell_task:task(), atom()) -> {ok, cell_product:product()} | none.
+peek(_T, Link) ->
+    call(Link, {peek, self()}).
+
+%% @doc Phase 2: takes the offered product (reads Available with locking, NotBusy on).
+%% `{not_available, T}' if the offer was withdrawn first. The product becomes the
+%% task's own on disk only at release: until it leaves upstream, upstream owns it.
+-spec commit(cell_task:task(), atom()) -> {ok, cell_task:task()} | {not_available, cell_task:task()}.
+commit(T, Link) ->
+    case call(Link, {lock, self()}) of
+        {ok, Product, Gen} ->
+            case call(Link, {confirm, self()}) of
+                ok ->
+                    {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
+                              #{phase => committed, not_busy => true, from_gen => Gen})};
+                {error, _} ->
+                    %% Upstream stopped while this task was taking the product.
+                    {not_available, T}
+            end;
+        {error, not_available} ->
+            {not_available, T}
+    end.
+
+%% @doc Phase 4: the product has arrived (NotBusy off). ItemTransferIn.
+-spec complete(cell_task:task(), atom()) -> cell_task:task().
+complete(#task{product = #{serial := S} = P, gen = G} = T, Link) ->
+    %% After an interruption the link has moved on; the product arrived all the same.
+    _ = call(Link, {complete, self()}),
+    %% The owner is already this task on disk; clearing the in-transit mark may be lost
+    %% in a power cut without harm (the operator is then asked once too often).
+    T1 = store(T, P, G, undefined, #{sync => false}),
+    cell_task:transfer_in(view(T1, Link, #{phase => idle, not_busy => false}), S).
+
+%% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
+%% product. If upstream is gone the task keeps it, still marked in transit.
+-spec abort(cell_task:task(), atom()) -> cell_task:task().
+abort(#task{} = T, Link) ->
+    case call(Link, {abort, self()}) of
+        kept_by_upstream ->
+            view(T#task{product = undefined, gen = 0}, Link, #{phase => idle});
+        given_back ->
+            view(store(T, undefined, 0, undefined, #{sync => false}), Link, #{phase => idle});
+        kept ->
+            view(T, Link, #{phase => idle})
+    end.
+
+%% @doc Whether the task's product is marked in transit: a transfer was interrupted
+%% while it moved, and the operator must say where it is.
+-spec in_transit(cell_task:task()) -> boolean().
+in_transit(#task{marker = #{phase := in_transit}}) -> true;
+in_transit(_) -> false.
+
+%% @doc The product of an interrupted transfer is here (the operator said so): the
+%% in-transit mark is cleared, durably.
+-spec confirm_here(cell_task:task()) -> cell_task:task().
+confirm_here(#task{product = undefined} = T) ->
+    T;
+confirm_here(#task{product = P, gen = G} = T) ->
+    store(T, P, G, undefined, #{}).
+
+%% @doc Connects the task to a link at run time as its upstream or downstream end
+%% (seed: a master task choosing one of several feeders).
+-spec connect(cell_task:task(), atom(), cell_handshake_link:role()) ->
+          {ok, cell_task:task()} | {error, term()}.
+connect(#task{id = Id} = T, Link, Role) ->
+    case call(Link, {attach, Role, Id, self(), holding(T, x)}) of
+        {ok, Status} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
+                                                       T#task.links)}};
+        {error, _} = Error -> Error
+    end.
+
+%% @doc Disconnects from a link; refused while a transfer is under way on it.
+-spec disconnect(cell_task:task(), atom()) -> {ok, cell_task:task()} | {error, term()}.
+disconnect(T, Link) ->
+    #{role := Role} = link_view(T, Link),
+    case call(Link, {detach, Role, self()}) of
+        ok -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
+        {error, _} = Error -> Error
+    end.
+
+%% -------------------------------------------------------------------------------------
+%% For the engine
+%% -------------------------------------------------------------------------------------
+
+%% @private Attaches the task to the links of its spec (at boot, and again when a link
+%% says hello after a restart).
+-spec attach_all(cell_task:task()) -> cell_task:task().
+attach_all(#task{links = Links} = T) ->
+    maps:fold(fun(Link, #{role := Role}, Acc) -> attach(Acc, Link, Role) end, T, Links).
+
+attach(#task{id = Id} = T, Link, Role) ->
+    case cell_handshake_link:whereis(Link) of
+        undefined ->
+            T;
+        Pid ->
+            Old0 = maps:get(Link, T#task.links, #{}),
+            _ = case maps:find(mref, Old0) of
+                    {ok, OldRef} -> erlang:demonitor(OldRef, [flush]);
+                    error -> true
+                end,
+            MRef = erlang:monitor(process, Pid, [{tag, {'LINK_DOWN', Link}}]),
+            Reply = try gen_server:call(Pid, {attach, Role, Id, self(), holding(T, x)},
+                                        ?CALL_TIMEOUT)
+                    catch exit:Why -> {error, Why}
+                    end,
+            case Reply of
+                {ok, Status} ->
+                    Old = link_view(T, Link),
+                    New = (from_status(Role, Status))#{mref => MRef},
+                    T1 = T#task{links = maps:put(Link, maps:merge(Old, New), T#task.links)},
+                    case was_active(Old) andalso maps:get(phase, New) =:= idle of
+                        %% The link restarted and forgot a transfer this task was in.
+                        true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
+                        false -> T1
+                    end;
+                _ ->
+                    T
+            end
+    end.
+
+%% What the task holds, told to its partners when it attaches: a partner on another
+%% node with an older copy of the same product drops it.
+holding(#task{product = undefined}, _) -> none;
+holding(#task{product = #{serial := S}, gen = G}, _) -> {S, G}.
+
+%% @private Whether a transfer holds the task's Pause and Stop (the seed allows them
+%% only before downstream commits).
+-spec holding(cell_task:task()) -> boolean().
+holding(#task{links = Links}) ->
+    lists:any(fun was_active/1, maps:values(Links)).
+
+was_active(#{role := up, phase := P}) -> lists:member(P, [locked, committed, released, aborting]);
+was_active(#{role := down, phase := P}) -> lists:member(P, [committed, released]);
+was_active(_) -> false.
+
+%% @private Links on which the task has an open offer.
+-spec active_offers(cell_task:task()) -> [atom()].
+active_offers(#task{links = Links}) ->
+    [L || {L, #{role := up, phase := offered}} <- maps:to_list(Links)].
+
+%% @private Offers again what a Pause withdrew.
+-spec reoffer(cell_task:task(), [atom()]) -> cell_task:task().
+reoffer(T, Links) ->
+    lists:foldl(fun(L, Acc) ->
+                        case Acc#task.product of
+                            undefined -> Acc;
+                            _ -> offer(Acc, L)
+                        end
+                end, T, Links).
+
+%% @private The task stops (emergency stop, Stop while an error waits): every transfer
+%% it is in ends, for its partners too.
+-spec interrupt_all(cell_task:task()) -> cell_task:task().
+interrupt_all(#task{links = Links} = T) ->
+    maps:fold(fun(Link, View, Acc) ->
+                      case was_active(View) orelse maps:get(phase, View) =:= offered of
+                          true ->
+                              case cell_handshake_link:whereis(Link) of
+                                  undefined -> ok;
+                                  Pid -> gen_server:call(Pid, {interrupt, self()}, ?CALL_TIMEOUT)
+                              end,
+                              element(1, interrupted(Acc, Link, maps:get(phase, View)));
+                          false ->
+                              Acc
+                      end
+              end, T, Links).
+
+%% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
+%% it holds (at once if it already does).
+-spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()}.
+arm(_T, Link, {Signal, Value}) ->
+    {ok, _Ref} = call(Link, {watch, self(), Signal, Value}).
+
+%% @private A restarted link's greeting to one of its partners, wherever it runs.
+-spec hello(atom() | {atom(), node()}, atom()) -> ok.
+hello({Task, Node}, Link) when Node =/= node() ->
+    _ = rpc:cast(Node, ?MODULE, hello, [Task, Link]),
+    ok;
+hello({Task, _Node}, Link) ->
+    hello(Task, Link);
+hello(Task, Link) ->
+    case cell_task_proc:whereis(Task) of
+        undefined -> ok;
+        Pid -> Pid ! {cell_handshake, Link, hello}, ok
+    end.
+
+%% @private The engine hands every message of a link here. Answers the task and
+%% `{wake, Link, Why}' when a wait on that link should end.
+-spec handle(term(), cell_task:task()) -> {cell_task:task(), [{wake, atom(), term()}]}.
+handle({cell_handshake, Link, signals, Status}, T) ->
+    case maps:find(Link, T#task.links) of
+        {ok, #{role := Role} = Old} ->
+            New = maps:merge(Old, from_status(Role, Status)),
+            {T#task{links = maps:put(Link, New, T#task.links)}, []};
+        error ->
+            {T, []}
+    end;
+handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial := Serial},
+                                                          gen = G} = T) when G < Gen ->
+    {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};
+handle({cell_handshake, _Link, {holder, _Serial, _Gen}}, T) ->
+    {T, []};
+handle({cell_handshake, Link, hello}, T) ->
+    {attach(T, Link, maps:get(role, link_view(T, Link), down)), []};
+%% Downstream: the product left upstream. It is this task's own on disk from now,
+%% marked in transit, before upstream forgets its copy.
+handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
+    Marker = #{link => Link, from => upstream, phase => in_transit},
+    T1 = store(T, Product, Gen + 1, Marker, #{}),
+    ok = call(Link, {owned, self()}),
+    {view(T1, Link, #{phase => released, available => false}), []};
+%% Upstream: downstream owns the product on disk; the old copy goes.
+handle({cell_handshake, Link, owned}, #task{product = undefined, product_path = Path} = T) ->
+    _ = cell_product:delete(Path, #{sync => false}),
+    {view(T, Link, #{owned => true}), []};
+handle({cell_handshake, Link, owned}, T) ->
+    {view(T, Link, #{owned => true}), []};
+handle({cell_handshake, Link, completed}, T) ->
+    {view(T, Link, #{outcome => completed, phase => idle}), [{wake, Link, completed}]};
+handle({cell_handshake, Link, aborted}, T) ->
+    %% Aborted before release: the product never left, this task still owns it.
+    {view(T, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
+%% Aborted after release: take the product back with a newer generation, then let
+%% downstream forget its copy.
+handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
+    T1 = store(T, Product, Gen + 2, undefined, #{}),
+    ok = call(Link, {taken_back, self()}),
+    {view(T1, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
+handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
+    interrupted(T, Link, Phase);
+handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
+    interrupted(T, Link, aborting);
+handle({cell_handshake_watch, Ref, Link, Signal, Value}, T) ->
+    {T, [{wake, Link, {watch, Ref, Signal, Value}}]};
+handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T) ->
+    case was_active(link_view(T, Link)) of
+        true -> interrupted(T, Link, phase(T, Link));
+        false -> {T, []}
+    end.
+
+%% A transfer ended before its end. Who owns the product follows from where it was.
+interrupted(#task{links = Links} = T, Link, Phase) ->
+    case maps:get(Link, Links, undefined) of
+        undefined ->
+            {T, []};
+        #{role := Role} ->
+            T1 = after_interruption(Role, Phase, T, Link),
+            {view(T1, Link, #{phase => idle, outcome => interrupted, available => false,
+                              not_busy => false}),
+             [{wake, Link, interrupted}]}
+    end.
+
+%% Downstream before release: the product never left upstream; this task forgets it.
+after_interruption(down, Phase, T, _Link) when Phase =:= committed; Phase =:= locked ->
+    T#task{product = undefined, gen = 0, marker = undefined};
+%% Downstream after release: this task owns it, marked in transit.
+after_interruption(down, _Phase, T, _Link) ->
+    T;
+%% Upstream after release: if downstream never confirmed owning it, this task's copy
+%% is still the owner; the product has left, so it is marked in transit.
+after_interruption(up, released, #task{product = undefined, id = Id} = T, Link) ->
+    case maps:get(owned, link_view(T, Link), false) of
+        true ->
+            T;
+        false ->
+            case cell_product:load(T#task.product_path) of
+                {ok, #{product := #{serial := S} = P, gen := G}} ->
+                    Newer = [O || {O, G2} <- cell_registry:holders(S), O =/= Id, G2 > G],
+                    case Newer of
+                        [] -> store(T, P, G, #{link => Link, from => downstream,
+                                               phase => in_transit}, #{});
+                        _ -> store(T, undefined, 0, undefined, #{sync => false})
+                    end;
+                _ ->
+                    T
+            end
+    end;
+%% Upstream before release: the product never left; this task still owns it.
+after_interruption(up, _Phase, T, _Link) ->
+    T.
+
+%% -------------------------------------------------------------------------------------
+
+link_view(#task{links = Links, id = Id}, Link) ->
+    case maps:find(Link, Links) of
+        {ok, V} -> V;
+        error -> erlang:error({not_a_link_of_this_task, Id, Link})
+    end.
+
+view(#task{links = Links} = T, Link, Fields) ->
+    Old = maps:get(Link, Links, #{}),
+    Last = case T#task.product of
+               undefined -> maps:get(last_product, Old, undefined);
+               P -> P
+           end,
+    T#task{links = maps:put(Link, maps:merge(Old, Fields#{last_product => Last}), Links)}.
+
+from_status(Role, #{phase := P, available := A, not_busy := N}) ->
+    #{role => Role, phase => P, available => A, not_busy => N}.
+
+store(T, Product, Gen, Marker, Opts) ->
+    cell_task:store(T, Product, Gen, Marker, Opts).
+
+call(Link, Request) ->
+    case cell_handshake_link:whereis(Link) of
+        undefined -> erlang:error({no_such_link, Link});
+        Pid -> gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+    end.

@@ -1,0 +1,294 @@
+%% @doc One handshake link between an upstream (previous) and a downstream (next)
+%% device task: the seed's Available / NotBusy / Abort signals with Data (seed 000
+%% §2.3.6), kept as a commit protocol in one process, which is the point where the
+%% seed's race (upstream withdraws a nanosecond after downstream commits) is decided.
+%%
+%% <pre>
+%%  phase       Available NotBusy  what happened
+%%  idle        false     false
+%%  offered     true      false    upstream offers its product (phase 1)
+%%  locked      true      false    downstream is taking it; the offer can no longer
+%%                                 be withdrawn
+%%  committed   true      true     downstream took it (phase 2)
+%%  released    false     true     the product left upstream (phase 3): downstream
+%%                                 owns it on disk from here
+%%  aborting    false     false    downstream aborted after release; upstream takes
+%%                                 the product back
+%% </pre>
+%%
+%% Completion (phase 4) and an abort before release return to idle. A partner that
+%% stops mid-transfer ends it: the other side is told `{interrupted, Why, Phase}' and
+%% the link is idle again, so that side can go on. Both partners are
+%% told of every signal change by message (`{cell_handshake, Link, Signal, Value}')
+%% and of the protocol's own steps; they are monitored, across nodes too, and a
+%% partner that stops in any phase ends the transfer on the other side, never leaves
+%% it waiting.
+-module(cell_handshake_link).
+-behaviour(gen_server).
+
+-export([start_link/1, child_spec/1, whereis/1, name/1]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-export_type([phase/0, role/0, spec/0]).
+
+-type phase() :: idle | offered | locked | committed | released | aborting.
+-type role() :: up | down.
+-type task_ref() :: atom() | {atom(), node()} | undefined.
+-type spec() :: #{id := atom(), from := task_ref(), to := task_ref()}.
+
+-record(end_, {task :: task_ref(),
+               pid :: pid() | undefined,
+               mref :: reference() | undefined}).
+
+-record(state, {id :: atom(),
+                up :: #end_{},
+                down :: #end_{},
+                phase = idle :: phase(),
+                product :: term(),
+                gen = 0 :: non_neg_integer(),
+                abort = false :: boolean(),
+                waiter :: gen_server:from() | undefined,
+                watches = [] :: [{reference(), pid(), atom(), term()}]}).
+
+%% @doc Starts a link; it registers globally, so a partner on another node finds it.
+-spec start_link(spec()) -> {ok, pid()} | {error, term()}.
+start_link(#{id := Id} = Spec) ->
+    gen_server:start_link({global, name(Id)}, ?MODULE, Spec, []).
+
+-spec child_spec(spec()) -> supervisor:child_spec().
+child_spec(#{id := Id} = Spec) ->
+    #{id => Id, start => {?MODULE, start_link, [Spec]}}.
+
+%% @doc The global name of a link.
+-spec name(atom()) -> {cell_handshake, atom()}.
+name(Id) -> {cell_handshake, Id}.
+
+-spec whereis(atom()) -> pid() | undefined.
+whereis(Id) ->
+    case global:whereis_name(name(Id)) of
+        undefined -> undefined;
+        Pid -> Pid
+    end.
+
+%% -------------------------------------------------------------------------------------
+
+-spec init(spec()) -> {ok, #state{}}.
+init(#{id := Id, from := From, to := To}) ->
+    State = #state{id = Id, up = #end_{task = From}, down = #end_{task = To}},
+    %% A restarted link tells its partners, who attach again.
+    _ = [cell_handshake:hello(T, Id) || T <- [From, To], T =/= undefined],
+    {ok, State}.
+
+-spec handle_call(term(), gen_server:from(), #state{}) ->
+          {reply, term(), #state{}} | {noreply, #state{}}.
+handle_call({attach, Role, Task, Pid, Holding}, _From, State) ->
+    %% What the attaching task holds goes to the other side, which may be on another
+    %% node and hold an older copy of it.
+    case Holding of
+        {Serial, Gen} -> tell(other(Role), {holder, Serial, Gen}, State);
+        none -> ok
+    end,
+    attach(Role, Task, Pid, State);
+handle_call({detach, Role, Pid}, _From, State) ->
+    detach(Role, Pid, State);
+handle_call(status, _From, State) ->
+    {reply, status(State), State};
+handle_call({watch, Pid, Signal, Value}, _From, State) ->
+    Ref = make_ref(),
+    case signal(Signal, State) =:= Value of
+        true ->
+            Pid ! {cell_handshake_watch, Ref, State#state.id, Signal, Value},
+            {reply, {ok, Ref}, State};
+        false ->
+            {reply, {ok, Ref}, State#state{watches = [{Ref, Pid, Signal, Value}
+                                                      | State#state.watches]}}
+    end;
+handle_call({Op, Pid} = Request, From, State) when is_atom(Op) ->
+    case role_of(Pid, State) of
+        undefined -> {reply, {error, not_attached}, State};
+        Role -> op(Role, Request, From, State)
+    end;
+handle_call({offer, Pid, Product, Gen}, _From, State) ->
+    case {role_of(Pid, State), State#state.phase} of
+        {up, idle} ->
+            {reply, ok, change(State#state{phase = offered, product = Product, gen = Gen,
+                                           abort = false})};
+        {up, Phase} ->
+            {reply, {error, {busy, Phase}}, State};
+        _ ->
+            {reply, {error, not_attached}, State}
+    end.
+
+-spec handle_cast(term(), #state{}) -> no_return().
+handle_cast(Msg, _State) ->
+    error({unexpected_cast, Msg}).
+
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'DOWN', MRef, process, _Pid, Reason}, #state{up = #end_{mref = MRef}} = State) ->
+    {noreply, partner_lost(up, Reason, State)};
+handle_info({'DOWN', MRef, process, _Pid, Reason}, #state{down = #end_{mref = MRef}} = State) ->
+    {noreply, partner_lost(down, Reason, State)};
+handle_info({'DOWN', _MRef, process, Pid, _Reason}, State) ->
+    %% A watcher that went away.
+    {noreply, State#state{watches = [W || {_, P, _, _} = W <- State#state.watches, P =/= Pid]}}.
+
+%% -------------------------------------------------------------------------------------
+%% The protocol
+%% -------------------------------------------------------------------------------------
+
+%% Upstream: withdraw the offer unless downstream has already begun to take it.
+op(up, {try_abort_offering, _}, _From, #state{phase = offered} = State) ->
+    {reply, true, change(State#state{phase = idle, product = undefined, gen = 0})};
+op(up, {try_abort_offering, _}, _From, #state{phase = idle} = State) ->
+    {reply, true, State};
+op(up, {try_abort_offering, _}, _From, State) ->
+    {reply, false, State};
+%% Upstream, phase 3: the product has left.
+op(up, {release, _}, _From, #state{phase = committed} = State) ->
+    tell(down, {released, State#state.product, State#state.gen}, State),
+    {reply, ok, change(State#state{phase = released})};
+%% Downstream owns the released product on disk: upstream may forget its copy.
+op(down, {owned, _}, _From, #state{phase = released} = State) ->
+    tell(up, owned, State),
+    {reply, ok, State};
+%% Upstream took an aborted product back: downstream may forget its copy.
+op(up, {taken_back, _}, _From, #state{phase = aborting, waiter = Waiter} = State) ->
+    Waiter =/= undefined andalso gen_server:reply(Waiter, given_back),
+    {reply, ok, change(State#state{phase = idle, product = undefined, gen = 0,
+                                   waiter = undefined})};
+%% Downstream: look without locking (PeekBoardAvailable).
+op(down, {peek, _}, _From, #state{phase = offered, product = P} = State) ->
+    {reply, {ok, P}, State};
+op(down, {peek, _}, _From, State) ->
+    {reply, none, State};
+%% Downstream, phase 2 in two steps: lock (no withdrawal from here on), then confirm.
+op(down, {lock, _}, _From, #state{phase = offered, product = P, gen = G} = State) ->
+    {reply, {ok, P, G}, State#state{phase = locked}};
+op(down, {lock, _}, _From, State) ->
+    {reply, {error, not_available}, State};
+op(down, {confirm, _}, _From, #state{phase = locked} = State) ->
+    {reply, ok, change(State#state{phase = committed, abort = false})};
+%% Downstream, phase 4: the product has arrived.
+op(down, {complete, _}, _From, #state{phase = released} = State) ->
+    tell(up, completed, State),
+    {reply, ok, change(State#state{phase = idle, product = undefined, gen = 0})};
+op(down, {complete, _}, _From, State) ->
+    {reply, {error, {not_released, State#state.phase}}, State};
+%% Downstream aborts: before release upstream still owns the product; after release
+%% upstream must take it back before downstream forgets its copy.
+op(down, {abort, _}, _From, #state{phase = committed} = State) ->
+    tell(up, aborted, State),
+    {reply, kept_by_upstream, change(State#state{phase = idle, abort = true,
+                                                 product = undefined, gen = 0})};
+op(down, {abort, _}, From, #state{phase = released, up = #end_{pid = Up}} = State)
+  when Up =/= undefined ->
+    tell(up, {take_back, State#state.product, State#state.gen}, State),
+    {noreply, change(State#state{phase = aborting, abort = true, waiter = From})};
+op(down, {abort, _}, _From, State) ->
+    %% Nobody to give it to (upstream stopped): downstream keeps it.
+    {reply, kept, change(State#state{phase = idle, product = undefined, gen = 0})};
+%% Either side: an emergency stop or a stop mid-transfer.
+op(Role, {interrupt, _}, _From, State) ->
+    {reply, ok, interrupt(Role, stopped, State)};
+op(_Role, {Op, _}, _From, State) ->
+    {reply, {error, {not_now, Op, State#state.phase}}, State}.
+
+%% A partner stopped in some phase: the transfer ends for the other side.
+interrupt(_Role, _Why, #state{phase = idle} = State) ->
+    State;
+interrupt(up, _Why, #state{phase = offered} = State) ->
+    %% An offer of a partner that is gone is withdrawn.
+    change(State#state{phase = idle, product = undefined, gen = 0});
+interrupt(down, _Why, #state{phase = offered} = State) ->
+    State;
+interrupt(down, _Why, #state{phase = locked} = State) ->
+    %% Downstream stopped while taking the product: the offer stands.
+    State#state{phase = offered};
+interrupt(Role, Why, #state{phase = aborting, waiter = Waiter} = State) when Role =:= up ->
+    Waiter =/= undefined andalso gen_server:reply(Waiter, kept),
+    tell(down, {interrupted, Why}, State),
+    change(State#state{phase = idle, product = undefined, gen = 0, waiter = undefined});
+interrupt(Role, Why, #state{phase = Phase} = State) ->
+    tell(other(Role), {interrupted, Why, Phase}, State),
+    change(State#state{phase = idle, product = undefined, gen = 0}).
+
+partner_lost(Role, Reason, State) ->
+    Why = case Reason of
+              noconnection -> node_down;
+              _ -> partner_stopped
+          end,
+    State1 = interrupt(Role, Why, State),
+    set_end(Role, (get_end(Role, State1))#end_{pid = undefined, mref = undefined}, State1).
+
+%% -------------------------------------------------------------------------------------
+
+attach(Role, Task, Pid, State) ->
+    End = get_end(Role, State),
+    case End of
+        #end_{pid = Pid} ->
+            {reply, {ok, status(State)}, State};
+        #end_{pid = Old} when is_pid(Old), Old =/= Pid ->
+            {reply, {error, {attached, End#end_.task}}, State};
+        _ ->
+            MRef = monitor(process, Pid),
+            State1 = set_end(Role, End#end_{task = Task, pid = Pid, mref = MRef}, State),
+            {reply, {ok, status(State1)}, State1}
+    end.
+
+%% Upstream detaches when no offer is open; downstream unless it is taking a product
+%% (an open offer stays for whoever connects next, the seed's feeders).
+detach(Role, Pid, #state{phase = Phase} = State) ->
+    Free = case Role of
+               up -> Phase =:= idle;
+               down -> Phase =:= idle orelse Phase =:= offered
+           end,
+    case get_end(Role, State) of
+        #end_{pid = Pid, mref = MRef} = End when Free ->
+            demonitor(MRef, [flush]),
+            {reply, ok, set_end(Role, End#end_{pid = undefined, mref = undefined}, State)};
+        #end_{pid = Pid} ->
+            {reply, {error, {busy, Phase}}, State};
+        _ ->
+            {reply, {error, not_attached}, State}
+    end.
+
+status(#state{phase = P, product = Product, gen = G, abort = A} = State) ->
+    #{phase => P, product => Product, gen => G, abort => A,
+      available => signal(available, State), not_busy => signal(not_busy, State)}.
+
+signal(available, #state{phase = P}) -> lists:member(P, [offered, locked, committed]);
+signal(not_busy, #state{phase = P}) -> lists:member(P, [committed, released]);
+signal(abort, #state{abort = A}) -> A;
+signal(phase, #state{phase = P}) -> P.
+
+%% Tells both partners of every signal that changed, and fires the watches.
+change(State) ->
+    Status = status(State),
+    _ = [send(E, {cell_handshake, State#state.id, signals, Status})
+         || E <- [State#state.up, State#state.down]],
+    {Fire, Keep} = lists:partition(fun({_, _, S, V}) -> signal(S, State) =:= V end,
+                                   State#state.watches),
+    _ = [Pid ! {cell_handshake_watch, Ref, State#state.id, S, V} || {Ref, Pid, S, V} <- Fire],
+    State#state{watches = Keep}.
+
+tell(Role, Msg, State) ->
+    send(get_end(Role, State), {cell_handshake, State#state.id, Msg}).
+
+send(#end_{pid = Pid}, Msg) when is_pid(Pid) ->
+    Pid ! Msg,
+    ok;
+send(_, _) ->
+    ok.
+
+other(up) -> down;
+other(down) -> up.
+
+role_of(Pid, #state{up = #end_{pid = Pid}}) -> up;
+role_of(Pid, #state{down = #end_{pid = Pid}}) -> down;
+role_of(_, _) -> undefined.
+
+get_end(up, #state{up = E}) -> E;
+get_end(down, #state{down = E}) -> E.
+
+set_end(up, E, State) -> State#state{up = E};
+set_end(down, E, State) -> State#state{down = E}.
