@@ -61,11 +61,18 @@
 offer(#task{product = undefined, id = Id}, Link) ->
     erlang:error({no_product_to_offer, Id, Link});
 offer(#task{product = P, gen = G} = T, Link) ->
-    ok = call(Link, {offer, self(), P, G}),
-    T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined}),
-    case T1#task.ipc of
-        {ready, idle, blocked} -> T1;
-        _ -> cell_task:blocked(T1)
+    case call(Link, {offer, self(), P, G}) of
+        ok ->
+            T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined,
+                                 link_down => false}),
+            case T1#task.ipc of
+                {ready, idle, blocked} -> T1;
+                _ -> cell_task:blocked(T1)
+            end;
+        {error, link_down} ->
+            %% The link is restarting: no offer stands. A wait on the link ends soon
+            %% (see arm/3) and the task offers again.
+            view(T, Link, #{phase => idle, outcome => interrupted, link_down => true})
     end.
 
 %% @doc Withdraws the offer unless downstream has begun to take the product: `{false,
@@ -74,7 +81,9 @@ offer(#task{product = P, gen = G} = T, Link) ->
 try_abort_offering(T, Link) ->
     case call(Link, {try_abort_offering, self()}) of
         true -> {true, view(T, Link, #{phase => idle, available => false})};
-        false -> {false, T}
+        false -> {false, T};
+        %% No link, no offer.
+        {error, link_down} -> {true, view(T, Link, #{phase => idle, available => false})}
     end.
 
 %% @doc Phase 3: the product has left this task (Available off). Downstream owns it
@@ -86,6 +95,8 @@ release(#task{id = Id, product = P, gen = G} = T, Link) ->
             %% The file stays until downstream owns the product on disk.
             ok = cell_registry:hold(Id, undefined, 0),
             ok = cell_registry:update(Id, #{serial => undefined}),
+            ok = cell_task:publish(T, product_saved, #{item => undefined, product => undefined,
+                                                       in_transit => false}),
             view(T#task{product = undefined, gen = 0, marker = undefined}, Link,
                  #{phase => released, available => false, owned => false});
         {error, _} ->
@@ -131,7 +142,10 @@ phase(T, Link) -> maps:get(phase, link_view(T, Link), idle).
 %% @doc The product on offer, without committing to it (seed: PeekBoardAvailable).
 -spec peek(cell_task:task(), atom()) -> {ok, cell_product:product()} | none.
 peek(_T, Link) ->
-    call(Link, {peek, self()}).
+    case call(Link, {peek, self()}) of
+        {ok, P} -> {ok, P};
+        _ -> none
+    end.
 
 %% @doc Phase 2: takes the offered product (reads Available with locking, NotBusy on).
 %% `{not_available, T}' if the offer was withdrawn first. The product becomes the
@@ -148,7 +162,7 @@ commit(T, Link) ->
                     %% Upstream stopped while this task was taking the product.
                     {not_available, T}
             end;
-        {error, not_available} ->
+        {error, _} ->
             {not_available, T}
     end.
 
@@ -171,7 +185,7 @@ abort(#task{} = T, Link) ->
             view(T#task{product = undefined, gen = 0}, Link, #{phase => idle});
         given_back ->
             view(store(T, undefined, 0, undefined, #{sync => false}), Link, #{phase => idle});
-        kept ->
+        _KeptOrNoLink ->
             view(T, Link, #{phase => idle})
     end.
 
@@ -237,7 +251,7 @@ attach(#task{id = Id} = T, Link, Role) ->
             case Reply of
                 {ok, Status} ->
                     Old = link_view(T, Link),
-                    New = (from_status(Role, Status))#{mref => MRef},
+                    New = (from_status(Role, Status))#{mref => MRef, link_down => false},
                     T1 = T#task{links = maps:put(Link, maps:merge(Old, New), T#task.links)},
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
@@ -286,10 +300,7 @@ interrupt_all(#task{links = Links} = T) ->
     maps:fold(fun(Link, View, Acc) ->
                       case was_active(View) orelse maps:get(phase, View) =:= offered of
                           true ->
-                              case cell_handshake_link:whereis(Link) of
-                                  undefined -> ok;
-                                  Pid -> gen_server:call(Pid, {interrupt, self()}, ?CALL_TIMEOUT)
-                              end,
+                              _ = call(Link, {interrupt, self()}),
                               element(1, interrupted(Acc, Link, maps:get(phase, View)));
                           false ->
                               Acc
@@ -297,10 +308,20 @@ interrupt_all(#task{links = Links} = T) ->
               end, T, Links).
 
 %% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
-%% it holds (at once if it already does).
--spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()}.
-arm(_T, Link, {Signal, Value}) ->
-    {ok, _Ref} = call(Link, {watch, self(), Signal, Value}).
+%% it holds (at once if it already does). `link_down' while the link restarts.
+-spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()} | link_down.
+arm(T, Link, {Signal, Value}) ->
+    case maps:get(link_down, maps:get(Link, T#task.links, #{}), false) of
+        true ->
+            %% The last call found the link gone: what the task waits for may never
+            %% come from the link that replaced it.
+            link_down;
+        false ->
+            case call(Link, {watch, self(), Signal, Value}) of
+                {ok, Ref} -> {ok, Ref};
+                {error, link_down} -> link_down
+            end
+    end.
 
 %% @private A restarted link's greeting to one of its partners, wherever it runs.
 -spec hello(atom() | {atom(), node()}, atom()) -> ok.
@@ -332,13 +353,16 @@ handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial 
 handle({cell_handshake, _Link, {holder, _Serial, _Gen}}, T) ->
     {T, []};
 handle({cell_handshake, Link, hello}, T) ->
-    {attach(T, Link, maps:get(role, link_view(T, Link), down)), []};
+    %% A restarted link: attach again; whatever the task waited for on it is over.
+    {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
     Marker = #{link => Link, from => upstream, phase => in_transit},
     T1 = store(T, Product, Gen + 1, Marker, #{}),
-    ok = call(Link, {owned, self()}),
+    %% If the link is gone meanwhile, upstream keeps a stale copy the generations
+    %% recognise.
+    _ = call(Link, {owned, self()}),
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
 handle({cell_handshake, Link, owned}, #task{product = undefined, product_path = Path} = T) ->
@@ -355,7 +379,7 @@ handle({cell_handshake, Link, aborted}, T) ->
 %% downstream forget its copy.
 handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
     T1 = store(T, Product, Gen + 2, undefined, #{}),
-    ok = call(Link, {taken_back, self()}),
+    _ = call(Link, {taken_back, self()}),
     {view(T1, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
 handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
     interrupted(T, Link, Phase);
@@ -432,8 +456,19 @@ from_status(Role, #{phase := P, available := A, not_busy := N}) ->
 store(T, Product, Gen, Marker, Opts) ->
     cell_task:store(T, Product, Gen, Marker, Opts).
 
+%% A link that is restarting answers `{error, link_down}'; a link that does not answer
+%% within the timeout is a fault, and the task crashes (and is restarted).
 call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
-        undefined -> erlang:error({no_such_link, Link});
-        Pid -> gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+        undefined ->
+            {error, link_down};
+        Pid ->
+            try
+                gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+            catch
+                exit:{noproc, _} -> {error, link_down};
+                exit:{normal, _} -> {error, link_down};
+                exit:{killed, _} -> {error, link_down};
+                exit:{shutdown, _} -> {error, link_down}
+            end
     end.

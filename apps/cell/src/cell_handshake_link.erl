@@ -215,6 +215,7 @@ interrupt(Role, Why, #state{phase = Phase} = State) ->
 partner_lost(Role, Reason, State) ->
     Why = case Reason of
               noconnection -> node_down;
+              replaced -> partner_restarted;
               _ -> partner_stopped
           end,
     State1 = interrupt(Role, Why, State),
@@ -227,7 +228,12 @@ attach(Role, Task, Pid, State) ->
     case End of
         #end_{pid = Pid} ->
             {reply, {ok, status(State)}, State};
-        #end_{pid = Old} when is_pid(Old), Old =/= Pid ->
+        #end_{pid = Old, task = Task, mref = MRef} when is_pid(Old) ->
+            %% A restarted task attaching before its predecessor's 'DOWN' reached this
+            %% process: one task has one live incarnation, so the old one is gone.
+            demonitor(MRef, [flush]),
+            attach(Role, Task, Pid, partner_lost(Role, replaced, State));
+        #end_{pid = Old} when is_pid(Old) ->
             {reply, {error, {attached, End#end_.task}}, State};
         _ ->
             MRef = monitor(process, Pid),

@@ -164,6 +164,9 @@ store(#task{id = Id, product_path = Path} = T, Product, Gen, Marker, Opts) ->
             Serial = cell_product:serial(Product),
             ok = cell_registry:hold(Id, Serial, Gen),
             ok = cell_registry:update(Id, #{serial => Serial}),
+            %% Watchers (panel, SHDR) see the task's product change at once.
+            ok = publish(T, product_saved, #{item => Serial, product => Product,
+                                             in_transit => Marker =/= undefined}),
             T#task{product = Product, gen = Gen, marker = Marker};
         {error, Reason} ->
             %% Nothing may go on as if the product were saved: the task crashes and

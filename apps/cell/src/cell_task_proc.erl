@@ -32,7 +32,8 @@
                      | {error, binary(), origin()}.
 -type origin() :: init | step | crash | product_file | transit.
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
--type armed() :: {timer, reference(), non_neg_integer()} | {reply, reference()}
+-type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
+               | {reply, reference()}
                | {handshake, reference(), atom(), atom(), term()}.
 
 -record(data, {
@@ -55,6 +56,7 @@
 
 -define(STEP(Gen), {'$cell_step', Gen}).
 -define(WAIT(Gen), {'$cell_wait', Gen}).
+-define(LINK_RETRY_MS, 50).
 
 %% API
 
@@ -164,6 +166,7 @@ handle_event(internal, step, {ready, _, _} = S, D) ->
     run_step(S, D);
 handle_event(info, {timeout, TRef, ?WAIT(Gen)}, {ready, _, _}, #data{gen = Gen, armed = Armed} = D) ->
     case lists:keyfind(TRef, 2, Armed) of
+        {timer, TRef, {link_down, Link}} -> wake({handshake, Link, interrupted}, D);
         {timer, TRef, Ms} -> wake({timer, Ms}, D);
         false -> keep_state_and_data
     end;
@@ -178,6 +181,12 @@ handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
     hold_or_pause(S, D#data{request = Request});
 handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
     hold_or_pause(S, (service_flag(true, D))#data{deferred = service});
+%% A Start, or service mode ending, cancels a pause a transfer was still holding back.
+handle_event(info, {control, request, start}, {ready, _, _}, D) ->
+    {keep_state, D#data{request = start, deferred = undefined}};
+handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred = Deferred} = D) ->
+    D1 = case Deferred of service -> D#data{deferred = undefined}; _ -> D end,
+    {keep_state, service_flag(false, D1)};
 
 %% --------------------------------------------------------------------------------------
 %% down: paused, or an error waiting for the operator
@@ -392,9 +401,22 @@ arm_one({timer, Ms}, Gen, T) when is_integer(Ms), Ms >= 0 ->
     {{timer, erlang:start_timer(Ms, self(), ?WAIT(Gen)), Ms}, T};
 arm_one({reply, Ref}, _Gen, T) when is_reference(Ref) ->
     {{reply, Ref}, T};
-arm_one({handshake, Link, Signal, Value}, _Gen, T0)
+arm_one({handshake, Link, Signal, Value}, Gen, T0)
   when Signal =:= available; Signal =:= not_busy ->
-    {ok, Ref} = cell_handshake:arm(T0, Link, {Signal, Value}),
+    case cell_handshake:arm(T0, Link, {Signal, Value}) of
+        {ok, Ref} ->
+            arm_watch(Ref, Link, Signal, Value, T0);
+        link_down ->
+            %% The link is restarting (its name may still point at the old process).
+            %% Look again shortly: the step runs, sees the link as it is, and offers
+            %% or waits again; a greeting of the restarted link ends the wait sooner.
+            TRef = erlang:start_timer(?LINK_RETRY_MS, self(), ?WAIT(Gen)),
+            {{timer, TRef, {link_down, Link}}, T0}
+    end;
+arm_one(Other, _Gen, _T) ->
+    erlang:error({bad_wait, Other}).
+
+arm_watch(Ref, Link, Signal, Value, T0) ->
     %% Seed 000 §2.3.4: a downstream task waiting for an offer is starved.
     T = case {Signal, Value, cell_handshake:available(T0, Link), T0#task.ipc} of
             {available, true, false, {ready, _, _} = S} when S =/= {ready, idle, starved} ->
@@ -402,9 +424,7 @@ arm_one({handshake, Link, Signal, Value}, _Gen, T0)
             _ ->
                 T0
         end,
-    {{handshake, Ref, Link, Signal, Value}, T};
-arm_one(Other, _Gen, _T) ->
-    erlang:error({bad_wait, Other}).
+    {{handshake, Ref, Link, Signal, Value}, T}.
 
 disarm(#data{armed = Armed, gen = Gen} = D) ->
     _ = [erlang:cancel_timer(TRef) || {timer, TRef, _} <- Armed],
@@ -623,8 +643,21 @@ handshake(Msg, State, #data{task = T0} = D0) ->
                     {next_state, T1#task.ipc, D1#data{task = T1}, Actions}
             end;
         _ ->
-            {keep_state, D}
+            %% Paused (or stopped): a transfer on a link the task will wait on again
+            %% has ended, so at resume its step runs and sees that, instead of waiting
+            %% for something the link can no longer send.
+            {keep_state, D#data{pending = ended_while_down(Wakes, D#data.pending)}}
     end.
+
+ended_while_down([], Pending) ->
+    Pending;
+ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when is_atom(Outcome) ->
+    case [W || {handshake, L, _, _} = W <- Waits, L =:= Link] of
+        [_ | _] -> {step, {handshake, Link, Outcome}};
+        [] -> ended_while_down(Rest, Pending)
+    end;
+ended_while_down([_ | Rest], Pending) ->
+    ended_while_down(Rest, Pending).
 
 woken([], _Armed) ->
     undefined;
@@ -634,7 +667,8 @@ woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed) ->
         false -> woken(Rest, Armed)
     end;
 woken([{wake, Link, Outcome} | Rest], Armed) ->
-    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link] of
+    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
+        ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
         [_ | _] -> {handshake, Link, Outcome};
         [] -> woken(Rest, Armed)
     end.

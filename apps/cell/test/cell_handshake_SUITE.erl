@@ -176,7 +176,9 @@ try_abort_offering_race(Config) ->
 
 %% Seed: a master task connects its handshake to one of several feeders at run time.
 dynamic_feeders(Config) ->
+    %% Each feeder has its own supply of products, as separate conveyors do.
     Feed = ?config(feed, Config),
+    Feed1 = ets:new(feed1, [ordered_set, public]),
     Out = ?config(out, Config),
     Spec = #{tasks => [#{id => feeder0, module => cell_line_task, zone => <<"Feeder">>,
                          lane => <<"0">>, args => #{next => f0, feed => Feed, out => Out,
@@ -185,12 +187,12 @@ dynamic_feeders(Config) ->
                          lane => <<"1">>, args => #{feeders => [f0, f1], out => Out,
                                                     notify => self()}},
                        #{id => feeder1, module => cell_line_task, zone => <<"Feeder">>,
-                         lane => <<"1">>, args => #{next => f1, feed => Feed, out => Out,
+                         lane => <<"1">>, args => #{next => f1, feed => Feed1, out => Out,
                                                     ref => ?config(ref, Config)}}],
              links => [#{id => f0, from => feeder0, to => undefined},
                        #{id => f1, from => feeder1, to => undefined}]},
     start_cell(?config(root, Config), Spec),
-    Serials = feed(Config, 6),
+    Serials = feed(Config, 3) ++ feed(lists:keystore(feed, 1, Config, {feed, Feed1}), 3),
     [cell_task_proc:whereis(F) ! {?config(ref, Config), fed} || F <- [feeder0, feeder1]],
     ok = cell_controller:start(),
     Taken = [receive {master_took, F, S} -> {F, S} after ?TIMEOUT -> ct:fail(no_product) end

@@ -18,7 +18,10 @@
 init(T) ->
     Phase = case cell_task:product(T) of
                 undefined -> idle;
-                _ -> full
+                #{serial := S} ->
+                    %% A take cut short after the product was saved: finish it.
+                    forget_fed(T, S),
+                    full
             end,
     {ok, phase(T, Phase)}.
 
@@ -87,19 +90,29 @@ step(in_transit, _Woken, T) ->
         _ -> {continue, T}
     end.
 
+%% The first segment takes the next serial of the feed the way a panel arrives: the
+%% product is saved first, then the feed forgets it, so a crash in between leaves it
+%% owned (and init finishes the take), never nowhere.
 take_new(T) ->
     Feed = arg(T, feed),
     case ets:first(Feed) of
         '$end_of_table' ->
-            {wait, {reply, arg(T, ref)}, T};
+            T1 = case cell_task:state(T) of
+                     {ready, idle, starved} -> T;
+                     _ -> cell_task:starved(T)
+                 end,
+            {wait, {reply, arg(T, ref)}, T1};
         N ->
-            case ets:take(Feed, N) of
-                [{N, Serial}] ->
-                    {continue, phase(cell_task:set_product(T, cell_product:new(Serial, <<"line">>)),
-                                     full)};
-                [] ->
-                    {continue, T}
-            end
+            [{N, Serial}] = ets:lookup(Feed, N),
+            T1 = cell_task:set_product(T, cell_product:new(Serial, <<"line">>)),
+            true = ets:delete(Feed, N),
+            {continue, phase(T1, full)}
+    end.
+
+forget_fed(T, Serial) ->
+    case arg(T, feed) of
+        undefined -> ok;
+        Feed -> true = ets:match_delete(Feed, {'_', Serial}), ok
     end.
 
 take_from(Prev, T) ->
