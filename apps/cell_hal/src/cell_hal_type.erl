@@ -129,16 +129,9 @@ ordered(decimal) -> false;
 ordered(_) -> true.
 
 %% A float point compared with a number: any number will do (no rounding, a task
-%% may wait for "above 12.5" on a REAL).
+%% may wait for "above 12.5" on a REAL). Any other type takes a value of its own.
 cond_value(T, V) when (T =:= real orelse T =:= lreal), is_number(V) -> {ok, V};
-cond_value(T, V) when (T =:= real orelse T =:= lreal), is_atom(V) -> check(T, V);
-cond_value(T, V) when is_number(V), T =/= bool, T =/= date, T =/= decimal ->
-    case range(T) of
-        none -> error;
-        _ -> {ok, V}
-    end;
-cond_value(T, V) ->
-    check(T, V).
+cond_value(T, V) -> check(T, V).
 
 %% @doc Whether a value satisfies a condition. NaN equals nothing, not even itself.
 -spec holds(condition(), value()) -> boolean().
@@ -264,7 +257,9 @@ cond_test_() ->
      ?_assertEqual({ok, {gt, 12.5}}, check_cond(real, {gt, 12.5})),
      ?_assertEqual({ok, {gt, 1.0e300}}, check_cond(real, {gt, 1.0e300})),
      ?_assertEqual({ok, {le, 3}}, check_cond(int16, {le, 3})),
-     ?_assertEqual({ok, {le, 2.5}}, check_cond(int16, {le, 2.5})),
+     ?_assertEqual(error, check_cond(int16, {le, 2.5})),
+     ?_assertEqual(error, check_cond(int16, {eq, 70000})),
+     ?_assertEqual(error, check_cond(uint16, {gt, -1})),
      ?_assertEqual({ok, {ge, {2026, 1, 1}}}, check_cond(date, {ge, {2026, 1, 1}})),
      ?_assertEqual(error, check_cond({string, 4}, {gt, <<"A">>})),
      ?_assertEqual({ok, {eq, <<"OK">>}}, check_cond({string, 4}, {eq, <<"OK">>})),

@@ -1,0 +1,21 @@
+%% @doc Code readers (seed 000 §4.2, `ICodeReader'): barcode and 2D-code readers that
+%% identify a product. The behaviour an implementation follows and the API tasks use;
+%% an implementation is a callback module run by {@link cell_hal_hw}.
+-module(cell_hal_code_reader).
+
+-export([read/2]).
+
+-callback check_opts(Opts :: map()) -> {ok, map()} | {error, {bad_option, atom()}}.
+-callback init(Id :: atom(), Opts :: map()) -> {ok, State :: term()} | {error, term()}.
+%% Triggers one read: the code, or `{error, no_read}' when the reader found none within
+%% its read window; answers now or later with cell_hal_hw:reply/2.
+-callback read(cell_hal_hw:from(), State :: term()) ->
+    {reply, {ok, binary()} | {error, term()}, State :: term()} | {noreply, State :: term()}.
+-callback handle_call(Request :: term(), cell_hal_hw:from(), State :: term()) ->
+    {reply, term(), State :: term()} | {noreply, State :: term()}.
+-callback handle_info(Msg :: term(), State :: term()) -> {noreply, State :: term()}.
+
+%% @doc Triggers one read.
+-spec read(atom(), timeout()) -> {ok, binary()} | {error, term()}.
+read(Id, Timeout) ->
+    cell_hal_hw:call(Id, {code_reader, read}, Timeout).
