@@ -7,15 +7,14 @@
 -behaviour(cell_hal_camera).
 
 -export([show/2, fail_next/2, set_link/2]).
--export([check_opts/1, init/2, grab/3, handle_call/3, handle_info/2]).
+-export([check_opts/1, init/2, grab/2, handle_call/2, handle_info/2]).
 
 -record(s, {width :: pos_integer(),
             height :: pos_integer(),
             exposure_ms :: non_neg_integer(),
             seq = 0 :: non_neg_integer(),
             scene :: binary() | undefined,
-            fail :: term(),
-            exposing :: cell_hal_hw:from() | undefined}).
+            fail :: term()}).
 
 %% @doc What the camera sees from now on: `width * height' bytes (mono8), or
 %% `pattern' for the changing test pattern.
@@ -46,40 +45,37 @@ init(_Id, #{width := W, height := H, exposure_ms := E}) ->
     {ok, #s{width = W, height = H, exposure_ms = E}}.
 
 %% @private
--spec grab(map(), cell_hal_hw:from(), #s{}) -> {reply, {error, term()}, #s{}} | {noreply, #s{}}.
-grab(_Opts, _From, #s{exposing = Busy} = S) when Busy =/= undefined ->
-    {reply, {error, busy}, S};
-grab(_Opts, _From, #s{fail = Why} = S) when Why =/= undefined ->
+-spec grab(map(), #s{}) -> {reply, {error, term()}, #s{}} | {noreply, #s{}}.
+grab(_Opts, #s{fail = Why} = S) when Why =/= undefined ->
     {reply, {error, Why}, S#s{fail = undefined}};
-grab(Opts, From, #s{exposure_ms = E} = S) ->
+grab(Opts, #s{exposure_ms = E} = S) ->
     _ = erlang:send_after(maps:get(exposure_ms, Opts, E), self(), {?MODULE, exposed}),
-    {noreply, S#s{exposing = From}}.
+    {noreply, S}.
 
 %% @private
--spec handle_call(term(), cell_hal_hw:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call({show, pattern}, _From, S) ->
+-spec handle_call(term(), #s{}) -> {reply, term(), #s{}}.
+handle_call({show, pattern}, S) ->
     {reply, ok, S#s{scene = undefined}};
-handle_call({show, Scene}, _From, #s{width = W, height = H} = S)
+handle_call({show, Scene}, #s{width = W, height = H} = S)
   when is_binary(Scene), byte_size(Scene) =:= W * H ->
     {reply, ok, S#s{scene = Scene}};
-handle_call({show, _}, _From, S) ->
+handle_call({show, _}, S) ->
     {reply, {error, bad_scene}, S};
-handle_call({fail_next, Why}, _From, S) ->
+handle_call({fail_next, Why}, S) ->
     {reply, ok, S#s{fail = Why}};
-handle_call({link, Link}, _From, S) ->
+handle_call({link, Link}, S) ->
     ok = cell_hal_hw:set_status(Link),
     {reply, ok, S}.
 
 %% @private
--spec handle_info(term(), #s{}) -> {noreply, #s{}}.
-handle_info({?MODULE, exposed}, #s{exposing = From, width = W, height = H, seq = Seq} = S) ->
+-spec handle_info(term(), #s{}) -> {reply, {ok, cell_hal_camera:image()}, #s{}}.
+handle_info({?MODULE, exposed}, #s{width = W, height = H, seq = Seq} = S) ->
     Data = case S#s.scene of
                undefined -> pattern(W, H, Seq);
                Scene -> Scene
            end,
-    cell_hal_hw:reply(From, {ok, #{width => W, height => H, format => mono8, data => Data,
-                                   seq => Seq, time => os:system_time(millisecond)}}),
-    {noreply, S#s{exposing = undefined, seq = Seq + 1}}.
+    {reply, {ok, #{width => W, height => H, format => mono8, data => Data, seq => Seq,
+                   time => os:system_time(millisecond)}}, S#s{seq = Seq + 1}}.
 
 %% Diagonal stripes that move one pixel a grab: consecutive images always differ.
 pattern(W, H, Seq) ->

@@ -8,12 +8,14 @@
 -callback check_opts(Opts :: map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 -callback init(Id :: atom(), Opts :: map()) -> {ok, State :: term()} | {error, term()}.
 %% Triggers one read: the code, or `{error, no_read}' when the reader found none within
-%% its read window; answers now or later with cell_hal_hw:reply/2.
--callback read(cell_hal_hw:from(), State :: term()) ->
+%% its read window; answers now, or `noreply' and later from handle_info/2.
+-callback read(State :: term()) ->
     {reply, {ok, binary()} | {error, term()}, State :: term()} | {noreply, State :: term()}.
--callback handle_call(Request :: term(), cell_hal_hw:from(), State :: term()) ->
-    {reply, term(), State :: term()} | {noreply, State :: term()}.
--callback handle_info(Msg :: term(), State :: term()) -> {noreply, State :: term()}.
+%% Requests particular to the implementation (settings, simulation controls).
+-callback handle_call(Request :: term(), State :: term()) -> {reply, term(), State :: term()}.
+%% A message to the object's process; `reply' answers the operation in progress.
+-callback handle_info(Msg :: term(), State :: term()) ->
+    {noreply, State :: term()} | {reply, term(), State :: term()}.
 
 %% @doc Triggers one read.
 -spec read(atom(), timeout()) -> {ok, binary()} | {error, term()}.

@@ -8,13 +8,12 @@
 -behaviour(cell_hal_code_reader).
 
 -export([present/2, fail_next/2, set_link/2]).
--export([check_opts/1, init/2, read/2, handle_call/3, handle_info/2]).
+-export([check_opts/1, init/2, read/1, handle_call/2, handle_info/2]).
 
 -record(s, {decode_ms :: non_neg_integer(),
             window_ms :: non_neg_integer(),
-            code :: binary() | none,
-            fail :: term(),
-            reading :: cell_hal_hw:from() | undefined}).
+            code = none :: binary() | none,
+            fail :: term()}).
 
 %% @doc Places a code in front of the reader (`none': nothing readable).
 -spec present(atom(), binary() | none) -> ok | {error, term()}.
@@ -40,33 +39,30 @@ check_opts(Opts) ->
 %% @private
 -spec init(atom(), map()) -> {ok, #s{}}.
 init(_Id, #{decode_ms := D, read_window_ms := W}) ->
-    {ok, #s{decode_ms = D, window_ms = W, code = none}}.
+    {ok, #s{decode_ms = D, window_ms = W}}.
 
 %% @private
--spec read(cell_hal_hw:from(), #s{}) -> {reply, {error, term()}, #s{}} | {noreply, #s{}}.
-read(_From, #s{reading = Busy} = S) when Busy =/= undefined ->
-    {reply, {error, busy}, S};
-read(_From, #s{fail = Why} = S) when Why =/= undefined ->
+-spec read(#s{}) -> {reply, {error, term()}, #s{}} | {noreply, #s{}}.
+read(#s{fail = Why} = S) when Why =/= undefined ->
     {reply, {error, Why}, S#s{fail = undefined}};
-read(From, #s{code = none, window_ms = W} = S) ->
+read(#s{code = none, window_ms = W} = S) ->
     _ = erlang:send_after(W, self(), {?MODULE, done, {error, no_read}}),
-    {noreply, S#s{reading = From}};
-read(From, #s{code = Code, decode_ms = D} = S) ->
+    {noreply, S};
+read(#s{code = Code, decode_ms = D} = S) ->
     _ = erlang:send_after(D, self(), {?MODULE, done, {ok, Code}}),
-    {noreply, S#s{reading = From}}.
+    {noreply, S}.
 
 %% @private
--spec handle_call(term(), cell_hal_hw:from(), #s{}) -> {reply, ok, #s{}}.
-handle_call({present, Code}, _From, S) ->
+-spec handle_call(term(), #s{}) -> {reply, ok, #s{}}.
+handle_call({present, Code}, S) ->
     {reply, ok, S#s{code = Code}};
-handle_call({fail_next, Why}, _From, S) ->
+handle_call({fail_next, Why}, S) ->
     {reply, ok, S#s{fail = Why}};
-handle_call({link, Link}, _From, S) ->
+handle_call({link, Link}, S) ->
     ok = cell_hal_hw:set_status(Link),
     {reply, ok, S}.
 
 %% @private
--spec handle_info(term(), #s{}) -> {noreply, #s{}}.
-handle_info({?MODULE, done, Result}, #s{reading = From} = S) ->
-    cell_hal_hw:reply(From, Result),
-    {noreply, S#s{reading = undefined}}.
+-spec handle_info(term(), #s{}) -> {reply, {ok, binary()} | {error, no_read}, #s{}}.
+handle_info({?MODULE, done, Result}, S) ->
+    {reply, Result, S}.

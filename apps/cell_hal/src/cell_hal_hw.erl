@@ -19,24 +19,24 @@
 %%
 %% Every object runs in its own process under `cell_hal_hw_sup'; its implementation
 %% module is a callback module of its kind's behaviour, called by this generic server.
-%% An implementation answers at once (`{reply, R, State}') or later with {@link
-%% reply/2}, so a slow device never blocks the object for other callers, and reports
+%% Operations (grab, read, mark) run one at a time, in the order asked, as a device
+%% does them: an implementation answers at once (`{reply, R, State}') or starts the
+%% work and answers later from `handle_info/2', and never sees two at once. It reports
 %% its connectivity with {@link set_status/1}: subscribers get `{cell_hal_hw, Id, up |
-%% down}'.
+%% down}', and operations asked while it is down fail with `not_connected'.
 -module(cell_hal_hw).
 -behaviour(gen_server).
 
 -export([add/1, from_settings/1, remove/1, list/0, present/1, status/1, subscribe/1,
          unsubscribe/1]).
--export([call/3, reply/2, set_status/1, check_opts/2]).
+-export([call/3, set_status/1, check_opts/2]).
 -export([start_link/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 
--export_type([kind/0, spec/0, from/0]).
+-export_type([kind/0, spec/0]).
 
 -type kind() :: camera | code_reader | laser_marker.
 -type spec() :: #{id := atom(), kind := kind(), type := atom(), opts => map()}.
--type from() :: gen_server:from().
 
 -define(TAB, cell_hal_hw_objects).
 -define(BUILT_IN, #{{camera, sim} => cell_hal_camera_sim,
@@ -48,6 +48,8 @@
                 mod :: module(),
                 impl :: term(),
                 status = up :: up | down,
+                busy :: gen_server:from() | undefined,     %% the operation in progress
+                waiting = queue:new() :: queue:queue({gen_server:from(), term()}),
                 subs = #{} :: #{pid() => reference()}}).
 
 %%====================================================================
@@ -168,11 +170,6 @@ call(Id, Request, Timeout) ->
             {error, not_present}
     end.
 
-%% @doc Answers a request an implementation took with `{noreply, State}'.
--spec reply(from(), term()) -> ok.
-reply(From, Reply) ->
-    gen_server:reply(From, Reply).
-
 %% @doc Called by an implementation (in its own process) when the device comes and
 %% goes; subscribers are told once the callback returns.
 -spec set_status(up | down) -> ok.
@@ -219,7 +216,7 @@ init({Id, Kind, Mod, Opts}) ->
     end.
 
 %% @private
--spec handle_call(term(), from(), #state{}) ->
+-spec handle_call(term(), gen_server:from(), #state{}) ->
           {reply, term(), #state{}} | {noreply, #state{}}.
 handle_call(status, _From, #state{status = Status} = S) ->
     {reply, Status, S};
@@ -237,24 +234,43 @@ handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
         error ->
             {reply, ok, S}
     end;
-handle_call({Kind, _}, _From, #state{kind = Other} = S) when Kind =/= impl, Kind =/= Other ->
+handle_call({impl, Request}, _From, #state{mod = Mod, impl = Impl} = S) ->
+    {reply, Reply, Impl1} = Mod:handle_call(Request, Impl),
+    {reply, Reply, S#state{impl = Impl1}};
+handle_call({Kind, _}, _From, #state{kind = Other} = S) when Kind =/= Other ->
     {reply, {error, not_present}, S};
-handle_call({Kind, _}, _From, #state{status = down} = S) when Kind =/= impl ->
+handle_call({_, _}, _From, #state{status = down} = S) ->
     {reply, {error, not_connected}, S};
-handle_call({Kind, Request}, From, #state{mod = Mod, impl = Impl} = S) ->
-    Result = case Kind of
-                 impl -> Mod:handle_call(Request, From, Impl);
-                 _ -> dispatch(Kind, Request, From, Mod, Impl)
-             end,
-    case Result of
-        {reply, Reply, Impl1} -> {reply, Reply, S#state{impl = Impl1}};
-        {noreply, Impl1} -> {noreply, S#state{impl = Impl1}}
+handle_call({_, Op}, From, #state{busy = undefined} = S) ->
+    start(From, Op, S);
+handle_call({_, Op}, From, #state{waiting = W} = S) ->
+    {noreply, S#state{waiting = queue:in({From, Op}, W)}}.
+
+%% Starts an operation; one that finishes at once lets the next waiting one start.
+start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
+    case dispatch(Kind, Op, Mod, Impl) of
+        {reply, Reply, Impl1} ->
+            gen_server:reply(From, Reply),
+            next(S#state{impl = Impl1});
+        {noreply, Impl1} ->
+            {noreply, S#state{impl = Impl1, busy = From}}
+    end.
+
+next(#state{waiting = W, status = Status} = S) ->
+    case queue:out(W) of
+        {{value, {From, _}}, W1} when Status =:= down ->
+            gen_server:reply(From, {error, not_connected}),
+            next(S#state{waiting = W1});
+        {{value, {From, Op}}, W1} ->
+            start(From, Op, S#state{waiting = W1, busy = undefined});
+        {empty, _} ->
+            {noreply, S#state{busy = undefined}}
     end.
 
 %% The operations of each kind's behaviour.
-dispatch(camera, {grab, Opts}, From, Mod, Impl) -> Mod:grab(Opts, From, Impl);
-dispatch(code_reader, read, From, Mod, Impl) -> Mod:read(From, Impl);
-dispatch(laser_marker, {mark, Job}, From, Mod, Impl) -> Mod:mark(Job, From, Impl).
+dispatch(camera, {grab, Opts}, Mod, Impl) -> Mod:grab(Opts, Impl);
+dispatch(code_reader, read, Mod, Impl) -> Mod:read(Impl);
+dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl).
 
 %% @private
 -spec handle_cast(term(), #state{}) -> no_return().
@@ -277,9 +293,14 @@ handle_info({'DOWN', MRef, process, Pid, _}, #state{subs = Subs} = S) when is_ma
     end;
 handle_info({'EXIT', _, _}, S) ->
     {noreply, S};
-handle_info(Msg, #state{mod = Mod, impl = Impl} = S) ->
-    {noreply, Impl1} = Mod:handle_info(Msg, Impl),
-    {noreply, S#state{impl = Impl1}}.
+handle_info(Msg, #state{mod = Mod, impl = Impl, busy = Busy} = S) ->
+    case Mod:handle_info(Msg, Impl) of
+        {noreply, Impl1} ->
+            {noreply, S#state{impl = Impl1}};
+        {reply, Reply, Impl1} when Busy =/= undefined ->
+            gen_server:reply(Busy, Reply),
+            next(S#state{impl = Impl1})
+    end.
 
 %% @private
 -spec terminate(term(), #state{}) -> ok.

@@ -12,13 +12,15 @@
 
 -callback check_opts(Opts :: map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 -callback init(Id :: atom(), Opts :: map()) -> {ok, State :: term()} | {error, term()}.
-%% Marks one job: `ok' when the marker finished; answers now or later with
-%% cell_hal_hw:reply/2.
--callback mark(job(), cell_hal_hw:from(), State :: term()) ->
+%% Marks one job: `ok' when the marker finished; answers now, or `noreply' and later
+%% from handle_info/2.
+-callback mark(job(), State :: term()) ->
     {reply, ok | {error, term()}, State :: term()} | {noreply, State :: term()}.
--callback handle_call(Request :: term(), cell_hal_hw:from(), State :: term()) ->
-    {reply, term(), State :: term()} | {noreply, State :: term()}.
--callback handle_info(Msg :: term(), State :: term()) -> {noreply, State :: term()}.
+%% Requests particular to the implementation (settings, simulation controls).
+-callback handle_call(Request :: term(), State :: term()) -> {reply, term(), State :: term()}.
+%% A message to the object's process; `reply' answers the operation in progress.
+-callback handle_info(Msg :: term(), State :: term()) ->
+    {noreply, State :: term()} | {reply, term(), State :: term()}.
 
 %% @doc Marks a job and returns when the marker finished.
 -spec mark(atom(), job(), timeout()) -> ok | {error, term()}.

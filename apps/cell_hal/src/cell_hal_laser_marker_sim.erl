@@ -7,13 +7,12 @@
 -behaviour(cell_hal_laser_marker).
 
 -export([marks/1, fail_next/2, set_link/2]).
--export([check_opts/1, init/2, mark/3, handle_call/3, handle_info/2]).
+-export([check_opts/1, init/2, mark/2, handle_call/2, handle_info/2]).
 
 -record(s, {setup_ms :: non_neg_integer(),
             ms_per_char :: non_neg_integer(),
             marks = [] :: [cell_hal_laser_marker:job()],      %% newest first
-            fail :: term(),
-            marking :: {cell_hal_hw:from(), cell_hal_laser_marker:job()} | undefined}).
+            fail :: term()}).
 
 %% @doc Every job marked so far, oldest first.
 -spec marks(atom()) -> [cell_hal_laser_marker:job()] | {error, term()}.
@@ -42,28 +41,24 @@ init(_Id, #{setup_ms := Setup, ms_per_char := PerChar}) ->
     {ok, #s{setup_ms = Setup, ms_per_char = PerChar}}.
 
 %% @private
--spec mark(cell_hal_laser_marker:job(), cell_hal_hw:from(), #s{}) ->
-          {reply, {error, term()}, #s{}} | {noreply, #s{}}.
-mark(_Job, _From, #s{marking = Busy} = S) when Busy =/= undefined ->
-    {reply, {error, busy}, S};
-mark(_Job, _From, #s{fail = Why} = S) when Why =/= undefined ->
+-spec mark(cell_hal_laser_marker:job(), #s{}) -> {reply, {error, term()}, #s{}} | {noreply, #s{}}.
+mark(_Job, #s{fail = Why} = S) when Why =/= undefined ->
     {reply, {error, Why}, S#s{fail = undefined}};
-mark(#{text := Text} = Job, From, #s{setup_ms = Setup, ms_per_char = PerChar} = S) ->
-    _ = erlang:send_after(Setup + PerChar * byte_size(Text), self(), {?MODULE, marked}),
-    {noreply, S#s{marking = {From, Job}}}.
+mark(#{text := Text} = Job, #s{setup_ms = Setup, ms_per_char = PerChar} = S) ->
+    _ = erlang:send_after(Setup + PerChar * byte_size(Text), self(), {?MODULE, marked, Job}),
+    {noreply, S}.
 
 %% @private
--spec handle_call(term(), cell_hal_hw:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call(marks, _From, #s{marks = Marks} = S) ->
+-spec handle_call(term(), #s{}) -> {reply, term(), #s{}}.
+handle_call(marks, #s{marks = Marks} = S) ->
     {reply, lists:reverse(Marks), S};
-handle_call({fail_next, Why}, _From, S) ->
+handle_call({fail_next, Why}, S) ->
     {reply, ok, S#s{fail = Why}};
-handle_call({link, Link}, _From, S) ->
+handle_call({link, Link}, S) ->
     ok = cell_hal_hw:set_status(Link),
     {reply, ok, S}.
 
 %% @private
--spec handle_info(term(), #s{}) -> {noreply, #s{}}.
-handle_info({?MODULE, marked}, #s{marking = {From, Job}, marks = Marks} = S) ->
-    cell_hal_hw:reply(From, ok),
-    {noreply, S#s{marking = undefined, marks = [Job | Marks]}}.
+-spec handle_info(term(), #s{}) -> {reply, ok, #s{}}.
+handle_info({?MODULE, marked, Job}, #s{marks = Marks} = S) ->
+    {reply, ok, S#s{marks = [Job | Marks]}}.
