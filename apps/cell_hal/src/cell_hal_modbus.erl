@@ -19,8 +19,11 @@
 %%
 %% Requests carry transaction ids 0..65535, wrapping around, never one still in
 %% flight. Writes and raw requests go before the polls waiting to be sent, in their own
-%% order. The socket is `{active, once}'; connecting happens in a short-lived process,
-%% so the host process never blocks.
+%% order. The socket is `{active, once}'; frames are handed to the socket's port
+%% without waiting (its confirmation comes back as a message); connecting happens in a
+%% short-lived process, so the host process never blocks. Deadlines are kept with one
+%% timer a connection, armed for the earliest deadline in flight, rather than one a
+%% request: a round trip costs no timer operation.
 %%
 %% Faults: a Modbus exception answers the request with `{error, {modbus_exception,
 %% Code, Name}}' (a poll refused fails the poll, and the worker counts the connection
@@ -42,7 +45,7 @@
               unit :: unit_id(),
               request :: cell_hal_modbus_codec:request(),
               timeout :: pos_integer(),
-              timer :: reference() | undefined}).
+              deadline = 0 :: integer()}).        %% monotonic ms, set when sent
 
 -record(mb, {id :: atom(),
              host :: inet:hostname() | inet:ip_address(),
@@ -60,7 +63,9 @@
              urgent = queue:new() :: queue:queue(#req{}),     %% writes and raw requests
              polls = queue:new() :: queue:queue(#req{}),
              reads = #{} :: #{term() => {pos_integer(), [cell_hal_driver:values()]}},
-             late = #{} :: #{tid() => true}}).               %% timed-out raw requests
+             late = #{} :: #{tid() => true},                %% timed-out raw requests
+             timer :: {reference(), integer()} | undefined,  %% earliest deadline
+             flush = false :: boolean()}).                  %% a flush is on its way
 
 %%====================================================================
 %% Options and fields
@@ -153,7 +158,7 @@ connector(Parent, Host, Port) ->
 
 %% @private
 -spec disconnect(#mb{}) -> #mb{}.
-disconnect(#mb{socket = Sock, connector = Connector, in_flight = InFlight} = S) ->
+disconnect(#mb{socket = Sock, connector = Connector} = S) ->
     case Connector of
         {Pid, MRef} ->
             erlang:demonitor(MRef, [flush]),
@@ -162,9 +167,10 @@ disconnect(#mb{socket = Sock, connector = Connector, in_flight = InFlight} = S) 
             ok
     end,
     _ = Sock =/= undefined andalso gen_tcp:close(Sock),
-    maps:foreach(fun(_, #req{timer = T}) -> cancel(T) end, InFlight),
+    ok = cancel(S#mb.timer),
     S#mb{socket = undefined, connector = undefined, buf = <<>>, in_flight = #{},
-         urgent = queue:new(), polls = queue:new(), reads = #{}, late = #{}}.
+         urgent = queue:new(), polls = queue:new(), reads = #{}, late = #{},
+         timer = undefined, flush = false}.
 
 %%====================================================================
 %% Reads, writes, raw requests
@@ -191,21 +197,19 @@ read(Tag, Plan, #mb{polls = Q, reads = Reads, timeout_ms = T} = S) ->
 
 %% @private
 -spec write(term(), cell_hal_driver:point(), cell_hal_type:value(), #mb{}) -> {ok, #mb{}}.
-write(Tag, #{type := Type, field := Field}, V, #mb{urgent = Q, timeout_ms = T} = S) ->
+write(Tag, #{type := Type, field := Field}, V, #mb{timeout_ms = T} = S) ->
     {Unit, Req} = cell_hal_modbus_plan:write_request(Type, Field, V),
-    pumped(S#mb{urgent = queue:in(#req{kind = {write, Tag}, unit = Unit, request = Req,
-                                       timeout = T}, Q)}).
+    urgent(#req{kind = {write, Tag}, unit = Unit, request = Req, timeout = T}, S).
 
 %% @private
 %% A request of the codec (see cell_hal_modbus_codec:request()), to the connection's
 %% unit or, as `{Unit, Request}', to another.
 -spec request(term(), term(), pos_integer(), #mb{}) -> {ok, #mb{}} | {error, term()}.
-request(Tag, {Unit, Req}, Timeout, #mb{urgent = Q} = S) when is_integer(Unit), Unit >= 0,
+request(Tag, {Unit, Req}, Timeout, S) when is_integer(Unit), Unit >= 0,
                                                              Unit =< 255 ->
     case cell_hal_modbus_codec:check_request(Req) of
         ok ->
-            pumped(S#mb{urgent = queue:in(#req{kind = {raw, Tag}, unit = Unit, request = Req,
-                                               timeout = Timeout}, Q)});
+            urgent(#req{kind = {raw, Tag}, unit = Unit, request = Req, timeout = Timeout}, S);
         Error ->
             Error
     end;
@@ -217,38 +221,90 @@ request(Tag, Req, Timeout, #mb{unit = Unit} = S) ->
 pumped(S) ->
     {ok, pump(S)}.
 
+%% A write or raw request goes out at once on an idle connection. With others in
+%% flight it waits for the end of the host's turn, so that requests issued together
+%% leave together, in one frame batch.
+urgent(Req, #mb{urgent = Q, in_flight = InFlight} = S) when map_size(InFlight) =:= 0 ->
+    pumped(S#mb{urgent = queue:in(Req, Q)});
+urgent(Req, #mb{urgent = Q, flush = true} = S) ->
+    {ok, S#mb{urgent = queue:in(Req, Q)}};
+urgent(Req, #mb{urgent = Q, socket = Sock} = S) ->
+    self() ! {?MODULE, flush, Sock},
+    {ok, S#mb{urgent = queue:in(Req, Q), flush = true}}.
+
 pump(#mb{socket = undefined} = S) ->
     S;
 pump(#mb{socket = Sock} = S) ->
-    case fill(S, []) of
+    case fill(S, erlang:monotonic_time(millisecond), []) of
         {[], S1} ->
             S1;
         {Frames, S1} ->
-            case gen_tcp:send(Sock, lists:reverse(Frames)) of
-                ok -> S1;
-                {error, Why} -> self() ! {?MODULE, send_failed, Sock, Why}, S1
+            %% The port confirms with {inet_reply, Sock, Status}: no wait here.
+            try erlang:port_command(Sock, lists:reverse(Frames)) of
+                true -> S1
+            catch
+                error:badarg -> self() ! {?MODULE, send_failed, Sock, closed}, S1
             end
     end.
 
-fill(#mb{in_flight = InFlight, max_in_flight = Max} = S, Frames)
+fill(#mb{in_flight = InFlight, max_in_flight = Max} = S, _Now, Frames)
   when map_size(InFlight) >= Max ->
     {Frames, S};
-fill(#mb{urgent = U, polls = P} = S, Frames) ->
+fill(#mb{urgent = U, polls = P} = S, Now, Frames) ->
     case queue:out(U) of
-        {{value, Req}, U1} -> fill_send(Req, S#mb{urgent = U1}, Frames);
+        {{value, Req}, U1} -> fill_send(Req, S#mb{urgent = U1}, Now, Frames);
         {empty, _} ->
             case queue:out(P) of
-                {{value, Req}, P1} -> fill_send(Req, S#mb{polls = P1}, Frames);
+                {{value, Req}, P1} -> fill_send(Req, S#mb{polls = P1}, Now, Frames);
                 {empty, _} -> {Frames, S}
             end
     end.
 
 fill_send(#req{unit = Unit, request = R, timeout = T} = Req, #mb{in_flight = InFlight} = S,
-          Frames) ->
+          Now, Frames) ->
     {Tid, S1} = next_tid(S),
     Frame = cell_hal_modbus_codec:adu(Tid, Unit, cell_hal_modbus_codec:request_pdu(R)),
-    Timer = erlang:start_timer(T, self(), {?MODULE, Tid}),
-    fill(S1#mb{in_flight = InFlight#{Tid => Req#req{timer = Timer}}}, [Frame | Frames]).
+    Deadline = Now + T,
+    fill(arm(Deadline, S1#mb{in_flight = InFlight#{Tid => Req#req{deadline = Deadline}}}),
+         Now, [Frame | Frames]).
+
+%% The one deadline timer fires no later than the earliest deadline in flight.
+arm(Deadline, #mb{timer = {_, At}} = S) when At =< Deadline ->
+    S;
+arm(Deadline, #mb{timer = Timer} = S) ->
+    ok = cancel(Timer),
+    TRef1 = erlang:start_timer(Deadline, self(), {?MODULE, deadline}, [{abs, true}]),
+    S#mb{timer = {TRef1, Deadline}}.
+
+cancel({TRef, _}) ->
+    _ = erlang:cancel_timer(TRef),
+    ok;
+cancel(undefined) ->
+    ok.
+
+%% The timer fired: the requests past their deadline fail, and it is armed again for
+%% the earliest one left.
+expire(#mb{in_flight = InFlight} = S) ->
+    Now = erlang:monotonic_time(millisecond),
+    Deadlines = [{D, Tid} || {Tid, #req{deadline = D}} <- maps:to_list(InFlight)],
+    Expired = lists:sort([E || {D, _} = E <- Deadlines, D =< Now]),
+    Left = [D || {D, _} <- Deadlines, D > Now],
+    S1 = case Left of
+             [] -> S#mb{timer = undefined};
+             _ -> arm(lists:min(Left), S#mb{timer = undefined})
+         end,
+    expire(Expired, S1, []).
+
+expire([], S, Events) ->
+    {ok, lists:reverse(Events), pump(S)};
+expire([{_, Tid} | Rest], #mb{in_flight = InFlight} = S, Events) ->
+    case maps:take(Tid, InFlight) of
+        {#req{kind = {raw, Tag}}, Left} ->
+            expire(Rest, S#mb{in_flight = Left, late = (S#mb.late)#{Tid => true}},
+                   [{reply, Tag, {error, timeout}} | Events]);
+        {#req{unit = U, request = R, timeout = T}, _} ->
+            lost_after({no_answer, T, U, R}, S, lists:reverse(Events))
+    end.
 
 %% The next transaction id not in flight (at most max_in_flight are), wrapping around.
 next_tid(#mb{tid = Tid, in_flight = InFlight, late = Late} = S) ->
@@ -264,6 +320,8 @@ next_tid(#mb{tid = Tid, in_flight = InFlight, late = Late} = S) ->
 
 %% @private
 -spec handle_info(term(), #mb{}) -> {ok, [cell_hal_driver:event()], #mb{}} | unknown.
+handle_info({tcp, Sock, Data}, #mb{socket = Sock, buf = <<>>} = S) ->
+    frames(S#mb{buf = Data}, []);
 handle_info({tcp, Sock, Data}, #mb{socket = Sock, buf = Buf} = S) ->
     frames(S#mb{buf = <<Buf/binary, Data/binary>>}, []);
 handle_info({tcp_closed, Sock}, #mb{socket = Sock} = S) ->
@@ -272,11 +330,14 @@ handle_info({tcp_error, Sock, Why}, #mb{socket = Sock} = S) ->
     lost({network, Why}, S);
 handle_info({?MODULE, send_failed, Sock, Why}, #mb{socket = Sock} = S) ->
     lost({network, Why}, S);
-handle_info({timeout, TRef, {?MODULE, Tid}}, #mb{in_flight = InFlight} = S) ->
-    case InFlight of
-        #{Tid := #req{timer = TRef} = Req} -> timed_out(Tid, Req, S);
-        #{} -> {ok, [], S}
-    end;
+handle_info({?MODULE, flush, Sock}, #mb{socket = Sock} = S) ->
+    {ok, [], pump(S#mb{flush = false})};
+handle_info({inet_reply, Sock, ok}, #mb{socket = Sock} = S) ->
+    {ok, [], S};
+handle_info({inet_reply, Sock, {error, Why}}, #mb{socket = Sock} = S) ->
+    lost({network, Why}, S);
+handle_info({timeout, TRef, {?MODULE, deadline}}, #mb{timer = {TRef, _}} = S) ->
+    expire(S);
 handle_info({?MODULE, connected, Pid, Sock}, #mb{connector = {Pid, MRef}} = S) ->
     erlang:demonitor(MRef, [flush]),
     S1 = S#mb{socket = Sock, connector = undefined},
@@ -294,8 +355,12 @@ handle_info({'DOWN', MRef, process, Pid, Why}, #mb{connector = {Pid, MRef}} = S)
     lost({connect, Why}, S#mb{connector = undefined});
 handle_info({?MODULE, empty_read, Tag}, S) ->
     {ok, [{reply, Tag, {ok, []}}], S};
+handle_info({timeout, _, {?MODULE, deadline}}, S) ->
+    %% A timer of a connection closed since.
+    {ok, [], S};
 handle_info(Msg, S) when element(1, Msg) =:= tcp; element(1, Msg) =:= tcp_closed;
-                         element(1, Msg) =:= tcp_error; element(1, Msg) =:= ?MODULE ->
+                         element(1, Msg) =:= tcp_error; element(1, Msg) =:= inet_reply;
+                         element(1, Msg) =:= ?MODULE ->
     %% Of a connection closed since.
     {ok, [], S};
 handle_info(_, _) ->
@@ -320,8 +385,7 @@ frames(#mb{buf = Buf, socket = Sock} = S, Events) ->
 
 answer(Tid, Unit, Pdu, #mb{in_flight = InFlight, late = Late} = S) ->
     case maps:take(Tid, InFlight) of
-        {#req{unit = Unit, request = R, timer = T} = Req, Rest} ->
-            cancel(T),
+        {#req{unit = Unit, request = R} = Req, Rest} ->
             case cell_hal_modbus_codec:decode_response(R, Pdu) of
                 {ok, Reply} -> completed(Req, {ok, Reply}, S#mb{in_flight = Rest});
                 {exception, Code} ->
@@ -361,20 +425,11 @@ drop_read(Tag, #mb{polls = P, reads = Reads} = S) ->
     S#mb{polls = queue:filter(fun(#req{kind = {poll, T, _}}) -> T =/= Tag end, P),
          reads = maps:remove(Tag, Reads)}.
 
-timed_out(Tid, #req{kind = {raw, Tag}}, #mb{in_flight = InFlight, late = Late} = S) ->
-    {ok, [{reply, Tag, {error, timeout}}],
-     pump(S#mb{in_flight = maps:remove(Tid, InFlight), late = Late#{Tid => true}})};
-timed_out(_Tid, #req{unit = U, request = R, timeout = T}, S) ->
-    lost({no_answer, T, U, R}, S).
-
 lost(Why, S) ->
     lost_after(Why, S, []).
 
 lost_after(Why, S, Events) ->
     {ok, Events ++ [{lost, Why}], disconnect(S)}.
-
-cancel(undefined) -> ok;
-cancel(T) -> _ = erlang:cancel_timer(T), ok.
 
 %%====================================================================
 %% Words for operators

@@ -22,9 +22,11 @@
 #include <errno.h>
 #include <modbus/modbus.h>
 #include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/select.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -165,6 +167,9 @@ int main(int argc, char **argv) {
         if (FD_ISSET(listener, &rd)) {
             int fd = accept(listener, NULL, NULL);
             if (fd >= 0) {
+                /* Answers go out at once, even several in a row to pipelined requests. */
+                int one = 1;
+                setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
                 FD_SET(fd, &clients);
                 if (fd > fdmax) fdmax = fd;
             }
@@ -172,21 +177,29 @@ int main(int argc, char **argv) {
         for (int fd = 1; fd <= fdmax; fd++) {
             if (fd == listener || !FD_ISSET(fd, &clients) || !FD_ISSET(fd, &rd)) continue;
             modbus_set_socket(ctx, fd);
-            int rc = modbus_receive(ctx, query);
-            if (rc == -1) {
-                close(fd);
-                FD_CLR(fd, &clients);
-                continue;
-            }
-            if (rc == 0 || silent) continue;
-            int unit = query[6], fc = query[7];
-            if (mangle[0]) send_mangled(fd, query);
-            else if (unit != 1 && unit != 255)
-                modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
-            else if (rejected[fc])
-                modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
-            else
-                modbus_reply(ctx, query, rc, map);
+            /* Every request already received is answered before waiting again, so
+               pipelined requests cost one select, not one each. */
+            int pending;
+            do {
+                int rc = modbus_receive(ctx, query);
+                if (rc == -1) {
+                    close(fd);
+                    FD_CLR(fd, &clients);
+                    break;
+                }
+                if (rc > 0 && !silent) {
+                    int unit = query[6], fc = query[7];
+                    if (mangle[0]) send_mangled(fd, query);
+                    else if (unit != 1 && unit != 255)
+                        modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
+                    else if (rejected[fc])
+                        modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+                    else
+                        modbus_reply(ctx, query, rc, map);
+                }
+                pending = 0;
+                if (ioctl(fd, FIONREAD, &pending) < 0) pending = 0;
+            } while (pending >= 7);   /* at least an MBAP header */
         }
     }
 }
