@@ -36,6 +36,8 @@
 -type key() :: {atom(), atom()}.
 -type tag() :: non_neg_integer().
 
+
+
 -record(pt, {dir :: in | out,
              type :: cell_hal_type:type(),
              field :: term(),
@@ -58,8 +60,7 @@
                sync :: tag() | undefined,              %% the first read after connecting
                poll :: tag() | undefined,              %% the poll in flight
                poll_due = false :: boolean(),          %% the period ended during a poll
-               readback :: tag() | undefined,          %% outputs of a group added while up
-               unread = #{} :: #{key() => true},       %% outputs that readback may set
+               unread = #{} :: #{key() => tag()},      %% outputs being read back, by read
                pending = #{} :: #{tag() => pending()},
                reason :: term(),                       %% why it is not up
                was_up = false :: boolean(),            %% up before this failure
@@ -202,7 +203,7 @@ disconnected(enter, _Old, #data{id = Id, driver = Driver, ds = DS, reason = Why}
     D2 = log_failure(Wait, D1),
     {keep_state, D2#data{backoff = min(2 * Wait, D#data.max_reconnect_ms), was_up = false,
                          sync = undefined, poll = undefined, poll_due = false,
-                         readback = undefined},
+                         unread = #{}},
      [{state_timeout, Wait, reconnect}, {{timeout, poll}, cancel}]};
 disconnected(state_timeout, reconnect, D) ->
     {next_state, connecting, D};
@@ -273,17 +274,18 @@ event({reply, Tag, {ok, Values}}, connected, #data{poll = Tag} = D) ->
                     true -> start_poll(D1#data{poll_due = false});
                     false -> D1
                 end};
-event({reply, Tag, {ok, Values}}, connected, #data{readback = Tag, unread = U} = D) ->
-    D1 = publish(Values, fun(#pt{dir = Dir}, K) -> Dir =:= out andalso maps:is_key(K, U) end,
-                 D#data{readback = undefined}),
-    {connected, D1#data{unread = #{}}};
-event({reply, Tag, {error, Why}}, State, #data{sync = S, poll = P, readback = R} = D)
-  when State =/= disconnected, (Tag =:= S orelse Tag =:= P orelse Tag =:= R) ->
+event({reply, Tag, {error, Why}}, State, #data{sync = S, poll = P} = D)
+  when State =/= disconnected, Tag =:= S orelse Tag =:= P ->
     {disconnected, D#data{reason = Why}};
-event({reply, Tag, Result}, State, #data{pending = P} = D) ->
+event({reply, Tag, Result}, State, #data{pending = P, unread = U} = D) ->
     case maps:take(Tag, P) of
-        {Pending, Rest} -> {State, complete(Pending, Result, D#data{pending = Rest})};
-        error -> {State, D}
+        {Pending, Rest} ->
+            {State, complete(Pending, Result, D#data{pending = Rest})};
+        error ->
+            case State =:= connected andalso lists:member(Tag, maps:values(U)) of
+                true -> read_back(Tag, Result, D);
+                false -> {State, D}
+            end
     end;
 event({push, Values}, connected, D) ->
     {connected, publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
@@ -328,21 +330,27 @@ start_poll(#data{plan = Plan} = D) ->
     {Tag, D1} = read(Plan, D),
     D1#data{poll = Tag}.
 
-%% Outputs of a group added while up are read once, so they show what the device holds.
-start_readback(#data{readback = undefined, points = Pts} = D) ->
-    Unread = maps:filter(fun(_, #pt{dir = Dir, value = V}) -> Dir =:= out andalso V =:= none end,
-                         Pts),
-    case plan(maps:to_list(Unread), D) of
+%% The answer to reading back outputs: only those no write has commanded since count.
+read_back(Tag, {ok, Values}, #data{unread = U} = D) ->
+    D1 = publish(Values, fun(#pt{dir = Dir}, K) -> Dir =:= out andalso maps:get(K, U, none) =:= Tag end,
+                 D),
+    {connected, D1#data{unread = maps:filter(fun(_, T) -> T =/= Tag end, U)}};
+read_back(_Tag, {error, Why}, D) ->
+    {disconnected, D#data{reason = Why}}.
+
+%% Outputs of a group added while up are read once, so they show what the device holds;
+%% each group change reads the outputs it brought, whatever reads are in flight.
+start_readback(#data{points = Pts, unread = U} = D) ->
+    New = maps:filter(fun(K, #pt{dir = Dir, value = V}) ->
+                              Dir =:= out andalso V =:= none andalso not is_map_key(K, U)
+                      end, Pts),
+    case plan(maps:to_list(New), D) of
         {_, 0} ->
             D;
         {Plan, _} ->
             {Tag, D1} = read(Plan, D),
-            D1#data{readback = Tag, unread = maps:map(fun(_, _) -> true end, Unread)}
-    end;
-start_readback(D) ->
-    %% One is in flight; groups added meanwhile are read by the next reconnect or
-    %% group change.
-    D.
+            D1#data{unread = maps:merge(U, maps:map(fun(_, _) -> Tag end, New))}
+    end.
 
 read(Plan, #data{driver = Driver, ds = DS, tag = Tag} = D) ->
     {ok, DS1} = Driver:read(Tag, Plan, DS),

@@ -14,7 +14,7 @@
          link_down_and_back/1, silent_device_goes_down/1, stale_inputs_never_fresh/1,
          watch_placed_while_down_fires_after_reconnect/1, outputs_read_back_after_reconnect/1,
          writes_keep_their_order/1, write_sync_waits_for_the_device/1,
-         group_added_while_up/1, remove_group_and_connection/1,
+         group_added_while_up/1, groups_added_back_to_back/1, remove_group_and_connection/1,
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
          server_crash_keeps_configuration/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1]).
@@ -28,6 +28,7 @@ all() ->
      silent_device_goes_down, stale_inputs_never_fresh,
      watch_placed_while_down_fires_after_reconnect, outputs_read_back_after_reconnect,
      writes_keep_their_order, write_sync_waits_for_the_device, group_added_while_up,
+     groups_added_back_to_back,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      logs_speak_to_operators, backoff_grows_then_resets, connection_info].
@@ -403,6 +404,21 @@ group_added_while_up(_Config) ->
                  end),
     {ok, #{caption := <<"int16 input">>, address := <<"A1.IN.int16">>, dir := in,
            type := int16, connection := s14}} = cell_hal:describe(io2, int16_in).
+
+%% Each group added while up has its outputs read back, even when the read of the one
+%% before is still on its way (a slow PLC).
+groups_added_back_to_back(_Config) ->
+    ok = sim(s22, #{latency_ms => 100}),
+    ok = cell_hal_sim:preset(s22, #{{a, int16_out} => 1, {b, int16_out} => 2, {c, int16_out} => 3}),
+    [ok = cell_hal:add_group(#{id => G, module => cell_hal_test_io, connection => s22,
+                               opts => #{only => [int16_out]}}) || G <- [a, b, c]],
+    %% A write to one of them before its read back arrives wins over the read back.
+    ok = cell_hal:write(c, int16_out, 30),
+    [begin
+         {ok, R} = cell_hal:watch(G, int16_out, {eq, V}),
+         receive {cell_hal_watch, R, V} -> ok after ?WAIT -> ct:fail({not_read_back, G}) end
+     end || {G, V} <- [{a, 1}, {b, 2}, {c, 30}]],
+    ?assertEqual({ok, 30}, cell_hal_sim:get({c, int16_out})).
 
 remove_group_and_connection(_Config) ->
     ok = sim(s15),
