@@ -92,7 +92,11 @@ check_opts(Opts) ->
 
 is_host(H) when is_binary(H) -> is_host(binary_to_list(H));
 is_host(H) when is_list(H) -> H =/= [] andalso io_lib:printable_latin1_list(H);
-is_host(H) when is_tuple(H) -> element(1, inet:ntoa(H)) =/= error;
+is_host(H) when is_tuple(H) ->
+    case inet:ntoa(H) of
+        {error, einval} -> false;
+        _ -> true
+    end;
 is_host(_) -> false.
 
 %% @private
@@ -465,3 +469,51 @@ format_reason(Other) -> io_lib:format("~tp", [Other]).
 network_error(nxdomain) -> "unknown host";
 network_error(Why) when is_atom(Why) -> inet:format_error(Why);
 network_error(Why) -> io_lib:format("~tp", [Why]).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% Transaction ids run 0..65535 and on from 0, never taking one still in flight.
+next_tid_test_() ->
+    Req = #req{kind = {raw, x}, unit = 1, request = {read_coils, 0, 1}, timeout = 1},
+    S = #mb{tid = 65534},
+    {A, S1} = next_tid(S),
+    {B, S2} = next_tid(S1),
+    {C, _} = next_tid(S2),
+    Busy = #mb{tid = 65535, in_flight = #{65535 => Req, 0 => Req, 1 => Req}},
+    {D, _} = next_tid(Busy),
+    {E, S3} = next_tid(#mb{tid = 5, late = #{5 => true, 6 => true}}),
+    [?_assertEqual([65534, 65535, 0], [A, B, C]),
+     ?_assertEqual(2, D),
+     %% A late answer's id given to a new request is no longer late.
+     ?_assertEqual({5, #{6 => true}}, {E, S3#mb.late})].
+
+options_test_() ->
+    [?_assertEqual({error, {bad_option, host}}, check_opts(#{})),
+     ?_assertMatch({ok, #{port := 502, unit := 1, word_order := big, timeout_ms := 1000,
+                          max_in_flight := 1, max_gap := 0}}, check_opts(#{host => "plc1"})),
+     ?_assertMatch({ok, _}, check_opts(#{host => {10, 0, 0, 5}})),
+     ?_assertMatch({ok, _}, check_opts(#{host => <<"10.0.0.5">>})),
+     ?_assertEqual({error, {bad_option, host}}, check_opts(#{host => ""})),
+     ?_assertEqual({error, {bad_option, host}}, check_opts(#{host => {1, 2, 3}})),
+     ?_assertEqual({error, {bad_option, port}}, check_opts(#{host => "h", port => 0})),
+     ?_assertEqual({error, {bad_option, port}}, check_opts(#{host => "h", port => 65536})),
+     ?_assertEqual({error, {bad_option, unit}}, check_opts(#{host => "h", unit => 256})),
+     ?_assertEqual({error, {bad_option, word_order}}, check_opts(#{host => "h", word_order => cdab})),
+     ?_assertEqual({error, {bad_option, max_in_flight}}, check_opts(#{host => "h", max_in_flight => 0})),
+     ?_assertEqual({error, {bad_option, max_gap}}, check_opts(#{host => "h", max_gap => 125})),
+     ?_assertEqual({error, {bad_option, colour}}, check_opts(#{host => "h", colour => red}))].
+
+reasons_read_as_words_test_() ->
+    [?_assertEqual("connection refused", lists:flatten(format_reason({connect, econnrefused}))),
+     ?_assertEqual("cannot connect: unknown host",
+                   lists:flatten(format_reason({connect, nxdomain}))),
+     ?_assertEqual("no answer within 1000 ms to read holding registers 0..9 (unit 1)",
+                   lists:flatten(format_reason({no_answer, 1000, 1, {read_holding_registers, 0, 10}}))),
+     ?_assertEqual("the PLC refused to read input registers 5 (unit 2): illegal data address "
+                   "(Modbus exception 2)",
+                   lists:flatten(format_reason({read_refused, 2, {read_input_registers, 5, 1},
+                                                {modbus_exception, 2, illegal_data_address}}))),
+     ?_assertEqual("the PLC answered for unit 3 to a request for unit 1",
+                   lists:flatten(format_reason({wrong_unit, 1, 3})))].
+-endif.

@@ -44,8 +44,9 @@
 %% Simulation API
 %%====================================================================
 
-%% @doc Sets a point in the simulated PLC's image (an input, or an output changed on
-%% the PLC's side). The HAL sees it at its next poll.
+%% @doc Sets a point in the simulated PLC's image: an input, which the HAL sees at its
+%% next poll, or an output changed on the PLC's side, which the HAL reads back after
+%% its next reconnect (it does not poll outputs).
 -spec set(key(), cell_hal_type:value()) ->
           ok | {error, unknown_point | not_simulated | {bad_value, term()}}.
 set(Key, V) ->
