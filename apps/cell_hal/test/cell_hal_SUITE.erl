@@ -10,7 +10,8 @@
          end_per_testcase/2]).
 -export([configuration_is_checked_at_the_door/1, every_type_reads_and_writes/1,
          reads_before_the_first_poll/1, subscribers_see_every_change/1,
-         watches_fire_once/1, watch_conditions_are_checked/1, sensor_follows_output/1,
+         watches_fire_once/1, watches_fire_once_under_load/1, watch_conditions_are_checked/1,
+         sensor_follows_output/1,
          link_down_and_back/1, silent_device_goes_down/1, stale_inputs_never_fresh/1,
          watch_placed_while_down_fires_after_reconnect/1, outputs_read_back_after_reconnect/1,
          writes_keep_their_order/1, write_sync_waits_for_the_device/1,
@@ -24,6 +25,7 @@
 all() ->
     [configuration_is_checked_at_the_door, every_type_reads_and_writes,
      reads_before_the_first_poll, subscribers_see_every_change, watches_fire_once,
+     watches_fire_once_under_load,
      watch_conditions_are_checked, sensor_follows_output, link_down_and_back,
      silent_device_goes_down, stale_inputs_never_fresh,
      watch_placed_while_down_fires_after_reconnect, outputs_read_back_after_reconnect,
@@ -242,6 +244,35 @@ watches_fire_once(_Config) ->
     Refs = [element(2, cell_hal:watch(io, int16_in, {eq, 100})) || _ <- lists:seq(1, 50)],
     ok = cell_hal_sim:set({io, int16_in}, 100),
     [receive {cell_hal_watch, R, 100} -> ok after ?WAIT -> ct:fail(lost_watcher) end || R <- Refs].
+
+%% An input that never stops changing, many processes placing watches on it all the
+%% while: the worker publishing and the server placing a watch race for each one, and
+%% every watch still fires exactly once.
+watches_fire_once_under_load(_Config) ->
+    ok = sim(s23, #{poll_ms => 1}),
+    ok = cell_hal_sim:on_change({io, bool_in}, fun(V) -> [{1, {io, bool_in}, not V}] end),
+    ok = cell_hal_sim:set({io, bool_in}, true),
+    Self = self(),
+    Watchers = [spawn_link(fun() -> Self ! {done, self(), watch_many(100, [])} end)
+                || _ <- lists:seq(1, 20)],
+    Refs = lists:append([receive {done, W, Rs} -> Rs after ?WAIT * 6 -> ct:fail(stuck) end
+                         || W <- Watchers]),
+    ?assertEqual(2000, length(Refs)),
+    ok = cell_hal_sim:clear_rules(s23),
+    ?assertEqual(0, ets:info(cell_hal_watch_claims, size)).
+
+%% Places watches one after the other, each waited for; then makes sure none of them
+%% came twice.
+watch_many(0, Refs) ->
+    Dups = [R || R <- Refs, receive {cell_hal_watch, R, _} -> true after 0 -> false end],
+    [] = Dups,
+    Refs;
+watch_many(N, Refs) ->
+    Cond = case N rem 2 of 0 -> {eq, true}; 1 -> {eq, false} end,
+    {ok, Ref} = cell_hal:watch(io, bool_in, Cond),
+    receive {cell_hal_watch, Ref, _} -> ok after ?WAIT -> exit({never_fired, Cond}) end,
+    false = cell_hal:cancel_watch(Ref),
+    watch_many(N - 1, [Ref | Refs]).
 
 watch_conditions_are_checked(_Config) ->
     ok = sim(s5),
