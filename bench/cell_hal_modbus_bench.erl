@@ -256,6 +256,11 @@ bare_loop(N, Sock, Frame, Lat) ->
 %%--------------------------------------------------------------------
 
 through_hal(Port, N) ->
+    %% The HAL logs through cell_log into the benchmark's root folder; lager's own
+    %% default handlers would write into the working directory.
+    _ = application:load(lager),
+    ok = application:set_env(lager, handlers, []),
+    ok = application:set_env(lager, crash_log, false),
     {ok, _} = application:ensure_all_started(cell_hal),
     ok = cell_hal:add_connection(#{id => bench_plc, driver => cell_hal_modbus,
                                    opts => #{host => "127.0.0.1", port => Port}}),

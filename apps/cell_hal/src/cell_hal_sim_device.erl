@@ -28,7 +28,14 @@
                 rules = #{} :: #{key() => [rule()]},
                 link = up :: up | down | silent,
                 latency_ms = 0 :: non_neg_integer(),
-                clients = #{} :: #{reference() => {pid(), reference()}}}).  %% conn ref => {client, monitor}
+                clients = #{} :: #{reference() => {pid(), reference()}}, %% conn ref => {client, monitor}
+                %% What is due when, in order: by due time, then in the order it was
+                %% asked for (two timers of the same millisecond may fire in any order).
+                agenda = gb_trees:empty() :: gb_trees:tree({integer(), non_neg_integer()}, task()),
+                seq = 0 :: non_neg_integer(),
+                timer :: {reference(), integer()} | undefined}).
+
+-type task() :: {set, key(), cell_hal_type:value()} | {answer, reference(), term()}.
 
 %% @doc Starts the simulated PLC `Name'.
 -spec start_link(atom(), map()) -> {ok, pid()}.
@@ -109,10 +116,9 @@ handle_cast({write, Ref, Tag, Key, V}, S) ->
 
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({scheduled, Key, V}, S) ->
-    {noreply, change(Key, V, S)};
-handle_info({answer, Ref, Answer}, S) ->
-    ok = send(Ref, Answer, S),
+handle_info({timeout, TRef, agenda}, #state{timer = {TRef, _}} = S) ->
+    {noreply, run_agenda(S#state{timer = undefined})};
+handle_info({timeout, _, agenda}, S) ->
     {noreply, S};
 handle_info({'DOWN', MRef, process, _, _}, #state{clients = Cs} = S) ->
     {noreply, S#state{clients = maps:filter(fun(_, {_, M}) -> M =/= MRef end, Cs)}}.
@@ -129,8 +135,45 @@ answer(Ref, Answer, #state{latency_ms = 0} = S) ->
     ok = send(Ref, Answer, S),
     S;
 answer(Ref, Answer, #state{latency_ms = Ms} = S) ->
-    _ = erlang:send_after(Ms, self(), {answer, Ref, Answer}),
-    S.
+    later(Ms, {answer, Ref, Answer}, S).
+
+%% Puts a task on the agenda, due `Delay' ms from now.
+later(Delay, Task, #state{agenda = A, seq = Seq} = S) ->
+    Due = erlang:monotonic_time(millisecond) + Delay,
+    arm(S#state{agenda = gb_trees:insert({Due, Seq}, Task, A), seq = Seq + 1}).
+
+%% One timer, for the earliest task.
+arm(#state{agenda = A, timer = Timer} = S) ->
+    case gb_trees:is_empty(A) of
+        true ->
+            S;
+        false ->
+            {{Due, _}, _} = gb_trees:smallest(A),
+            case Timer of
+                {_, At} when At =< Due ->
+                    S;
+                _ ->
+                    _ = case Timer of
+                            {TRef, _} -> erlang:cancel_timer(TRef);
+                            undefined -> ok
+                        end,
+                    TRef1 = erlang:start_timer(Due, self(), agenda, [{abs, true}]),
+                    S#state{timer = {TRef1, Due}}
+            end
+    end.
+
+%% Does every task that is due, in order; a task may put more on the agenda.
+run_agenda(#state{agenda = A} = S) ->
+    Now = erlang:monotonic_time(millisecond),
+    case gb_trees:is_empty(A) orelse gb_trees:smallest(A) of
+        {{Due, _} = K, Task} when Due =< Now ->
+            run_agenda(run(Task, S#state{agenda = gb_trees:delete(K, A)}));
+        _ ->
+            arm(S)
+    end.
+
+run({set, Key, V}, S) -> change(Key, V, S);
+run({answer, Ref, Answer}, S) -> ok = send(Ref, Answer, S), S.
 
 send(Ref, Answer, #state{clients = Cs}) ->
     case maps:find(Ref, Cs) of
@@ -149,12 +192,11 @@ drop_all(#state{clients = Cs} = S) ->
     S#state{clients = #{}}.
 
 %% A point changes: store it and run the rules that watch it.
-change(Key, V, #state{image = Img, rules = Rules, name = Name} = S) ->
-    S1 = S#state{image = Img#{Key => V}},
-    lists:foreach(fun({_, Fun}) -> schedule(Name, Key, Fun, V) end, maps:get(Key, Rules, [])),
-    S1.
+change(Key, V, #state{image = Img, rules = Rules} = S) ->
+    lists:foldl(fun({_, Fun}, Si) -> schedule(Key, Fun, V, Si) end,
+                S#state{image = Img#{Key => V}}, maps:get(Key, Rules, [])).
 
-schedule(Name, Key, Fun, V) ->
+schedule(Key, Fun, V, #state{name = Name} = S) ->
     %% A rule is the simulation's own code: a fault in it is reported and the device
     %% goes on, as a PLC would keep running with one faulty routine.
     Actions = try Fun(V)
@@ -164,23 +206,29 @@ schedule(Name, Key, Fun, V) ->
                       []
               end,
     case is_list(Actions) of
-        true -> lists:foreach(fun(A) -> schedule_action(Name, Key, A) end, Actions);
-        false -> cell_log:error(Name, "simulated PLC ~s: the rule on ~p returned ~tp, "
-                                "not a list of actions", [Name, Key, Actions])
+        true ->
+            lists:foldl(fun(A, Si) -> schedule_action(Key, A, Si) end, S, Actions);
+        false ->
+            cell_log:error(Name, "simulated PLC ~s: the rule on ~p returned ~tp, "
+                           "not a list of actions", [Name, Key, Actions]),
+            S
     end.
 
-schedule_action(Name, Key, {Delay, K, X} = Action) when is_integer(Delay), Delay >= 0 ->
+schedule_action(Key, {Delay, K, X} = Action, #state{name = Name} = S)
+  when is_integer(Delay), Delay >= 0 ->
     case cell_hal_store:point(K) of
         {ok, #hal_point{type = Type}} ->
             case cell_hal_type:check(Type, X) of
-                {ok, X1} -> _ = erlang:send_after(Delay, self(), {scheduled, K, X1}), ok;
-                error -> bad_action(Name, Key, Action)
+                {ok, X1} -> later(Delay, {set, K, X1}, S);
+                error -> bad_action(Name, Key, Action), S
             end;
         error ->
-            bad_action(Name, Key, Action)
+            bad_action(Name, Key, Action),
+            S
     end;
-schedule_action(Name, Key, Action) ->
-    bad_action(Name, Key, Action).
+schedule_action(Key, Action, #state{name = Name} = S) ->
+    bad_action(Name, Key, Action),
+    S.
 
 bad_action(Name, Key, Action) ->
     cell_log:error(Name, "simulated PLC ~s: the rule on ~p asked for ~tp, which is not "
