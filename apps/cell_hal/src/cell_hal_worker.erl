@@ -258,8 +258,8 @@ events([], State, D) ->
     {next_state, State, D};
 events([E | Es], State, D) ->
     case event(E, State, D) of
-        {State, D1} -> events(Es, State, D1);
-        {Next, D1} -> {next_state, Next, D1}   %% a transition: the rest is stale
+        {disconnected, D1} -> {next_state, disconnected, D1};  %% the rest is stale
+        {Next, D1} -> events(Es, Next, D1)
     end.
 
 event(connected, connecting, D) ->
@@ -321,8 +321,9 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
     cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll",
                     [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
                      plural(D#data.requests, "request")]),
-    D1#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
-            logged = undefined, unread = #{}}.
+    %% A group added while the first read was on its way: its outputs are read now.
+    start_readback(D1#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
+                           logged = undefined, unread = #{}}).
 
 start_poll(#data{requests = 0} = D) ->
     D;

@@ -15,7 +15,8 @@
          link_down_and_back/1, silent_device_goes_down/1, stale_inputs_never_fresh/1,
          watch_placed_while_down_fires_after_reconnect/1, outputs_read_back_after_reconnect/1,
          writes_keep_their_order/1, write_sync_waits_for_the_device/1,
-         group_added_while_up/1, groups_added_back_to_back/1, remove_group_and_connection/1,
+         group_added_while_up/1, groups_added_back_to_back/1,
+         group_added_during_the_first_read/1, remove_group_and_connection/1,
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
          server_crash_keeps_configuration/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1]).
@@ -30,7 +31,7 @@ all() ->
      silent_device_goes_down, stale_inputs_never_fresh,
      watch_placed_while_down_fires_after_reconnect, outputs_read_back_after_reconnect,
      writes_keep_their_order, write_sync_waits_for_the_device, group_added_while_up,
-     groups_added_back_to_back,
+     groups_added_back_to_back, group_added_during_the_first_read,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      logs_speak_to_operators, backoff_grows_then_resets, connection_info].
@@ -450,6 +451,20 @@ groups_added_back_to_back(_Config) ->
          receive {cell_hal_watch, R, V} -> ok after ?WAIT -> ct:fail({not_read_back, G}) end
      end || {G, V} <- [{a, 1}, {b, 2}, {c, 30}]],
     ?assertEqual({ok, 30}, cell_hal_sim:get({c, int16_out})).
+
+%% A group added while the first read after connecting is on its way (a PLC that takes
+%% a second to answer) has its outputs read back once the connection is up.
+group_added_during_the_first_read(_Config) ->
+    ok = cell_hal:add_connection(#{id => s24, driver => cell_hal_sim,
+                                   opts => #{latency_ms => 1000, timeout_ms => 3000,
+                                             poll_ms => 10}}),
+    ok = cell_hal_sim:preset(s24, #{{late, int16_out} => 24}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => s24,
+                              opts => #{only => [int16_in]}}),
+    ok = cell_hal:add_group(#{id => late, module => cell_hal_test_io, connection => s24,
+                              opts => #{only => [int16_out]}}),
+    {ok, R} = cell_hal:watch(late, int16_out, {eq, 24}),
+    receive {cell_hal_watch, R, 24} -> ok after ?WAIT -> ct:fail(not_read_back) end.
 
 remove_group_and_connection(_Config) ->
     ok = sim(s15),
