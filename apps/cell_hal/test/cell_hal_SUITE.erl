@@ -246,13 +246,16 @@ watches_fire_once(_Config) ->
     ok = cell_hal_sim:set({io, int16_in}, 100),
     [receive {cell_hal_watch, R, 100} -> ok after ?WAIT -> ct:fail(lost_watcher) end || R <- Refs].
 
-%% An input that never stops changing, many processes placing watches on it all the
-%% while: the worker publishing and the server placing a watch race for each one, and
-%% every watch still fires exactly once.
+%% An input that never stops changing (a counter the simulated PLC counts up every
+%% millisecond), many processes placing watches on it all the while: the worker
+%% publishing and the server placing a watch race for each one, and every watch still
+%% fires exactly once.
 watches_fire_once_under_load(_Config) ->
     ok = sim(s23, #{poll_ms => 1}),
-    ok = cell_hal_sim:on_change({io, bool_in}, fun(V) -> [{1, {io, bool_in}, not V}] end),
-    ok = cell_hal_sim:set({io, bool_in}, true),
+    ok = cell_hal_sim:on_change({io, int32_in}, fun(V) -> [{1, {io, int32_in}, V + 1}] end),
+    ok = cell_hal_sim:set({io, int32_in}, 1),
+    {ok, First} = cell_hal:watch(io, int32_in, {ge, 1}),
+    receive {cell_hal_watch, First, _} -> ok after ?WAIT -> ct:fail(not_counting) end,
     Self = self(),
     Watchers = [spawn_link(fun() -> Self ! {done, self(), watch_many(100, [])} end)
                 || _ <- lists:seq(1, 20)],
@@ -262,16 +265,18 @@ watches_fire_once_under_load(_Config) ->
     ok = cell_hal_sim:clear_rules(s23),
     ?assertEqual(0, ets:info(cell_hal_watch_claims, size)).
 
-%% Places watches one after the other, each waited for; then makes sure none of them
-%% came twice.
+%% Places watches for "more than now" one after the other, each waited for; then makes
+%% sure none of them came twice.
 watch_many(0, Refs) ->
     Dups = [R || R <- Refs, receive {cell_hal_watch, R, _} -> true after 0 -> false end],
     [] = Dups,
     Refs;
 watch_many(N, Refs) ->
-    Cond = case N rem 2 of 0 -> {eq, true}; 1 -> {eq, false} end,
-    {ok, Ref} = cell_hal:watch(io, bool_in, Cond),
-    receive {cell_hal_watch, Ref, _} -> ok after ?WAIT -> exit({never_fired, Cond}) end,
+    {ok, Now} = cell_hal:read(io, int32_in),
+    {ok, Ref} = cell_hal:watch(io, int32_in, {gt, Now}),
+    receive {cell_hal_watch, Ref, V} when V > Now -> ok
+    after ?WAIT -> exit({never_fired, Now, cell_hal:read(io, int32_in)})
+    end,
     false = cell_hal:cancel_watch(Ref),
     watch_many(N - 1, [Ref | Refs]).
 
