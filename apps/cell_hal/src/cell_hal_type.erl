@@ -162,7 +162,7 @@ format(date, {Y, M, D}) -> io_lib:format("~4..0w-~2..0w-~2..0w", [Y, M, D]);
 format(time, V) -> [integer_to_list(V), " ms"];
 format(char, V) when V >= 32, V < 127 -> [$', V, $'];
 format(_, V) when is_integer(V) -> integer_to_list(V);
-format(_, V) when is_float(V) -> io_lib:format("~g", [V]);
+format(_, V) when is_float(V) -> float_to_list(V, [short]);
 format(_, V) -> io_lib:format("~tp", [V]).
 
 %% @doc The TwinCAT name of a type, as the seed's table gives it.
@@ -294,5 +294,7 @@ format_test_() ->
      ?_assertEqual("'A'", lists:flatten(format(char, $A))),
      ?_assertEqual("-5", lists:flatten(format(int16, -5))),
      ?_assertEqual("nan", lists:flatten(format(real, nan))),
+     ?_assertEqual("12.5", lists:flatten(format(real, 12.5))),
+     ?_assertEqual("0.1", lists:flatten(format(lreal, 0.1))),
      ?_assertEqual("STRING(80)", lists:flatten(name({string, 80})))].
 -endif.
