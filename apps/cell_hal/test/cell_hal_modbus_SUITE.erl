@@ -460,6 +460,7 @@ malformed_frames_close_the_connection(Config) ->
     ok = connect(Config, #{poll_ms => 50}),
     ok = group(io, #{base => 0, only => [int16_in]}),
     ok = await_status(up),
+    0 = await_value(io, int16_in, 0),
     ok = cell_hal:subscribe(io, int16_in),
     Reasons = [{tid, <<"answered transaction">>}, {unit, <<"answered for unit">>},
                {proto, <<"protocol id 1">>}, {oversize, <<"announced 300 bytes">>},
