@@ -1,0 +1,260 @@
+%% @doc The HAL (seed 000 §4): tasks read and write IO points by name and never talk
+%% to a driver. A point is addressed `{Group, Point}': a configured group instance and a
+%% name its group module declares ({@link cell_hal_group}).
+%%
+%% ```
+%% ok = cell_hal:add_connection(#{id => plc1, driver => cell_hal_modbus,
+%%                                opts => #{host => "10.0.0.5", poll_ms => 20}}),
+%% ok = cell_hal:add_group(#{id => general, module => general_io, connection => plc1,
+%%                           opts => #{base => 0}}),
+%% {ok, true} = cell_hal:read(general, start_button),
+%% ok = cell_hal:write(general, start_button_light, true),
+%% {ok, Ref} = cell_hal:watch(general, door_closed, {eq, true}),
+%% receive {cell_hal_watch, Ref, true} -> closed end.
+%% '''
+%%
+%% Reads come straight from a table, without a process hop: an input only while its
+%% connection is up, so a stale input is never presented as fresh. Writes are checked
+%% at once and queued to the connection's worker in order; `write/3' never waits for
+%% the device. Waiting is a subscription, never polling.
+%%
+%% Messages:
+%% <ul>
+%% <li>`{cell_hal_watch, Ref, Value}' once, when a watched condition holds;</li>
+%% <li>`{cell_hal, {Group, Point}, Value}' on every change of a subscribed point (a
+%%   change of an output is a new commanded value or a value read back after a
+%%   reconnect);</li>
+%% <li>`{cell_hal_conn, ConnId, up | down}' when a connection goes up (after its first
+%%   complete read) or down.</li>
+%% </ul>
+%% Subscriptions and watches end when their process exits.
+-module(cell_hal).
+
+-include("cell_hal.hrl").
+
+-export([add_connection/1, remove_connection/1, add_group/1, remove_group/1]).
+-export([connections/0, groups/0, points/1, describe/2, connection_of/1]).
+-export([read/2, write/3, write_sync/4, watch/3, cancel_watch/1, subscribe/2,
+         unsubscribe/2]).
+-export([subscribe_connection/1, unsubscribe_connection/1, status/1, info/1]).
+-export([request/3]).
+
+-export_type([connection_spec/0, group_spec/0, point_info/0, conn_info/0]).
+
+-type connection_spec() :: #{id := atom(), driver := module(), opts => map()}.
+-type group_spec() :: #{id := atom(), module := module(), connection := atom(),
+                        opts => map()}.
+-type point_info() :: #{name := atom(), group := atom(), connection := atom(),
+                        dir := in | out, type := cell_hal_type:type(),
+                        address := binary(), caption := binary(), field := term()}.
+-type conn_info() :: #{status := up | down, driver := module(), endpoint := binary(),
+                       since := integer() | undefined, reason := binary(),
+                       groups := [atom()]}.
+-type error(Why) :: {error, Why}.
+
+%% How long `write/3' may take to hand a write to the worker (it is never blocked on
+%% the device, so this only bounds a worker that is itself stuck).
+-define(QUEUE_TIMEOUT, 5000).
+
+%%====================================================================
+%% Configuration
+%%====================================================================
+
+%% @doc Adds a connection to a PLC and starts its worker. `opts' holds the driver's
+%% options and the worker's: `poll_ms' (default 50), `reconnect_ms' (first wait after
+%% a failure, default 500), `max_reconnect_ms' (default 30000), `connect_timeout_ms'
+%% (for connecting and the first read, default 5000).
+-spec add_connection(connection_spec()) ->
+          ok | error({bad_option, atom()} | {already_exists, atom()} | {worker, term()}).
+add_connection(Spec) ->
+    cell_hal_server:call({add_connection, Spec}).
+
+%% @doc Removes a connection once no group is bound to it; its worker closes it.
+-spec remove_connection(atom()) -> ok | error(unknown_connection | {in_use, [atom()]}).
+remove_connection(Id) ->
+    cell_hal_server:call({remove_connection, Id}).
+
+%% @doc Adds a group instance bound to a connection: its module lists the points for
+%% its options, and the connection's driver checks every field first.
+-spec add_group(group_spec()) ->
+          ok | error({bad_option, atom()} | {already_exists, atom()}
+                     | {bad_point, term(), term()} | {bad_group, term()}).
+add_group(Spec) ->
+    cell_hal_server:call({add_group, Spec}).
+
+%% @doc Removes a group instance; its subscriptions and watches end.
+-spec remove_group(atom()) -> ok | error(unknown_group).
+remove_group(Id) ->
+    cell_hal_server:call({remove_group, Id}).
+
+-spec connections() -> [atom()].
+connections() ->
+    lists:sort([Id || #hal_conn{id = Id} <- cell_hal_store:conns()]).
+
+-spec groups() -> [atom()].
+groups() ->
+    lists:sort([Id || #hal_group{id = Id} <- cell_hal_store:groups()]).
+
+%% @doc A group's points as its IO page shows them.
+-spec points(atom()) -> {ok, [point_info()]} | error(unknown_group).
+points(Group) ->
+    case cell_hal_store:group(Group) of
+        {ok, _} -> {ok, [info_of(P) || P <- cell_hal_store:points_of_group(Group)]};
+        error -> {error, unknown_group}
+    end.
+
+%% @doc One point's description.
+-spec describe(atom(), atom()) -> {ok, point_info()} | error(unknown_point).
+describe(Group, Point) ->
+    case cell_hal_store:point({Group, Point}) of
+        {ok, P} -> {ok, info_of(P)};
+        error -> {error, unknown_point}
+    end.
+
+%% @doc The connection a group instance is bound to.
+-spec connection_of(atom()) -> {ok, atom()} | error(unknown_group).
+connection_of(Group) ->
+    case cell_hal_store:group(Group) of
+        {ok, #hal_group{conn = Conn}} -> {ok, Conn};
+        error -> {error, unknown_group}
+    end.
+
+info_of(#hal_point{key = {G, N}, conn = C, dir = D, type = T, declared = F, address = A,
+                   caption = Cap}) ->
+    #{name => N, group => G, connection => C, dir => D, type => T, address => A,
+      caption => Cap, field => F}.
+
+%%====================================================================
+%% IO
+%%====================================================================
+
+%% @doc A point's value, from the table (no process hop). An input reads
+%% `disconnected' while its connection is down and `not_yet_read' before the first
+%% read of its group; an output reads its last commanded value (or the value read back
+%% from the device after a (re)connect).
+-spec read(atom(), atom()) ->
+          {ok, cell_hal_type:value()} | error(disconnected | unknown_point | not_yet_read).
+read(Group, Point) ->
+    cell_hal_store:read({Group, Point}).
+
+%% @doc Commands an output. The value is checked against the point's type at once and
+%% queued to the connection's worker, which writes in order; this returns without
+%% waiting for the device (a write the device then refuses is logged).
+-spec write(atom(), atom(), cell_hal_type:value()) ->
+          ok | error(unknown_point | not_an_output | {bad_value, term()} | disconnected
+                     | timeout).
+write(Group, Point, Value) ->
+    command({Group, Point}, Value, {async, ?QUEUE_TIMEOUT}).
+
+%% @doc Commands an output and waits until the device confirmed it, at most `Timeout'
+%% ms. After `{error, timeout}' the write may still reach the device.
+-spec write_sync(atom(), atom(), cell_hal_type:value(), timeout()) ->
+          ok | error(unknown_point | not_an_output | {bad_value, term()} | disconnected
+                     | timeout | term()).
+write_sync(Group, Point, Value, Timeout) ->
+    command({Group, Point}, Value, {sync, Timeout}).
+
+command(Key, Value, Mode) ->
+    case cell_hal_store:value(Key) of
+        {ok, #hal_value{dir = out, type = T, conn = C}} ->
+            case cell_hal_type:check(T, Value) of
+                {ok, V} ->
+                    case up_worker(C) of
+                        {ok, Pid} -> cell_hal_worker:write(Pid, Key, V, Mode);
+                        error -> {error, disconnected}
+                    end;
+                error ->
+                    {error, {bad_value, Value}}
+            end;
+        {ok, #hal_value{}} ->
+            {error, not_an_output};
+        error ->
+            {error, unknown_point}
+    end.
+
+%% @doc Sends `{cell_hal_watch, Ref, Value}' once, when the point's value satisfies
+%% `Cond' — at once if it already does. An input satisfies nothing while its
+%% connection is down. A condition that cannot hold for the point's type is refused.
+-spec watch(atom(), atom(), cell_hal_type:condition()) ->
+          {ok, reference()} | error(unknown_point | {bad_condition, term()}).
+watch(Group, Point, Cond) ->
+    Key = {Group, Point},
+    case cell_hal_store:value(Key) of
+        {ok, #hal_value{type = T}} ->
+            case cell_hal_type:check_cond(T, Cond) of
+                {ok, C} -> cell_hal_server:call({watch, Key, C, self()});
+                error -> {error, {bad_condition, Cond}}
+            end;
+        error ->
+            {error, unknown_point}
+    end.
+
+%% @doc Cancels a watch: `true' if it had not fired (no message will come), `false'
+%% if it had (its message is in the mailbox or on its way).
+-spec cancel_watch(reference()) -> boolean().
+cancel_watch(Ref) ->
+    cell_hal_server:call({cancel_watch, Ref}).
+
+%% @doc Sends `{cell_hal, {Group, Point}, Value}' to the caller on every change.
+-spec subscribe(atom(), atom()) -> ok | error(unknown_point).
+subscribe(Group, Point) ->
+    cell_hal_server:call({subscribe, {Group, Point}, self()}).
+
+-spec unsubscribe(atom(), atom()) -> ok.
+unsubscribe(Group, Point) ->
+    cell_hal_server:call({unsubscribe, {Group, Point}, self()}).
+
+%%====================================================================
+%% Connectivity
+%%====================================================================
+
+%% @doc Sends `{cell_hal_conn, ConnId, up | down}' to the caller on every change from
+%% now on, and returns the status now. A message right after may repeat it.
+-spec subscribe_connection(atom()) -> {ok, up | down} | error(unknown_connection).
+subscribe_connection(Conn) ->
+    cell_hal_server:call({subscribe_connection, Conn, self()}).
+
+-spec unsubscribe_connection(atom()) -> ok.
+unsubscribe_connection(Conn) ->
+    cell_hal_server:call({unsubscribe_connection, Conn, self()}).
+
+%% @doc Whether a connection is up (its inputs are fresh).
+-spec status(atom()) -> up | down | error(unknown_connection).
+status(Conn) ->
+    case cell_hal_store:conn(Conn) of
+        {ok, #hal_conn{status = Status}} -> Status;
+        error -> {error, unknown_connection}
+    end.
+
+%% @doc A connection for the operator's panel: status, since when (system time, ms),
+%% why it is down in words, where it goes, the groups bound to it.
+-spec info(atom()) -> {ok, conn_info()} | error(unknown_connection).
+info(Conn) ->
+    case cell_hal_store:conn(Conn) of
+        {ok, #hal_conn{status = Status, driver = Driver, endpoint = Ep, since = Since,
+                       reason = Why}} ->
+            Reason = case Status of
+                         up -> <<>>;
+                         down -> iolist_to_binary(cell_hal_worker:reason_text(Driver, Why))
+                     end,
+            {ok, #{status => Status, driver => Driver, endpoint => Ep, since => Since,
+                   reason => Reason, groups => cell_hal_store:groups_of(Conn)}};
+        error ->
+            {error, unknown_connection}
+    end.
+
+%% @doc A raw request of the connection's protocol, for diagnostics and functions the
+%% HAL does not model (Modbus: a {@link cell_hal_modbus_codec:request()}, or
+%% `{Unit, Request}' for another unit). Only while the connection is up.
+-spec request(atom(), term(), pos_integer()) -> {ok, term()} | error(term()).
+request(Conn, Request, Timeout) when is_integer(Timeout), Timeout > 0 ->
+    case up_worker(Conn) of
+        {ok, Pid} -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000);
+        error -> {error, disconnected}
+    end.
+
+up_worker(Conn) ->
+    case cell_hal_store:conn(Conn) of
+        {ok, #hal_conn{status = up, pid = Pid}} when is_pid(Pid) -> {ok, Pid};
+        _ -> error
+    end.

@@ -1,0 +1,310 @@
+%% @doc Hardware objects (seed 000 §4.2): wrappers of the machine's cameras, code
+%% readers and laser markers behind one interface per kind ({@link cell_hal_camera},
+%% {@link cell_hal_code_reader}, {@link cell_hal_laser_marker}), created from settings
+%% by a factory, so a cell is configured rather than coded for its hardware.
+%%
+%% Settings name the implementation of each object by type, as the seed's
+%% `Settings.CameraType' does:
+%% ```
+%% ok = cell_hal_hw:from_settings(#{camera => #{type => sim, opts => #{width => 320}},
+%%                                  code_reader => #{type => sim},
+%%                                  laser_marker => #{type => none}}).
+%% '''
+%% Each key is the object's id; `kind' may be given when the id is not itself a kind
+%% (`#{top_camera => #{kind => camera, type => sim}}'). `type => none' means the
+%% machine has no such hardware (the seed's `null'): nothing starts, and `present/1'
+%% says so. Type `sim' is built in for every kind; a cell adds its own under the
+%% application variable `hardware_types' of `cell_hal':
+%% `#{{camera, ueye} => my_ueye_camera}'.
+%%
+%% Every object runs in its own process under `cell_hal_hw_sup'; its implementation
+%% module is a callback module of its kind's behaviour, called by this generic server.
+%% Operations (grab, read, mark) run one at a time, in the order asked, as a device
+%% does them: an implementation answers at once (`{reply, R, State}') or starts the
+%% work and answers later from `handle_info/2', and never sees two at once. It reports
+%% its connectivity with {@link set_status/1}: subscribers get `{cell_hal_hw, Id, up |
+%% down}', and operations asked while it is down fail with `not_connected'.
+-module(cell_hal_hw).
+-behaviour(gen_server).
+
+-export([add/1, from_settings/1, remove/1, list/0, present/1, status/1, subscribe/1,
+         unsubscribe/1]).
+-export([call/3, set_status/1, check_opts/2]).
+-export([start_link/4]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
+
+-export_type([kind/0, spec/0]).
+
+-type kind() :: camera | code_reader | laser_marker.
+-type spec() :: #{id := atom(), kind := kind(), type := atom(), opts => map()}.
+
+-define(TAB, cell_hal_hw_objects).
+-define(BUILT_IN, #{{camera, sim} => cell_hal_camera_sim,
+                    {code_reader, sim} => cell_hal_code_reader_sim,
+                    {laser_marker, sim} => cell_hal_laser_marker_sim}).
+
+-record(state, {id :: atom(),
+                kind :: kind(),
+                mod :: module(),
+                impl :: term(),
+                status = up :: up | down,
+                busy :: gen_server:from() | undefined,     %% the operation in progress
+                waiting = queue:new() :: queue:queue({gen_server:from(), term()}),
+                subs = #{} :: #{pid() => reference()}}).
+
+%%====================================================================
+%% Factory
+%%====================================================================
+
+%% @doc Creates one hardware object from its spec.
+-spec add(spec()) -> ok | {error, {bad_option, atom()} | {already_exists, atom()} | term()}.
+add(#{id := Id, kind := Kind, type := Type} = Spec) when is_atom(Id) ->
+    Opts = maps:get(opts, Spec, #{}),
+    case {is_kind(Kind), implementation(Kind, Type), is_map(Opts)} of
+        {false, _, _} -> {error, {bad_option, kind}};
+        {_, error, _} -> {error, {bad_option, type}};
+        {_, _, false} -> {error, {bad_option, opts}};
+        {true, none, true} -> ok;
+        {true, {ok, Mod}, true} ->
+            case Mod:check_opts(Opts) of
+                {ok, Opts1} -> cell_hal_hw_sup:start_object(Id, Kind, Mod, Opts1);
+                {error, _} = Error -> Error
+            end
+    end;
+add(#{id := _, kind := _, type := _}) ->
+    {error, {bad_option, id}};
+add(Spec) when is_map(Spec) ->
+    {error, {bad_option, hd([K || K <- [id, kind, type], not maps:is_key(K, Spec)])}};
+add(_) ->
+    {error, {bad_option, spec}}.
+
+%% @doc Creates every hardware object the settings name (see the module's doc); stops
+%% at the first that cannot be created, naming it.
+-spec from_settings(#{atom() => #{type := atom(), kind => kind(), opts => map()}}) ->
+          ok | {error, {atom(), term()}}.
+from_settings(Settings) when is_map(Settings) ->
+    add_all(lists:sort(maps:to_list(Settings))).
+
+add_all([]) ->
+    ok;
+add_all([{Id, Object} | Rest]) when is_map(Object) ->
+    case add(maps:merge(#{id => Id, kind => Id}, Object)) of
+        ok -> add_all(Rest);
+        {error, Why} -> {error, {Id, Why}}
+    end;
+add_all([{Id, _} | _]) ->
+    {error, {Id, {bad_option, spec}}}.
+
+%% @doc Stops and forgets a hardware object.
+-spec remove(atom()) -> ok | {error, not_present}.
+remove(Id) ->
+    cell_hal_hw_sup:stop_object(Id).
+
+%% @doc Every hardware object: id, kind and implementation module.
+-spec list() -> [{atom(), kind(), module()}].
+list() ->
+    lists:sort([{Id, Kind, Mod} || {Id, _, Kind, Mod} <- ets:tab2list(?TAB)]).
+
+%% @doc Whether the machine has this hardware object.
+-spec present(atom()) -> boolean().
+present(Id) ->
+    ets:member(?TAB, Id).
+
+%% @doc Whether a hardware object can be talked to now.
+-spec status(atom()) -> up | down | {error, not_present}.
+status(Id) ->
+    case whereis_object(Id) of
+        {ok, Pid} -> gen_server:call(Pid, status);
+        error -> {error, not_present}
+    end.
+
+%% @doc Sends `{cell_hal_hw, Id, up | down}' to the caller on every change, and
+%% returns the status now.
+-spec subscribe(atom()) -> {ok, up | down} | {error, not_present}.
+subscribe(Id) ->
+    case whereis_object(Id) of
+        {ok, Pid} -> gen_server:call(Pid, {subscribe, self()});
+        error -> {error, not_present}
+    end.
+
+-spec unsubscribe(atom()) -> ok.
+unsubscribe(Id) ->
+    case whereis_object(Id) of
+        {ok, Pid} -> gen_server:call(Pid, {unsubscribe, self()});
+        error -> ok
+    end.
+
+is_kind(K) -> K =:= camera orelse K =:= code_reader orelse K =:= laser_marker.
+
+implementation(_, none) ->
+    none;
+implementation(Kind, Type) ->
+    Types = maps:merge(?BUILT_IN, application:get_env(cell_hal, hardware_types, #{})),
+    case maps:find({Kind, Type}, Types) of
+        {ok, Mod} when is_atom(Mod) ->
+            case code:ensure_loaded(Mod) of
+                {module, Mod} -> {ok, Mod};
+                _ -> error
+            end;
+        _ ->
+            error
+    end.
+
+%%====================================================================
+%% For kind modules and implementations
+%%====================================================================
+
+%% @doc A request to a hardware object, answered within `Timeout' ms. An object of
+%% another kind, or none, answers `{error, not_present}'.
+-spec call(atom(), {kind(), term()} | {impl, term()}, timeout()) -> term().
+call(Id, Request, Timeout) ->
+    case whereis_object(Id) of
+        {ok, Pid} ->
+            try
+                gen_server:call(Pid, Request, Timeout)
+            catch
+                exit:{timeout, _} -> {error, timeout};
+                exit:{_, {gen_server, call, _}} -> {error, not_present}
+            end;
+        error ->
+            {error, not_present}
+    end.
+
+%% @doc Called by an implementation (in its own process) when the device comes and
+%% goes; subscribers are told once the callback returns.
+-spec set_status(up | down) -> ok.
+set_status(Status) when Status =:= up; Status =:= down ->
+    self() ! {'$cell_hal_hw_status', Status},
+    ok.
+
+%% @doc Checks an implementation's options against `#{Key => {Default, IsValid}}' and
+%% fills in the defaults.
+-spec check_opts(map(), #{atom() => {term(), fun((term()) -> boolean())}}) ->
+          {ok, map()} | {error, {bad_option, atom()}}.
+check_opts(Opts, Known) ->
+    case [K || {K, V} <- maps:to_list(Opts),
+               not (maps:is_key(K, Known) andalso (element(2, maps:get(K, Known)))(V))] of
+        [] -> {ok, maps:merge(maps:map(fun(_, {Default, _}) -> Default end, Known), Opts)};
+        [K | _] -> {error, {bad_option, K}}
+    end.
+
+whereis_object(Id) ->
+    case ets:lookup(?TAB, Id) of
+        [{_, Pid, _, _}] when is_pid(Pid) -> {ok, Pid};
+        _ -> error
+    end.
+
+%%====================================================================
+%% gen_server
+%%====================================================================
+
+%% @private
+-spec start_link(atom(), kind(), module(), map()) -> {ok, pid()} | {error, term()}.
+start_link(Id, Kind, Mod, Opts) ->
+    gen_server:start_link(?MODULE, {Id, Kind, Mod, Opts}, []).
+
+%% @private
+-spec init({atom(), kind(), module(), map()}) -> {ok, #state{}} | {stop, term()}.
+init({Id, Kind, Mod, Opts}) ->
+    process_flag(trap_exit, true),
+    case Mod:init(Id, Opts) of
+        {ok, Impl} ->
+            true = ets:insert(?TAB, {Id, self(), Kind, Mod}),
+            {ok, #state{id = Id, kind = Kind, mod = Mod, impl = Impl}};
+        {error, Why} ->
+            {stop, Why}
+    end.
+
+%% @private
+-spec handle_call(term(), gen_server:from(), #state{}) ->
+          {reply, term(), #state{}} | {noreply, #state{}}.
+handle_call(status, _From, #state{status = Status} = S) ->
+    {reply, Status, S};
+handle_call({subscribe, Pid}, _From, #state{subs = Subs, status = Status} = S) ->
+    Subs1 = case Subs of
+                #{Pid := _} -> Subs;
+                #{} -> Subs#{Pid => erlang:monitor(process, Pid)}
+            end,
+    {reply, {ok, Status}, S#state{subs = Subs1}};
+handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
+    case maps:take(Pid, Subs) of
+        {MRef, Rest} ->
+            erlang:demonitor(MRef, [flush]),
+            {reply, ok, S#state{subs = Rest}};
+        error ->
+            {reply, ok, S}
+    end;
+handle_call({impl, Request}, _From, #state{mod = Mod, impl = Impl} = S) ->
+    {reply, Reply, Impl1} = Mod:handle_call(Request, Impl),
+    {reply, Reply, S#state{impl = Impl1}};
+handle_call({Kind, _}, _From, #state{kind = Other} = S) when Kind =/= Other ->
+    {reply, {error, not_present}, S};
+handle_call({_, _}, _From, #state{status = down} = S) ->
+    {reply, {error, not_connected}, S};
+handle_call({_, Op}, From, #state{busy = undefined} = S) ->
+    start(From, Op, S);
+handle_call({_, Op}, From, #state{waiting = W} = S) ->
+    {noreply, S#state{waiting = queue:in({From, Op}, W)}}.
+
+%% Starts an operation; one that finishes at once lets the next waiting one start.
+start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
+    case dispatch(Kind, Op, Mod, Impl) of
+        {reply, Reply, Impl1} ->
+            gen_server:reply(From, Reply),
+            next(S#state{impl = Impl1});
+        {noreply, Impl1} ->
+            {noreply, S#state{impl = Impl1, busy = From}}
+    end.
+
+next(#state{waiting = W, status = Status} = S) ->
+    case queue:out(W) of
+        {{value, {From, _}}, W1} when Status =:= down ->
+            gen_server:reply(From, {error, not_connected}),
+            next(S#state{waiting = W1});
+        {{value, {From, Op}}, W1} ->
+            start(From, Op, S#state{waiting = W1, busy = undefined});
+        {empty, _} ->
+            {noreply, S#state{busy = undefined}}
+    end.
+
+%% The operations of each kind's behaviour.
+dispatch(camera, {grab, Opts}, Mod, Impl) -> Mod:grab(Opts, Impl);
+dispatch(code_reader, read, Mod, Impl) -> Mod:read(Impl);
+dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl).
+
+%% @private
+-spec handle_cast(term(), #state{}) -> no_return().
+handle_cast(Msg, _S) ->
+    error({unexpected_cast, Msg}).
+
+%% @private
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'$cell_hal_hw_status', Status}, #state{status = Status} = S) ->
+    {noreply, S};
+handle_info({'$cell_hal_hw_status', Status}, #state{id = Id, subs = Subs} = S) ->
+    cell_log:notice(Id, "~s is ~s", [Id, case Status of up -> "connected";
+                                                         down -> "disconnected" end]),
+    maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw, Id, Status} end, Subs),
+    {noreply, S#state{status = Status}};
+handle_info({'DOWN', MRef, process, Pid, _}, #state{subs = Subs} = S) when is_map_key(Pid, Subs) ->
+    case Subs of
+        #{Pid := MRef} -> {noreply, S#state{subs = maps:remove(Pid, Subs)}};
+        #{} -> {noreply, S}
+    end;
+handle_info({'EXIT', _, _}, S) ->
+    {noreply, S};
+handle_info(Msg, #state{mod = Mod, impl = Impl, busy = Busy} = S) ->
+    case Mod:handle_info(Msg, Impl) of
+        {noreply, Impl1} ->
+            {noreply, S#state{impl = Impl1}};
+        {reply, Reply, Impl1} when Busy =/= undefined ->
+            gen_server:reply(Busy, Reply),
+            next(S#state{impl = Impl1})
+    end.
+
+%% @private
+-spec terminate(term(), #state{}) -> ok.
+terminate(_Reason, #state{id = Id, subs = Subs}) ->
+    true = ets:match_delete(?TAB, {Id, self(), '_', '_'}),
+    maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw, Id, down} end, Subs),
+    ok.

@@ -1,0 +1,519 @@
+%% @doc The Modbus TCP driver: a client in pure Erlang, hosted by a HAL worker (or any
+%% process that feeds it its messages, as the benchmark does).
+%%
+%% Connection options:
+%% <table>
+%% <tr><th>option</th><th>default</th><th></th></tr>
+%% <tr><td>`host'</td><td>(required)</td><td>name or address of the device</td></tr>
+%% <tr><td>`port'</td><td>502</td><td></td></tr>
+%% <tr><td>`unit'</td><td>1</td><td>unit id of the device (a group may name another
+%%   unit behind a gateway)</td></tr>
+%% <tr><td>`word_order'</td><td>`big'</td><td>of values of 32 and 64 bits: `big'
+%%   (most significant word first) or `little'</td></tr>
+%% <tr><td>`timeout_ms'</td><td>1000</td><td>how long a request may go unanswered</td></tr>
+%% <tr><td>`max_in_flight'</td><td>1</td><td>requests sent before the first answer
+%%   (pipelining); only for devices that queue requests</td></tr>
+%% <tr><td>`max_gap'</td><td>0</td><td>unused registers or bits a block read may span
+%%   to join two points (only where the device answers for the gap)</td></tr>
+%% </table>
+%%
+%% Requests carry transaction ids 0..65535, wrapping around, never one still in
+%% flight. Writes and raw requests go before the polls waiting to be sent, in their own
+%% order. The socket is `{active, once}'; frames are handed to the socket's port
+%% without waiting (its confirmation comes back as a message); connecting happens in a
+%% short-lived process, so the host process never blocks. Deadlines are kept with one
+%% timer a connection, armed for the earliest deadline in flight, rather than one a
+%% request: a round trip costs no timer operation.
+%%
+%% Faults: a Modbus exception answers the request with `{error, {modbus_exception,
+%% Code, Name}}' (a poll refused fails the poll, and the worker counts the connection
+%% as lost); a frame that is malformed, too long, answers no request or answers for
+%% another unit closes the connection (`{lost, Why}'), because nothing after it on that
+%% stream can be trusted; so does a poll or write left unanswered past `timeout_ms'.
+%% A raw request that times out just fails; its late answer is dropped.
+-module(cell_hal_modbus).
+-behaviour(cell_hal_driver).
+
+-export([check_opts/1, check_point/4, init/2, endpoint/1, connect/1, plan/2, read/3,
+         write/4, request/4, handle_info/2, disconnect/1, format_reason/1]).
+
+-type tid() :: cell_hal_modbus_codec:tid().
+-type unit_id() :: cell_hal_modbus_codec:unit_id().
+
+-record(req, {kind :: {poll, term(), cell_hal_modbus_plan:block()} | {write, term()}
+                    | {raw, term()},
+              unit :: unit_id(),
+              request :: cell_hal_modbus_codec:request(),
+              timeout :: pos_integer(),
+              deadline = 0 :: integer()}).        %% monotonic ms, set when sent
+
+-record(mb, {id :: atom(),
+             host :: inet:hostname() | inet:ip_address(),
+             port :: inet:port_number(),
+             unit :: unit_id(),
+             word_order :: cell_hal_type_codec:word_order(),
+             timeout_ms :: pos_integer(),
+             max_in_flight :: pos_integer(),
+             max_gap :: non_neg_integer(),
+             socket :: gen_tcp:socket() | undefined,
+             connector :: {pid(), reference()} | undefined,
+             buf = <<>> :: binary(),
+             tid = 0 :: tid(),
+             in_flight = #{} :: #{tid() => #req{}},
+             urgent = queue:new() :: queue:queue(#req{}),     %% writes and raw requests
+             polls = queue:new() :: queue:queue(#req{}),
+             reads = #{} :: #{term() => {pos_integer(), [cell_hal_driver:values()]}},
+             late = #{} :: #{tid() => true},                %% timed-out raw requests
+             timer :: {reference(), integer()} | undefined,  %% earliest deadline
+             flush = false :: boolean()}).                  %% a flush is on its way
+
+%%====================================================================
+%% Options and fields
+%%====================================================================
+
+%% @private
+-spec check_opts(map()) -> {ok, map()} | {error, {bad_option, atom()}}.
+check_opts(Opts) ->
+    Defaults = #{port => 502, unit => 1, word_order => big, timeout_ms => 1000,
+                 max_in_flight => 1, max_gap => 0},
+    Checks = #{host => fun is_host/1,
+               port => fun(V) -> is_integer(V) andalso V > 0 andalso V =< 65535 end,
+               unit => fun(V) -> is_integer(V) andalso V >= 0 andalso V =< 255 end,
+               word_order => fun(V) -> V =:= big orelse V =:= little end,
+               timeout_ms => fun(V) -> is_integer(V) andalso V > 0 end,
+               max_in_flight => fun(V) -> is_integer(V) andalso V > 0 andalso V =< 1024 end,
+               max_gap => fun(V) -> is_integer(V) andalso V >= 0 andalso V =< 124 end},
+    case [K || {K, V} <- maps:to_list(Opts),
+               not (maps:is_key(K, Checks) andalso (maps:get(K, Checks))(V))] of
+        [] when not is_map_key(host, Opts) -> {error, {bad_option, host}};
+        [] -> {ok, maps:merge(Defaults, Opts)};
+        [Bad | _] -> {error, {bad_option, Bad}}
+    end.
+
+is_host(H) when is_binary(H) -> is_host(binary_to_list(H));
+is_host(H) when is_list(H) -> H =/= [] andalso io_lib:printable_latin1_list(H);
+is_host(H) when is_tuple(H) ->
+    case inet:ntoa(H) of
+        {error, einval} -> false;
+        _ -> true
+    end;
+is_host(_) -> false.
+
+%% @private
+-spec check_point(map(), atom(), map(), cell_hal_group:point_def()) ->
+          {ok, cell_hal_modbus_plan:field()} | {error, atom()}.
+check_point(Opts, _Group, GroupOpts, #{dir := Dir, type := Type, field := Field}) ->
+    Unit = maps:get(unit, GroupOpts, maps:get(unit, Opts)),
+    Order = maps:get(word_order, GroupOpts, maps:get(word_order, Opts)),
+    case {is_integer(Unit) andalso Unit >= 0 andalso Unit =< 255,
+          Order =:= big orelse Order =:= little} of
+        {false, _} -> {error, bad_unit};
+        {_, false} -> {error, bad_word_order};
+        _ -> cell_hal_modbus_plan:field(Dir, Type, Field, #{unit => Unit, word_order => Order})
+    end.
+
+%%====================================================================
+%% Connection
+%%====================================================================
+
+%% @private
+-spec init(atom(), map()) -> #mb{}.
+init(Id, Opts) ->
+    Host = case maps:get(host, Opts) of
+               H when is_binary(H) -> binary_to_list(H);
+               H -> H
+           end,
+    #mb{id = Id, host = Host, port = maps:get(port, Opts), unit = maps:get(unit, Opts),
+        word_order = maps:get(word_order, Opts), timeout_ms = maps:get(timeout_ms, Opts),
+        max_in_flight = maps:get(max_in_flight, Opts), max_gap = maps:get(max_gap, Opts)}.
+
+%% @private
+-spec endpoint(#mb{}) -> iodata().
+endpoint(#mb{host = Host, port = Port}) ->
+    HostText = case is_tuple(Host) of
+                   true -> inet:ntoa(Host);
+                   false -> Host
+               end,
+    [HostText, $:, integer_to_list(Port)].
+
+%% @private
+%% gen_tcp:connect blocks its caller: a connector process does it and hands the socket
+%% over, so the worker keeps answering while a device is slow to accept.
+-spec connect(#mb{}) -> {ok, #mb{}}.
+connect(#mb{host = Host, port = Port} = S) ->
+    Parent = self(),
+    Connector = spawn_monitor(fun() -> connector(Parent, Host, Port) end),
+    {ok, S#mb{connector = Connector}}.
+
+connector(Parent, Host, Port) ->
+    Opts = [binary, {packet, raw}, {active, false}, {nodelay, true}, {keepalive, true}],
+    case gen_tcp:connect(Host, Port, Opts) of
+        {ok, Sock} ->
+            case gen_tcp:controlling_process(Sock, Parent) of
+                ok ->
+                    Parent ! {?MODULE, connected, self(), Sock};
+                {error, Why} ->
+                    _ = gen_tcp:close(Sock),
+                    Parent ! {?MODULE, connect_failed, self(), Why}
+            end;
+        {error, Why} ->
+            Parent ! {?MODULE, connect_failed, self(), Why}
+    end.
+
+%% @private
+-spec disconnect(#mb{}) -> #mb{}.
+disconnect(#mb{socket = Sock, connector = Connector} = S) ->
+    case Connector of
+        {Pid, MRef} ->
+            erlang:demonitor(MRef, [flush]),
+            exit(Pid, kill);
+        undefined ->
+            ok
+    end,
+    _ = Sock =/= undefined andalso gen_tcp:close(Sock),
+    ok = cancel(S#mb.timer),
+    S#mb{socket = undefined, connector = undefined, buf = <<>>, in_flight = #{},
+         urgent = queue:new(), polls = queue:new(), reads = #{}, late = #{},
+         timer = undefined, flush = false}.
+
+%%====================================================================
+%% Reads, writes, raw requests
+%%====================================================================
+
+%% @private
+-spec plan([cell_hal_driver:point()], #mb{}) ->
+          {cell_hal_modbus_plan:plan(), #{requests := non_neg_integer()}}.
+plan(Points, #mb{max_gap = Gap}) ->
+    Plan = cell_hal_modbus_plan:plan([{K, T, F} || #{key := K, type := T, field := F} <- Points],
+                                     Gap),
+    {Plan, #{requests => length(Plan)}}.
+
+%% @private
+-spec read(term(), cell_hal_modbus_plan:plan(), #mb{}) -> {ok, #mb{}}.
+read(Tag, [], S) ->
+    self() ! {?MODULE, empty_read, Tag},
+    {ok, S};
+read(Tag, Plan, #mb{polls = Q, reads = Reads, timeout_ms = T} = S) ->
+    Reqs = [#req{kind = {poll, Tag, B}, unit = U, request = R, timeout = T}
+            || {B, {U, R}} <- lists:zip(Plan, cell_hal_modbus_plan:requests(Plan))],
+    pumped(S#mb{polls = queue:join(Q, queue:from_list(Reqs)),
+                reads = Reads#{Tag => {length(Plan), []}}}).
+
+%% @private
+-spec write(term(), cell_hal_driver:point(), cell_hal_type:value(), #mb{}) -> {ok, #mb{}}.
+write(Tag, #{type := Type, field := Field}, V, #mb{timeout_ms = T} = S) ->
+    {Unit, Req} = cell_hal_modbus_plan:write_request(Type, Field, V),
+    urgent(#req{kind = {write, Tag}, unit = Unit, request = Req, timeout = T}, S).
+
+%% @private
+%% A request of the codec (see cell_hal_modbus_codec:request()), to the connection's
+%% unit or, as `{Unit, Request}', to another.
+-spec request(term(), term(), pos_integer(), #mb{}) -> {ok, #mb{}} | {error, term()}.
+request(Tag, {Unit, Req}, Timeout, S) when is_integer(Unit), Unit >= 0,
+                                                             Unit =< 255 ->
+    case cell_hal_modbus_codec:check_request(Req) of
+        ok ->
+            urgent(#req{kind = {raw, Tag}, unit = Unit, request = Req, timeout = Timeout}, S);
+        Error ->
+            Error
+    end;
+request(Tag, Req, Timeout, #mb{unit = Unit} = S) ->
+    request(Tag, {Unit, Req}, Timeout, S).
+
+%% Sends what the window allows. A send error is reported through the mailbox: the
+%% callers of read/write/request only queue.
+pumped(S) ->
+    {ok, pump(S)}.
+
+%% A write or raw request goes out at once on an idle connection. With others in
+%% flight it waits for the end of the host's turn, so that requests issued together
+%% leave together, in one frame batch.
+urgent(Req, #mb{urgent = Q, in_flight = InFlight} = S) when map_size(InFlight) =:= 0 ->
+    pumped(S#mb{urgent = queue:in(Req, Q)});
+urgent(Req, #mb{urgent = Q, flush = true} = S) ->
+    {ok, S#mb{urgent = queue:in(Req, Q)}};
+urgent(Req, #mb{urgent = Q, socket = Sock} = S) ->
+    self() ! {?MODULE, flush, Sock},
+    {ok, S#mb{urgent = queue:in(Req, Q), flush = true}}.
+
+pump(#mb{socket = undefined} = S) ->
+    S;
+pump(#mb{socket = Sock} = S) ->
+    case fill(S, erlang:monotonic_time(millisecond), []) of
+        {[], S1} ->
+            S1;
+        {Frames, S1} ->
+            %% The port confirms with {inet_reply, Sock, Status}: no wait here.
+            try erlang:port_command(Sock, lists:reverse(Frames)) of
+                true -> S1
+            catch
+                error:badarg -> self() ! {?MODULE, send_failed, Sock, closed}, S1
+            end
+    end.
+
+fill(#mb{in_flight = InFlight, max_in_flight = Max} = S, _Now, Frames)
+  when map_size(InFlight) >= Max ->
+    {Frames, S};
+fill(#mb{urgent = U, polls = P} = S, Now, Frames) ->
+    case queue:out(U) of
+        {{value, Req}, U1} -> fill_send(Req, S#mb{urgent = U1}, Now, Frames);
+        {empty, _} ->
+            case queue:out(P) of
+                {{value, Req}, P1} -> fill_send(Req, S#mb{polls = P1}, Now, Frames);
+                {empty, _} -> {Frames, S}
+            end
+    end.
+
+fill_send(#req{unit = Unit, request = R, timeout = T} = Req, #mb{in_flight = InFlight} = S,
+          Now, Frames) ->
+    {Tid, S1} = next_tid(S),
+    Frame = cell_hal_modbus_codec:adu(Tid, Unit, cell_hal_modbus_codec:request_pdu(R)),
+    Deadline = Now + T,
+    fill(arm(Deadline, S1#mb{in_flight = InFlight#{Tid => Req#req{deadline = Deadline}}}),
+         Now, [Frame | Frames]).
+
+%% The one deadline timer fires no later than the earliest deadline in flight.
+arm(Deadline, #mb{timer = {_, At}} = S) when At =< Deadline ->
+    S;
+arm(Deadline, #mb{timer = Timer} = S) ->
+    ok = cancel(Timer),
+    TRef1 = erlang:start_timer(Deadline, self(), {?MODULE, deadline}, [{abs, true}]),
+    S#mb{timer = {TRef1, Deadline}}.
+
+cancel({TRef, _}) ->
+    _ = erlang:cancel_timer(TRef),
+    ok;
+cancel(undefined) ->
+    ok.
+
+%% The timer fired: the requests past their deadline fail, and it is armed again for
+%% the earliest one left.
+expire(#mb{in_flight = InFlight} = S) ->
+    Now = erlang:monotonic_time(millisecond),
+    Deadlines = [{D, Tid} || {Tid, #req{deadline = D}} <- maps:to_list(InFlight)],
+    Expired = lists:sort([E || {D, _} = E <- Deadlines, D =< Now]),
+    Left = [D || {D, _} <- Deadlines, D > Now],
+    S1 = case Left of
+             [] -> S#mb{timer = undefined};
+             _ -> arm(lists:min(Left), S#mb{timer = undefined})
+         end,
+    expire(Expired, S1, []).
+
+expire([], S, Events) ->
+    {ok, lists:reverse(Events), pump(S)};
+expire([{_, Tid} | Rest], #mb{in_flight = InFlight} = S, Events) ->
+    case maps:take(Tid, InFlight) of
+        {#req{kind = {raw, Tag}}, Left} ->
+            expire(Rest, S#mb{in_flight = Left, late = (S#mb.late)#{Tid => true}},
+                   [{reply, Tag, {error, timeout}} | Events]);
+        {#req{unit = U, request = R, timeout = T}, _} ->
+            lost_after({no_answer, T, U, R}, S, lists:reverse(Events))
+    end.
+
+%% The next transaction id not in flight (at most max_in_flight are), wrapping around.
+next_tid(#mb{tid = Tid, in_flight = InFlight, late = Late} = S) ->
+    Next = (Tid + 1) band 16#FFFF,
+    case InFlight of
+        #{Tid := _} -> next_tid(S#mb{tid = Next});
+        #{} -> {Tid, S#mb{tid = Next, late = maps:remove(Tid, Late)}}
+    end.
+
+%%====================================================================
+%% Messages
+%%====================================================================
+
+%% @private
+-spec handle_info(term(), #mb{}) -> {ok, [cell_hal_driver:event()], #mb{}} | unknown.
+handle_info({tcp, Sock, Data}, #mb{socket = Sock, buf = <<>>} = S) ->
+    frames(S#mb{buf = Data}, []);
+handle_info({tcp, Sock, Data}, #mb{socket = Sock, buf = Buf} = S) ->
+    frames(S#mb{buf = <<Buf/binary, Data/binary>>}, []);
+handle_info({tcp_closed, Sock}, #mb{socket = Sock} = S) ->
+    lost(closed, S);
+handle_info({tcp_error, Sock, Why}, #mb{socket = Sock} = S) ->
+    lost({network, Why}, S);
+handle_info({?MODULE, send_failed, Sock, Why}, #mb{socket = Sock} = S) ->
+    lost({network, Why}, S);
+handle_info({?MODULE, flush, Sock}, #mb{socket = Sock} = S) ->
+    {ok, [], pump(S#mb{flush = false})};
+handle_info({inet_reply, Sock, ok}, #mb{socket = Sock} = S) ->
+    {ok, [], S};
+handle_info({inet_reply, Sock, {error, Why}}, #mb{socket = Sock} = S) ->
+    lost({network, Why}, S);
+handle_info({timeout, TRef, {?MODULE, deadline}}, #mb{timer = {TRef, _}} = S) ->
+    expire(S);
+handle_info({?MODULE, connected, Pid, Sock}, #mb{connector = {Pid, MRef}} = S) ->
+    erlang:demonitor(MRef, [flush]),
+    S1 = S#mb{socket = Sock, connector = undefined},
+    case inet:setopts(Sock, [{active, once}]) of
+        ok -> {ok, [connected], pump(S1)};
+        {error, Why} -> lost({network, Why}, S1)
+    end;
+handle_info({?MODULE, connected, _OldPid, Sock}, S) ->
+    _ = gen_tcp:close(Sock),
+    {ok, [], S};
+handle_info({?MODULE, connect_failed, Pid, Why}, #mb{connector = {Pid, MRef}} = S) ->
+    erlang:demonitor(MRef, [flush]),
+    lost({connect, Why}, S#mb{connector = undefined});
+handle_info({'DOWN', MRef, process, Pid, Why}, #mb{connector = {Pid, MRef}} = S) ->
+    lost({connect, Why}, S#mb{connector = undefined});
+handle_info({?MODULE, empty_read, Tag}, S) ->
+    {ok, [{reply, Tag, {ok, []}}], S};
+handle_info({timeout, _, {?MODULE, deadline}}, S) ->
+    %% A timer of a connection closed since.
+    {ok, [], S};
+handle_info(Msg, S) when element(1, Msg) =:= tcp; element(1, Msg) =:= tcp_closed;
+                         element(1, Msg) =:= tcp_error; element(1, Msg) =:= inet_reply;
+                         element(1, Msg) =:= ?MODULE ->
+    %% Of a connection closed since.
+    {ok, [], S};
+handle_info(_, _) ->
+    unknown.
+
+%% Every complete frame in the buffer answers a request in flight.
+frames(#mb{buf = Buf, socket = Sock} = S, Events) ->
+    case cell_hal_modbus_codec:frame(Buf) of
+        {ok, Tid, Unit, Pdu, Rest} ->
+            case answer(Tid, Unit, Pdu, S#mb{buf = Rest}) of
+                {ok, Es, S1} -> frames(S1, lists:reverse(Es, Events));
+                {lost, Why} -> lost_after(Why, S, lists:reverse(Events))
+            end;
+        more ->
+            case inet:setopts(Sock, [{active, once}]) of
+                ok -> {ok, lists:reverse(Events), pump(S)};
+                {error, Why} -> lost_after({network, Why}, S, lists:reverse(Events))
+            end;
+        {error, Why} ->
+            lost_after({bad_frame, Why}, S, lists:reverse(Events))
+    end.
+
+answer(Tid, Unit, Pdu, #mb{in_flight = InFlight, late = Late} = S) ->
+    case maps:take(Tid, InFlight) of
+        {#req{unit = Unit, request = R} = Req, Rest} ->
+            case cell_hal_modbus_codec:decode_response(R, Pdu) of
+                {ok, Reply} -> completed(Req, {ok, Reply}, S#mb{in_flight = Rest});
+                {exception, Code} ->
+                    Exc = {modbus_exception, Code, cell_hal_modbus_codec:exception_name(Code)},
+                    completed(Req, {error, Exc}, S#mb{in_flight = Rest});
+                {error, Why} -> {lost, {bad_frame, Why}}
+            end;
+        {#req{unit = Asked}, _} ->
+            {lost, {wrong_unit, Asked, Unit}};
+        error when is_map_key(Tid, Late) ->
+            {ok, [], S#mb{late = maps:remove(Tid, Late)}};
+        error ->
+            {lost, {unexpected_tid, Tid}}
+    end.
+
+completed(#req{kind = {write, Tag}}, {ok, ok}, S) ->
+    {ok, [{reply, Tag, ok}], S};
+completed(#req{kind = {write, Tag}}, Error, S) ->
+    {ok, [{reply, Tag, Error}], S};
+completed(#req{kind = {raw, Tag}}, Result, S) ->
+    {ok, [{reply, Tag, Result}], S};
+completed(#req{kind = {poll, Tag, Block}}, {ok, Reply}, #mb{reads = Reads} = S) ->
+    case Reads of
+        #{Tag := {1, Acc}} ->
+            Values = lists:append([cell_hal_modbus_plan:decode(Block, Reply) | Acc]),
+            {ok, [{reply, Tag, {ok, Values}}], S#mb{reads = maps:remove(Tag, Reads)}};
+        #{Tag := {N, Acc}} ->
+            {ok, [], S#mb{reads = Reads#{Tag := {N - 1, [cell_hal_modbus_plan:decode(Block, Reply) | Acc]}}}};
+        #{} ->
+            {ok, [], S}   %% the read already failed
+    end;
+completed(#req{kind = {poll, Tag, _}, unit = U, request = R}, {error, Exc}, S) ->
+    {ok, [{reply, Tag, {error, {read_refused, U, R, Exc}}}], drop_read(Tag, S)}.
+
+%% A read that failed: its requests not yet sent are dropped, late answers ignored.
+drop_read(Tag, #mb{polls = P, reads = Reads} = S) ->
+    S#mb{polls = queue:filter(fun(#req{kind = {poll, T, _}}) -> T =/= Tag end, P),
+         reads = maps:remove(Tag, Reads)}.
+
+lost(Why, S) ->
+    lost_after(Why, S, []).
+
+lost_after(Why, S, Events) ->
+    {ok, Events ++ [{lost, Why}], disconnect(S)}.
+
+%%====================================================================
+%% Words for operators
+%%====================================================================
+
+%% @private
+-spec format_reason(term()) -> iodata().
+format_reason({connect, econnrefused}) -> "connection refused";
+format_reason({connect, Why}) -> ["cannot connect: ", network_error(Why)];
+format_reason(closed) -> "the PLC closed the connection";
+format_reason({network, Why}) -> ["network error: ", network_error(Why)];
+format_reason({no_answer, Ms, Unit, Req}) ->
+    io_lib:format("no answer within ~b ms to ~s (unit ~b)",
+                  [Ms, cell_hal_modbus_codec:describe(Req), Unit]);
+format_reason({bad_frame, Why}) ->
+    ["the PLC sent a malformed frame: ", cell_hal_modbus_codec:format_error(Why)];
+format_reason({unexpected_tid, Tid}) ->
+    io_lib:format("the PLC answered transaction ~b, which was never asked or already "
+                  "answered", [Tid]);
+format_reason({wrong_unit, Asked, Got}) ->
+    io_lib:format("the PLC answered for unit ~b to a request for unit ~b", [Got, Asked]);
+format_reason({read_refused, Unit, Req, Exc}) ->
+    io_lib:format("the PLC refused to ~s (unit ~b): ~s",
+                  [cell_hal_modbus_codec:describe(Req), Unit, format_reason(Exc)]);
+format_reason({modbus_exception, Code, Name}) ->
+    io_lib:format("~s (Modbus exception ~b)", [string:replace(atom_to_list(Name), "_", " ", all),
+                                               Code]);
+format_reason(timeout) -> "no answer in time";
+format_reason({bad_request, What}) ->
+    io_lib:format("the request is outside Modbus limits (~s)", [What]);
+format_reason(Other) -> io_lib:format("~tp", [Other]).
+
+network_error(nxdomain) -> "unknown host";
+network_error(Why) when is_atom(Why) -> inet:format_error(Why);
+network_error(Why) -> io_lib:format("~tp", [Why]).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% Transaction ids run 0..65535 and on from 0, never taking one still in flight.
+next_tid_test_() ->
+    Req = #req{kind = {raw, x}, unit = 1, request = {read_coils, 0, 1}, timeout = 1},
+    S = #mb{tid = 65534},
+    {A, S1} = next_tid(S),
+    {B, S2} = next_tid(S1),
+    {C, _} = next_tid(S2),
+    Busy = #mb{tid = 65535, in_flight = #{65535 => Req, 0 => Req, 1 => Req}},
+    {D, _} = next_tid(Busy),
+    {E, S3} = next_tid(#mb{tid = 5, late = #{5 => true, 6 => true}}),
+    [?_assertEqual([65534, 65535, 0], [A, B, C]),
+     ?_assertEqual(2, D),
+     %% A late answer's id given to a new request is no longer late.
+     ?_assertEqual({5, #{6 => true}}, {E, S3#mb.late})].
+
+options_test_() ->
+    [?_assertEqual({error, {bad_option, host}}, check_opts(#{})),
+     ?_assertMatch({ok, #{port := 502, unit := 1, word_order := big, timeout_ms := 1000,
+                          max_in_flight := 1, max_gap := 0}}, check_opts(#{host => "plc1"})),
+     ?_assertMatch({ok, _}, check_opts(#{host => {10, 0, 0, 5}})),
+     ?_assertMatch({ok, _}, check_opts(#{host => <<"10.0.0.5">>})),
+     ?_assertEqual({error, {bad_option, host}}, check_opts(#{host => ""})),
+     ?_assertEqual({error, {bad_option, host}}, check_opts(#{host => {1, 2, 3}})),
+     ?_assertEqual({error, {bad_option, port}}, check_opts(#{host => "h", port => 0})),
+     ?_assertEqual({error, {bad_option, port}}, check_opts(#{host => "h", port => 65536})),
+     ?_assertEqual({error, {bad_option, unit}}, check_opts(#{host => "h", unit => 256})),
+     ?_assertEqual({error, {bad_option, word_order}}, check_opts(#{host => "h", word_order => cdab})),
+     ?_assertEqual({error, {bad_option, max_in_flight}}, check_opts(#{host => "h", max_in_flight => 0})),
+     ?_assertEqual({error, {bad_option, max_gap}}, check_opts(#{host => "h", max_gap => 125})),
+     ?_assertEqual({error, {bad_option, colour}}, check_opts(#{host => "h", colour => red}))].
+
+reasons_read_as_words_test_() ->
+    [?_assertEqual("connection refused", lists:flatten(format_reason({connect, econnrefused}))),
+     ?_assertEqual("cannot connect: unknown host",
+                   lists:flatten(format_reason({connect, nxdomain}))),
+     ?_assertEqual("no answer within 1000 ms to read holding registers 0..9 (unit 1)",
+                   lists:flatten(format_reason({no_answer, 1000, 1, {read_holding_registers, 0, 10}}))),
+     ?_assertEqual("the PLC refused to read input registers 5 (unit 2): illegal data address "
+                   "(Modbus exception 2)",
+                   lists:flatten(format_reason({read_refused, 2, {read_input_registers, 5, 1},
+                                                {modbus_exception, 2, illegal_data_address}}))),
+     ?_assertEqual("the PLC answered for unit 3 to a request for unit 1",
+                   lists:flatten(format_reason({wrong_unit, 1, 3})))].
+-endif.

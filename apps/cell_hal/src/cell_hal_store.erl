@@ -1,0 +1,301 @@
+%% @doc The HAL's tables and the few operations that touch them, shared by the
+%% configuration server, the workers and the readers.
+%%
+%% The tables belong to `cell_hal_sup' (created in its `init/1'), so they live as long
+%% as the HAL: a restarted server or worker finds the configuration, the last values
+%% and every subscription where it left them. Who writes what:
+%% <ul>
+%% <li>`cell_hal_server' writes the configuration (connections, groups, point
+%%   descriptions and their value rows) and the subscriptions;</li>
+%% <li>a connection's worker writes its connection's status and its points' values, and
+%%   sends every notification;</li>
+%% <li>readers (tasks) only read.</li>
+%% </ul>
+%% A watch fires exactly once: whoever takes its claim row first (the worker that saw
+%% the value change, or the server that found it already true) sends the message.
+-module(cell_hal_store).
+
+-include("cell_hal.hrl").
+
+-export([create_tables/0]).
+-export([conn/1, conns/0, group/1, groups/0, groups_of/1, point/1, points_of_conn/1,
+         points_of_group/1, value/1, is_up/1, read/1]).
+-export([put_conn/1, delete_conn/1, put_group/2, delete_group/1]).
+-export([set_worker/3, mark/3, announce/2, put_value/2, notify/2, fire_watches/2]).
+-export([add_sub/2, delete_sub/2, add_conn_sub/2, delete_conn_sub/2, conn_subs/1,
+         add_watch/4, cancel_watch/1, forget/1, subscribers/0]).
+
+-define(CONNS, cell_hal_conns).
+-define(GROUPS, cell_hal_groups).
+-define(POINTS, cell_hal_points).
+-define(VALUES, cell_hal_values).
+-define(SUBS, cell_hal_subs).
+-define(CONN_SUBS, cell_hal_conn_subs).
+-define(WATCHES, cell_hal_watches).
+-define(CLAIMS, cell_hal_watch_claims).
+-define(SIM, cell_hal_sim_devices).
+-define(HW, cell_hal_hw_objects).
+
+-type key() :: {atom(), atom()}.
+
+%% @doc Creates the tables in the calling process, which owns them from then on.
+-spec create_tables() -> ok.
+create_tables() ->
+    Read = [named_table, public, {read_concurrency, true}],
+    ?CONNS = ets:new(?CONNS, [set, {keypos, #hal_conn.id} | Read]),
+    ?GROUPS = ets:new(?GROUPS, [set, {keypos, #hal_group.id} | Read]),
+    ?POINTS = ets:new(?POINTS, [ordered_set, {keypos, #hal_point.key} | Read]),
+    ?VALUES = ets:new(?VALUES, [set, {keypos, #hal_value.key}, {write_concurrency, true}
+                                | Read]),
+    ?SUBS = ets:new(?SUBS, [bag | Read]),
+    ?CONN_SUBS = ets:new(?CONN_SUBS, [bag | Read]),
+    ?WATCHES = ets:new(?WATCHES, [bag | Read]),
+    ?CLAIMS = ets:new(?CLAIMS, [set | Read]),
+    ?SIM = ets:new(?SIM, [set | Read]),
+    ?HW = ets:new(?HW, [set | Read]),
+    ok.
+
+%%====================================================================
+%% Configuration
+%%====================================================================
+
+-spec conn(atom()) -> {ok, #hal_conn{}} | error.
+conn(Id) ->
+    case ets:lookup(?CONNS, Id) of
+        [C] -> {ok, C};
+        [] -> error
+    end.
+
+-spec conns() -> [#hal_conn{}].
+conns() -> ets:tab2list(?CONNS).
+
+-spec group(atom()) -> {ok, #hal_group{}} | error.
+group(Id) ->
+    case ets:lookup(?GROUPS, Id) of
+        [G] -> {ok, G};
+        [] -> error
+    end.
+
+-spec groups() -> [#hal_group{}].
+groups() -> ets:tab2list(?GROUPS).
+
+%% @doc The groups bound to a connection.
+-spec groups_of(atom()) -> [atom()].
+groups_of(Conn) ->
+    Pattern = pattern(hal_group, record_info(size, hal_group),
+                      [{#hal_group.id, '$1'}, {#hal_group.conn, Conn}]),
+    lists:sort(ets:select(?GROUPS, [{Pattern, [], ['$1']}])).
+
+-spec point(key()) -> {ok, #hal_point{}} | error.
+point(Key) ->
+    case ets:lookup(?POINTS, Key) of
+        [P] -> {ok, P};
+        [] -> error
+    end.
+
+-spec points_of_conn(atom()) -> [#hal_point{}].
+points_of_conn(Conn) ->
+    ets:match_object(?POINTS, pattern(hal_point, record_info(size, hal_point),
+                                      [{#hal_point.conn, Conn}])).
+
+%% @doc A group's points in key order (its keys share the group id, so this is a range).
+-spec points_of_group(atom()) -> [#hal_point{}].
+points_of_group(Group) ->
+    ets:match_object(?POINTS, pattern(hal_point, record_info(size, hal_point),
+                                      [{#hal_point.key, {Group, '_'}}])).
+
+%% A match pattern for a record (the record syntax with '_' would break its types).
+pattern(Name, Size, Bound) ->
+    erlang:make_tuple(Size, '_', [{1, Name} | Bound]).
+
+-spec value(key()) -> {ok, #hal_value{}} | error.
+value(Key) ->
+    case ets:lookup(?VALUES, Key) of
+        [V] -> {ok, V};
+        [] -> error
+    end.
+
+%% @doc Whether a connection's inputs are fresh.
+-spec is_up(atom()) -> boolean().
+is_up(Conn) ->
+    try ets:lookup_element(?CONNS, Conn, #hal_conn.status) of
+        up -> true;
+        down -> false
+    catch
+        error:badarg -> false
+    end.
+
+%% @doc A point's value as a task may see it: an input only while its connection is
+%% up (a stale input is never presented as fresh), an output as last commanded or read
+%% back.
+-spec read(key()) -> {ok, cell_hal_type:value()}
+                     | {error, disconnected | unknown_point | not_yet_read}.
+read(Key) ->
+    case ets:lookup(?VALUES, Key) of
+        [#hal_value{dir = out, value = {ok, _} = V}] -> V;
+        [#hal_value{conn = C, value = V}] ->
+            case is_up(C) of
+                false -> {error, disconnected};
+                true when V =:= none -> {error, not_yet_read};
+                true -> V
+            end;
+        [] ->
+            {error, unknown_point}
+    end.
+
+-spec put_conn(#hal_conn{}) -> ok.
+put_conn(C) ->
+    true = ets:insert(?CONNS, C),
+    ok.
+
+-spec delete_conn(atom()) -> ok.
+delete_conn(Id) ->
+    true = ets:delete(?CONNS, Id),
+    true = ets:delete(?CONN_SUBS, Id),
+    ok.
+
+%% @doc Stores a group instance with its points, their values not read yet.
+-spec put_group(#hal_group{}, [#hal_point{}]) -> ok.
+put_group(G, Points) ->
+    true = ets:insert(?POINTS, Points),
+    true = ets:insert(?VALUES, [#hal_value{key = K, conn = C, dir = D, type = T}
+                                || #hal_point{key = K, conn = C, dir = D, type = T} <- Points]),
+    true = ets:insert(?GROUPS, G),
+    ok.
+
+%% @doc Removes a group, its points, their values, and every subscription and watch
+%% on them.
+-spec delete_group(atom()) -> ok.
+delete_group(Id) ->
+    Keys = [K || #hal_point{key = K} <- points_of_group(Id)],
+    lists:foreach(fun(K) ->
+                          true = ets:delete(?POINTS, K),
+                          true = ets:delete(?VALUES, K),
+                          true = ets:delete(?SUBS, K),
+                          [true = ets:delete(?CLAIMS, Ref)
+                           || {_, Ref, _, _} <- ets:lookup(?WATCHES, K)],
+                          true = ets:delete(?WATCHES, K)
+                  end, Keys),
+    true = ets:delete(?GROUPS, Id),
+    ok.
+
+%%====================================================================
+%% Worker side
+%%====================================================================
+
+%% @doc Records the worker process of a connection and where it connects to.
+-spec set_worker(atom(), pid(), binary()) -> ok.
+set_worker(Conn, Pid, Endpoint) ->
+    true = ets:update_element(?CONNS, Conn, [{#hal_conn.pid, Pid},
+                                             {#hal_conn.endpoint, Endpoint}]),
+    ok.
+
+%% @doc Marks a connection up or down (readers see it at once); `Reason' says why it
+%% is down. Nobody is told yet: see {@link announce/2}.
+-spec mark(atom(), up | down, term()) -> ok.
+mark(Conn, Status, Reason) ->
+    _ = ets:update_element(?CONNS, Conn, [{#hal_conn.status, Status},
+                                          {#hal_conn.since, os:system_time(millisecond)},
+                                          {#hal_conn.reason, Reason}]),
+    ok.
+
+%% @doc Tells a connection's subscribers it is up or down.
+-spec announce(atom(), up | down) -> ok.
+announce(Conn, Status) ->
+    lists:foreach(fun({_, Pid}) -> Pid ! {cell_hal_conn, Conn, Status} end,
+                  ets:lookup(?CONN_SUBS, Conn)).
+
+%% @doc Stores a point's new value; false when the point is gone (its group was just
+%% removed): nothing is then published.
+-spec put_value(key(), cell_hal_type:value()) -> boolean().
+put_value(Key, V) ->
+    ets:update_element(?VALUES, Key, {#hal_value.value, {ok, V}}).
+
+%% @doc Tells a point's subscribers its new value and fires the watches it satisfies.
+-spec notify(key(), cell_hal_type:value()) -> ok.
+notify(Key, V) ->
+    lists:foreach(fun({_, Pid}) -> Pid ! {cell_hal, Key, V} end, ets:lookup(?SUBS, Key)),
+    fire_watches(Key, V).
+
+%% @doc Fires the watches of a point that its value satisfies, each at most once.
+-spec fire_watches(key(), cell_hal_type:value()) -> ok.
+fire_watches(Key, V) ->
+    lists:foreach(fun(W) -> fire(W, V) end, ets:lookup(?WATCHES, Key)).
+
+fire({_, Ref, Pid, Cond} = W, V) ->
+    case cell_hal_type:holds(Cond, V) andalso ets:take(?CLAIMS, Ref) of
+        [_] ->
+            true = ets:delete_object(?WATCHES, W),
+            Pid ! {cell_hal_watch, Ref, V},
+            ok;
+        _ ->
+            ok
+    end.
+
+%%====================================================================
+%% Subscriptions (server side)
+%%====================================================================
+
+-spec add_sub(key(), pid()) -> ok.
+add_sub(Key, Pid) ->
+    true = ets:insert(?SUBS, {Key, Pid}),
+    ok.
+
+-spec delete_sub(key(), pid()) -> ok.
+delete_sub(Key, Pid) ->
+    true = ets:delete_object(?SUBS, {Key, Pid}),
+    ok.
+
+-spec add_conn_sub(atom(), pid()) -> ok.
+add_conn_sub(Conn, Pid) ->
+    true = ets:insert(?CONN_SUBS, {Conn, Pid}),
+    ok.
+
+-spec delete_conn_sub(atom(), pid()) -> ok.
+delete_conn_sub(Conn, Pid) ->
+    true = ets:delete_object(?CONN_SUBS, {Conn, Pid}),
+    ok.
+
+-spec conn_subs(atom()) -> [pid()].
+conn_subs(Conn) -> [Pid || {_, Pid} <- ets:lookup(?CONN_SUBS, Conn)].
+
+%% @doc Registers a watch, then fires it at once if the current value (`none' when
+%% there is no fresh one) already satisfies it. Registering before looking closes the
+%% race with a worker publishing meanwhile: one of the two sees the other.
+-spec add_watch(key(), reference(), pid(), cell_hal_type:condition()) -> ok.
+add_watch(Key, Ref, Pid, Cond) ->
+    true = ets:insert(?CLAIMS, {Ref, Key, Pid}),
+    W = {Key, Ref, Pid, Cond},
+    true = ets:insert(?WATCHES, W),
+    case read(Key) of
+        {ok, V} -> fire(W, V);
+        {error, _} -> ok
+    end.
+
+%% @doc Cancels a watch: true when it had not fired (no message will come).
+-spec cancel_watch(reference()) -> boolean().
+cancel_watch(Ref) ->
+    case ets:take(?CLAIMS, Ref) of
+        [{Ref, Key, Pid}] ->
+            true = ets:match_delete(?WATCHES, {Key, Ref, Pid, '_'}),
+            true;
+        [] ->
+            false
+    end.
+
+%% @doc Drops every subscription and watch of a process (it exited).
+-spec forget(pid()) -> ok.
+forget(Pid) ->
+    true = ets:match_delete(?SUBS, {'_', Pid}),
+    true = ets:match_delete(?CONN_SUBS, {'_', Pid}),
+    [true = ets:delete(?CLAIMS, Ref) || {_, Ref, _, _} <- ets:match_object(?WATCHES, {'_', '_', Pid, '_'})],
+    true = ets:match_delete(?WATCHES, {'_', '_', Pid, '_'}),
+    ok.
+
+%% @doc Every process holding a subscription or a watch (to monitor them again after
+%% the server restarted).
+-spec subscribers() -> [pid()].
+subscribers() ->
+    lists:usort([P || {_, P} <- ets:tab2list(?SUBS)] ++
+                [P || {_, P} <- ets:tab2list(?CONN_SUBS)] ++
+                [P || {_, _, P} <- ets:tab2list(?CLAIMS)]).

@@ -1,0 +1,524 @@
+%% @doc One worker per PLC connection: it owns the connection (through its driver, see
+%% {@link cell_hal_driver}), polls the inputs of every group bound to it, publishes the
+%% values that changed, writes outputs in order, and tells subscribers when the
+%% connection is up or down.
+%%
+%% <table>
+%% <tr><th>state</th><th>what happens</th><th>leaves for</th></tr>
+%% <tr><td>`connecting'</td><td>the driver connects, then reads every point once, outputs
+%%   included (the device's outputs may differ from what was last commanded: a PLC may
+%%   have put them in a safe state while the link was down)</td><td>`connected' after
+%%   that first complete read; `disconnected' on failure or when it takes longer than
+%%   `connect_timeout_ms'</td></tr>
+%% <tr><td>`connected'</td><td>the connection is up: inputs are polled every `poll_ms',
+%%   changes published, outputs written in order</td><td>`disconnected' when the link
+%%   drops, a request times out or a poll fails</td></tr>
+%% <tr><td>`disconnected'</td><td>the connection is down: inputs read as
+%%   `disconnected', writes are refused; the worker waits, `reconnect_ms' at first,
+%%   twice as long after each failed attempt up to `max_reconnect_ms'</td>
+%%   <td>`connecting' when the wait ends</td></tr>
+%% </table>
+%%
+%% Only the first complete read after a (re)connect brings the connection up, and the
+%% wait goes back to `reconnect_ms' only then, so a device that accepts connections
+%% and then fails is retried ever more slowly. A stale input is never presented as
+%% fresh: values are stored before the connection is marked up, and it is marked down
+%% before anyone is told.
+-module(cell_hal_worker).
+-behaviour(gen_statem).
+
+-include("cell_hal.hrl").
+
+-export([start_link/1, reconfigure/1, write/4, request/4, reason_text/2]).
+-export([callback_mode/0, init/1, connecting/3, connected/3, disconnected/3,
+         terminate/3]).
+
+-type key() :: {atom(), atom()}.
+-type tag() :: non_neg_integer().
+
+
+
+-record(pt, {dir :: in | out,
+             type :: cell_hal_type:type(),
+             field :: term(),
+             value = none :: none | {ok, cell_hal_type:value()}}).
+
+-record(data, {id :: atom(),
+               source :: binary(),                     %% log source "hal/plc1"
+               driver :: module(),
+               ds :: term(),                           %% the driver's state
+               endpoint :: binary(),
+               poll_ms :: pos_integer(),
+               reconnect_ms :: pos_integer(),
+               max_reconnect_ms :: pos_integer(),
+               connect_timeout_ms :: pos_integer(),
+               backoff :: pos_integer(),               %% the next wait in disconnected
+               points = #{} :: #{key() => #pt{}},
+               plan :: term(),                         %% the inputs' read plan
+               requests = 0 :: non_neg_integer(),      %% exchanges one poll takes
+               tag = 0 :: tag(),                       %% the next tag
+               sync :: tag() | undefined,              %% the first read after connecting
+               poll :: tag() | undefined,              %% the poll in flight
+               poll_due = false :: boolean(),          %% the period ended during a poll
+               unread = #{} :: #{key() => tag()},      %% outputs being read back, by read
+               pending = #{} :: #{tag() => pending()},
+               reason :: term(),                       %% why it is not up
+               was_up = false :: boolean(),            %% up before this failure
+               logged :: term()}).                     %% the failure last logged
+
+-type pending() :: {write, key(), cell_hal_type:value(), async | gen_statem:from()}
+                 | {request, gen_statem:from()}.
+
+%%====================================================================
+%% API
+%%====================================================================
+
+%% @doc Starts the worker of a configured connection.
+-spec start_link(atom()) -> gen_statem:start_ret().
+start_link(Id) ->
+    gen_statem:start_link(?MODULE, Id, []).
+
+%% @doc The points bound to the connection changed: read them again.
+-spec reconfigure(pid()) -> ok.
+reconfigure(Pid) ->
+    gen_statem:cast(Pid, reconfigure).
+
+%% @doc Queues an output write. `async' returns once the write is queued; `sync'
+%% returns when the device confirmed it.
+-spec write(pid(), key(), cell_hal_type:value(), {async | sync, timeout()}) ->
+          ok | {error, term()}.
+write(Pid, Key, V, {Mode, Timeout}) ->
+    call(Pid, {write, Key, V, Mode}, Timeout).
+
+%% @doc A raw request of the driver's protocol.
+-spec request(pid(), term(), pos_integer(), timeout()) -> {ok, term()} | {error, term()}.
+request(Pid, Req, DeviceTimeout, Timeout) ->
+    call(Pid, {request, Req, DeviceTimeout}, Timeout).
+
+call(Pid, Msg, Timeout) ->
+    try
+        gen_statem:call(Pid, Msg, Timeout)
+    catch
+        exit:{timeout, _} -> {error, timeout};
+        exit:{_, {gen_statem, call, _}} -> {error, disconnected}
+    end.
+
+%%====================================================================
+%% gen_statem
+%%====================================================================
+
+%% @private
+-spec callback_mode() -> [state_functions | state_enter].
+callback_mode() -> [state_functions, state_enter].
+
+%% @private
+-spec init(atom()) -> {ok, connecting, #data{}}.
+init(Id) ->
+    %% terminate/3 runs on shutdown: the connection is closed and marked down.
+    process_flag(trap_exit, true),
+    {ok, #hal_conn{driver = Driver, opts = Opts, worker_opts = W, status = Old}} =
+        cell_hal_store:conn(Id),
+    DS = Driver:init(Id, Opts),
+    Endpoint = iolist_to_binary(Driver:endpoint(DS)),
+    ok = cell_hal_store:set_worker(Id, self(), Endpoint),
+    %% A worker that crashed while up: nothing it read is fresh any more.
+    ok = cell_hal_store:mark(Id, down, restarted),
+    _ = Old =:= up andalso cell_hal_store:announce(Id, down),
+    D = #data{id = Id, source = <<"hal/", (atom_to_binary(Id))/binary>>,
+              driver = Driver, ds = DS, endpoint = Endpoint,
+              poll_ms = maps:get(poll_ms, W), reconnect_ms = maps:get(reconnect_ms, W),
+              max_reconnect_ms = maps:get(max_reconnect_ms, W),
+              connect_timeout_ms = maps:get(connect_timeout_ms, W),
+              backoff = maps:get(reconnect_ms, W)},
+    {ok, connecting, load_points(D)}.
+
+%%--------------------------------------------------------------------
+%% connecting: the driver connects, then the first complete read
+%%--------------------------------------------------------------------
+
+%% @private
+-spec connecting(gen_statem:event_type(), term(), #data{}) -> gen_statem:state_function_result().
+connecting(enter, _Old, _D) ->
+    {keep_state_and_data, [{state_timeout, 0, connect}]};
+connecting(state_timeout, connect, #data{driver = Driver, ds = DS, connect_timeout_ms = T} = D) ->
+    {ok, DS1} = Driver:connect(DS),
+    {keep_state, D#data{ds = DS1}, [{state_timeout, T, {no_connection, T}}]};
+connecting(state_timeout, {no_connection, T}, #data{sync = Sync} = D) ->
+    %% One deadline covers connecting and the first read.
+    Why = case Sync of
+              undefined -> {no_connection, T};
+              _ -> {no_first_read, T}
+          end,
+    {next_state, disconnected, D#data{reason = Why}};
+connecting(info, Msg, D) ->
+    driver_info(Msg, connecting, D);
+connecting(Type, Event, D) ->
+    common(Type, Event, connecting, D).
+
+%%--------------------------------------------------------------------
+%% connected: up; polls, writes
+%%--------------------------------------------------------------------
+
+%% @private
+-spec connected(gen_statem:event_type(), term(), #data{}) -> gen_statem:state_function_result().
+connected(enter, _Old, #data{poll_ms = P}) ->
+    {keep_state_and_data, [{{timeout, poll}, P, poll}]};
+connected({timeout, poll}, poll, #data{poll_ms = P, poll = Polling} = D) ->
+    D1 = case Polling of
+             undefined -> start_poll(D);
+             _ -> D#data{poll_due = true}
+         end,
+    {keep_state, D1, [{{timeout, poll}, P, poll}]};
+connected({call, From}, {write, Key, V, Mode}, D) ->
+    case queue_write(Key, V, Mode, From, D) of
+        {ok, D1} when Mode =:= async -> {keep_state, D1, [{reply, From, ok}]};
+        {ok, D1} -> {keep_state, D1};
+        {error, _} = Error -> {keep_state_and_data, [{reply, From, Error}]}
+    end;
+connected({call, From}, {request, Req, Timeout}, #data{driver = Driver, ds = DS} = D) ->
+    Tag = D#data.tag,
+    case Driver:request(Tag, Req, Timeout, DS) of
+        {ok, DS1} ->
+            {keep_state, pend(Tag, {request, From}, D#data{ds = DS1, tag = Tag + 1})};
+        {error, _} = Error ->
+            {keep_state_and_data, [{reply, From, Error}]}
+    end;
+connected(info, Msg, D) ->
+    driver_info(Msg, connected, D);
+connected(Type, Event, D) ->
+    common(Type, Event, connected, D).
+
+%%--------------------------------------------------------------------
+%% disconnected: down; waits, then tries again
+%%--------------------------------------------------------------------
+
+%% @private
+-spec disconnected(gen_statem:event_type(), term(), #data{}) -> gen_statem:state_function_result().
+disconnected(enter, _Old, #data{id = Id, driver = Driver, ds = DS, reason = Why} = D) ->
+    DS1 = Driver:disconnect(DS),
+    ok = cell_hal_store:mark(Id, down, Why),
+    _ = D#data.was_up andalso cell_hal_store:announce(Id, down),
+    D1 = fail_pending(D#data{ds = DS1}),
+    Wait = D#data.backoff,
+    D2 = log_failure(Wait, D1),
+    {keep_state, D2#data{backoff = min(2 * Wait, D#data.max_reconnect_ms), was_up = false,
+                         sync = undefined, poll = undefined, poll_due = false,
+                         unread = #{}},
+     [{state_timeout, Wait, reconnect}, {{timeout, poll}, cancel}]};
+disconnected(state_timeout, reconnect, D) ->
+    {next_state, connecting, D};
+disconnected(info, Msg, D) ->
+    driver_info(Msg, disconnected, D);
+disconnected(Type, Event, D) ->
+    common(Type, Event, disconnected, D).
+
+%%--------------------------------------------------------------------
+%% Every state
+%%--------------------------------------------------------------------
+
+common({call, From}, {write, _, _, _}, _, _) ->
+    {keep_state_and_data, [{reply, From, {error, disconnected}}]};
+common({call, From}, {request, _, _}, _, _) ->
+    {keep_state_and_data, [{reply, From, {error, disconnected}}]};
+common(cast, reconfigure, State, D) ->
+    D1 = load_points(D),
+    {keep_state, case State of
+                     connected -> start_readback(D1);
+                     _ -> D1
+                 end}.
+
+%% @private
+-spec terminate(term(), atom(), #data{}) -> ok.
+terminate(_Reason, State, #data{id = Id, driver = Driver, ds = DS} = D) ->
+    %% Outputs stay as the PLC holds them: the HAL never writes on its own, and a PLC
+    %% takes its outputs to their safe state when its watchdog sees the link gone.
+    _ = Driver:disconnect(DS),
+    ok = cell_hal_store:mark(Id, down, stopped),
+    _ = State =:= connected andalso cell_hal_store:announce(Id, down),
+    _ = fail_pending(D),
+    ok.
+
+%%====================================================================
+%% Driver events
+%%====================================================================
+
+driver_info({'EXIT', _, _}, _, _) ->
+    %% A closed socket's port: the driver learns of it from its own messages.
+    keep_state_and_data;
+driver_info(Msg, State, #data{driver = Driver, ds = DS} = D) ->
+    case Driver:handle_info(Msg, DS) of
+        {ok, Events, DS1} ->
+            events(Events, State, D#data{ds = DS1});
+        unknown ->
+            cell_log:trace(D#data.source, "unexpected message ~tp", [Msg]),
+            keep_state_and_data
+    end.
+
+events([], State, D) ->
+    {next_state, State, D};
+events([E | Es], State, D) ->
+    case event(E, State, D) of
+        {disconnected, D1} -> {next_state, disconnected, D1};  %% the rest is stale
+        {Next, D1} -> events(Es, Next, D1)
+    end.
+
+event(connected, connecting, D) ->
+    start_sync(D);
+event({lost, Why}, State, D) when State =/= disconnected ->
+    {disconnected, D#data{reason = Why}};
+event({reply, Tag, {ok, Values}}, connecting, #data{sync = Tag} = D) ->
+    {connected, go_up(Values, D)};
+event({reply, Tag, {ok, Values}}, connected, #data{poll = Tag} = D) ->
+    D1 = publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D#data{poll = undefined}),
+    {connected, case D1#data.poll_due of
+                    true -> start_poll(D1#data{poll_due = false});
+                    false -> D1
+                end};
+event({reply, Tag, {error, Why}}, State, #data{sync = S, poll = P} = D)
+  when State =/= disconnected, Tag =:= S orelse Tag =:= P ->
+    {disconnected, D#data{reason = Why}};
+event({reply, Tag, Result}, State, #data{pending = P, unread = U} = D) ->
+    case maps:take(Tag, P) of
+        {Pending, Rest} ->
+            {State, complete(Pending, Result, D#data{pending = Rest})};
+        error ->
+            case State =:= connected andalso lists:member(Tag, maps:values(U)) of
+                true -> read_back(Tag, Result, D);
+                false -> {State, D}
+            end
+    end;
+event({push, Values}, connected, D) ->
+    {connected, publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
+event(_, State, D) ->
+    %% An answer for an earlier connection.
+    {State, D}.
+
+%% The first read after connecting: every point, so that nothing is presented as fresh
+%% that was not read on this connection.
+start_sync(#data{points = Pts} = D) ->
+    case plan(maps:to_list(Pts), D) of
+        {_, 0} ->
+            {connected, go_up([], D)};
+        {Plan, _} ->
+            {Tag, D1} = read(Plan, D),
+            {connecting, D1#data{sync = Tag}}
+    end.
+
+go_up(Values, #data{id = Id, points = Pts} = D) ->
+    {Changed, D1} = store(Values, fun(_, _) -> true end, D#data{sync = undefined}),
+    ok = cell_hal_store:mark(Id, up, undefined),
+    ChangedKeys = maps:from_list(Changed),
+    lists:foreach(fun({K, V}) -> cell_hal_store:notify(K, V) end, Changed),
+    %% Watches placed while down were not fired; an unchanged value may satisfy them.
+    maps:foreach(fun(K, #pt{}) when is_map_key(K, ChangedKeys) -> ok;
+                    (K, #pt{}) ->
+                         case maps:get(K, D1#data.points) of
+                             #pt{value = {ok, V}} -> cell_hal_store:fire_watches(K, V);
+                             #pt{value = none} -> ok
+                         end
+                 end, Pts),
+    ok = cell_hal_store:announce(Id, up),
+    cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll",
+                    [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
+                     plural(D#data.requests, "request")]),
+    %% A group added while the first read was on its way: its outputs are read now.
+    start_readback(D1#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
+                           logged = undefined, unread = #{}}).
+
+start_poll(#data{requests = 0} = D) ->
+    D;
+start_poll(#data{plan = Plan} = D) ->
+    {Tag, D1} = read(Plan, D),
+    D1#data{poll = Tag}.
+
+%% The answer to reading back outputs: only those no write has commanded since count.
+read_back(Tag, {ok, Values}, #data{unread = U} = D) ->
+    D1 = publish(Values, fun(#pt{dir = Dir}, K) -> Dir =:= out andalso maps:get(K, U, none) =:= Tag end,
+                 D),
+    {connected, D1#data{unread = maps:filter(fun(_, T) -> T =/= Tag end, U)}};
+read_back(_Tag, {error, Why}, D) ->
+    {disconnected, D#data{reason = Why}}.
+
+%% Outputs of a group added while up are read once, so they show what the device holds;
+%% each group change reads the outputs it brought, whatever reads are in flight.
+start_readback(#data{points = Pts, unread = U} = D) ->
+    New = maps:filter(fun(K, #pt{dir = Dir, value = V}) ->
+                              Dir =:= out andalso V =:= none andalso not is_map_key(K, U)
+                      end, Pts),
+    case plan(maps:to_list(New), D) of
+        {_, 0} ->
+            D;
+        {Plan, _} ->
+            {Tag, D1} = read(Plan, D),
+            D1#data{unread = maps:merge(U, maps:map(fun(_, _) -> Tag end, New))}
+    end.
+
+read(Plan, #data{driver = Driver, ds = DS, tag = Tag} = D) ->
+    {ok, DS1} = Driver:read(Tag, Plan, DS),
+    {Tag, D#data{ds = DS1, tag = Tag + 1}}.
+
+plan(Points, #data{driver = Driver, ds = DS}) ->
+    {Plan, #{requests := N}} =
+        Driver:plan([#{key => K, dir => Dir, type => T, field => F}
+                     || {K, #pt{dir = Dir, type = T, field = F}} <- Points], DS),
+    {Plan, N}.
+
+%%====================================================================
+%% Values
+%%====================================================================
+
+%% Stores the values that changed among those `Keep' accepts; returns them.
+store(Values, Keep, #data{points = Pts} = D) ->
+    {Changed, Pts1} =
+        lists:foldl(
+          fun({K, V}, {Acc, Ps} = Unchanged) ->
+                  case Ps of
+                      #{K := #pt{value = {ok, V}}} ->
+                          Unchanged;
+                      #{K := Pt} ->
+                          case Keep(Pt, K) andalso cell_hal_store:put_value(K, V) of
+                              true -> {[{K, V} | Acc], Ps#{K := Pt#pt{value = {ok, V}}}};
+                              false -> Unchanged
+                          end;
+                      #{} ->
+                          Unchanged
+                  end
+          end, {[], Pts}, Values),
+    {lists:reverse(Changed), D#data{points = Pts1}}.
+
+publish(Values, Keep, D) ->
+    {Changed, D1} = store(Values, Keep, D),
+    lists:foreach(fun({K, V}) -> cell_hal_store:notify(K, V) end, Changed),
+    D1.
+
+%% Points bound to this connection, keeping the values already known.
+load_points(#data{id = Id, points = Old} = D) ->
+    Pts = maps:from_list(
+            [{K, #pt{dir = Dir, type = T, field = F, value = known_value(K, Old)}}
+             || #hal_point{key = K, dir = Dir, type = T, field = F}
+                    <- cell_hal_store:points_of_conn(Id)]),
+    Inputs = [P || {_, #pt{dir = in}} = P <- maps:to_list(Pts)],
+    D1 = D#data{points = Pts},
+    {Plan, N} = plan(Inputs, D1),
+    D1#data{plan = Plan, requests = N}.
+
+known_value(K, Old) ->
+    case Old of
+        #{K := #pt{value = V}} -> V;
+        #{} ->
+            case cell_hal_store:value(K) of
+                {ok, #hal_value{value = V}} -> V;
+                error -> none
+            end
+    end.
+
+%%====================================================================
+%% Writes and requests
+%%====================================================================
+
+queue_write(Key, V, Mode, From, #data{points = Pts, driver = Driver, ds = DS, tag = Tag} = D) ->
+    case Pts of
+        #{Key := #pt{dir = out, type = T, field = F} = Pt} ->
+            case cell_hal_type:check(T, V) of
+                {ok, V1} ->
+                    {ok, DS1} = Driver:write(Tag, #{key => Key, dir => out, type => T,
+                                                    field => F}, V1, DS),
+                    Waiter = case Mode of async -> async; sync -> From end,
+                    D1 = pend(Tag, {write, Key, V1, Waiter},
+                              D#data{ds = DS1, tag = Tag + 1,
+                                     unread = maps:remove(Key, D#data.unread)}),
+                    {ok, commanded(Key, V1, Pt, D1)};
+                error ->
+                    {error, {bad_value, V}}
+            end;
+        #{Key := #pt{dir = in}} ->
+            {error, not_an_output};
+        #{} ->
+            {error, unknown_point}
+    end.
+
+%% The commanded value is what a read of the output returns from now on.
+commanded(_Key, V, #pt{value = {ok, V}}, D) ->
+    D;
+commanded(Key, V, Pt, #data{points = Pts} = D) ->
+    _ = cell_hal_store:put_value(Key, V) andalso cell_hal_store:notify(Key, V),
+    D#data{points = Pts#{Key := Pt#pt{value = {ok, V}}}}.
+
+pend(Tag, What, #data{pending = P} = D) ->
+    D#data{pending = P#{Tag => What}}.
+
+complete({write, _, _, async}, ok, D) ->
+    D;
+complete({write, Key, V, async}, {error, Why}, D) ->
+    cell_log:error(D#data.source, "writing ~s := ~s on ~s failed: ~s",
+                   [point_name(Key), value_text(Key, V, D), D#data.id, why_text(Why, D)]),
+    D;
+complete({write, _, _, From}, Result, D) ->
+    gen_statem:reply(From, Result),
+    D;
+complete({request, From}, Result, D) ->
+    gen_statem:reply(From, Result),
+    D.
+
+%% Whatever was in flight when the connection went down has no answer.
+fail_pending(#data{pending = P} = D) ->
+    maps:foreach(fun(_, {write, Key, V, async}) ->
+                         cell_log:warning(D#data.source,
+                                          "~s := ~s may not have reached ~s: the connection "
+                                          "went down before the PLC confirmed it",
+                                          [point_name(Key), value_text(Key, V, D), D#data.id]);
+                    (_, {write, _, _, From}) -> gen_statem:reply(From, {error, disconnected});
+                    (_, {request, From}) -> gen_statem:reply(From, {error, disconnected})
+                 end, P),
+    D#data{pending = #{}}.
+
+%%====================================================================
+%% Words for operators
+%%====================================================================
+
+log_failure(Wait, #data{id = Id, endpoint = Ep, reason = Why, was_up = WasUp, logged = Last} = D) ->
+    Text = why_text(Why, D),
+    Retry = retry_text(Wait),
+    if
+        WasUp ->
+            cell_log:warning(D#data.source, "connection to ~s (~s) lost: ~s; retrying in ~s",
+                             [Id, Ep, Text, Retry]);
+        Last =:= Why ->
+            cell_log:debug(D#data.source, "still no connection to ~s (~s): ~s; retrying in ~s",
+                           [Id, Ep, Text, Retry]);
+        true ->
+            cell_log:warning(D#data.source, "cannot connect to ~s (~s): ~s; retrying in ~s",
+                             [Id, Ep, Text, Retry])
+    end,
+    D#data{logged = Why}.
+
+why_text(Why, #data{driver = Driver}) ->
+    reason_text(Driver, Why).
+
+%% @doc Why a connection is down, in an operator's words.
+-spec reason_text(module(), term()) -> iodata().
+reason_text(_, {no_connection, Ms}) ->
+    io_lib:format("no connection within ~b ms", [Ms]);
+reason_text(_, {no_first_read, Ms}) ->
+    io_lib:format("the first read of the IO image took more than ~b ms", [Ms]);
+reason_text(_, starting) ->
+    "not connected yet";
+reason_text(_, restarted) ->
+    "reconnecting after a restart of the connection's worker";
+reason_text(_, stopped) ->
+    "the connection was stopped";
+reason_text(Driver, Why) ->
+    Driver:format_reason(Why).
+
+retry_text(Ms) when Ms < 1000 -> [integer_to_list(Ms), " ms"];
+retry_text(Ms) when Ms rem 1000 =:= 0 -> [integer_to_list(Ms div 1000), " s"];
+retry_text(Ms) -> [io_lib:format("~.1f", [Ms / 1000]), " s"].
+
+plural(1, One) -> ["1 ", One];
+plural(N, One) -> [integer_to_list(N), $\s, One, $s].
+
+point_name({G, P}) -> [atom_to_list(G), $., atom_to_list(P)].
+
+value_text(Key, V, #data{points = Pts}) ->
+    #{Key := #pt{type = T}} = Pts,
+    cell_hal_type:format(T, V).

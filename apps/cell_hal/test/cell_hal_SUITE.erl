@@ -1,0 +1,599 @@
+%% The HAL end to end against the simulated PLC: configuration checked at the door,
+%% reads without a process hop, writes in order, watches and subscriptions, the
+%% connectivity a task goes DOWN on, a stale input never presented as fresh, and
+%% recovery from crashes of the HAL's own processes.
+-module(cell_hal_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
+         end_per_testcase/2]).
+-export([configuration_is_checked_at_the_door/1, every_type_reads_and_writes/1,
+         reads_before_the_first_poll/1, subscribers_see_every_change/1,
+         watches_fire_once/1, watches_fire_once_under_load/1, watch_conditions_are_checked/1,
+         sensor_follows_output/1,
+         link_down_and_back/1, silent_device_goes_down/1, stale_inputs_never_fresh/1,
+         watch_placed_while_down_fires_after_reconnect/1, outputs_read_back_after_reconnect/1,
+         writes_keep_their_order/1, write_sync_waits_for_the_device/1,
+         group_added_while_up/1, groups_added_back_to_back/1,
+         group_added_during_the_first_read/1, remove_group_and_connection/1,
+         subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
+         server_crash_keeps_configuration/1, logs_speak_to_operators/1,
+         backoff_grows_then_resets/1, connection_info/1]).
+
+-define(WAIT, 5000).
+
+all() ->
+    [configuration_is_checked_at_the_door, every_type_reads_and_writes,
+     reads_before_the_first_poll, subscribers_see_every_change, watches_fire_once,
+     watches_fire_once_under_load,
+     watch_conditions_are_checked, sensor_follows_output, link_down_and_back,
+     silent_device_goes_down, stale_inputs_never_fresh,
+     watch_placed_while_down_fires_after_reconnect, outputs_read_back_after_reconnect,
+     writes_keep_their_order, write_sync_waits_for_the_device, group_added_while_up,
+     groups_added_back_to_back, group_added_during_the_first_read,
+     remove_group_and_connection, subscribers_are_cleaned_up,
+     worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
+     logs_speak_to_operators, backoff_grows_then_resets, connection_info].
+
+init_per_suite(Config) ->
+    os:putenv("CELLRT_ROOT", filename:join(?config(priv_dir, Config), "root")),
+    {ok, Apps} = application:ensure_all_started(cell_hal),
+    [{apps, Apps} | Config].
+
+end_per_suite(Config) ->
+    [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
+    ok.
+
+init_per_testcase(_Case, Config) ->
+    Config.
+
+end_per_testcase(_Case, _Config) ->
+    [ok = cell_hal:remove_group(G) || G <- cell_hal:groups()],
+    [begin ok = cell_hal:remove_connection(C), ok = cell_hal_sim_sup:stop_device(C) end
+     || C <- cell_hal:connections()],
+    ok.
+
+%%--------------------------------------------------------------------
+%% Helpers
+%%--------------------------------------------------------------------
+
+%% A simulated PLC `Conn' with the test group `io' bound to it, up.
+sim(Conn) -> sim(Conn, #{}).
+
+sim(Conn, Opts) ->
+    ok = cell_hal:add_connection(#{id => Conn, driver => cell_hal_sim,
+                                   opts => maps:merge(#{poll_ms => 10, reconnect_ms => 50,
+                                                        timeout_ms => 500}, Opts)}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => Conn}),
+    {ok, _} = cell_hal:subscribe_connection(Conn),
+    ok = await_status(Conn, up),
+    %% The connection may have come up before the group was bound: wait for its first
+    %% read (a fresh simulated PLC holds zeros).
+    0 = await_value(int16_in, 0),
+    ok.
+
+await_status(Conn, Status) ->
+    case cell_hal:status(Conn) of
+        Status -> flush_conn(Conn), ok;
+        _ -> receive {cell_hal_conn, Conn, Status} -> ok
+             after ?WAIT -> ct:fail({not_reached, Conn, Status, cell_hal:info(Conn)})
+             end
+    end.
+
+flush_conn(Conn) ->
+    receive {cell_hal_conn, Conn, _} -> flush_conn(Conn) after 0 -> ok end.
+
+%% Waits until a point reads a value (through a watch: no polling).
+await_value(Point, V) ->
+    {ok, Ref} = cell_hal:watch(io, Point, {eq, V}),
+    receive {cell_hal_watch, Ref, Got} -> Got
+    after ?WAIT -> ct:fail({never, Point, V, cell_hal:read(io, Point)})
+    end.
+
+await_msg(Match) ->
+    receive Msg -> case Match(Msg) of true -> Msg; false -> await_msg(Match) end
+    after ?WAIT -> ct:fail(no_message)
+    end.
+
+%%--------------------------------------------------------------------
+%% Cases
+%%--------------------------------------------------------------------
+
+configuration_is_checked_at_the_door(_Config) ->
+    Bad = fun(Spec) -> cell_hal:add_connection(Spec) end,
+    ?assertEqual({error, {bad_option, driver}}, Bad(#{id => c})),
+    ?assertEqual({error, {bad_option, id}}, Bad(#{id => "c", driver => cell_hal_sim})),
+    ?assertEqual({error, {bad_option, driver}}, Bad(#{id => c, driver => no_such_module})),
+    ?assertEqual({error, {bad_option, driver}}, Bad(#{id => c, driver => lists})),
+    ?assertEqual({error, {bad_option, colour}}, Bad(#{id => c, driver => cell_hal_sim, colour => red})),
+    ?assertEqual({error, {bad_option, poll_ms}},
+                 Bad(#{id => c, driver => cell_hal_sim, opts => #{poll_ms => 0}})),
+    ?assertEqual({error, {bad_option, max_reconnect_ms}},
+                 Bad(#{id => c, driver => cell_hal_sim,
+                       opts => #{reconnect_ms => 1000, max_reconnect_ms => 10}})),
+    ?assertEqual({error, {bad_option, latency_ms}},
+                 Bad(#{id => c, driver => cell_hal_sim, opts => #{latency_ms => -1}})),
+    ?assertEqual({error, {bad_option, host}},
+                 Bad(#{id => c, driver => cell_hal_modbus, opts => #{}})),
+    ?assertEqual({error, {bad_option, spec}}, Bad(not_a_map)),
+    ok = Bad(#{id => c, driver => cell_hal_sim}),
+    ?assertEqual({error, {already_exists, c}}, Bad(#{id => c, driver => cell_hal_sim})),
+    Group = fun(Spec) -> cell_hal:add_group(Spec) end,
+    ?assertEqual({error, {bad_option, connection}},
+                 Group(#{id => g, module => cell_hal_test_io, connection => nowhere})),
+    ?assertEqual({error, {bad_option, module}},
+                 Group(#{id => g, module => lists, connection => c})),
+    ?assertEqual({error, {bad_option, opts}},
+                 Group(#{id => g, module => cell_hal_test_io, connection => c, opts => []})),
+    ?assertMatch({error, {bad_group, _}},
+                 Group(#{id => g, module => cell_hal_test_io, connection => c,
+                         opts => #{base => not_a_number}})),
+    ok = cell_hal:add_connection(#{id => m, driver => cell_hal_modbus,
+                                   opts => #{host => "127.0.0.1", port => 1}}),
+    ?assertEqual({error, {bad_point, decimal_in, {field, address_out_of_range}}},
+                 Group(#{id => g, module => cell_hal_test_io, connection => m,
+                         opts => #{base => 65500}})),
+    ok = Group(#{id => g, module => cell_hal_test_io, connection => c}),
+    ?assertEqual({error, {already_exists, g}},
+                 Group(#{id => g, module => cell_hal_test_io, connection => c})),
+    ?assertEqual({error, {in_use, [g]}}, cell_hal:remove_connection(c)),
+    ?assertEqual({ok, c}, cell_hal:connection_of(g)),
+    ?assertEqual({error, unknown_group}, cell_hal:connection_of(nope)),
+    ?assertEqual({error, unknown_connection}, cell_hal:remove_connection(nope)),
+    ?assertEqual({error, unknown_group}, cell_hal:remove_group(nope)).
+
+every_type_reads_and_writes(_Config) ->
+    ok = sim(s1),
+    lists:foreach(
+      fun({T, _, _}) ->
+              Name = atom_to_list(name(T)),
+              In = list_to_atom(Name ++ "_in"),
+              Out = list_to_atom(Name ++ "_out"),
+              [begin
+                   V = cell_hal_test_io:sample(T, N),
+                   ok = cell_hal_sim:set({io, In}, V),
+                   ?assertEqual(V, await_value(In, V)),
+                   ?assertEqual({ok, V}, cell_hal:read(io, In)),
+                   ok = cell_hal:write_sync(io, Out, V, ?WAIT),
+                   ?assertEqual({ok, V}, cell_hal:read(io, Out)),
+                   ?assertEqual({ok, V}, cell_hal_sim:get({io, Out}))
+               end || N <- [1, 2]]
+      end, cell_hal_test_io:types()),
+    %% A REAL is stored as the PLC holds it: single precision.
+    ok = cell_hal:write_sync(io, real_out, 0.1, ?WAIT),
+    {ok, R} = cell_hal:read(io, real_out),
+    ?assertEqual(<<R:32/float>>, <<0.1:32/float>>),
+    ?assertEqual({error, {bad_value, 256}}, cell_hal:write(io, byte_out, 256)),
+    ?assertEqual({error, {bad_value, <<"ABCDEFGHIJK">>}},
+                 cell_hal:write(io, string10_out, <<"ABCDEFGHIJK">>)),
+    ?assertEqual({error, not_an_output}, cell_hal:write(io, int16_in, 1)),
+    ?assertEqual({error, unknown_point}, cell_hal:write(io, nope, 1)),
+    ?assertEqual({error, unknown_point}, cell_hal:read(io, nope)),
+    ?assertEqual({error, unknown_point}, cell_hal:read(nope, int16_in)).
+
+name({string, N}) -> list_to_atom("string" ++ integer_to_list(N));
+name(T) -> T.
+
+reads_before_the_first_poll(_Config) ->
+    %% A slow PLC: every answer takes 300 ms.
+    ok = cell_hal:add_connection(#{id => s2, driver => cell_hal_sim,
+                                   opts => #{latency_ms => 300, poll_ms => 10}}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => s2,
+                              opts => #{only => [int16_in]}}),
+    %% Until the first read of the group is answered its input has no value: the
+    %% connection is down (its first read is on its way), or up from before the group
+    %% was bound (nothing to read then) and the point not read yet.
+    case cell_hal:read(io, int16_in) of
+        {error, disconnected} -> ok;
+        {error, not_yet_read} -> ok
+    end,
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 0}),
+    receive {cell_hal_watch, Ref, 0} -> ok after ?WAIT -> ct:fail(never_read) end,
+    ?assertEqual(up, cell_hal:status(s2)),
+    ?assertEqual({ok, 0}, cell_hal:read(io, int16_in)),
+    %% A group added while up reads `not_yet_read' until the next poll answers.
+    ok = cell_hal:add_group(#{id => io2, module => cell_hal_test_io, connection => s2,
+                              opts => #{only => [int16_in]}}),
+    ?assertEqual({error, not_yet_read}, cell_hal:read(io2, int16_in)),
+    {ok, Ref2} = cell_hal:watch(io2, int16_in, {eq, 0}),
+    receive {cell_hal_watch, Ref2, 0} -> ok after ?WAIT -> ct:fail(never_read) end,
+    ?assertEqual({ok, 0}, cell_hal:read(io2, int16_in)).
+
+subscribers_see_every_change(_Config) ->
+    ok = sim(s3),
+    ok = cell_hal:subscribe(io, int16_in),
+    ?assertEqual({error, unknown_point}, cell_hal:subscribe(io, nope)),
+    [begin
+         ok = cell_hal_sim:set({io, int16_in}, V),
+         receive {cell_hal, {io, int16_in}, V} -> ok after ?WAIT -> ct:fail({missed, V}) end
+     end || V <- [1, 2, 3, -4]],
+    %% Setting the same value again is no change: nothing is published.
+    ok = cell_hal_sim:set({io, int16_in}, -4),
+    ok = cell_hal_sim:set({io, uint16_in}, 9),
+    9 = await_value(uint16_in, 9),
+    receive {cell_hal, {io, int16_in}, X} -> ct:fail({republished, X}) after 0 -> ok end,
+    %% An output's subscribers see each commanded value.
+    ok = cell_hal:subscribe(io, int16_out),
+    ok = cell_hal:write(io, int16_out, 7),
+    receive {cell_hal, {io, int16_out}, 7} -> ok after ?WAIT -> ct:fail(no_output_change) end,
+    ok = cell_hal:unsubscribe(io, int16_in),
+    ok = cell_hal_sim:set({io, int16_in}, 5),
+    5 = await_value(int16_in, 5),
+    receive {cell_hal, {io, int16_in}, _} = M -> ct:fail({after_unsubscribe, M}) after 0 -> ok end.
+
+watches_fire_once(_Config) ->
+    ok = sim(s4),
+    %% Already true: fires at once.
+    {ok, R1} = cell_hal:watch(io, int16_in, {eq, 0}),
+    receive {cell_hal_watch, R1, 0} -> ok after ?WAIT -> ct:fail(not_at_once) end,
+    %% Fires when the value gets there, once, even if it passes again.
+    {ok, R2} = cell_hal:watch(io, int16_in, {gt, 10}),
+    ok = cell_hal_sim:set({io, int16_in}, 5),
+    5 = await_value(int16_in, 5),
+    receive {cell_hal_watch, R2, _} -> ct:fail(too_early) after 0 -> ok end,
+    ok = cell_hal_sim:set({io, int16_in}, 11),
+    receive {cell_hal_watch, R2, 11} -> ok after ?WAIT -> ct:fail(never_fired) end,
+    ok = cell_hal_sim:set({io, int16_in}, 12),
+    12 = await_value(int16_in, 12),
+    ok = cell_hal_sim:set({io, int16_in}, 13),
+    13 = await_value(int16_in, 13),
+    receive {cell_hal_watch, R2, _} -> ct:fail(fired_twice) after 0 -> ok end,
+    %% A cancelled watch never fires; cancelling a fired one says so.
+    {ok, R3} = cell_hal:watch(io, int16_in, {lt, 0}),
+    ?assert(cell_hal:cancel_watch(R3)),
+    ok = cell_hal_sim:set({io, int16_in}, -1),
+    -1 = await_value(int16_in, -1),
+    receive {cell_hal_watch, R3, _} -> ct:fail(cancelled_fired) after 0 -> ok end,
+    ?assertNot(cell_hal:cancel_watch(R2)),
+    %% Every operator.
+    [begin
+         {ok, R} = cell_hal:watch(io, int16_in, Cond),
+         receive {cell_hal_watch, R, -1} -> ok after ?WAIT -> ct:fail({cond_missed, Cond}) end
+     end || Cond <- [{eq, -1}, {ne, 0}, {lt, 0}, {le, -1}, {ge, -1}, {gt, -2}]],
+    %% Many watchers on one point each get their message.
+    Refs = [element(2, cell_hal:watch(io, int16_in, {eq, 100})) || _ <- lists:seq(1, 50)],
+    ok = cell_hal_sim:set({io, int16_in}, 100),
+    [receive {cell_hal_watch, R, 100} -> ok after ?WAIT -> ct:fail(lost_watcher) end || R <- Refs].
+
+%% An input that never stops changing (a counter the simulated PLC counts up every
+%% millisecond), many processes placing watches on it all the while: the worker
+%% publishing and the server placing a watch race for each one, and every watch still
+%% fires exactly once.
+watches_fire_once_under_load(_Config) ->
+    ok = sim(s23, #{poll_ms => 1}),
+    ok = cell_hal_sim:on_change({io, int32_in}, fun(V) -> [{1, {io, int32_in}, V + 1}] end),
+    ok = cell_hal_sim:set({io, int32_in}, 1),
+    {ok, First} = cell_hal:watch(io, int32_in, {ge, 1}),
+    receive {cell_hal_watch, First, _} -> ok after ?WAIT -> ct:fail(not_counting) end,
+    Self = self(),
+    Watchers = [spawn_link(fun() -> Self ! {done, self(), watch_many(100, [])} end)
+                || _ <- lists:seq(1, 20)],
+    Refs = lists:append([receive {done, W, Rs} -> Rs after ?WAIT * 6 -> ct:fail(stuck) end
+                         || W <- Watchers]),
+    ?assertEqual(2000, length(Refs)),
+    ok = cell_hal_sim:clear_rules(s23),
+    ?assertEqual(0, ets:info(cell_hal_watch_claims, size)).
+
+%% Places watches for "more than now" one after the other, each waited for; then makes
+%% sure none of them came twice.
+watch_many(0, Refs) ->
+    Dups = [R || R <- Refs, receive {cell_hal_watch, R, _} -> true after 0 -> false end],
+    [] = Dups,
+    Refs;
+watch_many(N, Refs) ->
+    {ok, Now} = cell_hal:read(io, int32_in),
+    {ok, Ref} = cell_hal:watch(io, int32_in, {gt, Now}),
+    receive {cell_hal_watch, Ref, V} when V > Now -> ok
+    after ?WAIT -> exit({never_fired, Now, cell_hal:read(io, int32_in)})
+    end,
+    false = cell_hal:cancel_watch(Ref),
+    watch_many(N - 1, [Ref | Refs]).
+
+watch_conditions_are_checked(_Config) ->
+    ok = sim(s5),
+    ?assertEqual({error, {bad_condition, {gt, true}}}, cell_hal:watch(io, bool_in, {gt, true})),
+    ?assertEqual({error, {bad_condition, {eq, 1}}}, cell_hal:watch(io, bool_in, {eq, 1})),
+    ?assertEqual({error, {bad_condition, {eq, <<"too long a string">>}}},
+                 cell_hal:watch(io, string10_in, {eq, <<"too long a string">>})),
+    ?assertEqual({error, {bad_condition, {eq, 70000}}}, cell_hal:watch(io, int16_in, {eq, 70000})),
+    ?assertEqual({error, {bad_condition, maybe}}, cell_hal:watch(io, int16_in, maybe)),
+    ?assertEqual({error, unknown_point}, cell_hal:watch(io, nope, {eq, 1})),
+    {ok, R} = cell_hal:watch(io, real_in, {lt, 2.5}),
+    receive {cell_hal_watch, R, 0.0} -> ok after ?WAIT -> ct:fail(real_cond) end.
+
+sensor_follows_output(_Config) ->
+    ok = sim(s6),
+    ok = cell_hal_sim:follow({io, bool_in}, {io, bool_out}, 150),
+    ok = cell_hal_sim:follow({io, int16_in}, {io, int16_out}, 0, fun(V) -> -V end),
+    {ok, Ref} = cell_hal:watch(io, bool_in, {eq, true}),
+    T0 = erlang:monotonic_time(millisecond),
+    ok = cell_hal:write(io, bool_out, true),
+    receive {cell_hal_watch, Ref, true} -> ok after ?WAIT -> ct:fail(never_followed) end,
+    Elapsed = erlang:monotonic_time(millisecond) - T0,
+    ct:log("the sensor followed after ~b ms", [Elapsed]),
+    ?assert(Elapsed >= 150),
+    ok = cell_hal:write(io, int16_out, 42),
+    -42 = await_value(int16_in, -42),
+    %% A faulty rule is reported and the simulated PLC goes on.
+    ok = cell_hal_sim:on_change({io, uint16_out}, fun(_) -> error(broken_rule) end),
+    ok = cell_hal:write_sync(io, uint16_out, 3, ?WAIT),
+    ok = cell_hal:write(io, int16_out, 43),
+    -43 = await_value(int16_in, -43).
+
+link_down_and_back(_Config) ->
+    ok = sim(s7),
+    ok = cell_hal_sim:set({io, int16_in}, 5),
+    5 = await_value(int16_in, 5),
+    ok = cell_hal_sim:link(s7, down),
+    receive {cell_hal_conn, s7, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    ?assertEqual({error, disconnected}, cell_hal:read(io, int16_in)),
+    ?assertEqual({error, disconnected}, cell_hal:write(io, int16_out, 1)),
+    ?assertEqual({error, disconnected}, cell_hal:write_sync(io, int16_out, 1, 1000)),
+    %% Outputs keep reading their commanded value.
+    ?assertEqual({ok, 0}, cell_hal:read(io, int16_out)),
+    ok = cell_hal_sim:link(s7, up),
+    receive {cell_hal_conn, s7, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    ?assertEqual({ok, 5}, cell_hal:read(io, int16_in)),
+    ok = cell_hal:write_sync(io, int16_out, 2, ?WAIT),
+    %% A momentary drop: down, then up again by itself.
+    ok = cell_hal_sim:drop(s7),
+    receive {cell_hal_conn, s7, down} -> ok after ?WAIT -> ct:fail(no_down_on_drop) end,
+    receive {cell_hal_conn, s7, up} -> ok after ?WAIT -> ct:fail(no_up_after_drop) end.
+
+silent_device_goes_down(_Config) ->
+    ok = sim(s8, #{timeout_ms => 200}),
+    ok = cell_hal_sim:link(s8, silent),
+    T0 = erlang:monotonic_time(millisecond),
+    receive {cell_hal_conn, s8, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    Elapsed = erlang:monotonic_time(millisecond) - T0,
+    ct:log("down after ~b ms", [Elapsed]),
+    ?assert(Elapsed >= 150),
+    {ok, #{reason := Reason}} = cell_hal:info(s8),
+    ct:log("reason: ~s", [Reason]),
+    ?assertNotEqual(nomatch, binary:match(Reason, <<"no answer within 200 ms">>)),
+    %% While silent it stays down (the first read never completes).
+    ?assertEqual({error, disconnected}, cell_hal:read(io, int16_in)),
+    ok = cell_hal_sim:link(s8, up),
+    receive {cell_hal_conn, s8, up} -> ok after ?WAIT -> ct:fail(no_up) end.
+
+%% While the link is down the image changes; nothing of the old image is presented
+%% after the link is back, and nothing at all while it is down.
+stale_inputs_never_fresh(_Config) ->
+    ok = sim(s9),
+    ok = cell_hal_sim:set({io, int32_in}, 1),
+    1 = await_value(int32_in, 1),
+    ok = cell_hal:subscribe(io, int32_in),
+    ok = cell_hal_sim:link(s9, down),
+    receive {cell_hal_conn, s9, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    ok = cell_hal_sim:set({io, int32_in}, 2),
+    ok = cell_hal_sim:link(s9, up),
+    %% The new value is stored before the connection is up: whoever hears `up' reads it.
+    receive {cell_hal_conn, s9, up} -> ?assertEqual({ok, 2}, cell_hal:read(io, int32_in))
+    after ?WAIT -> ct:fail(no_up)
+    end,
+    receive {cell_hal, {io, int32_in}, V} -> ?assertEqual(2, V) after ?WAIT -> ct:fail(no_change) end.
+
+watch_placed_while_down_fires_after_reconnect(_Config) ->
+    ok = sim(s10),
+    ok = cell_hal_sim:set({io, bool_in}, true),
+    true = await_value(bool_in, true),
+    ok = cell_hal_sim:link(s10, down),
+    receive {cell_hal_conn, s10, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    %% The value does not change across the outage; the watch must still fire. It has
+    %% not yet: the server would have sent its message before its reply.
+    {ok, Ref} = cell_hal:watch(io, bool_in, {eq, true}),
+    receive {cell_hal_watch, Ref, _} -> ct:fail(fired_while_down) after 0 -> ok end,
+    ok = cell_hal_sim:link(s10, up),
+    receive {cell_hal_watch, Ref, true} -> ok after ?WAIT -> ct:fail(never_fired) end.
+
+outputs_read_back_after_reconnect(_Config) ->
+    ok = sim(s11),
+    ok = cell_hal:write_sync(io, int16_out, 10, ?WAIT),
+    ok = cell_hal_sim:link(s11, down),
+    receive {cell_hal_conn, s11, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    %% The PLC took its output to a safe value while the link was down.
+    ok = cell_hal_sim:set({io, int16_out}, 0),
+    ?assertEqual({ok, 10}, cell_hal:read(io, int16_out)),
+    ok = cell_hal_sim:link(s11, up),
+    receive {cell_hal_conn, s11, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    ?assertEqual({ok, 0}, cell_hal:read(io, int16_out)).
+
+writes_keep_their_order(_Config) ->
+    ok = sim(s12, #{latency_ms => 5}),
+    ok = cell_hal_sim:on_change({io, int32_out},
+                                fun(V) -> [{0, {io, int32_in}, V}] end),
+    ok = cell_hal:subscribe(io, int32_in),
+    [ok = cell_hal:write(io, int32_out, V) || V <- lists:seq(1, 200)],
+    ?assertEqual({ok, 200}, cell_hal:read(io, int32_out)),
+    200 = await_value(int32_in, 200),
+    ?assertEqual({ok, 200}, cell_hal_sim:get({io, int32_out})),
+    %% The polls saw the values rise, never fall.
+    Seen = collect_changes(int32_in, []),
+    ct:log("polls saw ~p", [Seen]),
+    ?assertEqual(Seen, lists:usort(Seen)).
+
+collect_changes(Point, Acc) ->
+    receive {cell_hal, {io, Point}, V} -> collect_changes(Point, [V | Acc])
+    after 0 -> lists:reverse(Acc)
+    end.
+
+write_sync_waits_for_the_device(_Config) ->
+    ok = sim(s13, #{latency_ms => 200, timeout_ms => 2000}),
+    T0 = erlang:monotonic_time(millisecond),
+    ok = cell_hal:write_sync(io, int16_out, 3, ?WAIT),
+    ?assert(erlang:monotonic_time(millisecond) - T0 >= 200),
+    %% A caller's timeout is kept even when the device is slower.
+    T1 = erlang:monotonic_time(millisecond),
+    ?assertEqual({error, timeout}, cell_hal:write_sync(io, int16_out, 4, 50)),
+    ?assert(erlang:monotonic_time(millisecond) - T1 < 190),
+    %% write/3 never waits for the device.
+    T2 = erlang:monotonic_time(millisecond),
+    ok = cell_hal:write(io, int16_out, 5),
+    ?assert(erlang:monotonic_time(millisecond) - T2 < 150),
+    ?assertEqual({ok, 5}, cell_hal:read(io, int16_out)).
+
+group_added_while_up(_Config) ->
+    ok = sim(s14),
+    ok = cell_hal_sim:preset(s14, #{{io2, int16_out} => 77, {io2, int16_in} => 66,
+                                   {io2, int32_in} => <<"not a DINT">>}),
+    ok = cell_hal:add_group(#{id => io2, module => cell_hal_test_io, connection => s14,
+                              opts => #{only => [int16_in, int16_out, int32_in]}}),
+    {ok, R} = cell_hal:watch(io2, int16_in, {eq, 66}),
+    receive {cell_hal_watch, R, 66} -> ok after ?WAIT -> ct:fail(not_polled) end,
+    %% Its output shows what the PLC holds.
+    {ok, R2} = cell_hal:watch(io2, int16_out, {eq, 77}),
+    receive {cell_hal_watch, R2, 77} -> ok after ?WAIT -> ct:fail(not_read_back) end,
+    %% A value of the wrong type in the PLC never reaches a task.
+    ?assertEqual({ok, 0}, cell_hal:read(io2, int32_in)),
+    ?assertEqual({ok, [int16_in, int16_out, int32_in]},
+                 case cell_hal:points(io2) of
+                     {ok, Ps} -> {ok, [maps:get(name, P) || P <- Ps]}
+                 end),
+    {ok, #{caption := <<"int16 input">>, address := <<"A1.IN.int16">>, dir := in,
+           type := int16, connection := s14}} = cell_hal:describe(io2, int16_in).
+
+%% Each group added while up has its outputs read back, even when the read of the one
+%% before is still on its way (a slow PLC).
+groups_added_back_to_back(_Config) ->
+    ok = sim(s22, #{latency_ms => 100}),
+    ok = cell_hal_sim:preset(s22, #{{a, int16_out} => 1, {b, int16_out} => 2, {c, int16_out} => 3}),
+    [ok = cell_hal:add_group(#{id => G, module => cell_hal_test_io, connection => s22,
+                               opts => #{only => [int16_out]}}) || G <- [a, b, c]],
+    %% A write to one of them before its read back arrives wins over the read back.
+    ok = cell_hal:write(c, int16_out, 30),
+    [begin
+         {ok, R} = cell_hal:watch(G, int16_out, {eq, V}),
+         receive {cell_hal_watch, R, V} -> ok after ?WAIT -> ct:fail({not_read_back, G}) end
+     end || {G, V} <- [{a, 1}, {b, 2}, {c, 30}]],
+    ?assertEqual({ok, 30}, cell_hal_sim:get({c, int16_out})).
+
+%% A group added while the first read after connecting is on its way (a PLC that takes
+%% a second to answer) has its outputs read back once the connection is up.
+group_added_during_the_first_read(_Config) ->
+    ok = cell_hal:add_connection(#{id => s24, driver => cell_hal_sim,
+                                   opts => #{latency_ms => 1000, timeout_ms => 3000,
+                                             poll_ms => 10}}),
+    ok = cell_hal_sim:preset(s24, #{{late, int16_out} => 24}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => s24,
+                              opts => #{only => [int16_in]}}),
+    ok = cell_hal:add_group(#{id => late, module => cell_hal_test_io, connection => s24,
+                              opts => #{only => [int16_out]}}),
+    {ok, R} = cell_hal:watch(late, int16_out, {eq, 24}),
+    receive {cell_hal_watch, R, 24} -> ok after ?WAIT -> ct:fail(not_read_back) end.
+
+remove_group_and_connection(_Config) ->
+    ok = sim(s15),
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 99}),
+    ok = cell_hal:subscribe(io, int16_in),
+    ok = cell_hal:remove_group(io),
+    ?assertEqual({error, unknown_point}, cell_hal:read(io, int16_in)),
+    ?assertEqual({error, unknown_group}, cell_hal:points(io)),
+    ?assertNot(cell_hal:cancel_watch(Ref)),
+    ok = cell_hal:remove_connection(s15),
+    receive {cell_hal_conn, s15, down} -> ok after ?WAIT -> ct:fail(no_down_on_remove) end,
+    ?assertEqual({error, unknown_connection}, cell_hal:status(s15)),
+    ?assertEqual([], cell_hal:connections()),
+    %% Its simulated PLC lost the connection.
+    ?assertEqual(0, gen_server:call(cell_hal_sim_device:whereis(s15), clients)).
+
+subscribers_are_cleaned_up(_Config) ->
+    ok = sim(s16),
+    Self = self(),
+    {Pid, MRef} = spawn_monitor(
+                    fun() ->
+                            ok = cell_hal:subscribe(io, int16_in),
+                            {ok, _} = cell_hal:watch(io, int16_in, {eq, 1234}),
+                            {ok, _} = cell_hal:subscribe_connection(s16),
+                            Self ! subscribed,
+                            receive stop -> ok end
+                    end),
+    receive subscribed -> ok after ?WAIT -> ct:fail(no_subscriber) end,
+    ?assert(lists:member(Pid, cell_hal_store:subscribers())),
+    Pid ! stop,
+    receive {'DOWN', MRef, process, Pid, _} -> ok end,
+    %% The server handles the exit in order with our call.
+    _ = cell_hal:subscribe_connection(s16),
+    ?assertNot(lists:member(Pid, cell_hal_store:subscribers())),
+    ?assertEqual(0, ets:info(cell_hal_watch_claims, size)).
+
+worker_crash_goes_down_and_recovers(_Config) ->
+    ok = sim(s17),
+    ok = cell_hal_sim:set({io, int16_in}, 8),
+    8 = await_value(int16_in, 8),
+    ok = cell_hal:subscribe(io, int16_in),
+    [{s17, Worker, _, _}] = [C || {s17, _, _, _} = C <- supervisor:which_children(cell_hal_conn_sup)],
+    exit(Worker, kill),
+    receive {cell_hal_conn, s17, down} -> ok after ?WAIT -> ct:fail(no_down_after_crash) end,
+    receive {cell_hal_conn, s17, up} -> ok after ?WAIT -> ct:fail(no_up_after_crash) end,
+    %% Subscriptions survived the crash.
+    ok = cell_hal_sim:set({io, int16_in}, 9),
+    receive {cell_hal, {io, int16_in}, 9} -> ok after ?WAIT -> ct:fail(sub_lost) end.
+
+server_crash_keeps_configuration(_Config) ->
+    ok = sim(s18),
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 31}),
+    exit(whereis(cell_hal_server), kill),
+    %% rest_for_one restarts the workers too: down, then up.
+    receive {cell_hal_conn, s18, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    receive {cell_hal_conn, s18, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    ?assertEqual([io], cell_hal:groups()),
+    ?assertEqual([s18], cell_hal:connections()),
+    ok = cell_hal_sim:set({io, int16_in}, 31),
+    receive {cell_hal_watch, Ref, 31} -> ok after ?WAIT -> ct:fail(watch_lost) end,
+    %% The new server watches subscribers again.
+    ?assertEqual({ok, up}, cell_hal:subscribe_connection(s18)).
+
+logs_speak_to_operators(_Config) ->
+    ok = sim(s19),
+    ok = cell_log:subscribe(),
+    ok = cell_hal_sim:drop(s19),
+    {cell_log, #{text := Lost, level := warning, source := <<"hal/s19">>}} =
+        await_msg(fun({cell_log, #{text := T}}) -> binary:match(T, <<"lost">>) =/= nomatch;
+                     (_) -> false end),
+    ?assertEqual(<<"connection to s19 (simulated PLC s19) lost: the simulated PLC dropped "
+                   "the connection; retrying in 50 ms">>, Lost),
+    {cell_log, #{text := UpText, level := silent}} =
+        await_msg(fun({cell_log, #{text := T}}) -> binary:match(T, <<" up: ">>) =/= nomatch;
+                     (_) -> false end),
+    Points = length(cell_hal_test_io:points(#{})),
+    ?assertEqual(iolist_to_binary(["connection to s19 (simulated PLC s19) up: ",
+                                   integer_to_list(Points), " points, 1 request a poll"]),
+                 UpText),
+    ok = cell_log:unsubscribe().
+
+%% A device that accepts the connection and then fails is retried ever more slowly;
+%% the wait goes back to the start once it works.
+backoff_grows_then_resets(_Config) ->
+    ok = sim(s20, #{reconnect_ms => 40, max_reconnect_ms => 160}),
+    %% Repeated failures are logged at the verbose level.
+    ok = cell_log:set_level(<<"hal/s20">>, verbose),
+    ok = cell_log:subscribe(),
+    ok = cell_hal_sim:link(s20, down),
+    Waits = [retry_wait(<<"hal/s20">>) || _ <- lists:seq(1, 4)],
+    ct:log("waits ~p", [Waits]),
+    ?assertEqual([<<"40 ms">>, <<"80 ms">>, <<"160 ms">>, <<"160 ms">>], Waits),
+    ok = cell_hal_sim:link(s20, up),
+    ok = await_status(s20, up),
+    ok = cell_hal_sim:drop(s20),
+    ?assertEqual(<<"40 ms">>, retry_wait(<<"hal/s20">>)),
+    ok = cell_log:unsubscribe().
+
+retry_wait(Source) ->
+    {cell_log, #{text := T}} =
+        await_msg(fun({cell_log, #{source := S, text := T}}) when S =:= Source ->
+                          binary:match(T, <<"retrying in">>) =/= nomatch;
+                     (_) -> false end),
+    [_, Wait] = binary:split(T, <<"retrying in ">>),
+    Wait.
+
+connection_info(_Config) ->
+    ok = sim(s21),
+    {ok, #{status := up, driver := cell_hal_sim, endpoint := <<"simulated PLC s21">>,
+           reason := <<>>, groups := [io], since := Since}} = cell_hal:info(s21),
+    ?assert(is_integer(Since)),
+    ok = cell_hal_sim:link(s21, down),
+    ok = await_status(s21, down),
+    {ok, #{status := down, reason := Reason}} = cell_hal:info(s21),
+    ?assertEqual(<<"the simulated PLC dropped the connection">>, Reason),
+    ?assertEqual({error, unknown_connection}, cell_hal:info(nope)).
