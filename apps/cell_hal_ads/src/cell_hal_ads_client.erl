@@ -401,7 +401,8 @@ sum_read_write(Client, Items, Timeout) ->
 %% caller until released. One result per variable, in order; an error names the
 %% symbol: `{unknown_symbol, Name}', `{ambiguous_symbol, Pattern, Candidates}',
 %% `{type_mismatch, Name, #{expected, plc_type, size}}', `{bad_name, Name}' ...
--spec resolve(client(), [var()]) -> {ok, [{ok, var_info()} | {error, reason()}]} | {error, reason()}.
+-spec resolve(client(), [var()]) ->
+          {ok, [{ok, var_info()} | {error, reason()}]} | {error, reason()}.
 resolve(Client, Vars) ->
     resolve(Client, Vars, ?DEFAULT_TIMEOUT).
 
@@ -418,7 +419,7 @@ resolve(Client, Vars, Timeout) ->
 %% uses goes back to the PLC after `handle_idle' ms.
 -spec release(client(), [var()]) -> ok | {error, reason()}.
 release(Client, Vars) ->
-    case check_vars(Vars) of
+    case check_shapes(Vars) of
         ok -> gen_statem:call(Client, {release, Vars});
         Error -> Error
     end.
@@ -434,7 +435,7 @@ read_vars(Client, Vars) ->
 -spec read_vars(client(), [var()], timeout()) ->
           {ok, [{ok, cell_hal_ads_types:value()} | {error, reason()}]} | {error, reason()}.
 read_vars(Client, Vars, Timeout) ->
-    case check_vars(Vars) of
+    case check_shapes(Vars) of
         ok -> call(Client, {read_vars, Vars}, Timeout);
         Error -> Error
     end.
@@ -452,7 +453,7 @@ write_vars(Client, Pairs) ->
 write_vars(Client, Pairs, Timeout) when is_list(Pairs) ->
     case lists:all(fun({_, _}) -> true; (_) -> false end, Pairs) of
         true ->
-            case check_vars([V || {V, _} <- Pairs]) of
+            case check_shapes([V || {V, _} <- Pairs]) of
                 ok -> call(Client, {write_vars, Pairs}, Timeout);
                 Error -> Error
             end;
@@ -569,12 +570,23 @@ valid_request({write_control, State, Dev, Data}) ->
     cell_hal_ads_codec:is_ads_state(State) andalso is_integer(Dev) andalso Dev >= 0
         andalso Dev =< 16#FFFF andalso is_iodata(Data).
 
-check_vars(Vars) when is_list(Vars) ->
-    case [V || V <- Vars, not is_var(V)] of
+%% Variables to resolve are checked in full; variables to read, write or release only
+%% for their shape (what was not resolved is answered `{not_resolved, Name}'), which
+%% keeps a group read cheap.
+check_vars(Vars) ->
+    check_vars(Vars, fun is_var/1).
+
+check_shapes(Vars) ->
+    check_vars(Vars, fun({Name, _}) -> is_binary(Name);
+                        (_) -> false
+                     end).
+
+check_vars(Vars, Valid) when is_list(Vars) ->
+    case [V || V <- Vars, not Valid(V)] of
         [] -> ok;
         [Bad | _] -> {error, {bad_variable, Bad}}
     end;
-check_vars(Vars) ->
+check_vars(Vars, _) ->
     {error, {bad_argument, Vars}}.
 
 is_var({Name, Type}) ->
@@ -814,7 +826,7 @@ handle_event({call, {Pid, _} = From}, subscribe_status, State, D) ->
 handle_event({call, {Pid, _} = From}, unsubscribe_status, _, D) ->
     {keep_state, D#data{watchers = maps:remove(Pid, D#data.watchers)}, [{reply, From, ok}]};
 handle_event({call, {Pid, _} = From}, {release, Vars}, _, D) ->
-    Keys = [cell_hal_ads_vars:key(N, T) || {N, T} <- Vars],
+    Keys = [cell_hal_ads_vars:key_of(N, T, D#data.vars) || {N, T} <- Vars],
     {D1, Actions} = unuse_keys(Keys, Pid, D),
     {keep_state, D1, [{reply, From, ok} | Actions]};
 handle_event({call, {Pid, _} = From}, {unsubscribe, Refs}, State, D) ->
@@ -1244,14 +1256,14 @@ batch_mode(#data{opts = #{sum_commands := Sum, max_sum := Max}}) ->
 
 %% What one variable of a read needs: a read item, or an error given without asking.
 plan_read({Name, Type}, D) ->
-    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key(Name, Type), D#data.vars) of
+    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
         {ok, Access, Size, _} -> {read, item(Access, Size), Type};
         {error, not_resolved} -> {error, {not_resolved, Name}};
         {error, _} = E -> E
     end.
 
 plan_write({Name, Type}, Value, D) ->
-    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key(Name, Type), D#data.vars) of
+    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
         {ok, Access, Size, _} ->
             case cell_hal_ads_types:encode(Type, Value, Size) of
                 {ok, Bin} -> {write, item(Access, Bin), Type};
@@ -1282,7 +1294,7 @@ decode_value(_, {error, _} = E) -> E.
 %% Resolves variables for a caller: those already resolved are used at once, the others
 %% are asked for; only what succeeded counts as used by the caller.
 resolve_for(Vars, Pid, From, Deadline, Then, D) ->
-    Keyed = [{cell_hal_ads_vars:key(N, T), N, T} || {N, T} <- Vars],
+    Keyed = [{cell_hal_ads_vars:key_of(N, T, D#data.vars), N, T} || {N, T} <- Vars],
     Missing = lists:ukeysort(1, [I || {K, _, _} = I <- Keyed,
                                       cell_hal_ads_vars:state(K, D#data.vars) =/= ready]),
     Gen = D#data.generation,
@@ -1300,12 +1312,13 @@ finish_resolve(Keyed, Found, Pid, Then, D) ->
     {D1, Extra} = lists:foldl(fun(F, Acc) -> register_found(F, Names, Acc) end, {D, []},
                               Found),
     {Results, D2} = lists:mapfoldl(
-                      fun({K, _, _}, Dx) ->
+                      fun({K, N, T}, Dx) ->
                               case cell_hal_ads_vars:find(K, Dx#data.vars) of
                                   {ok, #{state := ready, symbol := S}} ->
+                                      %% this spelling is remembered for the reads to come
+                                      Vs = cell_hal_ads_vars:declare(N, T, Dx#data.vars),
                                       {{ok, info(S)},
-                                       Dx#data{vars = cell_hal_ads_vars:use(K, Pid,
-                                                                            Dx#data.vars)}};
+                                       Dx#data{vars = cell_hal_ads_vars:use(K, Pid, Vs)}};
                                   _ ->
                                       {{error, find_error(K, Found, Names)}, Dx}
                               end
@@ -1528,7 +1541,8 @@ add_subs(Subs, Resolved, Pid, From, Deadline, D) ->
         fun(Answers, Dx) ->
                 Added = lists:zip(New, Answers),
                 Dy = lists:foldl(fun({{Ref, Sub}, {ok, Note}}, Acc) ->
-                                         Acc#data{subs = (Acc#data.subs)#{Ref => Sub#{note => Note}},
+                                         Added1 = (Acc#data.subs)#{Ref => Sub#{note => Note}},
+                                         Acc#data{subs = Added1,
                                                   notes = (Acc#data.notes)#{Note => Ref}};
                                     ({{_, #{key := K}}, {error, _}}, Acc) ->
                                          {V, _} = cell_hal_ads_vars:unuse(K, Pid, Acc#data.vars),
@@ -1693,8 +1707,8 @@ deliver(Id, I, Answer, D) ->
             complete(Id, Job#job{answers = (Job#job.answers)#{I => Answer}, left = 0},
                      D#data{jobs = maps:remove(Id, D#data.jobs)});
         {ok, #job{left = Left, answers = As} = Job} ->
-            {D#data{jobs = (D#data.jobs)#{Id := Job#job{left = Left - 1, answers = As#{I => Answer}}}},
-             []};
+            Job1 = Job#job{left = Left - 1, answers = As#{I => Answer}},
+            {D#data{jobs = (D#data.jobs)#{Id := Job1}}, []};
         error ->
             {D, []}
     end.

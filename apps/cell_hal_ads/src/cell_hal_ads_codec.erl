@@ -323,12 +323,15 @@ decode_sum_read(Lens, Bin) ->
     case Bin of
         <<Codes:(4 * N)/binary, Data/binary>> ->
             Results = [C || <<C:32/little>> <= Codes],
-            Full = lists:sum(Lens),
-            Compact = lists:sum([L || {L, 0} <- lists:zip(Lens, Results)]),
-            case byte_size(Data) of
-                Full -> {ok, slots(Lens, Results, Data, full)};
-                Compact -> {ok, slots(Lens, Results, Data, compact)};
-                _ -> {error, {bad_response, sum_length_mismatch}}
+            Size = byte_size(Data),
+            case lists:sum(Lens) of
+                Size ->
+                    {ok, slots(Lens, Results, Data, full)};
+                _ ->
+                    case lists:sum([L || {L, 0} <- lists:zip(Lens, Results)]) of
+                        Size -> {ok, slots(Lens, Results, Data, compact)};
+                        _ -> {error, {bad_response, sum_length_mismatch}}
+                    end
             end;
         _ ->
             {error, {bad_response, sum_too_short}}

@@ -13,10 +13,13 @@
 %% <tr><td>`uint32'</td><td>DWORD, UDINT</td><td>4</td><td>integer</td></tr>
 %% <tr><td>`int64'</td><td>LINT</td><td>8</td><td>integer</td></tr>
 %% <tr><td>`uint64'</td><td>ULINT, LWORD</td><td>8</td><td>integer</td></tr>
-%% <tr><td>`real'</td><td>REAL</td><td>4</td><td>float (or `nan', `infinity', `neg_infinity')</td></tr>
+%% <tr><td>`real'</td><td>REAL</td><td>4</td>
+%%     <td>float (or `nan', `infinity', `neg_infinity')</td></tr>
 %% <tr><td>`lreal'</td><td>LREAL</td><td>8</td><td>float (same)</td></tr>
-%% <tr><td>`{string, N}'</td><td>STRING(N)</td><td>N + 1</td><td>binary of at most N bytes, no NUL</td></tr>
-%% <tr><td>`date'</td><td>DATE</td><td>4</td><td>`{Y, M, D}' (seconds since 1970 on the wire)</td></tr>
+%% <tr><td>`{string, N}'</td><td>STRING(N)</td><td>N + 1</td>
+%%     <td>binary of at most N bytes, no NUL</td></tr>
+%% <tr><td>`date'</td><td>DATE</td><td>4</td>
+%%     <td>`{Y, M, D}' (seconds since 1970 on the wire)</td></tr>
 %% <tr><td>`time'</td><td>TIME</td><td>4</td><td>milliseconds</td></tr>
 %% <tr><td>`decimal'</td><td>none in the PLC: 16 bytes</td><td>16</td><td>a 16-byte binary</td></tr>
 %% <tr><td>`{bytes, N}'</td><td>any structure or array</td><td>N</td><td>an N-byte binary</td></tr>

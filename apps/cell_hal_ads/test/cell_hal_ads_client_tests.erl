@@ -52,8 +52,10 @@ format_error_test_() ->
 %% Arguments are checked in the caller, before any message.
 arguments_test_() ->
     Nobody = list_to_pid("<0.9999.0>"),
-    [?_assertEqual({error, {bad_variable, {<<"a*b">>, int32}}},
-                   ?C:read_vars(Nobody, [{<<"a*b">>, int32}])),
+    [?_assertEqual({error, {bad_variable, {"MAIN.x", int32}}},
+                   ?C:read_vars(Nobody, [{"MAIN.x", int32}])),
+     ?_assertEqual({error, {bad_variable, {<<"a*b">>, int32}}},
+                   ?C:resolve(Nobody, [{<<"a*b">>, int32}])),
      ?_assertEqual({error, {bad_variable, {<<"x">>, word}}}, ?C:resolve(Nobody, [{<<"x">>, word}])),
      ?_assertEqual({error, {bad_argument, x}}, ?C:read_vars(Nobody, x)),
      ?_assertEqual({error, {bad_argument, [x]}}, ?C:write_vars(Nobody, [x])),

@@ -19,8 +19,11 @@ life_test() ->
     ?assertEqual({error, {not_resolved, <<"main.X">>}}, ?V:ready(K, Vs0)),
     Vs1 = ?V:resolved(K, sym(), {handle, 7}, ?V:use(K, P, Vs0)),
     ?assertEqual({ok, {handle, 7}, 4, int32}, ?V:ready(K, Vs1)),
-    %% declared again: nothing changes
-    ?assertEqual(Vs1, ?V:declare(<<"MAIN.x">>, int32, Vs1)),
+    %% declared again in another spelling: the same variable, the spelling remembered
+    Vs1b = ?V:declare(<<"MAIN.x">>, int32, Vs1),
+    ?assertEqual(?V:find(K, Vs1), ?V:find(K, Vs1b)),
+    ?assertEqual(K, ?V:key_of(<<"MAIN.x">>, int32, Vs1b)),
+    ?assertEqual(K, ?V:key_of(<<"Main.X">>, int32, Vs1b)),
     Vs2 = ?V:failed(K, {unknown_symbol, <<"main.X">>}, Vs1),
     ?assertEqual({error, {unknown_symbol, <<"main.X">>}}, ?V:ready(K, Vs2)),
     ?assertEqual(failed, ?V:state(K, Vs2)),
@@ -30,6 +33,8 @@ life_test() ->
     {Vs4, unused} = ?V:unuse(K, P, Vs3),
     ?assertEqual(0, ?V:users(K, Vs4)),
     ?assertEqual(unknown, ?V:state(K, ?V:remove(K, Vs4))),
+    %% its spellings go with it
+    ?assertEqual(?V:new(), ?V:remove(K, ?V:remove(K, Vs4))),
     ?assertEqual({?V:new(), unknown}, ?V:unuse(K, P, ?V:new())).
 
 bit_symbol_read_size_test() ->

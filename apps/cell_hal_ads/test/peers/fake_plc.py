@@ -68,6 +68,9 @@ ERR_SYMBOL = 0x710
 ERR_TRANSMODE = 0x713
 ERR_NOTE_HANDLE = 0x714
 
+AMS_HEADER = struct.Struct("<6sH6sHHHIII")
+TCP_HEADER = struct.Struct("<HI")
+
 MODE_CYCLIC = 3
 MODE_ON_CHANGE = 4
 
@@ -279,7 +282,7 @@ class Conn(asyncio.Protocol):
         if plc.record:
             plc.frames.append(frame)
         tnet, tport, snet, sport, cmd, flags, length, _err, invoke = \
-            struct.unpack_from("<6sH6sHHHIII", frame, 6)
+            AMS_HEADER.unpack_from(frame, 6)
         data = frame[38:]
         if flags & 1 or len(data) != length:
             return None
@@ -291,11 +294,10 @@ class Conn(asyncio.Protocol):
             result, after = self.dispatch(cmd, data, client, server)
         except struct.error:
             result, after = struct.pack("<I", ERR_SIZE), None
-        header = struct.pack("<6sH6sHHHIII", snet, sport, tnet, tport, cmd, 0x0005,
-                             len(result), 0, invoke)
+        header = AMS_HEADER.pack(snet, sport, tnet, tport, cmd, 0x0005, len(result), 0, invoke)
         if after is not None:
             asyncio.get_running_loop().call_soon(after)
-        return struct.pack("<HI", 0, 32 + len(result)) + header + result
+        return TCP_HEADER.pack(0, 32 + len(result)) + header + result
 
     def dispatch(self, cmd, data, client, server):
         plc = self.plc
@@ -352,6 +354,11 @@ class Conn(asyncio.Protocol):
     def read(self, group, offset, length):
         plc = self.plc
         plc.count("reads")
+        if group == IG_VALBYHND:     # the usual case first: a value by handle
+            entry = plc.handles.get(offset)
+            if entry is None:
+                return ERR_SYMBOL, b""
+            return 0, bytes(entry[0].value[:length])
         if group == IG_VERSION:
             return 0, bytes([plc.version])[:length]
         if group == IG_UPLOADINFO:
