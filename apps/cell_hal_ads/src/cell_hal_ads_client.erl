@@ -676,7 +676,7 @@ text({unexpected_answer, Cmd, Expected}) ->
 text(symbols_changed) -> "the PLC program changed during the request; try again";
 text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options", [O]);
 text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
-text({restore, R}) -> ["could not set the connection up again: ", text(R)];
+text({restore, R}) -> ["the session could not be set up: ", text(R)];
 text(Other) -> io_lib:format("~tp", [Other]).
 
 inet_text(R) ->
