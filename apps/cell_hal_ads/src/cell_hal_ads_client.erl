@@ -1388,8 +1388,7 @@ resolve_keys(Items, From, Deadline, Cont, D) ->
                end, D).
 
 lookup_wild(Name, {ok, Table}) -> cell_hal_ads_symbols:lookup(Name, Table);
-lookup_wild(_, {error, Reason}) -> {error, {symbol_table, Reason}};
-lookup_wild(_, none) -> {error, {symbol_table, none}}.
+lookup_wild(_, {error, Reason}) -> {error, {symbol_table, Reason}}.
 
 check({_, Name, Type}, {ok, Symbol}) ->
     case cell_hal_ads_symbols:check_type(Name, Type, Symbol) of
@@ -1450,10 +1449,10 @@ symbol_infos(Items, From, Deadline, Cont, D) ->
                 Cont(Found, Dx)
         end, D).
 
-symbol_info(_, {ok, Bin}) ->
+symbol_info(Name, {ok, Bin}) ->
     case cell_hal_ads_codec:decode_symbol(Bin) of
         {ok, Symbol} -> {ok, Symbol};
-        {error, Reason} -> {error, Reason}
+        {error, Reason} -> {error, {symbol_error, Name, Reason}}
     end;
 symbol_info(Name, {error, Reason}) ->
     {error, symbol_error(Name, Reason)}.
