@@ -10,7 +10,7 @@
 %% == States ==
 %% <table>
 %% <tr><th>state</th><th>what happens</th><th>next</th></tr>
-%% <tr><td>`connecting'</td><td>a helper process opens the TCP connection, so the client
+%% <tr><td>`connecting'</td><td>a connector process opens the TCP connection, so the client
 %%   never blocks; calls get `{error, disconnected}'</td>
 %%   <td>`{connected, restoring}', or `disconnected' on failure</td></tr>
 %% <tr><td>`{connected, restoring}'</td><td>device info, ADS state and symbol version are
@@ -676,7 +676,7 @@ text({unexpected_answer, Cmd, Expected}) ->
 text(symbols_changed) -> "the PLC program changed during the request; try again";
 text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options", [O]);
 text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
-text({restore, R}) -> ["the session could not be set up: ", text(R)];
+text({restore, R}) -> ["the connection could not be set up: ", text(R)];
 text(Other) -> io_lib:format("~tp", [Other]).
 
 inet_text(R) ->
@@ -716,7 +716,7 @@ host_text(H) -> H.
           gen_statem:event_handler_result(state()).
 
 %%--------------------------------------------------------------------
-%% connecting: a helper opens the socket so that the client stays responsive.
+%% connecting: a connector process opens the socket; the client stays responsive.
 %%--------------------------------------------------------------------
 handle_event(enter, _, connecting, D) ->
     Parent = self(),
@@ -731,7 +731,7 @@ handle_event(info, {connected, Pid, Result}, connecting, #data{connector = Pid} 
     end;
 
 %%--------------------------------------------------------------------
-%% {connected, restoring}: the session is being set up again; callers wait.
+%% {connected, restoring}: the connection is being set up again; callers wait.
 %%--------------------------------------------------------------------
 handle_event(enter, _, {connected, restoring}, _) ->
     keep_state_and_data;
@@ -981,7 +981,7 @@ notify_watchers(Event, D) ->
     maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_ads, self(), Event} end, D#data.watchers).
 
 %%====================================================================
-%% Restoring a session: after a connect, and after a program change
+%% Setting the connection up again: after a connect, and after a program change
 %%====================================================================
 
 restore(D) ->

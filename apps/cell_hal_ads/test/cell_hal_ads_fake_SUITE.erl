@@ -227,7 +227,7 @@ clear(Config) ->
 set(Config, Name, Bin) ->
     ok = cell_hal_ads_peer:cmd(?config(fake, Config), ["set ", q(Name), " ", hex(Bin)]).
 
-get(Config, Name) ->
+value(Config, Name) ->
     {ok, Bin} = cell_hal_ads_peer:cmd(?config(fake, Config), ["get ", q(Name)]),
     Bin.
 
@@ -244,10 +244,10 @@ adslib_reads_and_writes(Config) ->
     {ok, <<"hello">>} = cell_hal_ads_peer:cmd(A, "read MAIN.name STRING"),
     {ok, -300} = cell_hal_ads_peer:cmd(A, "read MAIN.i INT"),
     ok = cell_hal_ads_peer:cmd(A, "write MAIN.counter DINT 1234567"),
-    ?assertEqual(<<1234567:32/little>>, get(Config, "MAIN.counter")),
+    ?assertEqual(<<1234567:32/little>>, value(Config, "MAIN.counter")),
     {ok, 1234567} = cell_hal_ads_peer:cmd(A, "read MAIN.counter DINT"),
     ok = cell_hal_ads_peer:cmd(A, "write MAIN.flag BOOL True"),
-    ?assertEqual(<<1>>, get(Config, "MAIN.flag")),
+    ?assertEqual(<<1>>, value(Config, "MAIN.flag")),
     %% by handle, as the seed's trigger pattern does
     {ok, H} = cell_hal_ads_peer:cmd(A, "handle MAIN.pos"),
     ok = cell_hal_ads_peer:cmd(A, ["write_handle ", integer_to_list(H), " LREAL -2.5"]),
@@ -284,8 +284,8 @@ adslib_sum_writes(Config) ->
     A = ?config(adslib, Config),
     {ok, [<<"no error">>, <<"no error">>]} =
         cell_hal_ads_peer:cmd(A, "sum_write MAIN.counter DINT 77 MAIN.pos LREAL 3.5"),
-    ?assertEqual(<<77:32/little>>, get(Config, "MAIN.counter")),
-    ?assertEqual(<<3.5:64/float-little>>, get(Config, "MAIN.pos")),
+    ?assertEqual(<<77:32/little>>, value(Config, "MAIN.counter")),
+    ?assertEqual(<<3.5:64/float-little>>, value(Config, "MAIN.pos")),
     {ok, [77, 3.5]} = cell_hal_ads_peer:cmd(A, "sum_read MAIN.counter MAIN.pos"),
     set(Config, "MAIN.counter", <<42:32/little>>),
     set(Config, "MAIN.pos", <<10.0:64/float-little>>).
@@ -379,14 +379,14 @@ every_type_round_trip(Config) ->
     {ok, Written} = cell_hal_ads_client:write_vars(C, [{V, New} || {V, {_, _, _, New, _}}
                                                                       <- lists:zip(Vars, Cases)]),
     ?assertEqual([ok || _ <- Cases], Written),
-    [?assertEqual(Bytes, get(Config, N)) || {N, _, _, _, Bytes} <- Cases],
+    [?assertEqual(Bytes, value(Config, N)) || {N, _, _, _, Bytes} <- Cases],
     {ok, After} = cell_hal_ads_client:read_vars(C, Vars),
     ?assertEqual([{ok, New} || {_, _, _, New, _} <- Cases], After),
     %% a value that does not fit is refused for that variable only, nothing is sent
     {ok, [{error, {bad_value, int16, 40000}}, ok]} =
         cell_hal_ads_client:write_vars(C, [{{<<"MAIN.i">>, int16}, 40000},
                                            {{<<"MAIN.b">>, byte}, 1}]),
-    ?assertEqual(<<32767:16/little>>, get(Config, "MAIN.i")),
+    ?assertEqual(<<32767:16/little>>, value(Config, "MAIN.i")),
     %% the PLC's old values back for the other cases
     {ok, _} = cell_hal_ads_client:write_vars(C, [{V, Old} || {V, {_, _, Old, _, _}}
                                                                  <- lists:zip(Vars, Cases)]).
@@ -528,7 +528,7 @@ raw_sum_commands(Config) ->
         cell_hal_ads_client:sum_read(C, [{G, O1, 4}, {G, O2, 8}, {G, 999999, 2}]),
     {ok, [ok, {error, {ads_error, 16#702, invalid_index_group}}]} =
         cell_hal_ads_client:sum_write(C, [{G, O1, <<43:32/little>>}, {16#1234, 0, <<1>>}]),
-    ?assertEqual(<<43:32/little>>, get(Config, "MAIN.counter")),
+    ?assertEqual(<<43:32/little>>, value(Config, "MAIN.counter")),
     {ok, [{ok, <<H:32/little>>}, {error, {ads_error, 16#710, symbol_not_found}}]} =
         cell_hal_ads_client:sum_read_write(C, [{16#F003, 0, 4, <<"MAIN.counter", 0>>},
                                                {16#F003, 0, 4, <<"MAIN.none", 0>>}]),
@@ -563,7 +563,7 @@ structure_fields_by_name(Config) ->
           {ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, Vars),
     {ok, [{ok, true}, {ok, false}, {ok, false}]} = cell_hal_ads_client:read_vars(C, Vars),
     {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{lists:last(Vars), true}]),
-    ?assertEqual(<<1>>, get(Config, ".GeneralOutputs.StartButtonLight")),
+    ?assertEqual(<<1>>, value(Config, ".GeneralOutputs.StartButtonLight")),
     {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{lists:last(Vars), false}]),
     {ok, Table} = cell_hal_ads_client:symbols(C),
     Names = [N || #{name := N} <- Table],
@@ -753,9 +753,9 @@ trigger_enable_by_handle(Config) ->
     Enable = {<<"MAIN.StopLoadingSegmentTriggerEnable">>, bool},
     {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Enable]),
     {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{Enable, true}]),
-    ?assertEqual(<<1>>, get(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
+    ?assertEqual(<<1>>, value(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
     {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{Enable, false}]),
-    ?assertEqual(<<0>>, get(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
+    ?assertEqual(<<0>>, value(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
     ok = cell_hal_ads_client:release(C, [Enable]),
     ok = barrier(C),
     ?assertEqual(#{acquired => 1, released => 1}, maps:with([acquired, released], stats(Config))).
