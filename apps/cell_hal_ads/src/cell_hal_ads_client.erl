@@ -1,0 +1,1840 @@
+%% @doc One AMS/TCP connection to a Beckhoff TwinCAT ADS server (a PLC runtime, or an
+%% IO device's image server), with what a cell needs on top of the bare commands:
+%% symbols resolved by name and checked, handles cached and renewed, whole IO groups in
+%% one sum command, device notifications with the PLC's time stamps, reconnection.
+%%
+%% No local AMS router is needed: the client speaks AMS/TCP to the PLC's router on port
+%% 48898 with its own AMS Net ID and port (the PLC needs a route for that Net ID and
+%% this machine's address, as for any ADS client).
+%%
+%% == States ==
+%% <table>
+%% <tr><th>state</th><th>what happens</th><th>next</th></tr>
+%% <tr><td>`connecting'</td><td>a connector process opens the TCP connection, so the client
+%%   never blocks; calls get `{error, disconnected}'</td>
+%%   <td>`{connected, restoring}', or `disconnected' on failure</td></tr>
+%% <tr><td>`{connected, restoring}'</td><td>device info, ADS state and symbol version are
+%%   read, the symbol version is watched, every variable in use is resolved again
+%%   (new handles), every subscription added again; calls wait (postponed) until this is
+%%   done or their timeout passes</td><td>`{connected, ready}', or `disconnected'</td></tr>
+%% <tr><td>`{connected, ready}'</td><td>calls are served, several requests in flight;
+%%   a change of the symbol version (program download or online change) goes back to
+%%   restoring</td><td>`{connected, restoring}', `disconnected'</td></tr>
+%% <tr><td>`disconnected'</td><td>waits the back-off (doubling from its minimum up to its
+%%   maximum, back to the minimum once the connection was ready); calls get
+%%   `{error, disconnected}'</td><td>`connecting'</td></tr>
+%% </table>
+%%
+%% The connection is given up, logged in words for the operator, and tried again when
+%% the PLC closes it, sends a frame that cannot be read, or stops answering (a request
+%% timed out with nothing at all received since it was sent; when the connection is
+%% idle a ReadState is sent every `link_check' ms to find this out). A bad frame never
+%% takes more than the connection down.
+%%
+%% == Variables ==
+%% A variable is `{Name, Type}': a PLC symbol name ("MAIN.GeneralInputs.StartButton",
+%% ".GeneralInputs.StopButton", or "*ManipulatorInputs.FailPaletteIsIn" for an IO image)
+%% and a {@link cell_hal_ads_types} type. {@link resolve/3} checks each against the PLC
+%% (symbol info by name, or the uploaded symbol table for "*" names) and takes a handle
+%% (or, with `access => address', the symbol's index group and offset). Resolved
+%% variables are cached per connection and shared by all callers; the last caller's
+%% {@link release/2} (or exit) gives the handle back after `handle_idle' ms. Reads and
+%% writes of many variables go out as sum commands split at `max_sum'.
+%%
+%% == Messages ==
+%% <ul>
+%% <li>`{cell_hal_ads, Client, up}', `{cell_hal_ads, Client, {down, Reason}}' and
+%%     `{cell_hal_ads, Client, symbols_changed}' (variables were resolved again after a
+%%     program change) to processes that called {@link subscribe_status/1}.</li>
+%% <li>`{cell_hal_ads, SubRef, {samples, [{Time, Value}]}}' for a subscription, `Time'
+%%     being the PLC's time stamp in nanoseconds since the Unix epoch (exact: the
+%%     PLC's 100 ns FILETIME times 100), samples in the PLC's order.</li>
+%% <li>`{cell_hal_ads, SubRef, {error, Reason}}' when a subscription could not be added
+%%     again after a reconnect or program change; it is tried again at the next one.</li>
+%% </ul>
+-module(cell_hal_ads_client).
+-behaviour(gen_statem).
+
+-include("cell_hal_ads.hrl").
+
+-export([start_link/1, start/1, stop/1, check_opts/1]).
+-export([status/1, subscribe_status/1, unsubscribe_status/1]).
+-export([read_device_info/1, read_device_info/2, read_state/1, read_state/2,
+         write_control/3, write_control/5, read/4, read/5, write/4, write/5,
+         read_write/5, read_write/6, sum_read/2, sum_read/3, sum_write/2, sum_write/3,
+         sum_read_write/2, sum_read_write/3]).
+-export([resolve/2, resolve/3, release/2, read_vars/2, read_vars/3, write_vars/2,
+         write_vars/3, read_by_name/3, read_by_name/4, write_by_name/4,
+         write_by_name/5, subscribe/2, subscribe/3, unsubscribe/2, symbols/1, symbols/2]).
+-export([format_error/1]).
+-export([callback_mode/0, init/1, handle_event/4, terminate/3, code_change/4]).
+
+-export_type([client/0, opts/0, var/0, var_info/0, sub_opts/0, reason/0, status/0]).
+
+-type client() :: pid() | atom().
+-type u32() :: 0..16#FFFFFFFF.
+
+-type opts() :: #{host := inet:hostname() | inet:ip_address() | binary(),
+                  target_net_id := cell_hal_ads_codec:net_id() | binary() | string(),
+                  port => inet:port_number(),           %% 48898
+                  target_port => 1..65535,              %% 851, the first TwinCAT 3 PLC
+                  source_net_id => auto | cell_hal_ads_codec:net_id() | binary() | string(),
+                  source_port => 1..65535,              %% 32905
+                  name => binary() | atom(),            %% log source
+                  request_timeout => pos_integer(),     %% ms, the client's own requests
+                  connect_timeout => pos_integer(),     %% ms
+                  backoff => {pos_integer(), pos_integer()},  %% ms, min and max
+                  sum_commands => boolean(),            %% true
+                  max_sum => pos_integer(),             %% 500 sub-commands per sum
+                  max_in_flight => pos_integer(),       %% 64 requests
+                  access => handle | address,           %% handle
+                  symbol_version => watch | read | ignore,  %% watch
+                  handle_idle => non_neg_integer(),     %% ms, 5000
+                  link_check => pos_integer() | infinity,   %% ms, 5000
+                  max_frame => pos_integer()}.          %% bytes, 16 MiB
+
+-type var() :: {Name :: binary(), cell_hal_ads_types:type()}.
+
+-type var_info() :: #{symbol := binary(), plc_type := binary(), size := non_neg_integer(),
+                      group := u32(), offset := u32()}.
+
+%% Times in microseconds; the PLC gets them in its unit, 100 ns.
+-type sub_opts() :: #{mode => on_change | cyclic,   %% on_change
+                      cycle_us => non_neg_integer(),  %% how often the PLC looks, 10 ms
+                      max_delay_us => non_neg_integer()}.  %% 0: at once
+
+-type reason() :: term().
+
+-type status() :: #{state := up | restoring | connecting | down,
+                    name := binary(), peer := binary(), target := binary(),
+                    source := binary() | undefined,
+                    device => #{name := binary(), version := {byte(), byte(), 0..65535}},
+                    ads_state => cell_hal_ads_codec:ads_state(),
+                    symbol_version => byte() | undefined,
+                    variables := non_neg_integer(), failed := [binary()],
+                    subscriptions := non_neg_integer(), in_flight := non_neg_integer(),
+                    reason => binary()}.
+
+-type state() :: connecting | {connected, restoring | ready} | disconnected.
+
+-define(DEFAULT_TIMEOUT, 5000).
+-define(DEFAULTS, #{port => ?ADS_TCP_PORT, target_port => 851, source_net_id => auto,
+                    source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
+                    backoff => {500, 30000}, sum_commands => true, max_sum => 500,
+                    max_in_flight => 64, access => handle, symbol_version => watch,
+                    handle_idle => 5000, link_check => 5000, max_frame => 16#1000000}).
+%% Room for a symbol entry asked for by name: header, name, type, comment and the
+%% extra information TwinCAT 3 appends.
+-define(SYMBOL_INFO_LENGTH, 2048).
+%% Errors after which a handle may belong to an older program.
+-define(STALE_HANDLE_ERRORS, [16#710, 16#711, 16#714, 16#722]).
+
+
+-record(data, {opts :: map(),
+               log :: binary(),
+               target :: cell_hal_ads_codec:ams_addr(),
+               source :: cell_hal_ads_codec:ams_addr() | undefined,
+               socket :: gen_tcp:socket() | undefined,
+               connector :: pid() | undefined,
+               buffer = <<>> :: binary(),
+               invoke = 0 :: u32(),
+               inflight = #{} :: #{u32() => {pos_integer(), pos_integer(),
+                                             cell_hal_ads_codec:command()}},
+               waiting = queue:new() :: queue:queue({pos_integer(), pos_integer(),
+                                                     cell_hal_ads_codec:request()}),
+               jobs = #{} :: #{pos_integer() => tuple()},
+               job_seq = 0 :: non_neg_integer(),
+               generation = 0 :: non_neg_integer(),
+               vars = cell_hal_ads_vars:new() :: cell_hal_ads_vars:vars(),
+               subs = #{} :: #{reference() => map()},
+               notes = #{} :: #{u32() => reference() | symbol_version},
+               monitors = #{} :: #{pid() => reference()},
+               watchers = #{} :: #{pid() => true},
+               version :: byte() | undefined,
+               checking_version = false :: boolean(),
+               refresh_again = false :: false | byte(),
+               table :: {byte() | undefined, cell_hal_ads_symbols:table()} | undefined,
+               device = #{} :: map(),
+               backoff :: pos_integer(),
+               was_up = false :: boolean(),
+               down :: term(),
+               logged :: term(),
+               last_rx = 0 :: integer(),
+               received = 0 :: non_neg_integer()}).
+
+-type answer() :: cell_hal_ads_batch:answer().
+-type action() :: gen_statem:action().
+-type cont() :: fun(([answer()], #data{}) -> {#data{}, [action()]}).
+
+-record(job, {from :: gen_statem:from() | undefined,
+              n :: pos_integer(),
+              left :: non_neg_integer(),
+              answers = #{} :: #{pos_integer() => answer()},
+              received :: non_neg_integer(),   % packets received when it started
+              cont :: cont()}).
+
+%%====================================================================
+%% Starting and stopping
+%%====================================================================
+
+%% @doc Starts a client linked to the caller; it connects at once. Options are checked
+%% first: `{error, {bad_option, Key}}' names the first one that is missing, unknown or
+%% malformed.
+-spec start_link(opts()) -> {ok, pid()} | {error, {bad_option, atom()} | term()}.
+start_link(Opts) ->
+    case check_opts(Opts) of
+        {ok, Full} -> gen_statem:start_link(?MODULE, Full, []);
+        {error, _} = E -> E
+    end.
+
+%% @doc As {@link start_link/1}, without a link.
+-spec start(opts()) -> {ok, pid()} | {error, {bad_option, atom()} | term()}.
+start(Opts) ->
+    case check_opts(Opts) of
+        {ok, Full} -> gen_statem:start(?MODULE, Full, []);
+        {error, _} = E -> E
+    end.
+
+%% @doc Stops a client: notifications are deleted and handles released on the way out.
+-spec stop(client()) -> ok.
+stop(Client) ->
+    gen_statem:stop(Client).
+
+%% @doc The options with their defaults, or the first bad one.
+-spec check_opts(term()) -> {ok, map()} | {error, {bad_option, atom()}}.
+check_opts(Opts) when is_map(Opts) ->
+    Full = maps:merge(?DEFAULTS, Opts),
+    Keys = [host, target_net_id | maps:keys(?DEFAULTS)] ++ [name],
+    case [K || K <- maps:keys(Opts), not lists:member(K, Keys)] ++
+             [K || K <- [host, target_net_id], not maps:is_key(K, Opts)] of
+        [Bad | _] -> {error, {bad_option, Bad}};
+        [] -> check_each(lists:sort(maps:to_list(Full)), #{})
+    end;
+check_opts(_) ->
+    {error, {bad_option, opts}}.
+
+check_each([], Acc) ->
+    {ok, Acc};
+check_each([{K, V} | Rest], Acc) ->
+    case check_opt(K, V) of
+        {ok, V1} -> check_each(Rest, Acc#{K => V1});
+        error -> {error, {bad_option, K}}
+    end.
+
+check_opt(host, H) when is_binary(H), byte_size(H) > 0 -> {ok, binary_to_list(H)};
+check_opt(host, H) when is_list(H), H =/= [] ->
+    case io_lib:printable_latin1_list(H) of
+        true -> {ok, H};
+        false -> error
+    end;
+check_opt(host, H) when is_tuple(H) ->
+    case inet:ntoa(H) of
+        {error, _} -> error;
+        _ -> {ok, H}
+    end;
+check_opt(K, P) when K =:= port; K =:= target_port; K =:= source_port ->
+    ok_if(is_integer(P) andalso P >= 1 andalso P =< 65535, P);
+check_opt(target_net_id, Id) -> net_id(Id);
+check_opt(source_net_id, auto) -> {ok, auto};
+check_opt(source_net_id, Id) -> net_id(Id);
+check_opt(name, N) when is_atom(N) -> {ok, atom_to_binary(N, utf8)};
+check_opt(name, N) when is_binary(N), byte_size(N) > 0 -> {ok, N};
+check_opt(K, T) when K =:= request_timeout; K =:= connect_timeout; K =:= max_sum;
+                     K =:= max_in_flight ->
+    ok_if(is_integer(T) andalso T >= 1, T);
+check_opt(backoff, {Min, Max} = B) ->
+    ok_if(is_integer(Min) andalso is_integer(Max) andalso Min >= 1 andalso Min =< Max, B);
+check_opt(sum_commands, B) -> ok_if(is_boolean(B), B);
+check_opt(access, A) -> ok_if(A =:= handle orelse A =:= address, A);
+check_opt(symbol_version, S) -> ok_if(lists:member(S, [watch, read, ignore]), S);
+check_opt(handle_idle, T) -> ok_if(is_integer(T) andalso T >= 0, T);
+check_opt(link_check, infinity) -> {ok, infinity};
+check_opt(link_check, T) -> ok_if(is_integer(T) andalso T >= 1, T);
+check_opt(max_frame, N) -> ok_if(is_integer(N) andalso N >= 1024, N);
+check_opt(_, _) -> error.
+
+ok_if(true, V) -> {ok, V};
+ok_if(false, _) -> error.
+
+net_id(Id) ->
+    case cell_hal_ads_codec:parse_net_id(Id) of
+        {ok, NetId} -> {ok, NetId};
+        error -> error
+    end.
+
+%%====================================================================
+%% Status
+%%====================================================================
+
+%% @doc Where the connection stands, for people and for the cell's status pages.
+-spec status(client()) -> status().
+status(Client) ->
+    gen_statem:call(Client, status).
+
+%% @doc The caller gets `{cell_hal_ads, Client, up | {down, Reason} | symbols_changed}'
+%% from now on, starting with the present state (`up' or `{down, Reason}').
+-spec subscribe_status(client()) -> ok.
+subscribe_status(Client) ->
+    gen_statem:call(Client, subscribe_status).
+
+%% @doc Ends a {@link subscribe_status/1}.
+-spec unsubscribe_status(client()) -> ok.
+unsubscribe_status(Client) ->
+    gen_statem:call(Client, unsubscribe_status).
+
+%%====================================================================
+%% ADS commands
+%%====================================================================
+
+%% @doc The ADS server's name and version.
+-spec read_device_info(client()) ->
+          {ok, #{name := binary(), version := {byte(), byte(), 0..65535}}} | {error, reason()}.
+read_device_info(Client) ->
+    read_device_info(Client, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read_device_info/1}, waiting at most `Timeout' ms.
+-spec read_device_info(client(), timeout()) ->
+          {ok, #{name := binary(), version := {byte(), byte(), 0..65535}}} | {error, reason()}.
+read_device_info(Client, Timeout) ->
+    request(Client, read_device_info, Timeout).
+
+%% @doc The ADS state (`run', `stop', `config' ...) and the device state.
+-spec read_state(client()) ->
+          {ok, #{ads_state := cell_hal_ads_codec:ads_state(), device_state := 0..65535}}
+        | {error, reason()}.
+read_state(Client) ->
+    read_state(Client, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read_state/1}, waiting at most `Timeout' ms.
+-spec read_state(client(), timeout()) ->
+          {ok, #{ads_state := cell_hal_ads_codec:ads_state(), device_state := 0..65535}}
+        | {error, reason()}.
+read_state(Client, Timeout) ->
+    request(Client, read_state, Timeout).
+
+%% @doc Asks the ADS server to change state (`run', `stop' ...).
+-spec write_control(client(), cell_hal_ads_codec:ads_state(), 0..65535) -> ok | {error, reason()}.
+write_control(Client, AdsState, DeviceState) ->
+    write_control(Client, AdsState, DeviceState, <<>>, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link write_control/3}, with data and a timeout.
+-spec write_control(client(), cell_hal_ads_codec:ads_state(), 0..65535, iodata(), timeout()) ->
+          ok | {error, reason()}.
+write_control(Client, AdsState, DeviceState, Data, Timeout) ->
+    request(Client, {write_control, AdsState, DeviceState, Data}, Timeout).
+
+%% @doc Reads `Length' bytes at an index group and offset.
+-spec read(client(), u32(), u32(), u32()) -> {ok, binary()} | {error, reason()}.
+read(Client, Group, Offset, Length) ->
+    read(Client, Group, Offset, Length, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read/4}, waiting at most `Timeout' ms.
+-spec read(client(), u32(), u32(), u32(), timeout()) -> {ok, binary()} | {error, reason()}.
+read(Client, Group, Offset, Length, Timeout) ->
+    request(Client, {read, Group, Offset, Length}, Timeout).
+
+%% @doc Writes bytes at an index group and offset.
+-spec write(client(), u32(), u32(), iodata()) -> ok | {error, reason()}.
+write(Client, Group, Offset, Data) ->
+    write(Client, Group, Offset, Data, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link write/4}, waiting at most `Timeout' ms.
+-spec write(client(), u32(), u32(), iodata(), timeout()) -> ok | {error, reason()}.
+write(Client, Group, Offset, Data, Timeout) ->
+    request(Client, {write, Group, Offset, Data}, Timeout).
+
+%% @doc Writes `Data' and reads up to `ReadLength' bytes back, in one request.
+-spec read_write(client(), u32(), u32(), u32(), iodata()) -> {ok, binary()} | {error, reason()}.
+read_write(Client, Group, Offset, ReadLength, Data) ->
+    read_write(Client, Group, Offset, ReadLength, Data, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read_write/5}, waiting at most `Timeout' ms.
+-spec read_write(client(), u32(), u32(), u32(), iodata(), timeout()) ->
+          {ok, binary()} | {error, reason()}.
+read_write(Client, Group, Offset, ReadLength, Data, Timeout) ->
+    request(Client, {read_write, Group, Offset, ReadLength, Data}, Timeout).
+
+%% @doc Reads of `{Group, Offset, Length}' in one sum command (several where `max_sum'
+%% requires it; one request each without sum commands): one result per item.
+-spec sum_read(client(), [{u32(), u32(), u32()}]) ->
+          {ok, [{ok, binary()} | {error, reason()}]} | {error, reason()}.
+sum_read(Client, Items) ->
+    sum_read(Client, Items, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link sum_read/2}, waiting at most `Timeout' ms.
+-spec sum_read(client(), [{u32(), u32(), u32()}], timeout()) ->
+          {ok, [{ok, binary()} | {error, reason()}]} | {error, reason()}.
+sum_read(Client, Items, Timeout) ->
+    call(Client, {batch, reads, Items}, Timeout).
+
+%% @doc Writes of `{Group, Offset, Data}' as {@link sum_read/2} does reads.
+-spec sum_write(client(), [{u32(), u32(), iodata()}]) ->
+          {ok, [ok | {error, reason()}]} | {error, reason()}.
+sum_write(Client, Items) ->
+    sum_write(Client, Items, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link sum_write/2}, waiting at most `Timeout' ms.
+-spec sum_write(client(), [{u32(), u32(), iodata()}], timeout()) ->
+          {ok, [ok | {error, reason()}]} | {error, reason()}.
+sum_write(Client, Items, Timeout) ->
+    call(Client, {batch, writes, Items}, Timeout).
+
+%% @doc ReadWrites of `{Group, Offset, ReadLength, Data}' as {@link sum_read/2} does reads.
+-spec sum_read_write(client(), [{u32(), u32(), u32(), iodata()}]) ->
+          {ok, [{ok, binary()} | {error, reason()}]} | {error, reason()}.
+sum_read_write(Client, Items) ->
+    sum_read_write(Client, Items, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link sum_read_write/2}, waiting at most `Timeout' ms.
+-spec sum_read_write(client(), [{u32(), u32(), u32(), iodata()}], timeout()) ->
+          {ok, [{ok, binary()} | {error, reason()}]} | {error, reason()}.
+sum_read_write(Client, Items, Timeout) ->
+    call(Client, {batch, read_writes, Items}, Timeout).
+
+%%====================================================================
+%% Variables
+%%====================================================================
+
+%% @doc Resolves variables for the caller, in as few round trips as the PLC allows:
+%% each is checked against the PLC's symbol (it must exist, "*" names must match one
+%% symbol, the type and size must fit) and gets a handle, which is kept for every
+%% caller until released. One result per variable, in order; an error names the
+%% symbol: `{unknown_symbol, Name}', `{ambiguous_symbol, Pattern, Candidates}',
+%% `{type_mismatch, Name, #{expected, plc_type, size}}', `{bad_name, Name}' ...
+-spec resolve(client(), [var()]) ->
+          {ok, [{ok, var_info()} | {error, reason()}]} | {error, reason()}.
+resolve(Client, Vars) ->
+    resolve(Client, Vars, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link resolve/2}, waiting at most `Timeout' ms.
+-spec resolve(client(), [var()], timeout()) ->
+          {ok, [{ok, var_info()} | {error, reason()}]} | {error, reason()}.
+resolve(Client, Vars, Timeout) ->
+    case check_vars(Vars) of
+        ok -> call(Client, {resolve, Vars}, Timeout);
+        Error -> Error
+    end.
+
+%% @doc The caller no longer uses these variables (one use each). A handle nobody
+%% uses goes back to the PLC after `handle_idle' ms.
+-spec release(client(), [var()]) -> ok | {error, reason()}.
+release(Client, Vars) ->
+    case check_shapes(Vars) of
+        ok -> gen_statem:call(Client, {release, Vars});
+        Error -> Error
+    end.
+
+%% @doc Reads resolved variables, all in one round trip (sum commands): one value or
+%% error per variable, in order.
+-spec read_vars(client(), [var()]) ->
+          {ok, [{ok, cell_hal_ads_types:value()} | {error, reason()}]} | {error, reason()}.
+read_vars(Client, Vars) ->
+    read_vars(Client, Vars, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read_vars/2}, waiting at most `Timeout' ms.
+-spec read_vars(client(), [var()], timeout()) ->
+          {ok, [{ok, cell_hal_ads_types:value()} | {error, reason()}]} | {error, reason()}.
+read_vars(Client, Vars, Timeout) ->
+    case check_shapes(Vars) of
+        ok -> call(Client, {read_vars, Vars}, Timeout);
+        Error -> Error
+    end.
+
+%% @doc Writes resolved variables, all in one round trip: `ok' or an error per
+%% variable, in order. A value that does not fit its type is not sent.
+-spec write_vars(client(), [{var(), cell_hal_ads_types:value()}]) ->
+          {ok, [ok | {error, reason()}]} | {error, reason()}.
+write_vars(Client, Pairs) ->
+    write_vars(Client, Pairs, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link write_vars/2}, waiting at most `Timeout' ms.
+-spec write_vars(client(), [{var(), cell_hal_ads_types:value()}], timeout()) ->
+          {ok, [ok | {error, reason()}]} | {error, reason()}.
+write_vars(Client, Pairs, Timeout) when is_list(Pairs) ->
+    case lists:all(fun({_, _}) -> true; (_) -> false end, Pairs) of
+        true ->
+            case check_shapes([V || {V, _} <- Pairs]) of
+                ok -> call(Client, {write_vars, Pairs}, Timeout);
+                Error -> Error
+            end;
+        false ->
+            {error, {bad_argument, Pairs}}
+    end;
+write_vars(_, Pairs, _) ->
+    {error, {bad_argument, Pairs}}.
+
+%% @doc Reads one variable by name: resolved (the handle stays cached for a while),
+%% read, released.
+-spec read_by_name(client(), binary(), cell_hal_ads_types:type()) ->
+          {ok, cell_hal_ads_types:value()} | {error, reason()}.
+read_by_name(Client, Name, Type) ->
+    read_by_name(Client, Name, Type, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link read_by_name/3}, waiting at most `Timeout' ms in all.
+-spec read_by_name(client(), binary(), cell_hal_ads_types:type(), timeout()) ->
+          {ok, cell_hal_ads_types:value()} | {error, reason()}.
+read_by_name(Client, Name, Type, Timeout) ->
+    with_var(Client, {Name, Type}, Timeout,
+             fun(Left) ->
+                     case read_vars(Client, [{Name, Type}], Left) of
+                         {ok, [Result]} -> Result;
+                         {error, _} = E -> E
+                     end
+             end).
+
+%% @doc Writes one variable by name, as {@link read_by_name/3} reads.
+-spec write_by_name(client(), binary(), cell_hal_ads_types:type(), cell_hal_ads_types:value()) ->
+          ok | {error, reason()}.
+write_by_name(Client, Name, Type, Value) ->
+    write_by_name(Client, Name, Type, Value, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link write_by_name/4}, waiting at most `Timeout' ms in all.
+-spec write_by_name(client(), binary(), cell_hal_ads_types:type(), cell_hal_ads_types:value(),
+                    timeout()) -> ok | {error, reason()}.
+write_by_name(Client, Name, Type, Value, Timeout) ->
+    with_var(Client, {Name, Type}, Timeout,
+             fun(Left) ->
+                     case write_vars(Client, [{{Name, Type}, Value}], Left) of
+                         {ok, [Result]} -> Result;
+                         {error, _} = E -> E
+                     end
+             end).
+
+with_var(Client, Var, Timeout, Fun) ->
+    Deadline = deadline(Timeout),
+    case resolve(Client, [Var], Timeout) of
+        {ok, [{ok, _}]} ->
+            Result = Fun(left(Deadline)),
+            ok = release(Client, [Var]),
+            Result;
+        {ok, [{error, _} = E]} ->
+            E;
+        {error, _} = E ->
+            E
+    end.
+
+%% @doc Device notifications for variables, resolved for the caller as by
+%% {@link resolve/2}. The caller gets `{cell_hal_ads, SubRef, {samples, Samples}}'
+%% messages (see the module doc). `on_change' sends a value when it changes (and the
+%% present value at once); `cyclic' sends one every `cycle_us'. One result per
+%% subscription, in order.
+-spec subscribe(client(), [{var(), sub_opts()}]) ->
+          {ok, [{ok, reference()} | {error, reason()}]} | {error, reason()}.
+subscribe(Client, Subs) ->
+    subscribe(Client, Subs, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link subscribe/2}, waiting at most `Timeout' ms.
+-spec subscribe(client(), [{var(), sub_opts()}], timeout()) ->
+          {ok, [{ok, reference()} | {error, reason()}]} | {error, reason()}.
+subscribe(Client, Subs, Timeout) when is_list(Subs) ->
+    case check_subs(Subs) of
+        {ok, Checked} -> call(Client, {subscribe, Checked}, Timeout);
+        Error -> Error
+    end;
+subscribe(_, Subs, _) ->
+    {error, {bad_argument, Subs}}.
+
+%% @doc Ends subscriptions of the caller.
+-spec unsubscribe(client(), [reference()]) -> ok | {error, reason()}.
+unsubscribe(Client, Refs) when is_list(Refs) ->
+    case lists:all(fun is_reference/1, Refs) of
+        true -> gen_statem:call(Client, {unsubscribe, Refs});
+        false -> {error, {bad_argument, Refs}}
+    end;
+unsubscribe(_, Refs) ->
+    {error, {bad_argument, Refs}}.
+
+%% @doc The PLC's symbol table (top-level symbols, as uploaded), sorted by name.
+-spec symbols(client()) -> {ok, [cell_hal_ads_codec:symbol()]} | {error, reason()}.
+symbols(Client) ->
+    symbols(Client, ?DEFAULT_TIMEOUT).
+
+%% @doc As {@link symbols/1}, waiting at most `Timeout' ms.
+-spec symbols(client(), timeout()) -> {ok, [cell_hal_ads_codec:symbol()]} | {error, reason()}.
+symbols(Client, Timeout) ->
+    call(Client, symbols, Timeout).
+
+%% A request is checked in the caller: a bad argument never reaches the client.
+request(Client, Request, Timeout) ->
+    case valid_request(Request) of
+        true -> call(Client, {request, Request}, Timeout);
+        false -> {error, {bad_argument, Request}}
+    end.
+
+valid_request(read_device_info) -> true;
+valid_request(read_state) -> true;
+valid_request({read, G, O, L}) -> u32s([G, O, L]);
+valid_request({write, G, O, Data}) -> u32s([G, O]) andalso is_iodata(Data);
+valid_request({read_write, G, O, L, Data}) -> u32s([G, O, L]) andalso is_iodata(Data);
+valid_request({write_control, State, Dev, Data}) ->
+    cell_hal_ads_codec:is_ads_state(State) andalso is_integer(Dev) andalso Dev >= 0
+        andalso Dev =< 16#FFFF andalso is_iodata(Data).
+
+%% Variables to resolve are checked in full; variables to read, write or release only
+%% for their shape (what was not resolved is answered `{not_resolved, Name}'), which
+%% keeps a group read cheap.
+check_vars(Vars) ->
+    check_vars(Vars, fun is_var/1).
+
+check_shapes(Vars) ->
+    check_vars(Vars, fun({Name, _}) -> is_binary(Name);
+                        (_) -> false
+                     end).
+
+check_vars(Vars, Valid) when is_list(Vars) ->
+    case [V || V <- Vars, not Valid(V)] of
+        [] -> ok;
+        [Bad | _] -> {error, {bad_variable, Bad}}
+    end;
+check_vars(Vars, _) ->
+    {error, {bad_argument, Vars}}.
+
+is_var({Name, Type}) ->
+    cell_hal_ads_symbols:check_name(Name) =:= ok andalso cell_hal_ads_types:is_type(Type);
+is_var(_) ->
+    false.
+
+check_subs(Subs) ->
+    Checked = [{V, sub_opts(O)} || {V, O} <- Subs, is_var(V), is_map(O)],
+    case length(Checked) =:= length(Subs) andalso [B || {_, {error, _} = B} <- Checked] of
+        false -> {error, {bad_argument, Subs}};
+        [] -> {ok, Checked};
+        [{error, Bad} | _] -> {error, Bad}
+    end.
+
+-define(MAX_US, (16#FFFFFFFF div 10)).
+sub_opts(O) ->
+    Mode = maps:get(mode, O, on_change),
+    Cycle = maps:get(cycle_us, O, 10000),
+    Delay = maps:get(max_delay_us, O, 0),
+    Valid = (Mode =:= on_change orelse Mode =:= cyclic) andalso
+        is_integer(Cycle) andalso Cycle >= 0 andalso Cycle =< ?MAX_US andalso
+        is_integer(Delay) andalso Delay >= 0 andalso Delay =< ?MAX_US andalso
+        maps:size(maps:without([mode, cycle_us, max_delay_us], O)) =:= 0,
+    case Valid of
+        true -> #{mode => Mode, cycle => Cycle * 10, max_delay => Delay * 10};
+        false -> {error, {bad_sub_opts, O}}
+    end.
+
+call(Client, Request, Timeout) ->
+    Deadline = deadline(Timeout),
+    try
+        gen_statem:call(Client, {req, Request, Deadline}, Timeout)
+    catch
+        exit:{timeout, _} -> {error, timeout}
+    end.
+
+deadline(infinity) -> infinity;
+deadline(Timeout) -> now_ms() + Timeout.
+
+left(infinity) -> infinity;
+left(Deadline) -> max(0, Deadline - now_ms()).
+
+now_ms() ->
+    erlang:monotonic_time(millisecond).
+
+%%====================================================================
+%% Errors for people
+%%====================================================================
+
+%% @doc Any reason this client gives, in words for the people running the machine.
+-spec format_error(reason()) -> binary().
+format_error(Reason) ->
+    iolist_to_binary(text(Reason)).
+
+text(timeout) -> "the PLC did not answer in time";
+text(starting) -> "the connection is being set up";
+text(disconnected) -> "not connected to the PLC";
+text(no_answer) -> "the PLC stopped answering";
+text(closed) -> "the PLC closed the connection";
+text({connect, R}) -> ["cannot connect: ", inet_text(R)];
+text({socket, R}) -> ["network error: ", inet_text(R)];
+text({ads_error, Code, _}) ->
+    io_lib:format("~ts (ADS error 0x~.16B)", [cell_hal_ads_codec:error_text(Code), Code]);
+text({unknown_symbol, Name}) -> ["the PLC has no symbol ", Name];
+text({ambiguous_symbol, Pattern, Names}) ->
+    ["the name ", Pattern, " matches several symbols: ", lists:join(", ", Names)];
+text({type_mismatch, Name, #{expected := E, plc_type := T, size := S}}) ->
+    io_lib:format("symbol ~ts is ~ts (~b bytes) in the PLC, but the configuration "
+                  "expects ~ts", [Name, T, S, E]);
+text({bad_name, Name}) -> io_lib:format("~tp is not a valid symbol name", [Name]);
+text({bad_variable, V}) -> io_lib:format("~tp is not a variable ({Name, Type})", [V]);
+text({bad_value, Type, V}) -> io_lib:format("~tp is not a valid ~tp value", [V, Type]);
+text({bad_size, Type, N}) -> io_lib:format("the PLC sent ~b bytes for a ~tp value", [N, Type]);
+text({not_resolved, Name}) -> ["variable ", Name, " is not resolved on this connection"];
+text({symbol_table, R}) -> ["the symbol table could not be read: ", text(R)];
+text({symbol_error, Name, R}) -> ["symbol ", Name, ": ", text(R)];
+text({bad_response, What}) -> io_lib:format("the PLC sent a malformed answer (~p)", [What]);
+text({bad_frame, What}) -> io_lib:format("the PLC sent a malformed frame (~p)", [What]);
+text({bad_notification, What}) ->
+    io_lib:format("the PLC sent a malformed notification (~p)", [What]);
+text({bad_symbol, What}) -> io_lib:format("the PLC sent a malformed symbol entry (~p)", [What]);
+text({frame_too_long, N}) ->
+    io_lib:format("the PLC announced a frame of ~b bytes, more than allowed", [N]);
+text({unexpected_answer, Cmd, Expected}) ->
+    io_lib:format("the PLC answered a ~p request with a ~p answer", [Expected, Cmd]);
+text(symbols_changed) -> "the PLC program changed during the request; try again";
+text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options", [O]);
+text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
+text({restore, R}) -> ["the connection could not be set up: ", text(R)];
+text(Other) -> io_lib:format("~tp", [Other]).
+
+inet_text(R) ->
+    case inet:format_error(R) of
+        "unknown POSIX error" ++ _ -> io_lib:format("~tp", [R]);
+        Text -> Text
+    end.
+
+%%====================================================================
+%% gen_statem
+%%====================================================================
+
+%% @private
+-spec callback_mode() -> gen_statem:callback_mode_result().
+callback_mode() ->
+    [handle_event_function, state_enter].
+
+%% @private
+-spec init(map()) -> gen_statem:init_result(state()).
+init(Opts) ->
+    process_flag(trap_exit, true),
+    #{host := Host, port := Port, target_net_id := Net, target_port := TPort,
+      backoff := {Min, _}} = Opts,
+    Peer = iolist_to_binary([host_text(Host), ":", integer_to_list(Port)]),
+    Log = case Opts of
+              #{name := Name} -> Name;
+              _ -> <<"ads/", Peer/binary>>
+          end,
+    {ok, connecting, #data{opts = Opts#{peer => Peer}, log = Log, target = {Net, TPort},
+                           backoff = Min, down = starting}}.
+
+host_text(H) when is_tuple(H) -> inet:ntoa(H);
+host_text(H) -> H.
+
+%% @private
+-spec handle_event(gen_statem:event_type(), term(), state(), #data{}) ->
+          gen_statem:event_handler_result(state()).
+
+%%--------------------------------------------------------------------
+%% connecting: a connector process opens the socket; the client stays responsive.
+%%--------------------------------------------------------------------
+handle_event(enter, _, connecting, D) ->
+    Parent = self(),
+    #{host := Host, port := Port, connect_timeout := T} = D#data.opts,
+    Pid = spawn_link(fun() -> connector(Parent, Host, Port, T) end),
+    {keep_state, D#data{connector = Pid}};
+handle_event(info, {connected, Pid, Result}, connecting, #data{connector = Pid} = D) ->
+    case Result of
+        {ok, Socket} -> connected(Socket, D#data{connector = undefined});
+        {error, Reason} -> {next_state, disconnected,
+                            D#data{connector = undefined, down = {connect, Reason}}}
+    end;
+
+%%--------------------------------------------------------------------
+%% {connected, restoring}: the connection is being set up again; callers wait.
+%%--------------------------------------------------------------------
+handle_event(enter, _, {connected, restoring}, _) ->
+    keep_state_and_data;
+handle_event({call, _}, {req, _, _}, {connected, restoring}, _) ->
+    {keep_state_and_data, postpone};
+handle_event(internal, restored, {connected, restoring}, D) ->
+    case D#data.refresh_again of
+        V when is_integer(V), V =/= D#data.version ->
+            refresh_version(V, D#data{refresh_again = false});
+        _ ->
+            {next_state, {connected, ready}, D#data{refresh_again = false}}
+    end;
+
+%%--------------------------------------------------------------------
+%% {connected, ready}: calls are served.
+%%--------------------------------------------------------------------
+handle_event(enter, OldState, {connected, ready}, D) ->
+    #data{opts = #{backoff := {Min, _}, link_check := Check}} = D,
+    Event = case OldState of
+                {connected, restoring} when D#data.was_up -> symbols_changed;
+                _ -> up
+            end,
+    notify_watchers(Event, D),
+    {keep_state, D#data{backoff = Min, was_up = true, down = undefined, logged = undefined},
+     link_check_timer(Check)};
+handle_event({call, From}, {req, Request, Deadline}, {connected, ready}, D) ->
+    case expired(Deadline) of
+        true -> keep_state_and_data;   % the caller has given up already
+        false -> act(serve(Request, From, Deadline, D))
+    end;
+
+%%--------------------------------------------------------------------
+%% disconnected: waits the back-off, then connects again.
+%%--------------------------------------------------------------------
+handle_event(enter, OldState, disconnected, D) ->
+    #data{backoff = Backoff, opts = #{backoff := {_, Max}}} = D,
+    Delay = jitter(Backoff),
+    log_down(OldState, Delay, D),
+    D#data.was_up andalso notify_watchers({down, D#data.down}, D),
+    {keep_state, D#data{backoff = min(Backoff * 2, Max), was_up = false, logged = D#data.down},
+     [{state_timeout, Delay, reconnect}]};
+handle_event(state_timeout, reconnect, disconnected, D) ->
+    {next_state, connecting, D};
+
+%%--------------------------------------------------------------------
+%% Events common to the connected states.
+%%--------------------------------------------------------------------
+handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D) ->
+    %% On a socket the peer just closed this fails; tcp_closed follows and says so.
+    _ = inet:setopts(Socket, [{active, once}]),
+    Buffer = <<(D#data.buffer)/binary, Bin/binary>>,
+    act(frames(D#data{buffer = Buffer, last_rx = now_ms(), received = D#data.received + 1}, []));
+handle_event(info, {tcp_closed, Socket}, {connected, _}, #data{socket = Socket} = D) ->
+    disconnect(closed, D);
+handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = Socket} = D) ->
+    disconnect({socket, Reason}, D);
+handle_event(internal, {fail, Reason}, {connected, _}, D) ->
+    disconnect(Reason, D);
+handle_event({timeout, {job, Id}}, Id, {connected, _}, D) ->
+    act(job_timeout(Id, D));
+handle_event({timeout, link_check}, _, {connected, _}, D) ->
+    #data{opts = #{link_check := Check}, last_rx = Last} = D,
+    case now_ms() - Last >= Check andalso map_size(D#data.inflight) =:= 0 of
+        true ->
+            {D1, Actions} = job([read_state], undefined, deadline(request_timeout(D)),
+                                fun ignore/2, D),
+            {keep_state, D1, link_check_timer(Check) ++ Actions};
+        false ->
+            {keep_state_and_data, link_check_timer(Check)}
+    end;
+handle_event(internal, {version, V}, {connected, Sub}, D) ->
+    case V =:= D#data.version of
+        true -> keep_state_and_data;
+        false when Sub =:= ready -> refresh_version(V, D);
+        false -> {keep_state, D#data{refresh_again = V}}
+    end;
+
+%%--------------------------------------------------------------------
+%% Events common to all states.
+%%--------------------------------------------------------------------
+handle_event({call, From}, status, State, D) ->
+    {keep_state_and_data, [{reply, From, status_map(State, D)}]};
+handle_event({call, {Pid, _} = From}, subscribe_status, State, D) ->
+    Present = case State of
+                  {connected, ready} -> up;
+                  {connected, restoring} when D#data.was_up -> up;   % a program change
+                  _ -> {down, D#data.down}
+              end,
+    Pid ! {cell_hal_ads, self(), Present},
+    D1 = monitor_pid(Pid, D),
+    {keep_state, D1#data{watchers = (D1#data.watchers)#{Pid => true}}, [{reply, From, ok}]};
+handle_event({call, {Pid, _} = From}, unsubscribe_status, _, D) ->
+    {keep_state, D#data{watchers = maps:remove(Pid, D#data.watchers)}, [{reply, From, ok}]};
+handle_event({call, {Pid, _} = From}, {release, Vars}, _, D) ->
+    Keys = [cell_hal_ads_vars:key_of(N, T, D#data.vars) || {N, T} <- Vars],
+    {D1, Actions} = unuse_keys(Keys, Pid, D),
+    {keep_state, D1, [{reply, From, ok} | Actions]};
+handle_event({call, {Pid, _} = From}, {unsubscribe, Refs}, State, D) ->
+    {D1, Actions} = drop_subs([R || R <- Refs, is_owner(R, Pid, D)], State, D),
+    {keep_state, D1, [{reply, From, ok} | Actions]};
+handle_event({call, From}, {req, _, _}, _, _) ->
+    {keep_state_and_data, [{reply, From, {error, disconnected}}]};
+handle_event({timeout, {release, K}}, release, State, D) ->
+    act(release_idle(K, State, D));
+handle_event(info, {'DOWN', _, process, Pid, _}, State, D) ->
+    D1 = D#data{monitors = maps:remove(Pid, D#data.monitors),
+                watchers = maps:remove(Pid, D#data.watchers)},
+    Refs = [R || {R, #{pid := P}} <- maps:to_list(D1#data.subs), P =:= Pid],
+    {D2, A1} = drop_subs(Refs, State, D1),
+    {Vars, Unused} = cell_hal_ads_vars:drop_user(Pid, D2#data.vars),
+    {keep_state, D2#data{vars = Vars}, A1 ++ idle_timers(Unused, D2)};
+handle_event(info, {connected, _Stale, {ok, Socket}}, _, _) ->
+    _ = gen_tcp:close(Socket),
+    keep_state_and_data;
+handle_event(info, {connected, _Stale, {error, _}}, _, _) ->
+    keep_state_and_data;
+handle_event(info, {'EXIT', _, normal}, _, _) ->
+    keep_state_and_data;
+handle_event(info, {'EXIT', _, Reason}, _, _) ->
+    {stop, Reason};
+%% Leftovers of an earlier connection: its socket's messages, its timeouts.
+handle_event(info, {tcp, _, _}, _, _) ->
+    keep_state_and_data;
+handle_event(info, {tcp_closed, _}, _, _) ->
+    keep_state_and_data;
+handle_event(info, {tcp_error, _, _}, _, _) ->
+    keep_state_and_data;
+handle_event({timeout, {job, _}}, _, _, _) ->
+    keep_state_and_data;
+handle_event({timeout, link_check}, _, _, _) ->
+    keep_state_and_data;
+handle_event(internal, {version, _}, _, _) ->
+    keep_state_and_data;
+handle_event(internal, {fail, _}, _, _) ->
+    keep_state_and_data.
+
+%% @private
+-spec terminate(term(), state(), #data{}) -> ok.
+terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
+    %% Leave the PLC tidy: its notifications and handles are ours to give back.
+    Notes = [{delete_notification, N} || N <- maps:keys(D#data.notes)],
+    Handles = [{write, ?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
+               || K <- cell_hal_ads_vars:keys(D#data.vars),
+                  {ok, {handle, H}, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
+    Frames = [cell_hal_ads_codec:encode_frame(D#data.target, D#data.source, I, R)
+              || {I, R} <- lists:zip(lists:seq(1, length(Notes ++ Handles)), Notes ++ Handles)],
+    _ = gen_tcp:send(Socket, Frames),
+    %% A shutdown lets the queued frames out before the close.
+    _ = gen_tcp:shutdown(Socket, write),
+    _ = gen_tcp:close(Socket),
+    ok;
+terminate(_Reason, _State, _D) ->
+    ok.
+
+%% @private
+-spec code_change(term(), state(), #data{}, term()) -> {ok, state(), #data{}}.
+code_change(_Vsn, State, D, _Extra) ->
+    {ok, State, D}.
+
+%%====================================================================
+%% Connection
+%%====================================================================
+
+connector(Parent, Host, Port, Timeout) ->
+    Opts = [binary, {active, false}, {nodelay, true}, {keepalive, true}],
+    Result = case gen_tcp:connect(Host, Port, Opts, Timeout) of
+                 {ok, S} ->
+                     case gen_tcp:controlling_process(S, Parent) of
+                         ok -> {ok, S};
+                         {error, R} -> _ = gen_tcp:close(S), {error, R}
+                     end;
+                 {error, R} ->
+                     {error, R}
+             end,
+    Parent ! {connected, self(), Result}.
+
+connected(Socket, D) ->
+    #data{opts = #{source_net_id := Configured, source_port := SPort}} = D,
+    case source_net_id(Configured, Socket) of
+        {ok, NetId} ->
+            D1 = D#data{socket = Socket, source = {NetId, SPort}, buffer = <<>>,
+                        last_rx = now_ms(), generation = D#data.generation + 1,
+                        vars = cell_hal_ads_vars:reset(D#data.vars), notes = #{},
+                        checking_version = false, refresh_again = false},
+            {D2, Actions} = restore(D1),
+            {next_state, {connected, restoring}, D2, Actions};
+        {error, Reason} ->
+            _ = gen_tcp:close(Socket),
+            {next_state, disconnected, D#data{down = {socket, Reason}}}
+    end.
+
+%% `auto': the usual convention, this machine's address on the PLC's network and ".1.1".
+source_net_id(auto, Socket) ->
+    case inet:sockname(Socket) of
+        {ok, {{A, B, C, E}, _}} -> activate(Socket, {A, B, C, E, 1, 1});
+        {ok, _} -> {error, eafnosupport};
+        {error, _} = Error -> Error
+    end;
+source_net_id(NetId, Socket) ->
+    activate(Socket, NetId).
+
+activate(Socket, NetId) ->
+    case inet:setopts(Socket, [{active, once}]) of
+        ok -> {ok, NetId};
+        {error, _} = Error -> Error
+    end.
+
+disconnect(Reason, D) ->
+    _ = gen_tcp:close(D#data.socket),
+    Replies = [{reply, From, {error, disconnected}}
+               || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
+    Cancels = [{{timeout, {job, Id}}, cancel} || Id <- maps:keys(D#data.jobs)],
+    Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D#data.subs),
+    {next_state, disconnected,
+     D#data{socket = undefined, buffer = <<>>, inflight = #{}, waiting = queue:new(),
+            jobs = #{}, notes = #{}, subs = Subs, vars = cell_hal_ads_vars:reset(D#data.vars),
+            down = Reason},
+     Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
+
+log_down(OldState, Delay, D) ->
+    Retry = io_lib:format("; retrying in ~.1f s", [Delay / 1000]),
+    #data{opts = #{peer := Peer}, down = Reason} = D,
+    case OldState of
+        {connected, _} ->
+            cell_log:warning(D#data.log, "connection to ~ts lost: ~ts~ts",
+                             [Peer, format_error(Reason), Retry]);
+        _ ->
+            %% The same failure again and again is news once, then detail.
+            Level = case D#data.logged of
+                        Reason -> verbose;
+                        _ -> warning
+                    end,
+            cell_log:log(Level, D#data.log, "cannot connect to ~ts: ~ts~ts",
+                         [Peer, format_error(Reason), Retry])
+    end.
+
+jitter(Ms) ->
+    %% Spread reconnects of many cells after a network outage by up to a fifth.
+    Ms - Ms div 10 + rand:uniform(max(1, Ms div 5)) - 1.
+
+link_check_timer(infinity) -> [];
+link_check_timer(Ms) -> [{{timeout, link_check}, Ms, check}].
+
+request_timeout(#data{opts = #{request_timeout := T}}) -> T.
+
+notify_watchers(Event, D) ->
+    maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_ads, self(), Event} end, D#data.watchers).
+
+%%====================================================================
+%% Setting the connection up again: after a connect, and after a program change
+%%====================================================================
+
+restore(D) ->
+    Version = case D#data.opts of
+                  #{symbol_version := ignore} -> [];
+                  _ -> [{read, ?IG_SYM_VERSION, 0, 1}]
+              end,
+    job([read_device_info, read_state | Version], undefined,
+        deadline(request_timeout(D)), fun restore_info/2, D).
+
+restore_info([Info, State | Version], D) ->
+    case {Info, State} of
+        {{ok, #{name := Name, version := {Ma, Mi, B}} = Device}, {ok, {AdsState, _}}} ->
+            #data{opts = #{peer := Peer}, target = {Net, Port}} = D,
+            cell_log:notice(D#data.log, "connected to ~ts, AMS ~ts:~b: ~ts ~b.~b.~b, ~p",
+                            [Peer, cell_hal_ads_codec:format_net_id(Net), Port, Name, Ma,
+                             Mi, B, AdsState]),
+            D1 = D#data{device = Device#{ads_state => AdsState}},
+            case Version of
+                [] -> restore_vars(D1);
+                [{ok, <<V, _/binary>>}] -> watch_version(D1#data{version = V});
+                [{error, timeout}] -> fail({restore, timeout}, D1);
+                [Other] ->
+                    R = case Other of
+                            {error, E} -> E;
+                            {ok, _} -> {bad_response, symbol_version}
+                        end,
+                    cell_log:info(D#data.log, "the PLC gives no symbol version (~ts); program "
+                                  "changes will show as failing handles",
+                                  [format_error(R)]),
+                    restore_vars(D1#data{version = undefined})
+            end;
+        {{error, R}, _} ->
+            fail({restore, R}, D);
+        {_, {error, R}} ->
+            fail({restore, R}, D)
+    end.
+
+watch_version(#data{opts = #{symbol_version := watch}} = D) ->
+    job([{add_notification, ?IG_SYM_VERSION, 0, 1, on_change, 0, 0}], undefined,
+        deadline(request_timeout(D)),
+        fun([{ok, Note}], Dx) ->
+                restore_vars(Dx#data{notes = (Dx#data.notes)#{Note => symbol_version}});
+           ([{error, timeout}], Dx) ->
+                fail({restore, timeout}, Dx);
+           ([{error, R}], Dx) ->
+                cell_log:info(Dx#data.log, "the symbol version cannot be watched (~ts); it "
+                              "is read again when handles fail", [format_error(R)]),
+                restore_vars(Dx)
+        end, D);
+watch_version(D) ->
+    restore_vars(D).
+
+%% Every variable in use is resolved again, then every subscription added again.
+restore_vars(D) ->
+    Items = [{K, Name, Type} || K <- cell_hal_ads_vars:keys(D#data.vars),
+                                {ok, #{name := Name, type := Type}} <-
+                                    [cell_hal_ads_vars:find(K, D#data.vars)]],
+    resolve_keys(Items, undefined, deadline(request_timeout(D)),
+                 fun(Results, Dx) ->
+                         case lists:member({error, timeout}, [R || {_, R} <- Results]) of
+                             true ->
+                                 fail({restore, timeout}, Dx);
+                             false ->
+                                 {Dy, Gone} = apply_resolved(Results, Dx),
+                                 {Dz, A1} = release_handles(Gone, Dy),
+                                 {Dw, A2} = restore_subs(Dz),
+                                 {Dw, A1 ++ A2}
+                         end
+                 end, D).
+
+%% Variables released while they were being resolved are left out (their new handles
+%% go back).
+apply_resolved(Results, D) ->
+    lists:foldl(
+      fun({K, Result}, {Dx, Gone}) ->
+              case {cell_hal_ads_vars:find(K, Dx#data.vars), Result} of
+                  {error, {ok, _, Access}} ->
+                      {Dx, [Access | Gone]};
+                  {error, {error, _}} ->
+                      {Dx, Gone};
+                  {{ok, _}, {ok, Symbol, Access}} ->
+                      {Dx#data{vars = cell_hal_ads_vars:resolved(K, Symbol, Access,
+                                                                 Dx#data.vars)}, Gone};
+                  {{ok, #{name := Name, type := Type}}, {error, Reason}} ->
+                      cell_log:error(Dx#data.log, "variable ~ts (~ts) cannot be used: ~ts",
+                                     [Name, cell_hal_ads_types:plc_name(Type),
+                                      format_error(Reason)]),
+                      {Dx#data{vars = cell_hal_ads_vars:failed(K, Reason, Dx#data.vars)}, Gone}
+              end
+      end, {D, []}, Results).
+
+restore_subs(D) ->
+    Subs = maps:to_list(D#data.subs),
+    {Ready, Failed} = lists:partition(
+                        fun({_, #{key := K}}) ->
+                                cell_hal_ads_vars:state(K, D#data.vars) =:= ready
+                        end, Subs),
+    _ = [Pid ! {cell_hal_ads, Ref, {error, failure(K, D)}}
+         || {Ref, #{pid := Pid, key := K}} <- Failed],
+    Requests = [note_request(S, D) || {_, S} <- Ready],
+    job(Requests, undefined, deadline(request_timeout(D)),
+        fun(Answers, Dx) ->
+                case lists:member({error, timeout}, Answers) of
+                    true ->
+                        fail({restore, timeout}, Dx);
+                    false ->
+                        {Dy, Orphans} = lists:foldl(fun add_note/2, {Dx, []},
+                                                    lists:zip(Ready, Answers)),
+                        {Dz, A} = job(Orphans, undefined, deadline(request_timeout(Dy)),
+                                      fun ignore/2, Dy),
+                        {Dz, A ++ [{next_event, internal, restored}]}
+                end
+        end, D).
+
+%% A subscription ended while it was being added again: its new notification goes.
+add_note({{Ref, _}, {ok, Note}}, {D, Orphans}) ->
+    case maps:find(Ref, D#data.subs) of
+        {ok, Sub} ->
+            {D#data{subs = (D#data.subs)#{Ref := Sub#{note => Note}},
+                    notes = (D#data.notes)#{Note => Ref}}, Orphans};
+        error ->
+            {D, [{delete_notification, Note} | Orphans]}
+    end;
+add_note({{Ref, #{pid := Pid}}, {error, Reason}}, {D, Orphans}) ->
+    Pid ! {cell_hal_ads, Ref, {error, Reason}},
+    {D, Orphans}.
+
+failure(K, D) ->
+    case cell_hal_ads_vars:ready(K, D#data.vars) of
+        {error, Reason} -> Reason;
+        {ok, _, _, _} -> disconnected
+    end.
+
+fail(Reason, D) ->
+    {D, [{next_event, internal, {fail, Reason}}]}.
+
+ignore(_Answers, D) ->
+    {D, []}.
+
+%% A new symbol version: the program was downloaded or changed online. Old handles
+%% and notifications are given back (they may still point somewhere), everything in
+%% use is resolved again.
+refresh_version(V, D) ->
+    cell_log:notice(D#data.log, "the PLC program changed (symbol version ~p -> ~b); "
+                    "resolving ~b variables again",
+                    [D#data.version, V, length(cell_hal_ads_vars:keys(D#data.vars))]),
+    refresh(D#data{version = V}).
+
+refresh(D) ->
+    Releases = [{?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
+                || K <- cell_hal_ads_vars:keys(D#data.vars),
+                   {ok, {handle, H}, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
+    Deletes = [{delete_notification, N} || {N, Ref} <- maps:to_list(D#data.notes),
+                                           is_reference(Ref)],
+    {Requests, _} = cell_hal_ads_batch:writes(Releases, batch_mode(D)),
+    {D1, A1} = job(Requests ++ Deletes, undefined, deadline(request_timeout(D)), fun ignore/2,
+                   D),
+    Notes = maps:filter(fun(_, V) -> V =:= symbol_version end, D1#data.notes),
+    Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D1#data.subs),
+    D2 = D1#data{vars = cell_hal_ads_vars:reset(D1#data.vars), notes = Notes, subs = Subs,
+                 table = undefined, generation = D1#data.generation + 1},
+    {D3, A2} = restore_vars(D2),
+    {next_state, {connected, restoring}, D3, A1 ++ A2}.
+
+%% After errors that a stale handle gives, the symbol version is read: a program
+%% change is then noticed even where notifications on it are not available.
+check_version(Results, D) ->
+    Stale = [C || {error, {ads_error, C, _}} <- Results,
+                  lists:member(C, ?STALE_HANDLE_ERRORS)],
+    case Stale =/= [] andalso not D#data.checking_version andalso
+        maps:get(symbol_version, D#data.opts) =/= ignore of
+        true ->
+            job([{read, ?IG_SYM_VERSION, 0, 1}], undefined, deadline(request_timeout(D)),
+                fun([{ok, <<V>>}], Dx) ->
+                        {Dx#data{checking_version = false},
+                         [{next_event, internal, {version, V}}]};
+                   (_, Dx) ->
+                        {Dx#data{checking_version = false}, []}
+                end, D#data{checking_version = true});
+        false ->
+            {D, []}
+    end.
+
+%%====================================================================
+%% Serving calls
+%%====================================================================
+
+serve({request, Request}, From, Deadline, D) ->
+    job([Request], From, Deadline,
+        fun([Answer], Dx) -> {Dx, [{reply, From, plain_reply(Request, Answer)}]} end, D);
+serve({batch, Kind, Items}, From, Deadline, D) ->
+    case valid_items(Kind, Items) of
+        true ->
+            {Requests, Assemble} = batch(Kind, Items, batch_mode(D)),
+            job(Requests, From, Deadline,
+                fun(Answers, Dx) -> {Dx, [{reply, From, {ok, Assemble(Answers)}}]} end, D);
+        false ->
+            {D, [{reply, From, {error, {bad_argument, Items}}}]}
+    end;
+serve(symbols, From, Deadline, D) ->
+    with_table(true, From, Deadline,
+               fun({ok, Table}, Dx) ->
+                       {Dx, [{reply, From, {ok, table_list(Table)}}]};
+                  ({error, R}, Dx) ->
+                       {Dx, [{reply, From, {error, R}}]}
+               end, D);
+serve({resolve, Vars}, {Pid, _} = From, Deadline, D) ->
+    resolve_for(Vars, Pid, From, Deadline,
+                fun(Results, Dx) -> {Dx, [{reply, From, {ok, Results}}]} end, D);
+serve({read_vars, Vars}, From, Deadline, D) ->
+    Plan = [plan_read(V, D) || V <- Vars],
+    Items = [I || {read, I, _} <- Plan],
+    {Requests, Assemble} = cell_hal_ads_batch:reads(Items, batch_mode(D)),
+    job(Requests, From, Deadline,
+        fun(Answers, Dx) ->
+                Results = Assemble(Answers),
+                Values = merge(Plan, Results, fun decode_value/2),
+                {Dy, Actions} = check_version(Results, Dx),
+                {Dy, [{reply, From, {ok, Values}} | Actions]}
+        end, D);
+serve({write_vars, Pairs}, From, Deadline, D) ->
+    Plan = [plan_write(V, Value, D) || {V, Value} <- Pairs],
+    Items = [I || {write, I, _} <- Plan],
+    {Requests, Assemble} = cell_hal_ads_batch:writes(Items, batch_mode(D)),
+    job(Requests, From, Deadline,
+        fun(Answers, Dx) ->
+                Results = Assemble(Answers),
+                {Dy, Actions} = check_version(Results, Dx),
+                {Dy, [{reply, From, {ok, merge(Plan, Results, fun(_, R) -> R end)}}
+                      | Actions]}
+        end, D);
+serve({subscribe, Subs}, {Pid, _} = From, Deadline, D) ->
+    resolve_for([V || {V, _} <- Subs], Pid, From, Deadline,
+                fun(Resolved, Dx) -> add_subs(Subs, Resolved, Pid, From, Deadline, Dx) end, D).
+
+batch(reads, Items, Mode) -> cell_hal_ads_batch:reads(Items, Mode);
+batch(writes, Items, Mode) -> cell_hal_ads_batch:writes(Items, Mode);
+batch(read_writes, Items, Mode) -> cell_hal_ads_batch:read_writes(Items, Mode).
+
+plain_reply(_, {error, _} = E) -> E;
+plain_reply(read_state, {ok, {State, Dev}}) -> {ok, #{ads_state => State, device_state => Dev}};
+plain_reply(read_device_info, {ok, Info}) -> {ok, Info};
+plain_reply({read, _, _, _}, {ok, Bin}) -> {ok, Bin};
+plain_reply({read_write, _, _, _, _}, {ok, Bin}) -> {ok, Bin};
+plain_reply(_, {ok, ok}) -> ok.
+
+valid_items(reads, Items) ->
+    is_list(Items) andalso lists:all(fun({G, O, L}) -> u32s([G, O, L]); (_) -> false end, Items);
+valid_items(writes, Items) ->
+    is_list(Items) andalso
+        lists:all(fun({G, O, Data}) -> u32s([G, O]) andalso is_iodata(Data);
+                     (_) -> false
+                  end, Items);
+valid_items(read_writes, Items) ->
+    is_list(Items) andalso
+        lists:all(fun({G, O, L, Data}) -> u32s([G, O, L]) andalso is_iodata(Data);
+                     (_) -> false
+                  end, Items).
+
+u32s(Ns) -> lists:all(fun(N) -> is_integer(N) andalso N >= 0 andalso N =< 16#FFFFFFFF end, Ns).
+
+is_iodata(Data) ->
+    try iolist_size(Data) of
+        _ -> true
+    catch
+        error:badarg -> false
+    end.
+
+batch_mode(#data{opts = #{sum_commands := Sum, max_sum := Max}}) ->
+    #{sum => Sum, max_sum => Max}.
+
+%% What one variable of a read needs: a read item, or an error given without asking.
+plan_read({Name, Type}, D) ->
+    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
+        {ok, Access, Size, _} -> {read, item(Access, Size), Type};
+        {error, not_resolved} -> {error, {not_resolved, Name}};
+        {error, _} = E -> E
+    end.
+
+plan_write({Name, Type}, Value, D) ->
+    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
+        {ok, Access, Size, _} ->
+            case cell_hal_ads_types:encode(Type, Value, Size) of
+                {ok, Bin} -> {write, item(Access, Bin), Type};
+                {error, _} = E -> E
+            end;
+        {error, not_resolved} -> {error, {not_resolved, Name}};
+        {error, _} = E -> E
+    end.
+
+item({handle, H}, X) -> {?IG_SYM_VALBYHND, H, X};
+item({address, G, O}, X) -> {G, O, X}.
+
+%% The planned items' results back in the caller's order, errors given at once kept.
+merge([], [], _) ->
+    [];
+merge([{error, _} = E | Plan], Results, F) ->
+    [E | merge(Plan, Results, F)];
+merge([{_, _, Type} | Plan], [R | Results], F) ->
+    [F(Type, R) | merge(Plan, Results, F)].
+
+decode_value(Type, {ok, Bin}) -> cell_hal_ads_types:decode(Type, Bin);
+decode_value(_, {error, _} = E) -> E.
+
+%%====================================================================
+%% Resolving variables
+%%====================================================================
+
+%% Resolves variables for a caller: those already resolved are used at once, the others
+%% are asked for; only what succeeded counts as used by the caller.
+resolve_for(Vars, Pid, From, Deadline, Then, D) ->
+    Keyed = [{cell_hal_ads_vars:key_of(N, T, D#data.vars), N, T} || {N, T} <- Vars],
+    Missing = lists:ukeysort(1, [I || {K, _, _} = I <- Keyed,
+                                      cell_hal_ads_vars:state(K, D#data.vars) =/= ready]),
+    Gen = D#data.generation,
+    resolve_keys(Missing, From, Deadline,
+                 fun(Found, Dx) when Dx#data.generation =/= Gen ->
+                         {Dy, A1} = release_found(Found, Dx),
+                         {Dz, A2} = Then([{error, symbols_changed} || _ <- Vars], Dy),
+                         {Dz, A1 ++ A2};
+                    (Found, Dx) ->
+                         finish_resolve(Keyed, Found, Pid, Then, Dx)
+                 end, D).
+
+finish_resolve(Keyed, Found, Pid, Then, D) ->
+    Names = maps:from_list([{K, {N, T}} || {K, N, T} <- Keyed]),
+    {D1, Extra} = lists:foldl(fun(F, Acc) -> register_found(F, Names, Acc) end, {D, []},
+                              Found),
+    {Results, D2} = lists:mapfoldl(
+                      fun({K, N, T}, Dx) ->
+                              case cell_hal_ads_vars:find(K, Dx#data.vars) of
+                                  {ok, #{state := ready, symbol := S}} ->
+                                      %% this spelling is remembered for the reads to come
+                                      Vs = cell_hal_ads_vars:declare(N, T, Dx#data.vars),
+                                      {{ok, info(S)},
+                                       Dx#data{vars = cell_hal_ads_vars:use(K, Pid, Vs)}};
+                                  _ ->
+                                      {{error, find_error(K, Found, Names)}, Dx}
+                              end
+                      end, D1, Keyed),
+    D3 = case [ok || {ok, _} <- Results] of
+             [] -> D2;
+             _ -> monitor_pid(Pid, D2)
+         end,
+    {D4, A1} = release_handles(Extra, D3),
+    {D5, A2} = Then(Results, D4),
+    {D5, A1 ++ A2}.
+
+%% A variable found: registered, unless another caller registered it meanwhile (then
+%% the second handle goes back).
+register_found({K, {ok, Symbol, Access}}, Names, {D, Extra}) ->
+    case cell_hal_ads_vars:state(K, D#data.vars) of
+        ready ->
+            {D, [Access | Extra]};
+        _ ->
+            {Name, Type} = maps:get(K, Names),
+            Vars = cell_hal_ads_vars:declare(Name, Type, D#data.vars),
+            {D#data{vars = cell_hal_ads_vars:resolved(K, Symbol, Access, Vars)}, Extra}
+    end;
+register_found({K, {error, Reason}}, Names, {D, Extra}) ->
+    {Name, Type} = maps:get(K, Names),
+    cell_log:warning(D#data.log, "variable ~ts (~ts) cannot be used: ~ts",
+                     [Name, cell_hal_ads_types:plc_name(Type), format_error(Reason)]),
+    {D, Extra}.
+
+find_error(K, Found, Names) ->
+    case lists:keyfind(K, 1, Found) of
+        {_, {error, Reason}} ->
+            Reason;
+        _ ->
+            {Name, _} = maps:get(K, Names),
+            {not_resolved, Name}
+    end.
+
+info(#{name := Name, type := Type, size := Size, group := G, offset := O}) ->
+    #{symbol => Name, plc_type => Type, size => Size, group => G, offset => O}.
+
+release_found(Found, D) ->
+    release_handles([A || {_, {ok, _, A}} <- Found], D).
+
+release_handles(Accesses, D) ->
+    Items = [{?IG_SYM_RELEASEHND, 0, <<H:32/little>>} || {handle, H} <- Accesses],
+    {Requests, _} = cell_hal_ads_batch:writes(Items, batch_mode(D)),
+    job(Requests, undefined, deadline(request_timeout(D)), fun ignore/2, D).
+
+%% Resolves `[{Key, Name, Type}]': `Cont([{Key, {ok, Symbol, Access} | {error, Reason}}])'.
+%% "*" names are looked up in the uploaded symbol table, the others asked for by name
+%% (which also finds structure fields); then the type is checked and a handle taken.
+resolve_keys([], _From, _Deadline, Cont, D) ->
+    Cont([], D);
+resolve_keys(Items, From, Deadline, Cont, D) ->
+    {Wild, Plain} = lists:partition(fun({_, N, _}) -> cell_hal_ads_symbols:is_wildcard(N) end,
+                                    Items),
+    with_table(Wild =/= [], From, Deadline,
+               fun(Table, D1) ->
+                       FoundWild = [{I, lookup_wild(N, Table)} || {_, N, _} = I <- Wild],
+                       symbol_infos(Plain, From, Deadline,
+                                    fun(FoundPlain, D2) ->
+                                            Checked = [{I, check(I, R)}
+                                                       || {I, R} <- FoundWild ++ FoundPlain],
+                                            acquire(Checked, From, Deadline, Cont, D2)
+                                    end, D1)
+               end, D).
+
+lookup_wild(Name, {ok, Table}) -> cell_hal_ads_symbols:lookup(Name, Table);
+lookup_wild(_, {error, Reason}) -> {error, {symbol_table, Reason}}.
+
+check({_, Name, Type}, {ok, Symbol}) ->
+    case cell_hal_ads_symbols:check_type(Name, Type, Symbol) of
+        ok -> {ok, Symbol};
+        Error -> Error
+    end;
+check(_, {error, _} = E) ->
+    E.
+
+%% The symbol table of the present program, uploaded once per symbol version.
+with_table(false, _From, _Deadline, Cont, D) ->
+    Cont(none, D);
+with_table(true, _From, _Deadline, Cont, #data{table = {V, Table}, version = V} = D)
+  when V =/= undefined ->
+    Cont({ok, Table}, D);
+with_table(true, From, Deadline, Cont, D) ->
+    job([{read, ?IG_SYM_UPLOADINFO, 0, 8}], From, Deadline,
+        fun([{ok, InfoBin}], D1) ->
+                case cell_hal_ads_codec:decode_upload_info(InfoBin) of
+                    {ok, #{size := Size}} ->
+                        job([{read, ?IG_SYM_UPLOAD, 0, Size}], From, Deadline,
+                            fun([{ok, TableBin}], D2) ->
+                                    upload_done(cell_hal_ads_codec:decode_symbol_table(TableBin),
+                                                Cont, D2);
+                               ([{error, R}], D2) ->
+                                    Cont({error, R}, D2)
+                            end, D1);
+                    {error, R} ->
+                        Cont({error, R}, D1)
+                end;
+           ([{error, R}], D1) ->
+                Cont({error, R}, D1)
+        end, D).
+
+upload_done({ok, Symbols}, Cont, D) ->
+    Table = cell_hal_ads_symbols:new(Symbols),
+    cell_log:debug(D#data.log, "symbol table uploaded: ~b symbols",
+                   [cell_hal_ads_symbols:count(Table)]),
+    Cont({ok, Table}, D#data{table = {D#data.version, Table}});
+upload_done({error, R}, Cont, D) ->
+    Cont({error, R}, D).
+
+table_list(Table) ->
+    lists:sort(fun(#{name := A}, #{name := B}) -> A =< B end,
+               cell_hal_ads_symbols:to_list(Table)).
+
+%% Symbol info by name (0xF009) for each plain name, in one round trip.
+symbol_infos([], _From, _Deadline, Cont, D) ->
+    Cont([], D);
+symbol_infos(Items, From, Deadline, Cont, D) ->
+    Asks = [{?IG_SYM_INFOBYNAMEEX, 0, ?SYMBOL_INFO_LENGTH, <<Name/binary, 0>>}
+            || {_, Name, _} <- Items],
+    {Requests, Assemble} = cell_hal_ads_batch:read_writes(Asks, batch_mode(D)),
+    job(Requests, From, Deadline,
+        fun(Answers, Dx) ->
+                Found = lists:zipwith(fun({_, Name, _} = I, R) -> {I, symbol_info(Name, R)} end,
+                                      Items, Assemble(Answers)),
+                Cont(Found, Dx)
+        end, D).
+
+symbol_info(Name, {ok, Bin}) ->
+    case cell_hal_ads_codec:decode_symbol(Bin) of
+        {ok, Symbol} -> {ok, Symbol};
+        {error, Reason} -> {error, {symbol_error, Name, Reason}}
+    end;
+symbol_info(Name, {error, Reason}) ->
+    {error, symbol_error(Name, Reason)}.
+
+symbol_error(Name, {ads_error, 16#710, _}) -> {unknown_symbol, Name};
+symbol_error(_, timeout) -> timeout;
+symbol_error(_, disconnected) -> disconnected;
+symbol_error(Name, Reason) -> {symbol_error, Name, Reason}.
+
+%% Handles (0xF003) for the checked symbols, in one round trip; with `access =>
+%% address' the symbol's own index group and offset.
+acquire(Checked, _From, _Deadline, Cont, #data{opts = #{access := address}} = D) ->
+    Cont([{K, case R of
+                  {ok, #{group := G, offset := O} = S} -> {ok, S, {address, G, O}};
+                  {error, _} = E -> E
+              end} || {{K, _, _}, R} <- Checked], D);
+acquire(Checked, From, Deadline, Cont, D) ->
+    Ok = [{I, S} || {I, {ok, S}} <- Checked],
+    Asks = [{?IG_SYM_HNDBYNAME, 0, 4, <<(handle_name(N, S))/binary, 0>>}
+            || {{_, N, _}, S} <- Ok],
+    {Requests, Assemble} = cell_hal_ads_batch:read_writes(Asks, batch_mode(D)),
+    job(Requests, From, Deadline,
+        fun(Answers, Dx) ->
+                Handles = lists:zipwith(fun({{K, N, _}, S}, R) -> {K, handle(N, S, R)} end,
+                                        Ok, Assemble(Answers)),
+                Failed = [{K, E} || {{K, _, _}, {error, _} = E} <- Checked],
+                Cont(Handles ++ Failed, Dx)
+        end, D).
+
+%% A "*" name is asked for by the full name it matched.
+handle_name(Name, #{name := Full}) ->
+    case cell_hal_ads_symbols:is_wildcard(Name) of
+        true -> Full;
+        false -> Name
+    end.
+
+handle(_, S, {ok, <<H:32/little>>}) -> {ok, S, {handle, H}};
+handle(N, _, {ok, _}) -> {error, {symbol_error, N, {bad_response, handle_size}}};
+handle(N, _, {error, Reason}) -> {error, symbol_error(N, Reason)}.
+
+%%====================================================================
+%% Releasing variables
+%%====================================================================
+
+unuse_keys(Keys, Pid, D) ->
+    {Vars, Unused} = lists:foldl(fun(K, {V, U}) ->
+                                         case cell_hal_ads_vars:unuse(K, Pid, V) of
+                                             {V1, unused} -> {V1, [K | U]};
+                                             {V1, _} -> {V1, U}
+                                         end
+                                 end, {D#data.vars, []}, Keys),
+    {D#data{vars = Vars}, idle_timers(Unused, D)}.
+
+idle_timers(Keys, #data{opts = #{handle_idle := Idle}}) ->
+    [{{timeout, {release, K}}, Idle, release} || K <- lists:usort(Keys)].
+
+%% An idle variable that is still unused goes: its handle back to the PLC.
+release_idle(K, State, D) ->
+    case cell_hal_ads_vars:users(K, D#data.vars) of
+        0 ->
+            Access = case cell_hal_ads_vars:ready(K, D#data.vars) of
+                         {ok, A, _, _} -> [A];
+                         {error, _} -> []
+                     end,
+            D1 = D#data{vars = cell_hal_ads_vars:remove(K, D#data.vars)},
+            case State of
+                {connected, _} -> release_handles(Access, D1);
+                _ -> {D1, []}
+            end;
+        _ ->
+            {D, []}
+    end.
+
+%%====================================================================
+%% Subscriptions
+%%====================================================================
+
+add_subs(Subs, Resolved, Pid, From, Deadline, D) ->
+    Pairs = lists:zip(Subs, Resolved),
+    Ready = [{Var, Opts} || {{Var, Opts}, {ok, _}} <- Pairs],
+    New = [{make_ref(), #{pid => Pid, var => Var, key => cell_hal_ads_vars:key(N, T),
+                          opts => Opts}} || {{N, T} = Var, Opts} <- Ready],
+    Requests = [note_request(S, D) || {_, S} <- New],
+    job(Requests, From, Deadline,
+        fun(Answers, Dx) ->
+                Added = lists:zip(New, Answers),
+                Dy = lists:foldl(fun({{Ref, Sub}, {ok, Note}}, Acc) ->
+                                         Added1 = (Acc#data.subs)#{Ref => Sub#{note => Note}},
+                                         Acc#data{subs = Added1,
+                                                  notes = (Acc#data.notes)#{Note => Ref}};
+                                    ({{_, #{key := K}}, {error, _}}, Acc) ->
+                                         {V, _} = cell_hal_ads_vars:unuse(K, Pid, Acc#data.vars),
+                                         Acc#data{vars = V}
+                                 end, Dx, Added),
+                Results = sub_results(Pairs, Added),
+                Unused = [K || {{_, #{key := K}}, {error, _}} <- Added,
+                               cell_hal_ads_vars:users(K, Dy#data.vars) =:= 0],
+                {Dy, [{reply, From, {ok, Results}} | idle_timers(Unused, Dy)]}
+        end, D).
+
+sub_results([], _) ->
+    [];
+sub_results([{_, {error, _} = E} | Pairs], Added) ->
+    [E | sub_results(Pairs, Added)];
+sub_results([{_, {ok, _}} | Pairs], [{{Ref, _}, {ok, _}} | Added]) ->
+    [{ok, Ref} | sub_results(Pairs, Added)];
+sub_results([{_, {ok, _}} | Pairs], [{_, {error, _} = E} | Added]) ->
+    [E | sub_results(Pairs, Added)].
+
+note_request(#{key := K, opts := #{mode := Mode, cycle := Cycle, max_delay := Delay}}, D) ->
+    {ok, Access, Size, _} = cell_hal_ads_vars:ready(K, D#data.vars),
+    {G, O, _} = item(Access, Size),
+    {add_notification, G, O, Size, Mode, Delay, Cycle}.
+
+is_owner(Ref, Pid, D) ->
+    case maps:find(Ref, D#data.subs) of
+        {ok, #{pid := Pid}} -> true;
+        _ -> false
+    end.
+
+%% Ends subscriptions: the PLC's notifications are deleted, the variables released.
+drop_subs([], _State, D) ->
+    {D, []};
+drop_subs(Refs, State, D) ->
+    {D1, Notes, Unused} = lists:foldl(fun drop_sub/2, {D, [], []}, Refs),
+    {D2, A} = case State of
+                  {connected, _} when Notes =/= [] ->
+                      job([{delete_notification, N} || N <- Notes], undefined,
+                          deadline(request_timeout(D1)), fun ignore/2, D1);
+                  _ ->
+                      {D1, []}
+              end,
+    {D2, A ++ idle_timers(Unused, D2)}.
+
+drop_sub(Ref, {D, Notes, Unused}) ->
+    {#{pid := Pid, key := K} = Sub, Subs} = maps:take(Ref, D#data.subs),
+    {Vars, Use} = cell_hal_ads_vars:unuse(K, Pid, D#data.vars),
+    D1 = D#data{subs = Subs, vars = Vars},
+    {D2, Notes1} = case Sub of
+                       #{note := N} -> {D1#data{notes = maps:remove(N, D1#data.notes)},
+                                        [N | Notes]};
+                       _ -> {D1, Notes}
+                   end,
+    {D2, Notes1, [K || Use =:= unused] ++ Unused}.
+
+%% A device notification: samples to their subscribers, one message per subscription
+%% and frame; a symbol version sample may start a refresh.
+notification(Payload, D) ->
+    case cell_hal_ads_codec:decode_notification(Payload) of
+        {ok, Stamps} ->
+            {PerRef, Actions} =
+                lists:foldl(fun({Time, Samples}, Acc) ->
+                                    Ns = cell_hal_ads_codec:filetime_to_ns(Time),
+                                    lists:foldl(fun(S, Acc1) -> sample(Ns, S, Acc1, D) end,
+                                                Acc, Samples)
+                            end, {#{}, []}, Stamps),
+            maps:foreach(fun(Ref, Rev) ->
+                                 #{pid := Pid} = maps:get(Ref, D#data.subs),
+                                 Pid ! {cell_hal_ads, Ref, {samples, lists:reverse(Rev)}}
+                         end, PerRef),
+            {D, lists:reverse(Actions)};
+        {error, Reason} ->
+            cell_log:warning(D#data.log, "notification dropped: ~ts", [format_error(Reason)]),
+            {D, []}
+    end.
+
+sample(Ns, {Note, Bin}, {PerRef, Actions} = Acc, D) ->
+    case maps:find(Note, D#data.notes) of
+        {ok, symbol_version} ->
+            case Bin of
+                <<V, _/binary>> -> {PerRef, [{next_event, internal, {version, V}} | Actions]};
+                _ -> Acc
+            end;
+        {ok, Ref} ->
+            #{key := {_, Type}, var := {Name, _}} = maps:get(Ref, D#data.subs),
+            case cell_hal_ads_types:decode(Type, Bin) of
+                {ok, Value} ->
+                    {maps:update_with(Ref, fun(L) -> [{Ns, Value} | L] end, [{Ns, Value}],
+                                      PerRef), Actions};
+                {error, Reason} ->
+                    cell_log:warning(D#data.log, "sample of ~ts dropped: ~ts",
+                                     [Name, format_error(Reason)]),
+                    Acc
+            end;
+        error ->
+            %% A notification deleted a moment ago may still send once.
+            Acc
+    end.
+
+%%====================================================================
+%% Jobs: groups of requests in flight, answered together
+%%====================================================================
+
+%% Sends requests (as many at once as `max_in_flight' allows, the rest queued) and
+%% calls `Cont(Answers, Data)' when every one is answered or the deadline passed.
+job([], _From, _Deadline, Cont, D) ->
+    Cont([], D);
+job(Requests, From, Deadline, Cont, D) ->
+    Id = D#data.job_seq + 1,
+    N = length(Requests),
+    Job = #job{from = From, n = N, left = N, received = D#data.received, cont = Cont},
+    Waiting = lists:foldl(fun({I, R}, Q) -> queue:in({Id, I, R}, Q) end, D#data.waiting,
+                          lists:zip(lists:seq(1, N), Requests)),
+    {D1, Actions} = pump(D#data{job_seq = Id, jobs = (D#data.jobs)#{Id => Job},
+                                waiting = Waiting}),
+    Timeout = case Deadline of
+                  infinity -> [];
+                  _ -> [{{timeout, {job, Id}}, Deadline, Id, [{abs, true}]}]
+              end,
+    {D1, Timeout ++ Actions}.
+
+%% Sends queued requests while there is room, in one write to the socket.
+pump(D) ->
+    pump(D, []).
+
+pump(#data{opts = #{max_in_flight := Max}, inflight = In, waiting = W} = D, Frames)
+  when map_size(In) < Max ->
+    case queue:out(W) of
+        {{value, {Id, I, Request}}, W1} ->
+            Invoke = next_invoke(D#data.invoke, In),
+            Frame = cell_hal_ads_codec:encode_frame(D#data.target, D#data.source, Invoke,
+                                                    Request),
+            Cmd = cell_hal_ads_codec:request_command(Request),
+            pump(D#data{invoke = Invoke, inflight = In#{Invoke => {Id, I, Cmd}}, waiting = W1},
+                 [Frame | Frames]);
+        {empty, _} ->
+            send(lists:reverse(Frames), D)
+    end;
+pump(D, Frames) ->
+    send(lists:reverse(Frames), D).
+
+send([], D) ->
+    {D, []};
+send(Frames, D) ->
+    case gen_tcp:send(D#data.socket, Frames) of
+        ok -> {D, []};
+        {error, Reason} -> {D, [{next_event, internal, {fail, {socket, Reason}}}]}
+    end.
+
+next_invoke(Last, In) ->
+    Next = (Last + 1) band 16#FFFFFFFF,
+    case maps:is_key(Next, In) of
+        true -> next_invoke(Next, In);
+        false -> Next
+    end.
+
+%% One answer in; the job completes with its last answer.
+deliver(Id, I, Answer, D) ->
+    case maps:find(Id, D#data.jobs) of
+        {ok, #job{left = 1} = Job} ->
+            complete(Id, Job#job{answers = (Job#job.answers)#{I => Answer}, left = 0},
+                     D#data{jobs = maps:remove(Id, D#data.jobs)});
+        {ok, #job{left = Left, answers = As} = Job} ->
+            Job1 = Job#job{left = Left - 1, answers = As#{I => Answer}},
+            {D#data{jobs = (D#data.jobs)#{Id := Job1}}, []};
+        error ->
+            {D, []}
+    end.
+
+complete(Id, #job{n = N, answers = As, cont = Cont}, D) ->
+    Answers = [maps:get(I, As, {error, timeout}) || I <- lists:seq(1, N)],
+    {D1, Actions} = Cont(Answers, D),
+    {D1, [{{timeout, {job, Id}}, cancel} | Actions]}.
+
+%% The deadline passed: what is missing is a timeout. If nothing at all came from the
+%% PLC since the job was sent, the connection is dead (a pulled cable is noticed here,
+%% long before TCP would).
+job_timeout(Id, D) ->
+    case maps:take(Id, D#data.jobs) of
+        {Job, Jobs} ->
+            Inflight = maps:filter(fun(_, {J, _, _}) -> J =/= Id end, D#data.inflight),
+            Waiting = queue:filter(fun({J, _, _}) -> J =/= Id end, D#data.waiting),
+            Dead = D#data.received =:= Job#job.received,
+            {D1, A1} = complete(Id, Job, D#data{jobs = Jobs, inflight = Inflight,
+                                                waiting = Waiting}),
+            {D2, A2} = pump(D1),
+            Fail = [{next_event, internal, {fail, no_answer}} || Dead],
+            {D2, A1 ++ A2 ++ Fail};
+        error ->
+            {D, []}
+    end.
+
+%%====================================================================
+%% Frames in
+%%====================================================================
+
+frames(D, Actions) ->
+    #data{buffer = Buffer, opts = #{max_frame := Max}} = D,
+    case cell_hal_ads_codec:next_frame(Buffer, Max) of
+        more ->
+            {D, Actions};
+        {ams, Body, Rest} ->
+            {D1, A} = frame(Body, D#data{buffer = Rest}),
+            case [F || {next_event, internal, {fail, _}} = F <- A] of
+                [] -> frames(D1, Actions ++ A);
+                _ -> {D1, Actions ++ A}
+            end;
+        {router, Code, _Body, Rest} ->
+            cell_log:debug(D#data.log, "router message 0x~.16B skipped", [Code]),
+            frames(D#data{buffer = Rest}, Actions);
+        {error, Reason} ->
+            {D, Actions ++ [{next_event, internal, {fail, Reason}}]}
+    end.
+
+frame(Body, D) ->
+    {_, SPort} = D#data.source,
+    case cell_hal_ads_codec:decode_ams(Body) of
+        {ok, #{target := {_, Port}}, _} when Port =/= SPort ->
+            cell_log:debug(D#data.log, "frame for AMS port ~b skipped", [Port]),
+            {D, []};
+        {ok, #{command := device_notification}, Payload} ->
+            notification(Payload, D);
+        {ok, #{flags := Flags}, _} when Flags band 1 =:= 0 ->
+            cell_log:debug(D#data.log, "request from the PLC skipped", []),
+            {D, []};
+        {ok, #{invoke := Invoke, command := Cmd, error := Err}, Payload} ->
+            case maps:take(Invoke, D#data.inflight) of
+                {{Id, I, Cmd}, In} ->
+                    Answer = case Err of
+                                 0 -> cell_hal_ads_codec:decode_response(Cmd, Payload);
+                                 _ -> {error, cell_hal_ads_codec:ads_error(Err)}
+                             end,
+                    {D1, A1} = deliver(Id, I, Answer, D#data{inflight = In}),
+                    {D2, A2} = pump(D1),
+                    {D2, A1 ++ A2};
+                {{_, _, Expected}, _} ->
+                    {D, [{next_event, internal, {fail, {unexpected_answer, Cmd, Expected}}}]};
+                error ->
+                    %% An answer after its deadline: the caller has moved on.
+                    {D, []}
+            end;
+        {error, Reason} ->
+            {D, [{next_event, internal, {fail, Reason}}]}
+    end.
+
+%%====================================================================
+%% Helpers
+%%====================================================================
+
+act({D, Actions}) ->
+    {keep_state, D, Actions}.
+
+expired(infinity) -> false;
+expired(Deadline) -> now_ms() >= Deadline.
+
+monitor_pid(Pid, D) ->
+    case maps:is_key(Pid, D#data.monitors) of
+        true -> D;
+        false -> D#data{monitors = (D#data.monitors)#{Pid => erlang:monitor(process, Pid)}}
+    end.
+
+status_map(State, D) ->
+    #data{opts = #{peer := Peer}, target = {Net, Port}} = D,
+    Keys = cell_hal_ads_vars:keys(D#data.vars),
+    Failed = [Name || K <- Keys, {ok, #{state := failed, name := Name}} <-
+                                     [cell_hal_ads_vars:find(K, D#data.vars)]],
+    Base = #{state => case State of
+                          {connected, ready} -> up;
+                          {connected, restoring} -> restoring;
+                          connecting -> connecting;
+                          disconnected -> down
+                      end,
+             name => D#data.log, peer => Peer,
+             target => iolist_to_binary([cell_hal_ads_codec:format_net_id(Net), ":",
+                                         integer_to_list(Port)]),
+             source => case D#data.source of
+                           undefined -> undefined;
+                           {SNet, SPort} ->
+                               iolist_to_binary([cell_hal_ads_codec:format_net_id(SNet), ":",
+                                                 integer_to_list(SPort)])
+                       end,
+             symbol_version => D#data.version,
+             variables => length(Keys), failed => lists:sort(Failed),
+             subscriptions => map_size(D#data.subs),
+             in_flight => map_size(D#data.inflight)},
+    WithDevice = case D#data.device of
+                     #{name := N, version := V, ads_state := S} ->
+                         Base#{device => #{name => N, version => V}, ads_state => S};
+                     _ ->
+                         Base
+                 end,
+    case D#data.down of
+        undefined -> WithDevice;
+        Reason -> WithDevice#{reason => format_error(Reason)}
+    end.

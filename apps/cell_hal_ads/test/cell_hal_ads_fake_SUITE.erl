@@ -1,0 +1,1037 @@
+%% The ADS client against the suite's fake TwinCAT PLC (test/peers/fake_plc.py), which
+%% serves what pyads' test server does not: symbols and handles, the symbol table and
+%% version, sum commands, and device notifications over the wire.
+%%
+%% The fake is proven first: Beckhoff's AdsLib (through pyads) reads, writes, sum-reads,
+%% sum-writes and receives notifications from it (group `proof'). Only if all of that
+%% passed do the client's groups run; otherwise they are skipped, which `make test'
+%% counts as failures. Then our frames are compared byte for byte with AdsLib's for the
+%% same operations (group `crosscheck').
+-module(cell_hal_ads_fake_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, init_per_suite/1, end_per_suite/1, init_per_group/2,
+         end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
+-export([adslib_reads_and_writes/1, adslib_symbol_info/1, adslib_sum_reads/1,
+         adslib_sum_writes/1, adslib_notifications/1]).
+-export([device_info_and_state/1, every_type_round_trip/1, values_agree_with_adslib/1,
+         handles_cached_and_released/1, exit_releases_handles/1,
+         group_in_one_sum_command/1, sum_split_at_limit/1, sum_beyond_plc_limit/1,
+         raw_sum_commands/1, one_by_one_without_sum_commands/1,
+         structure_fields_by_name/1, image_wildcards/1, image_by_address/1,
+         missing_symbol_is_clear/1, retyped_symbol_is_clear/1,
+         removed_symbol_ends_subscription/1, notifications_keep_plc_stamps/1,
+         laser_beam_latch/1, cyclic_notifications/1, unsubscribe_deletes_notification/1,
+         trigger_enable_by_handle/1, several_requests_in_flight/1,
+         timeout_never_blocks_caller/1, garbage_closes_only_the_connection/1,
+         oversized_frame_closes_only_the_connection/1, bad_options/1,
+         stop_leaves_plc_tidy/1]).
+-export([frames_match_adslib/1]).
+-export([reconnect_after_plc_restart/1, connection_refused_then_up/1]).
+
+-define(NET, "127.0.0.1.1.1").
+-define(ADSLIB_NET, "10.11.12.13.1.1").
+-define(WAIT, 10000).
+-define(FILETIME_UNIX_EPOCH, 116444736000000000).
+
+all() ->
+    [{group, proof}, {group, client}, {group, crosscheck}, {group, restart}].
+
+groups() ->
+    [{proof, [sequence], [adslib_reads_and_writes, adslib_symbol_info, adslib_sum_reads,
+                          adslib_sum_writes, adslib_notifications]},
+     {client, [], [device_info_and_state, every_type_round_trip, values_agree_with_adslib,
+                   handles_cached_and_released, exit_releases_handles,
+                   group_in_one_sum_command, sum_split_at_limit, sum_beyond_plc_limit,
+                   raw_sum_commands, one_by_one_without_sum_commands,
+                   structure_fields_by_name, image_wildcards, image_by_address,
+                   missing_symbol_is_clear, retyped_symbol_is_clear,
+                   removed_symbol_ends_subscription, notifications_keep_plc_stamps,
+                   laser_beam_latch, cyclic_notifications, unsubscribe_deletes_notification,
+                   trigger_enable_by_handle, several_requests_in_flight,
+                   timeout_never_blocks_caller, garbage_closes_only_the_connection,
+                   oversized_frame_closes_only_the_connection, bad_options,
+                   stop_leaves_plc_tidy]},
+     {crosscheck, [], [frames_match_adslib]},
+     {restart, [], [reconnect_after_plc_restart, connection_refused_then_up]}].
+
+%%--------------------------------------------------------------------
+%% Setup
+%%--------------------------------------------------------------------
+
+init_per_suite(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root"),
+    os:putenv("CELLRT_ROOT", Root),
+    {ok, Apps} = application:ensure_all_started(cell_base),
+    case cell_hal_ads_peer:start("fake_plc.py", []) of
+        {ok, Fake, {ready, Port, _}} ->
+            Symbols = define_symbols(Fake),
+            [{apps, Apps}, {fake, Fake}, {port, Port}, {symbols, Symbols} | Config];
+        {error, Reason} ->
+            ct:fail("the fake PLC did not start: ~tp", [Reason])
+    end.
+
+end_per_suite(Config) ->
+    ok = cell_hal_ads_peer:stop(?config(fake, Config)),
+    Config.
+
+init_per_group(proof, Config) ->
+    [{adslib, adslib(Config)} | Config];
+init_per_group(_, Config) ->
+    case filelib:is_regular(proven(Config)) of
+        true -> Config;
+        false -> {skip, "the fake PLC was not proven by Beckhoff's AdsLib"}
+    end.
+
+end_per_group(proof, Config) ->
+    ok = cell_hal_ads_peer:stop(?config(adslib, Config)),
+    Results = ?config(tc_group_result, Config),
+    case proplists:get_value(failed, Results, []) ++ proplists:get_value(skipped, Results, []) of
+        [] -> ok = file:write_file(proven(Config), <<"proven\n">>);
+        Failed -> ct:log("the fake PLC is not proven: ~p", [Failed])
+    end;
+end_per_group(_, _Config) ->
+    ok.
+
+init_per_testcase(_Case, Config) ->
+    Config.
+
+end_per_testcase(_Case, Config) ->
+    %% Settings some cases change on the shared fake go back to normal.
+    Fake = ?config(fake, Config),
+    ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = cell_hal_ads_peer:cmd(Fake, "limit 100000"),
+    ok.
+
+proven(Config) ->
+    filename:join(?config(priv_dir, Config), "fake_plc_proven").
+
+%% The PLC's variables: every seed type, a structure with fields, IO image names, the
+%% laser-beam signals and a 200-point IO group.
+define_symbols(Fake) ->
+    Scalars = [{"MAIN.counter", "DINT", 3, <<42:32/little>>},
+               {"MAIN.flag", "BOOL", 33, <<0>>},
+               {"MAIN.pos", "LREAL", 5, <<10.0:64/float-little>>},
+               {"MAIN.speed", "REAL", 4, <<1.5:32/float-little>>},
+               {"MAIN.b", "BYTE", 17, <<200>>},
+               {"MAIN.sb", "SINT", 16, <<-5:8/signed>>},
+               {"MAIN.i", "INT", 2, <<-300:16/little-signed>>},
+               {"MAIN.w", "WORD", 18, <<60000:16/little>>},
+               {"MAIN.dw", "DWORD", 19, <<4000000000:32/little>>},
+               {"MAIN.li", "LINT", 20, <<-5000000000:64/little-signed>>},
+               {"MAIN.uli", "ULINT", 21, <<10000000000000000000:64/little>>},
+               {"MAIN.d", "DATE", 19, <<1700006400:32/little>>},
+               {"MAIN.t", "TIME", 19, <<90000:32/little>>},
+               {"MAIN.c", "STRING(1)", 30, <<"A", 0>>},
+               {"MAIN.name", "STRING(20)", 30, <<"hello", 0:(16 * 8)>>},
+               {"MAIN.retyped", "DINT", 3, <<7:32/little>>},
+               {"MAIN.removed", "DINT", 3, <<8:32/little>>},
+               {"MAIN.StopLoadingSegmentTriggerEnable", "BOOL", 33, <<0>>},
+               {"MAIN.LaserBeam", "BOOL", 33, <<0>>},
+               {"MAIN.AxisPos", "LREAL", 5, <<0.0:64/float-little>>},
+               {"MAIN.GeneralInputs", "GeneralInputs", 65, <<0, 0>>},
+               {".GeneralOutputs", "GeneralOutputs", 65, <<0>>},
+               {"Term 5 (EL1008).ManipulatorInputs.FailPaletteIsIn", "BOOL", 33, <<1>>},
+               {"Term 5 (EL1008).ManipulatorInputs.ZAxisCylinder1IsUp", "BOOL", 33, <<0>>},
+               {"Term 9 (EL2008).ManipulatorOutputs.ZAxisCylinder1Up", "BOOL", 33, <<0>>},
+               {"Term 6 (EL1008).Spare.In", "BOOL", 33, <<0>>},
+               {"Term 7 (EL1008).Spare.In", "BOOL", 33, <<0>>}],
+    Fields = [{"MAIN.GeneralInputs.StartButton", "BOOL", 33, <<1>>},
+              {"MAIN.GeneralInputs.StopButton", "BOOL", 33, <<0>>},
+              {".GeneralOutputs.StartButtonLight", "BOOL", 33, <<0>>}],
+    Group = [{point(I), "DINT", 3, <<(I * 3):32/little>>} || I <- lists:seq(0, 199)],
+    maps:from_list(
+      [{list_to_binary(N), add(Fake, N, T, A, V, "")} || {N, T, A, V} <- Scalars ++ Group] ++
+      [{list_to_binary(N), add(Fake, N, T, A, V, " nested")} || {N, T, A, V} <- Fields]).
+
+point(I) ->
+    lists:flatten(io_lib:format("GVL.Io.P~3..0b", [I])).
+
+add(Fake, Name, Type, Adst, Value, Extra) ->
+    {ok, G, O} = cell_hal_ads_peer:cmd(Fake, ["add ", q(Name), " ", Type, " ",
+                                              integer_to_list(Adst), " ",
+                                              integer_to_list(byte_size(Value)), " ",
+                                              hex(Value), Extra]),
+    {G, O, byte_size(Value)}.
+
+hex(Bin) ->
+    binary:encode_hex(Bin).
+
+%% A name for the fake's command line: spaces as %20.
+q(Name) ->
+    string:replace(Name, " ", "%20", all).
+
+adslib(Config) ->
+    {ok, Peer, {ready, _AmsPort}} =
+        cell_hal_ads_peer:start("pyads_client.py",
+                                ["--port", integer_to_list(?config(port, Config)),
+                                 "--target", ?NET, "--local", ?ADSLIB_NET]),
+    Peer.
+
+client(Config) ->
+    client(Config, #{}).
+
+client(Config, Extra) ->
+    Opts = maps:merge(#{host => "127.0.0.1", port => ?config(port, Config),
+                        target_net_id => ?NET, backoff => {50, 1000}, handle_idle => 0},
+                      Extra),
+    {ok, C} = cell_hal_ads_client:start(Opts),
+    stop_with_test(C),
+    ok = cell_hal_ads_client:subscribe_status(C),
+    %% the present state comes first, before the call returns
+    receive
+        {cell_hal_ads, C, up} -> ok;
+        {cell_hal_ads, C, {down, _}} -> ok = await_status(C, up)
+    after 0 -> ct:fail("no present state from ~p", [C])
+    end,
+    C.
+
+%% The client goes with the test case's process.
+stop_with_test(C) ->
+    Test = self(),
+    _ = spawn(fun() ->
+                      Ref = monitor(process, Test),
+                      receive {'DOWN', Ref, process, Test, _} -> ok end,
+                      catch cell_hal_ads_client:stop(C)
+              end),
+    ok.
+
+await_status(C, Status) ->
+    case cell_hal_ads_peer:await(fun({cell_hal_ads, P, S}) when P =:= C, S =:= Status -> {true, ok};
+                                    ({cell_hal_ads, P, {down, _} = S}) when P =:= C,
+                                                                           Status =:= down ->
+                                         {true, S};
+                                    (_) -> false
+                                 end, ?WAIT) of
+        {ok, _} -> ok;
+        {error, timeout} -> ct:fail("client ~p never became ~p", [C, Status])
+    end.
+
+%% A round trip through the client's connection: everything it sent before has reached
+%% the PLC.
+barrier(C) ->
+    {ok, _} = cell_hal_ads_client:read_state(C),
+    ok.
+
+stats(Config) ->
+    {ok, Stats} = cell_hal_ads_peer:cmd(?config(fake, Config), "stats"),
+    Stats.
+
+stat(Config, Key) ->
+    maps:get(Key, stats(Config), 0).
+
+clear(Config) ->
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "clear").
+
+set(Config, Name, Bin) ->
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), ["set ", q(Name), " ", hex(Bin)]).
+
+value(Config, Name) ->
+    {ok, Bin} = cell_hal_ads_peer:cmd(?config(fake, Config), ["get ", q(Name)]),
+    Bin.
+
+%%--------------------------------------------------------------------
+%% proof: Beckhoff's AdsLib against the fake
+%%--------------------------------------------------------------------
+
+adslib_reads_and_writes(Config) ->
+    A = ?config(adslib, Config),
+    {ok, <<"Fake PLC">>, {3, 1, 4024}} = cell_hal_ads_peer:cmd(A, "info"),
+    {ok, 5, 0} = cell_hal_ads_peer:cmd(A, "state"),
+    {ok, 42} = cell_hal_ads_peer:cmd(A, "read MAIN.counter DINT"),
+    {ok, 10.0} = cell_hal_ads_peer:cmd(A, "read MAIN.pos LREAL"),
+    {ok, <<"hello">>} = cell_hal_ads_peer:cmd(A, "read MAIN.name STRING"),
+    {ok, -300} = cell_hal_ads_peer:cmd(A, "read MAIN.i INT"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.counter DINT 1234567"),
+    ?assertEqual(<<1234567:32/little>>, value(Config, "MAIN.counter")),
+    {ok, 1234567} = cell_hal_ads_peer:cmd(A, "read MAIN.counter DINT"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.flag BOOL True"),
+    ?assertEqual(<<1>>, value(Config, "MAIN.flag")),
+    %% by handle, as the seed's trigger pattern does
+    {ok, H} = cell_hal_ads_peer:cmd(A, "handle MAIN.pos"),
+    ok = cell_hal_ads_peer:cmd(A, ["write_handle ", integer_to_list(H), " LREAL -2.5"]),
+    {ok, -2.5} = cell_hal_ads_peer:cmd(A, ["read_handle ", integer_to_list(H), " LREAL"]),
+    ok = cell_hal_ads_peer:cmd(A, ["release ", integer_to_list(H)]),
+    %% a released handle is gone
+    {error, 16#710} = cell_hal_ads_peer:cmd(A, ["read_handle ", integer_to_list(H), " LREAL"]),
+    {error, 16#710} = cell_hal_ads_peer:cmd(A, "read MAIN.nothing DINT"),
+    %% back as the other cases expect
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.counter DINT 42"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.flag BOOL False"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.pos LREAL 10.0").
+
+adslib_symbol_info(Config) ->
+    A = ?config(adslib, Config),
+    #{<<"MAIN.pos">> := {G, O, 8}} = ?config(symbols, Config),
+    {ok, <<"MAIN.pos">>, <<"LREAL">>, G, O, 8, 5} = cell_hal_ads_peer:cmd(A, "info_by_name MAIN.pos"),
+    #{<<"MAIN.GeneralInputs.StartButton">> := {G, O2, 1}} = ?config(symbols, Config),
+    {ok, <<"MAIN.GeneralInputs.StartButton">>, <<"BOOL">>, G, O2, 1, 33} =
+        cell_hal_ads_peer:cmd(A, "info_by_name main.generalinputs.startbutton").
+
+adslib_sum_reads(Config) ->
+    A = ?config(adslib, Config),
+    Names = [point(I) || I <- lists:seq(0, 199)],
+    {ok, Values} = cell_hal_ads_peer:cmd(A, ["sum_read" | [[" ", N] || N <- Names]]),
+    ?assertEqual([I * 3 || I <- lists:seq(0, 199)], Values),
+    {ok, [42, false, 10.0, <<"hello">>]} =
+        cell_hal_ads_peer:cmd(A, "sum_read MAIN.counter MAIN.flag MAIN.pos MAIN.name"),
+    set(Config, "MAIN.counter", <<99:32/little>>),
+    {ok, [99, 10.0]} = cell_hal_ads_peer:cmd(A, "sum_read MAIN.counter MAIN.pos"),
+    set(Config, "MAIN.counter", <<42:32/little>>).
+
+adslib_sum_writes(Config) ->
+    A = ?config(adslib, Config),
+    {ok, [<<"no error">>, <<"no error">>]} =
+        cell_hal_ads_peer:cmd(A, "sum_write MAIN.counter DINT 77 MAIN.pos LREAL 3.5"),
+    ?assertEqual(<<77:32/little>>, value(Config, "MAIN.counter")),
+    ?assertEqual(<<3.5:64/float-little>>, value(Config, "MAIN.pos")),
+    {ok, [77, 3.5]} = cell_hal_ads_peer:cmd(A, "sum_read MAIN.counter MAIN.pos"),
+    set(Config, "MAIN.counter", <<42:32/little>>),
+    set(Config, "MAIN.pos", <<10.0:64/float-little>>).
+
+adslib_notifications(Config) ->
+    A = ?config(adslib, Config),
+    ok = cell_hal_ads_peer:listen(A),
+    %% on change: the present value first, then every change
+    {ok, NH, UH} = cell_hal_ads_peer:cmd(A, "notify MAIN.AxisPos LREAL on_change 10"),
+    {ok, _} = await_adslib(NH, fun(V) -> V =:= 0.0 end),
+    set(Config, "MAIN.AxisPos", <<12.5:64/float-little>>),
+    {ok, _} = await_adslib(NH, fun(V) -> V =:= 12.5 end),
+    %% samples of one PLC cycle share a stamp; several stamps in one frame
+    {ok, NH2, UH2} = cell_hal_ads_peer:cmd(A, "notify MAIN.LaserBeam BOOL on_change 10"),
+    {ok, _} = await_adslib(NH2, fun(V) -> V =:= false end),
+    T1 = 133400000000000000,
+    T2 = T1 + 10000,
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config),
+                               ["burst ", integer_to_list(T1), " MAIN.AxisPos ",
+                                hex(<<20.0:64/float-little>>), " MAIN.LaserBeam 01 ; ",
+                                integer_to_list(T2), " MAIN.AxisPos ",
+                                hex(<<21.0:64/float-little>>)]),
+    {ok, {T1, 20.0}} = await_adslib(NH, fun(V) -> V =:= 20.0 end),
+    {ok, {T1, true}} = await_adslib(NH2, fun(V) -> V =:= true end),
+    {ok, {T2, 21.0}} = await_adslib(NH, fun(V) -> V =:= 21.0 end),
+    ok = cell_hal_ads_peer:cmd(A, ["del_notify ", integer_to_list(NH), " ", integer_to_list(UH)]),
+    ok = cell_hal_ads_peer:cmd(A, ["del_notify ", integer_to_list(NH2), " ",
+                                   integer_to_list(UH2)]),
+    %% cyclic: a sample every cycle, stamps moving on
+    {ok, NH3, UH3} = cell_hal_ads_peer:cmd(A, "notify MAIN.counter DINT cyclic 20"),
+    Stamps = [begin {ok, {T, 42}} = await_adslib(NH3, fun(V) -> V =:= 42 end), T end
+              || _ <- lists:seq(1, 3)],
+    ?assertEqual(lists:usort(Stamps), Stamps),
+    ok = cell_hal_ads_peer:cmd(A, ["del_notify ", integer_to_list(NH3), " ",
+                                   integer_to_list(UH3)]),
+    set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>),
+    set(Config, "MAIN.LaserBeam", <<0>>).
+
+await_adslib(NH, Pred) ->
+    case cell_hal_ads_peer:await_event(
+           fun({notification, H, T, V}) when H =:= NH -> 
+                   case Pred(V) of
+                       true -> {true, {T, V}};
+                       false -> false
+                   end;
+              (_) -> false
+           end, ?WAIT) of
+        {ok, R} -> {ok, R};
+        {error, timeout} -> ct:fail("AdsLib got no notification ~p", [NH])
+    end.
+
+%%--------------------------------------------------------------------
+%% client
+%%--------------------------------------------------------------------
+
+device_info_and_state(Config) ->
+    C = client(Config),
+    {ok, #{name := <<"Fake PLC">>, version := {3, 1, 4024}}} = cell_hal_ads_client:read_device_info(C),
+    {ok, #{ads_state := run, device_state := 0}} = cell_hal_ads_client:read_state(C),
+    ok = cell_hal_ads_client:write_control(C, stop, 0),
+    {ok, #{ads_state := stop}} = cell_hal_ads_client:read_state(C),
+    ok = cell_hal_ads_client:write_control(C, run, 0),
+    #{state := up, device := #{name := <<"Fake PLC">>}, symbol_version := V,
+      target := <<"127.0.0.1.1.1:851">>} = cell_hal_ads_client:status(C),
+    ?assert(is_integer(V)).
+
+%% Every seed type, read as the PLC holds it and written back as the PLC expects.
+every_type_round_trip(Config) ->
+    C = client(Config),
+    Cases = [{"MAIN.counter", int32, 42, -7, <<-7:32/little-signed>>},
+             {"MAIN.flag", bool, false, true, <<1>>},
+             {"MAIN.pos", lreal, 10.0, -0.125, <<-0.125:64/float-little>>},
+             {"MAIN.speed", real, 1.5, 2.25, <<2.25:32/float-little>>},
+             {"MAIN.b", byte, 200, 255, <<255>>},
+             {"MAIN.sb", sbyte, -5, -128, <<-128:8/signed>>},
+             {"MAIN.i", int16, -300, 32767, <<32767:16/little>>},
+             {"MAIN.w", uint16, 60000, 65535, <<65535:16/little>>},
+             {"MAIN.dw", uint32, 4000000000, 1, <<1:32/little>>},
+             {"MAIN.li", int64, -5000000000, -1, <<-1:64/little-signed>>},
+             {"MAIN.uli", uint64, 10000000000000000000, 16#FFFFFFFFFFFFFFFF,
+              <<16#FFFFFFFFFFFFFFFF:64/little>>},
+             {"MAIN.d", date, {2023, 11, 15}, {1970, 1, 2}, <<86400:32/little>>},
+             {"MAIN.t", time, 90000, 1500, <<1500:32/little>>},
+             {"MAIN.c", char, <<"A">>, <<"z">>, <<"z", 0>>},
+             {"MAIN.name", {string, 20}, <<"hello">>, <<"abc">>, <<"abc", 0:(18 * 8)>>}],
+    Vars = [{list_to_binary(N), T} || {N, T, _, _, _} <- Cases],
+    {ok, Infos} = cell_hal_ads_client:resolve(C, Vars),
+    [{ok, #{size := _}} = I || I <- Infos],
+    {ok, Before} = cell_hal_ads_client:read_vars(C, Vars),
+    ?assertEqual([{ok, V} || {_, _, V, _, _} <- Cases], Before),
+    {ok, Written} = cell_hal_ads_client:write_vars(C, [{V, New} || {V, {_, _, _, New, _}}
+                                                                      <- lists:zip(Vars, Cases)]),
+    ?assertEqual([ok || _ <- Cases], Written),
+    [?assertEqual(Bytes, value(Config, N)) || {N, _, _, _, Bytes} <- Cases],
+    {ok, After} = cell_hal_ads_client:read_vars(C, Vars),
+    ?assertEqual([{ok, New} || {_, _, _, New, _} <- Cases], After),
+    %% a value that does not fit is refused for that variable only, nothing is sent
+    {ok, [{error, {bad_value, int16, 40000}}, ok]} =
+        cell_hal_ads_client:write_vars(C, [{{<<"MAIN.i">>, int16}, 40000},
+                                           {{<<"MAIN.b">>, byte}, 1}]),
+    ?assertEqual(<<32767:16/little>>, value(Config, "MAIN.i")),
+    %% the PLC's old values back for the other cases
+    {ok, _} = cell_hal_ads_client:write_vars(C, [{V, Old} || {V, {_, _, Old, _, _}}
+                                                                 <- lists:zip(Vars, Cases)]).
+
+%% What we write AdsLib reads, and the other way round.
+values_agree_with_adslib(Config) ->
+    A = adslib(Config),
+    C = client(Config),
+    Var = {<<"MAIN.counter">>, int32},
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Var]),
+    {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{Var, -123456}]),
+    {ok, -123456} = cell_hal_ads_peer:cmd(A, "read MAIN.counter DINT"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.counter DINT 654321"),
+    {ok, [{ok, 654321}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.name STRING 'fromAdsLib'"),
+    {ok, <<"fromAdsLib">>} = cell_hal_ads_client:read_by_name(C, <<"MAIN.name">>, {string, 20}),
+    ok = cell_hal_ads_client:write_by_name(C, <<"MAIN.name">>, {string, 20}, <<"hello">>),
+    {ok, <<"hello">>} = cell_hal_ads_peer:cmd(A, "read MAIN.name STRING"),
+    ok = cell_hal_ads_peer:cmd(A, "write MAIN.counter DINT 42"),
+    ok = cell_hal_ads_peer:stop(A).
+
+%% One handle per variable and connection, shared by every caller; back to the PLC when
+%% the last one releases it.
+handles_cached_and_released(Config) ->
+    C = client(Config),
+    Var = {<<"MAIN.speed">>, real},
+    clear(Config),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Var]),
+    Other = spawn_user(C, [Var]),
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, [Var, Var]),
+    ?assertEqual(1, stat(Config, acquired)),
+    ok = cell_hal_ads_client:release(C, [Var, Var]),
+    ok = cell_hal_ads_client:release(C, [Var]),
+    ok = barrier(C),
+    ?assertEqual(0, stat(Config, released)),        % the other process still uses it
+    {ok, [{ok, 1.5}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    ok = release_user(Other, [Var]),
+    ok = barrier(C),
+    ?assertEqual(1, stat(Config, released)),
+    ?assertEqual(1, stat(Config, acquired)),
+    %% released: not readable until resolved again
+    {ok, [{error, {not_resolved, <<"MAIN.speed">>}}]} = cell_hal_ads_client:read_vars(C, [Var]).
+
+%% A process that exits gives its variables back.
+exit_releases_handles(Config) ->
+    C = client(Config),
+    Var = {<<"MAIN.w">>, uint16},
+    clear(Config),
+    Pid = spawn_user(C, [Var]),
+    ?assertEqual(1, stat(Config, acquired)),
+    Ref = monitor(process, Pid),
+    Pid ! stop,
+    receive {'DOWN', Ref, process, Pid, _} -> ok after ?WAIT -> ct:fail(no_exit) end,
+    %% The client hears of the exit on its own; the PLC sees the handle come back.
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "wait_stat released 1 10000"),
+    #{variables := 0} = cell_hal_ads_client:status(C).
+
+spawn_user(C, Vars) ->
+    Parent = self(),
+    Pid = spawn(fun() ->
+                        {ok, Results} = cell_hal_ads_client:resolve(C, Vars),
+                        Parent ! {resolved, self(), Results},
+                        user_loop(C)
+                end),
+    receive {resolved, Pid, Results} -> [{ok, _} = R || R <- Results], Pid
+    after ?WAIT -> ct:fail(no_resolve)
+    end.
+
+user_loop(C) ->
+    receive
+        {release, From, Vars} -> From ! {released, cell_hal_ads_client:release(C, Vars)},
+                                 user_loop(C);
+        stop -> ok
+    end.
+
+release_user(Pid, Vars) ->
+    Pid ! {release, self(), Vars},
+    receive {released, R} -> R after ?WAIT -> ct:fail(no_release) end.
+
+group() ->
+    [{list_to_binary(point(I)), int32} || I <- lists:seq(0, 199)].
+
+%% A 200-point IO group: resolved in two round trips (symbol info, handles), read in one.
+group_in_one_sum_command(Config) ->
+    C = client(Config),
+    clear(Config),
+    {ok, Infos} = cell_hal_ads_client:resolve(C, group()),
+    ?assertEqual(200, length([ok || {ok, _} <- Infos])),
+    ?assertEqual(2, stat(Config, sums)),
+    ?assertEqual(200, stat(Config, acquired)),
+    clear(Config),
+    {ok, Values} = cell_hal_ads_client:read_vars(C, group()),
+    ?assertEqual([{ok, I * 3} || I <- lists:seq(0, 199)], Values),
+    ?assertEqual(#{sums => 1, sub_commands => 200, requests => 1},
+                 maps:with([sums, sub_commands, requests], stats(Config))),
+    clear(Config),
+    {ok, Oks} = cell_hal_ads_client:write_vars(C, [{V, -I} || {I, V} <- lists:zip(lists:seq(0, 199), group())]),
+    ?assertEqual([ok || _ <- Oks], Oks),
+    ?assertEqual(1, stat(Config, sums)),
+    {ok, Neg} = cell_hal_ads_client:read_vars(C, group()),
+    ?assertEqual([{ok, -I} || I <- lists:seq(0, 199)], Neg),
+    {ok, _} = cell_hal_ads_client:write_vars(C, [{V, I * 3} || {I, V} <- lists:zip(lists:seq(0, 199), group())]).
+
+%% Split only where the limit requires: 50 in one, 51 in two, 200 in four.
+sum_split_at_limit(Config) ->
+    C = client(Config, #{max_sum => 50}),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "limit 50"),
+    {ok, _} = cell_hal_ads_client:resolve(C, group()),
+    [begin
+         clear(Config),
+         {ok, Values} = cell_hal_ads_client:read_vars(C, lists:sublist(group(), N)),
+         ?assertEqual([{ok, I * 3} || I <- lists:seq(0, N - 1)], Values),
+         ?assertEqual(Expected, maps:with([sums, sub_commands, requests], stats(Config)))
+     end || {N, Expected} <- [{50, #{sums => 1, sub_commands => 50, requests => 1}},
+                              %% the one left over is a plain read
+                              {51, #{sums => 1, sub_commands => 50, requests => 2}},
+                              {101, #{sums => 2, sub_commands => 100, requests => 3}},
+                              {200, #{sums => 4, sub_commands => 200, requests => 4}}]],
+    %% one item is a plain read, not a sum of one
+    clear(Config),
+    {ok, [{ok, 0}]} = cell_hal_ads_client:read_vars(C, lists:sublist(group(), 1)),
+    ?assertEqual(0, stat(Config, sums)).
+
+%% A PLC with a lower limit than configured refuses the sum: each point says so.
+sum_beyond_plc_limit(Config) ->
+    C = client(Config),
+    {ok, _} = cell_hal_ads_client:resolve(C, group()),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "limit 100"),
+    {ok, Values} = cell_hal_ads_client:read_vars(C, group()),
+    ?assertEqual([{error, {ads_error, 16#705, invalid_size}} || _ <- group()], Values),
+    #{state := up} = cell_hal_ads_client:status(C).
+
+%% Sum commands by index group and offset, and what a failed sub-command gives.
+raw_sum_commands(Config) ->
+    C = client(Config),
+    #{<<"MAIN.counter">> := {G, O1, 4}, <<"MAIN.pos">> := {G, O2, 8}} = ?config(symbols, Config),
+    {ok, [{ok, <<42:32/little>>}, {ok, <<10.0:64/float-little>>},
+          {error, {ads_error, 16#703, invalid_index_offset}}]} =
+        cell_hal_ads_client:sum_read(C, [{G, O1, 4}, {G, O2, 8}, {G, 999999, 2}]),
+    {ok, [ok, {error, {ads_error, 16#702, invalid_index_group}}]} =
+        cell_hal_ads_client:sum_write(C, [{G, O1, <<43:32/little>>}, {16#1234, 0, <<1>>}]),
+    ?assertEqual(<<43:32/little>>, value(Config, "MAIN.counter")),
+    {ok, [{ok, <<H:32/little>>}, {error, {ads_error, 16#710, symbol_not_found}}]} =
+        cell_hal_ads_client:sum_read_write(C, [{16#F003, 0, 4, <<"MAIN.counter", 0>>},
+                                               {16#F003, 0, 4, <<"MAIN.none", 0>>}]),
+    {ok, <<43:32/little>>} = cell_hal_ads_client:read(C, 16#F005, H, 4),
+    ok = cell_hal_ads_client:write(C, 16#F005, H, <<42:32/little>>),
+    ok = cell_hal_ads_client:write(C, 16#F006, 0, <<H:32/little>>),
+    {error, {ads_error, 16#710, symbol_not_found}} = cell_hal_ads_client:read(C, 16#F005, H, 4),
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:sum_read(C, [{G, O1, 4}, {G, O2, 8}]),
+    {error, {bad_argument, _}} = cell_hal_ads_client:sum_read(C, [{G, -1, 4}]).
+
+%% A PLC without sum commands: every point its own request, still all in flight.
+one_by_one_without_sum_commands(Config) ->
+    C = client(Config, #{sum_commands => false}),
+    clear(Config),
+    {ok, _} = cell_hal_ads_client:resolve(C, group()),
+    ?assertEqual(0, stat(Config, sums)),
+    clear(Config),
+    {ok, Values} = cell_hal_ads_client:read_vars(C, group()),
+    ?assertEqual([{ok, I * 3} || I <- lists:seq(0, 199)], Values),
+    ?assertEqual(#{reads => 200, requests => 200},
+                 maps:with([reads, requests, sums], stats(Config))).
+
+%% Seed §4.1.1: instances in a program ("MAIN.GeneralInputs") or global
+%% (".GeneralOutputs") with ".Field" names; fields are not in the symbol table but are
+%% found by name.
+structure_fields_by_name(Config) ->
+    C = client(Config),
+    Vars = [{<<"MAIN.GeneralInputs.StartButton">>, bool},
+            {<<"MAIN.GeneralInputs.StopButton">>, bool},
+            {<<".GeneralOutputs.StartButtonLight">>, bool}],
+    {ok, [{ok, #{symbol := <<"MAIN.GeneralInputs.StartButton">>, plc_type := <<"BOOL">>}},
+          {ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, Vars),
+    {ok, [{ok, true}, {ok, false}, {ok, false}]} = cell_hal_ads_client:read_vars(C, Vars),
+    {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{lists:last(Vars), true}]),
+    ?assertEqual(<<1>>, value(Config, ".GeneralOutputs.StartButtonLight")),
+    {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{lists:last(Vars), false}]),
+    {ok, Table} = cell_hal_ads_client:symbols(C),
+    Names = [N || #{name := N} <- Table],
+    ?assert(lists:member(<<"MAIN.GeneralInputs">>, Names)),
+    ?assertNot(lists:member(<<"MAIN.GeneralInputs.StartButton">>, Names)).
+
+%% Seed §4.1.2: "*Name" matches the one symbol whose name ends so.
+image_wildcards(Config) ->
+    C = client(Config),
+    {ok, [{ok, #{symbol := <<"Term 5 (EL1008).ManipulatorInputs.FailPaletteIsIn">>}},
+          {ok, #{symbol := <<"Term 9 (EL2008).ManipulatorOutputs.ZAxisCylinder1Up">>}},
+          {error, {ambiguous_symbol, <<"*Spare.In">>,
+                   [<<"Term 6 (EL1008).Spare.In">>, <<"Term 7 (EL1008).Spare.In">>]}},
+          {error, {unknown_symbol, <<"*ManipulatorInputs.Missing">>}}]} =
+        cell_hal_ads_client:resolve(C, [{<<"*ManipulatorInputs.FailPaletteIsIn">>, bool},
+                                        {<<"*manipulatoroutputs.zaxiscylinder1up">>, bool},
+                                        {<<"*Spare.In">>, bool},
+                                        {<<"*ManipulatorInputs.Missing">>, bool}]),
+    {ok, [{ok, true}]} =
+        cell_hal_ads_client:read_vars(C, [{<<"*ManipulatorInputs.FailPaletteIsIn">>, bool}]),
+    {error, {bad_variable, {<<"Term*">>, bool}}} =
+        cell_hal_ads_client:resolve(C, [{<<"Term*">>, bool}]).
+
+%% An image's points read by index group and offset, no handles.
+image_by_address(Config) ->
+    C = client(Config, #{access => address}),
+    clear(Config),
+    Vars = [{<<"*ManipulatorInputs.FailPaletteIsIn">>, bool},
+            {<<"*ManipulatorInputs.ZAxisCylinder1IsUp">>, bool}],
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, Vars),
+    ?assertEqual(0, stat(Config, acquired)),
+    set(Config, "Term 5 (EL1008).ManipulatorInputs.ZAxisCylinder1IsUp", <<1>>),
+    {ok, [{ok, true}, {ok, true}]} = cell_hal_ads_client:read_vars(C, Vars),
+    set(Config, "Term 5 (EL1008).ManipulatorInputs.ZAxisCylinder1IsUp", <<0>>).
+
+%% A missing symbol is an error naming it, logged for the operator; the connection and
+%% every other variable carry on.
+missing_symbol_is_clear(Config) ->
+    C = client(Config),
+    ok = cell_log:subscribe(),
+    {ok, [{ok, _}, {error, {unknown_symbol, <<"MAIN.DoesNotExist">>} = Reason}]} =
+        cell_hal_ads_client:resolve(C, [{<<"MAIN.counter">>, int32},
+                                        {<<"MAIN.DoesNotExist">>, int32}]),
+    ?assertEqual(<<"the PLC has no symbol MAIN.DoesNotExist">>,
+                 cell_hal_ads_client:format_error(Reason)),
+    {ok, _} = await_log(<<"MAIN.DoesNotExist">>),
+    ok = cell_log:unsubscribe(),
+    {ok, [{ok, 42}, {error, {not_resolved, <<"MAIN.DoesNotExist">>}}]} =
+        cell_hal_ads_client:read_vars(C, [{<<"MAIN.counter">>, int32},
+                                          {<<"MAIN.DoesNotExist">>, int32}]),
+    {error, {unknown_symbol, <<"MAIN.DoesNotExist">>}} =
+        cell_hal_ads_client:read_by_name(C, <<"MAIN.DoesNotExist">>, int32),
+    #{state := up} = cell_hal_ads_client:status(C).
+
+%% A symbol whose type changes with a program download: the client notices the new
+%% symbol version, resolves again, and names the symbol and both types. Fixed in the
+%% PLC, it works again.
+retyped_symbol_is_clear(Config) ->
+    Fake = ?config(fake, Config),
+    C = client(Config),
+    Var = {<<"MAIN.retyped">>, int32},
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Var]),
+    {ok, [{ok, 7}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    ok = cell_log:subscribe(),
+    ok = cell_hal_ads_peer:cmd(Fake, "retype MAIN.retyped INT 2 2 0500"),
+    ok = await_status(C, symbols_changed),
+    Expected = {type_mismatch, <<"MAIN.retyped">>,
+                #{expected => <<"DINT">>, plc_type => <<"INT">>, size => 2}},
+    {ok, [{error, Expected}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    #{failed := [<<"MAIN.retyped">>], state := up} = cell_hal_ads_client:status(C),
+    {ok, Line} = await_log(<<"MAIN.retyped">>),
+    ct:log("operator sees: ~ts", [Line]),
+    ok = cell_log:unsubscribe(),
+    ok = cell_hal_ads_peer:cmd(Fake, "retype MAIN.retyped DINT 3 4 07000000"),
+    ok = await_status(C, symbols_changed),
+    {ok, [{ok, 7}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    #{failed := []} = cell_hal_ads_client:status(C).
+
+%% A symbol removed by a download: its subscription is told, reads say it is gone.
+removed_symbol_ends_subscription(Config) ->
+    Fake = ?config(fake, Config),
+    C = client(Config),
+    Var = {<<"MAIN.removed">>, int32},
+    {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{Var, #{}}]),
+    {ok, [{_, 8}]} = await_samples(Ref, 1),
+    ok = cell_hal_ads_peer:cmd(Fake, "remove MAIN.removed"),
+    {ok, {error, {unknown_symbol, <<"MAIN.removed">>}}} =
+        cell_hal_ads_peer:await(fun({cell_hal_ads, R, {error, E}}) when R =:= Ref -> {true, {error, E}};
+                                   (_) -> false
+                                end, ?WAIT),
+    {ok, [{error, {unknown_symbol, <<"MAIN.removed">>}}]} = cell_hal_ads_client:read_vars(C, [Var]),
+    {ok, _, _} = cell_hal_ads_peer:cmd(Fake, "add MAIN.removed DINT 3 4 08000000"),
+    ok = cell_hal_ads_peer:cmd(Fake, "bump"),
+    ok = await_status(C, symbols_changed),
+    {ok, [{_, 8}]} = await_samples(Ref, 1).
+
+%% Samples carry the PLC's stamps, exactly: FILETIME x 100 = ns since 1970.
+notifications_keep_plc_stamps(Config) ->
+    C = client(Config),
+    Pos = {<<"MAIN.AxisPos">>, lreal},
+    Beam = {<<"MAIN.LaserBeam">>, bool},
+    {ok, [{ok, PosRef}, {ok, BeamRef}]} =
+        cell_hal_ads_client:subscribe(C, [{Pos, #{mode => on_change, cycle_us => 1000}},
+                                          {Beam, #{}}]),
+    {ok, [{_, 0.0}]} = await_samples(PosRef, 1),
+    {ok, [{_, false}]} = await_samples(BeamRef, 1),
+    T1 = 133500000000000001,
+    T2 = T1 + 5000,
+    burst(Config, [{T1, [{"MAIN.AxisPos", <<1.5:64/float-little>>},
+                         {"MAIN.LaserBeam", <<1>>}]},
+                   {T2, [{"MAIN.AxisPos", <<2.5:64/float-little>>}]}]),
+    {ok, [{N1, 1.5}, {N2, 2.5}]} = await_samples(PosRef, 2),
+    {ok, [{N1, true}]} = await_samples(BeamRef, 1),
+    ?assertEqual((T1 - ?FILETIME_UNIX_EPOCH) * 100, N1),
+    ?assertEqual((T2 - ?FILETIME_UNIX_EPOCH) * 100, N2),
+    set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>),
+    set(Config, "MAIN.LaserBeam", <<0>>).
+
+burst(Config, Stamps) ->
+    Parts = [[integer_to_list(T), [[" ", N, " ", hex(V)] || {N, V} <- Pairs]]
+             || {T, Pairs} <- Stamps],
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config),
+                               ["burst " | lists:join(" ; ", Parts)]).
+
+%% Seed §2.3.7: the axis drives the tool through the laser beam; the position is
+%% latched at the beam's edge from the PLC's time-stamped samples, not from when the
+%% samples arrived.
+laser_beam_latch(Config) ->
+    C = client(Config),
+    {ok, [{ok, PosRef}, {ok, BeamRef}]} =
+        cell_hal_ads_client:subscribe(C, [{{<<"MAIN.AxisPos">>, lreal}, #{cycle_us => 0}},
+                                          {{<<"MAIN.LaserBeam">>, bool}, #{cycle_us => 0}}]),
+    {ok, [_]} = await_samples(PosRef, 1),
+    {ok, [_]} = await_samples(BeamRef, 1),
+    %% One cycle a millisecond, 0.2 mm a cycle; the beam breaks in cycle 37 (at 7.4 mm)
+    %% and clears in cycle 80.
+    T0 = 133600000000000000,
+    Cycle = 10000,
+    Stamps = [{T0 + K * Cycle,
+               [{"MAIN.AxisPos", <<(K * 0.2):64/float-little>>}] ++
+                   [{"MAIN.LaserBeam", <<1>>} || K =:= 37] ++
+                   [{"MAIN.LaserBeam", <<0>>} || K =:= 80]}
+              || K <- lists:seq(1, 100)],
+    burst(Config, Stamps),
+    {ok, Positions} = await_samples(PosRef, 100),
+    {ok, Beam} = await_samples(BeamRef, 2),
+    {ok, #{time := Edge, position := P, exact := true}} =
+        cell_hal_ads_latch:position_at_edge(Beam, Positions, #{edge => rising, initial => false}),
+    ?assertEqual((T0 + 37 * Cycle - ?FILETIME_UNIX_EPOCH) * 100, Edge),
+    ?assertEqual(37 * 0.2, P),
+    {ok, #{position := Off}} =
+        cell_hal_ads_latch:position_at_edge(Beam, Positions, #{edge => falling}),
+    ?assertEqual(80 * 0.2, Off),
+    set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>),
+    set(Config, "MAIN.LaserBeam", <<0>>).
+
+cyclic_notifications(Config) ->
+    C = client(Config),
+    {ok, [{ok, Ref}]} =
+        cell_hal_ads_client:subscribe(C, [{{<<"MAIN.b">>, byte},
+                                           #{mode => cyclic, cycle_us => 20000}}]),
+    {ok, Samples} = await_samples(Ref, 4),
+    Stamps = [T || {T, 200} <- Samples],
+    ?assertEqual(4, length(Stamps)),
+    ?assertEqual(lists:usort(Stamps), Stamps).
+
+unsubscribe_deletes_notification(Config) ->
+    C = client(Config),
+    Before = stat(Config, notes),
+    {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.dw">>, uint32}, #{}}]),
+    {ok, [_]} = await_samples(Ref, 1),
+    ?assertEqual(Before + 1, stat(Config, notes)),
+    ok = cell_hal_ads_client:unsubscribe(C, [Ref]),
+    ok = barrier(C),
+    ?assertEqual(Before, stat(Config, notes)),
+    set(Config, "MAIN.dw", <<5:32/little>>),
+    ok = barrier(C),
+    receive {cell_hal_ads, Ref, _} = M -> ct:fail("sample after unsubscribe: ~p", [M])
+    after 0 -> ok
+    end,
+    set(Config, "MAIN.dw", <<4000000000:32/little>>).
+
+%% Seed §2.3.7's trigger: a PLC variable enabled by handle before an expected edge.
+trigger_enable_by_handle(Config) ->
+    C = client(Config),
+    clear(Config),
+    Enable = {<<"MAIN.StopLoadingSegmentTriggerEnable">>, bool},
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Enable]),
+    {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{Enable, true}]),
+    ?assertEqual(<<1>>, value(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
+    {ok, [ok]} = cell_hal_ads_client:write_vars(C, [{Enable, false}]),
+    ?assertEqual(<<0>>, value(Config, "MAIN.StopLoadingSegmentTriggerEnable")),
+    ok = cell_hal_ads_client:release(C, [Enable]),
+    ok = barrier(C),
+    ?assertEqual(#{acquired => 1, released => 1}, maps:with([acquired, released], stats(Config))).
+
+%% The fake holds its answers until five requests wait: only a client with several
+%% requests in flight gets any answer.
+several_requests_in_flight(Config) ->
+    C = client(Config),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "hold 5"),
+    Self = self(),
+    Pids = [spawn_link(fun() -> Self ! {done, self(), cell_hal_ads_client:read_state(C, 5000)} end)
+            || _ <- lists:seq(1, 5)],
+    [receive {done, P, {ok, #{ads_state := run}}} -> ok after ?WAIT -> ct:fail(no_answer) end
+     || P <- Pids].
+
+%% No caller waits past its timeout; a PLC that answers nothing at all is a dead
+%% connection (a pulled cable): closed, logged, tried again.
+timeout_never_blocks_caller(Config) ->
+    Fake = ?config(fake, Config),
+    %% Nothing else may come from the PLC meanwhile, not even its symbol version.
+    C = client(Config, #{link_check => infinity, symbol_version => read}),
+    ok = cell_hal_ads_peer:cmd(Fake, "mute"),
+    T0 = erlang:monotonic_time(millisecond),
+    {error, timeout} = cell_hal_ads_client:read_state(C, 300),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    ct:log("a 300 ms call returned after ~b ms", [Took]),
+    ?assert(Took >= 300),
+    ?assert(Took < 2000),
+    {down, no_answer} = receive_down(C),
+    ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = await_status(C, up),
+    {ok, _} = cell_hal_ads_client:read_state(C).
+
+receive_down(C) ->
+    {ok, Down} = cell_hal_ads_peer:await(fun({cell_hal_ads, P, {down, _} = D}) when P =:= C ->
+                                                 {true, D};
+                                            (_) -> false
+                                         end, ?WAIT),
+    Down.
+
+%% A frame that cannot be read closes that connection only: logged for the operator,
+%% connected again; the client process is the same, nothing crashed.
+garbage_closes_only_the_connection(Config) ->
+    C = client(Config),
+    {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.sb">>, sbyte}, #{}}]),
+    {ok, [_]} = await_samples(Ref, 1),
+    ok = cell_log:subscribe(),
+    %% AMS/TCP length 4: shorter than an AMS header
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "garbage 000004000000deadbeef"),
+    {down, {bad_frame, shorter_than_ams_header}} = receive_down(C),
+    {ok, Line} = await_log(<<"malformed frame">>),
+    ct:log("operator sees: ~ts", [Line]),
+    ok = cell_log:unsubscribe(),
+    ok = await_status(C, up),
+    %% the subscription came back with the connection
+    {ok, [{_, -5}]} = await_samples(Ref, 1),
+    ?assert(is_process_alive(C)).
+
+oversized_frame_closes_only_the_connection(Config) ->
+    C = client(Config, #{max_frame => 65536}),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "garbage 0000ffffff7f"),
+    {down, {frame_too_long, 16#7FFFFFFF}} = receive_down(C),
+    ok = await_status(C, up),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [{<<"MAIN.counter">>, int32}]),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [{<<"MAIN.counter">>, int32}]).
+
+bad_options(_Config) ->
+    Good = #{host => "127.0.0.1", target_net_id => ?NET},
+    [?assertEqual({error, {bad_option, K}}, cell_hal_ads_client:start_link(maps:merge(Good, Bad)))
+     || {K, Bad} <- [{target_net_id, #{target_net_id => "1.2.3.4.5"}},
+                     {target_net_id, #{target_net_id => "1.2.3.4.5.256"}},
+                     {port, #{port => 0}},
+                     {target_port, #{target_port => 70000}},
+                     {source_net_id, #{source_net_id => "x"}},
+                     {backoff, #{backoff => {100, 10}}},
+                     {max_sum, #{max_sum => 0}},
+                     {sum_commands, #{sum_commands => yes}},
+                     {access, #{access => symbol}},
+                     {symbol_version, #{symbol_version => always}},
+                     {link_check, #{link_check => 0}},
+                     {max_frame, #{max_frame => 10}},
+                     {colour, #{colour => blue}}]],
+    {error, {bad_option, host}} = cell_hal_ads_client:start_link(#{target_net_id => ?NET}),
+    {error, {bad_option, target_net_id}} = cell_hal_ads_client:start_link(#{host => "h"}),
+    {error, {bad_option, opts}} = cell_hal_ads_client:start_link([]).
+
+%% On stop the client deletes its notifications and gives its handles back.
+stop_leaves_plc_tidy(Config) ->
+    Fake = ?config(fake, Config),
+    ok = cell_hal_ads_peer:cmd(Fake, "wait_clients 0 10000"),
+    C = client(Config),
+    {ok, _} = cell_hal_ads_client:resolve(C, lists:sublist(group(), 10)),
+    {ok, [{ok, _}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.t">>, time}, #{}}]),
+    #{handles := 11, notes := 2} = stats(Config),    % with the symbol version's
+    clear(Config),
+    ok = cell_hal_ads_client:stop(C),
+    ok = cell_hal_ads_peer:cmd(Fake, "wait_clients 0 10000"),
+    %% given back by the client before it closed, not cleaned up by the PLC
+    ?assertEqual(#{notes_deleted => 2, released => 11},
+                 maps:with([notes_deleted, released], stats(Config))).
+
+%%--------------------------------------------------------------------
+%% crosscheck: our frames beside AdsLib's, byte for byte
+%%--------------------------------------------------------------------
+
+frames_match_adslib(Config) ->
+    A = adslib(Config),
+    ok = cell_hal_ads_peer:listen(A),
+    {ok, {ready, AmsPort}} = cell_hal_ads_peer:ready(A),
+    C = client(Config, #{source_net_id => ?ADSLIB_NET, source_port => AmsPort,
+                         link_check => infinity, symbol_version => ignore}),
+    Syms = ?config(symbols, Config),
+    #{<<"MAIN.counter">> := {G, OC, 4}, <<"MAIN.flag">> := {G, OF, 1},
+      <<"MAIN.pos">> := {G, OP, 8}} = Syms,
+    Same = fun(Theirs, Ours) ->
+                   AF = frames_of(Config, Theirs),
+                   OF2 = frames_of(Config, Ours),
+                   ct:log("AdsLib: ~p~nours:   ~p", [AF, OF2]),
+                   ?assertEqual([normal(F) || F <- AF], [normal(F) || F <- OF2])
+           end,
+    Same(fun() -> {ok, _, _} = cell_hal_ads_peer:cmd(A, "info") end,
+         fun() -> {ok, _} = cell_hal_ads_client:read_device_info(C) end),
+    Same(fun() -> {ok, 5, 0} = cell_hal_ads_peer:cmd(A, "state") end,
+         fun() -> {ok, _} = cell_hal_ads_client:read_state(C) end),
+    Same(fun() -> ok = cell_hal_ads_peer:cmd(A, "write_control 5 0") end,
+         fun() -> ok = cell_hal_ads_client:write_control(C, run, 0, <<0:16>>, 5000) end),
+    Same(fun() -> {ok, _} = cell_hal_ads_peer:cmd(A, "handle MAIN.counter") end,
+         fun() -> {ok, _} = cell_hal_ads_client:read_write(C, 16#F003, 0, 4, <<"MAIN.counter", 0>>) end),
+    {ok, H} = cell_hal_ads_peer:cmd(A, "handle MAIN.pos"),
+    HS = integer_to_list(H),
+    Same(fun() -> {ok, 10.0} = cell_hal_ads_peer:cmd(A, ["read_handle ", HS, " LREAL"]) end,
+         fun() -> {ok, _} = cell_hal_ads_client:read(C, 16#F005, H, 8) end),
+    Same(fun() -> ok = cell_hal_ads_peer:cmd(A, ["write_handle ", HS, " LREAL 10.0"]) end,
+         fun() -> ok = cell_hal_ads_client:write(C, 16#F005, H, <<10.0:64/float-little>>) end),
+    Same(fun() -> ok = cell_hal_ads_peer:cmd(A, ["release ", HS]) end,
+         fun() -> {error, _} = cell_hal_ads_client:write(C, 16#F006, 0, <<H:32/little>>) end),
+    %% a sum read of three symbols: AdsLib asks for each symbol's info first (the
+    %% same request three times over), then reads by index group and offset
+    Theirs = frames_of(Config, fun() ->
+                                       {ok, [42, false, 10.0]} =
+                                           cell_hal_ads_peer:cmd(A, "sum_read MAIN.counter "
+                                                                 "MAIN.flag MAIN.pos")
+                               end),
+    [Info1, _, _, SumRead] = Theirs,
+    <<_:38/binary, 16#F009:32/little, 0:32, InfoLen:32/little, _/binary>> = Info1,
+    Ours = frames_of(Config, fun() ->
+                                     [{ok, _} = cell_hal_ads_client:read_write(C, 16#F009, 0, InfoLen,
+                                                                               <<N/binary, 0>>)
+                                      || N <- [<<"MAIN.counter">>, <<"MAIN.flag">>, <<"MAIN.pos">>]],
+                                     {ok, [{ok, _}, {ok, _}, {ok, _}]} =
+                                         cell_hal_ads_client:sum_read(C, [{G, OC, 4}, {G, OF, 1},
+                                                                          {G, OP, 8}])
+                             end),
+    ?assertEqual([normal(F) || F <- Theirs], [normal(F) || F <- Ours]),
+    ?assertEqual(normal(SumRead), normal(lists:last(Ours))),
+    %% a sum write (symbol infos are cached by AdsLib by now)
+    Same(fun() -> {ok, _} = cell_hal_ads_peer:cmd(A, "sum_write MAIN.counter DINT 42 MAIN.pos LREAL 10.0") end,
+         fun() -> {ok, [ok, ok]} = cell_hal_ads_client:sum_write(C, [{G, OC, <<42:32/little>>},
+                                                                      {G, OP, <<10.0:64/float-little>>}]) end),
+    %% notifications: add and delete, the handles being each side's own
+    TheirNotes =
+        frames_of(Config,
+                  fun() ->
+                          {ok, NH, UH} = cell_hal_ads_peer:cmd(A, "notify MAIN.counter DINT on_change 10"),
+                          {ok, _} = await_adslib(NH, fun(_) -> true end),
+                          ok = cell_hal_ads_peer:cmd(A, ["del_notify ", integer_to_list(NH), " ",
+                                                         integer_to_list(UH)])
+                  end),
+    OurNotes =
+        frames_of(Config,
+                  fun() ->
+                          {ok, [{ok, Ref}]} =
+                              cell_hal_ads_client:subscribe(C, [{{<<"MAIN.counter">>, int32},
+                                                                 #{cycle_us => 10000}}]),
+                          {ok, _} = await_samples(Ref, 1),
+                          ok = cell_hal_ads_client:unsubscribe(C, [Ref]),
+                          ok = barrier(C)
+                  end),
+    [TheirAdd, TheirDel] = [F || F <- TheirNotes, lists:member(command(F), [6, 7])],
+    [OurAdd, OurDel] = [F || F <- OurNotes, lists:member(command(F), [6, 7])],
+    ?assertEqual(without_handle(TheirAdd, 42), without_handle(OurAdd, 42)),
+    ?assertEqual(without_handle(TheirDel, 38), without_handle(OurDel, 38)),
+    ok = cell_hal_ads_peer:stop(A).
+
+frames_of(Config, Fun) ->
+    clear(Config),
+    Fun(),
+    {ok, Frames} = cell_hal_ads_peer:cmd(?config(fake, Config), "frames"),
+    clear(Config),
+    Frames.
+
+%% A frame with its invoke id zeroed: everything else must be the same.
+normal(<<Head:34/binary, _Invoke:32, Data/binary>>) ->
+    <<Head/binary, 0:32, Data/binary>>.
+
+command(<<_:22/binary, Cmd:16/little, _/binary>>) -> Cmd.
+
+%% The 4-byte handle at `At' zeroed too (each client's handles are its own).
+without_handle(Frame, At) ->
+    <<Head:At/binary, _:32, Tail/binary>> = normal(Frame),
+    <<Head/binary, 0:32, Tail/binary>>.
+
+%%--------------------------------------------------------------------
+%% restart: the PLC goes away and comes back
+%%--------------------------------------------------------------------
+
+%% A restarted PLC knows no handles or notifications: the client takes new handles,
+%% adds its notifications again, and the callers never resolve anything again.
+reconnect_after_plc_restart(Config) ->
+    {ok, Fake1, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--handle-base", "5000"]),
+    Small = [{"MAIN.counter", "DINT", 3, <<42:32/little>>}, {"MAIN.flag", "BOOL", 33, <<0>>}],
+    [add(Fake1, N, T, A, V, "") || {N, T, A, V} <- Small],
+    C = client([{port, Port} | Config]),
+    Vars = [{<<"MAIN.counter">>, int32}, {<<"MAIN.flag">>, bool}],
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, Vars),
+    {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.flag">>, bool}, #{}}]),
+    {ok, [{_, false}]} = await_samples(Ref, 1),
+    ok = cell_hal_ads_peer:stop(Fake1),
+    {down, closed} = receive_down(C),
+    {error, disconnected} = cell_hal_ads_client:read_vars(C, Vars),
+    {ok, Fake2, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--port", integer_to_list(Port),
+                                                                           "--handle-base", "9000"]),
+    [add(Fake2, N, T, A, V, "") || {N, T, A, V} <- Small],
+    ok = await_status(C, up),
+    {ok, #{acquired := 2, notes := 2}} = cell_hal_ads_peer:cmd(Fake2, "stats"),
+    {ok, [{ok, 42}, {ok, false}]} = cell_hal_ads_client:read_vars(C, Vars),
+    {ok, [{_, false}]} = await_samples(Ref, 1),
+    ok = cell_hal_ads_peer:cmd(Fake2, ["set MAIN.flag 01"]),
+    {ok, [{_, true}]} = await_samples(Ref, 1),
+    ok = cell_hal_ads_client:stop(C),
+    ok = cell_hal_ads_peer:stop(Fake2).
+
+%% Nothing listens yet: the client keeps trying with back-off, then connects.
+connection_refused_then_up(_Config) ->
+    {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(Probe),
+    ok = gen_tcp:close(Probe),
+    {ok, C} = cell_hal_ads_client:start(#{host => {127, 0, 0, 1}, port => Port,
+                                         target_net_id => ?NET, backoff => {50, 200}}),
+    stop_with_test(C),
+    ok = cell_hal_ads_client:subscribe_status(C),
+    {ok, {down, _}} = cell_hal_ads_peer:await(fun({cell_hal_ads, P, S}) when P =:= C -> {true, S};
+                                                 (_) -> false
+                                              end, ?WAIT),
+    {error, disconnected} = cell_hal_ads_client:read_state(C),
+    #{state := S, reason := Why} = cell_hal_ads_client:status(C),
+    ct:log("while nothing listens: ~p, ~ts", [S, Why]),
+    {ok, Fake, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--port", integer_to_list(Port)]),
+    ok = await_status(C, up),
+    {ok, #{ads_state := run}} = cell_hal_ads_client:read_state(C),
+    ok = cell_hal_ads_client:stop(C),
+    ok = cell_hal_ads_peer:stop(Fake).
+
+%%--------------------------------------------------------------------
+%% Helpers
+%%--------------------------------------------------------------------
+
+%% N samples of a subscription, possibly over several messages, in order.
+await_samples(Ref, N) ->
+    await_samples(Ref, N, [], erlang:monotonic_time(millisecond) + ?WAIT).
+
+await_samples(_Ref, N, Acc, _) when length(Acc) >= N ->
+    {ok, Acc};
+await_samples(Ref, N, Acc, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {cell_hal_ads, Ref, {samples, Samples}} -> await_samples(Ref, N, Acc ++ Samples, Deadline)
+    after Left ->
+            ct:fail("only ~p of ~p samples: ~p", [length(Acc), N, Acc])
+    end.
+
+await_log(Text) ->
+    cell_hal_ads_peer:await(fun({cell_log, #{text := T}}) ->
+                                    case binary:match(T, Text) of
+                                        nomatch -> false;
+                                        _ -> {true, T}
+                                    end;
+                               (_) -> false
+                            end, ?WAIT).

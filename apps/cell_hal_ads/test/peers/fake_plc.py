@@ -1,0 +1,694 @@
+#!/usr/bin/env python3
+"""A fake TwinCAT PLC for the ADS tests: an ADS server over AMS/TCP.
+
+It serves what a TwinCAT 3 PLC runtime serves to an ADS client and what pyads'
+test server lacks: symbols with handles (0xF003/0xF005/0xF006), symbol info by name
+(0xF009), the symbol version (0xF008), the symbol table upload (0xF00C/0xF00B), sum
+commands (0xF080/0xF081/0xF082) and device notifications sent over the wire, on
+change and cyclic, with FILETIME stamps. It is written from the ADS specification
+only, independently of the client under test, and the test suite proves it with
+Beckhoff's AdsLib (through pyads) before trusting it.
+
+The test drives it through stdin, one command a line, and reads one answer a line on
+stdout, written as an Erlang term:
+
+    add NAME TYPENAME ADST SIZE HEX [nested]  -> {ok, Group, Offset}
+    set NAME HEX                              -> ok      (on-change notifications)
+    burst FT NAME HEX ... [; FT NAME HEX ...] -> ok      (values changed at given
+                                                          FILETIME stamps, sent as one
+                                                          notification frame)
+    get NAME                                  -> {ok, <<...>>}
+    remove NAME | retype NAME TYPENAME ADST SIZE HEX | bump
+                                              -> ok      (a program change: the symbol
+                                                          version moves on, handles of
+                                                          changed symbols die)
+    limit N        -> ok   (sum commands of more sub-commands are refused)
+    frames         -> {ok, [<<...>>, ...]}  (every frame received since `clear')
+    stats          -> {ok, #{...}}
+    hold N         -> ok   (answers wait until N requests are waiting, then all go)
+    wait_clients N TIMEOUT_MS -> ok | {error, timeout}   (when N clients are connected)
+    wait_stat KEY N TIMEOUT_MS -> ok | {error, timeout}  (when stats KEY reaches N)
+    clear | mute | unmute | record on|off | drop | garbage HEX | quit
+
+Names with spaces are written with %20 for each space.
+`nested` marks a structure field: found by name like TwinCAT finds them, not listed
+in the uploaded table (which holds top-level symbols only).
+"""
+
+import argparse
+import asyncio
+import os
+import socket
+import struct
+import sys
+import threading
+import time
+from urllib.parse import unquote
+
+FILETIME_UNIX_EPOCH = 116444736000000000
+
+IG_HNDBYNAME = 0xF003
+IG_VALBYHND = 0xF005
+IG_RELEASEHND = 0xF006
+IG_VERSION = 0xF008
+IG_INFOBYNAMEEX = 0xF009
+IG_UPLOAD = 0xF00B
+IG_UPLOADINFO = 0xF00C
+IG_UPLOADINFO2 = 0xF00F
+IG_SUM_READ = 0xF080
+IG_SUM_WRITE = 0xF081
+IG_SUM_READWRITE = 0xF082
+IG_PLC_DATA = 0x4040
+
+ERR_SERVICE = 0x701
+ERR_GROUP = 0x702
+ERR_OFFSET = 0x703
+ERR_SIZE = 0x705
+ERR_SYMBOL = 0x710
+ERR_TRANSMODE = 0x713
+ERR_NOTE_HANDLE = 0x714
+
+AMS_HEADER = struct.Struct("<6sH6sHHHIII")
+TCP_HEADER = struct.Struct("<HI")
+
+MODE_CYCLIC = 3
+MODE_ON_CHANGE = 4
+
+# The target of a notification on the symbol version.
+VERSION = "symbol version"
+
+
+def filetime_now():
+    return FILETIME_UNIX_EPOCH + time.time_ns() // 100
+
+
+def erl(term):
+    """An Erlang term's text for ints, atoms (str), binaries (bytes), lists, tuples, maps."""
+    if isinstance(term, bool):
+        return "true" if term else "false"
+    if isinstance(term, int):
+        return str(term)
+    if isinstance(term, str):
+        return term
+    if isinstance(term, (bytes, bytearray)):
+        return "<<" + ",".join(str(b) for b in term) + ">>"
+    if isinstance(term, list):
+        return "[" + ",".join(erl(t) for t in term) + "]"
+    if isinstance(term, tuple):
+        return "{" + ",".join(erl(t) for t in term) + "}"
+    if isinstance(term, dict):
+        return "#{" + ",".join(erl(k) + " => " + erl(v) for k, v in term.items()) + "}"
+    raise TypeError(term)
+
+
+class Symbol:
+    def __init__(self, name, type_name, ads_type, size, value, group, offset, nested):
+        self.name = name
+        self.type_name = type_name
+        self.ads_type = ads_type
+        self.size = size
+        self.value = bytearray(value.ljust(max(size, 1), b"\0")[: max(size, 1)])
+        self.group = group
+        self.offset = offset
+        self.nested = nested
+
+    def entry(self):
+        """The symbol entry: header, then name, type and comment each NUL-terminated."""
+        name = self.name.encode("latin-1")
+        tname = self.type_name.encode("latin-1")
+        comment = b"fake"
+        strings = name + b"\0" + tname + b"\0" + comment + b"\0"
+        length = 30 + len(strings)
+        return struct.pack("<IIIIIIHHH", length, self.group, self.offset, self.size,
+                           self.ads_type, 0, len(name), len(tname), len(comment)) + strings
+
+
+class Note:
+    def __init__(self, conn, target, length, mode, cycle, client_addr, server_addr):
+        self.conn = conn
+        self.target = target            # a Symbol, or VERSION
+        self.length = length
+        self.mode = mode
+        self.cycle = cycle              # 100 ns
+        self.client_addr = client_addr  # (net id bytes, port) of the client
+        self.server_addr = server_addr  # (net id bytes, port) the client addressed
+        self.last = None
+        self.task = None
+
+
+class Plc:
+    def __init__(self, handle_base):
+        self.symbols = {}
+        self.by_addr = {}
+        self.handles = {}              # handle -> (symbol, connection that took it)
+        self.version = 1
+        self.ads_state = 5
+        self.device_state = 0
+        self.next_handle = handle_base
+        self.next_note = handle_base + 1000000
+        self.next_offset = 1000
+        self.conns = set()
+        self.frames = []
+        self.record = True
+        self.stats = {}
+        self.sum_limit = None
+        self.muted = False
+        self.hold = 0
+        self.held = []
+        self.waiters = []
+
+    def wake(self):
+        """Answers `wait_clients' and `wait_stat' commands whose condition holds."""
+        for waiter in list(self.waiters):
+            if waiter.holds(self):
+                self.waiters.remove(waiter)
+                waiter.answer("ok")
+
+    def count(self, key, n=1):
+        self.stats[key] = self.stats.get(key, 0) + n
+        if self.waiters:
+            self.wake()
+
+    # --- symbols -------------------------------------------------------------------
+
+    def add(self, name, type_name, ads_type, size, value, nested=False):
+        offset = self.next_offset
+        self.next_offset += max(size, 1) + 16
+        sym = Symbol(name, type_name, ads_type, size, value, IG_PLC_DATA, offset, nested)
+        self.symbols[name.upper()] = sym
+        self.by_addr[(sym.group, sym.offset)] = sym
+        return sym
+
+    def lookup(self, name):
+        return self.symbols.get(name.upper())
+
+    def drop_symbol(self, sym):
+        del self.symbols[sym.name.upper()]
+        del self.by_addr[(sym.group, sym.offset)]
+        self.handles = {h: v for h, v in self.handles.items() if v[0] is not sym}
+        for conn in self.conns:
+            for nh in [nh for nh, n in conn.notes.items() if n.target is sym]:
+                conn.drop_note(nh)
+
+    def program_changed(self):
+        self.version = (self.version + 1) % 256
+        self.changed(VERSION, filetime_now())
+
+    def table(self):
+        return b"".join(s.entry() for s in self.symbols.values() if not s.nested)
+
+    # --- values and notifications --------------------------------------------------
+
+    def set_value(self, sym, data, stamp):
+        sym.value[: len(data)] = data
+        self.changed(sym, stamp)
+
+    def changed(self, target, stamp):
+        for conn in list(self.conns):
+            samples = conn.collect([target])
+            if samples:
+                conn.send_samples([(stamp, samples)])
+
+    def burst(self, groups):
+        """groups: [(stamp, [(sym, data)])] in order: the values of each stamp are
+        taken as they were then, and each connection gets them all in one frame."""
+        per_conn = {conn: [] for conn in self.conns}
+        for stamp, pairs in groups:
+            for sym, data in pairs:
+                sym.value[: len(data)] = data
+            for conn, stamps in per_conn.items():
+                samples = conn.collect([sym for sym, _ in pairs])
+                if samples:
+                    stamps.append((stamp, samples))
+        for conn, stamps in per_conn.items():
+            if stamps:
+                conn.send_samples(stamps)
+
+
+class Conn(asyncio.Protocol):
+    def __init__(self, plc):
+        self.plc = plc
+        self.buf = b""
+        self.notes = {}
+        self.transport = None
+
+    def connection_made(self, transport):
+        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.plc.conns.add(self)
+        self.plc.count("connections")
+        self.plc.wake()
+
+    def connection_lost(self, exc):
+        self.plc.conns.discard(self)
+        for nh in list(self.notes):
+            self.drop_note(nh)
+        # What a closed connection held goes, as when TwinCAT's router drops a client.
+        self.plc.handles = {h: v for h, v in self.plc.handles.items() if v[1] is not self}
+        self.plc.wake()
+
+    def data_received(self, data):
+        self.buf += data
+        out = []
+        while len(self.buf) >= 6:
+            reserved, length = struct.unpack_from("<HI", self.buf, 0)
+            if reserved != 0 or length < 32 or length > 16 * 1024 * 1024:
+                sys.stderr.write("fake_plc: malformed frame, closing the connection\n")
+                self.transport.close()
+                return
+            if len(self.buf) < 6 + length:
+                break
+            frame, self.buf = self.buf[: 6 + length], self.buf[6 + length:]
+            answer = self.request(frame)
+            if answer is None:
+                continue
+            plc = self.plc
+            if plc.hold:
+                plc.held.append((self, answer))
+                if len(plc.held) >= plc.hold:
+                    plc.hold = 0
+                    for conn, data in plc.held:
+                        conn.transport.write(data)
+                    plc.held = []
+            else:
+                out.append(answer)
+        if out:
+            self.transport.write(b"".join(out))
+
+    def request(self, frame):
+        plc = self.plc
+        if plc.record:
+            plc.frames.append(frame)
+        tnet, tport, snet, sport, cmd, flags, length, _err, invoke = \
+            AMS_HEADER.unpack_from(frame, 6)
+        data = frame[38:]
+        if flags & 1 or len(data) != length:
+            return None
+        plc.count("requests")
+        if plc.muted:
+            return None
+        client, server = (snet, sport), (tnet, tport)
+        try:
+            result, after = self.dispatch(cmd, data, client, server)
+        except struct.error:
+            result, after = struct.pack("<I", ERR_SIZE), None
+        header = AMS_HEADER.pack(snet, sport, tnet, tport, cmd, 0x0005, len(result), 0, invoke)
+        if after is not None:
+            asyncio.get_running_loop().call_soon(after)
+        return TCP_HEADER.pack(0, 32 + len(result)) + header + result
+
+    def dispatch(self, cmd, data, client, server):
+        plc = self.plc
+        if cmd == 1:
+            plc.count("device_info")
+            return struct.pack("<IBBH16s", 0, 3, 1, 4024, b"Fake PLC"), None
+        if cmd == 2:
+            group, offset, length = struct.unpack_from("<III", data)
+            err, value = self.read(group, offset, length)
+            return struct.pack("<II", err, len(value)) + value, None
+        if cmd == 3:
+            group, offset, length = struct.unpack_from("<III", data)
+            payload = data[12: 12 + length]
+            if len(payload) != length:
+                return struct.pack("<I", ERR_SIZE), None
+            return struct.pack("<I", self.write(group, offset, payload)), None
+        if cmd == 4:
+            plc.count("read_state")
+            return struct.pack("<IHH", 0, plc.ads_state, plc.device_state), None
+        if cmd == 5:
+            state, dev, _length = struct.unpack_from("<HHI", data)
+            plc.ads_state, plc.device_state = state, dev
+            plc.count("write_control")
+            return struct.pack("<I", 0), None
+        if cmd == 6:
+            group, offset, length, mode, _delay, cycle = struct.unpack_from("<IIIIII", data)
+            err, nh, after = self.add_note(group, offset, length, mode, cycle, client, server)
+            return struct.pack("<II", err, nh), after
+        if cmd == 7:
+            (nh,) = struct.unpack_from("<I", data)
+            if nh not in self.notes:
+                return struct.pack("<I", ERR_NOTE_HANDLE), None
+            self.drop_note(nh)
+            plc.count("notes_deleted")
+            return struct.pack("<I", 0), None
+        if cmd == 9:
+            group, offset, rlen, wlen = struct.unpack_from("<IIII", data)
+            wdata = data[16: 16 + wlen]
+            if len(wdata) != wlen:
+                return struct.pack("<II", ERR_SIZE, 0), None
+            err, value = self.read_write(group, offset, rlen, wdata)
+            return struct.pack("<II", err, len(value)) + value, None
+        return struct.pack("<I", ERR_SERVICE), None
+
+    # --- the index groups ------------------------------------------------------------
+
+    def target_of(self, group, offset):
+        if group == IG_VALBYHND:
+            return self.plc.handles.get(offset, (None,))[0], ERR_SYMBOL
+        if group == IG_PLC_DATA:
+            return self.plc.by_addr.get((group, offset)), ERR_OFFSET
+        return None, ERR_GROUP
+
+    def read(self, group, offset, length):
+        plc = self.plc
+        plc.count("reads")
+        if group == IG_VALBYHND:     # the usual case first: a value by handle
+            entry = plc.handles.get(offset)
+            if entry is None:
+                return ERR_SYMBOL, b""
+            return 0, bytes(entry[0].value[:length])
+        if group == IG_VERSION:
+            return 0, bytes([plc.version])[:length]
+        if group == IG_UPLOADINFO:
+            return 0, struct.pack("<II", len([s for s in plc.symbols.values() if not s.nested]),
+                                  len(plc.table()))[:length]
+        if group == IG_UPLOADINFO2:
+            count = len([s for s in plc.symbols.values() if not s.nested])
+            return 0, struct.pack("<IIIIII", count, len(plc.table()), 0, 0, 0, 0)[:length]
+        if group == IG_UPLOAD:
+            table = plc.table()
+            if length < len(table):
+                return ERR_SIZE, b""
+            plc.count("uploads")
+            return 0, table
+        sym, err = self.target_of(group, offset)
+        if sym is None:
+            return err, b""
+        # Asked for more than the symbol holds, TwinCAT answers what it holds (the
+        # answer carries its length): pyads reads strings into a 1 KiB buffer.
+        return 0, bytes(sym.value[:length])
+
+    def write(self, group, offset, payload):
+        plc = self.plc
+        plc.count("writes")
+        if group == IG_RELEASEHND:
+            if len(payload) != 4:
+                return ERR_SIZE
+            (h,) = struct.unpack("<I", payload)
+            if self.plc.handles.pop(h, None) is None:
+                return ERR_SYMBOL
+            plc.count("released")
+            return 0
+        sym, err = self.target_of(group, offset)
+        if sym is None:
+            return err
+        if len(payload) > max(sym.size, 1):
+            return ERR_SIZE
+        plc.set_value(sym, payload, filetime_now())
+        return 0
+
+    def read_write(self, group, offset, rlen, wdata):
+        plc = self.plc
+        if group in (IG_HNDBYNAME, IG_INFOBYNAMEEX):
+            name = wdata.split(b"\0", 1)[0].decode("latin-1")
+            sym = plc.lookup(name)
+            if sym is None:
+                return ERR_SYMBOL, b""
+            if group == IG_HNDBYNAME:
+                if rlen < 4:
+                    return ERR_SIZE, b""
+                h = plc.next_handle
+                plc.next_handle += 1
+                plc.handles[h] = (sym, self)
+                plc.count("acquired")
+                return 0, struct.pack("<I", h)
+            entry = sym.entry()
+            if rlen < len(entry):
+                return ERR_SIZE, b""
+            plc.count("infos")
+            return 0, entry
+        if group in (IG_SUM_READ, IG_SUM_WRITE, IG_SUM_READWRITE):
+            if plc.sum_limit is not None and offset > plc.sum_limit:
+                return ERR_SIZE, b""
+            plc.count("sums")
+            plc.count("sub_commands", offset)
+            return self.sum(group, offset, rlen, wdata)
+        return ERR_GROUP, b""
+
+    def sum(self, group, n, rlen, wdata):
+        if group == IG_SUM_READ:
+            items = [struct.unpack_from("<III", wdata, 12 * i) for i in range(n)]
+            errs, datas = [], []
+            for g, o, length in items:
+                err, value = self.read(g, o, length)
+                errs.append(err)
+                datas.append(value.ljust(length, b"\0"))
+            out = struct.pack("<%dI" % n, *errs) + b"".join(datas)
+        elif group == IG_SUM_WRITE:
+            items = [struct.unpack_from("<III", wdata, 12 * i) for i in range(n)]
+            pos, errs = 12 * n, []
+            for g, o, length in items:
+                errs.append(self.write(g, o, wdata[pos: pos + length]))
+                pos += length
+            out = struct.pack("<%dI" % n, *errs)
+        else:
+            items = [struct.unpack_from("<IIII", wdata, 16 * i) for i in range(n)]
+            pos, heads, datas = 16 * n, [], []
+            for g, o, length, wl in items:
+                err, value = self.read_write(g, o, length, wdata[pos: pos + wl])
+                pos += wl
+                heads.append(struct.pack("<II", err, len(value)))
+                datas.append(value)
+            out = b"".join(heads) + b"".join(datas)
+        if len(out) > rlen:
+            return ERR_SIZE, b""
+        return 0, out
+
+    # --- notifications -------------------------------------------------------------
+
+    def add_note(self, group, offset, length, mode, cycle, client, server):
+        plc = self.plc
+        if group == IG_VERSION:
+            target, size = VERSION, 1
+        else:
+            target, err = self.target_of(group, offset)
+            if target is None:
+                return err, 0, None
+            size = max(target.size, 1)
+        if length > size or length == 0:
+            return ERR_SIZE, 0, None
+        if mode not in (MODE_CYCLIC, MODE_ON_CHANGE):
+            return ERR_TRANSMODE, 0, None
+        nh = plc.next_note
+        plc.next_note += 1
+        note = Note(self, target, length, mode, cycle, client, server)
+        self.notes[nh] = note
+        plc.count("notes_added")
+        if mode == MODE_CYCLIC:
+            note.task = asyncio.get_running_loop().create_task(self.cyclic(nh, note))
+            return 0, nh, None
+        # TwinCAT sends the present value of an on-change notification in the first
+        # cycle after adding it (not before the answer: AdsLib must know the handle).
+        delay = max(cycle / 1e7, 0.01)
+        return 0, nh, lambda: asyncio.get_running_loop().call_later(delay, self.send_first, nh)
+
+    def drop_note(self, nh):
+        note = self.notes.pop(nh, None)
+        if note is not None and note.task is not None:
+            note.task.cancel()
+
+    def send_first(self, nh):
+        note = self.notes.get(nh)
+        if note is not None:
+            note.last = self.value_of(note)
+            self.send_samples([(filetime_now(), [(nh, note, note.last)])])
+
+    def value_of(self, note):
+        if note.target is VERSION:
+            return bytes([self.plc.version])
+        return bytes(note.target.value[: note.length])
+
+    async def cyclic(self, nh, note):
+        period = max(note.cycle / 1e7, 0.01)
+        while True:
+            self.send_samples([(filetime_now(), [(nh, note, self.value_of(note))])])
+            await asyncio.sleep(period)
+
+    def collect(self, targets):
+        """Samples of this connection's on-change notifications on these targets whose
+        value moved since the last one sent."""
+        samples = []
+        for nh, note in self.notes.items():
+            if note.mode != MODE_ON_CHANGE or not any(note.target is t for t in targets):
+                continue
+            value = self.value_of(note)
+            if value != note.last:
+                note.last = value
+                samples.append((nh, note, value))
+        return samples
+
+    def send_samples(self, stamps):
+        """One frame per (client, server) address pair, each with all its stamps."""
+        frames = {}
+        for stamp, samples in stamps:
+            for nh, note, value in samples:
+                key = (note.client_addr, note.server_addr)
+                per = frames.setdefault(key, {})
+                per.setdefault(stamp, []).append((nh, value))
+        for (client, server), per in frames.items():
+            body = struct.pack("<I", len(per))
+            for stamp, samples in per.items():
+                body += struct.pack("<QI", stamp, len(samples))
+                for nh, value in samples:
+                    body += struct.pack("<II", nh, len(value)) + value
+            payload = struct.pack("<I", len(body)) + body
+            header = struct.pack("<6sH6sHHHIII", client[0], client[1], server[0], server[1],
+                                 8, 0x0004, len(payload), 0, 0)
+            self.plc.count("notifications_sent")
+            self.transport.write(struct.pack("<HI", 0, 32 + len(payload)) + header + payload)
+
+
+# --- control ---------------------------------------------------------------------------
+
+
+class Waiter:
+    """A `wait_clients' or `wait_stat' command waiting for its condition."""
+
+    def __init__(self, holds, answer):
+        self.holds = holds
+        self.answer = answer
+
+
+def control(plc, line, loop, answer):
+    words = line.split()
+    if not words:
+        return None
+    cmd, args = words[0], [unquote(w) for w in words[1:]]
+    try:
+        if cmd == "add":
+            nested = len(args) > 5 and args[5] == "nested"
+            sym = plc.add(args[0], args[1], int(args[2]), int(args[3]), bytes.fromhex(args[4]),
+                          nested)
+            return ("ok", sym.group, sym.offset)
+        if cmd == "set":
+            sym = plc.lookup(args[0])
+            if sym is None:
+                return ("error", "unknown_symbol")
+            plc.set_value(sym, bytes.fromhex(args[1]), filetime_now())
+            return "ok"
+        if cmd == "burst":
+            groups = []
+            for part in " ".join(args).split(";"):
+                ws = part.split()
+                pairs = [(plc.lookup(ws[i]), bytes.fromhex(ws[i + 1]))
+                         for i in range(1, len(ws), 2)]
+                groups.append((int(ws[0]), pairs))
+            plc.burst(groups)
+            return "ok"
+        if cmd == "get":
+            sym = plc.lookup(args[0])
+            if sym is None:
+                return ("error", "unknown_symbol")
+            return ("ok", bytes(sym.value))
+        if cmd == "remove":
+            plc.drop_symbol(plc.lookup(args[0]))
+            plc.program_changed()
+            return "ok"
+        if cmd == "retype":
+            plc.drop_symbol(plc.lookup(args[0]))
+            plc.add(args[0], args[1], int(args[2]), int(args[3]), bytes.fromhex(args[4]))
+            plc.program_changed()
+            return "ok"
+        if cmd == "bump":
+            plc.program_changed()
+            return "ok"
+        if cmd == "limit":
+            plc.sum_limit = int(args[0])
+            return "ok"
+        if cmd == "frames":
+            return ("ok", list(plc.frames))
+        if cmd == "stats":
+            stats = dict(plc.stats)
+            stats["handles"] = len(plc.handles)
+            stats["notes"] = sum(len(c.notes) for c in plc.conns)
+            stats["clients"] = len(plc.conns)
+            stats["version"] = plc.version
+            return ("ok", stats)
+        if cmd == "clear":
+            plc.frames = []
+            plc.stats = {}
+            return "ok"
+        if cmd == "record":
+            plc.record = args[0] == "on"
+            return "ok"
+        if cmd == "hold":
+            plc.hold = int(args[0])
+            return "ok"
+        if cmd == "mute":
+            plc.muted = True
+            return "ok"
+        if cmd == "unmute":
+            plc.muted = False
+            return "ok"
+        if cmd in ("wait_clients", "wait_stat"):
+            if cmd == "wait_clients":
+                n = int(args[0])
+                waiter = Waiter(lambda p: len(p.conns) == n, answer)
+            else:
+                key, n = args[0], int(args[1])
+                waiter = Waiter(lambda p: p.stats.get(key, 0) >= n, answer)
+                args = args[1:]
+            if waiter.holds(plc):
+                return "ok"
+            plc.waiters.append(waiter)
+
+            def expire():
+                if waiter in plc.waiters:
+                    plc.waiters.remove(waiter)
+                    waiter.answer(("error", "timeout"))
+
+            loop.call_later(int(args[1]) / 1000, expire)
+            return None
+        if cmd == "drop":
+            for conn in list(plc.conns):
+                conn.transport.close()
+            return "ok"
+        if cmd == "garbage":
+            for conn in list(plc.conns):
+                conn.transport.write(bytes.fromhex(args[0]))
+            return "ok"
+        if cmd == "quit":
+            loop.stop()
+            return "ok"
+        return ("error", "unknown_command")
+    except (IndexError, ValueError, KeyError, AttributeError) as e:
+        return ("error", "bad_arguments")
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--port", type=int, default=0)
+    parser.add_argument("--handle-base", type=int, default=0x1000)
+    args = parser.parse_args()
+    plc = Plc(args.handle_base)
+    loop = asyncio.new_event_loop()
+    asyncio.set_event_loop(loop)
+    server = loop.run_until_complete(
+        loop.create_server(lambda: Conn(plc), "127.0.0.1", args.port, reuse_address=True))
+    port = server.sockets[0].getsockname()[1]
+
+    def say(reply):
+        sys.stdout.write(erl(reply) + "\n")
+        sys.stdout.flush()
+
+    def answer(line):
+        reply = control(plc, line, loop, say)
+        if reply is not None:
+            say(reply)
+
+    def reader():
+        for line in sys.stdin:
+            loop.call_soon_threadsafe(answer, line)
+        # The test closed our stdin (or died): stop.
+        loop.call_soon_threadsafe(loop.stop)
+
+    threading.Thread(target=reader, daemon=True).start()
+    sys.stdout.write(erl(("ready", port, os.getpid())) + "\n")
+    sys.stdout.flush()
+    loop.run_forever()
+
+
+if __name__ == "__main__":
+    main()
