@@ -288,6 +288,10 @@ settings_changed(#state{settings = Old} = State) ->
         true -> ok;
         false -> ok = cell_shdr_listener:restart()
     end,
+    case maps:get(max_clients, New) =:= maps:get(max_clients, Old) of
+        true -> ok;
+        false -> ok = cell_shdr_listener:max_clients(maps:get(max_clients, New))
+    end,
     case maps:with([points], New) =:= maps:with([points], Old) of
         true -> ok;
         false -> cell_shdr_sampler:reconfigure()

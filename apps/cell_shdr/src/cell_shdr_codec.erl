@@ -86,12 +86,12 @@ value(I) when is_integer(I) -> integer_to_binary(I);
 value(F) when is_float(F) -> float_to_binary(F, [short]);
 value(B) when is_binary(B) -> escape(B).
 
-%% @doc Text as one field that no character can break: line breaks become spaces;
-%% a text holding `|' or starting with `"' is quoted, with `\' before each `\', `"'
-%% and `|'.
+%% @doc Text as one field that no character can break: line breaks become spaces,
+%% blanks at both ends go (the agent drops them anyway); a text holding `|' or
+%% starting with `"' is quoted, with `\' before each `\', `"' and `|'.
 -spec escape(binary()) -> binary().
 escape(B) ->
-    Flat = flatten(B),
+    Flat = trim_blanks(flatten(B)),
     case needs_quotes(Flat) of
         false -> Flat;
         true -> <<$", (quote(Flat))/binary, $">>
@@ -101,6 +101,17 @@ flatten(B) ->
     case binary:match(B, [<<"\r">>, <<"\n">>]) of
         nomatch -> B;
         _ -> binary:replace(B, [<<"\r\n">>, <<"\r">>, <<"\n">>], <<" ">>, [global])
+    end.
+
+trim_blanks(B) ->
+    case B of
+        <<C, _/binary>> when C =:= $\s; C =:= $\t -> string:trim(B, both, " \t");
+        <<>> -> B;
+        _ ->
+            case binary:last(B) of
+                C when C =:= $\s; C =:= $\t -> string:trim(B, both, " \t");
+                _ -> B
+            end
     end.
 
 needs_quotes(<<$", _/binary>>) -> true;

@@ -10,7 +10,7 @@
 -module(cell_shdr_listener).
 -behaviour(gen_server).
 
--export([start_link/0, restart/0, port/0]).
+-export([start_link/0, restart/0, max_clients/1, port/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -31,6 +31,11 @@ start_link() ->
 -spec restart() -> ok.
 restart() ->
     gen_server:cast(?MODULE, restart).
+
+%% @doc Changes how many clients may be connected at once.
+-spec max_clients(pos_integer()) -> ok.
+max_clients(N) ->
+    gen_server:cast(?MODULE, {max_clients, N}).
 
 %% @doc The port listened on, or `undefined' while not listening.
 -spec port() -> inet:port_number() | undefined.
@@ -53,9 +58,15 @@ handle_continue(listen, State) ->
 handle_call(Msg, _From, _State) ->
     error({unexpected_call, Msg}).
 
--spec handle_cast(restart, #state{}) -> {noreply, #state{}}.
+-spec handle_cast(restart | {max_clients, pos_integer()}, #state{}) -> {noreply, #state{}}.
 handle_cast(restart, State) ->
-    {noreply, listen(stop(State))}.
+    {noreply, listen(stop(State))};
+handle_cast({max_clients, N}, #state{listening = true} = State) ->
+    ok = ranch:set_max_connections(?REF, N),
+    {noreply, State};
+handle_cast({max_clients, _}, State) ->
+    %% Not listening: the next listen reads it from the settings.
+    {noreply, State}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}} | {stop, term(), #state{}}.
 handle_info({timeout, TRef, listen}, #state{retry = TRef} = State) ->

@@ -29,6 +29,7 @@
 -define(MAX_LINE, 1024).
 -define(BATCH_ENTRIES, 512).
 -define(SEND_TIMEOUT, 5000).
+-define(SNDBUF, 262144).
 
 -record(c, {socket :: inet:socket(),
             transport :: module(),
@@ -54,8 +55,10 @@ start_link(Ref, Transport, Opts) ->
 -spec init({ranch:ref(), module(), map()}) -> no_return().
 init({Ref, Transport, _Opts}) ->
     {ok, Socket} = ranch:handshake(Ref),
+    %% A fixed kernel send buffer bounds what a client that stopped reading holds in
+    %% the kernel too; past it, a send waits, and the send timeout ends the wait.
     ok = Transport:setopts(Socket, [{send_timeout, ?SEND_TIMEOUT}, {send_timeout_close, true},
-                                    {nodelay, true}]),
+                                    {nodelay, true}, {sndbuf, ?SNDBUF}]),
     Peer = peer(Transport, Socket),
     Flag = atomics:new(1, []),
     #{preamble := Preamble, seq := Seq, offset := Off, head := Head, log := Log,
