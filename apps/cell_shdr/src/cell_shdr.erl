@@ -15,6 +15,8 @@ devices_xml() ->
 
 %% @doc Writes {@link devices_xml/0} to a file (durably: a reader never sees half).
 -spec devices_xml(file:filename_all()) -> ok | {error, term()}.
+devices_xml(File) when is_binary(File) ->
+    devices_xml(unicode:characters_to_list(File));
 devices_xml(File) ->
     cell_file:write(File, devices_xml()).
 
