@@ -1,0 +1,99 @@
+%% @doc The MTConnect `Devices.xml' (schema 2.0) that declares exactly the data items
+%% the adapter emits (pure): the same item list as the stream (see {@link
+%% cell_shdr_items}), with ids, names, types, sub-types, categories, units and the
+%% device uuid from the settings, so an agent can be pointed at the cell without
+%% writing XML by hand.
+%%
+%% The cell is a Device (id `cellrt_device'); its Controller holds the cell-wide
+%% items and one Path per device task; configured HAL points sit on the Device.
+-module(cell_shdr_devices).
+
+-export([xml/3, version/0]).
+
+%% @doc The MTConnect schema version of the document.
+-spec version() -> binary().
+version() -> <<"2.0">>.
+
+%% @doc The document for these items and settings, created at `NowMs' (UTC ms).
+-spec xml([cell_shdr_items:item()], map(), integer()) -> binary().
+xml(Items, Settings, NowMs) ->
+    Now = cell_shdr_codec:timestamp(NowMs),
+    Esc = fun cell_shdr_assets:xml_escape/1,
+    Name = maps:get(device_name, Settings),
+    Paths = lists:usort([{Prefix, Task} || #{component := {path, Task, Prefix}} <- Items]),
+    iolist_to_binary(
+      [<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n">>,
+       <<"<MTConnectDevices xmlns=\"urn:mtconnect.org:MTConnectDevices:">>, version(),
+       <<"\" xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" "
+         "xsi:schemaLocation=\"urn:mtconnect.org:MTConnectDevices:">>, version(),
+       <<" http://schemas.mtconnect.org/schemas/MTConnectDevices_">>, version(),
+       <<".xsd\">\n">>,
+       <<"  <Header creationTime=\"">>, Now, <<"\" sender=\"cellrt\" instanceId=\"1\" "
+         "version=\"">>, version(), <<"\" deviceModelChangeTime=\"">>, Now,
+       <<"\" bufferSize=\"131072\" assetBufferSize=\"1024\" assetCount=\"0\"/>\n">>,
+       <<"  <Devices>\n">>,
+       <<"    <Device id=\"cellrt_device\" name=\"">>, Esc(Name), <<"\" uuid=\"">>,
+       Esc(maps:get(uuid, Settings)), <<"\">\n">>,
+       description(Settings, <<"      ">>),
+       data_items([I || #{component := device} = I <- Items], <<"      ">>),
+       <<"      <Components>\n">>,
+       <<"        <Controller id=\"cellrt_controller\" name=\"controller\">\n">>,
+       data_items([I || #{component := controller} = I <- Items], <<"          ">>),
+       case Paths of
+           [] -> [];
+           _ ->
+               [<<"          <Components>\n">>,
+                [path(Prefix, Task, Items) || {Prefix, Task} <- Paths],
+                <<"          </Components>\n">>]
+       end,
+       <<"        </Controller>\n">>,
+       <<"      </Components>\n">>,
+       <<"    </Device>\n">>,
+       <<"  </Devices>\n">>,
+       <<"</MTConnectDevices>\n">>]).
+
+description(Settings, Indent) ->
+    Esc = fun cell_shdr_assets:xml_escape/1,
+    Attrs = [[$\s, A, <<"=\"">>, Esc(V), $"]
+             || {F, A} <- [{manufacturer, <<"manufacturer">>},
+                           {serial_number, <<"serialNumber">>}, {station, <<"station">>}],
+                V <- [maps:get(F, Settings)], V =/= <<>>],
+    [Indent, <<"<Description">>, Attrs, $>, Esc(maps:get(description, Settings)),
+     <<"</Description>\n">>].
+
+path(Prefix, Task, Items) ->
+    Esc = fun cell_shdr_assets:xml_escape/1,
+    Mine = [I || #{component := {path, T, _}} = I <- Items, T =:= Task],
+    [<<"            <Path id=\"cellrt_path_">>, Esc(Prefix), <<"\" name=\"">>,
+     Esc(atom_to_binary(Task, utf8)), <<"\">\n">>,
+     data_items(Mine, <<"              ">>),
+     <<"            </Path>\n">>].
+
+data_items([], _Indent) ->
+    [];
+data_items(Items, Indent) ->
+    [Indent, <<"<DataItems>\n">>,
+     [[Indent, <<"  ">>, data_item(I), $\n] || I <- Items],
+     Indent, <<"</DataItems>\n">>].
+
+data_item(#{key := Key, type := Type, category := Cat} = I) ->
+    Esc = fun cell_shdr_assets:xml_escape/1,
+    Opt = fun(F, A) ->
+                  case maps:find(F, I) of
+                      {ok, V} -> [$\s, A, <<"=\"">>, Esc(V), $"];
+                      error -> []
+                  end
+          end,
+    Series = case I of
+                 #{time_series := true, rate := Rate} ->
+                     [<<" representation=\"TIME_SERIES\" sampleRate=\"">>,
+                      cell_shdr_codec:format_rate(Rate), $"];
+                 _ -> []
+             end,
+    [<<"<DataItem category=\"">>, category(Cat), <<"\" id=\"">>, Esc(Key),
+     <<"\" name=\"">>, Esc(Key), <<"\" type=\"">>, Esc(Type), $",
+     Opt(sub_type, <<"subType">>), Opt(units, <<"units">>), Series, <<"/>">>].
+
+category(sample) -> <<"SAMPLE">>;
+category(event) -> <<"EVENT">>;
+category(condition) -> <<"CONDITION">>.

@@ -1,0 +1,47 @@
+%% @doc The adapter's one door to the HAL (docs/architecture.md, "HAL"): reads a
+%% point, subscribes to its changes (`{cell_hal, {Group, Point}, Value}'), and names
+%% points from the settings without making atoms.
+%%
+%% The HAL module is the `cell_shdr' environment key `hal_module' (default
+%% `cell_hal'), so the adapter's tests can stand a scripted HAL in its place. While no
+%% HAL module is loaded, every configured point reads as unavailable.
+-module(cell_shdr_hal).
+
+-export([read/2, subscribe/2, same_point/3]).
+
+%% @doc Reads a point named in the settings.
+-spec read(binary(), binary()) -> {ok, term()} | {error, term()}.
+read(Group, Point) ->
+    with_point(Group, Point, fun(Mod, G, P) -> Mod:read(G, P) end).
+
+%% @doc Subscribes the caller to a point's changes.
+-spec subscribe(binary(), binary()) -> ok | {error, term()}.
+subscribe(Group, Point) ->
+    with_point(Group, Point, fun(Mod, G, P) ->
+                                     case Mod:subscribe(G, P) of
+                                         ok -> ok;
+                                         {ok, _} -> ok;
+                                         {error, _} = E -> E
+                                     end
+                             end).
+
+%% @doc Whether a configured point (names as binaries) is the HAL's `{Group, Point}'.
+-spec same_point(#{group := binary(), point := binary(), atom() => term()}, atom(),
+                 atom()) -> boolean().
+same_point(#{group := G, point := P}, Group, Point) ->
+    G =:= atom_to_binary(Group, utf8) andalso P =:= atom_to_binary(Point, utf8).
+
+%% The HAL names groups and points by atoms it declared itself: a name from the
+%% settings that is not an atom already cannot be one of them.
+with_point(Group, Point, Fun) ->
+    Mod = application:get_env(cell_shdr, hal_module, cell_hal),
+    case code:ensure_loaded(Mod) of
+        {module, Mod} ->
+            try {binary_to_existing_atom(Group, utf8), binary_to_existing_atom(Point, utf8)} of
+                {G, P} -> Fun(Mod, G, P)
+            catch
+                error:badarg -> {error, unknown_point}
+            end;
+        {error, _} ->
+            {error, no_hal}
+    end.

@@ -1,0 +1,83 @@
+%% The data items and their derivations from the cell.
+-module(cell_shdr_items_tests).
+-include_lib("eunit/include/eunit.hrl").
+
+%% Every IPC-2541 state of seed 000 §2.2, read row by row from the table in the
+%% module doc.
+execution_test_() ->
+    Table = [{off, <<"STOPPED">>, unavailable},
+             {down, <<"INTERRUPTED">>, unavailable},
+             {setup, <<"WAIT">>, <<"POWERING_UP">>},
+             {{ready, idle, starved}, <<"READY">>, unavailable},
+             {{ready, idle, blocked}, <<"WAIT">>, <<"PART_UNLOAD">>},
+             {{ready, processing, active}, <<"ACTIVE">>, unavailable},
+             {{ready, processing, executing}, <<"ACTIVE">>, unavailable}],
+    ?assertEqual(lists:sort(cell_ipc:states()), lists:sort([S || {S, _, _} <- Table])),
+    [?_assertEqual({E, W}, {cell_shdr_items:execution(S), cell_shdr_items:wait_state(S)})
+     || {S, E, W} <- Table].
+
+part_state_test_() ->
+    [?_assertEqual(V, cell_shdr_items:part_state(E))
+     || {E, V} <- [{item_transfer_in, <<"NEEDS_PROCESSING">>},
+                   {item_work_start, <<"IN_PROCESS">>},
+                   {item_work_pause, keep},
+                   {item_work_resume, <<"IN_PROCESS">>},
+                   {item_work_complete, <<"PROCESSING_ENDED_COMPLETE">>},
+                   {item_work_abort, <<"PROCESSING_ENDED_ABORTED">>},
+                   {equipment_blocked, <<"WAITING_FOR_TRANSIT">>},
+                   {equipment_unblocked, <<"IN_TRANSIT">>},
+                   {item_transfer_out, <<"TRANSIT_COMPLETE">>},
+                   {equipment_starved, keep}, {equipment_unstarved, keep},
+                   {item_identifier_read, keep}]].
+
+modes_test_() ->
+    [?_assertEqual(<<"MANUAL">>, cell_shdr_items:controller_mode(true)),
+     ?_assertEqual(<<"AUTOMATIC">>, cell_shdr_items:controller_mode(false)),
+     ?_assertEqual(<<"TRIGGERED">>, cell_shdr_items:estop(true)),
+     ?_assertEqual(<<"ARMED">>, cell_shdr_items:estop(false))].
+
+condition_test_() ->
+    A = #{id => <<"robot:lost">>, local_id => <<"lost">>, kind => error, task => robot,
+          caption => <<"Product lost">>, description => <<"Check the gripper">>,
+          solutions => [retry], raised => 0},
+    [?_assertEqual(#{level => fault, code => <<"robot.lost">>, severity => <<"error">>,
+                     text => <<"Product lost: Check the gripper">>},
+                   cell_shdr_items:condition(A)),
+     ?_assertMatch(#{level := fault, severity := <<"alarm">>},
+                   cell_shdr_items:condition(A#{kind => alarm})),
+     ?_assertMatch(#{level := warning, text := <<"Product lost">>},
+                   cell_shdr_items:condition(A#{kind => warning, description => <<>>})),
+     ?_assertEqual(<<"a.b.c">>, cell_shdr_items:native_code(<<"a:b:c">>))].
+
+names_test_() ->
+    V = fun cell_shdr_items:valid_name/1,
+    [?_assert(V(<<"avail">>)), ?_assert(V(<<"_x.y-1">>)), ?_assert(V(binary:copy(<<"a">>, 64))),
+     ?_assertNot(V(binary:copy(<<"a">>, 65))), ?_assertNot(V(<<>>)), ?_assertNot(V(<<"1a">>)),
+     ?_assertNot(V(<<"a b">>)), ?_assertNot(V(<<"a|b">>)), ?_assertNot(V(<<"a:b">>)),
+     ?_assertNot(V(<<"@ASSET@">>))].
+
+prefixes_test() ->
+    P = cell_shdr_items:prefixes(['robot', 'Robot 1', 'Robot_1', '1st', 'a:b']),
+    ?assertEqual(<<"robot">>, maps:get(robot, P)),
+    ?assertEqual(<<"t_1st">>, maps:get('1st', P)),
+    ?assertEqual(<<"a_b">>, maps:get('a:b', P)),
+    %% two ids that write the same get distinct prefixes
+    ?assertEqual(lists:sort([<<"Robot_1">>, <<"Robot_1_2">>]),
+                 lists:sort([maps:get('Robot 1', P), maps:get('Robot_1', P)])),
+    [?assert(cell_shdr_items:valid_name(X)) || X <- maps:values(P)].
+
+%% Keys are unique and valid ids, for any set of tasks and points.
+items_unique_test() ->
+    Tasks = [robot, load, 'part', 'cycle', 'a_part', 'load 2'],
+    Points = [#{name => <<"temp">>, type => <<"TEMPERATURE">>, category => sample,
+                sub_type => <<>>, units => <<"CELSIUS">>, time_series => false},
+              #{name => <<"current">>, type => <<"AMPERAGE">>, category => sample,
+                sub_type => <<"ACTUAL">>, units => <<"AMPERE">>, time_series => true,
+                rate => 10.0}],
+    Items = cell_shdr_items:items(Tasks, Points),
+    Keys = [K || #{key := K} <- Items],
+    ?assertEqual(length(Keys), length(lists:usort(Keys))),
+    [?assert(cell_shdr_items:valid_name(K)) || K <- Keys],
+    ?assertEqual(11 + 8 * length(Tasks) + 2, length(Items)),
+    ?assertMatch([#{time_series := true, rate := 10.0, sub_type := <<"ACTUAL">>}],
+                 [I || #{key := <<"current">>} = I <- Items]).
