@@ -37,7 +37,8 @@ all() ->
      logs_speak_to_operators, backoff_grows_then_resets, connection_info].
 
 init_per_suite(Config) ->
-    os:putenv("CELLRT_ROOT", filename:join(?config(priv_dir, Config), "root")),
+    _ = application:load(cell_base),
+    ok = application:set_env(cell_base, root, filename:join(?config(priv_dir, Config), "root")),
     {ok, Apps} = application:ensure_all_started(cell_hal),
     [{apps, Apps} | Config].
 

@@ -30,7 +30,8 @@ groups() ->
 
 init_per_suite(Config) ->
     Priv = ?config(priv_dir, Config),
-    os:putenv("CELLRT_ROOT", filename:join(Priv, "root")),
+    _ = application:load(cell_base),
+    ok = application:set_env(cell_base, root, filename:join(Priv, "root")),
     Server = filename:join(Priv, "modbus_server"),
     Src = filename:join(?config(data_dir, Config), "modbus_server.c"),
     case os:cmd("gcc -O2 -Wall -o '" ++ Server ++ "' '" ++ Src ++ "' -lmodbus 2>&1 && echo built") of

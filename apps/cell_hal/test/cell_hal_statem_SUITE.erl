@@ -28,7 +28,8 @@
 all() -> [hal_keeps_its_promises].
 
 init_per_suite(Config) ->
-    os:putenv("CELLRT_ROOT", filename:join(?config(priv_dir, Config), "root")),
+    _ = application:load(cell_base),
+    ok = application:set_env(cell_base, root, filename:join(?config(priv_dir, Config), "root")),
     {ok, Apps} = application:ensure_all_started(cell_hal),
     ok = cell_hal:add_connection(#{id => ?CONN, driver => cell_hal_sim,
                                    opts => #{poll_ms => 5, reconnect_ms => 10,

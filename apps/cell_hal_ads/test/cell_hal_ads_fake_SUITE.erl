@@ -62,7 +62,8 @@ groups() ->
 
 init_per_suite(Config) ->
     Root = filename:join(?config(priv_dir, Config), "root"),
-    os:putenv("CELLRT_ROOT", Root),
+    _ = application:load(cell_base),
+    ok = application:set_env(cell_base, root, Root),
     {ok, Apps} = application:ensure_all_started(cell_base),
     case cell_hal_ads_peer:start("fake_plc.py", []) of
         {ok, Fake, {ready, Port, _}} ->

@@ -28,7 +28,8 @@ all() ->
      notifications_added_and_deleted, by_name].
 
 init_per_suite(Config) ->
-    os:putenv("CELLRT_ROOT", filename:join(?config(priv_dir, Config), "root")),
+    _ = application:load(cell_base),
+    ok = application:set_env(cell_base, root, filename:join(?config(priv_dir, Config), "root")),
     {ok, _} = application:ensure_all_started(cell_base),
     case cell_hal_ads_peer:start("pyads_server.py", []) of
         {ok, Server, {ready, Port, _}} ->
