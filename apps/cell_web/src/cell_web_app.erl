@@ -4,7 +4,8 @@
 %% A new cell has the demo accounts operator/operator, service/service and
 %% admin/admin. A production build (the `prod' profile, or the `refuse_demo_accounts'
 %% setting of this application) refuses to start while any of them still has its demo
-%% password; other builds start and say in the log which ones are still open.
+%% password: at boot the node stops with status 1 and says why; other builds start and
+%% say in the log which ones are still open.
 -module(cell_web_app).
 -behaviour(application).
 
@@ -37,6 +38,15 @@ stop(_State) ->
 refuse_demo_accounts() ->
     ?PROD orelse application:get_env(cell_web, refuse_demo_accounts, false) =:= true.
 
+%% The release starts this application as temporary (so a failing panel never stops
+%% the cell); a refusal must stop the release's node all the same (its sys.config sets
+%% `refusal_stops_node'). Started from a shell or a test, the start just fails.
+refuse_boot() ->
+    case application:get_env(cell_web, refusal_stops_node, false) of
+        true -> init:stop(1);
+        false -> ok
+    end.
+
 check_config() ->
     case {cell_config:port(cell_web, port, 8080), cell_config:ip(cell_web, bind, {127, 0, 0, 1})} of
         {{ok, _}, {ok, _}} -> ok;
@@ -58,6 +68,7 @@ check_demo_accounts() ->
                       "from its shell: cell_web_users:set_password(<<\"admin\">>, "
                       "<<\"new password\">>, <<\"your name\">>)."]),
             cell_log:error(web, "~ts", [Text]),
+            refuse_boot(),
             {error, {demo_accounts, Text}};
         {Open, false} ->
             cell_log:warning(web, "demo accounts open on the operator panel: ~ts (each with "

@@ -203,8 +203,10 @@ read_loop(Req0, Max, Acc) ->
         false -> read_loop(Req, Max, Acc1)
     end.
 
+%% The rest of the body is not read: the connection closes after the answer.
 too_large(Max) ->
-    fail(413, body_too_large, ["the body is larger than ", integer_to_binary(Max), " bytes"]).
+    fail(413, body_too_large, ["the body is larger than ", integer_to_binary(Max), " bytes"],
+         #{close => true}).
 
 check_type(Req, Types) ->
     Type = try cowboy_req:parse_header(<<"content-type">>, Req) of
@@ -301,8 +303,9 @@ reply_json(Status, Body, Req) ->
 reply_error(Status, Code, Message, Extra, Req) ->
     Req1 = case Status of
                405 -> cowboy_req:set_resp_header(<<"allow">>, maps:get(allow, Extra, <<>>), Req);
+               413 -> cowboy_req:set_resp_header(<<"connection">>, <<"close">>, Req);
                _ -> Req
            end,
-    reply_json(Status, maps:merge(cell_web_json:term(Extra),
+    reply_json(Status, maps:merge(cell_web_json:term(maps:remove(close, Extra)),
                                   #{<<"error">> => atom_to_binary(Code, utf8),
                                     <<"message">> => Message}), Req1).
