@@ -62,6 +62,7 @@ solution(Bin) when is_binary(Bin) ->
 solution(_) ->
     bad_solution().
 
+-spec bad_solution() -> no_return().
 bad_solution() ->
     cell_web_req:fail(400, bad_request,
                       "solution must be one of \"retry\", \"ignore\", \"reset\", \"close\"").

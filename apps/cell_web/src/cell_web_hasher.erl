@@ -34,8 +34,7 @@ verify(Password, Stored) ->
 call(Request) ->
     case whereis(?MODULE) of
         undefined ->
-            {reply, Reply, undefined} = handle_call(Request, undefined, undefined),
-            Reply;
+            compute(Request);
         Pid ->
             case process_info(Pid, message_queue_len) of
                 {message_queue_len, N} when N > ?MAX_QUEUE -> erlang:error(busy);
@@ -48,10 +47,11 @@ init([]) ->
     {ok, undefined}.
 
 -spec handle_call(term(), gen_server:from(), undefined) -> {reply, term(), undefined}.
-handle_call({hash, Password}, _From, State) ->
-    {reply, cell_web_password:new(Password), State};
-handle_call({verify, Password, Stored}, _From, State) ->
-    {reply, cell_web_password:verify(Password, Stored), State}.
+handle_call(Request, _From, State) ->
+    {reply, compute(Request), State}.
+
+compute({hash, Password}) -> cell_web_password:new(Password);
+compute({verify, Password, Stored}) -> cell_web_password:verify(Password, Stored).
 
 -spec handle_cast(term(), undefined) -> no_return().
 handle_cast(Msg, _State) ->

@@ -23,7 +23,7 @@ init(Req, Opts) ->
     {ok, cell_web_req:run(Req, fun(R, C) -> handle(maps:get(what, Opts), R, C) end), Opts}.
 
 handle(list, Req, Caller) ->
-    method(Req, [<<"GET">>]),
+    _ = method(Req, [<<"GET">>]),
     _ = cell_web_req:require(Caller, view),
     {json, 200, [case cell_recipe:info(N) of
                      {ok, Info} -> Info;
@@ -44,7 +44,7 @@ handle(one, Req, Caller) ->
             {json, 200, #{<<"deleted">> => Name}, <<"recipe ", Name/binary, " deleted">>}
     end;
 handle(file, Req, Caller) ->
-    method(Req, [<<"GET">>]),
+    _ = method(Req, [<<"GET">>]),
     _ = cell_web_req:require(Caller, view),
     Name = name(Req),
     Bin = ok(cell_recipe:export(Name)),
@@ -52,7 +52,7 @@ handle(file, Req, Caller) ->
                                    <<"content-disposition">> => disposition(Name),
                                    <<"cache-control">> => <<"no-store">>}, Bin, Req)};
 handle(Op, Req, Caller) when Op =:= rename; Op =:= copy ->
-    method(Req, [<<"POST">>]),
+    _ = method(Req, [<<"POST">>]),
     _ = cell_web_req:require(Caller, service),
     Name = name(Req),
     {Body, _} = cell_web_req:read_json(Req),

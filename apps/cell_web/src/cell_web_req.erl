@@ -204,6 +204,7 @@ read_loop(Req0, Max, Acc) ->
     end.
 
 %% The rest of the body is not read: the connection closes after the answer.
+-spec too_large(pos_integer()) -> no_return().
 too_large(Max) ->
     fail(413, body_too_large, ["the body is larger than ", integer_to_binary(Max), " bytes"],
          #{close => true}).
@@ -281,6 +282,7 @@ csv_param(Key, Qs, Allowed) ->
         true -> bad_param(Key, "a value")
     end.
 
+-spec bad_param(binary(), iodata()) -> no_return().
 bad_param(Key, Expected) ->
     fail(400, bad_query, [Key, " must be ", Expected]).
 

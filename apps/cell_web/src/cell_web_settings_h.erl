@@ -110,6 +110,7 @@ saved(_Name, {error, {invalid, Path, _} = Why}, _Detail) ->
 saved(_Name, {error, Why}, _Detail) ->
     cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Why)).
 
+-spec not_found(term()) -> no_return().
 not_found(Why) ->
     cell_web_req:fail(404, not_found, cell_settings_schema:format_error(Why)).
 

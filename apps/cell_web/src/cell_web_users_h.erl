@@ -69,6 +69,7 @@ changes(Body) ->
                                         [K, " is not a field of a user (role, password, as text)"])
               end, #{}, Body).
 
+-spec refused(term()) -> no_return().
 refused(bad_user_name) ->
     cell_web_req:fail(400, bad_name, "a user name is 1 to 64 letters, digits and . _ - @");
 refused({password, too_short}) ->
