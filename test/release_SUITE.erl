@@ -33,7 +33,8 @@ init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), "root"),
     %% Unique per run: two checkouts may run this suite on one machine at once.
     Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "_" ++ os:getpid() ++ "@localhost",
-    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"}],
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"},
+           {"CELLRT_WEB_PORT", "0"}],
     [{env, Env}, {root, Root}, {node, list_to_atom(Node)} | Config].
 
 end_per_testcase(_Case, Config) ->

@@ -1,0 +1,475 @@
+// The operator panel. It renders a snapshot the cell sends over the websocket when
+// the page connects, then applies every change the cell sends: it never polls. Commands
+// and answers go to the REST API with the session's CSRF token.
+'use strict';
+
+const $ = (id) => document.getElementById(id);
+const RANK = { anonymous: 0, operator: 1, service: 2, admin: 3 };
+const SOLUTIONS = { retry: 'Retry', ignore: 'Ignore', reset: 'Reset', close: 'Close' };
+const RECONNECT_MS = [500, 1000, 2000, 5000, 10000];
+const LIVE_LINES = 500;
+
+const model = {
+  session: { user: null, role: 'anonymous', csrf: null, anonymous_view: true, demo_password: false },
+  cell: null,
+  tasks: new Map(),
+  alarms: new Map(),
+  log: [],
+  connected: false,
+};
+let socket = null;
+let attempts = 0;
+let logMode = { live: true, offset: 0, limit: 100, query: null };
+
+// ---------------------------------------------------------------------------------
+// REST
+
+async function api(method, path, body) {
+  const headers = { accept: 'application/json' };
+  if (body !== undefined) headers['content-type'] = 'application/json';
+  if (method !== 'GET' && model.session.csrf) headers['x-csrf-token'] = model.session.csrf;
+  const res = await fetch(path, {
+    method, headers, credentials: 'same-origin',
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  const data = await res.json().catch(() => ({ error: 'bad_answer', message: res.statusText }));
+  if (!res.ok) {
+    const err = new Error(data.message || res.statusText);
+    err.status = res.status;
+    err.code = data.error;
+    throw err;
+  }
+  return data;
+}
+
+async function command(name) {
+  try {
+    await api('POST', `/api/cell/${name}`);
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+async function answer(id, solution) {
+  try {
+    await api('POST', `/api/alarms/${encodeURIComponent(id)}/answer`, { solution });
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+// ---------------------------------------------------------------------------------
+// Live updates
+
+function connect() {
+  const scheme = location.protocol === 'https:' ? 'wss://' : 'ws://';
+  socket = new WebSocket(scheme + location.host + '/api/ws');
+  socket.onopen = () => { attempts = 0; setLink(true); };
+  socket.onmessage = (ev) => { for (const msg of JSON.parse(ev.data)) apply(msg); };
+  socket.onclose = (ev) => {
+    socket = null;
+    setLink(false);
+    if (ev.code === 4001) {
+      // The session ended (logout elsewhere, expiry, a changed password).
+      loadSession().then(connect, later);
+    } else {
+      later();
+    }
+  };
+}
+
+// Connect again after a pause that grows, after asking who we are (a page that may no
+// longer look without a login asks for one instead).
+function later() {
+  const delay = RECONNECT_MS[Math.min(attempts++, RECONNECT_MS.length - 1)];
+  setTimeout(() => {
+    loadSession().then(() => {
+      if (!model.session.user && !model.session.anonymous_view) openLogin();
+      else connect();
+    }, later);
+  }, delay);
+}
+
+function reconnect() {
+  if (socket) {
+    socket.onclose = null;
+    socket.close();
+    socket = null;
+  }
+  connect();
+}
+
+function apply(msg) {
+  switch (msg.type) {
+    case 'snapshot':
+      model.cell = msg.cell;
+      model.tasks = new Map(msg.tasks.map((t) => [t.id, t]));
+      model.alarms = new Map(msg.alarms.map((a) => [a.id, a]));
+      model.log = msg.log.slice(-LIVE_LINES);
+      renderAll();
+      break;
+    case 'cell':
+      model.cell = msg.cell;
+      renderCell();
+      break;
+    case 'task':
+      model.tasks.set(msg.task.id, msg.task);
+      renderTask(msg.task);
+      break;
+    case 'alarm':
+      model.alarms.set(msg.alarm.id, msg.alarm);
+      renderAlarms();
+      break;
+    case 'alarm_cleared':
+      model.alarms.delete(msg.alarm.id);
+      renderAlarms();
+      break;
+    case 'log':
+      model.log.push(msg.line);
+      if (model.log.length > LIVE_LINES) model.log.shift();
+      renderTicker();
+      if (logMode.live) renderLogLines(liveLines());
+      break;
+    default:
+      break;  // item events and the like: the task message that follows shows them
+  }
+}
+
+// ---------------------------------------------------------------------------------
+// Rendering
+
+function stateClass(name) {
+  const parts = (name || 'OFF').split('-');
+  return 'state-' + parts[parts.length - 1];
+}
+
+function stateLabel(name) {
+  return (name || 'OFF').replace('READY-', '');
+}
+
+function renderAll() {
+  renderCell();
+  renderLine();
+  renderAlarms();
+  renderTicker();
+  renderTaskOptions();
+  if (logMode.live) renderLogLines(liveLines());
+}
+
+function renderCell() {
+  const c = model.cell;
+  if (!c) return;
+  $('cell-name').textContent = c.name;
+  document.title = `${c.name} — ${stateLabel(c.state)}`;
+  const badge = $('cell-state');
+  badge.className = 'badge ' + stateClass(c.state);
+  badge.textContent = stateLabel(c.state);
+  $('cell-request').textContent =
+    `request: ${c.request}` + (c.service_mode ? ' · service mode' : '');
+  $('estop-banner').classList.toggle('hidden', !c.estop);
+  renderCommands();
+}
+
+function renderLine() {
+  const line = $('line');
+  line.replaceChildren();
+  if (model.tasks.size === 0) {
+    const p = document.createElement('p');
+    p.className = 'empty';
+    p.textContent = 'This cell has no device tasks.';
+    line.append(p);
+    return;
+  }
+  for (const t of model.tasks.values()) line.append(taskTile(t));
+  markErrors();
+}
+
+function taskTile(t) {
+  const tile = document.createElement('div');
+  tile.dataset.task = t.id;
+  fillTile(tile, t);
+  return tile;
+}
+
+function fillTile(tile, t) {
+  tile.className = 'task ' + stateClass(t.state) + (t.running ? '' : ' gone');
+  tile.dataset.state = t.state;
+  tile.replaceChildren(
+    div('id', t.id),
+    div('where', `${t.zone} · ${t.lane}`),
+    div('serial', t.serial ? t.serial : '—'),
+    div('state', stateLabel(t.state)),
+  );
+  tile.querySelector('.serial').dataset.testid = 'serial';
+  tile.querySelector('.state').dataset.testid = 'state';
+}
+
+function renderTask(t) {
+  const tile = $('line').querySelector(`[data-task="${CSS.escape(t.id)}"]`);
+  if (tile) fillTile(tile, t);
+  else renderLine();
+  markErrors();
+}
+
+function markErrors() {
+  const withError = new Set([...model.alarms.values()].filter((a) => a.kind === 'error').map((a) => a.task));
+  for (const tile of $('line').querySelectorAll('.task')) {
+    tile.classList.toggle('has-error', withError.has(tile.dataset.task));
+  }
+}
+
+function renderAlarms() {
+  const box = $('alarms');
+  box.replaceChildren();
+  const order = { alarm: 0, error: 1, warning: 2 };
+  const list = [...model.alarms.values()].sort((a, b) =>
+    order[a.kind] - order[b.kind] || a.raised - b.raised);
+  const may = RANK[model.session.role] >= RANK.operator;
+  for (const a of list) {
+    const item = document.createElement('div');
+    item.className = 'alarm ' + (a.kind === 'alarm' ? 'alarm-kind' : a.kind);
+    item.dataset.alarm = a.id;
+    item.dataset.kind = a.kind;
+    const head = document.createElement('div');
+    head.className = 'head';
+    head.append(span('caption', a.caption), span('who', `${a.kind} · ${a.task} · ${time(a.raised)}`));
+    item.append(head, div('description', a.description));
+    if (a.kind === 'alarm') {
+      item.append(div('note', 'Clears by itself when its cause is gone.'));
+    } else {
+      const buttons = document.createElement('div');
+      buttons.className = 'solutions';
+      for (const s of a.solutions) {
+        const b = document.createElement('button');
+        b.textContent = SOLUTIONS[s] || s;
+        b.dataset.solution = s;
+        b.disabled = !may;
+        b.addEventListener('click', () => { b.disabled = true; answer(a.id, s); });
+        buttons.append(b);
+      }
+      item.append(buttons);
+    }
+    box.append(item);
+  }
+  $('no-alarms').classList.toggle('hidden', list.length > 0);
+  markErrors();
+}
+
+function renderTicker() {
+  const box = $('ticker');
+  box.replaceChildren(...model.log.slice(-4).reverse().map((l) =>
+    div(l.level, `${time(l.time)}  ${l.source}: ${l.text}`)));
+}
+
+function renderCommands() {
+  const may = RANK[model.session.role] >= RANK.operator && model.connected;
+  const estop = model.cell && model.cell.estop;
+  $('cmd-start').disabled = !may || estop;
+  $('cmd-pause').disabled = !may;
+  $('cmd-stop').disabled = !may;
+  $('cmd-hint').textContent = !model.session.user ? 'Log in to operate the cell.'
+    : !may ? (model.connected ? 'Your role may only watch.' : 'Waiting for the cell…') : '';
+}
+
+function renderSession() {
+  const s = model.session;
+  $('user-button').textContent = s.user ? `${s.user} (${s.role})` : 'Log in';
+  $('demo-banner').classList.toggle('hidden', !s.demo_password);
+  renderCommands();
+  renderAlarms();
+}
+
+function setLink(up) {
+  model.connected = up;
+  const link = $('link');
+  link.classList.toggle('up', up);
+  link.textContent = up ? 'live' : 'reconnecting…';
+  renderCommands();
+}
+
+// ---------------------------------------------------------------------------------
+// The log page
+
+function liveLines() {
+  const levels = checkedLevels();
+  const task = $('log-task').value;
+  return model.log.filter((l) => levels.includes(l.level) && (!task || l.source === task)).reverse();
+}
+
+function checkedLevels() {
+  return [...document.querySelectorAll('input[name=level]:checked')].map((i) => i.value);
+}
+
+function renderLogLines(lines) {
+  $('log-lines').replaceChildren(...lines.map((l) => {
+    const tr = document.createElement('tr');
+    tr.className = l.level;
+    tr.append(td('time', time(l.time, true)), td('level', l.level), td('source', l.source),
+              td('text', l.text));
+    return tr;
+  }));
+}
+
+function renderTaskOptions() {
+  const select = $('log-task');
+  const keep = select.value;
+  const names = ['cell', ...model.tasks.keys()];
+  select.replaceChildren(option('', 'all'), ...names.map((n) => option(n, n)));
+  select.value = names.includes(keep) ? keep : '';
+}
+
+async function searchLog(offset) {
+  const params = new URLSearchParams();
+  const levels = checkedLevels();
+  if (levels.length === 0) return renderLogLines([]);
+  params.set('level', levels.join(','));
+  if ($('log-task').value) params.set('task', $('log-task').value);
+  if ($('log-from').value) params.set('from', String(new Date($('log-from').value).getTime()));
+  if ($('log-to').value) params.set('to', String(new Date($('log-to').value).getTime()));
+  params.set('limit', String(logMode.limit));
+  params.set('offset', String(offset));
+  try {
+    const page = await api('GET', `/api/log?${params}`);
+    logMode = { ...logMode, live: false, offset, more: page.more };
+    renderLogLines(page.lines);
+    $('pager').classList.remove('hidden');
+    $('log-range').textContent = page.lines.length
+      ? `lines ${offset + 1}–${offset + page.lines.length}` : 'no lines';
+    $('log-prev').disabled = offset === 0;
+    $('log-next').disabled = !page.more;
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+function liveLog() {
+  logMode = { ...logMode, live: true, offset: 0 };
+  $('pager').classList.add('hidden');
+  renderLogLines(liveLines());
+}
+
+// ---------------------------------------------------------------------------------
+// Session and dialogs
+
+async function loadSession() {
+  model.session = await api('GET', '/api/session');
+  renderSession();
+}
+
+function openLogin() {
+  $('login-error').textContent = '';
+  $('login-dialog').showModal();
+  $('login-user').focus();
+}
+
+async function login(ev) {
+  ev.preventDefault();
+  try {
+    model.session = await api('POST', '/api/session',
+      { user: $('login-user').value, password: $('login-password').value });
+    $('login-password').value = '';
+    $('login-dialog').close();
+    renderSession();
+    reconnect();
+  } catch (e) {
+    $('login-error').textContent = e.message;
+  }
+}
+
+async function logout() {
+  try {
+    model.session = await api('DELETE', '/api/session');
+  } catch (e) {
+    toast(e.message);
+  }
+  $('account-dialog').close();
+  renderSession();
+  if (model.session.anonymous_view) reconnect();
+  else openLogin();
+}
+
+async function changePassword(ev) {
+  ev.preventDefault();
+  try {
+    model.session = await api('POST', '/api/session/password',
+      { old: $('pw-old').value, new: $('pw-new').value });
+    $('pw-old').value = '';
+    $('pw-new').value = '';
+    $('account-dialog').close();
+    renderSession();
+    reconnect();
+    toast('Password changed.');
+  } catch (e) {
+    $('pw-error').textContent = e.message;
+  }
+}
+
+let toastTimer = null;
+function toast(text) {
+  const t = $('toast');
+  t.textContent = text;
+  t.classList.remove('hidden');
+  clearTimeout(toastTimer);
+  toastTimer = setTimeout(() => t.classList.add('hidden'), 5000);
+}
+
+// ---------------------------------------------------------------------------------
+// Small DOM helpers
+
+function div(cls, text) { const e = document.createElement('div'); e.className = cls; e.textContent = text; return e; }
+function span(cls, text) { const e = document.createElement('span'); e.className = cls; e.textContent = text; return e; }
+function td(cls, text) { const e = document.createElement('td'); e.className = cls; e.textContent = text; return e; }
+function option(value, text) { const e = document.createElement('option'); e.value = value; e.textContent = text; return e; }
+
+function time(ms, full) {
+  const d = new Date(ms);
+  const pad = (n, w = 2) => String(n).padStart(w, '0');
+  const hms = `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+  return full ? `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ${hms}.${pad(d.getMilliseconds(), 3)}` : hms;
+}
+
+// ---------------------------------------------------------------------------------
+// Start
+
+function show(view) {
+  for (const v of ['line', 'log']) {
+    $(`view-${v}`).classList.toggle('hidden', v !== view);
+    $(`tab-${v}`).classList.toggle('active', v === view);
+  }
+}
+
+function wire() {
+  $('cmd-start').addEventListener('click', () => command('start'));
+  $('cmd-pause').addEventListener('click', () => command('pause'));
+  $('cmd-stop').addEventListener('click', () => command('stop'));
+  $('tab-line').addEventListener('click', () => show('line'));
+  $('tab-log').addEventListener('click', () => show('log'));
+  $('user-button').addEventListener('click', () => {
+    if (model.session.user) {
+      $('account-title').textContent = `${model.session.user} (${model.session.role})`;
+      $('pw-error').textContent = '';
+      $('account-dialog').showModal();
+    } else {
+      openLogin();
+    }
+  });
+  $('login-form').addEventListener('submit', login);
+  $('login-cancel').addEventListener('click', () => $('login-dialog').close());
+  $('password-form').addEventListener('submit', changePassword);
+  $('logout').addEventListener('click', logout);
+  $('account-close').addEventListener('click', () => $('account-dialog').close());
+  $('log-form').addEventListener('submit', (ev) => { ev.preventDefault(); searchLog(0); });
+  $('log-live').addEventListener('click', liveLog);
+  $('log-prev').addEventListener('click', () => searchLog(Math.max(0, logMode.offset - logMode.limit)));
+  $('log-next').addEventListener('click', () => searchLog(logMode.offset + logMode.limit));
+  for (const input of document.querySelectorAll('input[name=level]')) {
+    input.addEventListener('change', () => { if (logMode.live) liveLog(); });
+  }
+  $('log-task').addEventListener('change', () => { if (logMode.live) liveLog(); });
+}
+
+wire();
+loadSession().then(() => {
+  if (!model.session.user && !model.session.anonymous_view) openLogin();
+  else connect();
+}, later);

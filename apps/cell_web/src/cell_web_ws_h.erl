@@ -1,0 +1,171 @@
+%% @doc `/api/ws' — live updates for the panel: the page never polls.
+%%
+%% At connect the page gets a snapshot (the cell, every task, the active errors,
+%% alarms and warnings, the latest log lines), then every change as it happens. Each
+%% frame is a JSON array of messages:
+%%
+%% <ul>
+%% <li>`{"type": "snapshot", "cell", "tasks", "alarms", "log", "session", "resync"}'</li>
+%% <li>`{"type": "cell", "cell": Cell}' — state or flags changed</li>
+%% <li>`{"type": "task", "task": Task}' — a task's state (or product serial) changed</li>
+%% <li>`{"type": "alarm", "alarm": Alarm}' — an error, alarm or warning raised or updated</li>
+%% <li>`{"type": "alarm_cleared", "alarm": Alarm}' — answered, closed, cleared or
+%%     withdrawn (`cleared' and `who' say which and by whom)</li>
+%% <li>`{"type": "event", "event": Event}' — an IPC-2541 item event and the like</li>
+%% <li>`{"type": "log", "line": Line}' — a task log line</li>
+%% </ul>
+%%
+%% A slow browser never slows the cell: publishers send to this process without
+%% waiting, and when more than `?MAX_BACKLOG' messages wait here, they are dropped
+%% and a fresh snapshot (`"resync": true') is sent instead. A browser that stops
+%% reading altogether is dropped by the socket's send timeout. The socket closes with
+%% 4001 when the session ends, 1012 when the cell restarts; the page connects again.
+-module(cell_web_ws_h).
+-behaviour(cowboy_websocket).
+
+-export([init/2, websocket_init/1, websocket_handle/2, websocket_info/2]).
+-export([messages/1]).
+
+-define(MAX_BACKLOG, 2000).
+-define(BATCH, 256).
+-define(PING_MS, 30000).
+
+-record(state, {caller :: cell_web_req:caller(),
+                events :: reference() | undefined,
+                log :: reference() | undefined}).
+
+-spec init(cowboy_req:req(), map()) ->
+          {cowboy_websocket, cowboy_req:req(), #state{}, map()} | {ok, cowboy_req:req(), map()}.
+init(Req, Opts) ->
+    try
+        ok = cell_web_req:check_origin(Req),
+        Caller = cell_web_req:require(cell_web_req:caller(Req), view),
+        case cowboy_req:header(<<"upgrade">>, Req) of
+            U when is_binary(U) ->
+                {cowboy_websocket, Req, #state{caller = Caller},
+                 #{idle_timeout => 3 * ?PING_MS, max_frame_size => 4096, compress => false}};
+            undefined ->
+                cell_web_req:fail(426, upgrade_required, "this is a websocket")
+        end
+    catch
+        throw:{cell_web_error, Status, Code, Message, Extra} ->
+            {ok, cell_web_req:reply_error(Status, Code, Message, Extra, Req), Opts}
+    end.
+
+-spec websocket_init(#state{}) -> {[cow_ws:frame()], #state{}}.
+websocket_init(#state{caller = Caller} = State) ->
+    %% Subscribe first, then read the snapshot: nothing that happens in between is
+    %% missed (a change seen twice is harmless, the page applies it again).
+    ok = cell_events:subscribe(),
+    ok = cell_log:subscribe(),
+    ok = cell_web_sessions:attach(case Caller of
+                                      #{session := undefined} -> anonymous;
+                                      #{session := Id} -> Id
+                                  end),
+    _ = erlang:start_timer(?PING_MS, self(), ping),
+    {[snapshot(false, State)],
+     State#state{events = monitor(process, cell_events),
+                 log = monitor(process, cell_log_server)}}.
+
+-spec websocket_handle(cow_ws:frame(), #state{}) ->
+          {[cow_ws:frame()], #state{}}.
+websocket_handle({text, <<"resync">>}, State) ->
+    {[snapshot(true, State)], State};
+websocket_handle({text, _}, State) ->
+    {[{close, 1003, <<"the panel sends nothing but resync">>}], State};
+websocket_handle(_Frame, State) ->
+    {[], State}.
+
+-spec websocket_info(term(), #state{}) -> {[cow_ws:frame()], #state{}}.
+websocket_info({cell_event, _} = Msg, State) ->
+    batch(Msg, State);
+websocket_info({cell_log, _} = Msg, State) ->
+    batch(Msg, State);
+websocket_info({timeout, _, ping}, State) ->
+    _ = erlang:start_timer(?PING_MS, self(), ping),
+    {[ping], State};
+websocket_info({cell_web_session, ended}, State) ->
+    {[{close, 4001, <<"session ended">>}], State};
+websocket_info({'DOWN', Ref, process, _, _}, #state{events = E, log = L} = State)
+  when Ref =:= E; Ref =:= L ->
+    {[{close, 1012, <<"the cell restarted">>}], State}.
+
+%% The first message, and what waits behind it, in one frame; or, when the browser
+%% has fallen too far behind, a fresh snapshot in place of the backlog.
+batch(First, State) ->
+    case process_info(self(), message_queue_len) of
+        {message_queue_len, N} when N > ?MAX_BACKLOG ->
+            drop(),
+            {[snapshot(true, State)], State};
+        _ ->
+            Msgs = [First | drain(?BATCH)],
+            {[{text, jsx:encode(lists:append([messages(M) || M <- Msgs]))}], State}
+    end.
+
+drain(0) ->
+    [];
+drain(N) ->
+    receive
+        {cell_event, _} = M -> [M | drain(N - 1)];
+        {cell_log, _} = M -> [M | drain(N - 1)]
+    after 0 ->
+        []
+    end.
+
+drop() ->
+    receive
+        {cell_event, _} -> drop();
+        {cell_log, _} -> drop()
+    after 0 ->
+        ok
+    end.
+
+%% @doc The messages for the page of one event or log line.
+-spec messages({cell_event, map()} | {cell_log, cell_log:line()}) -> [map()].
+messages({cell_log, Line}) ->
+    [#{<<"type">> => <<"log">>, <<"line">> => cell_web_json:line(Line)}];
+messages({cell_event, #{type := Type} = E}) ->
+    case Type of
+        task_state -> task(E);
+        T when T =:= cell_state; T =:= request; T =:= estop; T =:= service_mode ->
+            [cell()];
+        alarm_raised ->
+            [#{<<"type">> => <<"alarm">>, <<"alarm">> => cell_web_json:alarm(maps:get(alarm, E))},
+             cell()];
+        alarm_cleared ->
+            [#{<<"type">> => <<"alarm_cleared">>,
+               <<"alarm">> => cell_web_json:alarm(maps:get(alarm, E))},
+             cell()];
+        _ ->
+            [#{<<"type">> => <<"event">>, <<"event">> => cell_web_json:event(E)} | task(E)]
+    end.
+
+%% The task as the registry has it now, in the state the event announced, so the page
+%% sees every change in order; its product serial is read fresh.
+task(#{task := cell}) ->
+    [];
+task(#{task := Id} = E) ->
+    case cell_registry:task(Id) of
+        {ok, Row} ->
+            Row1 = case E of
+                       #{type := task_state, state := S} -> Row#{state => S};
+                       _ -> Row
+                   end,
+            [#{<<"type">> => <<"task">>, <<"task">> => cell_web_json:task(Row1#{id => Id})}];
+        {error, not_found} ->
+            []
+    end.
+
+cell() ->
+    #{<<"type">> => <<"cell">>, <<"cell">> => cell_web_cell_h:cell()}.
+
+snapshot(Resync, #state{caller = #{user := User, role := Role}}) ->
+    {text, jsx:encode(
+             [#{<<"type">> => <<"snapshot">>,
+                <<"resync">> => Resync,
+                <<"cell">> => cell_web_cell_h:cell(),
+                <<"tasks">> => [cell_web_json:task(T) || T <- cell_controller:tasks()],
+                <<"alarms">> => [cell_web_json:alarm(A) || A <- cell_alarms:list()],
+                <<"log">> => [cell_web_json:line(L) || L <- cell_web_recent:lines()],
+                <<"session">> => #{<<"user">> => User,
+                                   <<"role">> => atom_to_binary(Role, utf8)}}])}.

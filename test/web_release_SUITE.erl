@@ -1,0 +1,112 @@
+%% System tests of the operator panel in the built releases: the default release
+%% serves the panel on the port it is given, and a release built with the prod
+%% profile refuses to start while a demo account keeps its demo password.
+-module(web_release_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_suite/1, end_per_suite/1]).
+-export([release_serves_the_panel/1, prod_release_refuses_demo_passwords/1]).
+
+all() ->
+    [release_serves_the_panel, prod_release_refuses_demo_passwords].
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(inets),
+    Config.
+
+end_per_suite(Config) ->
+    Config.
+
+release_serves_the_panel(Config) ->
+    Bin = filename:join([top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]),
+    filelib:is_regular(Bin) orelse ct:fail("no release: build it with `rebar3 release`"),
+    Env = env(Config, "web_default"),
+    try
+        {0, _} = run(Bin, ["daemon"], Env, 30000),
+        ok = await_pong(Bin, Env, 100),
+        {0, Out} = run(Bin, ["eval", "cell_web:port()."], Env, 30000),
+        Port = list_to_integer(string:trim(Out)),
+        ?assert(Port > 0),
+        Url = "http://127.0.0.1:" ++ integer_to_list(Port),
+        {ok, {{_, 200, _}, _, Cell}} = httpc:request(get, {Url ++ "/api/cell", []}, [], []),
+        ?assertNotEqual(nomatch, string:find(Cell, "\"state\":\"OFF\"")),
+        {ok, {{_, 200, _}, _, Tasks}} = httpc:request(get, {Url ++ "/api/tasks", []}, [], []),
+        ?assertEqual("[]", Tasks),
+        {ok, {{_, 200, _}, _, Page}} = httpc:request(get, {Url ++ "/", []}, [], []),
+        ?assertNotEqual(nomatch, string:find(Page, "Start"))
+    after
+        run(Bin, ["stop"], Env, 30000)
+    end.
+
+prod_release_refuses_demo_passwords(Config) ->
+    %% Build the prod release (a few seconds; the suite runs where `make test' built).
+    {0, _} = run(os:find_executable("rebar3"), ["as", "prod", "release"], [], 300000, top()),
+    Bin = filename:join([top(), "_build", "prod", "rel", "cellrt", "bin", "cellrt"]),
+    Env = env(Config, "web_prod"),
+    {Status, Out} = run(Bin, ["foreground"], Env, 120000),
+    ?assertEqual(1, Status),
+    ?assertNotEqual(nomatch, string:find(Out, "the demo accounts operator, service, admin still "
+                                              "have their demo passwords")),
+    %% With the passwords changed, the same release starts.
+    {_, Root} = lists:keyfind("CELLRT_ROOT", 1, Env),
+    Users = [maps:merge(#{name => N, role => binary_to_atom(N)},
+                        cell_web_password:new(<<"changed-", N/binary>>, 1000))
+             || N <- [<<"operator">>, <<"service">>, <<"admin">>]],
+    ok = file:write_file(filename:join([Root, "Settings", "web_users.json"]),
+                         cell_settings_schema:to_json(cell_web_users, #{users => Users})),
+    try
+        {0, _} = run(Bin, ["daemon"], Env, 30000),
+        ok = await_pong(Bin, Env, 100)
+    after
+        run(Bin, ["stop"], Env, 30000)
+    end.
+
+%% Helpers
+
+env(Config, Name) ->
+    Root = filename:join(?config(priv_dir, Config), Name),
+    Node = "cellrt_ct_" ++ Name ++ "_" ++ os:getpid() ++ "@localhost",
+    [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"},
+     {"CELLRT_WEB_PORT", "0"}].
+
+top() ->
+    case os:getenv("CELLRT_TOP") of
+        false ->
+            case string:split(?FILE, "/_build/") of
+                [Top, _] -> Top;
+                [_] -> filename:dirname(filename:dirname(?FILE))
+            end;
+        Top -> Top
+    end.
+
+run(Bin, Args, Env, Timeout) ->
+    run(Bin, Args, Env, Timeout, filename:dirname(filename:dirname(Bin))).
+
+run(Bin, Args, Env, Timeout, Dir) ->
+    Port = open_port({spawn_executable, Bin},
+                     [{args, Args}, {env, Env}, {cd, Dir}, exit_status, stderr_to_stdout,
+                      binary]),
+    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+
+collect(Port, Acc, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after Left ->
+        catch port_close(Port),
+        ct:fail("timed out; output so far: ~s", [Acc])
+    end.
+
+%% `ping' waits for its answer: each try is a round trip, not a sleep.
+await_pong(_Bin, _Env, 0) ->
+    {error, timeout};
+await_pong(Bin, Env, N) ->
+    case run(Bin, ["ping"], Env, 30000) of
+        {_, Out} ->
+            case string:trim(Out) of
+                "pong" -> ok;
+                _ -> await_pong(Bin, Env, N - 1)
+            end
+    end.
