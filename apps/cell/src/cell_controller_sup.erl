@@ -28,6 +28,7 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
                 cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
                 cell_recipe_buffer:child_spec(#{}),
+                cell_peers:child_spec(Spec),
                 #{id => cell_handshake_sup,
                   start => {cell_handshake_sup, start_link, [cell_spec:hosted_links(Spec)]},
                   type => supervisor, shutdown => infinity},

@@ -13,7 +13,7 @@
 -module(cell_events).
 -behaviour(gen_server).
 
--export([start_link/0, subscribe/0, subscribe/1, unsubscribe/0, publish/1, new/2, new/3,
+-export([start_link/0, subscribe/0, subscribe/1, subscribe/2, unsubscribe/0, publish/1, new/2, new/3,
          types/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
@@ -53,6 +53,16 @@ subscribe() ->
 subscribe(Types) when is_list(Types) ->
     case [T || T <- Types, not lists:member(T, types())] of
         [] -> gen_server:call(?MODULE, {subscribe, self(), lists:usort(Types)});
+        Unknown -> {error, {unknown_types, Unknown}}
+    end.
+
+%% @doc Subscribes another process, such as one on another node watching this cell.
+-spec subscribe(pid(), all | [type()]) -> ok | {error, {unknown_types, [term()]}}.
+subscribe(Pid, all) when is_pid(Pid) ->
+    gen_server:call(?MODULE, {subscribe, Pid, all});
+subscribe(Pid, Types) when is_pid(Pid), is_list(Types) ->
+    case [T || T <- Types, not lists:member(T, types())] of
+        [] -> gen_server:call(?MODULE, {subscribe, Pid, lists:usort(Types)});
         Unknown -> {error, {unknown_types, Unknown}}
     end.
 

@@ -60,8 +60,9 @@
 -spec offer(cell_task:task(), atom()) -> cell_task:task().
 offer(#task{product = undefined, id = Id}, Link) ->
     erlang:error({no_product_to_offer, Id, Link});
-offer(#task{product = P, gen = G} = T, Link) ->
-    case call(Link, {offer, self(), P, G}) of
+offer(#task{product = P, gen = G} = T0, Link) ->
+    {T, Reply} = call(T0, Link, {offer, self(), P, G}),
+    case Reply of
         ok ->
             T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined,
                                  link_down => false}),
@@ -78,8 +79,9 @@ offer(#task{product = P, gen = G} = T, Link) ->
 %% @doc Withdraws the offer unless downstream has begun to take the product: `{false,
 %% T}' then, and the transfer must go on (seed: TryAbortOffering).
 -spec try_abort_offering(cell_task:task(), atom()) -> {boolean(), cell_task:task()}.
-try_abort_offering(T, Link) ->
-    case call(Link, {try_abort_offering, self()}) of
+try_abort_offering(T0, Link) ->
+    {T, Reply} = call(T0, Link, {try_abort_offering, self()}),
+    case Reply of
         true -> {true, view(T, Link, #{phase => idle, available => false})};
         false -> {false, T};
         %% No link, no offer.
@@ -89,8 +91,9 @@ try_abort_offering(T, Link) ->
 %% @doc Phase 3: the product has left this task (Available off). Downstream owns it
 %% from here; this task holds none.
 -spec release(cell_task:task(), atom()) -> cell_task:task().
-release(#task{id = Id, product = P, gen = G} = T, Link) ->
-    case call(Link, {release, self()}) of
+release(#task{} = T0, Link) ->
+    {#task{id = Id, product = P, gen = G} = T, Reply} = call(T0, Link, {release, self()}),
+    case Reply of
         ok ->
             %% The file stays until downstream owns the product on disk.
             ok = cell_registry:hold(Id, undefined, 0),
@@ -151,8 +154,9 @@ peek(_T, Link) ->
 %% `{not_available, T}' if the offer was withdrawn first. The product becomes the
 %% task's own on disk only at release: until it leaves upstream, upstream owns it.
 -spec commit(cell_task:task(), atom()) -> {ok, cell_task:task()} | {not_available, cell_task:task()}.
-commit(T, Link) ->
-    case call(Link, {lock, self()}) of
+commit(T0, Link) ->
+    {T, Reply} = call(T0, Link, {lock, self()}),
+    case Reply of
         {ok, Product, Gen} ->
             case call(Link, {confirm, self()}) of
                 ok ->
@@ -179,8 +183,9 @@ complete(#task{product = #{serial := S} = P, gen = G} = T, Link) ->
 %% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
 %% product. If upstream is gone the task keeps it, still marked in transit.
 -spec abort(cell_task:task(), atom()) -> cell_task:task().
-abort(#task{} = T, Link) ->
-    case call(Link, {abort, self()}) of
+abort(#task{} = T0, Link) ->
+    {T, Reply} = call(T0, Link, {abort, self()}),
+    case Reply of
         kept_by_upstream ->
             view(T#task{product = undefined, gen = 0}, Link, #{phase => idle});
         given_back ->
@@ -455,6 +460,19 @@ from_status(Role, #{phase := P, available := A, not_busy := N}) ->
 
 store(T, Product, Gen, Marker, Opts) ->
     cell_task:store(T, Product, Gen, Marker, Opts).
+
+%% A task's call to one of its links: a task the link does not know (it could not
+%% reach the link when it booted, the link restarted, or another node just came in
+%% reach) attaches and asks again.
+call(T, Link, Request) ->
+    case call(Link, Request) of
+        {error, not_attached} ->
+            #{role := Role} = link_view(T, Link),
+            T1 = attach(T, Link, Role),
+            {T1, call(Link, Request)};
+        Reply ->
+            {T, Reply}
+    end.
 
 %% A link that is restarting answers `{error, link_down}'; a link that does not answer
 %% within the timeout is a fault, and the task crashes (and is restarted).
