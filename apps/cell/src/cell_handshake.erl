@@ -38,7 +38,7 @@
          available/2, not_busy/2, phase/2, peek/2, commit/2, complete/2, abort/2,
          connect/3, disconnect/2, confirm_here/1, in_transit/1]).
 %% For the engine and the links.
--export([attach_all/1, handle/2, holding/1, arm/3, hello/2, interrupt_all/1,
+-export([attach_all/1, handle/2, holding/1, arm/3, signal/3, hello/2, interrupt_all/1,
          active_offers/1, reoffer/2]).
 
 -export_type([view/0]).
@@ -83,7 +83,12 @@ try_abort_offering(T0, Link) ->
     {T, Reply} = call(T0, Link, {try_abort_offering, self()}),
     case Reply of
         true -> {true, view(T, Link, #{phase => idle, available => false})};
-        false -> {false, T};
+        false ->
+            %% The answer told the task of the commit before the link's message did,
+            %% and that message is now old news: a wait on the link, armed before
+            %% this call, is looked at again.
+            self() ! {cell_handshake, Link, recheck},
+            {false, T};
         %% No link, no offer.
         {error, link_down} -> {true, view(T, Link, #{phase => idle, available => false})}
     end.
@@ -144,8 +149,8 @@ phase(T, Link) -> maps:get(phase, link_view(T, Link), idle).
 
 %% @doc The product on offer, without committing to it (seed: PeekBoardAvailable).
 -spec peek(cell_task:task(), atom()) -> {ok, cell_product:product()} | none.
-peek(_T, Link) ->
-    case call(Link, {peek, self()}) of
+peek(T, Link) ->
+    case element(2, call(T, Link, {peek, self()})) of
         {ok, P} -> {ok, P};
         _ -> none
     end.
@@ -155,26 +160,19 @@ peek(_T, Link) ->
 %% task's own on disk only at release: until it leaves upstream, upstream owns it.
 -spec commit(cell_task:task(), atom()) -> {ok, cell_task:task()} | {not_available, cell_task:task()}.
 commit(T0, Link) ->
-    {T, Reply} = call(T0, Link, {lock, self()}),
-    case Reply of
-        {ok, Product, Gen} ->
-            case call(Link, {confirm, self()}) of
-                ok ->
-                    {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
-                              #{phase => committed, not_busy => true, from_gen => Gen})};
-                {error, _} ->
-                    %% Upstream stopped while this task was taking the product.
-                    {not_available, T}
-            end;
-        {error, _} ->
+    case call(T0, Link, {commit, self()}) of
+        {T, {ok, Product, Gen}} ->
+            {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
+                      #{phase => committed, not_busy => true, from_gen => Gen})};
+        {T, {error, _}} ->
             {not_available, T}
     end.
 
 %% @doc Phase 4: the product has arrived (NotBusy off). ItemTransferIn.
 -spec complete(cell_task:task(), atom()) -> cell_task:task().
-complete(#task{product = #{serial := S} = P, gen = G} = T, Link) ->
+complete(#task{product = #{serial := S} = P, gen = G} = T0, Link) ->
     %% After an interruption the link has moved on; the product arrived all the same.
-    _ = call(Link, {complete, self()}),
+    {T, _} = call(T0, Link, {complete, self()}),
     %% The owner is already this task on disk; clearing the in-transit mark may be lost
     %% in a power cut without harm (the operator is then asked once too often).
     T1 = store(T, P, G, undefined, #{sync => false}),
@@ -213,19 +211,19 @@ confirm_here(#task{product = P, gen = G} = T) ->
 -spec connect(cell_task:task(), atom(), cell_handshake_link:role()) ->
           {ok, cell_task:task()} | {error, term()}.
 connect(#task{id = Id} = T, Link, Role) ->
-    case call(Link, {attach, Role, Id, self(), holding(T, x)}) of
-        {ok, Status} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
-                                                       T#task.links)}};
-        {error, _} = Error -> Error
+    case plain_call(Link, {attach, Role, Id, self(), holding(T, x)}) of
+        {{ok, Status}, _} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
+                                                            T#task.links)}};
+        {{error, _} = Error, _} -> Error
     end.
 
 %% @doc Disconnects from a link; refused while a transfer is under way on it.
 -spec disconnect(cell_task:task(), atom()) -> {ok, cell_task:task()} | {error, term()}.
 disconnect(T, Link) ->
     #{role := Role} = link_view(T, Link),
-    case call(Link, {detach, Role, self()}) of
-        ok -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
-        {error, _} = Error -> Error
+    case plain_call(Link, {detach, Role, self()}) of
+        {ok, _} -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
+        {{error, _} = Error, _} -> Error
     end.
 
 %% -------------------------------------------------------------------------------------
@@ -279,7 +277,7 @@ holding(#task{product = #{serial := S}, gen = G}, _) -> {S, G}.
 holding(#task{links = Links}) ->
     lists:any(fun was_active/1, maps:values(Links)).
 
-was_active(#{role := up, phase := P}) -> lists:member(P, [locked, committed, released, aborting]);
+was_active(#{role := up, phase := P}) -> lists:member(P, [committed, released, aborting]);
 was_active(#{role := down, phase := P}) -> lists:member(P, [committed, released]);
 was_active(_) -> false.
 
@@ -305,8 +303,8 @@ interrupt_all(#task{links = Links} = T) ->
     maps:fold(fun(Link, View, Acc) ->
                       case was_active(View) orelse maps:get(phase, View) =:= offered of
                           true ->
-                              _ = call(Link, {interrupt, self()}),
-                              element(1, interrupted(Acc, Link, maps:get(phase, View)));
+                              {Acc1, _} = call(Acc, Link, {interrupt, self()}),
+                              element(1, interrupted(Acc1, Link, maps:get(phase, View)));
                           false ->
                               Acc
                       end
@@ -315,18 +313,29 @@ interrupt_all(#task{links = Links} = T) ->
 %% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
 %% it holds (at once if it already does). `link_down' while the link restarts.
 -spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()} | link_down.
+%%
+%% The task's view of the link's signals is kept up to date by the link's numbered
+%% status messages, so a wait needs no call: it holds now, or a later status message
+%% ends it (see {@link handle/2}).
 arm(T, Link, {Signal, Value}) ->
-    case maps:get(link_down, maps:get(Link, T#task.links, #{}), false) of
+    Down = maps:get(link_down, maps:get(Link, T#task.links, #{}), false)
+        orelse cell_handshake_link:whereis(Link) =:= undefined,
+    case Down of
         true ->
-            %% The last call found the link gone: what the task waits for may never
-            %% come from the link that replaced it.
+            %% The link is restarting: what the task waits for may never come from
+            %% the link that replaces it.
             link_down;
         false ->
-            case call(Link, {watch, self(), Signal, Value}) of
-                {ok, Ref} -> {ok, Ref};
-                {error, link_down} -> link_down
-            end
+            Ref = make_ref(),
+            _ = signal(T, Link, Signal) =:= Value
+                andalso (self() ! {cell_handshake_watch, Ref, Link, Signal, Value}),
+            {ok, Ref}
     end.
+
+%% @private A signal of a link as the task last saw it.
+-spec signal(cell_task:task(), atom(), available | not_busy) -> boolean().
+signal(T, Link, available) -> available(T, Link);
+signal(T, Link, not_busy) -> not_busy(T, Link).
 
 %% @private A restarted link's greeting to one of its partners, wherever it runs.
 -spec hello(atom() | {atom(), node()}, atom()) -> ok.
@@ -342,14 +351,17 @@ hello(Task, Link) ->
     end.
 
 %% @private The engine hands every message of a link here. Answers the task and
-%% `{wake, Link, Why}' when a wait on that link should end.
+%% `{wake, Link, Why}' when a wait on that link should end, `{wake, Link, {signals,
+%% Seq}}' when the signals changed and a wait on them may end.
 -spec handle(term(), cell_task:task()) -> {cell_task:task(), [{wake, atom(), term()}]}.
-handle({cell_handshake, Link, signals, Status}, T) ->
+handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T) ->
     case maps:find(Link, T#task.links) of
-        {ok, #{role := Role} = Old} ->
+        {ok, #{role := Role, lpid := LPid, seq := Seen} = Old} when Seq > Seen ->
             New = maps:merge(Old, from_status(Role, Status)),
-            {T#task{links = maps:put(Link, New, T#task.links)}, []};
-        error ->
+            {T#task{links = maps:put(Link, New, T#task.links)}, [{wake, Link, {signals, Seq}}]};
+        _ ->
+            %% Older than what the task already knows (an answer overtook it), or of
+            %% an incarnation of the link the task is no longer attached to.
             {T, []}
     end;
 handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial := Serial},
@@ -357,6 +369,8 @@ handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial 
     {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};
 handle({cell_handshake, _Link, {holder, _Serial, _Gen}}, T) ->
     {T, []};
+handle({cell_handshake, Link, recheck}, T) ->
+    {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
     %% A restarted link: attach again; whatever the task waited for on it is over.
     {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
@@ -367,7 +381,10 @@ handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
     T1 = store(T, Product, Gen + 1, Marker, #{}),
     %% If the link is gone meanwhile, upstream keeps a stale copy the generations
     %% recognise.
-    _ = call(Link, {owned, self()}),
+    _ = case cell_handshake_link:whereis(Link) of
+            undefined -> ok;
+            Pid -> gen_server:cast(Pid, {owned, self()})
+        end,
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
 handle({cell_handshake, Link, owned}, #task{product = undefined, product_path = Path} = T) ->
@@ -384,8 +401,8 @@ handle({cell_handshake, Link, aborted}, T) ->
 %% downstream forget its copy.
 handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
     T1 = store(T, Product, Gen + 2, undefined, #{}),
-    _ = call(Link, {taken_back, self()}),
-    {view(T1, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
+    {T2, _} = call(T1, Link, {taken_back, self()}),
+    {view(T2, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
 handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
     interrupted(T, Link, Phase);
 handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
@@ -411,7 +428,7 @@ interrupted(#task{links = Links} = T, Link, Phase) ->
     end.
 
 %% Downstream before release: the product never left upstream; this task forgets it.
-after_interruption(down, Phase, T, _Link) when Phase =:= committed; Phase =:= locked ->
+after_interruption(down, committed, T, _Link) ->
     T#task{product = undefined, gen = 0, marker = undefined};
 %% Downstream after release: this task owns it, marked in transit.
 after_interruption(down, _Phase, T, _Link) ->
@@ -455,38 +472,56 @@ view(#task{links = Links} = T, Link, Fields) ->
            end,
     T#task{links = maps:put(Link, maps:merge(Old, Fields#{last_product => Last}), Links)}.
 
-from_status(Role, #{phase := P, available := A, not_busy := N}) ->
-    #{role => Role, phase => P, available => A, not_busy => N}.
+from_status(Role, #{phase := P, available := A, not_busy := N, seq := Seq, link := LPid}) ->
+    #{role => Role, phase => P, available => A, not_busy => N, seq => Seq, lpid => LPid}.
 
 store(T, Product, Gen, Marker, Opts) ->
     cell_task:store(T, Product, Gen, Marker, Opts).
 
 %% A task's call to one of its links: a task the link does not know (it could not
 %% reach the link when it booted, the link restarted, or another node just came in
-%% reach) attaches and asks again.
+%% reach) attaches and asks again. The status the answer carries goes into the task's
+%% view, so a status message it overtook is not taken for news.
 call(T, Link, Request) ->
-    case call(Link, Request) of
-        {error, not_attached} ->
+    case request(Link, Request) of
+        {{error, not_attached}, _, _} ->
             #{role := Role} = link_view(T, Link),
             T1 = attach(T, Link, Role),
-            {T1, call(Link, Request)};
-        Reply ->
+            seen(T1, Link, request(Link, Request));
+        Answer ->
+            seen(T, Link, Answer)
+    end.
+
+seen(#task{links = Links} = T, Link, {Reply, #{seq := Seq, link := LPid} = Status, LPid}) ->
+    case maps:find(Link, Links) of
+        {ok, #{role := Role, lpid := LPid, seq := Seen} = View} when Seq > Seen ->
+            {T#task{links = maps:put(Link, maps:merge(View, from_status(Role, Status)), Links)},
+             Reply};
+        _ ->
             {T, Reply}
+    end;
+seen(T, _Link, {Reply, _, _}) ->
+    {T, Reply}.
+
+request(Link, Request) ->
+    case plain_call(Link, Request) of
+        {{error, link_down}, Pid} -> {{error, link_down}, none, Pid};
+        {{Reply, Status}, Pid} -> {Reply, Status, Pid}
     end.
 
 %% A link that is restarting answers `{error, link_down}'; a link that does not answer
 %% within the timeout is a fault, and the task crashes (and is restarted).
-call(Link, Request) ->
+plain_call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
         undefined ->
-            {error, link_down};
+            {{error, link_down}, undefined};
         Pid ->
             try
-                gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+                {gen_server:call(Pid, Request, ?CALL_TIMEOUT), Pid}
             catch
-                exit:{noproc, _} -> {error, link_down};
-                exit:{normal, _} -> {error, link_down};
-                exit:{killed, _} -> {error, link_down};
-                exit:{shutdown, _} -> {error, link_down}
+                exit:{noproc, _} -> {{error, link_down}, Pid};
+                exit:{normal, _} -> {{error, link_down}, Pid};
+                exit:{killed, _} -> {{error, link_down}, Pid};
+                exit:{shutdown, _} -> {{error, link_down}, Pid}
             end
     end.
