@@ -290,7 +290,7 @@ set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
 %% @private
 -spec publish(task(), cell_events:type(), map()) -> ok.
 publish(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
-    cell_events:publish(cell_events:new(Type, Id, Fields#{zone => Z, lane => L})).
+    cell_events:publish(Type, Id, Fields#{zone => Z, lane => L}).
 
 %% IO (seed 000 §4: a task reads and writes points by name, never a driver)
 
