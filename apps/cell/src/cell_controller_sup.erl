@@ -33,5 +33,6 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                   type => supervisor, shutdown => infinity},
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
+                cell_monitor:child_spec(Spec),
                 #{id => cell_controller, start => {cell_controller, start_link, []}}],
     {ok, {Flags, Children}}.
