@@ -46,7 +46,7 @@
 %% `connection.<id>', `hardware.<id>'.
 -module(cell_monitor_core).
 
--export([new/2, handle/2, info/1, alarm_ids/1]).
+-export([new/2, handle/2, info/1]).
 
 -export_type([core/0, event/0, effect/0, timer/0, cell/0]).
 
@@ -105,8 +105,6 @@
                errors = #{} :: #{binary() => true}}).
 
 -opaque core() :: #core{}.
-
--define(WHO_ESTOP, <<"emergency stop circuit">>).
 
 %%====================================================================
 %% API
@@ -183,15 +181,6 @@ info(#core{io = Io, values = Values, lamps = Lamps, devices = Devs, drives = Dri
                          end, Drives),
       speed_override => effective_speed(C),
       estop_raised => C#core.estop_raised}.
-
-%% @doc The alarm ids the monitor may raise for a spec (local to the task `cell').
--spec alarm_ids(#{hal := cell_monitor_spec:hal(), monitor := cell_monitor_spec:monitor()}) ->
-          [binary()].
-alarm_ids(#{monitor := #{drives := Drives}} = Spec) ->
-    [<<"door">>, <<"air">>]
-        ++ lists:append([[drive_id(Id), drive_id(Id, <<".warning">>), drive_id(Id, <<".failed">>)]
-                         || #{id := Id} <- Drives])
-        ++ [device_id(Dev) || {Dev, _} <- cell_monitor_spec:devices(Spec)].
 
 %%====================================================================
 %% Inputs
@@ -326,7 +315,7 @@ drive_warning(#drive{spec = #{id := Id, caption := Caption}} = D) ->
            ". It runs on; check it at the next stop."])}.
 
 code_text(#drive{code = Code}) when is_integer(Code), Code =/= 0 ->
-    io_lib:format(" (code ~b, 16#~.16B)", [Code, Code]);
+    io_lib:format(" (code ~b, 0x~.16B)", [Code, Code]);
 code_text(_) ->
     "".
 

@@ -148,7 +148,7 @@ drive_reset_sequence_test() ->
     ?assertMatch([{warning, <<"drive.x">>, <<"Drive X axis in error">>, _}],
                  [W || {warning, _, _, _} = W <- E1]),
     [{warning, _, _, Text}] = [W || {warning, _, _, _} = W <- E1],
-    ?assertNotEqual(nomatch, binary:match(Text, <<"code 17, 16#11">>)),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"code 17, 0x11">>)),
     ?assertNotEqual(nomatch, binary:match(Text, <<"reset 1 of 3">>)),
     ?assert(lists:member({timer, {reset_pulse, x}, 200}, E1)),
     %% The pulse ends; the first wait; the second and third pulse, waits doubling.
@@ -305,14 +305,6 @@ speed_override_test() ->
 answer_for_something_else_test() ->
     ?assertEqual([], effects([{answer, <<"door">>, retry}, {answer, <<"nothing">>, close}],
                              healthy())).
-
-alarm_ids_test() ->
-    Ids = cell_monitor_core:alarm_ids(spec()),
-    ?assertEqual(lists:sort([<<"door">>, <<"air">>, <<"drive.x">>, <<"drive.x.warning">>,
-                             <<"drive.x.failed">>, <<"drive.y">>, <<"drive.y.warning">>,
-                             <<"drive.y.failed">>, <<"connection.plc1">>,
-                             <<"hardware.camera">>]),
-                 lists:sort(Ids)).
 
 kinds_test() ->
     %% Everything the monitor decides is one of the effects it knows how to carry out.
