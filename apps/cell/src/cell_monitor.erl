@@ -434,12 +434,17 @@ safe_outputs(#data{spec = #{monitor := #{io := Io, drives := Drives}}}) ->
     Lamps = [P || {Role, P} <- maps:to_list(Io), lists:member(Role, cell_monitor_spec:outputs())],
     Resets = [P || #{reset := P} <- Drives],
     lists:foreach(fun({G, P}) ->
-                          _ = catch_exit(fun() -> cell_hal:write_sync(G, P, false, ?SAFE_WRITE_MS) end)
+                          Write = fun() -> cell_hal:write_sync(G, P, false, ?SAFE_WRITE_MS) end,
+                          _ = catch_exit(Write)
                   end, lists:usort(Lamps ++ Resets)).
 
-remove({connection, Id}) -> log_removal(connection, Id, catch_exit(fun() -> cell_hal:remove_connection(Id) end));
-remove({group, Id}) -> log_removal(group, Id, catch_exit(fun() -> cell_hal:remove_group(Id) end));
-remove({hardware, Id}) -> log_removal(hardware, Id, catch_exit(fun() -> cell_hal_hw:remove(Id) end)).
+remove({Kind, Id}) ->
+    Remove = case Kind of
+                 connection -> fun() -> cell_hal:remove_connection(Id) end;
+                 group -> fun() -> cell_hal:remove_group(Id) end;
+                 hardware -> fun() -> cell_hal_hw:remove(Id) end
+             end,
+    log_removal(Kind, Id, catch_exit(Remove)).
 
 log_removal(_Kind, _Id, ok) ->
     ok;

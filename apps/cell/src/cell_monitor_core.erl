@@ -119,7 +119,8 @@ new(#{hal := Hal, monitor := #{io := Io, drives := Drives} = Mon} = Spec,
     #{settings := Settings, speed := Speed, cell := Cell}) ->
     Info = cell_monitor_spec:points(Hal, Mon),
     Core0 = #core{io = Io, info = Info,
-                  kinds = maps:from_list([{Id, K} || #{id := Id, kind := K} <- maps:get(hardware, Hal)]),
+                  kinds = maps:from_list([{Id, K}
+                                          || #{id := Id, kind := K} <- maps:get(hardware, Hal)]),
                   drives = maps:from_list([{Id, #drive{spec = D}} || #{id := Id} = D <- Drives]),
                   devices = maps:from_list([{Dev, #dev{severity = S}}
                                             || {Dev, S} <- cell_monitor_spec:devices(Spec)]),
@@ -328,7 +329,9 @@ device(_Dev, up, #dev{status = up}, C) ->
 device(Dev, up, #dev{status = Status} = D, C) ->
     E0 = [{cancel, {grace, Dev}} || Status =:= starting],
     {C1, E1} = case D#dev.reported of
-                   true -> clear_device(Dev, D, C, E0 ++ [{log, brief, "~ts is back", [device_name(Dev, C)]}]);
+                   true ->
+                       Back = {log, brief, "~ts is back", [device_name(Dev, C)]},
+                       clear_device(Dev, D, C, E0 ++ [Back]);
                    false -> {C, E0}
                end,
     %% A warning a monitor before this one left is reset when the device is first seen up.

@@ -264,7 +264,8 @@ group_defs(Groups) ->
     maps:from_list(
       [{{G, N}, #{dir => Dir, type => T, connection => C, caption => Cap}}
        || #{id := G, module := Mod, connection := C} = Spec <- Groups,
-          #{name := N, dir := Dir, type := T, caption := Cap} <- Mod:points(maps:get(opts, Spec, #{}))]).
+          #{name := N, dir := Dir, type := T, caption := Cap}
+              <- Mod:points(maps:get(opts, Spec, #{}))]).
 
 io(Io, Defs) when is_map(Io) ->
     case maps:keys(Io) -- roles() of

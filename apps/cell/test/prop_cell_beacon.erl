@@ -99,7 +99,8 @@ model_holds(error, #{has_error := E}) -> E;
 model_holds(warning, #{has_warning := W}) -> W;
 model_holds(estop, #{estop := E}) -> E;
 model_holds(service_mode, #{service_mode := S}) -> S;
-model_holds(idle, #{state := S}) -> lists:member(S, [{ready, idle, starved}, {ready, idle, blocked}]);
+model_holds(idle, #{state := S}) ->
+    lists:member(S, [{ready, idle, starved}, {ready, idle, blocked}]);
 model_holds(processing, #{state := S}) ->
     lists:member(S, [{ready, processing, active}, {ready, processing, executing}]);
 model_holds(starved, #{state := S}) -> S =:= {ready, idle, starved};
