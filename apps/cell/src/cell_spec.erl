@@ -18,6 +18,10 @@
 %% snapshot it runs on, taken at each Start; a map gives fixed settings instead. The
 %% cell's `settings' lists the schema modules of its own settings objects.
 %%
+%% `hal' is what the monitor connects (connections, IO groups, hardware objects) and
+%% `monitor' what it watches and drives (general IO, drives, beacon): both optional,
+%% checked by {@link cell_monitor_spec}.
+%%
 %% A cell application's own module returns it from the settings (seed 000 §2.3.3: one
 %% setting switches a cell between simulated and real tasks and IO): the `cell' app's
 %% `cell_module' environment key names that module, whose `cell_spec/0' is called at
@@ -30,12 +34,14 @@
 -export_type([spec/0]).
 
 -type spec() :: #{name := binary(), tasks := [cell_task:spec()], settings := [module()],
-                  links := [cell_handshake_link:spec()]}.
+                  links := [cell_handshake_link:spec()],
+                  hal := cell_monitor_spec:hal(), monitor := cell_monitor_spec:monitor()}.
 
 %% @doc A cell without tasks.
 -spec empty() -> spec().
 empty() ->
-    #{name => <<"cell">>, tasks => [], settings => [], links => []}.
+    #{name => <<"cell">>, tasks => [], settings => [], links => [],
+      hal => cell_monitor_spec:empty_hal(), monitor => cell_monitor_spec:empty_monitor()}.
 
 %% @doc The links this node runs.
 -spec hosted_links(spec()) -> [cell_handshake_link:spec()].
@@ -87,11 +93,16 @@ validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
         {ok, Checked} ->
             case is_list(Schemas) andalso lists:all(fun is_schema/1, Schemas) of
                 true ->
-                    case links(maps:get(links, Spec, []), [T || #{id := T} <- Checked]) of
-                        {ok, Links} ->
-                            {ok, Spec#{name => Name, settings => Schemas, links => Links,
-                                       tasks => [with_links(T, Links) || T <- Checked]}};
-                        Error ->
+                    case {links(maps:get(links, Spec, []), [T || #{id := T} <- Checked]),
+                          cell_monitor_spec:validate(Spec)} of
+                        {{ok, Links}, {ok, HalAndMonitor}} ->
+                            {ok, maps:merge(Spec#{name => Name, settings => Schemas,
+                                                  links => Links,
+                                                  tasks => [with_links(T, Links) || T <- Checked]},
+                                            HalAndMonitor)};
+                        {{ok, _}, Error} ->
+                            Error;
+                        {Error, _} ->
                             Error
                     end;
                 false ->
