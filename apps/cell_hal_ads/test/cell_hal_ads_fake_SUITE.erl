@@ -370,7 +370,7 @@ every_type_round_trip(Config) ->
               <<16#FFFFFFFFFFFFFFFF:64/little>>},
              {"MAIN.d", date, {2023, 11, 15}, {1970, 1, 2}, <<86400:32/little>>},
              {"MAIN.t", time, 90000, 1500, <<1500:32/little>>},
-             {"MAIN.c", char, <<"A">>, <<"z">>, <<"z", 0>>},
+             {"MAIN.c", char, $A, $z, <<"z", 0>>},
              {"MAIN.name", {string, 20}, <<"hello">>, <<"abc">>, <<"abc", 0:(18 * 8)>>}],
     Vars = [{list_to_binary(N), T} || {N, T, _, _, _} <- Cases],
     {ok, Infos} = cell_hal_ads_client:resolve(C, Vars),
