@@ -130,7 +130,7 @@
                        | {write_vars, [{var(), cell_hal_ads_types:value()}]}
                        | {subscribe, [{var(), sub_opts()}]}
                        | {unsubscribe, [reference()]}
-                       | subscribe_status
+                       | subscribe_status | symbols
                        | read_device_info | read_state
                        | {read, u32(), u32(), u32()}
                        | {write, u32(), u32(), iodata()}
@@ -625,6 +625,8 @@ async_message({unsubscribe, Refs}, _) when is_list(Refs) ->
     end;
 async_message(subscribe_status, _) ->
     {ok, subscribe_status};
+async_message(symbols, T) ->
+    {ok, {req, symbols, deadline(T)}};
 async_message(Request, T) ->
     case valid_request(Request) of
         true -> {ok, {req, {request, Request}, deadline(T)}};
