@@ -194,6 +194,10 @@
                down :: term(),
                logged :: term(),
                last_rx = 0 :: integer(),
+               %% when the one deadline timer fires (no later than the earliest job's
+               %% deadline; a job that ends leaves it armed, so a round trip costs no
+               %% timer operation)
+               timer_at = infinity :: integer() | infinity,
                received = 0 :: non_neg_integer()}).
 
 -type answer() :: cell_hal_ads_batch:answer().
@@ -201,6 +205,7 @@
 -type cont() :: fun(([answer()], #data{}) -> {#data{}, [action()]}).
 
 -record(job, {from :: gen_statem:from() | undefined,
+              deadline :: integer() | infinity,   % monotonic ms
               n :: pos_integer(),
               left :: non_neg_integer(),
               answers = #{} :: #{pos_integer() => answer()},
@@ -883,7 +888,10 @@ handle_event(state_timeout, reconnect, disconnected, D) ->
 handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D) ->
     %% On a socket the peer just closed this fails; tcp_closed follows and says so.
     _ = inet:setopts(Socket, [{active, once}]),
-    Buffer = <<(D#data.buffer)/binary, Bin/binary>>,
+    Buffer = case D#data.buffer of
+                 <<>> -> Bin;
+                 Old -> <<Old/binary, Bin/binary>>
+             end,
     act(frames(D#data{buffer = Buffer, last_rx = now_ms(), received = D#data.received + 1}, []));
 handle_event(info, {tcp_closed, Socket}, {connected, _}, #data{socket = Socket} = D) ->
     disconnect(closed, D);
@@ -891,8 +899,8 @@ handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = S
     disconnect({socket, Reason}, D);
 handle_event(internal, {fail, Reason}, {connected, _}, D) ->
     disconnect(Reason, D);
-handle_event({timeout, {job, Id}}, Id, {connected, _}, D) ->
-    act(job_timeout(Id, D));
+handle_event({timeout, deadline}, _, {connected, _}, D) ->
+    act(expire(D#data{timer_at = infinity}));
 handle_event({timeout, link_check}, _, {connected, _}, D) ->
     #data{opts = #{link_check := Check}, last_rx = Last} = D,
     case now_ms() - Last >= Check andalso map_size(D#data.inflight) =:= 0 of
@@ -960,8 +968,8 @@ handle_event(info, {tcp_closed, _}, _, _) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, _}, _, _) ->
     keep_state_and_data;
-handle_event({timeout, {job, _}}, _, _, _) ->
-    keep_state_and_data;
+handle_event({timeout, deadline}, _, _, D) ->
+    {keep_state, D#data{timer_at = infinity}};
 handle_event({timeout, link_check}, _, _, _) ->
     keep_state_and_data;
 handle_event(internal, {version, _}, _, _) ->
@@ -1044,12 +1052,12 @@ disconnect(Reason, D) ->
     _ = gen_tcp:close(D#data.socket),
     Replies = [{reply, From, {error, disconnected}}
                || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
-    Cancels = [{{timeout, {job, Id}}, cancel} || Id <- maps:keys(D#data.jobs)],
+    Cancels = [{{timeout, deadline}, cancel}],
     Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D#data.subs),
     {next_state, disconnected,
      D#data{socket = undefined, buffer = <<>>, inflight = #{}, waiting = queue:new(),
             jobs = #{}, notes = #{}, subs = Subs, vars = cell_hal_ads_vars:reset(D#data.vars),
-            down = Reason},
+            down = Reason, timer_at = infinity},
      Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
 
 log_down(OldState, Delay, D) ->
@@ -1759,16 +1767,36 @@ job([], _From, _Deadline, Cont, D) ->
 job(Requests, From, Deadline, Cont, D) ->
     Id = D#data.job_seq + 1,
     N = length(Requests),
-    Job = #job{from = From, n = N, left = N, received = D#data.received, cont = Cont},
-    Waiting = lists:foldl(fun({I, R}, Q) -> queue:in({Id, I, R}, Q) end, D#data.waiting,
-                          lists:zip(lists:seq(1, N), Requests)),
+    Job = #job{from = From, deadline = Deadline, n = N, left = N,
+               received = D#data.received, cont = Cont},
     {D1, Actions} = pump(D#data{job_seq = Id, jobs = (D#data.jobs)#{Id => Job},
-                                waiting = Waiting}),
-    Timeout = case Deadline of
-                  infinity -> [];
-                  _ -> [{{timeout, {job, Id}}, Deadline, Id, [{abs, true}]}]
-              end,
-    {D1, Timeout ++ Actions}.
+                                waiting = enqueue(Requests, Id, 1, D#data.waiting)}),
+    arm(Deadline, D1, Actions).
+
+enqueue([], _, _, Q) -> Q;
+enqueue([R | Rs], Id, I, Q) -> enqueue(Rs, Id, I + 1, queue:in({Id, I, R}, Q)).
+
+%% The deadline timer fires no later than `Deadline'.
+arm(Deadline, #data{timer_at = At} = D, Actions) when At =< Deadline ->
+    {D, Actions};
+arm(Deadline, D, Actions) ->
+    {D#data{timer_at = Deadline}, [{{timeout, deadline}, Deadline, check, [{abs, true}]}
+                                   | Actions]}.
+
+%% The timer fired: jobs past their deadline end, and it is armed again for the
+%% earliest one left.
+expire(D) ->
+    Now = now_ms(),
+    Due = lists:sort([{Dl, Id} || {Id, #job{deadline = Dl}} <- maps:to_list(D#data.jobs),
+                                  Dl =/= infinity, Dl =< Now]),
+    {D1, Actions} = lists:foldl(fun({_, Id}, {Dx, Ax}) ->
+                                        {Dy, Ay} = job_timeout(Id, Dx),
+                                        {Dy, Ax ++ Ay}
+                                end, {D, []}, Due),
+    case [Dl || #job{deadline = Dl} <- maps:values(D1#data.jobs), Dl =/= infinity] of
+        [] -> {D1, Actions};
+        Left -> arm(lists:min(Left), D1, Actions)
+    end.
 
 %% Sends queued requests while there is room, in one write to the socket.
 pump(D) ->
@@ -1818,10 +1846,11 @@ deliver(Id, I, Answer, D) ->
             {D, []}
     end.
 
-complete(Id, #job{n = N, answers = As, cont = Cont}, D) ->
-    Answers = [maps:get(I, As, {error, timeout}) || I <- lists:seq(1, N)],
-    {D1, Actions} = Cont(Answers, D),
-    {D1, [{{timeout, {job, Id}}, cancel} | Actions]}.
+complete(_Id, #job{n = N, answers = As, cont = Cont}, D) ->
+    Cont(answers(N, As, []), D).
+
+answers(0, _, Acc) -> Acc;
+answers(I, As, Acc) -> answers(I - 1, As, [maps:get(I, As, {error, timeout}) | Acc]).
 
 %% The deadline passed: what is missing is a timeout. If nothing at all came from the
 %% PLC since the job was sent, the connection is dead (a pulled cable is noticed here,
