@@ -357,7 +357,7 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
     ok = cell_hal_store:announce(Id, up),
     Pushed = case D#data.pushed of
                  0 -> "";
-                 N -> [", ", integer_to_list(N), " inputs by notification"]
+                 N -> [", ", plural(N, "input"), " by notification"]
              end,
     cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll~s",
                     [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
