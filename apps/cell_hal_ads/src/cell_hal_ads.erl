@@ -100,8 +100,7 @@
 %% subscribed), usable, or not usable for a reason. `held': the client counts a use of
 %% it by this connection.
 -record(entry, {state = new :: new | resolving | ready | {fault, term()},
-                held = false :: boolean(),
-                sub :: reference() | undefined}).
+                held = false :: boolean()}).
 
 -record(read, {points :: plan(),
                timer :: reference(),
@@ -321,12 +320,19 @@ request(_, _, _, _) ->
     {error, disconnected}.
 
 %% The points an entry serves, for the events about them.
-learn(Plan, #ads{keys = Keys, dirs = Dirs} = S) ->
-    S#ads{keys = lists:foldl(fun({K, _, E}, Acc) ->
-                                     maps:update_with(E, fun(Ks) -> lists:usort([K | Ks]) end,
-                                                      [K], Acc)
-                             end, Keys, Plan),
-          dirs = lists:foldl(fun({K, Dir, _}, Acc) -> Acc#{K => Dir} end, Dirs, Plan)}.
+learn(Plan, S) ->
+    lists:foldl(fun learn_point/2, S, Plan).
+
+learn_point({K, Dir, E}, #ads{keys = Keys, dirs = Dirs} = S) ->
+    case Keys of
+        #{E := Ks} ->
+            case lists:member(K, Ks) of
+                true -> S;
+                false -> S#ads{keys = Keys#{E := [K | Ks]}, dirs = Dirs#{K => Dir}}
+            end;
+        #{} ->
+            S#ads{keys = Keys#{E => [K]}, dirs = Dirs#{K => Dir}}
+    end.
 
 outputs_of(E, #ads{keys = Keys, dirs = Dirs}) ->
     [K || K <- maps:get(E, Keys, []), maps:get(K, Dirs, in) =:= out].
@@ -634,9 +640,9 @@ error_reason(Why) -> Why.
 %% Entries resolved (or subscribed to), or not usable, one result each.
 resolved(Results, S) ->
     lists:foldl(fun({E, {ok, Ref}}, Acc) when is_reference(Ref) ->
-                        ready(E, Acc#ads{subs = (Acc#ads.subs)#{Ref => E}}, Ref);
+                        ready(E, Acc#ads{subs = (Acc#ads.subs)#{Ref => E}});
                    ({E, {ok, _Info}}, Acc) ->
-                        ready(E, Acc, undefined);
+                        ready(E, Acc);
                    ({E, {error, Why}}, Acc) ->
                         #entry{held = Held} = maps:get(E, Acc#ads.entries, #entry{}),
                         Acc1 = Acc#ads{entries = (Acc#ads.entries)#{
@@ -645,9 +651,9 @@ resolved(Results, S) ->
                         faults([{K, Why} || K <- maps:get(E, Acc1#ads.keys, [])], Acc1)
                 end, S, Results).
 
-ready(E, #ads{entries = Es} = S, Sub) ->
+ready(E, #ads{entries = Es} = S) ->
     Old = maps:get(E, Es, #entry{}),
-    S1 = S#ads{entries = Es#{E => Old#entry{state = ready, held = true, sub = Sub}}},
+    S1 = S#ads{entries = Es#{E => Old#entry{state = ready, held = true}}},
     %% Asked again while held (an output after a program change): one use is enough.
     S2 = case {Old#entry.held, E} of
              {true, {poll, Var}} -> ask({release, [Var]}, release, S1);

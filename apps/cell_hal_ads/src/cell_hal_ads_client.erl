@@ -765,11 +765,10 @@ text({bad_size, Type, N}) -> io_lib:format("the PLC sent ~b bytes for a ~tp valu
 text({not_resolved, Name}) -> ["variable ", Name, " is not resolved on this connection"];
 text({symbol_table, R}) -> ["the symbol table could not be read: ", text(R)];
 text({symbol_error, Name, R}) -> ["symbol ", Name, ": ", text(R)];
-text({bad_response, What}) -> io_lib:format("the PLC sent a malformed answer (~p)", [What]);
-text({bad_frame, What}) -> io_lib:format("the PLC sent a malformed frame (~p)", [What]);
-text({bad_notification, What}) ->
-    io_lib:format("the PLC sent a malformed notification (~p)", [What]);
-text({bad_symbol, What}) -> io_lib:format("the PLC sent a malformed symbol entry (~p)", [What]);
+text({bad_response, What}) -> ["the PLC sent a malformed answer (", words(What), ")"];
+text({bad_frame, What}) -> ["the PLC sent a malformed frame (", words(What), ")"];
+text({bad_notification, What}) -> ["the PLC sent a malformed notification (", words(What), ")"];
+text({bad_symbol, What}) -> ["the PLC sent a malformed symbol entry (", words(What), ")"];
 text({frame_too_long, N}) ->
     io_lib:format("the PLC announced a frame of ~b bytes, more than allowed", [N]);
 text({unexpected_answer, Cmd, Expected}) ->
@@ -779,6 +778,11 @@ text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options
 text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
 text({restore, R}) -> ["the connection could not be set up: ", text(R)];
 text(Other) -> io_lib:format("~tp", [Other]).
+
+%% What the codec found wrong: `shorter_than_ams_header' reads "shorter than ams
+%% header".
+words(What) when is_atom(What) -> string:replace(atom_to_list(What), "_", " ", all);
+words(What) -> io_lib:format("~tp", [What]).
 
 inet_text(R) ->
     case inet:format_error(R) of

@@ -13,7 +13,8 @@
          one_sum_command_per_poll/1, outputs_written_in_order/1,
          notifications_feed_inputs/1, laser_beam_latch/1, trigger_enable/1,
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
-         retyped_symbol/1, raw_requests/1, bad_configuration/1]).
+         retyped_symbol/1, raw_requests/1, bad_configuration/1,
+         garbage_closes_only_the_connection/1]).
 -export([plc_restart/1]).
 -export([pyads_group/1]).
 
@@ -30,7 +31,8 @@ groups() ->
                  one_sum_command_per_poll, outputs_written_in_order,
                  notifications_feed_inputs, laser_beam_latch, trigger_enable,
                  missing_symbol_in_a_group, symbol_version_change_retries,
-                 retyped_symbol, raw_requests, bad_configuration]},
+                 retyped_symbol, raw_requests, bad_configuration,
+                 garbage_closes_only_the_connection]},
      {restart, [], [plc_restart]},
      {pyads, [], [pyads_group]}].
 
@@ -590,6 +592,31 @@ bad_configuration(Config) ->
         cell_hal:add_group(#{id => g, module => cell_hal_ads_test_io, connection => plc,
                              opts => #{kind => list, points => [{y, in, bool, {coil, 1}}]}}),
     [] = cell_hal:groups().
+
+%% A frame that cannot be read closes that connection only, with the reason in words;
+%% the HAL connects again and nothing else stopped.
+garbage_closes_only_the_connection(Config) ->
+    ok = connect(Config),
+    ok = group(io, #{kind => list, input_struct => <<"MAIN">>,
+                     points => [{counter, in, int32, <<".counter">>}]}),
+    ok = up([io]),
+    Worker = worker(plc),
+    ok = cell_log:subscribe(),
+    %% an AMS/TCP length of 4: shorter than an AMS header
+    ok = cell_hal_ads_peer:cmd(fake(Config), "garbage 000004000000deadbeef"),
+    receive {cell_hal_conn, plc, down} -> ok after ?WAIT -> ct:fail(not_down) end,
+    Line = await_log(<<"lost">>),
+    ct:log("operator sees: ~ts", [Line]),
+    ?assertNotEqual(nomatch, binary:match(Line, <<"malformed frame">>)),
+    ok = await_status(up),
+    {ok, 42} = cell_hal:read(io, counter),
+    ?assertEqual(Worker, worker(plc)),
+    ok = cell_log:unsubscribe().
+
+%% The worker of a connection (the connection's id is its child id).
+worker(Conn) ->
+    [Pid] = [P || {Id, P, _, _} <- supervisor:which_children(cell_hal_conn_sup), Id =:= Conn],
+    Pid.
 
 %%--------------------------------------------------------------------
 %% restart: the PLC goes away and comes back
