@@ -120,7 +120,7 @@
               reqs = gen_statem:reqids_new() :: cell_hal_ads_client:request_ids(),
               entries = #{} :: #{entry() => #entry{}},
               keys = #{} :: #{entry() => [key()]},   %% the points each entry serves
-              dirs = #{} :: #{key() => in | out},
+              points = #{} :: #{key() => {in | out, entry()}},
               subs = #{} :: #{reference() => entry()},
               latest = #{} :: #{entry() => cell_hal_type:value()},
               faulted = #{} :: #{key() => term()},   %% as last reported
@@ -323,19 +323,26 @@ request(_, _, _, _) ->
 learn(Plan, S) ->
     lists:foldl(fun learn_point/2, S, Plan).
 
-learn_point({K, Dir, E}, #ads{keys = Keys, dirs = Dirs} = S) ->
-    case Keys of
-        #{E := Ks} ->
-            case lists:member(K, Ks) of
-                true -> S;
-                false -> S#ads{keys = Keys#{E := [K | Ks]}, dirs = Dirs#{K => Dir}}
-            end;
+learn_point({K, Dir, E}, #ads{points = Points} = S) ->
+    case Points of
+        #{K := {Dir, E}} ->
+            S;
+        #{K := {_, Old}} ->
+            %% A group added again under its old name, its point on another symbol: the
+            %% old entry serves it no more.
+            S1 = S#ads{keys = maps:update_with(Old, fun(Ks) -> lists:delete(K, Ks) end,
+                                               S#ads.keys)},
+            serve_point(K, Dir, E, S1);
         #{} ->
-            S#ads{keys = Keys#{E => [K]}, dirs = Dirs#{K => Dir}}
+            serve_point(K, Dir, E, S)
     end.
 
-outputs_of(E, #ads{keys = Keys, dirs = Dirs}) ->
-    [K || K <- maps:get(E, Keys, []), maps:get(K, Dirs, in) =:= out].
+serve_point(K, Dir, E, #ads{keys = Keys, points = Points} = S) ->
+    S#ads{keys = maps:update_with(E, fun(Ks) -> [K | Ks] end, [K], Keys),
+          points = Points#{K => {Dir, E}}}.
+
+outputs_of(E, #ads{keys = Keys, points = Points}) ->
+    [K || K <- maps:get(E, Keys, []), element(1, maps:get(K, Points)) =:= out].
 
 %% Entries not asked for on this connection are resolved (polled ones, all in one
 %% request) or subscribed to (notified ones, all in one request).

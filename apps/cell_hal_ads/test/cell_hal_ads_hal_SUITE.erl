@@ -14,7 +14,7 @@
          notifications_feed_inputs/1, laser_beam_latch/1, trigger_enable/1,
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
          retyped_symbol/1, raw_requests/1, bad_configuration/1,
-         garbage_closes_only_the_connection/1]).
+         garbage_closes_only_the_connection/1, group_added_again/1]).
 -export([plc_restart/1]).
 -export([pyads_group/1]).
 
@@ -32,7 +32,7 @@ groups() ->
                  notifications_feed_inputs, laser_beam_latch, trigger_enable,
                  missing_symbol_in_a_group, symbol_version_change_retries,
                  retyped_symbol, raw_requests, bad_configuration,
-                 garbage_closes_only_the_connection]},
+                 garbage_closes_only_the_connection, group_added_again]},
      {restart, [], [plc_restart]},
      {pyads, [], [pyads_group]}].
 
@@ -612,6 +612,31 @@ garbage_closes_only_the_connection(Config) ->
     {ok, 42} = cell_hal:read(io, counter),
     ?assertEqual(Worker, worker(plc)),
     ok = cell_log:unsubscribe().
+
+%% A group removed and added again under its name, its point now on another symbol:
+%% the point shows the new symbol only, never the old one's notifications.
+group_added_again(Config) ->
+    set(Config, "MAIN.AxisPos", <<1.0:64/float-little>>),
+    set(Config, "MAIN.counter", <<42:32/little>>),
+    ok = connect(Config),
+    ok = group(g, #{kind => list, input_struct => <<"MAIN">>, notify => all,
+                    points => [{x, in, lreal, <<".AxisPos">>}]}),
+    ok = up([g]),
+    {ok, 1.0} = cell_hal:read(g, x),
+    ok = cell_hal:remove_group(g),
+    ok = group(g, #{kind => list, input_struct => <<"MAIN">>,
+                    points => [{x, in, int32, <<".counter">>}]}),
+    ok = up([g]),
+    {ok, 42} = cell_hal:read(g, x),
+    ok = cell_hal:subscribe(g, x),
+    %% the old symbol changes first, then the new one: once the new value is seen, the
+    %% old one's notification (sent before it on the same stream) was handled
+    set(Config, "MAIN.AxisPos", <<12.5:64/float-little>>),
+    set(Config, "MAIN.counter", <<43:32/little>>),
+    receive {cell_hal, {g, x}, V} -> ?assertEqual(43, V) after ?WAIT -> ct:fail(no_change) end,
+    {ok, 43} = cell_hal:read(g, x),
+    set(Config, "MAIN.counter", <<42:32/little>>),
+    set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>).
 
 %% The worker of a connection (the connection's id is its child id).
 worker(Conn) ->
