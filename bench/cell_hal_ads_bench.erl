@@ -73,10 +73,20 @@ run() ->
         InFlight = median([rate(fun() -> {ok, Expected} = cell_hal_ads_client:read_vars(
                                                             Pipelined, Group)
                                 end) || _ <- lists:seq(1, ?ROUNDS)]),
+        {Bare, Peer4} = bare(Port, AdsLib, Seconds),
         PeerName = "pyads 3.6 (Beckhoff AdsLib), same C responder",
         [#{title => "4-byte variable (DINT) read by handle", unit => "reads/s",
            ours => Ours1, peer => Peer1, peer_name => PeerName, better => higher,
            goal => "faster than pyads"},
+         #{title => "4-byte variable read by handle, by a bare gen_tcp loop ({active, once}, "
+                    "a frame built once, no decoding): the platform's ceiling",
+           unit => "reads/s", ours => Bare, peer => Peer4, peer_name => PeerName,
+           better => higher,
+           note => "What any Erlang client reading over an {active, once} socket can reach "
+                   "here, beside pyads again in the same rounds. cellrt's client costs the "
+                   "difference: the caller's call to the connection's process and back, "
+                   "and encoding, matching and decoding each frame. pyads pays a Python "
+                   "call into AdsLib, whose receive thread wakes the calling thread."},
          #{title => "200-point IO group, one sum command (0xF080)", unit => "group reads/s",
            ours => Ours2, peer => Peer2, peer_name => PeerName, better => higher,
            goal => "faster than pyads"},
@@ -99,6 +109,26 @@ run() ->
         _ = cell_hal_ads_client:stop(Pipelined),
         stop(AdsLib),
         stop_responder(Responder)
+    end.
+
+%% Reads of the counter by its handle (1 in the responder) in a loop of this process
+%% alone, beside pyads' reads by handle.
+bare(Port, AdsLib, Seconds) ->
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {nodelay, true}]),
+    Frame = iolist_to_binary(cell_hal_ads_codec:encode_frame({{127, 0, 0, 1, 1, 1}, 851},
+                                                             {{127, 0, 0, 1, 1, 1}, 32905}, 1,
+                                                             {read, 16#F005, 1, 4})),
+    Read = fun() ->
+                   ok = gen_tcp:send(S, Frame),
+                   ok = inet:setopts(S, [{active, once}]),
+                   receive {tcp, S, <<_:38/binary, 0:32, 4:32/little, 42:32/little>>} -> ok
+                   after ?WAIT -> error(no_answer)
+                   end
+           end,
+    try
+        rounds(Read, AdsLib, ["bench_handle ", Seconds, " MAIN.counter DINT"])
+    after
+        ok = gen_tcp:close(S)
     end.
 
 %% The C responder, compiled into _build/bench.
