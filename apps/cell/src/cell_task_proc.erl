@@ -353,6 +353,9 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                     catch
                         throw:{cell_io_lost, Group, _Point} ->
                             raise(setup, io_error(group_conn(Group)), io,
+                                  D#data{initialized = true, resume = undefined});
+                        throw:{cell_io_unavailable, Group, Point, Why} ->
+                            raise(setup, point_error(Group, Point, Why), io,
                                   D#data{initialized = true, resume = undefined})
                     end
             end
@@ -397,7 +400,10 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         %% dropped and runs again, as it was woken, after Retry.
         throw:{cell_io_lost, Group, _Point} ->
             Conn = group_conn(Group),
-            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State})
+            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State});
+        %% A point its device cannot serve: the same, the connection itself being up.
+        throw:{cell_io_unavailable, Group, Point, Why} ->
+            raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
     end.
 
 after_step({continue, T}, #data{gen = Gen} = D) ->
@@ -821,6 +827,15 @@ io_error(Conn) ->
                     "holds; nothing it reads from there can be trusted. Check the PLC and "
                     "the network, then select RETRY once the connection is back.",
                     [Conn, Where, Why]),
+      [retry]).
+
+point_error(Group, Point, Why) ->
+    cell_task:error_spec(
+      <<"io_point">>, "IO point unavailable",
+      io_lib:format("The point ~ts of the IO group ~ts cannot be used: ~ts.~nThe task "
+                    "holds. Check the PLC program (the variable may have been renamed, "
+                    "removed or retyped), then select RETRY.",
+                    [Point, Group, Why]),
       [retry]).
 
 io_config_error(Group) ->
