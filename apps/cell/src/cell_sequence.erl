@@ -15,10 +15,9 @@
 %% step(automatic_begin, Seq) ->
 %%     cell_sequence:next(Seq, begin_vertical_up);           % SetNext
 %% step(begin_vertical_up, Seq0) ->
-%%     Seq = case cell_sequence:on_entry(Seq0) of             % IF _step.OnEntry()
-%%               true -> cell_cylinder:move_up(Seq0, vertical_lift);
-%%               false -> Seq0
-%%           end,
+%%     Seq = cell_sequence:on_entry(Seq0, fun(S) ->            % IF _step.OnEntry()
+%%                                                cell_cylinder:move_up(S, vertical_lift)
+%%                                        end),
 %%     cell_sequence:await(Seq, vertical_lift, wait_part_at_end);
 %% step(wait_part_at_end, Seq) ->
 %%     cell_sequence:await(Seq, {io, part_is_at_end, {eq, true}}, move_right);
@@ -68,7 +67,7 @@
 
 -include("cell_sequence.hrl").
 
--export([on_entry/1, step/1, unit/1, args/1, arg/3, get/2, get/3, put/3, halted/1,
+-export([on_entry/1, on_entry/2, step/1, unit/1, args/1, arg/3, get/2, get/3, put/3, halted/1,
          service_mode/1, settings/1, setting/3]).
 -export([next/2, await/3, await/4, await2/4, done/1, abort/2, call/4]).
 -export([in/2, read/2, out/3, command/3, local_actuator/4, reply/2, expect_reply/2]).
@@ -114,6 +113,17 @@
 %% `_step.OnEntry()'): start the step's operations here.
 -spec on_entry(seq()) -> boolean().
 on_entry(#seq{on_entry = E}) -> E.
+
+%% @doc `IF _step.OnEntry() THEN ... END_IF': applies `Fun' to the sequence the first
+%% time the step's body runs, and gives the sequence back unchanged after that.
+%% ```
+%% step(begin_vertical_up, Seq) ->
+%%     Seq1 = cell_sequence:on_entry(Seq, fun(S) -> cell_cylinder:move_up(S, vertical_lift) end),
+%%     cell_sequence:await(Seq1, vertical_lift, wait_part_at_end);
+%% '''
+-spec on_entry(seq(), fun((seq()) -> seq())) -> seq().
+on_entry(#seq{on_entry = true} = Seq, Fun) -> Fun(Seq);
+on_entry(Seq, _Fun) -> Seq.
 
 %% @doc The step the sequence is in.
 -spec step(seq()) -> term().

@@ -65,10 +65,16 @@ start(Seq0, Mod, Args, Opts) ->
     Seq = Seq1#seq{now = maps:get(now, Opts), haltable = maps:get(haltable, Opts, true),
                    halt = maps:get(halt, Opts, false), service = maps:get(service, Opts, false),
                    settings = maps:get(settings, Opts, #{}), effects = lists:reverse(Cancel)},
-    %% The state's entry is this cycle: its first step runs now, whatever the mode.
-    case push(Seq, Mod, Args, undefined) of
-        {ok, Seq2} -> finish(go(Seq2, []));
-        Aborted -> finish(Aborted)
+    %% The state's entry is this cycle: its first step runs now, whatever the mode;
+    %% under the emergency stop the sequence does not even begin.
+    case (Seq#seq.estop)() of
+        true ->
+            finish({estop, Seq});
+        false ->
+            case push(Seq, Mod, Args, undefined) of
+                {ok, Seq2} -> finish(go(Seq2, []));
+                Aborted -> finish(Aborted)
+            end
     end.
 
 %% @doc A cycle message arrived: the step that is due runs.

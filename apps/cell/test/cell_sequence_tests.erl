@@ -430,6 +430,13 @@ no_step_starts_during_the_emergency_stop_test() ->
               b => fun(S) -> cell_sequence:done(S) end},
     ok = atomics:put(Flag, 1, 1),
     {estop, S1, E1} = start(runner(Tab, #{}, Estop), Steps, a),
-    ?assertEqual([a], steps(E1)),             %% entered, its body never ran
+    ?assertEqual([], E1),                     %% the sequence did not begin
+    ?assertNot(cell_sequence_runner:running(S1)),
+    %% Raised between two steps: the next one does not run.
     ok = atomics:put(Flag, 1, 0),
-    ?assertMatch({done, _, _}, cell_sequence_runner:cycle(S1, 1)).
+    {continue, S2, E2} = start(runner(Tab, #{}, Estop), Steps, a, #{mode => one}),
+    ?assertEqual([a, b], steps(E2)),
+    ok = atomics:put(Flag, 1, 1),
+    ?assertMatch({estop, _, []}, cell_sequence_runner:cycle(S2, 1)),
+    ok = atomics:put(Flag, 1, 0),
+    ?assertMatch({done, _, _}, cell_sequence_runner:cycle(S2, 2)).
