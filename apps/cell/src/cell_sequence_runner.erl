@@ -226,6 +226,10 @@ enter(#seq{frames = [F | Rest], now = Now} = Seq0, Step) ->
     cell_sequence:effect(Seq#seq{frames = [F#frame{step = Step, fresh = true, entered = Now} | Rest]},
                          {step, length(Rest) + 1, F#frame.module, Step}).
 
+leave_step(#seq{armed = Armed, latched = Latched, waiting = undefined, held = false} = Seq)
+  when map_size(Armed) =:= 0, map_size(Latched) =:= 0 ->
+    %% The common case of a step that waited for nothing: nothing to undo.
+    Seq;
 leave_step(#seq{armed = Armed} = Seq) ->
     Seq1 = maps:fold(fun(deadline, _, S) -> cell_sequence:effect(S, {cancel_timer, deadline});
                         (Key, _, S) -> cell_sequence:effect(S, {cancel_watch, Key})

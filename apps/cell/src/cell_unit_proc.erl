@@ -661,9 +661,22 @@ connection(_Conn, _Status, _State, _D) ->
 %% refuses stops there: the sequence is aborted with the reason.
 exec([], _State, D) ->
     {ok, D};
-exec([E | Rest], State, D) ->
+exec(Effects, State, #data{id = Id} = D) ->
+    %% Whether steps are logged, asked once for all of them.
+    exec(Effects, State, cell_log:enabled(verbose, Id), D).
+
+exec([], _State, _Verbose, D) ->
+    {ok, D};
+exec([{step, Depth, Mod, Step} | Rest], State, Verbose, #data{id = Id} = D) ->
+    case Verbose of
+        true -> cell_log:debug(Id, "~ts~ts: step ~ts",
+                               [lists:duplicate(2 * (Depth - 1), $\s), Mod, step_text(Step)]);
+        false -> ok
+    end,
+    exec(Rest, State, Verbose, D#data{step = {Depth, Mod, Step}});
+exec([E | Rest], State, Verbose, D) ->
     case exec1(E, State, D) of
-        {ok, D1} -> exec(Rest, State, D1);
+        {ok, D1} -> exec(Rest, State, Verbose, D1);
         {error, _, _} = Error -> Error
     end.
 
@@ -688,15 +701,6 @@ exec1({timer, Key, Ms}, _State, D0) ->
     {ok, D#data{timers = (D#data.timers)#{Key => TRef}}};
 exec1({cancel_timer, Key}, _State, D) ->
     {ok, cancel_timer(Key, D)};
-exec1({step, Depth, Mod, Step}, _State, #data{id = Id} = D) ->
-    case cell_log:enabled(verbose, Id) of
-        true ->
-            cell_log:debug(Id, "~ts~ts: step ~ts",
-                           [lists:duplicate(2 * (Depth - 1), $\s), Mod, step_text(Step)]);
-        false ->
-            ok
-    end,
-    {ok, D#data{step = {Depth, Mod, Step}}};
 exec1({ipc, Event}, State, #data{ready = Ready, task = T} = D) ->
     case State of
         automatic -> {ok, ipc_event(Event, Ready, T, State, D)};
