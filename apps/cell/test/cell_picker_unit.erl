@@ -3,7 +3,8 @@
 %%
 %% Args: `pick_delay_ms' (DelayAufnehmen, 500), `release_delay_ms' (DelayAblegen, 200),
 %% `lift_timeout_ms' (2000), `move_timeout_ms' (3000), `mode' of the automatic
-%% sequence (several, the seed's REPEAT loop; or one).
+%% sequence (several, the seed's REPEAT loop; or one), `safe_outputs' (none: the
+%% magnet keeps its part).
 -module(cell_picker_unit).
 -behaviour(cell_unit).
 
@@ -29,4 +30,5 @@ unit(Args) ->
                                   right => #{out => move_right, sensor => is_right},
                                   timeout_ms => maps:get(move_timeout_ms, Args, 3000),
                                   safe => off}}},
-      idle => starved}.
+      idle => starved,
+      safe_outputs => maps:get(safe_outputs, Args, [])}.

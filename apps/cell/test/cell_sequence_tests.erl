@@ -155,6 +155,24 @@ await_reply_test() ->
     ?assertMatch({{aborted, _, {got, 42}}, _, _},
                  cell_sequence_runner:event(S1, {reply, Ref, 42}, 1)).
 
+an_answer_can_come_before_it_is_awaited_test() ->
+    Ref = make_ref(),
+    Steps = #{a => fun(S0) ->
+                           S = cell_sequence:on_entry(
+                                 S0, fun(S1) -> cell_seq_timer:run_async(
+                                                  cell_sequence:expect_reply(S1, Ref), t, 10)
+                                     end),
+                           cell_sequence:await(S, t, b)
+                   end,
+              b => fun(S) -> cell_sequence:await(S, {reply, Ref}, c) end,
+              c => fun(S) -> cell_sequence:abort(S, {got, cell_sequence:reply(S, Ref)}) end},
+    {wait, S1, _} = start(runner(io()), Steps, a),
+    %% The answer comes while the sequence still waits for its timer: kept for b.
+    {wait, S2, E2} = cell_sequence_runner:event(S1, {reply, Ref, 7}, 5),
+    ?assertEqual([], steps(E2)),
+    ?assertMatch({{aborted, _, {got, 7}}, _, _},
+                 cell_sequence_runner:event(S2, {timer, {act, t, elapsed}}, 10)).
+
 reading_a_lost_input_aborts_naming_it_test() ->
     Steps = #{a => fun(S) -> cell_sequence:in(S, gone), cell_sequence:done(S) end},
     {{aborted, _, Why}, _, _} = start(runner(io()), Steps, a),

@@ -14,7 +14,8 @@
          lost_io_is_a_fault/1, pause_holds_at_once_where_the_picker_waits/1,
          pause_during_a_move_holds_at_the_next_step/1, service_mode_halts/1,
          an_action_from_fault_returns_there/1, a_crashed_unit_waits_for_the_operator/1,
-         units_and_tasks_side_by_side/1, specs_name_what_is_wrong/1]).
+         units_and_tasks_side_by_side/1, specs_name_what_is_wrong/1,
+         ready_events_outside_ready_are_a_fault/1]).
 
 -define(WAIT, 10000).
 -define(U, picker).
@@ -33,7 +34,8 @@ all() ->
      lost_io_is_a_fault, pause_holds_at_once_where_the_picker_waits,
      pause_during_a_move_holds_at_the_next_step, service_mode_halts,
      an_action_from_fault_returns_there, a_crashed_unit_waits_for_the_operator,
-     units_and_tasks_side_by_side, specs_name_what_is_wrong].
+     units_and_tasks_side_by_side, specs_name_what_is_wrong,
+     ready_events_outside_ready_are_a_fault].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -298,7 +300,9 @@ one_step_per_cycle_runs_the_same_steps(_Config) ->
 %% The emergency stop in the middle of a move: everything stops at once, the slide's
 %% valves are switched off, not one step more; Start afterwards references again.
 no_step_after_the_emergency_stop(_Config) ->
-    start_cell(#{pick_delay_ms => 100, release_delay_ms => 50}),
+    %% Here the lift's valve is closed too when the emergency stop comes.
+    start_cell(#{pick_delay_ms => 100, release_delay_ms => 50,
+                 safe_outputs => [{lift_up, false}, {{?G, lift_down}, false}]}),
     run(),
     part(),
     await_step(move_right),
@@ -307,6 +311,8 @@ no_step_after_the_emergency_stop(_Config) ->
     ?assertEqual(off, cell_task_proc:state(?U)),
     ?assertNot(sim_get(move_right)),
     ?assertNot(sim_get(move_left)),
+    ?assertNot(sim_get(lift_up)),
+    ?assertNot(sim_get(lift_down)),
     %% The slide's sensor arrives after all: nothing follows from it.
     true = await_value(is_right, true),
     ok = cell_unit:settle(?U),
@@ -512,3 +518,46 @@ specs_name_what_is_wrong(_Config) ->
                  cell_spec:validate(#{tasks => [Unit(#{}), #{id => t, module => cell_test_task,
                                                              zone => <<"Z">>, lane => <<"L">>}],
                                       links => [#{id => l, from => t, to => u}]})).
+
+%% A user state reports the READY sub-state its sequence says; the same report from
+%% GoHome, which is not READY, is a fault that says so.
+ready_events_outside_ready_are_a_fault(_Config) ->
+    Ref = make_ref(),
+    Wait = fun(S) -> cell_sequence:await(S, {reply, Ref}, done) end,
+    Decl = #{user_states => [calibrate],
+             sequences =>
+                 #{go_home => {cell_test_fun_seq,
+                               #{first => a, steps => #{a => fun(S) -> cell_sequence:done(S) end}}},
+                   {user, calibrate} =>
+                       {cell_test_fun_seq,
+                        #{first => a,
+                          steps => #{a => fun(S) -> Wait(cell_sequence:work_start(S)) end,
+                                     done => fun(S) -> cell_sequence:done(S) end}}}}},
+    Unit = #{id => v, module => cell_test_decl_unit, zone => <<"V">>, lane => <<"L">>,
+             args => #{decl => Decl}},
+    ok = application:set_env(cell, cell_spec, #{tasks => [Unit]}),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_events:subscribe(),
+    ok = cell_controller:start(),
+    await_state(v, idle),
+    ok = cell_unit:user_state(v, calibrate),
+    ok = cell_unit:settle(v),
+    ?assertEqual({ready, processing, executing}, cell_task_proc:state(v)),
+    cell_unit:whereis(v) ! {Ref, ok},
+    await_state(v, idle),
+    %% GoHome reporting EXECUTING.
+    ok = application:stop(cell),
+    Bad = Decl#{sequences => #{go_home => {cell_test_fun_seq,
+                                           #{first => a,
+                                             steps => #{a => fun(S) -> cell_sequence:done(
+                                                                         cell_sequence:work_start(S))
+                                                             end}}}}},
+    ok = application:set_env(cell, cell_spec,
+                             #{tasks => [Unit#{args => #{decl => Bad#{user_states => []}}}]}),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_events:subscribe(),
+    ok = cell_controller:start(),
+    await_state(v, fault),
+    #{caption := Caption} = error_of(v),
+    ?assertEqual(<<"the sequence reported item_work_start in go_home; only Automatic and "
+                   "user states can">>, Caption).
