@@ -331,12 +331,12 @@ start_sequence(go_home, #data{conns = Conns0} = D) when Conns0 =/= #{} ->
             transition(aborted, go_home, D#data{conns = Conns,
                                                 fault = {where(D), {io_lost, Conn}}});
         [] ->
-            start_sequence_(go_home, D#data{conns = Conns})
+            begin_sequence(go_home, D#data{conns = Conns})
     end;
 start_sequence(State, D) ->
-    start_sequence_(State, D).
+    begin_sequence(State, D).
 
-start_sequence_(State, #data{decl = #{sequences := Seqs}} = D) ->
+begin_sequence(State, #data{decl = #{sequences := Seqs}} = D) ->
     case maps:find(key(State), Seqs) of
         {ok, {Mod, Args}} ->
             Opts = #{now => now_ms(), haltable => cell_unit_fsm:haltable(State),
@@ -414,8 +414,8 @@ aborted(State, Where, Why, #data{id = Id} = D) ->
             transition(aborted, State, D#data{fault = {Where, Why}});
         error ->
             %% Init or Fault: nothing of the unit runs; an actuator reported late.
-            cell_log:warning(Id, "~ts in ~ts: ~ts", [where_text(Where), cell_unit_fsm:name(State),
-                                                    cell_sequence:format_reason(Why)]),
+            cell_log:warning(Id, "in ~ts~ts: ~ts", [cell_unit_fsm:name(State), where_text(Where),
+                                                   cell_sequence:format_reason(Why)]),
             keep(State, D)
     end.
 
