@@ -12,7 +12,13 @@
  * Each runs on a dirty I/O scheduler, because on a disk a flush blocks for as long as
  * the disk takes, except in a folder held in RAM (tmpfs, ramfs), where nothing waits
  * for a device and the hand-off to another thread would cost more than the work: there
- * the same calls run on the calling scheduler, in microseconds. */
+ * the same calls run on the calling scheduler, in microseconds.
+ *
+ * A process killed during a call on a dirty scheduler is gone at once, but the call
+ * runs on to its end. So every replacement and deletion is entered, while it runs, in
+ * a table of files being written, and a reader first waits until its file is not in
+ * it: a task restarted after a crash reads what its last incarnation wrote, not the
+ * file as it was a moment before that write landed. */
 #include <erl_nif.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -24,6 +30,59 @@
 #define TMPFS_MAGIC_ 0x01021994UL
 #define RAMFS_MAGIC_ 0x858458f6UL
 #endif
+
+/* The files being written: a slot per write under way. There are never more writes
+ * under way than scheduler threads; a write finding the table full waits for a slot. */
+#define IN_FLIGHT_MAX 256
+static ErlNifMutex *flight_lock;
+static ErlNifCond *flight_change;
+static char *in_flight[IN_FLIGHT_MAX];
+
+static int flying(const char *path)
+{
+    int i;
+
+    for (i = 0; i < IN_FLIGHT_MAX; i++)
+        if (in_flight[i] != NULL && strcmp(in_flight[i], path) == 0)
+            return 1;
+    return 0;
+}
+
+/* Enters a path in the table; the slot it took, or -1 without memory. */
+static int flight_begin(const char *path)
+{
+    size_t len = strlen(path) + 1;
+    char *copy = enif_alloc(len);
+    int i;
+
+    if (copy == NULL)
+        return -1;
+    memcpy(copy, path, len);
+    enif_mutex_lock(flight_lock);
+    for (;;) {
+        for (i = 0; i < IN_FLIGHT_MAX; i++)
+            if (in_flight[i] == NULL) {
+                in_flight[i] = copy;
+                enif_mutex_unlock(flight_lock);
+                return i;
+            }
+        enif_cond_wait(flight_change, flight_lock);
+    }
+}
+
+static void flight_end(int slot)
+{
+    char *copy;
+
+    if (slot < 0)
+        return;
+    enif_mutex_lock(flight_lock);
+    copy = in_flight[slot];
+    in_flight[slot] = NULL;
+    enif_cond_broadcast(flight_change);
+    enif_mutex_unlock(flight_lock);
+    enif_free(copy);
+}
 
 /* Errors named as Erlang's file module names them. */
 static const char *errno_name(int err)
@@ -154,16 +213,31 @@ static ERL_NIF_TERM fsync_dir(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
 /* replace(Tmp, Path, Data, Sync): Data is written to Tmp, flushed (Sync), renamed over
  * Path, and Path's folder flushed (Sync). ok, or {error, {Where, Posix}} with Where
  * one of write, rename, dir; after an error Tmp is gone. */
+static ERL_NIF_TERM replace_in(ErlNifEnv *env, const char *tmp, const char *path,
+                               ErlNifBinary data, int sync);
+
 static ERL_NIF_TERM replace(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    char tmp[PATH_MAX], path[PATH_MAX], dir[PATH_MAX];
+    char tmp[PATH_MAX], path[PATH_MAX];
     ErlNifBinary data;
-    int sync, fd, err = 0;
+    ERL_NIF_TERM result;
+    int sync, slot;
 
     (void)argc;
     if (!get_path(env, argv[0], tmp, sizeof tmp) || !get_path(env, argv[1], path, sizeof path) ||
         !enif_inspect_iolist_as_binary(env, argv[2], &data) || !get_bool(env, argv[3], &sync))
         return enif_make_badarg(env);
+    slot = flight_begin(path);
+    result = replace_in(env, tmp, path, data, sync);
+    flight_end(slot);
+    return result;
+}
+
+static ERL_NIF_TERM replace_in(ErlNifEnv *env, const char *tmp, const char *path,
+                               ErlNifBinary data, int sync)
+{
+    char dir[PATH_MAX];
+    int fd, err = 0;
 
     do {
         fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
@@ -195,14 +269,28 @@ static ERL_NIF_TERM replace(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 
 /* remove(Path, Sync): Path is deleted (a missing one is no error) and its folder
  * flushed (Sync). ok, or {error, {Where, Posix}} with Where one of delete, dir. */
+static ERL_NIF_TERM remove_in(ErlNifEnv *env, const char *path, int sync);
+
 static ERL_NIF_TERM remove_file(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    char path[PATH_MAX], dir[PATH_MAX];
-    int sync, err;
+    char path[PATH_MAX];
+    ERL_NIF_TERM result;
+    int sync, slot;
 
     (void)argc;
     if (!get_path(env, argv[0], path, sizeof path) || !get_bool(env, argv[1], &sync))
         return enif_make_badarg(env);
+    slot = flight_begin(path);
+    result = remove_in(env, path, sync);
+    flight_end(slot);
+    return result;
+}
+
+static ERL_NIF_TERM remove_in(ErlNifEnv *env, const char *path, int sync)
+{
+    char dir[PATH_MAX];
+    int err;
+
     if (unlink(path) < 0) {
         if (errno == ENOENT)
             return enif_make_atom(env, "ok");
@@ -214,6 +302,36 @@ static ERL_NIF_TERM remove_file(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         if (err != 0)
             return error2(env, "dir", err);
     }
+    return enif_make_atom(env, "ok");
+}
+
+/* writing(Path): whether a replacement or deletion of Path is under way. */
+static ERL_NIF_TERM writing(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    char path[PATH_MAX];
+    int busy;
+
+    (void)argc;
+    if (!get_path(env, argv[0], path, sizeof path))
+        return enif_make_badarg(env);
+    enif_mutex_lock(flight_lock);
+    busy = flying(path);
+    enif_mutex_unlock(flight_lock);
+    return enif_make_atom(env, busy ? "true" : "false");
+}
+
+/* settle(Path): returns once no replacement or deletion of Path is under way. */
+static ERL_NIF_TERM settle(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    char path[PATH_MAX];
+
+    (void)argc;
+    if (!get_path(env, argv[0], path, sizeof path))
+        return enif_make_badarg(env);
+    enif_mutex_lock(flight_lock);
+    while (flying(path))
+        enif_cond_wait(flight_change, flight_lock);
+    enif_mutex_unlock(flight_lock);
     return enif_make_atom(env, "ok");
 }
 
@@ -245,7 +363,19 @@ static ErlNifFunc funcs[] = {
     {"remove_nif", 2, remove_file, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"replace_ram_nif", 4, replace, 0},
     {"remove_ram_nif", 2, remove_file, 0},
-    {"in_ram_nif", 1, in_ram, ERL_NIF_DIRTY_JOB_IO_BOUND}
+    {"in_ram_nif", 1, in_ram, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"writing_nif", 1, writing, 0},
+    {"settle_nif", 1, settle, ERL_NIF_DIRTY_JOB_IO_BOUND}
 };
 
-ERL_NIF_INIT(cell_file, funcs, NULL, NULL, NULL, NULL)
+static int load(ErlNifEnv *env, void **priv_data, ERL_NIF_TERM load_info)
+{
+    (void)env;
+    (void)priv_data;
+    (void)load_info;
+    flight_lock = enif_mutex_create("cell_file_in_flight");
+    flight_change = enif_cond_create("cell_file_in_flight");
+    return flight_lock == NULL || flight_change == NULL;
+}
+
+ERL_NIF_INIT(cell_file, funcs, load, NULL, NULL, NULL)

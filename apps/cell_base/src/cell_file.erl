@@ -10,6 +10,10 @@
 %% held in RAM (tmpfs, ramfs: nothing waits for a device there) it runs on the calling
 %% scheduler, which is several times faster.
 %%
+%% A writer killed during its call into C is gone before its write has landed; {@link
+%% read_term/1} waits for such a write, so a process restarted after a crash reads what
+%% its last incarnation wrote.
+%%
 %% Terms are stored with a magic line, a length and a CRC-32, so a damaged file is
 %% recognised and reported, never half-read.
 -module(cell_file).
@@ -103,6 +107,28 @@ remove_ram_nif(_Path, _Sync) ->
 in_ram_nif(_Dir) ->
     erlang:nif_error(nif_not_loaded).
 
+%% Whether a replacement or deletion of Path is under way, asked on the calling
+%% scheduler; and a wait, on a dirty one, until none is.
+writing_nif(_Path) ->
+    erlang:nif_error(nif_not_loaded).
+
+settle_nif(_Path) ->
+    erlang:nif_error(nif_not_loaded).
+
+%% A process killed while its write runs in C is gone before the write has landed: a
+%% reader waits for it, so a task restarted after a crash reads its last word.
+%% A name C cannot take is left for the read to refuse.
+settle(Path) ->
+    try
+        Target = native(Path),
+        case writing_nif(Target) of
+            false -> ok;
+            true -> settle_nif(Target)
+        end
+    catch
+        error:_ -> ok
+    end.
+
 %% @doc Whether a folder is held in RAM (tmpfs, ramfs). Asked of the system once per
 %% folder; a folder that does not exist yet is asked again next time.
 -spec in_ram(file:filename_all()) -> boolean().
@@ -159,6 +185,7 @@ write_term(Path, Term, Opts) ->
 -spec read_term(file:filename_all()) ->
           {ok, term()} | {error, enoent} | {error, {corrupt, atom()}} | error().
 read_term(Path) ->
+    ok = settle(Path),
     case file:read_file(Path) of
         {ok, Bin} -> decode_term(Bin);
         {error, enoent} -> {error, enoent};
@@ -282,6 +309,36 @@ ram_folder_test() ->
     after
         file:del_dir_r(Dir)
     end.
+
+%% A writer killed while its write runs in C: the write lands all the same, and a read
+%% right after the kill returns only once it has, so what it returns is what stays. (The
+%% delays only vary the moment of the kill; the checks hold at any moment.)
+killed_writer_test_() ->
+    {timeout, 120,
+     fun() ->
+             Dir = tmp_dir(),
+             P = filename:join(Dir, "k.product"),
+             ok = write_term(P, {k, 0}),
+             Big = binary:copy(<<"x">>, 32 bsl 20),
+             lists:foldl(fun(N, Before) ->
+                                 Data = encode_term({k, N, Big}),
+                                 Self = self(),
+                                 W = spawn(fun() -> Self ! {writing, self()}, write(P, Data) end),
+                                 receive {writing, W} -> ok end,
+                                 %% Kill it at a different moment each time: before,
+                                 %% during and after its call into C.
+                                 receive after N * 3 -> ok end,
+                                 exit(W, kill),
+                                 Read = read_term(P),
+                                 ?assertNot(writing_nif(native(P))),
+                                 ?assertEqual(Read, read_term(P)),
+                                 case Read of
+                                     {ok, Before} -> Before;
+                                     {ok, {k, N, Big} = New} -> New
+                                 end
+                         end, {k, 0}, lists:seq(1, 8)),
+             ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir))
+     end}.
 
 errors_name_the_file_test() ->
     Dir = tmp_dir(),
