@@ -318,9 +318,7 @@ interrupt_all(#task{links = Links} = T) ->
 %% status messages, so a wait needs no call: it holds now, or a later status message
 %% ends it (see {@link handle/2}).
 arm(T, Link, {Signal, Value}) ->
-    Down = maps:get(link_down, maps:get(Link, T#task.links, #{}), false)
-        orelse cell_handshake_link:whereis(Link) =:= undefined,
-    case Down of
+    case maps:get(link_down, maps:get(Link, T#task.links, #{}), false) of
         true ->
             %% The link is restarting: what the task waits for may never come from
             %% the link that replaces it.
@@ -381,7 +379,7 @@ handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
     T1 = store(T, Product, Gen + 1, Marker, #{}),
     %% If the link is gone meanwhile, upstream keeps a stale copy the generations
     %% recognise.
-    _ = case cell_handshake_link:whereis(Link) of
+    _ = case link_pid(T, Link) of
             undefined -> ok;
             Pid -> gen_server:cast(Pid, {owned, self()})
         end,
@@ -409,7 +407,9 @@ handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
     interrupted(T, Link, aborting);
 handle({cell_handshake_watch, Ref, Link, Signal, Value}, T) ->
     {T, [{wake, Link, {watch, Ref, Signal, Value}}]};
-handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T) ->
+handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T0) ->
+    %% Until the restarted link says hello, waits on it are not armed (see arm/3).
+    T = view(T0, Link, #{link_down => true}),
     case was_active(link_view(T, Link)) of
         true -> interrupted(T, Link, phase(T, Link));
         false -> {T, []}
@@ -483,11 +483,11 @@ store(T, Product, Gen, Marker, Opts) ->
 %% reach) attaches and asks again. The status the answer carries goes into the task's
 %% view, so a status message it overtook is not taken for news.
 call(T, Link, Request) ->
-    case request(Link, Request) of
+    case request(T, Link, Request) of
         {{error, not_attached}, _, _} ->
             #{role := Role} = link_view(T, Link),
             T1 = attach(T, Link, Role),
-            seen(T1, Link, request(Link, Request));
+            seen(T1, Link, request(T1, Link, Request));
         Answer ->
             seen(T, Link, Answer)
     end.
@@ -503,25 +503,46 @@ seen(#task{links = Links} = T, Link, {Reply, #{seq := Seq, link := LPid} = Statu
 seen(T, _Link, {Reply, _, _}) ->
     {T, Reply}.
 
-request(Link, Request) ->
-    case plain_call(Link, Request) of
-        {{error, link_down}, Pid} -> {{error, link_down}, none, Pid};
-        {{Reply, Status}, Pid} -> {Reply, Status, Pid}
+%% The link process the task is attached to is called directly: looking a global name
+%% up checks that the process is alive, a round trip to it of its own. Only when that
+%% process is gone is the name looked up (a restarted link answers `not_attached').
+request(T, Link, Request) ->
+    Answer = case link_pid(T, Link) of
+                 undefined ->
+                     plain_call(Link, Request);
+                 Pid ->
+                     case call_pid(Pid, Request) of
+                         {error, link_down} -> plain_call(Link, Request);
+                         Reply -> {Reply, Pid}
+                     end
+             end,
+    case Answer of
+        {{error, link_down}, LPid} -> {{error, link_down}, none, LPid};
+        {{Reply1, Status}, LPid} -> {Reply1, Status, LPid}
+    end.
+
+link_pid(#task{links = Links}, Link) ->
+    case maps:get(Link, Links, #{}) of
+        #{lpid := Pid, link_down := false} when is_pid(Pid) -> Pid;
+        #{lpid := Pid} = View when is_pid(Pid), not is_map_key(link_down, View) -> Pid;
+        _ -> undefined
     end.
 
 %% A link that is restarting answers `{error, link_down}'; a link that does not answer
 %% within the timeout is a fault, and the task crashes (and is restarted).
 plain_call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
-        undefined ->
-            {{error, link_down}, undefined};
-        Pid ->
-            try
-                {gen_server:call(Pid, Request, ?CALL_TIMEOUT), Pid}
-            catch
-                exit:{noproc, _} -> {{error, link_down}, Pid};
-                exit:{normal, _} -> {{error, link_down}, Pid};
-                exit:{killed, _} -> {{error, link_down}, Pid};
-                exit:{shutdown, _} -> {{error, link_down}, Pid}
-            end
+        undefined -> {{error, link_down}, undefined};
+        Pid -> {call_pid(Pid, Request), Pid}
+    end.
+
+call_pid(Pid, Request) ->
+    try
+        gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+    catch
+        exit:{noproc, _} -> {error, link_down};
+        exit:{normal, _} -> {error, link_down};
+        exit:{killed, _} -> {error, link_down};
+        exit:{shutdown, _} -> {error, link_down};
+        exit:{{nodedown, _}, _} -> {error, link_down}
     end.
