@@ -1,10 +1,10 @@
 %% @doc The product a device task holds (seed 000 §2.3.5): a map with at least
 %% `serial', `recipe' and `failed', plus the task's own fields.
 %%
-%% Each task keeps its product in `Data/<Zone>@<Lane>.product', written durably and
-%% atomically at every change (cell_file: temp file, fsync, rename, folder fsync), so a
-%% crash or a power cut at any instant leaves the old product or the new one. The file
-%% is removed when the task holds none. A damaged file is reported, never dropped.
+%% Each task keeps its product in `Data/<Zone>@<Lane>.product', a record file of
+%% cell_file: written in place, durably and atomically, at every change, so a crash or
+%% a power cut at any instant leaves the old product or the new one. When the task holds
+%% none the file says so. A damaged file is reported, never dropped.
 -module(cell_product).
 
 -export([new/2, new/3, path/2, file_name/2, load/1, save/2, save/3, delete/1, delete/2,
@@ -59,7 +59,8 @@ stored(Product, Gen, Marker) ->
           {ok, stored() | undefined} | {error, {corrupt, atom()} | {bad_product, term()}
                                         | {file:filename_all(), term()}}.
 load(Path) ->
-    case cell_file:read_term(Path) of
+    case cell_file:get_record(Path) of
+        {ok, undefined} -> {ok, undefined};
         {ok, #{product := Product, gen := Gen, marker := Marker} = Stored}
           when is_integer(Gen), Gen > 0 ->
             case {validate(Product), valid_marker(Marker)} of
@@ -76,7 +77,7 @@ valid_marker(undefined) -> true;
 valid_marker(#{link := L, phase := in_transit}) -> is_atom(L);
 valid_marker(_) -> false.
 
-%% @doc Saves a product durably; `undefined' deletes the file.
+%% @doc Saves a product durably; `undefined' when the task holds none.
 -spec save(file:filename_all(), stored() | undefined) -> ok | cell_file:error().
 save(Path, Stored) ->
     save(Path, Stored, #{}).
@@ -85,18 +86,17 @@ save(Path, Stored) ->
 %% harmless (a stale copy the generations recognise, a marker merely left set).
 -spec save(file:filename_all(), stored() | undefined, cell_file:options()) ->
           ok | cell_file:error().
-save(Path, undefined, Opts) ->
-    delete(Path, Opts);
 save(Path, Stored, Opts) ->
-    cell_file:write_term(Path, Stored, Opts).
+    cell_file:put_record(Path, Stored, Opts).
 
+%% @doc The task holds no product: its file says so.
 -spec delete(file:filename_all()) -> ok | cell_file:error().
 delete(Path) ->
-    cell_file:delete(Path).
+    delete(Path, #{}).
 
 -spec delete(file:filename_all(), cell_file:options()) -> ok | cell_file:error().
 delete(Path, Opts) ->
-    cell_file:delete(Path, Opts).
+    cell_file:put_record(Path, undefined, Opts).
 
 -spec serial(product() | undefined) -> binary() | undefined.
 serial(undefined) -> undefined;

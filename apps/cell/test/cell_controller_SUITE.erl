@@ -221,10 +221,11 @@ product_survives_restart(Config) ->
     ok = cell_controller:start(),
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(unload)),
-    %% Cleared: the file is gone.
+    %% Cleared: the file says the task holds none.
     cmd(Config, unload, {product, undefined}),
     ok = cell_controller:sync(),
-    ?assertNot(filelib:is_regular(cell_product:path(<<"unload">>, <<"Test">>))).
+    ?assertEqual({ok, undefined}, cell_product:load(cell_product:path(<<"unload">>, <<"Test">>))),
+    ?assertEqual({ok, undefined}, cell_file:get_record(cell_product:path(<<"unload">>, <<"Test">>))).
 
 %% Setting a warning does not block the task (seed 000 §2.3.8), so the test settles
 %% with the registry before it reads it.

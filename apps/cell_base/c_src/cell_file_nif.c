@@ -23,6 +23,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <sys/stat.h>
 #include <string.h>
 #include <unistd.h>
 #ifdef __linux__
@@ -180,6 +181,22 @@ static void parent_of(const char *path, char *dir, size_t size)
     dir[len] = '\0';
 }
 
+static int pwrite_all(int fd, const unsigned char *data, size_t size, size_t offset)
+{
+    while (size > 0) {
+        ssize_t n = pwrite(fd, data, size, (off_t)offset);
+        if (n < 0) {
+            if (errno == EINTR)
+                continue;
+            return errno;
+        }
+        data += n;
+        offset += (size_t)n;
+        size -= (size_t)n;
+    }
+    return 0;
+}
+
 static int write_all(int fd, const unsigned char *data, size_t size)
 {
     while (size > 0) {
@@ -305,6 +322,204 @@ static ERL_NIF_TERM remove_in(ErlNifEnv *env, const char *path, int sync)
     return enif_make_atom(env, "ok");
 }
 
+/* -- Record files ----------------------------------------------------------------------
+ *
+ * A record file holds one term in two slots of equal size, each a header and a body:
+ *
+ *     "cellrt-record 1\n"  Seq:64  Len:32  CRC:32  Body:Len
+ *
+ * all big-endian, the CRC-32 (that of zlib and erlang:crc32/1) taken over Seq, Len and
+ * Body. The valid slot with the higher Seq is the record. A write goes to the other
+ * slot in place — one pwrite and one fdatasync, no new file, no rename, no folder to
+ * flush — so a crash or a power cut during it leaves the record as it was, and the
+ * torn slot fails its CRC. A file that does not exist yet, is not a record file, or
+ * whose slots are too small for the record is written whole instead, as replace does,
+ * with slots of room to grow. */
+
+#define REC_MAGIC "cellrt-record 1\n"
+#define REC_MAGIC_LEN 16
+#define REC_HEADER 32
+#define REC_MIN_SLOT 4096
+
+static unsigned long crc_table[256];
+
+static void crc_init(void)
+{
+    unsigned long c;
+    int n, k;
+
+    for (n = 0; n < 256; n++) {
+        c = (unsigned long)n;
+        for (k = 0; k < 8; k++)
+            c = c & 1 ? 0xEDB88320UL ^ (c >> 1) : c >> 1;
+        crc_table[n] = c;
+    }
+}
+
+static unsigned long crc32_of(unsigned long crc, const unsigned char *p, size_t n)
+{
+    crc = crc ^ 0xFFFFFFFFUL;
+    while (n-- > 0)
+        crc = crc_table[(crc ^ *p++) & 0xFF] ^ (crc >> 8);
+    return crc ^ 0xFFFFFFFFUL;
+}
+
+static void put_be(unsigned char *p, unsigned long long v, int bytes)
+{
+    int i;
+
+    for (i = bytes - 1; i >= 0; i--) {
+        p[i] = (unsigned char)(v & 0xFF);
+        v >>= 8;
+    }
+}
+
+static unsigned long long get_be(const unsigned char *p, int bytes)
+{
+    unsigned long long v = 0;
+    int i;
+
+    for (i = 0; i < bytes; i++)
+        v = (v << 8) | p[i];
+    return v;
+}
+
+/* The Seq of a valid slot, 0 for one that is not (Seq starts at 1). */
+static unsigned long long slot_seq(const unsigned char *slot, size_t size)
+{
+    unsigned long long seq, len;
+
+    if (size < REC_HEADER || memcmp(slot, REC_MAGIC, REC_MAGIC_LEN) != 0)
+        return 0;
+    seq = get_be(slot + 16, 8);
+    len = get_be(slot + 24, 4);
+    if (len > size - REC_HEADER)
+        return 0;
+    if (crc32_of(crc32_of(0, slot + 16, 12), slot + REC_HEADER, (size_t)len)
+        != get_be(slot + 28, 4))
+        return 0;
+    return seq;
+}
+
+/* A slot's header for a body. */
+static void slot_header(unsigned char *h, unsigned long long seq, const ErlNifBinary *body)
+{
+    memcpy(h, REC_MAGIC, REC_MAGIC_LEN);
+    put_be(h + 16, seq, 8);
+    put_be(h + 24, body->size, 4);
+    put_be(h + 28, crc32_of(crc32_of(0, h + 16, 12), body->data, body->size), 4);
+}
+
+/* The whole file for a first record or one that outgrew its slots: the record in the
+ * first slot, the second empty; slots twice the record's size, in pages. */
+static ERL_NIF_TERM record_fresh(ErlNifEnv *env, const char *tmp, const char *path,
+                                 const ErlNifBinary *body, unsigned long long seq, int sync)
+{
+    size_t slot = ((REC_HEADER + body->size) * 2 + REC_MIN_SLOT - 1) / REC_MIN_SLOT * REC_MIN_SLOT;
+    ErlNifBinary file;
+    ERL_NIF_TERM result;
+
+    if (!enif_alloc_binary(slot * 2, &file))
+        return error2(env, "write", ENOMEM);
+    memset(file.data, 0, file.size);
+    slot_header(file.data, seq, body);
+    memcpy(file.data + REC_HEADER, body->data, body->size);
+    result = replace_in(env, tmp, path, file, sync);
+    enif_release_binary(&file);
+    return result;
+}
+
+static ERL_NIF_TERM record_put_in(ErlNifEnv *env, const char *tmp, const char *path,
+                                  const ErlNifBinary *body, int sync)
+{
+    unsigned char *file;
+    unsigned char header[REC_HEADER];
+    unsigned long long seq_a, seq_b, top;
+    struct stat st;
+    size_t slot, target;
+    ssize_t n;
+    int fd, err = 0;
+
+    do { fd = open(path, O_RDWR | O_CLOEXEC); } while (fd < 0 && errno == EINTR);
+    if (fd < 0) {
+        if (errno == ENOENT)
+            return record_fresh(env, tmp, path, body, 1, sync);
+        return error2(env, "write", errno);
+    }
+    if (fstat(fd, &st) < 0) {
+        err = errno;
+        close(fd);
+        return error2(env, "write", err);
+    }
+    slot = (size_t)st.st_size / 2;
+    if (st.st_size % 2 != 0 || slot < REC_HEADER || slot > 64 * 1024 * 1024) {
+        /* Not a record file (or not one of ours): written whole. */
+        close(fd);
+        return record_fresh(env, tmp, path, body, 1, sync);
+    }
+    file = enif_alloc((size_t)st.st_size);
+    if (file == NULL) {
+        close(fd);
+        return error2(env, "write", ENOMEM);
+    }
+    do { n = pread(fd, file, (size_t)st.st_size, 0); } while (n < 0 && errno == EINTR);
+    if (n != st.st_size) {
+        err = n < 0 ? errno : EIO;
+        enif_free(file);
+        close(fd);
+        return error2(env, "write", err);
+    }
+    seq_a = slot_seq(file, slot);
+    seq_b = slot_seq(file + slot, slot);
+    enif_free(file);
+    top = seq_a > seq_b ? seq_a : seq_b;
+    if (top == 0 || REC_HEADER + body->size > slot) {
+        close(fd);
+        return record_fresh(env, tmp, path, body, top + 1, sync);
+    }
+    /* The other slot than the record's: a torn or older one. */
+    target = seq_a >= seq_b ? slot : 0;
+    slot_header(header, top + 1, body);
+    err = pwrite_all(fd, header, REC_HEADER, target);
+    if (err == 0)
+        err = pwrite_all(fd, body->data, body->size, target + REC_HEADER);
+    if (err == 0 && sync && fdatasync(fd) < 0)
+        err = errno;
+    if (close(fd) < 0 && err == 0 && errno != EINTR)
+        err = errno;
+    if (err != 0)
+        return error2(env, "write", err);
+    return enif_make_atom(env, "ok");
+}
+
+/* record_put(Path, Body, Sync): Body becomes the record of Path. ok, or
+ * {error, {Where, Posix}} with Where one of write, rename, dir. A file written whole
+ * goes through "<Path>.tmp-<os pid>-<n>", the temporary name cell_file:cleanup/1
+ * knows. */
+static ERL_NIF_TERM record_put(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    static unsigned long tmp_count;
+    char tmp[PATH_MAX], path[PATH_MAX];
+    ErlNifBinary body;
+    ERL_NIF_TERM result;
+    unsigned long n;
+    int sync, slot;
+
+    (void)argc;
+    if (!get_path(env, argv[0], path, sizeof path) || !enif_inspect_iolist_as_binary(env, argv[1], &body) ||
+        !get_bool(env, argv[2], &sync) || body.size > 0xFFFFFFFFUL)
+        return enif_make_badarg(env);
+    enif_mutex_lock(flight_lock);
+    n = ++tmp_count;
+    enif_mutex_unlock(flight_lock);
+    if (snprintf(tmp, sizeof tmp, "%s.tmp-%ld-%lu", path, (long)getpid(), n) >= (int)sizeof tmp)
+        return enif_make_badarg(env);
+    slot = flight_begin(path);
+    result = record_put_in(env, tmp, path, &body, sync);
+    flight_end(slot);
+    return result;
+}
+
 /* writing(Path): whether a replacement or deletion of Path is under way. */
 static ERL_NIF_TERM writing(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -364,6 +579,8 @@ static ErlNifFunc funcs[] = {
     {"replace_ram_nif", 4, replace, 0},
     {"remove_ram_nif", 2, remove_file, 0},
     {"in_ram_nif", 1, in_ram, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"record_put_nif", 3, record_put, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"record_put_ram_nif", 3, record_put, 0},
     {"writing_nif", 1, writing, 0},
     {"settle_nif", 1, settle, ERL_NIF_DIRTY_JOB_IO_BOUND}
 };
@@ -373,6 +590,7 @@ static int load(ErlNifEnv *env, void **priv_data, ERL_NIF_TERM load_info)
     (void)env;
     (void)priv_data;
     (void)load_info;
+    crc_init();
     flight_lock = enif_mutex_create("cell_file_in_flight");
     flight_change = enif_cond_create("cell_file_in_flight");
     return flight_lock == NULL || flight_change == NULL;

@@ -16,10 +16,15 @@
 %%
 %% Terms are stored with a magic line, a length and a CRC-32, so a damaged file is
 %% recognised and reported, never half-read.
+%%
+%% A file rewritten at every change (a task's product) is a record file instead: two
+%% slots, each write in place to the slot not holding the record, one write and one
+%% flush (see {@link put_record/3}).
 -module(cell_file).
 
 -export([write/2, write/3, delete/1, delete/2, fsync_dir/1]).
 -export([write_term/2, write_term/3, read_term/1, encode_term/1, decode_term/1]).
+-export([put_record/2, put_record/3, get_record/1]).
 -export([cleanup/1, in_ram/1]).
 
 -export_type([options/0, error/0]).
@@ -32,6 +37,8 @@
 
 -define(MAGIC, "cellrt-term 1\n").
 -define(TMP_MARK, ".tmp-").
+-define(RECORD_MAGIC, "cellrt-record 1\n").
+-define(RECORD_HEADER, 32).
 
 load_nif() ->
     Dir = case code:priv_dir(cell_base) of
@@ -93,6 +100,13 @@ fsync_dir(_Dir) ->
 replace_nif(_Tmp, _Path, _Data, _Sync) ->
     erlang:nif_error(nif_not_loaded).
 
+%% Writes Body as the record of Path (see put_record/3), in one call.
+record_put_nif(_Path, _Body, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
+record_put_ram_nif(_Path, _Body, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
 %% Deletes Path and flushes its folder (if Sync), in one call.
 remove_nif(_Path, _Sync) ->
     erlang:nif_error(nif_not_loaded).
@@ -149,14 +163,13 @@ in_ram(Dir) ->
 
 %% The folder of a file name (a binary): what is before its last slash.
 folder(Path) ->
-    case binary:matches(Path, <<"/">>) of
-        [] -> <<".">>;
-        Slashes ->
-            case lists:last(Slashes) of
-                {0, _} -> <<"/">>;
-                {Pos, _} -> binary:part(Path, 0, Pos)
-            end
-    end.
+    folder(Path, byte_size(Path) - 1).
+
+%% Looked for from the end: a file name is short beside its folder's path.
+folder(_Path, -1) -> <<".">>;
+folder(Path, 0) when binary_part(Path, 0, 1) =:= <<"/">> -> <<"/">>;
+folder(Path, Pos) when binary_part(Path, Pos, 1) =:= <<"/">> -> binary_part(Path, 0, Pos);
+folder(Path, Pos) -> folder(Path, Pos - 1).
 
 %% A file name as the system calls take it, encoded as the file module encodes it.
 native(Path) when is_binary(Path) ->
@@ -191,6 +204,73 @@ read_term(Path) ->
         {error, enoent} -> {error, enoent};
         {error, Reason} -> {error, {Path, Reason}}
     end.
+
+%% @doc Makes `Term' the record of `Path', durably and atomically, in place.
+%%
+%% A record file holds its term in two slots; a write goes to the slot that does not
+%% hold the record (one write and one flush, nothing created, renamed or removed), so
+%% a crash or a power cut during it leaves the record as it was. That makes it several
+%% times cheaper than {@link write_term/2} for a file rewritten at every change, such as
+%% a task's product. A missing file, one of another form, or a term too big for the
+%% slots is written whole, as by {@link write/2}.
+-spec put_record(file:filename_all(), term()) -> ok | error().
+put_record(Path, Term) ->
+    put_record(Path, Term, #{}).
+
+%% @doc As {@link put_record/2}; `#{sync => false}' skips the flush.
+-spec put_record(file:filename_all(), term(), options()) -> ok | error().
+put_record(Path, Term, Opts) ->
+    Target = native(Path),
+    Sync = maps:get(sync, Opts, true),
+    Body = term_to_binary(Term),
+    Result = case in_ram(folder(Target)) of
+                 true -> record_put_ram_nif(Target, Body, Sync);
+                 false -> record_put_nif(Target, Body, Sync)
+             end,
+    case Result of
+        ok -> ok;
+        {error, {dir, Reason}} -> {error, {parent(Path), Reason}};
+        {error, {_Where, Reason}} -> {error, {Path, Reason}}
+    end.
+
+%% @doc The record of a file written by {@link put_record/2}. A file written by {@link
+%% write_term/2} is read as such. `{error, {corrupt, Why}}' when neither slot holds a
+%% whole record.
+-spec get_record(file:filename_all()) ->
+          {ok, term()} | {error, enoent} | {error, {corrupt, atom()}} | error().
+get_record(Path) ->
+    ok = settle(Path),
+    case file:read_file(Path) of
+        {ok, <<?MAGIC, _/binary>> = Bin} -> decode_term(Bin);
+        {ok, Bin} -> decode_record(Bin);
+        {error, enoent} -> {error, enoent};
+        {error, Reason} -> {error, {Path, Reason}}
+    end.
+
+%% The record of a record file's content: of its two slots, the whole one with the
+%% higher sequence number.
+decode_record(Bin) when byte_size(Bin) rem 2 =:= 0, byte_size(Bin) >= 2 * ?RECORD_HEADER ->
+    Size = byte_size(Bin) div 2,
+    <<A:Size/binary, B:Size/binary>> = Bin,
+    case lists:reverse(lists:sort([slot(A), slot(B)])) of
+        [{0, _} | _] -> {error, {corrupt, no_whole_record}};
+        [{_Seq, Body} | _] ->
+            try {ok, binary_to_term(Body, [safe])}
+            catch error:badarg -> {error, {corrupt, bad_term}}
+            end
+    end;
+decode_record(_Bin) ->
+    {error, {corrupt, not_a_cellrt_file}}.
+
+%% {Seq, Body} of a whole slot, {0, none} of any other.
+slot(<<?RECORD_MAGIC, Seq:64, Len:32, Crc:32, Rest/binary>>) when Len =< byte_size(Rest) ->
+    <<Body:Len/binary, _/binary>> = Rest,
+    case erlang:crc32(<<Seq:64, Len:32, Body/binary>>) of
+        Crc when Seq > 0 -> {Seq, Body};
+        _ -> {0, none}
+    end;
+slot(_) ->
+    {0, none}.
 
 %% @doc The stored form of a term: magic line, length, CRC-32, external term format.
 -spec encode_term(term()) -> binary().
@@ -339,6 +419,73 @@ killed_writer_test_() ->
                          end, {k, 0}, lists:seq(1, 8)),
              ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir))
      end}.
+
+record_roundtrip_test() ->
+    Dir = tmp_dir(),
+    P = filename:join(Dir, "r.product"),
+    ?assertEqual({error, enoent}, get_record(P)),
+    [begin
+         ok = put_record(P, {r, N}, #{sync => N rem 2 =:= 0}),
+         ?assertEqual({ok, {r, N}}, get_record(P))
+     end || N <- lists:seq(1, 5)],
+    %% Two slots of a page each; the writes went to them in turn, in place.
+    ?assertEqual(8192, filelib:file_size(P)),
+    ok = put_record(P, undefined),
+    ?assertEqual({ok, undefined}, get_record(P)),
+    %% A term bigger than the slots: the file is written whole, with bigger slots.
+    Big = binary:copy(<<"b">>, 10000),
+    ok = put_record(P, Big),
+    ?assertEqual({ok, Big}, get_record(P)),
+    ?assert(filelib:file_size(P) > 2 * 10000),
+    ok = put_record(P, small),
+    ?assertEqual({ok, small}, get_record(P)),
+    ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir)).
+
+%% The file of write_term/2 is read as a record, and the first put_record/2 turns it
+%% into a record file.
+record_over_term_file_test() ->
+    Dir = tmp_dir(),
+    P = filename:join(Dir, "t.product"),
+    ok = write_term(P, {old, 1}),
+    ?assertEqual({ok, {old, 1}}, get_record(P)),
+    ok = put_record(P, {new, 2}),
+    ?assertEqual({ok, {new, 2}}, get_record(P)),
+    ok = file:write_file(P, <<"not ours at all">>),
+    ?assertEqual({error, {corrupt, not_a_cellrt_file}}, get_record(P)),
+    ok = put_record(P, {new, 3}),
+    ?assertEqual({ok, {new, 3}}, get_record(P)).
+
+%% A write torn anywhere leaves the record before it; a torn slot is the one the next
+%% write takes, so two torn writes in a row still leave a whole record.
+record_torn_write_test() ->
+    Dir = tmp_dir(),
+    P = filename:join(Dir, "torn.product"),
+    ok = put_record(P, {r, 1}),
+    ok = put_record(P, {r, 2}),
+    {ok, Whole} = file:read_file(P),
+    Size = byte_size(Whole) div 2,
+    ok = put_record(P, {r, 3}),
+    {ok, After} = file:read_file(P),
+    %% The slot {r, 3} went to, and its bytes in the file after the write.
+    Slot = hd([S || S <- [0, 1], binary_part(After, S * Size, Size) =/= binary_part(Whole, S * Size, Size)]),
+    New = binary_part(After, Slot * Size, Size),
+    Written = byte_size(term_to_binary({r, 3})) + ?RECORD_HEADER,
+    lists:foreach(
+      fun(Cut) ->
+              %% The first Cut bytes of the new slot written, the rest as before.
+              Torn = <<(binary_part(New, 0, Cut))/binary,
+                       (binary_part(Whole, Slot * Size + Cut, Size - Cut))/binary>>,
+              File = case Slot of
+                         0 -> <<Torn/binary, (binary_part(Whole, Size, Size))/binary>>;
+                         1 -> <<(binary_part(Whole, 0, Size))/binary, Torn/binary>>
+                     end,
+              ok = file:write_file(P, File),
+              ?assertEqual({ok, {r, 2}}, get_record(P)),
+              ok = put_record(P, {r, 4}),
+              ?assertEqual({ok, {r, 4}}, get_record(P)),
+              ok = put_record(P, {r, 5}),
+              ?assertEqual({ok, {r, 5}}, get_record(P))
+      end, lists:seq(1, Written - 1)).
 
 errors_name_the_file_test() ->
     Dir = tmp_dir(),
