@@ -427,8 +427,9 @@ effect({request_image, Cs, Req}, _, D) ->
     send(Cs, request_image, Req, D);
 effect({cancel_image, Cs, Ref}, _, D) ->
     send(Cs, cancel, Ref, D);
-effect({show_message, Cs, Msg}, _, D) ->
-    send(Cs, show_message, Msg, D);
+effect({show_message, Cs, Msg}, _, #data{io = Io} = D) ->
+    %% A text answer must fit MessageResult: clients say so to their users.
+    send(Cs, show_message, Msg#{max_length => maps:get(result, cell_inspect_io:lengths(Io))}, D);
 effect({withdraw_message, Cs, Ref}, _, D) ->
     send(Cs, withdraw_message, Ref, D);
 effect({process, Ref, Job}, _, D) ->

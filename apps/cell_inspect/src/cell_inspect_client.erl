@@ -8,8 +8,9 @@
 %%   client answers later with the event `{image, Ref, Image}';</li>
 %% <li>`cancel(Ref)' — the request is over (canceled by the PLC, or another camera was
 %%   first);</li>
-%% <li>`show_message(#{ref, id, text, kind})' — show a message of the PLC; the user's
-%%   answer is the event `{answer, Ref, yes | no | {text, Binary}}';</li>
+%% <li>`show_message(#{ref, id, text, kind, max_length})' — show a message of the PLC;
+%%   the user's answer is the event `{answer, Ref, yes | no | {text, Binary}}' (a text
+%%   of at most `max_length' characters the PLC can hold);</li>
 %% <li>`withdraw_message(Ref)' — the message was answered elsewhere or replaced.</li>
 %% </ul>
 %% A client module reports what happens as events from its callbacks: `connected',
@@ -37,7 +38,8 @@
     {ok, [event()], term()}.
 -callback cancel(cell_inspect_status:ref(), State :: term()) -> {ok, [event()], term()}.
 -callback show_message(#{ref := cell_inspect_status:ref(), id := integer(), text := binary(),
-                         kind := cell_inspect_status:message_kind()}, State :: term()) ->
+                         kind := cell_inspect_status:message_kind(),
+                         max_length := pos_integer()}, State :: term()) ->
     {ok, [event()], term()}.
 -callback withdraw_message(cell_inspect_status:ref(), State :: term()) -> {ok, [event()], term()}.
 -callback handle_call(Request :: term(), State :: term()) -> {reply, term(), [event()], term()}.

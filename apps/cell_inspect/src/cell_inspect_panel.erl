@@ -5,8 +5,10 @@
 %%
 %% Pages join with {@link join/1} and receive `{cell_inspect_panel, Messages}' with the
 %% whole list of messages waiting, every time it changes; a page that closes leaves
-%% (monitored). When the last page leaves, the panel disconnects from its blocks, so a
-%% block whose only client was the panel reports NoAvailableClients.
+%% (monitored). When the last page has left for `panel_linger_ms' (the `cell_inspect'
+%% variable, 5 s by default), the panel disconnects from its blocks, so a block whose
+%% only client was the panel reports NoAvailableClients; a page that reloads, or
+%% connects again after a login, comes back before that and the message stays.
 -module(cell_inspect_panel).
 -behaviour(gen_server).
 
@@ -16,11 +18,13 @@
 -export_type([message/0]).
 
 -type message() :: #{block := binary(), ref := binary(), id := integer(), text := binary(),
-                     kind := cell_inspect_status:message_kind(), since := integer()}.
+                     kind := cell_inspect_status:message_kind(), max_length := pos_integer(),
+                     since := integer()}.
 
 -define(ID, <<"panel">>).
 
 -record(state, {pages = #{} :: #{pid() => reference()},
+                linger :: reference() | undefined,      %% the last page left: a timer
                 blocks = #{} :: #{atom() => {pid(), reference()}},
                 messages = #{} :: #{atom() => {cell_inspect_status:ref(), message()}}}).
 
@@ -73,9 +77,13 @@ init([]) ->
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
-handle_call({join, Page}, _From, #state{pages = Pages} = S) ->
+handle_call({join, Page}, _From, #state{pages = Pages, linger = L} = S) ->
     S1 = case maps:is_key(Page, Pages) of
              true -> S;
+             false when L =/= undefined ->
+                 %% Back before the panel let go: nothing changes for the blocks.
+                 _ = erlang:cancel_timer(L, [{async, true}, {info, false}]),
+                 S#state{pages = Pages#{Page => monitor(process, Page)}, linger = undefined};
              false -> connectivity(S#state{pages = Pages#{Page => monitor(process, Page)}})
          end,
     {reply, {ok, list(S1)}, S1};
@@ -121,9 +129,10 @@ handle_cast({block, Id, Pid, Enabled}, #state{blocks = Bs} = S) ->
 
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({cell_inspect, Id, show_message, #{ref := Ref, id := MId, text := T, kind := K}}, S) ->
+handle_info({cell_inspect, Id, show_message, #{ref := Ref, id := MId, text := T, kind := K,
+                                               max_length := Max}}, S) ->
     M = #{block => atom_to_binary(Id), ref => ref_text(Ref), id => MId, text => T, kind => K,
-          since => os:system_time(millisecond)},
+          max_length => Max, since => os:system_time(millisecond)},
     {noreply, changed(S#state{messages = (S#state.messages)#{Id => {Ref, M}}})};
 handle_info({cell_inspect, Id, withdraw_message, Ref}, #state{messages = Ms} = S) ->
     case Ms of
@@ -132,10 +141,17 @@ handle_info({cell_inspect, Id, withdraw_message, Ref}, #state{messages = Ms} = S
     end;
 handle_info({cell_inspect, _, What, _}, S) when What =:= request_image; What =:= cancel ->
     {noreply, S};                                 %% the panel takes no images
+handle_info({timeout, L, linger}, #state{linger = L} = S) ->
+    {noreply, connectivity(S#state{linger = undefined})};
+handle_info({timeout, _, linger}, S) ->
+    {noreply, S};
 handle_info({'DOWN', Mon, process, Pid, _}, #state{pages = Pages, blocks = Bs} = S) ->
     case Pages of
+        #{Pid := Mon} when map_size(Pages) =:= 1 ->
+            Ms = application:get_env(cell_inspect, panel_linger_ms, 5000),
+            {noreply, S#state{pages = #{}, linger = erlang:start_timer(Ms, self(), linger)}};
         #{Pid := Mon} ->
-            {noreply, connectivity(S#state{pages = maps:remove(Pid, Pages)})};
+            {noreply, S#state{pages = maps:remove(Pid, Pages)}};
         _ ->
             case [Id || {Id, {_, M}} <- maps:to_list(Bs), M =:= Mon] of
                 [Id] -> {noreply, forget(Id, S#state{blocks = maps:remove(Id, Bs)})};
@@ -143,7 +159,7 @@ handle_info({'DOWN', Mon, process, Pid, _}, #state{pages = Pages, blocks = Bs} =
             end
     end.
 
-%% Connected while a page is open.
+%% Connected while a page is open (or the last one left only a moment ago).
 connectivity(#state{pages = Pages, blocks = Bs} = S) when map_size(Pages) =< 1 ->
     _ = [tell(Id, Pid, S) || {Id, {Pid, _}} <- maps:to_list(Bs)],
     case map_size(Pages) of
@@ -153,11 +169,12 @@ connectivity(#state{pages = Pages, blocks = Bs} = S) when map_size(Pages) =< 1 -
 connectivity(S) ->
     S.
 
-tell(_Id, Pid, #state{pages = Pages}) ->
-    cell_inspect_block:client_state(Pid, ?ID, self(), case map_size(Pages) of
-                                                          0 -> disconnected;
-                                                          _ -> connected
-                                                      end).
+tell(_Id, Pid, #state{pages = Pages, linger = L}) ->
+    cell_inspect_block:client_state(Pid, ?ID, self(),
+                                    case map_size(Pages) =:= 0 andalso L =:= undefined of
+                                        true -> disconnected;
+                                        false -> connected
+                                    end).
 
 forget(Id, #state{messages = Ms} = S) ->
     case maps:is_key(Id, Ms) of
