@@ -14,7 +14,7 @@ name() -> inspect.
 
 -spec fields() -> [cell_settings_schema:field()].
 fields() ->
-    [#{name => blocks, type => {list, {object, cell_inspect_block_settings}, 64},
+    [#{name => blocks, type => {list, {object, cell_inspect_block_settings}, 256},
        doc => <<"One entry per inspection block of the cell, by the block's id.">>}].
 
 %% @doc Blocks appear once; a client belongs to one block only (seed 004).
