@@ -4,8 +4,7 @@
 %% `cellrt-sim FAIL <text>'; anything else cannot be read (a ProcessingError).
 %%
 %% Workspaces: any name loads at once; `fail' cannot be loaded (to show
-%% InspectionConfigurationError); `slow:<ms>' takes that long to load (to show
-%% WaitingForIPM and ProcessingNotAvailable).
+%% InspectionConfigurationError).
 -module(cell_inspect_sim_ipm).
 -behaviour(cell_inspect_processing).
 
@@ -15,9 +14,6 @@
 -spec load(binary()) -> {ok, binary()} | {error, term()}.
 load(<<"fail">>) ->
     {error, workspace_damaged};
-load(<<"slow:", Ms/binary>> = W) ->
-    %% A slow load is the simulation itself: this process stands for the tool loading.
-    receive after binary_to_integer(Ms) -> {ok, W} end;
 load(W) ->
     {ok, W}.
 
