@@ -3,10 +3,10 @@
 %% ({@link cell_inspect_sim_ipm}) reads as PASS or FAIL, and shows messages until it is
 %% told an answer. For demo cells without cameras, and for tests.
 %%
-%% Options (from the client's settings): `delay_ms' (0), `manual' (false), `scene'
-%% (`<<"PASS">>'; `<<"FAIL">>', `<<"PASS OCR 12">>', anything else is unreadable),
-%% `image_data' (true: the image travels with the answer; false: only a reference the
-%% camera keeps), `connected' (true).
+%% Options from the client's settings: `delay_ms' (0), `manual' (false), `scene'
+%% (`<<"PASS">>'; `<<"FAIL">>', `<<"PASS OCR 12">>', anything else is unreadable). Set
+%% with {@link set/2} only: `image_data' (true: the image travels with the answer;
+%% false: the camera keeps it and sends a reference).
 %%
 %% Controls, through {@link cell_inspect_client:call/2} or the functions below:
 %% `connect', `disconnect', `shoot' (manual mode), `answer', `set' (options),
@@ -62,9 +62,9 @@ subscribe(Id) -> cell_inspect_client:call(Id, {subscribe, self()}).
 
 -spec init(binary(), map()) -> {ok, boolean(), #sim{}}.
 init(Id, Opts) ->
-    O = maps:merge(#{delay_ms => 0, manual => false, scene => <<"PASS">>, image_data => true,
-                     connected => true}, Opts),
-    {ok, maps:get(connected, O), #sim{id = Id, opts = O, connected = maps:get(connected, O)}}.
+    O = maps:merge(#{delay_ms => 0, manual => false, scene => <<"PASS">>, image_data => true},
+                   Opts),
+    {ok, true, #sim{id = Id, opts = O, connected = true}}.
 
 -spec request_image(map(), #sim{}) -> {ok, [cell_inspect_client:event()], #sim{}}.
 request_image(Req, #sim{opts = O} = S) ->

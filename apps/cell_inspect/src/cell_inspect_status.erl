@@ -52,8 +52,7 @@
 %% asked for an image disconnects, the inspection ends in Error with DeviceNotFound (1).
 -module(cell_inspect_status).
 
--export([new/2, handle/2, view/1, check_answer/4, status/1, plc/1, outputs/1,
-         inspection/1]).
+-export([new/2, handle/2, view/1, check_answer/4, status/1, outputs/1]).
 -export([status_code/1, status_name/1, error_code/1, error_name/1, message_code/1,
          message_name/1]).
 
@@ -159,20 +158,9 @@ handle(Event, St) ->
 status(#st{out = Out}) ->
     status_name(maps:get(inspection_status, Out, 0)).
 
-%% @doc Whether the PLC has been seen, and whether it is up.
--spec plc(state()) -> unknown | up | down.
-plc(#st{plc = P}) -> P.
-
 %% @doc The outputs as the block holds them (what the PLC reads once written).
 -spec outputs(state()) -> #{cell_inspect_tags:out_tag() => value()}.
 outputs(#st{out = Out}) -> Out.
-
-%% @doc The inspection under way.
--spec inspection(state()) -> undefined | #{ref := ref(), point := binary(),
-                                           serial := binary(),
-                                           stage := requesting | processing,
-                                           clients := [client()]}.
-inspection(#st{inspection = I}) -> I.
 
 %% @doc What the panel and the API show of a block.
 -spec view(state()) -> map().
