@@ -483,7 +483,7 @@ start_processing(Ref, #{point := P, serial := S, client := Client, image := Imag
               none -> none;
               {error, Code} -> {error, Code};
               ipm ->
-                  case maps:get(P, Ws) of
+                  case maps:get(P, Ws, undefined) of
                       {ready, {Mod, _}, Loaded} -> {ipm, Mod, Loaded};
                       _ -> {error, processing_not_available}
                   end
