@@ -44,6 +44,7 @@
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
          work_abort/2, transfer_out/2]).
 -export([error_spec/4, warning/4, reset_warning/2, log/4]).
+-export([in/2, in/3, read/2, read/3, out/3, out/4]).
 %% For the engine and the handshake.
 -export([new/1, set_state/3, publish/3, store/5]).
 
@@ -53,10 +54,15 @@
 -type task() :: #task{}.
 -type wait() :: {timer, non_neg_integer()}
               | {reply, reference()}
+              | {io, atom(), cell_hal_type:condition()}
+              | {io, atom(), atom(), cell_hal_type:condition()}
               | {handshake, atom(), available | not_busy, boolean()}.
 %% `{timer, Ms}': Ms milliseconds have passed. `{reply, Ref}': the task process
 %% received `{Ref, Term}' (an answer to an asynchronous request it made, such as a
-%% hardware object's). `{handshake, Link, Signal, Value}': a signal of a handshake
+%% hardware object's). `{io, Point, Cond}' or `{io, Group, Point, Cond}': an IO point
+%% reached a condition (`{eq, V} | {ne, V} | {gt, V} ...', see cell_hal), woken by the
+%% HAL, never polled; `woken_by/1' gives `{io, Group, Point, Value}'.
+%% `{handshake, Link, Signal, Value}': a signal of a handshake
 %% link has that value (see {@link cell_handshake}); a transfer on the link that ends
 %% (completed, aborted, interrupted) ends the wait too.
 -type step_result() :: {continue, task()}
@@ -284,7 +290,56 @@ set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
 %% @private
 -spec publish(task(), cell_events:type(), map()) -> ok.
 publish(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
-    cell_events:publish(cell_events:new(Type, Id, Fields#{zone => Z, lane => L})).
+    cell_events:publish(Type, Id, Fields#{zone => Z, lane => L}).
+
+%% IO (seed 000 §4: a task reads and writes points by name, never a driver)
+
+%% @doc The value of a point of the task's default IO group (the first of its spec's
+%% `io'). An input whose connection is down is not read: the task goes DOWN with an
+%% error naming the connection, and the step runs again after Retry once it is back.
+%% A point the device cannot serve (a PLC symbol gone or retyped) is the same with an
+%% error naming the point.
+-spec in(task(), atom()) -> cell_hal_type:value().
+in(T, Point) ->
+    in(T, default_group(T), Point).
+
+%% @doc The value of a point of one of the task's IO groups.
+-spec in(task(), atom(), atom()) -> cell_hal_type:value().
+in(_T, Group, Point) ->
+    case cell_hal:read(Group, Point) of
+        {ok, Value} -> Value;
+        {error, disconnected} -> throw({cell_io_lost, Group, Point});
+        {error, not_yet_read} -> throw({cell_io_lost, Group, Point});
+        {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
+        {error, Reason} -> erlang:error({io, Group, Point, Reason})
+    end.
+
+%% @doc A point's value or why there is none, for code that decides itself.
+-spec read(task(), atom()) -> {ok, cell_hal_type:value()} | {error, term()}.
+read(T, Point) ->
+    read(T, default_group(T), Point).
+
+-spec read(task(), atom(), atom()) -> {ok, cell_hal_type:value()} | {error, term()}.
+read(_T, Group, Point) ->
+    cell_hal:read(Group, Point).
+
+%% @doc Commands an output of the task's default IO group; it is written through in
+%% order, without waiting for the device.
+-spec out(task(), atom(), cell_hal_type:value()) -> task().
+out(T, Point, Value) ->
+    out(T, default_group(T), Point, Value).
+
+-spec out(task(), atom(), atom(), cell_hal_type:value()) -> task().
+out(T, Group, Point, Value) ->
+    case cell_hal:write(Group, Point, Value) of
+        ok -> T;
+        {error, disconnected} -> throw({cell_io_lost, Group, Point});
+        {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
+        {error, Reason} -> erlang:error({io, Group, Point, Reason})
+    end.
+
+default_group(#task{io = [G | _]}) -> G;
+default_group(#task{id = Id}) -> erlang:error({no_io_group, Id}).
 
 %% Errors, warnings, log
 

@@ -30,10 +30,11 @@
 
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | step | crash | product_file | transit.
+-type origin() :: init | step | crash | product_file | transit | io.
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
 -type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
                | {reply, reference()}
+               | {io, reference(), atom(), atom()}
                | {handshake, reference(), atom(), atom(), term()}.
 
 -record(data, {
@@ -51,6 +52,7 @@
     crash :: term(),                      %% how the previous incarnation ended
     settings = #{} :: map(),              %% the snapshot for the next start
     deferred :: pause | service | undefined, %% a pause a transfer holds back
+    conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
     reoffer = [] :: [atom()]              %% offers a pause withdrew, made again at resume
 }).
 
@@ -170,6 +172,15 @@ handle_event(info, {timeout, TRef, ?WAIT(Gen)}, {ready, _, _}, #data{gen = Gen, 
         {timer, TRef, Ms} -> wake({timer, Ms}, D);
         false -> keep_state_and_data
     end;
+handle_event(info, {cell_hal_watch, Ref, Value}, {ready, _, _}, #data{armed = Armed} = D) ->
+    case lists:keyfind(Ref, 2, Armed) of
+        {io, Ref, Group, Point} -> wake({io, Group, Point, Value}, D);
+        _ -> keep_state_and_data
+    end;
+handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
+    %% The task's IO is gone: nothing it reads can be trusted. DOWN until the operator
+    %% retries with the connection back.
+    raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = S});
 handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
   when is_reference(Ref) ->
     case lists:member({reply, Ref}, Armed) of
@@ -240,6 +251,11 @@ handle_event(info, {cell_handshake_watch, _, _, _, _} = Msg, State, D) ->
     handshake(Msg, State, D);
 handle_event(info, {{'LINK_DOWN', _}, _, process, _, _} = Msg, State, D) ->
     handshake(Msg, State, D);
+handle_event(info, {cell_hal_conn, Conn, Status}, _State, D) ->
+    {keep_state, conn_status(Conn, Status, D)};
+handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
+    %% A watch of a wait the task has since left.
+    keep_state_and_data;
 handle_event(info, {cell_registry, stale, Serial, Gen}, _State, D) ->
     {keep_state, D#data{task = drop_stale(D#data.task, Serial, Gen)}};
 handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
@@ -319,17 +335,29 @@ start_from_off(D) ->
     %% A task restarted while the cell is stopped stays OFF; its product is on disk.
     {keep_state, D#data{crash = undefined}}.
 
-run_init(#data{task = #task{module = Mod} = T0} = D) ->
+run_init(#data{task = #task{module = Mod} = T0} = D0) ->
     case estop_raised() of
         true ->
-            estop(setup, D#data{estop = true});
+            estop(setup, D0#data{estop = true});
         false ->
-            T = T0#task{answer = undefined, woken_by = undefined},
-            case Mod:init(T) of
-                {ok, T1} ->
-                    ready_after_init(undefined, D#data{task = T1, initialized = true});
-                {error, Spec, T1} ->
-                    raise(setup, Spec, init, D#data{task = T1, initialized = true})
+            case io_check(D0) of
+                {error, Spec, D} ->
+                    raise(setup, Spec, io, D#data{resume = undefined});
+                {ok, D} ->
+                    T = T0#task{answer = undefined, woken_by = undefined},
+                    try Mod:init(T) of
+                        {ok, T1} ->
+                            ready_after_init(undefined, D#data{task = T1, initialized = true});
+                        {error, Spec, T1} ->
+                            raise(setup, Spec, init, D#data{task = T1, initialized = true})
+                    catch
+                        throw:{cell_io_lost, Group, _Point} ->
+                            raise(setup, io_error(group_conn(Group)), io,
+                                  D#data{initialized = true, resume = undefined});
+                        throw:{cell_io_unavailable, Group, Point, Why} ->
+                            raise(setup, point_error(Group, Point, Why), io,
+                                  D#data{initialized = true, resume = undefined})
+                    end
             end
     end.
 
@@ -362,10 +390,21 @@ run_step(State, D0) ->
             end
     end.
 
-do_step(#data{task = #task{module = Mod} = T0, pending = {step, Woken}} = D) ->
+do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
     Answer = case Woken of {answer, A} -> A; _ -> undefined end,
     T = T0#task{woken_by = Woken, answer = Answer},
-    after_step(Mod:step(T), D).
+    try Mod:step(T) of
+        Result -> after_step(Result, D)
+    catch
+        %% The step read or wrote a point whose connection is down: the step's work is
+        %% dropped and runs again, as it was woken, after Retry.
+        throw:{cell_io_lost, Group, _Point} ->
+            Conn = group_conn(Group),
+            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State});
+        %% A point its device cannot serve: the same, the connection itself being up.
+        throw:{cell_io_unavailable, Group, Point, Why} ->
+            raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
+    end.
 
 after_step({continue, T}, #data{gen = Gen} = D) ->
     self() ! ?STEP(Gen),
@@ -413,6 +452,13 @@ arm_one({handshake, Link, Signal, Value}, Gen, T0)
             TRef = erlang:start_timer(?LINK_RETRY_MS, self(), ?WAIT(Gen)),
             {{timer, TRef, {link_down, Link}}, T0}
     end;
+arm_one({io, Point, Cond}, Gen, #task{io = [Group | _]} = T) ->
+    arm_one({io, Group, Point, Cond}, Gen, T);
+arm_one({io, Group, Point, Cond}, _Gen, T) ->
+    case cell_hal:watch(Group, Point, Cond) of
+        {ok, Ref} -> {{io, Ref, Group, Point}, T};
+        {error, Reason} -> erlang:error({bad_wait, {io, Group, Point, Cond}, Reason})
+    end;
 arm_one(Other, _Gen, _T) ->
     erlang:error({bad_wait, Other}).
 
@@ -428,6 +474,7 @@ arm_watch(Ref, Link, Signal, Value, T0) ->
 
 disarm(#data{armed = Armed, gen = Gen} = D) ->
     _ = [erlang:cancel_timer(TRef) || {timer, TRef, _} <- Armed],
+    _ = [cell_hal:cancel_watch(Ref) || {io, Ref, _, _} <- Armed],
     %% Watches on links are not cancelled: when one fires later its reference is no
     %% longer armed and the message is ignored.
     %% A new generation: step messages and timer messages already sent are ignored.
@@ -486,7 +533,17 @@ pause(State, Why, #data{request = Request} = D0) ->
 
 %% Arrow 5: back to the READY sub-state the task left, doing what it was doing, its
 %% withdrawn offers made again.
-resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
+resume(#data{conns = Conns} = D) ->
+    case [C || {C, down} <- maps:to_list(Conns)] of
+        [] ->
+            do_resume(D);
+        [Conn | _] ->
+            %% Still DOWN: the IO it would resume with is gone.
+            {ok, AlarmId} = cell_alarms:raise_error((D#data.task)#task.id, io_error(Conn), self()),
+            {keep_state, D#data{down = {error, AlarmId, io}}}
+    end.
+
+do_resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
     T = cell_handshake:reoffer(cell_task:set_state(T0, Ready, {arrow, 5}), Offers),
     D = D0#data{down = undefined, resume = undefined, reoffer = [], task = T},
     case Pending of
@@ -531,8 +588,15 @@ answered(transit, _Ignore, Who, #data{task = #task{id = Id, product = P, gen = G
     cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
     goto(setup, {arrow, 8}, D#data{task = cell_task:store(T, P, G, undefined, #{})},
          [{next_event, internal, run_init}]);
+answered(io, _Retry, _Who, #data{resume = undefined} = D) ->
+    %% Lost while initialising: initialise again (arrow 8); init checks the IO first.
+    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
+answered(io, _Retry, _Who, #data{request = start} = D) ->
+    resume(D);
+answered(io, _Retry, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}}};
 answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
-    Aside = Path ++ ".damaged-" ++ integer_to_list(os:system_time(second)),
+    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
@@ -630,7 +694,7 @@ handshake(Msg, State, #data{task = T0} = D0) ->
     D = D0#data{task = T},
     case State of
         {ready, _, _} ->
-            case woken(Wakes, D#data.armed) of
+            case woken(Wakes, D#data.armed, T) of
                 undefined ->
                     %% A transfer that ended may free a Pause it held back.
                     case try_pause(State, D) of
@@ -659,18 +723,25 @@ ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when 
 ended_while_down([_ | Rest], Pending) ->
     ended_while_down(Rest, Pending).
 
-woken([], _Armed) ->
+woken([], _Armed, _T) ->
     undefined;
-woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed) ->
+woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed, T) ->
     case lists:keymember(Ref, 2, [A || {handshake, _, _, _, _} = A <- Armed]) of
         true -> {handshake, Link, Signal, Value};
-        false -> woken(Rest, Armed)
+        false -> woken(Rest, Armed, T)
     end;
-woken([{wake, Link, Outcome} | Rest], Armed) ->
+woken([{wake, Link, {signals, _Seq}} | Rest], Armed, T) ->
+    %% The link's signals changed: a wait on one of them that holds now ends.
+    case [{S, V} || {handshake, _, L, S, V} <- Armed, L =:= Link,
+                    cell_handshake:signal(T, Link, S) =:= V] of
+        [{Signal, Value} | _] -> {handshake, Link, Signal, Value};
+        [] -> woken(Rest, Armed, T)
+    end;
+woken([{wake, Link, Outcome} | Rest], Armed, T) ->
     case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
         ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
         [_ | _] -> {handshake, Link, Outcome};
-        [] -> woken(Rest, Armed)
+        [] -> woken(Rest, Armed, T)
     end.
 
 %% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
@@ -702,6 +773,77 @@ drop_stale(T, _Serial, _Gen) ->
 drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
     cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),
     cell_task:store(T, undefined, 0, undefined, #{sync => false}).
+
+%% --------------------------------------------------------------------------------------
+%% IO
+%% --------------------------------------------------------------------------------------
+
+%% Before init: every IO group of the task is configured and its connection is up; the
+%% task follows the connections' status from here.
+io_check(#data{task = #task{io = Groups}} = D0) ->
+    lists:foldl(fun(_G, {error, _, _} = E) -> E;
+                   (G, {ok, D}) ->
+                        case cell_hal:connection_of(G) of
+                            {ok, Conn} ->
+                                D1 = subscribe_conn(Conn, D),
+                                case maps:get(Conn, D1#data.conns) of
+                                    up -> {ok, D1};
+                                    down -> {error, io_error(Conn), D1}
+                                end;
+                            {error, unknown_group} ->
+                                {error, io_config_error(G), D}
+                        end
+                end, {ok, D0}, Groups).
+
+subscribe_conn(Conn, #data{conns = Conns} = D) ->
+    case maps:is_key(Conn, Conns) of
+        true ->
+            D;
+        false ->
+            Status = case cell_hal:subscribe_connection(Conn) of
+                         {ok, S} -> S;
+                         {error, _} -> down
+                     end,
+            D#data{conns = maps:put(Conn, Status, Conns)}
+    end.
+
+conn_status(Conn, Status, #data{conns = Conns} = D) ->
+    D#data{conns = maps:put(Conn, Status, Conns)}.
+
+group_conn(Group) ->
+    case cell_hal:connection_of(Group) of
+        {ok, Conn} -> Conn;
+        {error, _} -> Group
+    end.
+
+io_error(Conn) ->
+    {Where, Why} = case cell_hal:info(Conn) of
+                       {ok, #{endpoint := E, reason := R}} -> {E, R};
+                       _ -> {<<"unknown">>, <<"it is not configured">>}
+                   end,
+    cell_task:error_spec(
+      <<"io">>, "IO connection lost",
+      io_lib:format("The connection ~ts (~ts) to this task's IO is down: ~ts.~nThe task "
+                    "holds; nothing it reads from there can be trusted. Check the PLC and "
+                    "the network, then select RETRY once the connection is back.",
+                    [Conn, Where, Why]),
+      [retry]).
+
+point_error(Group, Point, Why) ->
+    cell_task:error_spec(
+      <<"io_point">>, "IO point unavailable",
+      io_lib:format("The point ~ts of the IO group ~ts cannot be used: ~ts.~nThe task "
+                    "holds. Check the PLC program (the variable may have been renamed, "
+                    "removed or retyped), then select RETRY.",
+                    [Point, Group, Why]),
+      [retry]).
+
+io_config_error(Group) ->
+    cell_task:error_spec(
+      <<"io">>, "IO group not configured",
+      io_lib:format("The IO group ~ts this task uses is not configured in the HAL. "
+                    "Check the cell's configuration, then select RETRY.", [Group]),
+      [retry]).
 
 %% --------------------------------------------------------------------------------------
 %% Errors the engine raises itself

@@ -1,0 +1,40 @@
+%% A conveyor task for the device-task IO suite: it runs its belt until the sensor sees
+%% a panel, stops it, waits for the panel to go, and counts. Each wake-up is recorded
+%% in the `tab' argument as {woke, Id, N, Woken}.
+-module(cell_io_test_task).
+-behaviour(cell_task).
+
+-export([init/1, step/1, uninit/1]).
+
+-spec init(cell_task:task()) -> {ok, cell_task:task()}.
+init(T) ->
+    {ok, cell_task:put(cell_task:out(T, motor, false), n, 0)}.
+
+-spec uninit(cell_task:task()) -> cell_task:task().
+uninit(T) ->
+    cell_task:out(T, motor, false).
+
+-spec step(cell_task:task()) -> cell_task:step_result().
+step(T) ->
+    record(T),
+    case cell_task:woken_by(T) of
+        undefined ->
+            {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};
+        {answer, _} ->
+            {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};
+        {io, _, sensor, true} ->
+            %% A panel: stop the belt, read the counter (a lost connection here is the
+            %% engine's to report), wait until the panel is taken away.
+            Count = cell_task:in(T, count),
+            T1 = cell_task:put(cell_task:out(T, motor, false), count, Count),
+            {wait, {io, sensor, {eq, false}}, T1};
+        {io, _, sensor, false} ->
+            {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)}
+    end.
+
+record(T) ->
+    N = cell_task:get(T, n, 0) + 1,
+    Tab = cell_task:arg(T, tab, undefined),
+    true = ets:insert(Tab, {{woke, cell_task:id(T), N}, cell_task:woken_by(T)}),
+    cell_task:arg(T, notify, self()) ! {woke, cell_task:id(T), cell_task:woken_by(T)},
+    ok.

@@ -1,0 +1,180 @@
+%% Device tasks and their IO (seed 000 §4): a task waits for an IO point by subscription
+%% and writes outputs by name; a lost connection takes it DOWN with an error naming the
+%% connection, and Retry takes it on once the connection is back; a point its device
+%% cannot serve does the same naming the point; a group the HAL does not know stops it
+%% at Start with a clear error.
+-module(cell_task_io_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
+         lost_while_paused/1, point_unavailable/1]).
+
+-define(TIMEOUT, 10000).
+
+all() ->
+    [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
+     point_unavailable].
+
+init_per_testcase(Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    Tab = ets:new(io_suite, [public]),
+    _ = [application:load(A) || A <- [cell_base, cell_hal, cell]],
+    ok = application:set_env(cell_base, root, Root),
+    Group = case Case of unknown_group -> nowhere; _ -> conv end,
+    Spec = #{tasks => [#{id => belt, module => cell_io_test_task, zone => <<"Belt">>,
+                         lane => <<"1">>, io => [Group],
+                         args => #{tab => Tab, notify => self()}}]},
+    ok = application:set_env(cell, cell_spec, Spec),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_hal:add_connection(#{id => plc1, driver => cell_hal_sim,
+                                   opts => #{poll_ms => 10}}),
+    ok = cell_hal:add_group(#{id => conv, module => cell_io_test_group, connection => plc1}),
+    ok = cell_hal_sim:set({conv, sensor}, false),
+    ok = cell_hal_sim:set({conv, count}, 0),
+    {ok, up} = await_conn(plc1, up),
+    [{tab, Tab} | Config].
+
+end_per_testcase(_Case, _Config) ->
+    _ = application:stop(cell),
+    _ = cell_hal:remove_group(conv),
+    _ = cell_hal:remove_connection(plc1),
+    ok.
+
+%% The task runs its belt, wakes when the sensor sees a panel (no polling by the task),
+%% stops the belt, reads the counter, and waits for the panel to go.
+waits_for_io(_Config) ->
+    %% Outputs are written through without waiting for the PLC: the simulated PLC
+    %% tells the test when the motor output reaches it.
+    Self = self(),
+    ok = cell_hal_sim:on_change({conv, motor}, fun(V) -> Self ! {motor, V}, [] end),
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    await_motor(true),
+    ok = cell_hal_sim:set({conv, count}, 7),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    await_motor(false),
+    ok = cell_hal_sim:set({conv, sensor}, false),
+    await_woke({io, conv, sensor, false}),
+    await_motor(true),
+    ok = cell_controller:stop(),
+    %% uninit leaves the belt off.
+    await_motor(false).
+
+%% The connection goes: DOWN, an error naming it. Retry while it is still gone: still
+%% DOWN. Back and Retry: the task goes on where it was, its wait armed again.
+connection_lost_and_back(_Config) ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    ok = cell_events:subscribe([task_state]),
+    ok = cell_hal_sim:link(plc1, down),
+    await_state(belt, down),
+    [#{id := Id, caption := <<"IO connection lost">>, solutions := [retry],
+       description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"plc1">>)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(belt)),
+    [#{id := Id2, caption := <<"IO connection lost">>}] = cell_alarms:list(),
+    ok = cell_hal_sim:link(plc1, up),
+    {ok, up} = await_conn(plc1, up),
+    ok = cell_alarms:answer(Id2, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(belt)),
+    %% The wait for the sensor is armed again.
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}).
+
+%% The device reports a point it cannot serve (a PLC variable renamed, say): the step
+%% that reads it takes the task DOWN with an error naming the point and why, not a
+%% crash. Retry while the fault stands: still DOWN; once it is gone the step runs
+%% again, as it was woken.
+point_unavailable(_Config) ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    true = cell_hal_store:set_fault({conv, count}, <<"symbol MAIN.nCount not found">>),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(belt)),
+    [#{id := Id, caption := <<"IO point unavailable">>, solutions := [retry],
+       description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"count">>)),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"MAIN.nCount not found">>)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    [#{id := Id2, caption := <<"IO point unavailable">>}] = cell_alarms:list(),
+    true = cell_hal_store:set_fault({conv, count}, undefined),
+    ok = cell_hal_sim:set({conv, count}, 3),
+    ok = cell_alarms:answer(Id2, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(belt)),
+    ?assertEqual([], cell_alarms:list()).
+
+%% A group the HAL does not know: the task cannot start, and says so.
+unknown_group(_Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(belt)),
+    [#{caption := <<"IO group not configured">>, description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"nowhere">>)).
+
+%% Paused when the connection goes: Start does not resume a task without its IO.
+lost_while_paused(_Config) ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    ok = cell_controller:pause(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([alarm_raised]),
+    ok = cell_hal_sim:link(plc1, down),
+    {ok, down} = await_conn(plc1, down),
+    ok = cell_controller:sync(),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(belt)),
+    [#{id := Id, caption := <<"IO connection lost">>}] = cell_alarms:list(),
+    ok = cell_hal_sim:link(plc1, up),
+    {ok, up} = await_conn(plc1, up),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(belt)).
+
+%% -------------------------------------------------------------------------------------
+
+await_motor(V) ->
+    receive
+        {motor, V} -> ok
+    after ?TIMEOUT ->
+        ct:fail({motor_not, V})
+    end.
+
+await_woke(Woken) ->
+    receive
+        {woke, belt, Woken} -> ok
+    after ?TIMEOUT ->
+        ct:fail({not_woken, Woken})
+    end.
+
+await_state(Task, State) ->
+    receive
+        {cell_event, #{type := task_state, task := Task, state := State}} -> ok
+    after ?TIMEOUT ->
+        ct:fail({state_not_reached, Task, State})
+    end.
+
+%% Subscribing answers the current status, then every change comes as a message.
+await_conn(Conn, Want) ->
+    case cell_hal:subscribe_connection(Conn) of
+        {ok, Want} ->
+            {ok, Want};
+        {ok, _} ->
+            receive
+                {cell_hal_conn, Conn, Want} -> {ok, Want}
+            after ?TIMEOUT ->
+                ct:fail({connection_not, Want})
+            end
+    end.
