@@ -137,6 +137,12 @@ machine() ->
                   end;
               _ -> <<"unknown CPU">>
           end,
-    io_lib:format("~4..0w-~2..0w-~2..0w, ~ts, ~p schedulers, OTP ~s",
+    %% Other work on the machine moves the figures: its load when the run ended says
+    %% how quiet it was.
+    Load = case file:read_file("/proc/loadavg") of
+               {ok, L} -> hd(binary:split(L, <<" ">>));
+               _ -> <<"unknown">>
+           end,
+    io_lib:format("~4..0w-~2..0w-~2..0w, ~ts, ~p schedulers, OTP ~s, load average ~ts",
                   [Y, Mo, D, Cpu, erlang:system_info(schedulers_online),
-                   erlang:system_info(otp_release)]).
+                   erlang:system_info(otp_release), Load]).
