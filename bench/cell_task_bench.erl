@@ -43,10 +43,10 @@ estop(N, Reps) ->
     [#{title => io_lib:format("E-stop reaction, ~p tasks, median", [N]), unit => "ms",
        ours => OM / 1000, peer => PM / 1000, peer_name => "bare fan-out to N processes",
        better => lower},
-     #{title => io_lib:format("E-stop reaction, ~p tasks, p99", [N]), unit => "ms",
-       ours => OP / 1000, peer => PP / 1000, peer_name => "bare fan-out to N processes",
-       better => lower,
-       goal => case N of 1000 -> "p99 < 5 ms"; _ -> "" end}].
+     maps:merge(#{title => io_lib:format("E-stop reaction, ~p tasks, p99", [N]), unit => "ms",
+                  ours => OP / 1000, peer => PP / 1000,
+                  peer_name => "bare fan-out to N processes", better => lower},
+                case N of 1000 -> #{goal => "p99 < 5 ms"}; _ -> #{} end)].
 
 estop_once(N) ->
     ok = cell_controller:estop(false),
