@@ -10,6 +10,7 @@
 -module(cell_bench).
 
 -export([main/1, stats/1, percentile/2, result/1]).
+-export([build_c/2, start_c_server/1, stop_c_server/1]).
 
 -export_type([result/0]).
 
@@ -103,6 +104,38 @@ percentile(Sorted, P) ->
     N = length(Sorted),
     Rank = max(1, min(N, ceil(P / 100 * N))),
     lists:nth(Rank, Sorted).
+
+%% @doc Compiles a C peer linked with libmodbus: `Src' relative to the project's top
+%% folder, the program `_build/bench/<Name>'.
+-spec build_c(file:filename(), string()) -> file:filename().
+build_c(Src0, Name) ->
+    Top = case os:getenv("CELLRT_TOP") of false -> "."; T -> T end,
+    Out = filename:join([Top, "_build", "bench"]),
+    ok = filelib:ensure_path(Out),
+    Exe = filename:join(Out, Name),
+    Src = filename:join(Top, Src0),
+    case os:cmd("gcc -O2 -o '" ++ Exe ++ "' '" ++ Src ++ "' -lmodbus 2>&1 && echo built") of
+        "built\n" -> Exe;
+        Err -> error({cannot_compile, Src, Err})
+    end.
+
+%% @doc Starts a C server peer that listens on a free port and says `port <N>' on its
+%% first line.
+-spec start_c_server(file:filename()) -> #{port := port(), tcp := inet:port_number()}.
+start_c_server(Exe) ->
+    P = open_port({spawn_executable, Exe}, [{args, ["0"]}, {line, 4096}, exit_status, binary]),
+    receive
+        {P, {data, {eol, <<"port ", N/binary>>}}} -> #{port => P, tcp => binary_to_integer(N)}
+    after 10000 -> error({server_did_not_start, Exe})
+    end.
+
+-spec stop_c_server(#{port := port()}) -> ok.
+stop_c_server(#{port := P}) ->
+    catch port_close(P),
+    flush_port(P).
+
+flush_port(P) ->
+    receive {P, _} -> flush_port(P) after 0 -> ok end.
 
 write_doc(Sections) ->
     Top = case os:getenv("CELLRT_TOP") of false -> "."; T -> T end,

@@ -24,8 +24,10 @@
 
 -spec run() -> [cell_bench:result()].
 run() ->
-    {Server, Client} = build(),
-    Peer = start_server(Server),
+    Server = cell_bench:build_c("apps/cell_hal/test/cell_hal_modbus_SUITE_data/modbus_server.c",
+                                "modbus_server"),
+    Client = cell_bench:build_c("bench/modbus_client.c", "modbus_client"),
+    Peer = cell_bench:start_c_server(Server),
     try
         Port = maps:get(tcp, Peer),
         Requests = poll_requests(),
@@ -89,7 +91,7 @@ run() ->
            peer => M(lib_poll, p50_us) / 1000,
            peer_name => "libmodbus 3.1 C client, same requests one at a time", better => lower}]
     after
-        stop_server(Peer)
+        cell_bench:stop_c_server(Peer)
     end.
 
 median(L) ->
@@ -98,34 +100,6 @@ median(L) ->
 %%--------------------------------------------------------------------
 %% The peers
 %%--------------------------------------------------------------------
-
-build() ->
-    Top = case os:getenv("CELLRT_TOP") of false -> "."; T -> T end,
-    Out = filename:join([Top, "_build", "bench"]),
-    ok = filelib:ensure_path(Out),
-    Server = filename:join(Out, "modbus_server"),
-    Client = filename:join(Out, "modbus_client"),
-    ok = gcc(filename:join([Top, "apps", "cell_hal", "test", "cell_hal_modbus_SUITE_data",
-                            "modbus_server.c"]), Server),
-    ok = gcc(filename:join([Top, "bench", "modbus_client.c"]), Client),
-    {Server, Client}.
-
-gcc(Src, Out) ->
-    case os:cmd("gcc -O2 -o '" ++ Out ++ "' '" ++ Src ++ "' -lmodbus 2>&1 && echo built") of
-        "built\n" -> ok;
-        Err -> error({cannot_compile, Src, Err})
-    end.
-
-start_server(Exe) ->
-    P = open_port({spawn_executable, Exe}, [{args, ["0"]}, {line, 4096}, exit_status, binary]),
-    receive
-        {P, {data, {eol, <<"port ", N/binary>>}}} -> #{port => P, tcp => binary_to_integer(N)}
-    after 10000 -> error(libmodbus_server_did_not_start)
-    end.
-
-stop_server(#{port := P}) ->
-    catch port_close(P),
-    ok.
 
 libmodbus(Client, Port, Args) ->
     libmodbus(Client, Port, Args, []).

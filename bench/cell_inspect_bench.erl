@@ -36,7 +36,7 @@
 
 -spec run() -> [cell_bench:result()].
 run() ->
-    Exe = build(),
+    Exe = cell_bench:build_c("bench/cell_inspect_plc.c", "cell_inspect_plc"),
     ok = start_cell(),
     One = fun(Kind, Opts) -> latency(Exe, Kind, 1, Opts) end,
     Bare = One(bare, #{}),
@@ -107,7 +107,7 @@ median(Exe, Kind, N) ->
 %%--------------------------------------------------------------------
 
 latency(Exe, Kind, N, Opts) ->
-    Server = start_server(Exe),
+    Server = cell_bench:start_c_server(Exe),
     Bases = [I * 200 || I <- lists:seq(1, N)],
     Tcp = maps:get(tcp, Server),
     ok = setup(Kind, Bases, Tcp, Opts),
@@ -119,7 +119,7 @@ latency(Exe, Kind, N, Opts) ->
         end
     after
         teardown(Kind),
-        stop_server(Server)
+        cell_bench:stop_c_server(Server)
     end.
 
 setup(block, Bases, Tcp, Opts) ->
@@ -325,29 +325,6 @@ maybe_drop(_S, _B, Plc) ->
 %%--------------------------------------------------------------------
 %% The server of PLCs, the cell
 %%--------------------------------------------------------------------
-
-build() ->
-    Top = case os:getenv("CELLRT_TOP") of false -> "."; T -> T end,
-    Out = filename:join([Top, "_build", "bench"]),
-    ok = filelib:ensure_path(Out),
-    Exe = filename:join(Out, "cell_inspect_plc"),
-    Src = filename:join([Top, "bench", "cell_inspect_plc.c"]),
-    case os:cmd("gcc -O2 -o '" ++ Exe ++ "' '" ++ Src ++ "' -lmodbus 2>&1 && echo built") of
-        "built\n" -> Exe;
-        Err -> error({cannot_compile, Src, Err})
-    end.
-
-start_server(Exe) ->
-    P = open_port({spawn_executable, Exe}, [{args, ["0"]}, {line, 4096}, exit_status, binary]),
-    receive
-        {P, {data, {eol, <<"port ", N/binary>>}}} -> #{port => P, tcp => binary_to_integer(N)}
-    after 10000 -> error(plc_server_did_not_start)
-    end.
-
-stop_server(#{port := P}) ->
-    catch port_close(P),
-    _ = flush(P),
-    ok.
 
 set(#{port := P}, Addr, Values) ->
     true = port_command(P, ["set ", integer_to_list(Addr),

@@ -60,15 +60,8 @@ write(Path, Data, Opts) ->
     Target = native(Path),
     Tmp = <<Target/binary, ?TMP_MARK, (integer_to_binary(erlang:unique_integer([positive])))/binary>>,
     Sync = maps:get(sync, Opts, true),
-    Result = case in_ram(folder(Target)) of
-                 true -> replace_ram_nif(Tmp, Target, Data, Sync);
-                 false -> replace_nif(Tmp, Target, Data, Sync)
-             end,
-    case Result of
-        ok -> ok;
-        {error, {dir, Reason}} -> {error, {parent(Path), Reason}};
-        {error, {_Where, Reason}} -> {error, {Path, Reason}}
-    end.
+    in_c(Path, Target, fun() -> replace_ram_nif(Tmp, Target, Data, Sync) end,
+         fun() -> replace_nif(Tmp, Target, Data, Sync) end).
 
 %% @doc Deletes `Path' durably; a missing file is not an error.
 -spec delete(file:filename_all()) -> ok | error().
@@ -80,9 +73,15 @@ delete(Path) ->
 delete(Path, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
+    in_c(Path, Target, fun() -> remove_ram_nif(Target, Sync) end,
+         fun() -> remove_nif(Target, Sync) end).
+
+%% One call into C: on the calling scheduler in a folder held in RAM, on a dirty I/O
+%% scheduler elsewhere. An error names the file, or its folder if flushing that failed.
+in_c(Path, Target, InRam, OnDisk) ->
     Result = case in_ram(folder(Target)) of
-                 true -> remove_ram_nif(Target, Sync);
-                 false -> remove_nif(Target, Sync)
+                 true -> InRam();
+                 false -> OnDisk()
              end,
     case Result of
         ok -> ok;
@@ -223,15 +222,8 @@ put_record(Path, Term, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    Result = case in_ram(folder(Target)) of
-                 true -> record_put_ram_nif(Target, Body, Sync);
-                 false -> record_put_nif(Target, Body, Sync)
-             end,
-    case Result of
-        ok -> ok;
-        {error, {dir, Reason}} -> {error, {parent(Path), Reason}};
-        {error, {_Where, Reason}} -> {error, {Path, Reason}}
-    end.
+    in_c(Path, Target, fun() -> record_put_ram_nif(Target, Body, Sync) end,
+         fun() -> record_put_nif(Target, Body, Sync) end).
 
 %% @doc The record of a file written by {@link put_record/2}. A file written by {@link
 %% write_term/2} is read as such. `{error, {corrupt, Why}}' when neither slot holds a
