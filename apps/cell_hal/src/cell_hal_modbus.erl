@@ -19,7 +19,8 @@
 %%
 %% Requests carry transaction ids 0..65535, wrapping around, never one still in
 %% flight. Writes and raw requests go before the polls waiting to be sent, in their own
-%% order. The socket is `{active, once}'; frames are handed to the socket's port
+%% order. The socket delivers up to 64 packets before it is re-armed (one option call
+%% per 64 answers rather than one per answer); frames are handed to the socket's port
 %% without waiting (its confirmation comes back as a message); connecting happens in a
 %% short-lived process, so the host process never blocks. Deadlines are kept with one
 %% timer a connection, armed for the earliest deadline in flight, rather than one a
@@ -33,6 +34,9 @@
 %% A raw request that times out just fails; its late answer is dropped.
 -module(cell_hal_modbus).
 -behaviour(cell_hal_driver).
+
+%% Packets the socket delivers before it is re-armed.
+-define(ACTIVE_N, 64).
 
 -export([check_opts/1, check_point/4, init/2, endpoint/1, connect/1, plan/2, read/3,
          write/4, request/4, handle_info/2, disconnect/1, format_reason/1]).
@@ -345,9 +349,14 @@ handle_info({timeout, TRef, {?MODULE, deadline}}, #mb{timer = {TRef, _}} = S) ->
 handle_info({?MODULE, connected, Pid, Sock}, #mb{connector = {Pid, MRef}} = S) ->
     erlang:demonitor(MRef, [flush]),
     S1 = S#mb{socket = Sock, connector = undefined},
-    case inet:setopts(Sock, [{active, once}]) of
+    case inet:setopts(Sock, [{active, ?ACTIVE_N}]) of
         ok -> {ok, [connected], pump(S1)};
         {error, Why} -> lost({network, Why}, S1)
+    end;
+handle_info({tcp_passive, Sock}, #mb{socket = Sock} = S) ->
+    case inet:setopts(Sock, [{active, ?ACTIVE_N}]) of
+        ok -> {ok, [], S};
+        {error, Why} -> lost({network, Why}, S)
     end;
 handle_info({?MODULE, connected, _OldPid, Sock}, S) ->
     _ = gen_tcp:close(Sock),
@@ -363,6 +372,7 @@ handle_info({timeout, _, {?MODULE, deadline}}, S) ->
     %% A timer of a connection closed since.
     {ok, [], S};
 handle_info(Msg, S) when element(1, Msg) =:= tcp; element(1, Msg) =:= tcp_closed;
+                         element(1, Msg) =:= tcp_passive;
                          element(1, Msg) =:= tcp_error; element(1, Msg) =:= inet_reply;
                          element(1, Msg) =:= ?MODULE ->
     %% Of a connection closed since.
@@ -371,7 +381,7 @@ handle_info(_, _) ->
     unknown.
 
 %% Every complete frame in the buffer answers a request in flight.
-frames(#mb{buf = Buf, socket = Sock} = S, Events) ->
+frames(#mb{buf = Buf} = S, Events) ->
     case cell_hal_modbus_codec:frame(Buf) of
         {ok, Tid, Unit, Pdu, Rest} ->
             case answer(Tid, Unit, Pdu, S#mb{buf = Rest}) of
@@ -379,10 +389,7 @@ frames(#mb{buf = Buf, socket = Sock} = S, Events) ->
                 {lost, Why} -> lost_after(Why, S, lists:reverse(Events))
             end;
         more ->
-            case inet:setopts(Sock, [{active, once}]) of
-                ok -> {ok, lists:reverse(Events), pump(S)};
-                {error, Why} -> lost_after({network, Why}, S, lists:reverse(Events))
-            end;
+            {ok, lists:reverse(Events), pump(S)};
         {error, Why} ->
             lost_after({bad_frame, Why}, S, lists:reverse(Events))
     end.
