@@ -96,12 +96,15 @@ try_abort_offering(T0, Link) ->
 %% @doc Phase 3: the product has left this task (Available off). Downstream owns it
 %% from here; this task holds none.
 -spec release(cell_task:task(), atom()) -> cell_task:task().
-release(#task{} = T0, Link) ->
-    {#task{id = Id, product = P, gen = G} = T, Reply} = call(T0, Link, {release, self()}),
+release(#task{id = Id} = T0, Link) ->
+    %% Out of the registry's holders before downstream takes the product in: its
+    %% newer record then finds no older holder to tell. (After a crash in between, the
+    %% restarted task holds the product again from its file.)
+    ok = cell_registry:hold(Id, undefined, 0),
+    {#task{product = P, gen = G} = T, Reply} = call(T0, Link, {release, self()}),
     case Reply of
         ok ->
             %% The file stays until downstream owns the product on disk.
-            ok = cell_registry:hold(Id, undefined, 0),
             ok = cell_registry:update(Id, #{serial => undefined}),
             ok = cell_task:publish(T, product_saved, #{item => undefined, product => undefined,
                                                        in_transit => false}),
