@@ -151,6 +151,9 @@
 -type state() :: connecting | {connected, restoring | ready} | disconnected.
 
 -define(DEFAULT_TIMEOUT, 5000).
+%% Frames the socket delivers before it asks to be read on: the connection keeps up
+%% with its PLC without a setopts call on every frame.
+-define(ACTIVE, 64).
 -define(DEFAULTS, #{port => ?ADS_TCP_PORT, target_port => 851, source_net_id => auto,
                     source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
                     backoff => {500, 30000}, sum_commands => true, max_sum => 500,
@@ -890,13 +893,15 @@ handle_event(state_timeout, reconnect, disconnected, D) ->
 %% Events common to the connected states.
 %%--------------------------------------------------------------------
 handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D) ->
-    %% On a socket the peer just closed this fails; tcp_closed follows and says so.
-    _ = inet:setopts(Socket, [{active, once}]),
     Buffer = case D#data.buffer of
                  <<>> -> Bin;
                  Old -> <<Old/binary, Bin/binary>>
              end,
     act(frames(D#data{buffer = Buffer, last_rx = now_ms(), received = D#data.received + 1}, []));
+handle_event(info, {tcp_passive, Socket}, {connected, _}, #data{socket = Socket}) ->
+    %% On a socket the peer just closed this fails; tcp_closed follows and says so.
+    _ = inet:setopts(Socket, [{active, ?ACTIVE}]),
+    keep_state_and_data;
 handle_event(info, {tcp_closed, Socket}, {connected, _}, #data{socket = Socket} = D) ->
     disconnect(closed, D);
 handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = Socket} = D) ->
@@ -971,6 +976,8 @@ handle_event(info, {tcp, _, _}, _, _) ->
 handle_event(info, {tcp_closed, _}, _, _) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, _}, _, _) ->
+    keep_state_and_data;
+handle_event(info, {tcp_passive, _}, _, _) ->
     keep_state_and_data;
 handle_event({timeout, deadline}, _, _, D) ->
     {keep_state, D#data{timer_at = infinity}};
@@ -1047,7 +1054,7 @@ source_net_id(NetId, Socket) ->
     activate(Socket, NetId).
 
 activate(Socket, NetId) ->
-    case inet:setopts(Socket, [{active, once}]) of
+    case inet:setopts(Socket, [{active, ?ACTIVE}]) of
         ok -> {ok, NetId};
         {error, _} = Error -> Error
     end.
