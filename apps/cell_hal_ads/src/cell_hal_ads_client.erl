@@ -752,6 +752,7 @@ text(disconnected) -> "not connected to the PLC";
 text(no_answer) -> "the PLC stopped answering";
 text(closed) -> "the PLC closed the connection";
 text({connect, R}) -> ["cannot connect: ", inet_text(R)];
+text({socket, timeout}) -> "the PLC stopped taking what is sent to it";
 text({socket, R}) -> ["network error: ", inet_text(R)];
 text({ads_error, Code, _}) ->
     io_lib:format("~ts (ADS error 0x~.16B)", [cell_hal_ads_codec:error_text(Code), Code]);
@@ -829,7 +830,7 @@ host_text(H) -> H.
 handle_event(enter, _, connecting, D) ->
     Parent = self(),
     #{host := Host, port := Port, connect_timeout := T} = D#data.opts,
-    Pid = spawn_link(fun() -> connector(Parent, Host, Port, T) end),
+    Pid = spawn_link(fun() -> connector(Parent, Host, Port, T, request_timeout(D)) end),
     {keep_state, D#data{connector = Pid}};
 handle_event(info, {connected, Pid, Result}, connecting, #data{connector = Pid} = D) ->
     case Result of
@@ -1015,8 +1016,11 @@ code_change(_Vsn, State, D, _Extra) ->
 %% Connection
 %%====================================================================
 
-connector(Parent, Host, Port, Timeout) ->
-    Opts = [binary, {active, false}, {nodelay, true}, {keepalive, true}],
+%% A PLC that takes none of what is sent to it for a request timeout is given up:
+%% without a send timeout, the connection would wait for it for ever in its next send.
+connector(Parent, Host, Port, Timeout, SendTimeout) ->
+    Opts = [binary, {active, false}, {nodelay, true}, {keepalive, true},
+            {send_timeout, SendTimeout}, {send_timeout_close, true}],
     Result = case gen_tcp:connect(Host, Port, Opts, Timeout) of
                  {ok, S} ->
                      case gen_tcp:controlling_process(S, Parent) of
@@ -1060,6 +1064,9 @@ activate(Socket, NetId) ->
     end.
 
 disconnect(Reason, D) ->
+    %% Given up: what is still queued for the PLC is dropped, not waited for (a PLC
+    %% that stopped reading would hold a plain close for seconds).
+    _ = inet:setopts(D#data.socket, [{linger, {true, 0}}]),
     _ = gen_tcp:close(D#data.socket),
     Replies = [{reply, From, {error, disconnected}}
                || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],

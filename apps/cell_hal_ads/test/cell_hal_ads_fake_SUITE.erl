@@ -27,7 +27,7 @@
          timeout_never_blocks_caller/1, garbage_closes_only_the_connection/1,
          oversized_frame_closes_only_the_connection/1, bad_options/1,
          stop_leaves_plc_tidy/1, requests_without_waiting/1,
-         one_connection_without_reconnecting/1]).
+         one_connection_without_reconnecting/1, stalled_plc_blocks_nobody/1]).
 -export([frames_match_adslib/1]).
 -export([reconnect_after_plc_restart/1, connection_refused_then_up/1]).
 
@@ -54,7 +54,7 @@ groups() ->
                    timeout_never_blocks_caller, garbage_closes_only_the_connection,
                    oversized_frame_closes_only_the_connection, bad_options,
                    stop_leaves_plc_tidy, requests_without_waiting,
-                   one_connection_without_reconnecting]},
+                   one_connection_without_reconnecting, stalled_plc_blocks_nobody]},
      {crosscheck, [], [frames_match_adslib]},
      {restart, [], [reconnect_after_plc_restart, connection_refused_then_up]}].
 
@@ -104,6 +104,7 @@ end_per_testcase(_Case, Config) ->
     %% Settings some cases change on the shared fake go back to normal.
     Fake = ?config(fake, Config),
     ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = cell_hal_ads_peer:cmd(Fake, "unstall"),
     ok = cell_hal_ads_peer:cmd(Fake, "limit 100000"),
     ok.
 
@@ -953,6 +954,37 @@ collect_lines(Source, Acc) ->
         {cell_log, _} -> collect_lines(Source, Acc)
     after 0 -> lists:reverse(Acc)
     end.
+
+%% A PLC that hangs with its network stack alive takes nothing more: the socket's
+%% queue fills. A reader is not held past its timeout, and the client, which cannot
+%% hand over its writes, gives the connection up after its request timeout instead of
+%% waiting for the PLC for ever.
+stalled_plc_blocks_nobody(Config) ->
+    Fake = ?config(fake, Config),
+    C = client(Config, #{request_timeout => 500, link_check => infinity,
+                         symbol_version => read}),
+    Counter = {<<"MAIN.counter">>, int32},
+    Name = {<<"MAIN.name">>, {string, 20}},
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, [Counter, Name]),
+    #{<<"MAIN.name">> := {G, O, _}} = ?config(symbols, Config),
+    ok = cell_hal_ads_peer:cmd(Fake, "stall"),
+    Big = binary:copy(<<0>>, 4 bsl 20),
+    _ = lists:foldl(fun(I, Ids) ->
+                            {ok, Ids1} = cell_hal_ads_client:send_request(
+                                           C, {write, G, O, Big}, ?WAIT, I, Ids),
+                            Ids1
+                    end, gen_statem:reqids_new(), lists:seq(1, 4)),
+    T0 = erlang:monotonic_time(millisecond),
+    {error, timeout} = cell_hal_ads_client:read_vars(C, [Counter], 300),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    ct:log("a 300 ms read returned after ~b ms", [Took]),
+    ?assert(Took < 1000),
+    {down, Why} = receive_down(C),
+    ct:log("given up: ~ts", [cell_hal_ads_client:format_error(Why)]),
+    ?assertEqual({socket, timeout}, Why),
+    ok = cell_hal_ads_peer:cmd(Fake, "unstall"),
+    ok = await_status(C, up),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [Counter]).
 
 %%--------------------------------------------------------------------
 %% crosscheck: our frames beside AdsLib's, byte for byte
