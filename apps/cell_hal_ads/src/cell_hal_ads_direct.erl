@@ -8,8 +8,9 @@
 %% {@link cell_hal_ads_client:read_vars/3} builds the frame, registers its invoke id
 %% with a reply alias, and writes the frame to the socket itself. The connection still
 %% owns the socket and reads every frame: it takes the registration of an answer's
-%% invoke id and sends the answer to that alias. One process hop instead of three;
-%% everything else a call guarantees stays:
+%% invoke id and sends the answer to that alias: one message between processes
+%% instead of two, and the connection's process is woken once a read, not twice.
+%% Everything else a call guarantees stays:
 %%
 %% <ul>
 %% <li>Invoke ids: the connection's own requests use odd ids, direct reads even ones
