@@ -8,7 +8,8 @@
 %%
 %% <ul>
 %% <li>a 4-byte variable (DINT) read by handle (pyads: `read_by_name' with a handle,
-%%     AdsSyncReadReqEx2; ours: `read_vars/2' of one variable);</li>
+%%     AdsSyncReadReqEx2; ours: `read_vars/2' of one variable, which the caller writes
+%%     on the connection's socket itself, `cell_hal_ads_direct');</li>
 %% <li>a 200-point IO group read in one sum command (pyads: `read_list_by_name' with
 %%     its symbol information cached, one 0xF080 request by index group and offset;
 %%     ours: `read_vars/2', one 0xF080 request by handles);</li>
@@ -79,14 +80,19 @@ run() ->
            ours => Ours1, peer => Peer1, peer_name => PeerName, better => higher,
            goal => "faster than pyads"},
          #{title => "4-byte variable read by handle, by a bare gen_tcp loop ({active, once}, "
-                    "a frame built once, no decoding): the platform's ceiling",
+                    "a frame built once, no decoding): the round trip alone",
            unit => "reads/s", ours => Bare, peer => Peer4, peer_name => PeerName,
            better => higher,
-           note => "What any Erlang client reading over an {active, once} socket can reach "
-                   "here, beside pyads again in the same rounds. cellrt's client costs the "
-                   "difference: the caller's call to the connection's process and back, "
-                   "and encoding, matching and decoding each frame. pyads pays a Python "
-                   "call into AdsLib, whose receive thread wakes the calling thread."},
+           note => "What one Erlang process doing nothing but the round trip over an "
+                   "{active, once} socket reaches here, beside pyads again in the same "
+                   "rounds; it pays a setopts call a read, which the client's connection "
+                   "({active, 64}) does not. Beyond that, cellrt's client costs: the caller "
+                   "writes its request itself, but the answer comes "
+                   "to the connection's process, which reads every frame and hands it on; "
+                   "the bookkeeping that keeps the reads of many processes apart (invoke "
+                   "ids, slots of max_in_flight, handle epochs); encoding and decoding. "
+                   "pyads pays a Python call into AdsLib, whose receive thread wakes the "
+                   "calling thread."},
          #{title => "200-point IO group, one sum command (0xF080)", unit => "group reads/s",
            ours => Ours2, peer => Peer2, peer_name => PeerName, better => higher,
            goal => "faster than pyads"},

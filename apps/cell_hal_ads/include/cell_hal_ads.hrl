@@ -33,5 +33,8 @@
 -define(ADST_BIT, 33).
 -define(ADST_BIGTYPE, 65).
 
+%% Errors after which a client's handle may belong to an older program.
+-define(STALE_HANDLE_ERRORS, [16#710, 16#711, 16#714, 16#722]).
+
 %% Symbol entry flags.
 -define(SYMFLAG_BITVALUE, 16#2).

@@ -45,7 +45,9 @@
 %% (or, with `access => address', the symbol's index group and offset). Resolved
 %% variables are cached per connection and shared by all callers; the last caller's
 %% {@link release/2} (or exit) gives the handle back after `handle_idle' ms. Reads and
-%% writes of many variables go out as sum commands split at `max_sum'.
+%% writes of many variables go out as sum commands split at `max_sum'. A read that
+%% goes out as one request is written by the caller itself on the socket, without a
+%% call to the client's process ({@link cell_hal_ads_direct}).
 %%
 %% == Without waiting ==
 %% {@link send_request/5} starts a call without waiting for its answer, for a caller
@@ -101,7 +103,7 @@
                   backoff => {pos_integer(), pos_integer()},  %% ms, min and max
                   sum_commands => boolean(),            %% true
                   max_sum => pos_integer(),             %% 500 sub-commands per sum
-                  max_in_flight => pos_integer(),       %% 64 requests
+                  max_in_flight => pos_integer(),       %% 64 requests, direct reads too
                   access => handle | address,           %% handle
                   symbol_version => watch | read | ignore,  %% watch
                   handle_idle => non_neg_integer(),     %% ms, 5000
@@ -151,6 +153,9 @@
 -type state() :: connecting | {connected, restoring | ready} | disconnected.
 
 -define(DEFAULT_TIMEOUT, 5000).
+%% Frames the socket delivers before it asks to be read on: the connection keeps up
+%% with its PLC without a setopts call on every frame.
+-define(ACTIVE, 64).
 -define(DEFAULTS, #{port => ?ADS_TCP_PORT, target_port => 851, source_net_id => auto,
                     source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
                     backoff => {500, 30000}, sum_commands => true, max_sum => 500,
@@ -160,8 +165,6 @@
 %% Room for a symbol entry asked for by name: header, name, type, comment and the
 %% extra information TwinCAT 3 appends.
 -define(SYMBOL_INFO_LENGTH, 2048).
-%% Errors after which a handle may belong to an older program.
--define(STALE_HANDLE_ERRORS, [16#710, 16#711, 16#714, 16#722]).
 
 
 -record(data, {opts :: map(),
@@ -193,7 +196,16 @@
                was_up = false :: boolean(),
                down :: term(),
                logged :: term(),
+               %% native monotonic time of the last bytes from the PLC
                last_rx = 0 :: integer(),
+               %% what callers need to read without calling (cell_hal_ads_direct), and
+               %% its epoch: it moves on whenever published handles are withdrawn
+               direct :: cell_hal_ads_direct:tables(),
+               epoch = 0 :: non_neg_integer(),
+               announced = false :: boolean(),
+               %% the socket's requests in flight, direct reads included, and the
+               %% direct reads' invoke ids
+               counters :: cell_hal_ads_direct:counters() | undefined,
                %% when the one deadline timer fires (no later than the earliest job's
                %% deadline; a job that ends leaves it armed, so a round trip costs no
                %% timer operation)
@@ -475,9 +487,18 @@ read_vars(Client, Vars) ->
 -spec read_vars(client(), [var()], timeout()) ->
           {ok, [{ok, cell_hal_ads_types:value()} | {error, reason()}]} | {error, reason()}.
 read_vars(Client, Vars, Timeout) ->
-    case check_shapes(Vars) of
-        ok -> call(Client, {read_vars, Vars}, Timeout);
-        Error -> Error
+    %% The caller sends the request itself when it can (cell_hal_ads_direct); what it
+    %% cannot read so goes through the client's process, checked first.
+    case cell_hal_ads_direct:read_vars(Client, Vars, Timeout) of
+        {slow, Left} ->
+            case check_shapes(Vars) of
+                ok -> call(Client, {read_vars, Vars}, Left);
+                Error -> Error
+            end;
+        {down, Reason} ->
+            exit({Reason, {?MODULE, read_vars, [Client, Vars, Timeout]}});
+        Result ->
+            Result
     end.
 
 %% @doc Writes resolved variables, all in one round trip: `ok' or an error per
@@ -749,6 +770,7 @@ text(disconnected) -> "not connected to the PLC";
 text(no_answer) -> "the PLC stopped answering";
 text(closed) -> "the PLC closed the connection";
 text({connect, R}) -> ["cannot connect: ", inet_text(R)];
+text({socket, timeout}) -> "the PLC stopped taking what is sent to it";
 text({socket, R}) -> ["network error: ", inet_text(R)];
 text({ads_error, Code, _}) ->
     io_lib:format("~ts (ADS error 0x~.16B)", [cell_hal_ads_codec:error_text(Code), Code]);
@@ -811,7 +833,8 @@ init(Opts) ->
               _ -> <<"ads/", Peer/binary>>
           end,
     {ok, connecting, #data{opts = Opts#{peer => Peer}, log = Log, target = {Net, TPort},
-                           backoff = Min, down = starting}}.
+                           backoff = Min, down = starting,
+                           direct = cell_hal_ads_direct:new()}}.
 
 host_text(H) when is_tuple(H) -> inet:ntoa(H);
 host_text(H) -> H.
@@ -826,7 +849,7 @@ host_text(H) -> H.
 handle_event(enter, _, connecting, D) ->
     Parent = self(),
     #{host := Host, port := Port, connect_timeout := T} = D#data.opts,
-    Pid = spawn_link(fun() -> connector(Parent, Host, Port, T) end),
+    Pid = spawn_link(fun() -> connector(Parent, Host, Port, T, request_timeout(D)) end),
     {keep_state, D#data{connector = Pid}};
 handle_event(info, {connected, Pid, Result}, connecting, #data{connector = Pid} = D) ->
     case Result of
@@ -860,7 +883,8 @@ handle_event(enter, OldState, {connected, ready}, D) ->
                 _ -> up
             end,
     notify_watchers(Event, D),
-    {keep_state, D#data{backoff = Min, was_up = true, down = undefined, logged = undefined},
+    D1 = open_direct(D),
+    {keep_state, D1#data{backoff = Min, was_up = true, down = undefined, logged = undefined},
      link_check_timer(Check)};
 handle_event({call, From}, {req, Request, Deadline}, {connected, ready}, D) ->
     case expired(Deadline) of
@@ -889,14 +913,16 @@ handle_event(state_timeout, reconnect, disconnected, D) ->
 %%--------------------------------------------------------------------
 %% Events common to the connected states.
 %%--------------------------------------------------------------------
-handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D) ->
+handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D0) ->
+    D = D0#data{last_rx = erlang:monotonic_time(), received = D0#data.received + 1},
+    case D#data.buffer of
+        <<>> -> act(incoming(Bin, D));
+        Old -> act(frames(D#data{buffer = <<Old/binary, Bin/binary>>}, []))
+    end;
+handle_event(info, {tcp_passive, Socket}, {connected, _}, #data{socket = Socket}) ->
     %% On a socket the peer just closed this fails; tcp_closed follows and says so.
-    _ = inet:setopts(Socket, [{active, once}]),
-    Buffer = case D#data.buffer of
-                 <<>> -> Bin;
-                 Old -> <<Old/binary, Bin/binary>>
-             end,
-    act(frames(D#data{buffer = Buffer, last_rx = now_ms(), received = D#data.received + 1}, []));
+    _ = inet:setopts(Socket, [{active, ?ACTIVE}]),
+    keep_state_and_data;
 handle_event(info, {tcp_closed, Socket}, {connected, _}, #data{socket = Socket} = D) ->
     disconnect(closed, D);
 handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = Socket} = D) ->
@@ -907,14 +933,31 @@ handle_event({timeout, deadline}, _, {connected, _}, D) ->
     act(expire(D#data{timer_at = infinity}));
 handle_event({timeout, link_check}, _, {connected, _}, D) ->
     #data{opts = #{link_check := Check}, last_rx = Last} = D,
-    case now_ms() - Last >= Check andalso map_size(D#data.inflight) =:= 0 of
+    %% slots that callers gone left behind may be what queued requests wait for
+    {D1, A1} = case cell_hal_ads_direct:sweep(D#data.direct, D#data.counters) of
+                   0 -> {D, []};
+                   _ -> pump(D)
+               end,
+    Quiet = erlang:convert_time_unit(erlang:monotonic_time() - Last, native, millisecond),
+    case Quiet >= Check andalso map_size(D1#data.inflight) =:= 0 of
         true ->
-            {D1, Actions} = job([read_state], undefined, deadline(request_timeout(D)),
-                                fun ignore/2, D),
-            {keep_state, D1, link_check_timer(Check) ++ Actions};
+            {D2, A2} = job([read_state], undefined, deadline(request_timeout(D1)),
+                           fun ignore/2, D1),
+            {keep_state, D2, link_check_timer(Check) ++ A1 ++ A2};
         false ->
-            {keep_state_and_data, link_check_timer(Check)}
+            {keep_state, D1, link_check_timer(Check) ++ A1}
     end;
+handle_event(cast, {cell_hal_ads_direct, expired, Socket, Sent}, {connected, _},
+             #data{socket = Socket, last_rx = Last}) when Last < Sent ->
+    %% A direct read timed out with nothing at all received since it was sent.
+    {keep_state_and_data, [{next_event, internal, {fail, no_answer}}]};
+handle_event(cast, {cell_hal_ads_direct, expired, Socket, _}, {connected, _},
+             #data{socket = Socket} = D) ->
+    %% its slot is free: a request may have waited for it
+    act(pump(D));
+handle_event(cast, {cell_hal_ads_direct, stale, Socket}, {connected, _},
+             #data{socket = Socket} = D) ->
+    act(check_version(D));
 handle_event(internal, {version, V}, {connected, Sub}, D) ->
     case V =:= D#data.version of
         true -> keep_state_and_data;
@@ -972,6 +1015,13 @@ handle_event(info, {tcp_closed, _}, _, _) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, _}, _, _) ->
     keep_state_and_data;
+handle_event(info, {tcp_passive, _}, _, _) ->
+    keep_state_and_data;
+%% A direct read's news of a connection that is gone, or that answered after all.
+handle_event(cast, {cell_hal_ads_direct, _, _, _}, _, _) ->
+    keep_state_and_data;
+handle_event(cast, {cell_hal_ads_direct, _, _}, _, _) ->
+    keep_state_and_data;
 handle_event({timeout, deadline}, _, _, D) ->
     {keep_state, D#data{timer_at = infinity}};
 handle_event({timeout, link_check}, _, _, _) ->
@@ -984,6 +1034,7 @@ handle_event(internal, {fail, _}, _, _) ->
 %% @private
 -spec terminate(term(), state(), #data{}) -> ok.
 terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
+    ok = retract_direct(D),
     %% Leave the PLC tidy: its notifications and handles are ours to give back.
     Notes = [{delete_notification, N} || N <- maps:keys(D#data.notes)],
     Handles = [{write, ?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
@@ -996,8 +1047,8 @@ terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
     _ = gen_tcp:shutdown(Socket, write),
     _ = gen_tcp:close(Socket),
     ok;
-terminate(_Reason, _State, _D) ->
-    ok.
+terminate(_Reason, _State, D) ->
+    retract_direct(D).
 
 %% @private
 -spec code_change(term(), state(), #data{}, term()) -> {ok, state(), #data{}}.
@@ -1008,8 +1059,12 @@ code_change(_Vsn, State, D, _Extra) ->
 %% Connection
 %%====================================================================
 
-connector(Parent, Host, Port, Timeout) ->
-    Opts = [binary, {active, false}, {nodelay, true}, {keepalive, true}],
+%% The socket is a port (direct reads write to it with port_command). A PLC that takes
+%% none of what is sent to it for a request timeout is given up: without a send
+%% timeout, whoever sends next would wait for it for ever.
+connector(Parent, Host, Port, Timeout, SendTimeout) ->
+    Opts = [{inet_backend, inet}, binary, {active, false}, {nodelay, true}, {keepalive, true},
+            {send_timeout, SendTimeout}, {send_timeout_close, true}],
     Result = case gen_tcp:connect(Host, Port, Opts, Timeout) of
                  {ok, S} ->
                      case gen_tcp:controlling_process(S, Parent) of
@@ -1026,7 +1081,8 @@ connected(Socket, D) ->
     case source_net_id(Configured, Socket) of
         {ok, NetId} ->
             D1 = D#data{socket = Socket, source = {NetId, SPort}, buffer = <<>>,
-                        last_rx = now_ms(), generation = D#data.generation + 1,
+                        counters = cell_hal_ads_direct:counters(),
+                        last_rx = erlang:monotonic_time(), generation = D#data.generation + 1,
                         vars = cell_hal_ads_vars:reset(D#data.vars), notes = #{},
                         checking_version = false, refresh_again = false},
             {D2, Actions} = restore(D1),
@@ -1047,19 +1103,26 @@ source_net_id(NetId, Socket) ->
     activate(Socket, NetId).
 
 activate(Socket, NetId) ->
-    case inet:setopts(Socket, [{active, once}]) of
+    case inet:setopts(Socket, [{active, ?ACTIVE}]) of
         ok -> {ok, NetId};
         {error, _} = Error -> Error
     end.
 
-disconnect(Reason, D) ->
-    _ = gen_tcp:close(D#data.socket),
+disconnect(Reason, D0) ->
+    %% Given up: what is still queued for the PLC is dropped, not waited for (a PLC
+    %% that stopped reading would hold a plain close for seconds).
+    _ = inet:setopts(D0#data.socket, [{linger, {true, 0}}]),
+    _ = gen_tcp:close(D0#data.socket),
+    %% Closed first: a direct read that still finds the socket cannot send any more.
+    D = close_direct(D0),
+    ok = cell_hal_ads_direct:fail_all(D#data.direct, disconnected),
     Replies = [{reply, From, {error, disconnected}}
                || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
     Cancels = [{{timeout, deadline}, cancel}],
     Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D#data.subs),
     {next_state, disconnected,
-     D#data{socket = undefined, buffer = <<>>, inflight = #{}, waiting = queue:new(),
+     D#data{socket = undefined, counters = undefined, buffer = <<>>, inflight = #{},
+            waiting = queue:new(),
             jobs = #{}, notes = #{}, subs = Subs, vars = cell_hal_ads_vars:reset(D#data.vars),
             down = Reason, timer_at = infinity},
      Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
@@ -1089,6 +1152,42 @@ link_check_timer(infinity) -> [];
 link_check_timer(Ms) -> [{{timeout, link_check}, Ms, check}].
 
 request_timeout(#data{opts = #{request_timeout := T}}) -> T.
+
+%%====================================================================
+%% Reads without a call (cell_hal_ads_direct)
+%%====================================================================
+
+%% Ready: the connection and its resolved variables are published, and made findable
+%% from this process the first time.
+open_direct(#data{direct = T} = D) ->
+    #data{opts = #{max_in_flight := Max}} = D,
+    Conn = #{pid => self(), socket => D#data.socket, target => D#data.target,
+             source => D#data.source, epoch => D#data.epoch, mode => batch_mode(D),
+             counters => D#data.counters, max_in_flight => Max},
+    Spellings = [{K, N, Type} || {N, Type, K} <- cell_hal_ads_vars:spellings(D#data.vars)],
+    ok = cell_hal_ads_direct:open(T, Conn, readable(Spellings, D#data.vars)),
+    case D#data.announced of
+        true -> D;
+        false -> ok = cell_hal_ads_direct:announce(self(), T), D#data{announced = true}
+    end.
+
+%% No longer ready, or handles go back: a new epoch, so that answers read through the
+%% old handles are not used.
+close_direct(D) ->
+    ok = cell_hal_ads_direct:close(D#data.direct),
+    D#data{epoch = D#data.epoch + 1}.
+
+drop_direct(K, D) ->
+    Epoch = D#data.epoch + 1,
+    ok = cell_hal_ads_direct:drop(D#data.direct, K, Epoch),
+    D#data{epoch = Epoch}.
+
+retract_direct(#data{announced = true}) -> cell_hal_ads_direct:retract(self());
+retract_direct(_) -> ok.
+
+readable(Keyed, Vars) ->
+    [{N, T, K, item(Access, Size)} || {K, N, T} <- Keyed,
+                                      {ok, Access, Size, _} <- [cell_hal_ads_vars:ready(K, Vars)]].
 
 notify_watchers(Event, D) ->
     maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_ads, self(), Event} end, D#data.watchers).
@@ -1242,7 +1341,9 @@ refresh_version(V, D) ->
                     [D#data.version, V, length(cell_hal_ads_vars:keys(D#data.vars))]),
     refresh(D#data{version = V}).
 
-refresh(D) ->
+refresh(D0) ->
+    %% Withdrawn before the handles go back.
+    D = close_direct(D0),
     Releases = [{?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
                 || K <- cell_hal_ads_vars:keys(D#data.vars),
                    {ok, {handle, H}, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
@@ -1261,10 +1362,13 @@ refresh(D) ->
 %% After errors that a stale handle gives, the symbol version is read: a program
 %% change is then noticed even where notifications on it are not available.
 check_version(Results, D) ->
-    Stale = [C || {error, {ads_error, C, _}} <- Results,
-                  lists:member(C, ?STALE_HANDLE_ERRORS)],
-    case Stale =/= [] andalso not D#data.checking_version andalso
-        maps:get(symbol_version, D#data.opts) =/= ignore of
+    case [C || {error, {ads_error, C, _}} <- Results, lists:member(C, ?STALE_HANDLE_ERRORS)] of
+        [] -> {D, []};
+        _ -> check_version(D)
+    end.
+
+check_version(D) ->
+    case not D#data.checking_version andalso maps:get(symbol_version, D#data.opts) =/= ignore of
         true ->
             job([{read, ?IG_SYM_VERSION, 0, 1}], undefined, deadline(request_timeout(D)),
                 fun([{ok, <<V>>}], Dx) ->
@@ -1438,6 +1542,7 @@ finish_resolve(Keyed, Found, Pid, Then, D) ->
              [] -> D2;
              _ -> monitor_pid(Pid, D2)
          end,
+    ok = cell_hal_ads_direct:add(D3#data.direct, readable(Keyed, D3#data.vars)),
     {D4, A1} = release_handles(Extra, D3),
     {D5, A2} = Then(Results, D4),
     {D5, A1 ++ A2}.
@@ -1635,7 +1740,7 @@ release_idle(K, State, D) ->
                          {ok, A, _, _} -> [A];
                          {error, _} -> []
                      end,
-            D1 = D#data{vars = cell_hal_ads_vars:remove(K, D#data.vars)},
+            D1 = drop_direct(K, D#data{vars = cell_hal_ads_vars:remove(K, D#data.vars)}),
             case State of
                 {connected, _} -> release_handles(Access, D1);
                 _ -> {D1, []}
@@ -1802,25 +1907,24 @@ expire(D) ->
         Left -> arm(lists:min(Left), D1, Actions)
     end.
 
-%% Sends queued requests while there is room, in one write to the socket.
+%% Sends queued requests while there is room (a slot of `max_in_flight', which direct
+%% reads share), in one write to the socket.
 pump(D) ->
     pump(D, []).
 
-pump(#data{opts = #{max_in_flight := Max}, inflight = In, waiting = W} = D, Frames)
-  when map_size(In) < Max ->
-    case queue:out(W) of
-        {{value, {Id, I, Request}}, W1} ->
+pump(#data{opts = #{max_in_flight := Max}, inflight = In, waiting = W} = D, Frames) ->
+    case queue:peek(W) =/= empty andalso cell_hal_ads_direct:take_slot(D#data.counters, Max) of
+        true ->
+            {{value, {Id, I, Request}}, W1} = queue:out(W),
             Invoke = next_invoke(D#data.invoke, In),
             Frame = cell_hal_ads_codec:encode_frame(D#data.target, D#data.source, Invoke,
                                                     Request),
             Cmd = cell_hal_ads_codec:request_command(Request),
             pump(D#data{invoke = Invoke, inflight = In#{Invoke => {Id, I, Cmd}}, waiting = W1},
                  [Frame | Frames]);
-        {empty, _} ->
+        false ->
             send(lists:reverse(Frames), D)
-    end;
-pump(D, Frames) ->
-    send(lists:reverse(Frames), D).
+    end.
 
 send([], D) ->
     {D, []};
@@ -1830,8 +1934,9 @@ send(Frames, D) ->
         {error, Reason} -> {D, [{next_event, internal, {fail, {socket, Reason}}}]}
     end.
 
+%% Odd: even invoke ids are the direct reads' (cell_hal_ads_direct).
 next_invoke(Last, In) ->
-    Next = (Last + 1) band 16#FFFFFFFF,
+    Next = ((Last + 2) band 16#FFFFFFFF) bor 1,
     case maps:is_key(Next, In) of
         true -> next_invoke(Next, In);
         false -> Next
@@ -1863,6 +1968,8 @@ job_timeout(Id, D) ->
     case maps:take(Id, D#data.jobs) of
         {Job, Jobs} ->
             Inflight = maps:filter(fun(_, {J, _, _}) -> J =/= Id end, D#data.inflight),
+            ok = cell_hal_ads_direct:free_slots(D#data.counters,
+                                                map_size(D#data.inflight) - map_size(Inflight)),
             Waiting = queue:filter(fun({J, _, _}) -> J =/= Id end, D#data.waiting),
             Dead = D#data.received =:= Job#job.received,
             {D1, A1} = complete(Id, Job, D#data{jobs = Jobs, inflight = Inflight,
@@ -1877,6 +1984,15 @@ job_timeout(Id, D) ->
 %%====================================================================
 %% Frames in
 %%====================================================================
+
+%% Most often the bytes are one answer to a direct read: read in one match.
+incoming(Bin, #data{source = {_, Port}} = D) ->
+    case cell_hal_ads_codec:decode_answer(Bin) of
+        {answer, Port, Cmd, Err, Invoke, Payload} when Invoke band 1 =:= 0 ->
+            direct_answer(Invoke, Cmd, Err, Payload, D);
+        _ ->
+            frames(D#data{buffer = Bin}, [])
+    end.
 
 frames(D, Actions) ->
     #data{buffer = Buffer, opts = #{max_frame := Max}} = D,
@@ -1910,6 +2026,7 @@ frame(Body, D) ->
         {ok, #{invoke := Invoke, command := Cmd, error := Err}, Payload} ->
             case maps:take(Invoke, D#data.inflight) of
                 {{Id, I, Cmd}, In} ->
+                    ok = cell_hal_ads_direct:free_slots(D#data.counters, 1),
                     Answer = case Err of
                                  0 -> cell_hal_ads_codec:decode_response(Cmd, Payload);
                                  _ -> {error, cell_hal_ads_codec:ads_error(Err)}
@@ -1920,11 +2037,24 @@ frame(Body, D) ->
                 {{_, _, Expected}, _} ->
                     {D, [{next_event, internal, {fail, {unexpected_answer, Cmd, Expected}}}]};
                 error ->
-                    %% An answer after its deadline: the caller has moved on.
-                    {D, []}
+                    direct_answer(Invoke, Cmd, Err, Payload, D)
             end;
         {error, Reason} ->
             {D, [{next_event, internal, {fail, Reason}}]}
+    end.
+
+%% An answer to a request of a caller's own (cell_hal_ads_direct), or a late one.
+direct_answer(Invoke, Cmd, Err, Payload, D) ->
+    #data{direct = T, counters = Counters, epoch = Epoch} = D,
+    case cell_hal_ads_direct:answer(T, Counters, Invoke, Cmd, Err, Payload, Epoch) of
+        ok ->
+            %% its slot is free: a request may have waited for it
+            pump(D);
+        unknown ->
+            %% An answer after its deadline: the caller has moved on.
+            {D, []};
+        {unexpected, Expected} ->
+            {D, [{next_event, internal, {fail, {unexpected_answer, Cmd, Expected}}}]}
     end.
 
 %%====================================================================
@@ -1966,7 +2096,10 @@ status_map(State, D) ->
              symbol_version => D#data.version,
              variables => length(Keys), failed => lists:sort(Failed),
              subscriptions => map_size(D#data.subs),
-             in_flight => map_size(D#data.inflight)},
+             in_flight => case D#data.counters of
+                              undefined -> 0;
+                              Counters -> cell_hal_ads_direct:in_flight(Counters)
+                          end},
     WithDevice = case D#data.device of
                      #{name := N, version := V, ads_state := S} ->
                          Base#{device => #{name => N, version => V}, ads_state => S};

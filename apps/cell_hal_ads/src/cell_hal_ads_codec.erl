@@ -28,7 +28,8 @@
 
 -include("cell_hal_ads.hrl").
 
--export([encode_frame/4, next_frame/2, decode_ams/1]).
+-export([encode_frame/4, addresses/2, encode_frame/3, next_frame/2, decode_ams/1,
+         decode_answer/1]).
 -export([encode_request/1, request_command/1, decode_response/2, command_id/1,
          command_name/1]).
 -export([decode_notification/1]).
@@ -112,12 +113,21 @@
 %% @doc One request frame (AMS/TCP header, AMS header, data) from `Source' to `Target'.
 -spec encode_frame(Target :: ams_addr(), Source :: ams_addr(), Invoke :: u32(),
                    request()) -> iodata().
-encode_frame({TNet, TPort}, {SNet, SPort}, Invoke, Request) ->
+encode_frame(Target, Source, Invoke, Request) ->
+    encode_frame(addresses(Target, Source), Invoke, Request).
+
+%% @doc The target and source AMS addresses as every request frame between them
+%% carries them: 16 bytes, built once for many frames.
+-spec addresses(Target :: ams_addr(), Source :: ams_addr()) -> binary().
+addresses({TNet, TPort}, {SNet, SPort}) ->
+    <<(net_id_bin(TNet))/binary, TPort:16/little, (net_id_bin(SNet))/binary, SPort:16/little>>.
+
+%% @doc As {@link encode_frame/4}, with the addresses built by {@link addresses/2}.
+-spec encode_frame(Addresses :: <<_:128>>, Invoke :: u32(), request()) -> iodata().
+encode_frame(<<_:16/binary>> = Addresses, Invoke, Request) ->
     {Cmd, Data} = encode_request(Request),
     Len = iolist_size(Data),
-    [<<0:16, (?AMS_HEADER_SIZE + Len):32/little,
-       (net_id_bin(TNet))/binary, TPort:16/little,
-       (net_id_bin(SNet))/binary, SPort:16/little,
+    [<<0:16, (?AMS_HEADER_SIZE + Len):32/little, Addresses/binary,
        Cmd:16/little, ?FLAGS_REQUEST:16/little, Len:32/little, 0:32, Invoke:32/little>>,
      Data].
 
@@ -157,6 +167,21 @@ decode_ams(<<TNet:6/binary, TPort:16/little, SNet:6/binary, SPort:16/little,
     end;
 decode_ams(_) ->
     {error, {bad_frame, shorter_than_ams_header}}.
+
+%% @doc What a client receives most: exactly one frame that answers a request, read
+%% in one match (the AMS port it is for, command, ADS error, invoke id and data).
+%% Anything else, several frames, part of one or not an answer, is `other': cut it
+%% with {@link next_frame/2} and read it with {@link decode_ams/1}.
+-spec decode_answer(binary()) ->
+          {answer, ams_port(), command() | {unknown, 0..65535}, u32(), u32(), binary()}
+        | other.
+decode_answer(<<0:16, Len:32/little, _:6/binary, Port:16/little, _:8/binary, Cmd:16/little,
+                Flags:16/little, DataLen:32/little, Error:32/little, Invoke:32/little,
+                Data:DataLen/binary>>)
+  when Len =:= ?AMS_HEADER_SIZE + DataLen, Flags band ?FLAG_RESPONSE =:= ?FLAG_RESPONSE ->
+    {answer, Port, command_name(Cmd), Error, Invoke, Data};
+decode_answer(_) ->
+    other.
 
 %%====================================================================
 %% Commands

@@ -17,7 +17,7 @@
 -module(cell_hal_ads_vars).
 
 -export([new/0, key/2, key_of/3, declare/3, find/2, use/3, unuse/3, drop_user/2, users/2,
-         resolved/4, failed/3, reset/1, remove/2, keys/1, ready/2, state/2]).
+         resolved/4, failed/3, reset/1, remove/2, keys/1, spellings/1, ready/2, state/2]).
 
 -export_type([vars/0, key/0, access/0, var/0]).
 
@@ -152,6 +152,11 @@ remove(K, #{vars := Vs, spellings := Sp}) ->
 -spec keys(vars()) -> [key()].
 keys(#{vars := Vs}) ->
     maps:keys(Vs).
+
+%% @doc Every spelling callers declared, with its variable's key.
+-spec spellings(vars()) -> [{binary(), cell_hal_ads_types:type(), key()}].
+spellings(#{spellings := Sp}) ->
+    [{Name, Type, K} || {{Name, Type}, K} <- maps:to_list(Sp)].
 
 %% @doc How to reach a variable now: its access, read size and type, or why not.
 -spec ready(key(), vars()) ->

@@ -16,6 +16,38 @@ read_frame_test() ->
                  16#05, 16#F0, 0, 0, 16#34, 16#12, 0, 0, 4, 0, 0, 0>>,
     ?assertEqual(Expected, Frame).
 
+%% The same frame from addresses built once.
+addresses_test() ->
+    Addresses = cell_hal_ads_codec:addresses(?T, ?S),
+    ?assertEqual(<<5, 23, 1, 7, 1, 1, 16#53, 16#03, 192, 168, 0, 10, 1, 1, 16#89, 16#80>>,
+                 Addresses),
+    ?assertEqual(iolist_to_binary(cell_hal_ads_codec:encode_frame(?T, ?S, 7, {read, 16#F005, 16#1234, 4})),
+                 iolist_to_binary(cell_hal_ads_codec:encode_frame(Addresses, 7, {read, 16#F005, 16#1234, 4}))).
+
+%% The answer to a Read, invoke id 8, ADS error 0, 4 bytes read: in one match.
+decode_answer_test_() ->
+    Data = <<0:32, 4:32/little, 42:32/little>>,
+    %% to the client (192.168.0.10.1.1:32905) from the PLC
+    Head = <<192, 168, 0, 10, 1, 1, 16#89, 16#80, 5, 23, 1, 7, 1, 1, 16#53, 16#03,
+             2, 0>>,
+    Tail = <<12:32/little, 0:32, 8:32/little, Data/binary>>,
+    Answer = <<0:16, 44:32/little, Head/binary, 5, 0, Tail/binary>>,
+    [?_assertEqual({answer, 32905, read, 0, 8, Data}, cell_hal_ads_codec:decode_answer(Answer)),
+     %% a request (no response flag) is not an answer
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<0:16, 44:32/little, Head/binary,
+                                                              4, 0, Tail/binary>>)),
+     %% one byte short, one byte more, two frames: cut and read the long way
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(binary:part(Answer, 0, 49))),
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<Answer/binary, 0>>)),
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<Answer/binary, Answer/binary>>)),
+     %% the AMS/TCP length must say what follows
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<0:16, 45:32/little, Head/binary,
+                                                              5, 0, Tail/binary>>)),
+     %% a router frame
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<1, 16#10, 44:32/little, Head/binary,
+                                                              5, 0, Tail/binary>>)),
+     ?_assertEqual(other, cell_hal_ads_codec:decode_answer(<<>>))].
+
 request_payloads_test_() ->
     [?_assertEqual({1, <<>>}, flat(read_device_info)),
      ?_assertEqual({4, <<>>}, flat(read_state)),

@@ -27,7 +27,9 @@
          timeout_never_blocks_caller/1, garbage_closes_only_the_connection/1,
          oversized_frame_closes_only_the_connection/1, bad_options/1,
          stop_leaves_plc_tidy/1, requests_without_waiting/1,
-         one_connection_without_reconnecting/1]).
+         one_connection_without_reconnecting/1, stalled_plc_blocks_nobody/1]).
+-export([reads_skip_the_connection/1, read_across_program_change/1,
+         caller_killed_mid_read/1, connection_lost_mid_read/1, silent_plc_ends_direct_read/1]).
 -export([frames_match_adslib/1]).
 -export([reconnect_after_plc_restart/1, connection_refused_then_up/1]).
 
@@ -37,7 +39,7 @@
 -define(FILETIME_UNIX_EPOCH, 116444736000000000).
 
 all() ->
-    [{group, proof}, {group, client}, {group, crosscheck}, {group, restart}].
+    [{group, proof}, {group, client}, {group, direct}, {group, crosscheck}, {group, restart}].
 
 groups() ->
     [{proof, [sequence], [adslib_reads_and_writes, adslib_symbol_info, adslib_sum_reads,
@@ -54,7 +56,10 @@ groups() ->
                    timeout_never_blocks_caller, garbage_closes_only_the_connection,
                    oversized_frame_closes_only_the_connection, bad_options,
                    stop_leaves_plc_tidy, requests_without_waiting,
-                   one_connection_without_reconnecting]},
+                   one_connection_without_reconnecting, stalled_plc_blocks_nobody]},
+     {direct, [], [reads_skip_the_connection, read_across_program_change,
+                   caller_killed_mid_read, connection_lost_mid_read,
+                   silent_plc_ends_direct_read]},
      {crosscheck, [], [frames_match_adslib]},
      {restart, [], [reconnect_after_plc_restart, connection_refused_then_up]}].
 
@@ -104,6 +109,7 @@ end_per_testcase(_Case, Config) ->
     %% Settings some cases change on the shared fake go back to normal.
     Fake = ?config(fake, Config),
     ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = cell_hal_ads_peer:cmd(Fake, "unstall"),
     ok = cell_hal_ads_peer:cmd(Fake, "limit 100000"),
     ok.
 
@@ -953,6 +959,181 @@ collect_lines(Source, Acc) ->
         {cell_log, _} -> collect_lines(Source, Acc)
     after 0 -> lists:reverse(Acc)
     end.
+
+%% A PLC that hangs with its network stack alive takes nothing more: the socket's
+%% queue fills. A reader is not held past its timeout, and the client, which cannot
+%% hand over its writes, gives the connection up after its request timeout instead of
+%% waiting for the PLC for ever.
+stalled_plc_blocks_nobody(Config) ->
+    Fake = ?config(fake, Config),
+    C = client(Config, #{request_timeout => 500, link_check => infinity,
+                         symbol_version => read}),
+    Counter = {<<"MAIN.counter">>, int32},
+    Name = {<<"MAIN.name">>, {string, 20}},
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, [Counter, Name]),
+    #{<<"MAIN.name">> := {G, O, _}} = ?config(symbols, Config),
+    ok = cell_hal_ads_peer:cmd(Fake, "stall"),
+    Big = binary:copy(<<0>>, 4 bsl 20),
+    _ = lists:foldl(fun(I, Ids) ->
+                            {ok, Ids1} = cell_hal_ads_client:send_request(
+                                           C, {write, G, O, Big}, ?WAIT, I, Ids),
+                            Ids1
+                    end, gen_statem:reqids_new(), lists:seq(1, 4)),
+    T0 = erlang:monotonic_time(millisecond),
+    {error, timeout} = cell_hal_ads_client:read_vars(C, [Counter], 300),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    ct:log("a 300 ms read returned after ~b ms", [Took]),
+    ?assert(Took < 1000),
+    {down, Why} = receive_down(C),
+    ct:log("given up: ~ts", [cell_hal_ads_client:format_error(Why)]),
+    ?assertEqual({socket, timeout}, Why),
+    ok = cell_hal_ads_peer:cmd(Fake, "unstall"),
+    ok = await_status(C, up),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [Counter]).
+
+%%--------------------------------------------------------------------
+%% direct: reads that skip the client's process (cell_hal_ads_direct)
+%%--------------------------------------------------------------------
+
+%% A read of resolved variables in one request is written by the caller itself, with
+%% an even invoke id: the client's process gets no call, only the answer from the PLC.
+%% What needs more than one request, or is not resolved, goes through the process.
+reads_skip_the_connection(Config) ->
+    C = client(Config),
+    Counter = {<<"MAIN.counter">>, int32},
+    Group = lists:sublist(group(), 50),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Counter]),
+    {ok, Resolved} = cell_hal_ads_client:resolve(C, Group),
+    50 = length([ok || {ok, _} <- Resolved]),
+    clear(Config),
+    {Calls, {ok, [{ok, 42}]}} = calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [Counter]) end),
+    ?assertEqual([], Calls),
+    {[], {ok, Values}} = calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, Group) end),
+    ?assertEqual([{ok, I * 3} || I <- lists:seq(0, 49)], Values),
+    {ok, Frames} = cell_hal_ads_peer:cmd(?config(fake, Config), "frames"),
+    [Single, Sum] = [F || F <- Frames, lists:member(cmd_name(F), [read, read_write])],
+    ?assertEqual({read, 0}, {cmd_name(Single), invoke(Single) band 1}),
+    ?assertEqual({read_write, 0}, {cmd_name(Sum), invoke(Sum) band 1}),
+    %% the same group split in two sum commands: through the process
+    C2 = client(Config, #{max_sum => 30}),
+    {ok, _} = cell_hal_ads_client:resolve(C2, Group),
+    {[_], {ok, Values}} = calls_to(C2, fun() -> cell_hal_ads_client:read_vars(C2, Group) end),
+    {[_], {ok, [{error, {not_resolved, <<"MAIN.flag">>}}]}} =
+        calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [{<<"MAIN.flag">>, bool}]) end),
+    #{in_flight := 0} = cell_hal_ads_client:status(C).
+
+%% The calls a client's process received while Fun ran, and Fun's result.
+calls_to(C, Fun) ->
+    1 = erlang:trace(C, true, ['receive']),
+    Result = Fun(),
+    1 = erlang:trace(C, false, ['receive']),
+    Ref = erlang:trace_delivered(C),
+    receive {trace_delivered, C, Ref} -> ok after ?WAIT -> ct:fail(trace_not_delivered) end,
+    {traced_calls(C, []), Result}.
+
+traced_calls(C, Acc) ->
+    receive
+        {trace, C, 'receive', {'$gen_call', _, Call}} -> traced_calls(C, [Call | Acc]);
+        {trace, C, 'receive', _} -> traced_calls(C, Acc)
+    after 0 -> lists:reverse(Acc)
+    end.
+
+cmd_name(<<_:22/binary, Cmd:16/little, _/binary>>) -> cell_hal_ads_codec:command_name(Cmd).
+
+invoke(<<_:34/binary, Invoke:32/little, _/binary>>) -> Invoke.
+
+%% A program change while a direct read is in flight: the client gives its handles
+%% back, so the answer, which came through the old handle, is not used; the read is
+%% made again through the client's process once the variable is resolved again.
+read_across_program_change(Config) ->
+    Fake = ?config(fake, Config),
+    %% the answer comes with the first request the program change makes
+    {C, Reader} = held_read(Config, #{}),
+    ok = cell_hal_ads_peer:cmd(Fake, "bump"),
+    ?assertEqual({ok, [{ok, 42}]}, read_result(Reader)),
+    ok = await_status(C, symbols_changed),
+    {ok, Frames} = cell_hal_ads_peer:cmd(Fake, "frames"),
+    Reads = [{invoke(F) band 1, H} || F <- Frames, {ok, H} <- [read_by_handle(F)]],
+    ct:log("reads of the counter (invoke id parity, handle): ~p", [Reads]),
+    [{0, Old}, {1, New}] = Reads,
+    ?assertNotEqual(Old, New).
+
+read_by_handle(<<_:22/binary, 2:16/little, _:14/binary, 16#F005:32/little, H:32/little,
+                 _/binary>>) ->
+    {ok, H};
+read_by_handle(_) ->
+    error.
+
+%% A client with a direct read of the counter in flight, whose answer the PLC holds
+%% until the next request comes.
+held_read(Config, Opts) ->
+    Fake = ?config(fake, Config),
+    C = client(Config, Opts),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [counter()]),
+    clear(Config),
+    ok = cell_hal_ads_peer:cmd(Fake, "hold 2"),
+    Reader = reader(C, [counter()]),
+    ok = cell_hal_ads_peer:cmd(Fake, "wait_stat requests 1 10000"),
+    {C, Reader}.
+
+counter() ->
+    {<<"MAIN.counter">>, int32}.
+
+%% A caller in a process of its own.
+reader(C, Vars) ->
+    Test = self(),
+    spawn(fun() -> Test ! {read, self(), cell_hal_ads_client:read_vars(C, Vars, ?WAIT)} end).
+
+read_result(Reader) ->
+    receive {read, Reader, Result} -> Result after ?WAIT -> ct:fail(reader_stuck) end.
+
+%% A caller that exits mid-read keeps its slot until its answer comes or the link
+%% check finds it gone; then the slot is given back and what waited for it is sent.
+%% Here the PLC answers nothing until a second request comes, which the only slot,
+%% held by the caller gone, keeps back: the link check frees it.
+caller_killed_mid_read(Config) ->
+    {C, Reader} = held_read(Config, #{max_in_flight => 1, link_check => 200}),
+    Counter = counter(),
+    Ref = monitor(process, Reader),
+    exit(Reader, kill),
+    receive {'DOWN', Ref, process, Reader, killed} -> ok end,
+    %% its slot is still taken (its answer may come): this read waits for it
+    #{in_flight := 1} = cell_hal_ads_client:status(C),
+    {[_], {ok, [{ok, 42}]}} =
+        calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [Counter]) end),
+    #{state := up} = cell_hal_ads_client:status(C),
+    {[], {ok, [{ok, 42}]}} =
+        calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [Counter]) end).
+
+%% The connection is lost with a direct read in flight: the read is answered
+%% `disconnected'; once connected again, reads skip the process again.
+connection_lost_mid_read(Config) ->
+    %% the read's answer is held until the client has connected again
+    {C, Reader} = held_read(Config, #{}),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "drop"),
+    ?assertEqual({error, disconnected}, read_result(Reader)),
+    {down, closed} = receive_down(C),
+    ok = await_status(C, up),
+    {[], {ok, [{ok, 42}]}} =
+        calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [counter()]) end).
+
+%% A PLC that answers nothing: the direct read returns at its timeout, and the client,
+%% told that nothing at all came since the read was sent, gives the connection up.
+silent_plc_ends_direct_read(Config) ->
+    Fake = ?config(fake, Config),
+    C = client(Config, #{link_check => infinity, symbol_version => read}),
+    Counter = {<<"MAIN.counter">>, int32},
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Counter]),
+    ok = cell_hal_ads_peer:cmd(Fake, "mute"),
+    T0 = erlang:monotonic_time(millisecond),
+    {error, timeout} = cell_hal_ads_client:read_vars(C, [Counter], 300),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    ct:log("a 300 ms direct read returned after ~b ms", [Took]),
+    ?assert(Took >= 300 andalso Took < 2000),
+    {down, no_answer} = receive_down(C),
+    ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = await_status(C, up),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [Counter]).
 
 %%--------------------------------------------------------------------
 %% crosscheck: our frames beside AdsLib's, byte for byte

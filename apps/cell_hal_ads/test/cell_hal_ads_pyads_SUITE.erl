@@ -17,7 +17,7 @@
 -export([all/0, init_per_suite/1, end_per_suite/1]).
 -export([device_info_state_and_control/1, variables_by_handle/1, type_mismatch_is_clear/1,
          index_group_access/1, sum_commands_by_index_group/1, handles_released/1,
-         notifications_added_and_deleted/1, by_name/1]).
+         notifications_added_and_deleted/1, by_name/1, concurrent_reads_one_at_a_time/1]).
 
 -define(NET, "127.0.0.1.1.1").
 -define(WAIT, 10000).
@@ -25,7 +25,7 @@
 all() ->
     [device_info_state_and_control, variables_by_handle, type_mismatch_is_clear,
      index_group_access, sum_commands_by_index_group, handles_released,
-     notifications_added_and_deleted, by_name].
+     notifications_added_and_deleted, by_name, concurrent_reads_one_at_a_time].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -172,3 +172,23 @@ by_name(Config) ->
     ok = cell_hal_ads_client:write_by_name(C, <<"MAIN.word">>, uint16, 99),
     ?assertEqual(<<99:16/little>>, value(Config, "MAIN.word")),
     ok = cell_hal_ads_client:write_by_name(C, <<"MAIN.word">>, uint16, 16#1234).
+
+%% Callers that read at the same time skip the client's process, yet `max_in_flight'
+%% holds for them too: the test server, which reads one request per recv() and loses
+%% a second one sent with it, answers every read.
+concurrent_reads_one_at_a_time(Config) ->
+    C = client(Config),
+    Counter = {<<"MAIN.counter">>, int32},
+    Word = {<<"MAIN.word">>, uint16},
+    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, [Counter, Word]),
+    Test = self(),
+    Readers = [spawn_link(fun() ->
+                                  Results = [cell_hal_ads_client:read_vars(C, [Var], ?WAIT)
+                                             || _ <- lists:seq(1, 100)],
+                                  Test ! {done, self(), lists:usort(Results)}
+                          end) || Var <- lists:append(lists:duplicate(4, [Counter, Word]))],
+    Results = [receive {done, R, Rs} -> Rs after 4 * ?WAIT -> ct:fail(reader_stuck) end
+               || R <- Readers],
+    ?assertEqual(lists:append(lists:duplicate(4, [[{ok, [{ok, 42}]}], [{ok, [{ok, 16#1234}]}]])),
+                 Results),
+    #{in_flight := 0, state := up} = cell_hal_ads_client:status(C).

@@ -28,6 +28,9 @@ stdout, written as an Erlang term:
     hold N         -> ok   (answers wait until N requests are waiting, then all go)
     wait_clients N TIMEOUT_MS -> ok | {error, timeout}   (when N clients are connected)
     wait_stat KEY N TIMEOUT_MS -> ok | {error, timeout}  (when stats KEY reaches N)
+    stall | unstall -> ok  (the connections open now stop reading what clients send,
+                            with a small receive buffer, until `unstall': a PLC
+                            that hangs while its network stack lives on)
     clear | mute | unmute | record on|off | drop | garbage HEX | quit
 
 Names with spaces are written with %20 for each space.
@@ -618,6 +621,17 @@ def control(plc, line, loop, answer):
             return "ok"
         if cmd == "mute":
             plc.muted = True
+            return "ok"
+        if cmd == "stall":
+            for conn in list(plc.conns):
+                conn.transport.get_extra_info("socket").setsockopt(
+                    socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+                conn.transport.pause_reading()
+            return "ok"
+        if cmd == "unstall":
+            for conn in list(plc.conns):
+                if not conn.transport.is_closing():
+                    conn.transport.resume_reading()
             return "ok"
         if cmd == "unmute":
             plc.muted = False
