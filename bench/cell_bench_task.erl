@@ -13,15 +13,15 @@ init(T) ->
 
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
-    case cell_task:arg(T, mode, wait) of
-        wait ->
-            {wait, {reply, cell_task:arg(T, never, undefined)}, T};
-        tick ->
-            counters:add(cell_task:arg(T, counter, undefined), 1, 1),
+    case cell_task:args(T) of
+        #{mode := spin, counter := Counter} ->
+            counters:add(Counter, 1, 1),
+            {continue, T};
+        #{mode := tick, counter := Counter} ->
+            counters:add(Counter, 1, 1),
             {wait, {timer, 10}, T};
-        spin ->
-            counters:add(cell_task:arg(T, counter, undefined), 1, 1),
-            {continue, T}
+        #{never := Never} ->
+            {wait, {reply, Never}, T}
     end.
 
 -spec uninit(cell_task:task()) -> cell_task:task().

@@ -391,8 +391,7 @@ run_step(State, D0) ->
     end.
 
 do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
-    Answer = case Woken of {answer, A} -> A; _ -> undefined end,
-    T = T0#task{woken_by = Woken, answer = Answer},
+    T = woken_by(Woken, T0),
     try Mod:step(T) of
         Result -> after_step(Result, D)
     catch
@@ -429,6 +428,14 @@ after_step({error, Spec, T}, D) ->
 after_step(Other, #data{task = #task{module = Mod}}) ->
     erlang:error({bad_step_result, Mod, Other}).
 
+%% What woke the step, and the operator's answer if that was it. (A step that follows
+%% a continue finds the task as it left it: nothing to change.)
+woken_by(undefined, #task{woken_by = undefined, answer = undefined} = T) -> T;
+woken_by({answer, A} = Woken, T) -> T#task{woken_by = Woken, answer = A};
+woken_by(Woken, T) -> T#task{woken_by = Woken, answer = undefined}.
+
+clean(#task{answer = undefined, woken_by = undefined} = T) ->
+    T;
 clean(T) ->
     T#task{answer = undefined, woken_by = undefined}.
 
