@@ -127,27 +127,6 @@ block_settings(Id, Case) ->
 
 plc(Config) -> ?config(plc, Config).
 
-%% The PLC sets values and waits for their echoes (Trigger steps 2 to 4).
-values(Plc, Pairs) ->
-    [ok = ?P:set(Plc, T, V) || {T, V} <- Pairs],
-    [ok = ?P:await(Plc, cell_inspect_tags:echo(T), V) || {T, V} <- Pairs],
-    ok.
-
-%% The PLC raises a command, waits for its echo, drops it, waits for the echo to
-%% follow: the four-phase handshake the block expects.
-command(Plc, Cmd) ->
-    ok = ?P:set(Plc, Cmd, true),
-    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), true),
-    Seen = ?P:tags(Plc),
-    ok = ?P:set(Plc, Cmd, false),
-    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), false),
-    Seen.
-
-trigger(Plc, Point, Serial) ->
-    ok = values(Plc, [{inspection_point_id, Point}, {part_serial, Serial}]),
-    ok = ?P:forget(Plc),
-    command(Plc, trigger_inspection).
-
 subscribe_cam(Id) ->
     ok = cell_inspect_camera_sim:subscribe(Id).
 
@@ -169,13 +148,6 @@ message_seen(Id) ->
 
 status_codes(Plc) ->
     ?P:written(Plc, inspection_status).
-
-%% The order the PLC saw: `A' written before `B' (both written).
-before(Plc, A, B) ->
-    Log = ?P:log(Plc),
-    Index = fun(X) -> length(lists:takewhile(fun(E) -> E =/= X end, Log)) end,
-    ?assert(lists:member(A, Log) andalso lists:member(B, Log) andalso Index(A) < Index(B),
-            {A, B, Log}).
 
 %%--------------------------------------------------------------------
 %% Heartbeat, echoes, the UDT
@@ -199,11 +171,11 @@ heartbeat_toggles(Config) ->
 %% Echo Tags: every value the PLC writes is echoed, strings with their S7 lengths.
 echoes(Config) ->
     Plc = plc(Config),
-    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN 0001">>},
-                      {override_employee_id, <<"EMP-7">>}, {message_id, -5}]),
-    ok = values(Plc, [{part_serial, <<"SN 2">>}, {inspection_point_id, <<>>}]),
+    ok = ?P:values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN 0001">>},
+                         {override_employee_id, <<"EMP-7">>}, {message_id, -5}]),
+    ok = ?P:values(Plc, [{part_serial, <<"SN 2">>}, {inspection_point_id, <<>>}]),
     %% Latin-1 from the PLC, as a byte a character.
-    ok = values(Plc, [{part_serial, <<"Grün"/utf8>>}]),
+    ok = ?P:values(Plc, [{part_serial, <<"Grün"/utf8>>}]),
     Bytes = ?P:bytes(Plc),
     %% PartSerial_ECHO at 24: STRING[48], length 4, "Gr\xFCn".
     ?assertEqual(<<48, 4, "Gr", 252, "n">>, binary:part(Bytes, 24, 6)),
@@ -216,11 +188,11 @@ udt_bytes(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"PASS OCR-12">>}),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
     _ = request_seen(?CAM),
     ok = cell_inspect_camera_sim:shoot(?CAM),
     ok = ?P:await(Plc, inspection_status, 2),
-    ok = values(Plc, [{message_id, 7}]),
+    ok = ?P:values(Plc, [{message_id, 7}]),
     Regs = ?P:registers(Plc, 0, 175),
     Bin = << <<R:16>> || R <- Regs >>,
     ?assertEqual(Bin, ?P:bytes(Plc)),
@@ -249,7 +221,7 @@ udt_bytes(Config) ->
 trigger_pass(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-PASS">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-PASS">>),
     %% Step 6: when the PLC reads the echo, InspectionStatus already says Requesting.
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     {request, #{point := <<"STATION1">>, serial := <<"SN-PASS">>}} = request_seen(?CAM),
@@ -260,39 +232,39 @@ trigger_pass(Config) ->
     ?assertMatch(#{inspection_pass := true, inspection_fail := false, error_code := 0,
                    inspection_string := <<>>}, ?P:tags(Plc)),
     %% Step 9: the results are written before Complete.
-    before(Plc, {inspection_pass, true}, {inspection_status, 2}).
+    ok = ?P:before(Plc, {inspection_pass, true}, {inspection_status, 2}).
 
 trigger_fail_with_string(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL DMC 1234">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-FAIL">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-FAIL">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ?assertMatch(#{inspection_pass := false, inspection_fail := true,
                    inspection_string := <<"DMC 1234">>}, ?P:tags(Plc)),
-    before(Plc, {inspection_fail, true}, {inspection_status, 2}),
-    before(Plc, {inspection_string, <<"DMC 1234">>}, {inspection_status, 2}).
+    ok = ?P:before(Plc, {inspection_fail, true}, {inspection_status, 2}),
+    ok = ?P:before(Plc, {inspection_string, <<"DMC 1234">>}, {inspection_status, 2}).
 
 %% A point without image processing: the image is recorded, the inspection passes.
 trigger_without_processing(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"NOIPM">>, <<"SN-NOIPM">>),
+    _ = ?P:trigger(Plc, <<"NOIPM">>, <<"SN-NOIPM">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ?assert(?P:tag(Plc, inspection_pass)).
 
 %% Step 6: the point does not exist: Error, InspectionNotFound.
 unknown_point(Config) ->
     Plc = plc(Config),
-    Seen = trigger(Plc, <<"NOSUCH">>, <<"SN-X">>),
+    Seen = ?P:trigger(Plc, <<"NOSUCH">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
     ?assertEqual([3, 5], status_codes(Plc)),
-    before(Plc, {error_code, 2}, {inspection_status, 5}).
+    ok = ?P:before(Plc, {error_code, 2}, {inspection_status, 5}).
 
 %% Step 6: no camera connected for the point: Error, DeviceNotFound.
 no_client(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
     ?assertEqual([3, 5], status_codes(Plc)).
 
@@ -303,11 +275,11 @@ camera_for_other_points(Config) ->
     ok = change_settings([B#{clients => [#{id => ?CAM, type => <<"sim">>, manual => true,
                                            points => [<<"TOP">>]}]}]),
     ok = cell_inspect_block_ready(line1, ?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
     ok = command_and_status(Plc, clear_results, 1),
     subscribe_cam(?CAM),
-    Seen2 = trigger(Plc, <<"TOP">>, <<"SN-X">>),
+    Seen2 = ?P:trigger(Plc, <<"TOP">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 3}, Seen2),
     _ = request_seen(?CAM).
 
@@ -315,22 +287,22 @@ camera_for_other_points(Config) ->
 cancel_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-C">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-C">>),
     {request, #{ref := Ref}} = request_seen(?CAM),
-    Seen = command(Plc, cancel_inspection),
+    Seen = ?P:command(Plc, cancel_inspection),
     ?assertEqual(6, maps:get(inspection_status, Seen)),
     {cancel, Ref} = await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
     %% A late image changes nothing.
     ?assertEqual({error, nothing_requested}, cell_inspect_camera_sim:shoot(?CAM)),
     ?assertEqual([3, 6], status_codes(Plc)),
     %% Canceled accepts a new trigger.
-    Seen2 = trigger(Plc, <<"STATION1">>, <<"SN-C2">>),
+    Seen2 = ?P:trigger(Plc, <<"STATION1">>, <<"SN-C2">>),
     ?assertEqual(3, maps:get(inspection_status, Seen2)).
 
 cancel_ignored_when_idle(Config) ->
     Plc = plc(Config),
     ok = ?P:forget(Plc),
-    Seen = command(Plc, cancel_inspection),
+    Seen = ?P:command(Plc, cancel_inspection),
     ?assertEqual(1, maps:get(inspection_status, Seen)),
     ?assertEqual([], status_codes(Plc)).
 
@@ -338,18 +310,18 @@ cancel_ignored_when_idle(Config) ->
 %% Requesting); its echo is written all the same.
 trigger_ignored_unless_ready(Config) ->
     Plc = plc(Config),
-    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
+    _ = ?P:trigger(Plc, <<"NOSUCH">>, <<>>),
     ok = ?P:await(Plc, inspection_status, 5),
     subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-I">>),
     ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
     ?assertEqual([], status_codes(Plc)),
     ?assertEqual(#{requests => [], messages => []}, cell_inspect_camera_sim:pending(?CAM)),
     ok = command_and_status(Plc, clear_results, 1),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-I">>),
     _ = request_seen(?CAM),
     %% Requesting: ignored too.
-    Seen3 = command(Plc, trigger_inspection),
+    Seen3 = ?P:command(Plc, trigger_inspection),
     ?assertEqual(3, maps:get(inspection_status, Seen3)),
     ?assertMatch(#{requests := [_]}, cell_inspect_camera_sim:pending(?CAM)).
 
@@ -357,18 +329,18 @@ trigger_ignored_unless_ready(Config) ->
 clear_results(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-CL">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-CL">>),
     ok = ?P:await(Plc, inspection_status, 2),
     true = ?P:tag(Plc, inspection_fail),
-    Seen = command(Plc, clear_results),
+    Seen = ?P:command(Plc, clear_results),
     ?assertMatch(#{inspection_pass := false, inspection_fail := false, error_code := 0,
                    inspection_status := 1}, Seen),
-    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
-    Seen2 = command(Plc, clear_results),
+    _ = ?P:trigger(Plc, <<"NOSUCH">>, <<>>),
+    Seen2 = ?P:command(Plc, clear_results),
     ?assertMatch(#{error_code := 0, inspection_status := 1}, Seen2).
 
 command_and_status(Plc, Cmd, Status) ->
-    Seen = command(Plc, Cmd),
+    Seen = ?P:command(Plc, Cmd),
     ?assertEqual(Status, maps:get(inspection_status, Seen)),
     ok.
 
@@ -376,7 +348,7 @@ command_and_status(Plc, Cmd, Status) ->
 processing_error(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"BLURRED">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-PE">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-PE">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(3, ?P:tag(Plc, error_code)),
     ?assertEqual([3, 4, 5], status_codes(Plc)).
@@ -385,7 +357,7 @@ processing_error(Config) ->
 configuration_error(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"BROKEN">>, <<"SN-CE">>),
+    _ = ?P:trigger(Plc, <<"BROKEN">>, <<"SN-CE">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(5, ?P:tag(Plc, error_code)).
 
@@ -393,7 +365,7 @@ configuration_error(Config) ->
 workspace_load_fails(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"BADWS">>, <<"SN-WF">>),
+    _ = ?P:trigger(Plc, <<"BADWS">>, <<"SN-WF">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(5, ?P:tag(Plc, error_code)).
 
@@ -408,7 +380,7 @@ processing_not_available(Config) ->
                                  workspace => <<"g">>}]}]),
     Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"GATED">>, <<"SN-NA">>),
+    _ = ?P:trigger(Plc, <<"GATED">>, <<"SN-NA">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(6, ?P:tag(Plc, error_code)),
     Loader ! release,
@@ -424,11 +396,11 @@ waiting_for_ipm(Config) ->
     Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
     ok = cell_inspect_block_ready(line1, ?CAM),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-W">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-W">>),
     ?assertEqual(0, maps:get(inspection_status, Seen)),
-    _ = trigger(Plc, <<"NOIPM">>, <<"SN-W">>),
+    _ = ?P:trigger(Plc, <<"NOIPM">>, <<"SN-W">>),
     ok = ?P:await(Plc, inspection_status, 2),
-    Seen2 = command(Plc, clear_results),
+    Seen2 = ?P:command(Plc, clear_results),
     ?assertEqual(0, maps:get(inspection_status, Seen2)),
     Loader ! release,
     ok = ?P:await(Plc, inspection_status, 1).
@@ -442,7 +414,7 @@ several_cameras(Config) ->
     ok = change_settings([B#{clients => Cams}]),
     [ok = cell_inspect_block_ready(line1, C) || C <- [<<"camA">>, <<"camB">>]],
     [subscribe_cam(C) || C <- [<<"camA">>, <<"camB">>]],
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-M">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-M">>),
     _ = request_seen(<<"camA">>),
     {request, #{ref := Ref}} = request_seen(<<"camB">>),
     ok = cell_inspect_camera_sim:shoot(<<"camB">>),
@@ -453,7 +425,7 @@ several_cameras(Config) ->
 cameras_disconnect_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-D">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-D">>),
     _ = request_seen(?CAM),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     ok = ?P:await(Plc, inspection_status, 5),
@@ -468,11 +440,11 @@ cameras_disconnect_while_waiting(Config) ->
 override_found(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-OV">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-OV">>),
     ok = ?P:await(Plc, inspection_status, 2),
-    ok = values(Plc, [{override_employee_id, <<"E-1001">>}]),
+    ok = ?P:values(Plc, [{override_employee_id, <<"E-1001">>}]),
     ok = ?P:forget(Plc),
-    _ = command(Plc, log_override),
+    _ = ?P:command(Plc, log_override),
     %% Processing (4), then Complete (2) once the override is recorded.
     ok = ?P:await(Plc, inspection_status, 2),
     ?assertEqual([4, 2], status_codes(Plc)),
@@ -483,10 +455,10 @@ override_found(Config) ->
 %% No result for that serial: Error, InspectionNotFound.
 override_not_found(Config) ->
     Plc = plc(Config),
-    ok = values(Plc, [{override_employee_id, <<"E-1">>}, {inspection_point_id, <<"STATION1">>},
-                      {part_serial, <<"SN-NEVER">>}]),
+    ok = ?P:values(Plc, [{override_employee_id, <<"E-1">>},
+                         {inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-NEVER">>}]),
     ok = ?P:forget(Plc),
-    _ = command(Plc, log_override),
+    _ = ?P:command(Plc, log_override),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(2, ?P:tag(Plc, error_code)),
     ?assertEqual([4, 5], status_codes(Plc)),
@@ -496,10 +468,10 @@ override_not_found(Config) ->
 override_ignored_while_busy(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-B">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-B">>),
     _ = request_seen(?CAM),
     ok = ?P:forget(Plc),
-    Seen = command(Plc, log_override),
+    Seen = ?P:command(Plc, log_override),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     ?assertEqual([], status_codes(Plc)).
 
@@ -508,8 +480,8 @@ override_ignored_while_busy(Config) ->
 %%--------------------------------------------------------------------
 
 send(Plc, Id) ->
-    ok = values(Plc, [{message_id, Id}]),
-    command(Plc, send_message).
+    ok = ?P:values(Plc, [{message_id, Id}]),
+    ?P:command(Plc, send_message).
 
 %% Steps 1 to 9: Waiting, then AffirmativeResponse.
 message_yes(Config) ->
@@ -539,7 +511,7 @@ message_text(Config) ->
     ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"LOT-42">>}),
     ok = ?P:await(Plc, message_status, 5),
     ?assertEqual(<<"LOT-42">>, ?P:tag(Plc, message_result)),
-    before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
+    ok = ?P:before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
     Seen = send(Plc, 7),
     ?assertMatch(#{message_status := 1, message_result := <<>>}, Seen).
 
@@ -598,7 +570,7 @@ message_replaced(Config) ->
 restart_while_requesting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-R">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-R">>),
     _ = request_seen(?CAM),
     Old = cell_inspect_block:whereis(line1),
     exit(Old, kill),
@@ -621,7 +593,7 @@ restart_while_waiting_for_an_answer(Config) ->
 link_lost_and_back(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-L">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-L">>),
     _ = request_seen(?CAM),
     ok = cell_hal_subscribe(plc),
     ok = ?P:silent(Plc, true),
@@ -636,7 +608,7 @@ link_lost_and_back(Config) ->
 %% A command raised while the link is down is taken when the PLC is read again.
 command_raised_while_link_down(Config) ->
     Plc = plc(Config),
-    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-LD">>}]),
+    ok = ?P:values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-LD">>}]),
     ok = cell_hal_subscribe(plc),
     ok = ?P:silent(Plc, true),
     ok = await_conn(plc, down),
@@ -652,7 +624,7 @@ settings_change_applies_at_once(Config) ->
     ok = change_settings([B#{points => [#{id => <<"NEW">>, processing => <<"none">>}]}]),
     ok = cell_inspect_block_ready(line1, ?CAM),
     subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"NEW">>, <<"SN-N">>),
+    Seen = ?P:trigger(Plc, <<"NEW">>, <<"SN-N">>),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     _ = request_seen(?CAM).
 
@@ -676,9 +648,9 @@ two_blocks_two_plcs(Config) ->
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     %% line1 has no camera left; line2's camera is not line1's.
     ?assertMatch(#{inspection_status := 5, error_code := 1},
-                 trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
+                 ?P:trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
     subscribe_cam(<<"cam2">>),
-    ?assertMatch(#{inspection_status := 3}, trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
+    ?assertMatch(#{inspection_status := 3}, ?P:trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
     _ = request_seen(<<"cam2">>),
     ok = cell_inspect_camera_sim:shoot(<<"cam2">>),
     ok = ?P:await(Plc2, inspection_status, 2),
@@ -690,13 +662,13 @@ two_blocks_two_plcs(Config) ->
 traceability_by_serial(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"PASS 77">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-T">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-T">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"TOP">>, <<"SN-T">>),
+    _ = ?P:trigger(Plc, <<"TOP">>, <<"SN-T">>),
     ok = ?P:await(Plc, trigger_inspection_echo, false),
     ok = await_view(line1, fun(#{status := S}) -> S =:= complete end),
-    _ = command(Plc, log_override),
+    _ = ?P:command(Plc, log_override),
     ok = ?P:await(Plc, inspection_status, 2),
     {ok, #{inspections := [I1, I2], overrides := [O]}} = cell_inspect:traceability(<<"SN-T">>),
     ?assertMatch(#{point := <<"STATION1">>, result := pass, text := <<"77">>, client := ?CAM}, I1),
