@@ -11,7 +11,8 @@
          end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
 -export([every_type_through_a_group/1, structure_and_image_groups/1,
          one_sum_command_per_poll/1, outputs_written_in_order/1,
-         notifications_feed_inputs/1, laser_beam_latch/1, trigger_enable/1,
+         notifications_feed_inputs/1, notified_group_added_while_up/1,
+         laser_beam_latch/1, trigger_enable/1,
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
          retyped_symbol/1, raw_requests/1, bad_configuration/1,
          garbage_closes_only_the_connection/1, group_added_again/1]).
@@ -29,7 +30,8 @@ all() ->
 groups() ->
     [{fake, [], [every_type_through_a_group, structure_and_image_groups,
                  one_sum_command_per_poll, outputs_written_in_order,
-                 notifications_feed_inputs, laser_beam_latch, trigger_enable,
+                 notifications_feed_inputs, notified_group_added_while_up,
+                 laser_beam_latch, trigger_enable,
                  missing_symbol_in_a_group, symbol_version_change_retries,
                  retyped_symbol, raw_requests, bad_configuration,
                  garbage_closes_only_the_connection, group_added_again]},
@@ -404,6 +406,18 @@ notifications_feed_inputs(Config) ->
     42 = await_value(polled, counter, 42),
     {error, not_sampled} = cell_hal:samples(polled, counter, 0),
     set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>).
+
+%% A group that notifications alone feed, added once the connection is up, with
+%% polls a minute apart: it is read at once, which sets its notifications up.
+notified_group_added_while_up(Config) ->
+    set(Config, "MAIN.LaserBeam", <<1>>),
+    ok = connect(Config, plc, #{poll_ms => 60000}),
+    ok = await_status(up),
+    ok = group(beam, #{kind => list, input_struct => <<"MAIN">>, notify => all,
+                       points => [{beam, in, bool, <<".LaserBeam">>}]}),
+    true = await_value(beam, beam, true),
+    set(Config, "MAIN.LaserBeam", <<0>>),
+    false = await_value(beam, beam, false).
 
 %% Seed 000 §2.3.7, end to end through the HAL: an axis drives the tool through the
 %% laser beam; the task asks the HAL for both signals' samples since the move began
