@@ -310,8 +310,10 @@ event({samples, PerPoint}, State, D) when State =/= disconnected ->
                   Known),
     case State of
         connected ->
-            Last = [{K, V} || {K, Ss} <- Known, {_, V} <- [lists:last(Ss)]],
-            {connected, publish(Last, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
+            %% Every change, in the device's order: a bit that rose and fell between
+            %% two notifications is seen rising by subscribers and watches.
+            Each = [{K, V} || {K, Ss} <- Known, {_, V} <- Ss],
+            {connected, publish(Each, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
         _ ->
             {State, D}
     end;

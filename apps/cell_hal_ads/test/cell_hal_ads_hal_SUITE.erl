@@ -12,7 +12,7 @@
 -export([every_type_through_a_group/1, structure_and_image_groups/1,
          one_sum_command_per_poll/1, outputs_written_in_order/1,
          notifications_feed_inputs/1, notified_group_added_while_up/1,
-         laser_beam_latch/1, trigger_enable/1,
+         pulse_in_one_notification/1, laser_beam_latch/1, trigger_enable/1,
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
          retyped_symbol/1, raw_requests/1, bad_configuration/1,
          garbage_closes_only_the_connection/1, group_added_again/1]).
@@ -31,7 +31,7 @@ groups() ->
     [{fake, [], [every_type_through_a_group, structure_and_image_groups,
                  one_sum_command_per_poll, outputs_written_in_order,
                  notifications_feed_inputs, notified_group_added_while_up,
-                 laser_beam_latch, trigger_enable,
+                 pulse_in_one_notification, laser_beam_latch, trigger_enable,
                  missing_symbol_in_a_group, symbol_version_change_retries,
                  retyped_symbol, raw_requests, bad_configuration,
                  garbage_closes_only_the_connection, group_added_again]},
@@ -418,6 +418,26 @@ notified_group_added_while_up(Config) ->
     true = await_value(beam, beam, true),
     set(Config, "MAIN.LaserBeam", <<0>>),
     false = await_value(beam, beam, false).
+
+%% A bit that rises and falls within one notification (two samples a PLC cycle apart)
+%% is published as both changes, in order, and fires a watch for the rise.
+pulse_in_one_notification(Config) ->
+    set(Config, "MAIN.LaserBeam", <<0>>),
+    ok = connect(Config),
+    ok = group(beam, #{kind => list, input_struct => <<"MAIN">>, notify => all,
+                       notify_opts => #{cycle_us => 0},
+                       points => [{beam, in, bool, <<".LaserBeam">>}]}),
+    ok = up([beam]),
+    ok = cell_hal:subscribe(beam, beam),
+    {ok, Rise} = cell_hal:watch(beam, beam, {eq, true}),
+    T = filetime_now(),
+    burst(Config, [{T, [{"MAIN.LaserBeam", <<1>>}]}, {T + 10000, [{"MAIN.LaserBeam", <<0>>}]}]),
+    [receive {cell_hal, {beam, beam}, Got} -> ?assertEqual(V, Got)
+     after ?WAIT -> ct:fail({not_published, V})
+     end || V <- [true, false]],
+    receive {cell_hal_watch, Rise, true} -> ok after ?WAIT -> ct:fail(rise_not_seen) end,
+    {ok, false} = cell_hal:read(beam, beam),
+    {ok, [_, {_, true}, {_, false}]} = cell_hal:samples(beam, beam, filetime_ns(T) - 1).
 
 %% Seed 000 §2.3.7, end to end through the HAL: an axis drives the tool through the
 %% laser beam; the task asks the HAL for both signals' samples since the move began
