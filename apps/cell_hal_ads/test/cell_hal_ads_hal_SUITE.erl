@@ -451,6 +451,7 @@ laser_beam_latch(Config) ->
                               points => [{beam, in, bool, <<".LaserBeam">>},
                                          {pos, in, lreal, <<".AxisPos">>}]}),
     ok = up([tool_setter]),
+    ok = cell_hal:subscribe(tool_setter, beam),
     %% One PLC cycle a millisecond, 0.2 mm a cycle; the beam breaks in cycle 37 and
     %% clears in cycle 80.
     T0 = filetime_now() + 10000000,
@@ -462,6 +463,10 @@ laser_beam_latch(Config) ->
                         [{"MAIN.LaserBeam", <<0>>} || K =:= 80]}
                    || K <- lists:seq(1, 100)]),
     _ = await_value(tool_setter, pos, 100 * 0.2),
+    %% each signal's samples come in a message of their own: the beam's too
+    [receive {cell_hal, {tool_setter, beam}, V} -> ok
+     after ?WAIT -> ct:fail({beam_never, V})
+     end || V <- [true, false]],
     {ok, Beam} = cell_hal:samples(tool_setter, beam, Since),
     {ok, Pos} = cell_hal:samples(tool_setter, pos, Since),
     ?assertEqual(101, length(Pos)),
