@@ -85,6 +85,24 @@ ads_symbols_test_() ->
                    lists:sort([S || #{dir := D, field := F} <- ?IO:points(O),
                                     {ok, {symbol, S}} <- [cell_hal_group:ads_symbol(D, F, O)]]))].
 
+%% The members the PLC writes are fed by device notifications, on change and checked
+%% every PLC cycle (as the HAL's ADS driver resolves the fields); the block's own
+%% members are written, never notified. `notify => false' polls them all.
+ads_notifications_test_() ->
+    Resolve = fun(O) ->
+                      [begin
+                           {ok, #{notify := Sub}} = cell_hal_ads:check_point(#{}, line1, O, P),
+                           {N, Sub}
+                       end || #{name := N} = P <- ?IO:points(O)]
+              end,
+    Notified = Resolve(ads()),
+    {ok, PolledOpts} = ?IO:check_opts(#{layout => ads, notify => false}),
+    EveryCycle = #{mode => on_change, cycle_us => 0, max_delay_us => 0},
+    [?_assertEqual(lists:sort(cell_inspect_tags:inputs()),
+                   lists:sort([N || {N, Sub} <- Notified, Sub =/= false])),
+     ?_assertEqual([EveryCycle], lists:usort([Sub || {_, Sub} <- Notified, Sub =/= false])),
+     ?_assertEqual([false], lists:usort([Sub || {_, Sub} <- Resolve(PolledOpts)]))].
+
 ads_struct_under_a_program_test() ->
     {ok, O} = ?IO:check_opts(#{layout => ads, struct => <<"MAIN.MVSCAMERA">>,
                                lengths => #{serial => 40}}),
@@ -101,6 +119,8 @@ options_test_() ->
      ?_assertEqual({error, {bad_option, layout}}, ?IO:check_opts(#{layout => s5})),
      ?_assertEqual({error, {bad_option, colour}}, ?IO:check_opts(#{layout => s7, colour => red})),
      ?_assertEqual({error, {bad_option, base}}, ?IO:check_opts(#{layout => ads, base => 1})),
+     ?_assertEqual({error, {bad_option, notify}}, ?IO:check_opts(#{layout => ads, notify => 1})),
+     ?_assertEqual({error, {bad_option, notify}}, ?IO:check_opts(#{layout => s7, notify => true})),
      ?_assertEqual({error, {bad_option, result}},
                    ?IO:check_opts(#{layout => s7, lengths => #{result => 300}})),
      ?_assertMatch({ok, #{layout := s7, base := 0}}, ?IO:check_opts(#{})),
