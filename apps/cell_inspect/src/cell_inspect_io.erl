@@ -26,7 +26,7 @@
 -behaviour(cell_hal_group).
 
 -export([points/1]).
--export([check_opts/1, lengths/1, input_points/1, tag_of/2, writes/3, read/3,
+-export([check_opts/1, lengths/1, input_points/1, tag_of/2, change/3, writes/3, read/3,
          normalize/3, to_plc/2, from_plc/1]).
 
 -export_type([opts/0]).
@@ -172,6 +172,27 @@ tag_of(#{layout := s7}, P) ->
     end;
 tag_of(#{layout := ads}, P) ->
     known(P).
+
+%% @doc What the change of a point the block subscribes to says. A command bit counts
+%% as it changed, not as the HAL's table holds it when the change is handled: a pulse
+%% that rose and fell in between (two notifications, or two samples of one) still
+%% rose. A value the PLC writes is to be read again from the table, whole (an S7
+%% string is two points). InspectionStatus is the block's own (watched only to know
+%% its read-back came).
+-spec change(opts(), atom(), cell_hal_type:value()) ->
+          {command, cell_inspect_tags:command(), boolean()} | {value, cell_inspect_tags:in_tag()}
+        | ignore.
+change(O, Point, Value) ->
+    case tag_of(O, Point) of
+        {ok, Tag} ->
+            case {cell_inspect_tags:dir(Tag), cell_inspect_tags:kind(Tag)} of
+                {in, bool} when is_boolean(Value) -> {command, Tag, Value};
+                {in, _} -> {value, Tag};
+                {out, _} -> ignore
+            end;
+        error ->
+            ignore
+    end.
 
 known(P) ->
     case lists:member(P, cell_inspect_tags:all()) of

@@ -157,3 +157,21 @@ tag_of_test_() ->
                                inspection_point_id_len, part_serial, part_serial_len,
                                override_employee_id, override_employee_id_len, message_id]),
                    lists:sort(?IO:input_points(O)))].
+
+%% A command bit counts as it changed, whatever the HAL's table says by the time the
+%% block handles the change (a pulse already over); values are read again whole.
+change_test_() ->
+    O = s7(),
+    A = ads(),
+    [?_assertEqual({command, trigger_inspection, true}, ?IO:change(A, trigger_inspection, true)),
+     ?_assertEqual({command, send_message, false}, ?IO:change(A, send_message, false)),
+     ?_assertEqual({command, log_override, true}, ?IO:change(O, log_override, true)),
+     ?_assertEqual({value, part_serial}, ?IO:change(O, part_serial_len, 48 * 256 + 3)),
+     ?_assertEqual({value, part_serial}, ?IO:change(O, part_serial, <<"SN-">>)),
+     ?_assertEqual({value, message_id}, ?IO:change(A, message_id, 7)),
+     ?_assertEqual(ignore, ?IO:change(A, inspection_status, 1)),
+     ?_assertEqual(ignore, ?IO:change(O, trigger_inspection_echo, true)),
+     ?_assertEqual(ignore, ?IO:change(A, part_serial_len, 3)),
+     ?_assertEqual(ignore, ?IO:change(O, nope, true))] ++
+    [?_assertEqual({command, C, true}, ?IO:change(L, C, true))
+     || L <- [O, A], C <- cell_inspect_tags:commands()].
