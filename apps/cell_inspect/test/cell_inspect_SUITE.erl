@@ -25,6 +25,8 @@
 
 -define(WAIT, 20000).
 -define(P, cell_inspect_plc).
+-define(T, cell_inspect_test_cell).
+-define(S, cell_inspect_steps).
 -define(CAM, <<"cam1">>).
 
 all() ->
@@ -44,27 +46,12 @@ all() ->
 groups() -> [].
 
 init_per_suite(Config) ->
-    Root = filename:join(?config(priv_dir, Config), "root"),
-    _ = application:load(lager),
-    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
-    %% Other suites of the same run may have left apps running on their own root.
-    _ = [application:stop(A) || A <- [cell_inspect, cell_web, cell_shdr, cell, cell_hal,
-                                      cell_base, mnesia]],
-    _ = [application:load(A) || A <- [cell_base, cell, cell_inspect]],
-    ok = application:set_env(cell_base, root, Root),
-    ok = application:set_env(cell, cell_spec, #{name => <<"inspect suite">>, tasks => []}),
-    ok = application:set_env(cell_inspect, processing_types,
-                             #{<<"gate">> => cell_inspect_test_ipm}),
-    {ok, Apps} = application:ensure_all_started(cell),
-    ok = cell_inspect_settings:register(),
-    [{root, Root}, {apps, Apps} | Config].
+    Apps = ?T:start(Config, <<"inspect suite">>,
+                    [{cell_inspect, processing_types, #{<<"gate">> => cell_inspect_test_ipm}}]),
+    [{apps, Apps} | Config].
 
 end_per_suite(Config) ->
-    _ = application:stop(cell_inspect),
-    _ = [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
-    _ = application:stop(mnesia),
-    ok = application:unset_env(cell, cell_spec),
-    ok.
+    ?T:stop(?config(apps, Config)).
 
 init_per_testcase(Case, Config) ->
     %% The gated workspace's loader reports to the test case's process.
@@ -106,20 +93,15 @@ change_settings(Blocks) ->
     await_view(line1, fun(#{settings_version := V1}) -> V1 > V end).
 
 block_settings(Id, Case) ->
-    #{id => atom_to_binary(Id), heartbeat_ms => case Case of udt_bytes -> 60000; _ -> 300 end,
-      processing_timeout_ms => 5000,
-      panel_messages => false,
+    (?T:block_settings(Id))#{
+      heartbeat_ms => case Case of udt_bytes -> 60000; _ -> 300 end,
       points => [#{id => <<"STATION1">>, processing => <<"sim">>, workspace => <<"ws1">>},
                  #{id => <<"NOIPM">>, processing => <<"none">>},
                  #{id => <<"TOP">>, processing => <<"sim">>, workspace => <<"ws-top">>},
                  #{id => <<"BROKEN">>, processing => <<"sim">>},
                  #{id => <<"BADWS">>, processing => <<"sim">>, workspace => <<"fail">>}]
           ++ [#{id => <<"GATED">>, processing => <<"gate">>, workspace => <<"g">>}
-              || Case =:= waiting_for_ipm],
-      messages => [#{id => 7, text => <<"Part OK?">>, kind => yes_no},
-                   #{id => 8, text => <<"Batch number">>, kind => text},
-                   #{id => 9, text => <<"Count">>, kind => number}],
-      clients => [#{id => ?CAM, type => <<"sim">>, manual => true}]}.
+              || Case =:= waiting_for_ipm]}.
 
 %%--------------------------------------------------------------------
 %% Helpers
@@ -129,22 +111,6 @@ plc(Config) -> ?config(plc, Config).
 
 subscribe_cam(Id) ->
     ok = cell_inspect_camera_sim:subscribe(Id).
-
-await_cam(Id, Match) ->
-    receive
-        {cell_inspect_camera_sim, Id, Event} ->
-            case Match(Event) of
-                true -> Event;
-                false -> await_cam(Id, Match)
-            end
-    after ?WAIT -> ct:fail({camera_event_missing, Id})
-    end.
-
-request_seen(Id) ->
-    await_cam(Id, fun({request, _}) -> true; (_) -> false end).
-
-message_seen(Id) ->
-    await_cam(Id, fun({message, _}) -> true; (_) -> false end).
 
 status_codes(Plc) ->
     ?P:written(Plc, inspection_status).
@@ -189,7 +155,7 @@ udt_bytes(Config) ->
     ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"PASS OCR-12">>}),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     ok = cell_inspect_camera_sim:shoot(?CAM),
     ok = ?P:await(Plc, inspection_status, 2),
     ok = ?P:values(Plc, [{message_id, 7}]),
@@ -216,23 +182,9 @@ udt_bytes(Config) ->
 %% Trigger Command Logic
 %%--------------------------------------------------------------------
 
-%% Steps 1 to 9: Requesting when the echo comes, Processing on the image, Complete
-%% with the results.
+%% Trigger steps 1 to 9 (cell_inspect_steps).
 trigger_pass(Config) ->
-    Plc = plc(Config),
-    subscribe_cam(?CAM),
-    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-PASS">>),
-    %% Step 6: when the PLC reads the echo, InspectionStatus already says Requesting.
-    ?assertEqual(3, maps:get(inspection_status, Seen)),
-    {request, #{point := <<"STATION1">>, serial := <<"SN-PASS">>}} = request_seen(?CAM),
-    ?assertEqual(3, ?P:tag(Plc, inspection_status)),
-    ok = cell_inspect_camera_sim:shoot(?CAM),
-    ok = ?P:await(Plc, inspection_status, 2),
-    ?assertEqual([3, 4, 2], status_codes(Plc)),
-    ?assertMatch(#{inspection_pass := true, inspection_fail := false, error_code := 0,
-                   inspection_string := <<>>}, ?P:tags(Plc)),
-    %% Step 9: the results are written before Complete.
-    ok = ?P:before(Plc, {inspection_pass, true}, {inspection_status, 2}).
+    ?S:trigger_pass(plc(Config)).
 
 trigger_fail_with_string(Config) ->
     Plc = plc(Config),
@@ -254,11 +206,7 @@ trigger_without_processing(Config) ->
 
 %% Step 6: the point does not exist: Error, InspectionNotFound.
 unknown_point(Config) ->
-    Plc = plc(Config),
-    Seen = ?P:trigger(Plc, <<"NOSUCH">>, <<"SN-X">>),
-    ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
-    ?assertEqual([3, 5], status_codes(Plc)),
-    ok = ?P:before(Plc, {error_code, 2}, {inspection_status, 5}).
+    ?S:unknown_point(plc(Config)).
 
 %% Step 6: no camera connected for the point: Error, DeviceNotFound.
 no_client(Config) ->
@@ -281,17 +229,17 @@ camera_for_other_points(Config) ->
     subscribe_cam(?CAM),
     Seen2 = ?P:trigger(Plc, <<"TOP">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 3}, Seen2),
-    _ = request_seen(?CAM).
+    _ = ?T:request_seen(?CAM).
 
 %% Step 7: CancelInspection while waiting for the image: Canceled.
 cancel_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-C">>),
-    {request, #{ref := Ref}} = request_seen(?CAM),
+    {request, #{ref := Ref}} = ?T:request_seen(?CAM),
     Seen = ?P:command(Plc, cancel_inspection),
     ?assertEqual(6, maps:get(inspection_status, Seen)),
-    {cancel, Ref} = await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
+    {cancel, Ref} = ?T:await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
     %% A late image changes nothing.
     ?assertEqual({error, nothing_requested}, cell_inspect_camera_sim:shoot(?CAM)),
     ?assertEqual([3, 6], status_codes(Plc)),
@@ -319,7 +267,7 @@ trigger_ignored_unless_ready(Config) ->
     ?assertEqual(#{requests => [], messages => []}, cell_inspect_camera_sim:pending(?CAM)),
     ok = command_and_status(Plc, clear_results, 1),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-I">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     %% Requesting: ignored too.
     Seen3 = ?P:command(Plc, trigger_inspection),
     ?assertEqual(3, maps:get(inspection_status, Seen3)),
@@ -415,10 +363,10 @@ several_cameras(Config) ->
     [ok = cell_inspect_block_ready(line1, C) || C <- [<<"camA">>, <<"camB">>]],
     [subscribe_cam(C) || C <- [<<"camA">>, <<"camB">>]],
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-M">>),
-    _ = request_seen(<<"camA">>),
-    {request, #{ref := Ref}} = request_seen(<<"camB">>),
+    _ = ?T:request_seen(<<"camA">>),
+    {request, #{ref := Ref}} = ?T:request_seen(<<"camB">>),
     ok = cell_inspect_camera_sim:shoot(<<"camB">>),
-    {cancel, Ref} = await_cam(<<"camA">>, fun({cancel, _}) -> true; (_) -> false end),
+    {cancel, Ref} = ?T:await_cam(<<"camA">>, fun({cancel, _}) -> true; (_) -> false end),
     ok = ?P:await(Plc, inspection_status, 2).
 
 %% Every camera asked leaves before sending an image: DeviceNotFound.
@@ -426,7 +374,7 @@ cameras_disconnect_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-D">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(1, ?P:tag(Plc, error_code)).
@@ -435,41 +383,20 @@ cameras_disconnect_while_waiting(Config) ->
 %% PLC Override Logic
 %%--------------------------------------------------------------------
 
-%% Steps 1 to 4: a result exists for point and serial: the override is logged,
-%% Complete.
+%% Override steps 1 to 4: a result exists for point and serial.
 override_found(Config) ->
-    Plc = plc(Config),
-    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
-    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-OV">>),
-    ok = ?P:await(Plc, inspection_status, 2),
-    ok = ?P:values(Plc, [{override_employee_id, <<"E-1001">>}]),
-    ok = ?P:forget(Plc),
-    _ = ?P:command(Plc, log_override),
-    %% Processing (4), then Complete (2) once the override is recorded.
-    ok = ?P:await(Plc, inspection_status, 2),
-    ?assertEqual([4, 2], status_codes(Plc)),
-    {ok, #{overrides := [#{employee := <<"E-1001">>, point := <<"STATION1">>,
-                           serial := <<"SN-OV">>, block := line1}]}} =
-        cell_inspect:traceability(<<"SN-OV">>).
+    ?S:override_found(plc(Config)).
 
-%% No result for that serial: Error, InspectionNotFound.
+%% Override step 4: no result for that serial: Error, InspectionNotFound.
 override_not_found(Config) ->
-    Plc = plc(Config),
-    ok = ?P:values(Plc, [{override_employee_id, <<"E-1">>},
-                         {inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-NEVER">>}]),
-    ok = ?P:forget(Plc),
-    _ = ?P:command(Plc, log_override),
-    ok = ?P:await(Plc, inspection_status, 5),
-    ?assertEqual(2, ?P:tag(Plc, error_code)),
-    ?assertEqual([4, 5], status_codes(Plc)),
-    {ok, #{overrides := []}} = cell_inspect:traceability(<<"SN-NEVER">>).
+    ?S:override_not_found(plc(Config)).
 
 %% Step 1: ignored while not Ready, Complete or Canceled.
 override_ignored_while_busy(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-B">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     ok = ?P:forget(Plc),
     Seen = ?P:command(Plc, log_override),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
@@ -479,25 +406,21 @@ override_ignored_while_busy(Config) ->
 %% Send Message Logic
 %%--------------------------------------------------------------------
 
-send(Plc, Id) ->
-    ok = ?P:values(Plc, [{message_id, Id}]),
-    ?P:command(Plc, send_message).
-
 %% Steps 1 to 9: Waiting, then AffirmativeResponse.
 message_yes(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    Seen = send(Plc, 7),
+    Seen = ?P:send_message(Plc, 7),
     ?assertEqual(1, maps:get(message_status, Seen)),
-    {message, #{id := 7, text := <<"Part OK?">>, kind := yes_no}} = message_seen(?CAM),
+    {message, #{id := 7, text := <<"Part OK?">>, kind := yes_no}} = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, yes),
     ok = ?P:await(Plc, message_status, 5).
 
 message_no(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, no),
     ok = ?P:await(Plc, message_status, 6).
 
@@ -506,45 +429,45 @@ message_no(Config) ->
 message_text(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 8),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"LOT-42">>}),
     ok = ?P:await(Plc, message_status, 5),
     ?assertEqual(<<"LOT-42">>, ?P:tag(Plc, message_result)),
     ok = ?P:before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
-    Seen = send(Plc, 7),
+    Seen = ?P:send_message(Plc, 7),
     ?assertMatch(#{message_status := 1, message_result := <<>>}, Seen).
 
 %% A text the PLC cannot hold is refused; the message keeps waiting.
 message_text_too_long(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 8),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, binary:copy(<<"x">>, 49)}),
     {answer_refused, _, {too_long, 48}} =
-        await_cam(?CAM, fun({answer_refused, _, _}) -> true; (_) -> false end),
+        ?T:await_cam(?CAM, fun({answer_refused, _, _}) -> true; (_) -> false end),
     ?assertEqual(1, ?P:tag(Plc, message_status)).
 
 %% Step 5: an unknown MessageID: MessageNotFound.
 message_not_found(Config) ->
     Plc = plc(Config),
-    Seen = send(Plc, 99),
+    Seen = ?P:send_message(Plc, 99),
     ?assertEqual(2, maps:get(message_status, Seen)).
 
 %% Step 4 (before step 5): no client: NoAvailableClients, even for an unknown id.
 message_no_clients(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
-    ?assertEqual(3, maps:get(message_status, send(Plc, 7))),
-    ?assertEqual(3, maps:get(message_status, send(Plc, 99))).
+    ?assertEqual(3, maps:get(message_status, ?P:send_message(Plc, 7))),
+    ?assertEqual(3, maps:get(message_status, ?P:send_message(Plc, 99))).
 
 %% Step 6: every client disconnects before an answer: NoAvailableClients.
 message_clients_disconnect(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     ok = ?P:await(Plc, message_status, 3).
 
@@ -552,11 +475,11 @@ message_clients_disconnect(Config) ->
 message_replaced(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    {message, #{ref := Ref7}} = message_seen(?CAM),
-    _ = send(Plc, 8),
-    {withdrawn, Ref7} = await_cam(?CAM, fun({withdrawn, _}) -> true; (_) -> false end),
-    {message, #{id := 8}} = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    {message, #{ref := Ref7}} = ?T:message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    {withdrawn, Ref7} = ?T:await_cam(?CAM, fun({withdrawn, _}) -> true; (_) -> false end),
+    {message, #{id := 8}} = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"B">>}),
     ok = ?P:await(Plc, message_result, <<"B">>),
     ok = ?P:await(Plc, message_status, 5).
@@ -571,7 +494,7 @@ restart_while_requesting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-R">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     Old = cell_inspect_block:whereis(line1),
     exit(Old, kill),
     ok = ?P:await(Plc, inspection_status, 5),
@@ -583,8 +506,8 @@ restart_while_requesting(Config) ->
 restart_while_waiting_for_an_answer(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     exit(cell_inspect_block:whereis(line1), kill),
     ok = ?P:await(Plc, message_status, 4).
 
@@ -594,7 +517,7 @@ link_lost_and_back(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-L">>),
-    _ = request_seen(?CAM),
+    _ = ?T:request_seen(?CAM),
     ok = cell_hal_subscribe(plc),
     ok = ?P:silent(Plc, true),
     ok = await_conn(plc, down),
@@ -626,7 +549,7 @@ settings_change_applies_at_once(Config) ->
     subscribe_cam(?CAM),
     Seen = ?P:trigger(Plc, <<"NEW">>, <<"SN-N">>),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
-    _ = request_seen(?CAM).
+    _ = ?T:request_seen(?CAM).
 
 %% Two blocks on two PLCs, each with its own cameras: a camera serves its block only.
 two_blocks_two_plcs(Config) ->
@@ -651,7 +574,7 @@ two_blocks_two_plcs(Config) ->
                  ?P:trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
     subscribe_cam(<<"cam2">>),
     ?assertMatch(#{inspection_status := 3}, ?P:trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
-    _ = request_seen(<<"cam2">>),
+    _ = ?T:request_seen(<<"cam2">>),
     ok = cell_inspect_camera_sim:shoot(<<"cam2">>),
     ok = ?P:await(Plc2, inspection_status, 2),
     ?assertEqual(5, ?P:tag(Plc1, inspection_status)),

@@ -19,7 +19,7 @@
 -export([start/2, start/3, start_ads/0, stop/1, port/1, set/3, pulse/2, await/3, await/4,
          await_written/3, tag/2, tags/1, written/2, log/1, forget/1, bytes/1, raw/2, peer/1,
          silent/2, registers/3, set_registers/3]).
--export([values/2, command/2, trigger/3, before/3]).
+-export([values/2, command/2, trigger/3, send_message/2, before/3]).
 
 -define(WAIT, 20000).
 -define(FILETIME_UNIX_EPOCH, 116444736000000000).
@@ -184,6 +184,11 @@ trigger(Plc, Point, Serial) ->
     ok = values(Plc, [{inspection_point_id, Point}, {part_serial, Serial}]),
     ok = forget(Plc),
     command(Plc, trigger_inspection).
+
+%% @doc Send Message steps 1 and 2: the MessageID echoed, then SendMessage.
+send_message(Plc, Id) ->
+    ok = values(Plc, [{message_id, Id}]),
+    command(Plc, send_message).
 
 %% @doc Fails unless the PLC saw `A' written before `B' (both written).
 before(Plc, A, B) ->
