@@ -46,7 +46,7 @@ all() ->
 groups() -> [].
 
 init_per_suite(Config) ->
-    Apps = ?T:start(Config, <<"inspect suite">>,
+    Apps = ?T:start(Config, ?MODULE,
                     [{cell_inspect, processing_types, #{<<"gate">> => cell_inspect_test_ipm}}]),
     [{apps, Apps} | Config].
 

@@ -32,7 +32,7 @@ all() ->
      pulse_over_before_the_block_looks, connection_dropped, polled_without_notifications].
 
 init_per_suite(Config) ->
-    [{apps, ?T:start(Config, <<"inspect ads suite">>, [])} | Config].
+    [{apps, ?T:start(Config, ?MODULE, [])} | Config].
 
 end_per_suite(Config) ->
     ?T:stop(?config(apps, Config)).

@@ -8,10 +8,11 @@
 -define(WAIT, 20000).
 
 %% @doc Starts the cell (without tasks, logging quietly) on a root folder of the
-%% suite's own, with `Env' (`[{App, Key, Value}]') set first; registers the
-%% inspection settings. Returns the applications started, for stop/1.
-start(Config, Name, Env) ->
-    Root = filename:join(?config(priv_dir, Config), "root"),
+%% suite's own (suites of one test folder share their priv_dir in a run, and the
+%% database lives in the root), with `Env' (`[{App, Key, Value}]') set first;
+%% registers the inspection settings. Returns the applications started, for stop/1.
+start(Config, Suite, Env) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Suite) ++ ".root"),
     _ = application:load(lager),
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     %% Other suites of the same run may have left apps running on their own root.
@@ -19,7 +20,7 @@ start(Config, Name, Env) ->
                                       cell_base, mnesia]],
     _ = [application:load(A) || A <- [cell_base, cell, cell_inspect]],
     ok = application:set_env(cell_base, root, Root),
-    ok = application:set_env(cell, cell_spec, #{name => Name, tasks => []}),
+    ok = application:set_env(cell, cell_spec, #{name => atom_to_binary(Suite), tasks => []}),
     [ok = application:set_env(A, K, V) || {A, K, V} <- Env],
     {ok, Apps} = application:ensure_all_started(cell),
     ok = cell_inspect_settings:register(),
