@@ -7,6 +7,7 @@
 -module(cell_inspect_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include("cell_inspect_suite.hrl").
 
 -export([all/0, groups/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
@@ -22,12 +23,6 @@
          restart_while_waiting_for_an_answer/1, link_lost_and_back/1,
          command_raised_while_link_down/1, settings_change_applies_at_once/1,
          two_blocks_two_plcs/1, traceability_by_serial/1]).
-
--define(WAIT, 20000).
--define(P, cell_inspect_plc).
--define(T, cell_inspect_test_cell).
--define(S, cell_inspect_steps).
--define(CAM, <<"cam1">>).
 
 all() ->
     [heartbeat_toggles, echoes, udt_bytes, trigger_pass, trigger_fail_with_string,

@@ -10,6 +10,7 @@
 -module(cell_inspect_ads_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include("cell_inspect_suite.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
@@ -18,12 +19,6 @@
          override_not_found/1, message_yes_no/1, message_text/1,
          pulse_in_one_notification/1, pulse_over_before_the_block_looks/1,
          connection_dropped/1, polled_without_notifications/1]).
-
--define(WAIT, 20000).
--define(P, cell_inspect_plc).
--define(T, cell_inspect_test_cell).
--define(S, cell_inspect_steps).
--define(CAM, <<"cam1">>).
 
 all() ->
     [symbols_and_notifications, heartbeat_toggles, echoes, trigger_pass,

@@ -4,11 +4,9 @@
 %% settings of cell_inspect_test_cell:block_settings/1 (its camera `cam1').
 -module(cell_inspect_steps).
 -include_lib("stdlib/include/assert.hrl").
+-include("cell_inspect_suite.hrl").
 
 -export([trigger_pass/1, unknown_point/1, override_found/1, override_not_found/1]).
-
--define(P, cell_inspect_plc).
--define(CAM, <<"cam1">>).
 
 %% @doc Trigger steps 1 to 9: Requesting when the echo comes, Processing on the image,
 %% Complete with the results written before it.
@@ -18,7 +16,7 @@ trigger_pass(Plc) ->
     %% Step 6: when the PLC reads the echo, InspectionStatus already says Requesting.
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     {request, #{point := <<"STATION1">>, serial := <<"SN-PASS">>}} =
-        cell_inspect_test_cell:request_seen(?CAM),
+        ?T:request_seen(?CAM),
     ?assertEqual(3, ?P:tag(Plc, inspection_status)),
     ok = cell_inspect_camera_sim:shoot(?CAM),
     ok = ?P:await(Plc, inspection_status, 2),

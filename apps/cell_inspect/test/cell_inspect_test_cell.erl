@@ -2,10 +2,9 @@
 %% the simulated cameras.
 -module(cell_inspect_test_cell).
 -include_lib("common_test/include/ct.hrl").
+-include("cell_inspect_suite.hrl").
 
 -export([start/3, stop/1, block_settings/1, await_cam/2, request_seen/1, message_seen/1]).
-
--define(WAIT, 20000).
 
 %% @doc Starts the cell (without tasks, logging quietly) on a root folder of the
 %% suite's own (suites of one test folder share their priv_dir in a run, and the
@@ -42,7 +41,7 @@ block_settings(Id) ->
       messages => [#{id => 7, text => <<"Part OK?">>, kind => yes_no},
                    #{id => 8, text => <<"Batch number">>, kind => text},
                    #{id => 9, text => <<"Count">>, kind => number}],
-      clients => [#{id => <<"cam1">>, type => <<"sim">>, manual => true}]}.
+      clients => [#{id => ?CAM, type => <<"sim">>, manual => true}]}.
 
 %% @doc The next event of a simulated camera (cell_inspect_camera_sim:subscribe/1)
 %% that `Match' accepts; the test fails after the deadline.
