@@ -238,7 +238,7 @@ common({call, From}, {request, _, _}, _, _) ->
 common(cast, reconfigure, State, D) ->
     D1 = load_points(D),
     {keep_state, case State of
-                     connected -> start_readback(D1);
+                     connected -> start_readback(read_new_inputs(D1));
                      _ -> D1
                  end}.
 
@@ -310,8 +310,10 @@ event({samples, PerPoint}, State, D) when State =/= disconnected ->
                   Known),
     case State of
         connected ->
-            Last = [{K, V} || {K, Ss} <- Known, {_, V} <- [lists:last(Ss)]],
-            {connected, publish(Last, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
+            %% Every change, in the device's order: a bit that rose and fell between
+            %% two notifications is seen rising by subscribers and watches.
+            Each = [{K, V} || {K, Ss} <- Known, {_, V} <- Ss],
+            {connected, publish(Each, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
         _ ->
             {State, D}
     end;
@@ -367,10 +369,32 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
                            logged = undefined, unread = #{}}).
 
 start_poll(#data{requests = 0} = D) ->
-    D;
-start_poll(#data{plan = Plan} = D) ->
+    %% Device notifications feed every input: nothing to poll, but inputs never read
+    %% (a group added while up) are read once, which sets their notifications up.
+    case unread_inputs(D) of
+        true -> read_inputs(D);
+        false -> D
+    end;
+start_poll(D) ->
+    read_inputs(D).
+
+read_inputs(#data{plan = Plan} = D) ->
     {Tag, D1} = read(Plan, D),
     D1#data{poll = Tag}.
+
+%% The inputs of a group added while up are read at once, not at the next poll
+%% period; after the poll in flight if there is one (it reads the plan of before).
+read_new_inputs(#data{poll = Polling} = D) ->
+    case unread_inputs(D) of
+        true when Polling =:= undefined -> start_poll(D);
+        true -> D#data{poll_due = true};
+        false -> D
+    end.
+
+unread_inputs(#data{points = Pts}) ->
+    lists:any(fun(#pt{dir = Dir, value = V}) -> Dir =:= in andalso V =:= none end,
+              maps:values(Pts)).
+
 
 %% The answer to reading back outputs: only those no write has commanded since count.
 read_back(Tag, {ok, Values}, #data{unread = U} = D) ->

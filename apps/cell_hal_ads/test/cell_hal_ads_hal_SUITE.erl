@@ -11,7 +11,8 @@
          end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
 -export([every_type_through_a_group/1, structure_and_image_groups/1,
          one_sum_command_per_poll/1, outputs_written_in_order/1,
-         notifications_feed_inputs/1, laser_beam_latch/1, trigger_enable/1,
+         notifications_feed_inputs/1, notified_group_added_while_up/1,
+         pulse_in_one_notification/1, laser_beam_latch/1, trigger_enable/1,
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
          retyped_symbol/1, raw_requests/1, bad_configuration/1,
          garbage_closes_only_the_connection/1, group_added_again/1]).
@@ -29,7 +30,8 @@ all() ->
 groups() ->
     [{fake, [], [every_type_through_a_group, structure_and_image_groups,
                  one_sum_command_per_poll, outputs_written_in_order,
-                 notifications_feed_inputs, laser_beam_latch, trigger_enable,
+                 notifications_feed_inputs, notified_group_added_while_up,
+                 pulse_in_one_notification, laser_beam_latch, trigger_enable,
                  missing_symbol_in_a_group, symbol_version_change_retries,
                  retyped_symbol, raw_requests, bad_configuration,
                  garbage_closes_only_the_connection, group_added_again]},
@@ -405,6 +407,38 @@ notifications_feed_inputs(Config) ->
     {error, not_sampled} = cell_hal:samples(polled, counter, 0),
     set(Config, "MAIN.AxisPos", <<0.0:64/float-little>>).
 
+%% A group that notifications alone feed, added once the connection is up, with
+%% polls a minute apart: it is read at once, which sets its notifications up.
+notified_group_added_while_up(Config) ->
+    set(Config, "MAIN.LaserBeam", <<1>>),
+    ok = connect(Config, plc, #{poll_ms => 60000}),
+    ok = await_status(up),
+    ok = group(beam, #{kind => list, input_struct => <<"MAIN">>, notify => all,
+                       points => [{beam, in, bool, <<".LaserBeam">>}]}),
+    true = await_value(beam, beam, true),
+    set(Config, "MAIN.LaserBeam", <<0>>),
+    false = await_value(beam, beam, false).
+
+%% A bit that rises and falls within one notification (two samples a PLC cycle apart)
+%% is published as both changes, in order, and fires a watch for the rise.
+pulse_in_one_notification(Config) ->
+    set(Config, "MAIN.LaserBeam", <<0>>),
+    ok = connect(Config),
+    ok = group(beam, #{kind => list, input_struct => <<"MAIN">>, notify => all,
+                       notify_opts => #{cycle_us => 0},
+                       points => [{beam, in, bool, <<".LaserBeam">>}]}),
+    ok = up([beam]),
+    ok = cell_hal:subscribe(beam, beam),
+    {ok, Rise} = cell_hal:watch(beam, beam, {eq, true}),
+    T = filetime_now(),
+    burst(Config, [{T, [{"MAIN.LaserBeam", <<1>>}]}, {T + 10000, [{"MAIN.LaserBeam", <<0>>}]}]),
+    [receive {cell_hal, {beam, beam}, Got} -> ?assertEqual(V, Got)
+     after ?WAIT -> ct:fail({not_published, V})
+     end || V <- [true, false]],
+    receive {cell_hal_watch, Rise, true} -> ok after ?WAIT -> ct:fail(rise_not_seen) end,
+    {ok, false} = cell_hal:read(beam, beam),
+    {ok, [_, {_, true}, {_, false}]} = cell_hal:samples(beam, beam, filetime_ns(T) - 1).
+
 %% Seed 000 §2.3.7, end to end through the HAL: an axis drives the tool through the
 %% laser beam; the task asks the HAL for both signals' samples since the move began
 %% and latches the position at the beam's edge, as the PLC saw it, whatever the lag.
@@ -417,6 +451,7 @@ laser_beam_latch(Config) ->
                               points => [{beam, in, bool, <<".LaserBeam">>},
                                          {pos, in, lreal, <<".AxisPos">>}]}),
     ok = up([tool_setter]),
+    ok = cell_hal:subscribe(tool_setter, beam),
     %% One PLC cycle a millisecond, 0.2 mm a cycle; the beam breaks in cycle 37 and
     %% clears in cycle 80.
     T0 = filetime_now() + 10000000,
@@ -428,6 +463,10 @@ laser_beam_latch(Config) ->
                         [{"MAIN.LaserBeam", <<0>>} || K =:= 80]}
                    || K <- lists:seq(1, 100)]),
     _ = await_value(tool_setter, pos, 100 * 0.2),
+    %% each signal's samples come in a message of their own: the beam's too
+    [receive {cell_hal, {tool_setter, beam}, V} -> ok
+     after ?WAIT -> ct:fail({beam_never, V})
+     end || V <- [true, false]],
     {ok, Beam} = cell_hal:samples(tool_setter, beam, Since),
     {ok, Pos} = cell_hal:samples(tool_setter, pos, Since),
     ?assertEqual(101, length(Pos)),

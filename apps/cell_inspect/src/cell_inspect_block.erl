@@ -263,8 +263,8 @@ online(enter, _, D) ->
 online(info, {cell_hal, {Id, _}, _}, #data{id = Id, synced = false} = D) ->
     %% The group was added while the connection was up: read whole once it has been.
     {keep_state, plc_up(D)};
-online(info, {cell_hal, {Id, Point}, _}, #data{id = Id} = D) ->
-    {keep_state, input(Point, D)};
+online(info, {cell_hal, {Id, Point}, Value}, #data{id = Id} = D) ->
+    {keep_state, input(Point, Value, D)};
 online(info, {cell_hal_conn, Conn, up}, #data{conn = Conn} = D) ->
     {keep_state, plc_up(D)};
 online(info, {cell_hal_conn, Conn, down}, #data{conn = Conn} = D) ->
@@ -363,24 +363,21 @@ plc_up(#data{id = Id, io = Io} = D) ->
         false -> D#data{synced = false}          %% a change or a connection message follows
     end.
 
-%% A changed input point. A command's edge comes after the values it works on: those
-%% are read again first, so a value written on the same PLC scan is not missed.
-input(Point, #data{id = Id, io = Io} = D) ->
-    case cell_inspect_io:tag_of(Io, Point) of
-        {ok, Tag} when Tag =:= inspection_status ->
-            D;                                      %% our own write
-        {ok, Tag} ->
-            case cell_inspect_io:read(Io, Id, Tag) of
-                {ok, true} ->
-                    D1 = lists:foldl(fun(T, Dx) -> refresh(T, Dx) end, D,
-                                     cell_inspect_tags:data_inputs()),
-                    feed({input, Tag, true}, online, D1);
-                {ok, V} ->
-                    feed({input, Tag, V}, online, D);
-                {error, _} ->
-                    D
-            end;
-        error ->
+%% A changed input point. A command bit is taken with the value the change carries
+%% (see cell_inspect_io:change/3), so a pulse over by now still rises. A command's
+%% edge comes after the values it works on: those are read again first, so a value
+%% written on the same PLC scan is not missed.
+input(Point, Value, #data{io = Io} = D) ->
+    case cell_inspect_io:change(Io, Point, Value) of
+        {command, Tag, true} ->
+            D1 = lists:foldl(fun(T, Dx) -> refresh(T, Dx) end, D,
+                             cell_inspect_tags:data_inputs()),
+            feed({input, Tag, true}, online, D1);
+        {command, Tag, false} ->
+            feed({input, Tag, false}, online, D);
+        {value, Tag} ->
+            refresh(Tag, D);
+        ignore ->
             D
     end.
 

@@ -11,9 +11,13 @@
 %% <b>`ads'</b> — the Allen-Bradley tag names of the seed as the members of one
 %% structure on a Beckhoff PLC read over ADS: `MVSCAMERA.TRIGGERINSPECTION' and so on.
 %% Options: `struct' (default `<<"MVSCAMERA">>'; `<<"MAIN.MVSCAMERA">>' under a
-%% program), `lengths' (the seed's `DATA/16' and `DATA/32' by default). BOOL, INT and
-%% STRING(N) are TwinCAT's own; the ADS driver reads the structure's members by symbol
-%% (with device notifications where it offers them).
+%% program), `lengths' (the seed's `DATA/16' and `DATA/32' by default), `notify'
+%% (default `true'). BOOL, INT and STRING(N) are TwinCAT's own; the ADS driver reads
+%% and writes the structure's members by symbol. With `notify' the members the PLC
+%% writes come by device notifications, on change and checked every PLC cycle (what
+%% Beckhoff calls immediately on change), never by polling: a command bit raised for
+%% a single PLC cycle is still seen rising. `notify => false' polls them instead,
+%% every `poll_ms' of the connection.
 %%
 %% Strings: the PLC holds one byte a character (Latin-1); the block works with UTF-8.
 %% A character the PLC cannot hold is written as `?', and a string is cut to its tag's
@@ -22,17 +26,22 @@
 -behaviour(cell_hal_group).
 
 -export([points/1]).
--export([check_opts/1, lengths/1, input_points/1, tag_of/2, writes/3, read/3,
+-export([check_opts/1, lengths/1, input_points/1, tag_of/2, change/3, writes/3, read/3,
          normalize/3, to_plc/2, from_plc/1]).
 
 -export_type([opts/0]).
 
 -type opts() :: #{layout := s7 | ads, lengths := cell_inspect_udt:lengths(),
                   base => non_neg_integer(), unit => 0..255, struct => binary(),
-                  input_struct => binary(), output_struct => binary()}.
+                  input_struct => binary(), output_struct => binary(),
+                  notify => all, notify_opts => map()}.
 
 -define(ADS_LENGTHS, #{point_id => 16, serial => 32, employee => 32, string => 32,
                        result => 32}).
+%% The PLC-written members as device notifications: sent on change, checked at every
+%% cycle of the PLC task (a cycle time of 0), without delay.
+-define(ADS_NOTIFY, #{notify => all,
+                      notify_opts => #{mode => on_change, cycle_us => 0, max_delay_us => 0}}).
 
 %% @doc Checks a block's IO options and fills in the defaults. The first fault is
 %% named: `{error, {bad_option, Key}}'.
@@ -59,16 +68,23 @@ check_opts(#{layout := s7} = O) ->
                   end
           end);
 check_opts(#{layout := ads} = O) ->
-    check(O, [layout, struct, lengths],
+    check(O, [layout, struct, lengths, notify],
           fun() ->
                   Struct = maps:get(struct, O, <<"MVSCAMERA">>),
                   Lengths = maps:merge(?ADS_LENGTHS, maps:get(lengths, O, #{})),
+                  Notify = maps:get(notify, O, true),
                   case cell_inspect_udt:check_lengths(Lengths) of
                       _ when not is_binary(Struct); Struct =:= <<>> ->
                           {error, {bad_option, struct}};
+                      _ when not is_boolean(Notify) ->
+                          {error, {bad_option, notify}};
                       {ok, L} ->
-                          {ok, #{layout => ads, struct => Struct, lengths => L,
-                                 input_struct => Struct, output_struct => Struct}};
+                          Io = #{layout => ads, struct => Struct, lengths => L,
+                                 input_struct => Struct, output_struct => Struct},
+                          {ok, case Notify of
+                                   true -> maps:merge(Io, ?ADS_NOTIFY);
+                                   false -> Io
+                               end};
                       {error, _} = E -> E
                   end
           end);
@@ -156,6 +172,27 @@ tag_of(#{layout := s7}, P) ->
     end;
 tag_of(#{layout := ads}, P) ->
     known(P).
+
+%% @doc What the change of a point the block subscribes to says. A command bit counts
+%% as it changed, not as the HAL's table holds it when the change is handled: a pulse
+%% that rose and fell in between (two notifications, or two samples of one) still
+%% rose. A value the PLC writes is to be read again from the table, whole (an S7
+%% string is two points). InspectionStatus is the block's own (watched only to know
+%% its read-back came).
+-spec change(opts(), atom(), cell_hal_type:value()) ->
+          {command, cell_inspect_tags:command(), boolean()} | {value, cell_inspect_tags:in_tag()}
+        | ignore.
+change(O, Point, Value) ->
+    case tag_of(O, Point) of
+        {ok, Tag} ->
+            case {cell_inspect_tags:dir(Tag), cell_inspect_tags:kind(Tag)} of
+                {in, bool} when is_boolean(Value) -> {command, Tag, Value};
+                {in, _} -> {value, Tag};
+                {out, _} -> ignore
+            end;
+        error ->
+            ignore
+    end.
 
 known(P) ->
     case lists:member(P, cell_inspect_tags:all()) of

@@ -7,6 +7,7 @@
 -module(cell_inspect_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include("cell_inspect_suite.hrl").
 
 -export([all/0, groups/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
@@ -22,10 +23,6 @@
          restart_while_waiting_for_an_answer/1, link_lost_and_back/1,
          command_raised_while_link_down/1, settings_change_applies_at_once/1,
          two_blocks_two_plcs/1, traceability_by_serial/1]).
-
--define(WAIT, 20000).
--define(P, cell_inspect_plc).
--define(CAM, <<"cam1">>).
 
 all() ->
     [heartbeat_toggles, echoes, udt_bytes, trigger_pass, trigger_fail_with_string,
@@ -44,27 +41,12 @@ all() ->
 groups() -> [].
 
 init_per_suite(Config) ->
-    Root = filename:join(?config(priv_dir, Config), "root"),
-    _ = application:load(lager),
-    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
-    %% Other suites of the same run may have left apps running on their own root.
-    _ = [application:stop(A) || A <- [cell_inspect, cell_web, cell_shdr, cell, cell_hal,
-                                      cell_base, mnesia]],
-    _ = [application:load(A) || A <- [cell_base, cell, cell_inspect]],
-    ok = application:set_env(cell_base, root, Root),
-    ok = application:set_env(cell, cell_spec, #{name => <<"inspect suite">>, tasks => []}),
-    ok = application:set_env(cell_inspect, processing_types,
-                             #{<<"gate">> => cell_inspect_test_ipm}),
-    {ok, Apps} = application:ensure_all_started(cell),
-    ok = cell_inspect_settings:register(),
-    [{root, Root}, {apps, Apps} | Config].
+    Apps = ?T:start(Config, ?MODULE,
+                    [{cell_inspect, processing_types, #{<<"gate">> => cell_inspect_test_ipm}}]),
+    [{apps, Apps} | Config].
 
 end_per_suite(Config) ->
-    _ = application:stop(cell_inspect),
-    _ = [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
-    _ = application:stop(mnesia),
-    ok = application:unset_env(cell, cell_spec),
-    ok.
+    ?T:stop(?config(apps, Config)).
 
 init_per_testcase(Case, Config) ->
     %% The gated workspace's loader reports to the test case's process.
@@ -106,20 +88,15 @@ change_settings(Blocks) ->
     await_view(line1, fun(#{settings_version := V1}) -> V1 > V end).
 
 block_settings(Id, Case) ->
-    #{id => atom_to_binary(Id), heartbeat_ms => case Case of udt_bytes -> 60000; _ -> 300 end,
-      processing_timeout_ms => 5000,
-      panel_messages => false,
+    (?T:block_settings(Id))#{
+      heartbeat_ms => case Case of udt_bytes -> 60000; _ -> 300 end,
       points => [#{id => <<"STATION1">>, processing => <<"sim">>, workspace => <<"ws1">>},
                  #{id => <<"NOIPM">>, processing => <<"none">>},
                  #{id => <<"TOP">>, processing => <<"sim">>, workspace => <<"ws-top">>},
                  #{id => <<"BROKEN">>, processing => <<"sim">>},
                  #{id => <<"BADWS">>, processing => <<"sim">>, workspace => <<"fail">>}]
           ++ [#{id => <<"GATED">>, processing => <<"gate">>, workspace => <<"g">>}
-              || Case =:= waiting_for_ipm],
-      messages => [#{id => 7, text => <<"Part OK?">>, kind => yes_no},
-                   #{id => 8, text => <<"Batch number">>, kind => text},
-                   #{id => 9, text => <<"Count">>, kind => number}],
-      clients => [#{id => ?CAM, type => <<"sim">>, manual => true}]}.
+              || Case =:= waiting_for_ipm]}.
 
 %%--------------------------------------------------------------------
 %% Helpers
@@ -127,55 +104,11 @@ block_settings(Id, Case) ->
 
 plc(Config) -> ?config(plc, Config).
 
-%% The PLC sets values and waits for their echoes (Trigger steps 2 to 4).
-values(Plc, Pairs) ->
-    [ok = ?P:set(Plc, T, V) || {T, V} <- Pairs],
-    [ok = ?P:await(Plc, cell_inspect_tags:echo(T), V) || {T, V} <- Pairs],
-    ok.
-
-%% The PLC raises a command, waits for its echo, drops it, waits for the echo to
-%% follow: the four-phase handshake the block expects.
-command(Plc, Cmd) ->
-    ok = ?P:set(Plc, Cmd, true),
-    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), true),
-    Seen = ?P:tags(Plc),
-    ok = ?P:set(Plc, Cmd, false),
-    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), false),
-    Seen.
-
-trigger(Plc, Point, Serial) ->
-    ok = values(Plc, [{inspection_point_id, Point}, {part_serial, Serial}]),
-    ok = ?P:forget(Plc),
-    command(Plc, trigger_inspection).
-
 subscribe_cam(Id) ->
     ok = cell_inspect_camera_sim:subscribe(Id).
 
-await_cam(Id, Match) ->
-    receive
-        {cell_inspect_camera_sim, Id, Event} ->
-            case Match(Event) of
-                true -> Event;
-                false -> await_cam(Id, Match)
-            end
-    after ?WAIT -> ct:fail({camera_event_missing, Id})
-    end.
-
-request_seen(Id) ->
-    await_cam(Id, fun({request, _}) -> true; (_) -> false end).
-
-message_seen(Id) ->
-    await_cam(Id, fun({message, _}) -> true; (_) -> false end).
-
 status_codes(Plc) ->
     ?P:written(Plc, inspection_status).
-
-%% The order the PLC saw: `A' written before `B' (both written).
-before(Plc, A, B) ->
-    Log = ?P:log(Plc),
-    Index = fun(X) -> length(lists:takewhile(fun(E) -> E =/= X end, Log)) end,
-    ?assert(lists:member(A, Log) andalso lists:member(B, Log) andalso Index(A) < Index(B),
-            {A, B, Log}).
 
 %%--------------------------------------------------------------------
 %% Heartbeat, echoes, the UDT
@@ -199,11 +132,11 @@ heartbeat_toggles(Config) ->
 %% Echo Tags: every value the PLC writes is echoed, strings with their S7 lengths.
 echoes(Config) ->
     Plc = plc(Config),
-    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN 0001">>},
-                      {override_employee_id, <<"EMP-7">>}, {message_id, -5}]),
-    ok = values(Plc, [{part_serial, <<"SN 2">>}, {inspection_point_id, <<>>}]),
+    ok = ?P:values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN 0001">>},
+                         {override_employee_id, <<"EMP-7">>}, {message_id, -5}]),
+    ok = ?P:values(Plc, [{part_serial, <<"SN 2">>}, {inspection_point_id, <<>>}]),
     %% Latin-1 from the PLC, as a byte a character.
-    ok = values(Plc, [{part_serial, <<"Grün"/utf8>>}]),
+    ok = ?P:values(Plc, [{part_serial, <<"Grün"/utf8>>}]),
     Bytes = ?P:bytes(Plc),
     %% PartSerial_ECHO at 24: STRING[48], length 4, "Gr\xFCn".
     ?assertEqual(<<48, 4, "Gr", 252, "n">>, binary:part(Bytes, 24, 6)),
@@ -216,11 +149,11 @@ udt_bytes(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"PASS OCR-12">>}),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
+    _ = ?T:request_seen(?CAM),
     ok = cell_inspect_camera_sim:shoot(?CAM),
     ok = ?P:await(Plc, inspection_status, 2),
-    ok = values(Plc, [{message_id, 7}]),
+    ok = ?P:values(Plc, [{message_id, 7}]),
     Regs = ?P:registers(Plc, 0, 175),
     Bin = << <<R:16>> || R <- Regs >>,
     ?assertEqual(Bin, ?P:bytes(Plc)),
@@ -244,55 +177,37 @@ udt_bytes(Config) ->
 %% Trigger Command Logic
 %%--------------------------------------------------------------------
 
-%% Steps 1 to 9: Requesting when the echo comes, Processing on the image, Complete
-%% with the results.
+%% Trigger steps 1 to 9 (cell_inspect_steps).
 trigger_pass(Config) ->
-    Plc = plc(Config),
-    subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-PASS">>),
-    %% Step 6: when the PLC reads the echo, InspectionStatus already says Requesting.
-    ?assertEqual(3, maps:get(inspection_status, Seen)),
-    {request, #{point := <<"STATION1">>, serial := <<"SN-PASS">>}} = request_seen(?CAM),
-    ?assertEqual(3, ?P:tag(Plc, inspection_status)),
-    ok = cell_inspect_camera_sim:shoot(?CAM),
-    ok = ?P:await(Plc, inspection_status, 2),
-    ?assertEqual([3, 4, 2], status_codes(Plc)),
-    ?assertMatch(#{inspection_pass := true, inspection_fail := false, error_code := 0,
-                   inspection_string := <<>>}, ?P:tags(Plc)),
-    %% Step 9: the results are written before Complete.
-    before(Plc, {inspection_pass, true}, {inspection_status, 2}).
+    ?S:trigger_pass(plc(Config)).
 
 trigger_fail_with_string(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL DMC 1234">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-FAIL">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-FAIL">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ?assertMatch(#{inspection_pass := false, inspection_fail := true,
                    inspection_string := <<"DMC 1234">>}, ?P:tags(Plc)),
-    before(Plc, {inspection_fail, true}, {inspection_status, 2}),
-    before(Plc, {inspection_string, <<"DMC 1234">>}, {inspection_status, 2}).
+    ok = ?P:before(Plc, {inspection_fail, true}, {inspection_status, 2}),
+    ok = ?P:before(Plc, {inspection_string, <<"DMC 1234">>}, {inspection_status, 2}).
 
 %% A point without image processing: the image is recorded, the inspection passes.
 trigger_without_processing(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"NOIPM">>, <<"SN-NOIPM">>),
+    _ = ?P:trigger(Plc, <<"NOIPM">>, <<"SN-NOIPM">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ?assert(?P:tag(Plc, inspection_pass)).
 
 %% Step 6: the point does not exist: Error, InspectionNotFound.
 unknown_point(Config) ->
-    Plc = plc(Config),
-    Seen = trigger(Plc, <<"NOSUCH">>, <<"SN-X">>),
-    ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
-    ?assertEqual([3, 5], status_codes(Plc)),
-    before(Plc, {error_code, 2}, {inspection_status, 5}).
+    ?S:unknown_point(plc(Config)).
 
 %% Step 6: no camera connected for the point: Error, DeviceNotFound.
 no_client(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
     ?assertEqual([3, 5], status_codes(Plc)).
 
@@ -303,34 +218,34 @@ camera_for_other_points(Config) ->
     ok = change_settings([B#{clients => [#{id => ?CAM, type => <<"sim">>, manual => true,
                                            points => [<<"TOP">>]}]}]),
     ok = cell_inspect_block_ready(line1, ?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
     ok = command_and_status(Plc, clear_results, 1),
     subscribe_cam(?CAM),
-    Seen2 = trigger(Plc, <<"TOP">>, <<"SN-X">>),
+    Seen2 = ?P:trigger(Plc, <<"TOP">>, <<"SN-X">>),
     ?assertMatch(#{inspection_status := 3}, Seen2),
-    _ = request_seen(?CAM).
+    _ = ?T:request_seen(?CAM).
 
 %% Step 7: CancelInspection while waiting for the image: Canceled.
 cancel_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-C">>),
-    {request, #{ref := Ref}} = request_seen(?CAM),
-    Seen = command(Plc, cancel_inspection),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-C">>),
+    {request, #{ref := Ref}} = ?T:request_seen(?CAM),
+    Seen = ?P:command(Plc, cancel_inspection),
     ?assertEqual(6, maps:get(inspection_status, Seen)),
-    {cancel, Ref} = await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
+    {cancel, Ref} = ?T:await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
     %% A late image changes nothing.
     ?assertEqual({error, nothing_requested}, cell_inspect_camera_sim:shoot(?CAM)),
     ?assertEqual([3, 6], status_codes(Plc)),
     %% Canceled accepts a new trigger.
-    Seen2 = trigger(Plc, <<"STATION1">>, <<"SN-C2">>),
+    Seen2 = ?P:trigger(Plc, <<"STATION1">>, <<"SN-C2">>),
     ?assertEqual(3, maps:get(inspection_status, Seen2)).
 
 cancel_ignored_when_idle(Config) ->
     Plc = plc(Config),
     ok = ?P:forget(Plc),
-    Seen = command(Plc, cancel_inspection),
+    Seen = ?P:command(Plc, cancel_inspection),
     ?assertEqual(1, maps:get(inspection_status, Seen)),
     ?assertEqual([], status_codes(Plc)).
 
@@ -338,18 +253,18 @@ cancel_ignored_when_idle(Config) ->
 %% Requesting); its echo is written all the same.
 trigger_ignored_unless_ready(Config) ->
     Plc = plc(Config),
-    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
+    _ = ?P:trigger(Plc, <<"NOSUCH">>, <<>>),
     ok = ?P:await(Plc, inspection_status, 5),
     subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-I">>),
     ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
     ?assertEqual([], status_codes(Plc)),
     ?assertEqual(#{requests => [], messages => []}, cell_inspect_camera_sim:pending(?CAM)),
     ok = command_and_status(Plc, clear_results, 1),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    _ = ?T:request_seen(?CAM),
     %% Requesting: ignored too.
-    Seen3 = command(Plc, trigger_inspection),
+    Seen3 = ?P:command(Plc, trigger_inspection),
     ?assertEqual(3, maps:get(inspection_status, Seen3)),
     ?assertMatch(#{requests := [_]}, cell_inspect_camera_sim:pending(?CAM)).
 
@@ -357,18 +272,18 @@ trigger_ignored_unless_ready(Config) ->
 clear_results(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-CL">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-CL">>),
     ok = ?P:await(Plc, inspection_status, 2),
     true = ?P:tag(Plc, inspection_fail),
-    Seen = command(Plc, clear_results),
+    Seen = ?P:command(Plc, clear_results),
     ?assertMatch(#{inspection_pass := false, inspection_fail := false, error_code := 0,
                    inspection_status := 1}, Seen),
-    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
-    Seen2 = command(Plc, clear_results),
+    _ = ?P:trigger(Plc, <<"NOSUCH">>, <<>>),
+    Seen2 = ?P:command(Plc, clear_results),
     ?assertMatch(#{error_code := 0, inspection_status := 1}, Seen2).
 
 command_and_status(Plc, Cmd, Status) ->
-    Seen = command(Plc, Cmd),
+    Seen = ?P:command(Plc, Cmd),
     ?assertEqual(Status, maps:get(inspection_status, Seen)),
     ok.
 
@@ -376,7 +291,7 @@ command_and_status(Plc, Cmd, Status) ->
 processing_error(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"BLURRED">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-PE">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-PE">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(3, ?P:tag(Plc, error_code)),
     ?assertEqual([3, 4, 5], status_codes(Plc)).
@@ -385,7 +300,7 @@ processing_error(Config) ->
 configuration_error(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"BROKEN">>, <<"SN-CE">>),
+    _ = ?P:trigger(Plc, <<"BROKEN">>, <<"SN-CE">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(5, ?P:tag(Plc, error_code)).
 
@@ -393,7 +308,7 @@ configuration_error(Config) ->
 workspace_load_fails(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"BADWS">>, <<"SN-WF">>),
+    _ = ?P:trigger(Plc, <<"BADWS">>, <<"SN-WF">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(5, ?P:tag(Plc, error_code)).
 
@@ -408,7 +323,7 @@ processing_not_available(Config) ->
                                  workspace => <<"g">>}]}]),
     Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    _ = trigger(Plc, <<"GATED">>, <<"SN-NA">>),
+    _ = ?P:trigger(Plc, <<"GATED">>, <<"SN-NA">>),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(6, ?P:tag(Plc, error_code)),
     Loader ! release,
@@ -424,11 +339,11 @@ waiting_for_ipm(Config) ->
     Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
     ok = cell_inspect_block_ready(line1, ?CAM),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
-    Seen = trigger(Plc, <<"STATION1">>, <<"SN-W">>),
+    Seen = ?P:trigger(Plc, <<"STATION1">>, <<"SN-W">>),
     ?assertEqual(0, maps:get(inspection_status, Seen)),
-    _ = trigger(Plc, <<"NOIPM">>, <<"SN-W">>),
+    _ = ?P:trigger(Plc, <<"NOIPM">>, <<"SN-W">>),
     ok = ?P:await(Plc, inspection_status, 2),
-    Seen2 = command(Plc, clear_results),
+    Seen2 = ?P:command(Plc, clear_results),
     ?assertEqual(0, maps:get(inspection_status, Seen2)),
     Loader ! release,
     ok = ?P:await(Plc, inspection_status, 1).
@@ -442,19 +357,19 @@ several_cameras(Config) ->
     ok = change_settings([B#{clients => Cams}]),
     [ok = cell_inspect_block_ready(line1, C) || C <- [<<"camA">>, <<"camB">>]],
     [subscribe_cam(C) || C <- [<<"camA">>, <<"camB">>]],
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-M">>),
-    _ = request_seen(<<"camA">>),
-    {request, #{ref := Ref}} = request_seen(<<"camB">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-M">>),
+    _ = ?T:request_seen(<<"camA">>),
+    {request, #{ref := Ref}} = ?T:request_seen(<<"camB">>),
     ok = cell_inspect_camera_sim:shoot(<<"camB">>),
-    {cancel, Ref} = await_cam(<<"camA">>, fun({cancel, _}) -> true; (_) -> false end),
+    {cancel, Ref} = ?T:await_cam(<<"camA">>, fun({cancel, _}) -> true; (_) -> false end),
     ok = ?P:await(Plc, inspection_status, 2).
 
 %% Every camera asked leaves before sending an image: DeviceNotFound.
 cameras_disconnect_while_waiting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-D">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-D">>),
+    _ = ?T:request_seen(?CAM),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     ok = ?P:await(Plc, inspection_status, 5),
     ?assertEqual(1, ?P:tag(Plc, error_code)).
@@ -463,43 +378,22 @@ cameras_disconnect_while_waiting(Config) ->
 %% PLC Override Logic
 %%--------------------------------------------------------------------
 
-%% Steps 1 to 4: a result exists for point and serial: the override is logged,
-%% Complete.
+%% Override steps 1 to 4: a result exists for point and serial.
 override_found(Config) ->
-    Plc = plc(Config),
-    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-OV">>),
-    ok = ?P:await(Plc, inspection_status, 2),
-    ok = values(Plc, [{override_employee_id, <<"E-1001">>}]),
-    ok = ?P:forget(Plc),
-    _ = command(Plc, log_override),
-    %% Processing (4), then Complete (2) once the override is recorded.
-    ok = ?P:await(Plc, inspection_status, 2),
-    ?assertEqual([4, 2], status_codes(Plc)),
-    {ok, #{overrides := [#{employee := <<"E-1001">>, point := <<"STATION1">>,
-                           serial := <<"SN-OV">>, block := line1}]}} =
-        cell_inspect:traceability(<<"SN-OV">>).
+    ?S:override_found(plc(Config)).
 
-%% No result for that serial: Error, InspectionNotFound.
+%% Override step 4: no result for that serial: Error, InspectionNotFound.
 override_not_found(Config) ->
-    Plc = plc(Config),
-    ok = values(Plc, [{override_employee_id, <<"E-1">>}, {inspection_point_id, <<"STATION1">>},
-                      {part_serial, <<"SN-NEVER">>}]),
-    ok = ?P:forget(Plc),
-    _ = command(Plc, log_override),
-    ok = ?P:await(Plc, inspection_status, 5),
-    ?assertEqual(2, ?P:tag(Plc, error_code)),
-    ?assertEqual([4, 5], status_codes(Plc)),
-    {ok, #{overrides := []}} = cell_inspect:traceability(<<"SN-NEVER">>).
+    ?S:override_not_found(plc(Config)).
 
 %% Step 1: ignored while not Ready, Complete or Canceled.
 override_ignored_while_busy(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-B">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-B">>),
+    _ = ?T:request_seen(?CAM),
     ok = ?P:forget(Plc),
-    Seen = command(Plc, log_override),
+    Seen = ?P:command(Plc, log_override),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     ?assertEqual([], status_codes(Plc)).
 
@@ -507,25 +401,21 @@ override_ignored_while_busy(Config) ->
 %% Send Message Logic
 %%--------------------------------------------------------------------
 
-send(Plc, Id) ->
-    ok = values(Plc, [{message_id, Id}]),
-    command(Plc, send_message).
-
 %% Steps 1 to 9: Waiting, then AffirmativeResponse.
 message_yes(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    Seen = send(Plc, 7),
+    Seen = ?P:send_message(Plc, 7),
     ?assertEqual(1, maps:get(message_status, Seen)),
-    {message, #{id := 7, text := <<"Part OK?">>, kind := yes_no}} = message_seen(?CAM),
+    {message, #{id := 7, text := <<"Part OK?">>, kind := yes_no}} = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, yes),
     ok = ?P:await(Plc, message_status, 5).
 
 message_no(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, no),
     ok = ?P:await(Plc, message_status, 6).
 
@@ -534,45 +424,45 @@ message_no(Config) ->
 message_text(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 8),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"LOT-42">>}),
     ok = ?P:await(Plc, message_status, 5),
     ?assertEqual(<<"LOT-42">>, ?P:tag(Plc, message_result)),
-    before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
-    Seen = send(Plc, 7),
+    ok = ?P:before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
+    Seen = ?P:send_message(Plc, 7),
     ?assertMatch(#{message_status := 1, message_result := <<>>}, Seen).
 
 %% A text the PLC cannot hold is refused; the message keeps waiting.
 message_text_too_long(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 8),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, binary:copy(<<"x">>, 49)}),
     {answer_refused, _, {too_long, 48}} =
-        await_cam(?CAM, fun({answer_refused, _, _}) -> true; (_) -> false end),
+        ?T:await_cam(?CAM, fun({answer_refused, _, _}) -> true; (_) -> false end),
     ?assertEqual(1, ?P:tag(Plc, message_status)).
 
 %% Step 5: an unknown MessageID: MessageNotFound.
 message_not_found(Config) ->
     Plc = plc(Config),
-    Seen = send(Plc, 99),
+    Seen = ?P:send_message(Plc, 99),
     ?assertEqual(2, maps:get(message_status, Seen)).
 
 %% Step 4 (before step 5): no client: NoAvailableClients, even for an unknown id.
 message_no_clients(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
-    ?assertEqual(3, maps:get(message_status, send(Plc, 7))),
-    ?assertEqual(3, maps:get(message_status, send(Plc, 99))).
+    ?assertEqual(3, maps:get(message_status, ?P:send_message(Plc, 7))),
+    ?assertEqual(3, maps:get(message_status, ?P:send_message(Plc, 99))).
 
 %% Step 6: every client disconnects before an answer: NoAvailableClients.
 message_clients_disconnect(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     ok = ?P:await(Plc, message_status, 3).
 
@@ -580,11 +470,11 @@ message_clients_disconnect(Config) ->
 message_replaced(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    {message, #{ref := Ref7}} = message_seen(?CAM),
-    _ = send(Plc, 8),
-    {withdrawn, Ref7} = await_cam(?CAM, fun({withdrawn, _}) -> true; (_) -> false end),
-    {message, #{id := 8}} = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    {message, #{ref := Ref7}} = ?T:message_seen(?CAM),
+    _ = ?P:send_message(Plc, 8),
+    {withdrawn, Ref7} = ?T:await_cam(?CAM, fun({withdrawn, _}) -> true; (_) -> false end),
+    {message, #{id := 8}} = ?T:message_seen(?CAM),
     ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"B">>}),
     ok = ?P:await(Plc, message_result, <<"B">>),
     ok = ?P:await(Plc, message_status, 5).
@@ -598,8 +488,8 @@ message_replaced(Config) ->
 restart_while_requesting(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-R">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-R">>),
+    _ = ?T:request_seen(?CAM),
     Old = cell_inspect_block:whereis(line1),
     exit(Old, kill),
     ok = ?P:await(Plc, inspection_status, 5),
@@ -611,8 +501,8 @@ restart_while_requesting(Config) ->
 restart_while_waiting_for_an_answer(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = send(Plc, 7),
-    _ = message_seen(?CAM),
+    _ = ?P:send_message(Plc, 7),
+    _ = ?T:message_seen(?CAM),
     exit(cell_inspect_block:whereis(line1), kill),
     ok = ?P:await(Plc, message_status, 4).
 
@@ -621,8 +511,8 @@ restart_while_waiting_for_an_answer(Config) ->
 link_lost_and_back(Config) ->
     Plc = plc(Config),
     subscribe_cam(?CAM),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-L">>),
-    _ = request_seen(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-L">>),
+    _ = ?T:request_seen(?CAM),
     ok = cell_hal_subscribe(plc),
     ok = ?P:silent(Plc, true),
     ok = await_conn(plc, down),
@@ -636,7 +526,7 @@ link_lost_and_back(Config) ->
 %% A command raised while the link is down is taken when the PLC is read again.
 command_raised_while_link_down(Config) ->
     Plc = plc(Config),
-    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-LD">>}]),
+    ok = ?P:values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-LD">>}]),
     ok = cell_hal_subscribe(plc),
     ok = ?P:silent(Plc, true),
     ok = await_conn(plc, down),
@@ -652,9 +542,9 @@ settings_change_applies_at_once(Config) ->
     ok = change_settings([B#{points => [#{id => <<"NEW">>, processing => <<"none">>}]}]),
     ok = cell_inspect_block_ready(line1, ?CAM),
     subscribe_cam(?CAM),
-    Seen = trigger(Plc, <<"NEW">>, <<"SN-N">>),
+    Seen = ?P:trigger(Plc, <<"NEW">>, <<"SN-N">>),
     ?assertEqual(3, maps:get(inspection_status, Seen)),
-    _ = request_seen(?CAM).
+    _ = ?T:request_seen(?CAM).
 
 %% Two blocks on two PLCs, each with its own cameras: a camera serves its block only.
 two_blocks_two_plcs(Config) ->
@@ -676,10 +566,10 @@ two_blocks_two_plcs(Config) ->
     ok = cell_inspect_camera_sim:disconnect(?CAM),
     %% line1 has no camera left; line2's camera is not line1's.
     ?assertMatch(#{inspection_status := 5, error_code := 1},
-                 trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
+                 ?P:trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
     subscribe_cam(<<"cam2">>),
-    ?assertMatch(#{inspection_status := 3}, trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
-    _ = request_seen(<<"cam2">>),
+    ?assertMatch(#{inspection_status := 3}, ?P:trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
+    _ = ?T:request_seen(<<"cam2">>),
     ok = cell_inspect_camera_sim:shoot(<<"cam2">>),
     ok = ?P:await(Plc2, inspection_status, 2),
     ?assertEqual(5, ?P:tag(Plc1, inspection_status)),
@@ -690,13 +580,13 @@ two_blocks_two_plcs(Config) ->
 traceability_by_serial(Config) ->
     Plc = plc(Config),
     ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"PASS 77">>}),
-    _ = trigger(Plc, <<"STATION1">>, <<"SN-T">>),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-T">>),
     ok = ?P:await(Plc, inspection_status, 2),
     ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"FAIL">>}),
-    _ = trigger(Plc, <<"TOP">>, <<"SN-T">>),
+    _ = ?P:trigger(Plc, <<"TOP">>, <<"SN-T">>),
     ok = ?P:await(Plc, trigger_inspection_echo, false),
     ok = await_view(line1, fun(#{status := S}) -> S =:= complete end),
-    _ = command(Plc, log_override),
+    _ = ?P:command(Plc, log_override),
     ok = ?P:await(Plc, inspection_status, 2),
     {ok, #{inspections := [I1, I2], overrides := [O]}} = cell_inspect:traceability(<<"SN-T">>),
     ?assertMatch(#{point := <<"STATION1">>, result := pass, text := <<"77">>, client := ?CAM}, I1),

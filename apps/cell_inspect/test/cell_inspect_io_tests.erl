@@ -85,6 +85,24 @@ ads_symbols_test_() ->
                    lists:sort([S || #{dir := D, field := F} <- ?IO:points(O),
                                     {ok, {symbol, S}} <- [cell_hal_group:ads_symbol(D, F, O)]]))].
 
+%% The members the PLC writes are fed by device notifications, on change and checked
+%% every PLC cycle (as the HAL's ADS driver resolves the fields); the block's own
+%% members are written, never notified. `notify => false' polls them all.
+ads_notifications_test_() ->
+    Resolve = fun(O) ->
+                      [begin
+                           {ok, #{notify := Sub}} = cell_hal_ads:check_point(#{}, line1, O, P),
+                           {N, Sub}
+                       end || #{name := N} = P <- ?IO:points(O)]
+              end,
+    Notified = Resolve(ads()),
+    {ok, PolledOpts} = ?IO:check_opts(#{layout => ads, notify => false}),
+    EveryCycle = #{mode => on_change, cycle_us => 0, max_delay_us => 0},
+    [?_assertEqual(lists:sort(cell_inspect_tags:inputs()),
+                   lists:sort([N || {N, Sub} <- Notified, Sub =/= false])),
+     ?_assertEqual([EveryCycle], lists:usort([Sub || {_, Sub} <- Notified, Sub =/= false])),
+     ?_assertEqual([false], lists:usort([Sub || {_, Sub} <- Resolve(PolledOpts)]))].
+
 ads_struct_under_a_program_test() ->
     {ok, O} = ?IO:check_opts(#{layout => ads, struct => <<"MAIN.MVSCAMERA">>,
                                lengths => #{serial => 40}}),
@@ -101,6 +119,8 @@ options_test_() ->
      ?_assertEqual({error, {bad_option, layout}}, ?IO:check_opts(#{layout => s5})),
      ?_assertEqual({error, {bad_option, colour}}, ?IO:check_opts(#{layout => s7, colour => red})),
      ?_assertEqual({error, {bad_option, base}}, ?IO:check_opts(#{layout => ads, base => 1})),
+     ?_assertEqual({error, {bad_option, notify}}, ?IO:check_opts(#{layout => ads, notify => 1})),
+     ?_assertEqual({error, {bad_option, notify}}, ?IO:check_opts(#{layout => s7, notify => true})),
      ?_assertEqual({error, {bad_option, result}},
                    ?IO:check_opts(#{layout => s7, lengths => #{result => 300}})),
      ?_assertMatch({ok, #{layout := s7, base := 0}}, ?IO:check_opts(#{})),
@@ -137,3 +157,21 @@ tag_of_test_() ->
                                inspection_point_id_len, part_serial, part_serial_len,
                                override_employee_id, override_employee_id_len, message_id]),
                    lists:sort(?IO:input_points(O)))].
+
+%% A command bit counts as it changed, whatever the HAL's table says by the time the
+%% block handles the change (a pulse already over); values are read again whole.
+change_test_() ->
+    O = s7(),
+    A = ads(),
+    [?_assertEqual({command, trigger_inspection, true}, ?IO:change(A, trigger_inspection, true)),
+     ?_assertEqual({command, send_message, false}, ?IO:change(A, send_message, false)),
+     ?_assertEqual({command, log_override, true}, ?IO:change(O, log_override, true)),
+     ?_assertEqual({value, part_serial}, ?IO:change(O, part_serial_len, 48 * 256 + 3)),
+     ?_assertEqual({value, part_serial}, ?IO:change(O, part_serial, <<"SN-">>)),
+     ?_assertEqual({value, message_id}, ?IO:change(A, message_id, 7)),
+     ?_assertEqual(ignore, ?IO:change(A, inspection_status, 1)),
+     ?_assertEqual(ignore, ?IO:change(O, trigger_inspection_echo, true)),
+     ?_assertEqual(ignore, ?IO:change(A, part_serial_len, 3)),
+     ?_assertEqual(ignore, ?IO:change(O, nope, true))] ++
+    [?_assertEqual({command, C, true}, ?IO:change(L, C, true))
+     || L <- [O, A], C <- cell_inspect_tags:commands()].

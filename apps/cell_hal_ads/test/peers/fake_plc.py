@@ -31,6 +31,10 @@ stdout, written as an Erlang term:
     stall | unstall -> ok  (the connections open now stop reading what clients send,
                             with a small receive buffer, until `unstall': a PLC
                             that hangs while its network stack lives on)
+    report on|off  -> ok   (every value a client writes to a symbol, by handle, by
+                            address or in a sum write, is then told as an event line
+                            {notification, written, <<Name>>, <<the symbol's bytes>>}
+                            before the write is answered)
     clear | mute | unmute | record on|off | drop | garbage HEX | quit
 
 Names with spaces are written with %20 for each space.
@@ -159,6 +163,7 @@ class Plc:
         self.hold = 0
         self.held = []
         self.waiters = []
+        self.report = None             # the event writer while `report on'
 
     def wake(self):
         """Answers `wait_clients' and `wait_stat' commands whose condition holds."""
@@ -400,6 +405,9 @@ class Conn(asyncio.Protocol):
         if len(payload) > max(sym.size, 1):
             return ERR_SIZE
         plc.set_value(sym, payload, filetime_now())
+        if plc.report is not None:
+            plc.report(("notification", "written", sym.name.encode("latin-1"),
+                        bytes(sym.value)))
         return 0
 
     def read_write(self, group, offset, rlen, wdata):
@@ -615,6 +623,9 @@ def control(plc, line, loop, answer):
             return "ok"
         if cmd == "record":
             plc.record = args[0] == "on"
+            return "ok"
+        if cmd == "report":
+            plc.report = answer if args[0] == "on" else None
             return "ok"
         if cmd == "hold":
             plc.hold = int(args[0])
