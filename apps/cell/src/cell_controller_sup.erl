@@ -3,7 +3,7 @@
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
 %% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
-%% controller drives the tasks. A
+%% controller drives the tasks; the statistics only listen to all of them. A
 %% child that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by itself on an unattended machine: beyond that the node
 %% reports it instead of spinning.
@@ -33,5 +33,7 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                   type => supervisor, shutdown => infinity},
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
-                #{id => cell_controller, start => {cell_controller, start_link, []}}],
+                #{id => cell_controller, start => {cell_controller, start_link, []}},
+                %% Last: it only listens, so its restart touches nothing else.
+                cell_stats:child_spec(Spec)],
     {ok, {Flags, Children}}.
