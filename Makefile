@@ -4,7 +4,6 @@ REBAR ?= rebar3
 # The apps Debian ships inside rabbitmq-server (cowboy, ranch, jsx ...) and the cured
 # PropEr live in _debdeps/; ERL_LIBS puts them on the code path, ahead of the system's.
 export ERL_LIBS := $(CURDIR)/_debdeps
-export CELLRT_ROOT ?= $(CURDIR)/var
 export CELLRT_TOP := $(CURDIR)
 
 .PHONY: all setup setup-test compile release run test bench dist clean

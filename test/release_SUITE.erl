@@ -47,7 +47,7 @@ daemon_ping_eval_stop(Config) ->
     ok = await_pong(Config),
     {0, Apps} = cellrt(Config, ["eval", "[A || {A, _, _} <- application:which_applications()]."]),
     [?assertNotEqual(nomatch, string:find(Apps, atom_to_list(A)), A)
-     || A <- [cell, cell_base, lager, cowboy, ranch, jsx]],
+     || A <- [cell, cell_base, lager, cowboy, ranch, jsx, mnesia, cell_inspect]],
     {0, _} = cellrt(Config, ["stop"]),
     ok = await_down(Config).
 

@@ -1,6 +1,7 @@
 %% System tests of the operator panel in the built releases: the default release
 %% serves the panel on the port it is given, and a release built with the prod
-%% profile refuses to start while a demo account keeps its demo password.
+%% profile refuses to start while a demo account keeps its demo password, until
+%% `bin/cellrt set_password' changed them with the cell stopped.
 -module(web_release_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -50,16 +51,30 @@ prod_release_refuses_demo_passwords(Config) ->
     ?assertEqual(1, Status),
     ?assertNotEqual(nomatch, string:find(Out, "the demo accounts operator, service, admin still "
                                               "have their demo passwords")),
-    %% With the passwords changed, the same release starts.
+    %% The passwords changed with the release's own command (a password on standard
+    %% input): too short and unknown users are refused, nothing is changed for them.
+    {1, Short} = run_input(Bin, ["set_password", "admin"], Env, 60000, "short\n"),
+    ?assertNotEqual(nomatch, string:find(Short, "at least 8 characters")),
+    {1, Nobody} = run_input(Bin, ["set_password", "nobody"], Env, 60000, "long enough\n"),
+    ?assertNotEqual(nomatch, string:find(Nobody, "no such user")),
+    {1, Still} = run(Bin, ["foreground"], Env, 120000),
+    ?assertNotEqual(nomatch, string:find(Still, "operator, service, admin")),
+    [{0, _} = run_input(Bin, ["set_password", U], Env, 60000, "changed-" ++ U ++ "\n")
+     || U <- ["operator", "service", "admin"]],
+    %% A revision with who, and no hash in the log.
     {_, Root} = lists:keyfind("CELLRT_ROOT", 1, Env),
-    Users = [maps:merge(#{name => N, role => binary_to_atom(N)},
-                        cell_web_password:new(<<"changed-", N/binary>>, 1000))
-             || N <- [<<"operator">>, <<"service">>, <<"admin">>]],
-    ok = file:write_file(filename:join([Root, "Settings", "web_users.json"]),
-                         cell_settings_schema:to_json(cell_web_users, #{users => Users})),
+    {ok, Log} = file:read_file(hd(filelib:wildcard(filename:join([Root, "Logs", "log *"])))),
+    ?assertNotEqual(nomatch, binary:match(Log, <<"users[3].hash: \"(hidden)\"">>)),
+    ?assertNotEqual(nomatch, binary:match(Log, <<"(shell)">>)),
     try
         {0, _} = run(Bin, ["daemon"], Env, 30000),
-        ok = await_pong(Bin, Env, 100)
+        ok = await_pong(Bin, Env, 100),
+        %% The new password logs in; the command refuses to touch a running cell.
+        {0, Ok} = run(Bin, ["eval", "cell_web_users:authenticate(<<\"admin\">>, "
+                                    "<<\"changed-admin\">>)."], Env, 30000),
+        ?assertNotEqual(nomatch, string:find(Ok, "{ok,")),
+        {1, Running} = run_input(Bin, ["set_password", "admin"], Env, 60000, "another-one\n"),
+        ?assertNotEqual(nomatch, string:find(Running, "The cell is running"))
     after
         run(Bin, ["stop"], Env, 30000)
     end.
@@ -86,10 +101,18 @@ run(Bin, Args, Env, Timeout) ->
     run(Bin, Args, Env, Timeout, filename:dirname(filename:dirname(Bin))).
 
 run(Bin, Args, Env, Timeout, Dir) ->
-    Port = open_port({spawn_executable, Bin},
-                     [{args, Args}, {env, Env}, {cd, Dir}, exit_status, stderr_to_stdout,
-                      binary]),
+    Port = open(Bin, Args, Env, Dir),
     collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+
+%% As run/4, with `Input' on the command's standard input.
+run_input(Bin, Args, Env, Timeout, Input) ->
+    Port = open(Bin, Args, Env, filename:dirname(filename:dirname(Bin))),
+    true = port_command(Port, Input),
+    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+
+open(Bin, Args, Env, Dir) ->
+    open_port({spawn_executable, Bin},
+              [{args, Args}, {env, Env}, {cd, Dir}, exit_status, stderr_to_stdout, binary]).
 
 collect(Port, Acc, Deadline) ->
     Left = max(0, Deadline - erlang:monotonic_time(millisecond)),

@@ -21,7 +21,8 @@ mkdir -p "$out/ebin" "$here/artifacts"
 paths=()
 for d in "$top"/_build/default/lib/*/ebin; do paths+=(-pa "$d"); done
 if ! erlc "${paths[@]}" -o "$out/ebin" "$top"/apps/cell_web/test/cell_web_demo.erl \
-        "$top"/apps/cell_web/test/cell_web_demo_task.erl; then
+        "$top"/apps/cell_web/test/cell_web_demo_task.erl \
+        "$top"/apps/cell_inspect/test/cell_inspect_demo.erl; then
     echo "the demo cell does not compile"; summary 0 1; exit 1
 fi
 if [ ! -d "$here/node_modules/playwright-core" ]; then

@@ -215,7 +215,13 @@ task_state(From, New, #state{counts = Counts0} = State) ->
             ok;
         false ->
             ok = cell_registry:set_control(cell_state, Cell),
-            cell_log:info(cell, "cell state ~ts", [cell_ipc:name(Cell)]),
+            %% Entering or leaving READY is news for the operator; READY's sub-states
+            %% change with every product and are detail.
+            Level = case cell_ipc:is_ready(Cell) andalso cell_ipc:is_ready(State#state.cell) of
+                        true -> verbose;
+                        false -> brief
+                    end,
+            cell_log:log(Level, cell, "cell state ~ts", [cell_ipc:name(Cell)]),
             ok = publish(cell_state, #{state => Cell, from => State#state.cell})
     end,
     State#state{counts = Counts, cell = Cell}.

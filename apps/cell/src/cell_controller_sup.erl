@@ -3,8 +3,10 @@
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
 %% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
-%% controller drives the tasks; the statistics only listen to all of them. A
-%% child that dies takes down only those started after it. Ten restarts a minute is a
+%% peers and the handshake links connect the tasks; the monitor connects the HAL the
+%% spec names and watches the general IO (the tasks read their IO only once started);
+%% the controller drives the tasks; the statistics only listen to all of them. A child
+%% that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by itself on an unattended machine: beyond that the node
 %% reports it instead of spinning.
 -module(cell_controller_sup).
@@ -28,11 +30,13 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
                 cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
                 cell_recipe_buffer:child_spec(#{}),
+                cell_peers:child_spec(Spec),
                 #{id => cell_handshake_sup,
                   start => {cell_handshake_sup, start_link, [cell_spec:hosted_links(Spec)]},
                   type => supervisor, shutdown => infinity},
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
+                cell_monitor:child_spec(Spec),
                 #{id => cell_controller, start => {cell_controller, start_link, []}},
                 %% Last: it only listens, so its restart touches nothing else.
                 cell_stats:child_spec(Spec)],

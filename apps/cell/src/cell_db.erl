@@ -1,171 +1,210 @@
-%% @doc The cell's database: mnesia in the cell root's `Databases/' folder (seed 000
-%% §3), shared by every part of the runtime that keeps records there (statistics,
-%% traceability, inspection results).
+%% @doc The cell's database: mnesia on this node, in the `Databases/' folder of the
+%% cell root (seed 000 §3), shared by every part of the runtime that keeps records
+%% there: the statistics and traceability ({@link cell_stats}), the inspection
+%% results of `cell_inspect', and any cell's own tables.
 %%
-%% {@link start/0} is idempotent: it starts mnesia in `Databases/' with a schema on
-%% disk, creating the schema the first time, and answers `ok' at once when mnesia
-%% already runs there. Each user then declares its own tables with {@link
-%% ensure_tables/2}, which creates those that are missing, leaves existing ones as they
-%% are and waits until they are loaded. Errors say what is wrong with the folder:
+%% A user calls {@link start/0}, then {@link ensure_tables/2} with its own tables.
+%% Both are idempotent and safe to call from several processes at once: the first
+%% caller sets mnesia's folder, creates the schema if the folder has none and starts
+%% mnesia; later callers find it running in the right folder. A table that exists is
+%% checked (same fields), never recreated, so records survive restarts of the app and
+%% of the node. Tables live on disc on this node: `disc_copies' (in memory too, for
+%% tables read often) unless a table asks for `{storage, disc_only_copies}' (tables
+%% that grow with the products, which memory must not).
 %%
-%% <ul>
-%% <li>`{databases_folder, Dir, Why}' — the folder cannot be created or written;</li>
-%% <li>`{database_of_another_node, Dir, Nodes}' — the database there was made by a node
-%%   of another name (the node name is part of an mnesia database: start the cell
-%%   with that name, or move the folder away);</li>
-%% <li>`{mnesia, Why}' — mnesia itself refused to start.</li>
-%% </ul>
+%% mnesia is not started by the release's boot script (it is loaded only): its folder
+%% must be set first, and that folder comes from `cell_config'. An app using this
+%% module does not list mnesia among its applications for the same reason.
 %%
-%% mnesia is started by this module, not as a dependency of the `cell' application,
-%% because its folder is only known once the cell root is. If the root changes while
-%% the node runs (tests do that), mnesia is stopped and started again in the new
-%% folder.
+%% Errors say what is wrong in words ({@link format_error/1}): a folder that cannot be
+%% written, a database made by a node of another name, a table of the same name with
+%% other fields, mnesia already running in another folder. A database of another node
+%% is left alone and mnesia stopped again, so once the folder is moved aside the next
+%% {@link start/0} starts an empty database.
 -module(cell_db).
 
--export([start/0, ensure_tables/2, dir/0, format_error/1]).
+-export([start/0, ensure_tables/2, dir/0, sync_transaction/1, format_error/1]).
 
--export_type([table_def/0]).
+-export_type([table/0, error/0]).
 
-%% A table: its name and mnesia's create_table options without the storage type,
-%% which is given as `storage' (default disc_copies) and placed on this node.
--type table_def() :: {atom(), [{atom(), term()}]}.
+-type table() :: {atom(), [{attributes, [atom()]} | {record_name, atom()}
+                           | {index, [atom() | pos_integer()]}
+                           | {type, set | ordered_set | bag}
+                           | {storage, disc_copies | disc_only_copies}]}.
+-type error() :: {unusable_folder, file:filename(), term()}
+               | {other_folder, file:filename(), file:filename()}
+               | {schema, term()}
+               | {other_node, node(), [node()]}
+               | {mnesia, term()}
+               | {table_differs, atom(), [atom()], [atom()]}
+               | {create_table, atom(), term()}
+               | {tables_not_loaded, [atom()]}.
 
--define(WAIT_MS, 60000).
-
-%% @doc The folder of the database: `Databases/' in the cell root.
+%% @doc The folder mnesia uses: `Databases/' of the cell root.
 -spec dir() -> file:filename().
 dir() ->
-    cell_config:dir(databases).
+    filename:absname(cell_config:dir(databases)).
 
-%% @doc Starts mnesia in `Databases/' if it is not running there yet.
--spec start() -> ok | {error, term()}.
+%% @doc Starts mnesia in `Databases/' with a disc schema of this node, if it does not
+%% run already.
+-spec start() -> ok | {error, error()}.
 start() ->
-    Dir = filename:absname(dir()),
-    case usable(Dir) of
-        ok -> start(Dir);
-        {error, Why} -> {error, {databases_folder, Dir, Why}}
-    end.
+    %% One caller at a time: creating a schema and starting mnesia must not interleave.
+    global:trans({?MODULE, self()}, fun start_locked/0, [node()]).
 
-start(Dir) ->
-    case running_in() of
-        {yes, Dir} ->
-            on_disc(Dir);
-        {yes, Other} ->
-            cell_log:notice(cell, "the database moves from ~ts to ~ts", [Other, Dir]),
-            _ = application:stop(mnesia),
-            start_in(Dir);
-        no ->
-            start_in(Dir)
-    end.
-
-start_in(Dir) ->
-    _ = application:load(mnesia),
-    ok = application:set_env(mnesia, dir, Dir),
-    Created = case mnesia:create_schema([node()]) of
-                  ok -> true;
-                  {error, {_, {already_exists, _}}} -> false;
-                  {error, Why} -> {error, Why}
-              end,
-    case Created of
-        {error, W} ->
-            {error, {mnesia, W}};
-        _ ->
-            case application:ensure_all_started(mnesia) of
-                {ok, _} ->
-                    Created andalso cell_log:notice(cell, "a new database was created in ~ts",
-                                                    [Dir]),
-                    on_disc(Dir);
-                {error, W} ->
-                    {error, {mnesia, W}}
-            end
-    end.
-
-%% The schema must be on disc on this node, or nothing would survive a restart.
-on_disc(Dir) ->
-    case lists:member(node(), mnesia:table_info(schema, disc_copies)) of
-        true ->
-            ok;
-        false ->
-            case mnesia:table_info(schema, disc_copies) of
-                [] ->
-                    %% Started elsewhere without a disc schema: put it on disc here.
-                    case mnesia:change_table_copy_type(schema, node(), disc_copies) of
-                        {atomic, ok} -> ok;
-                        {aborted, Why} -> {error, {mnesia, Why}}
-                    end;
-                Nodes ->
-                    {error, {database_of_another_node, Dir, Nodes}}
-            end
-    end.
-
-running_in() ->
+start_locked() ->
+    Dir = dir(),
     case mnesia:system_info(is_running) of
-        yes -> {yes, filename:absname(mnesia:system_info(directory))};
-        _ -> no
+        yes -> check_running(Dir);
+        _ -> start_stopped(Dir)
+    end.
+
+check_running(Dir) ->
+    case filename:absname(mnesia:system_info(directory)) of
+        Dir -> check_schema();
+        Other -> {error, {other_folder, Other, Dir}}
+    end.
+
+start_stopped(Dir) ->
+    case usable(Dir) of
+        ok ->
+            _ = application:load(mnesia),
+            ok = application:set_env(mnesia, dir, Dir),
+            case mnesia:create_schema([node()]) of
+                ok ->
+                    cell_log:notice(cell, "a new database was created in ~ts", [Dir]),
+                    start_mnesia();
+                {error, {_, {already_exists, _}}} ->
+                    start_mnesia();
+                {error, Why} ->
+                    {error, {schema, Why}}
+            end;
+        {error, _} = E ->
+            E
+    end.
+
+start_mnesia() ->
+    case application:ensure_started(mnesia) of
+        ok ->
+            case check_schema() of
+                ok ->
+                    ok;
+                {error, _} = E ->
+                    %% Not this node's database: leave it as it is.
+                    _ = application:stop(mnesia),
+                    E
+            end;
+        {error, Why} ->
+            {error, {mnesia, Why}}
+    end.
+
+%% The schema must be on disc on this node: a folder made by a node of another name
+%% holds tables this node cannot load.
+check_schema() ->
+    Disc = mnesia:table_info(schema, disc_copies),
+    case lists:member(node(), Disc) of
+        true -> ok;
+        false when Disc =:= [] ->
+            case mnesia:change_table_copy_type(schema, node(), disc_copies) of
+                {atomic, ok} -> ok;
+                {aborted, Why} -> {error, {schema, Why}}
+            end;
+        false -> {error, {other_node, node(), Disc}}
     end.
 
 usable(Dir) ->
-    Probe = filename:join(Dir, ".probe"),
+    Probe = filename:join(Dir, ".cellrt-write-test"),
     case filelib:ensure_dir(Probe) of
         ok ->
             case file:write_file(Probe, <<>>) of
                 ok -> _ = file:delete(Probe), ok;
-                {error, Why} -> {error, Why}
+                {error, Why} -> {error, {unusable_folder, Dir, Why}}
             end;
         {error, Why} ->
-            {error, Why}
+            {error, {unusable_folder, Dir, Why}}
     end.
 
-%% @doc Creates the tables of one user of the database that do not exist yet, and
-%% waits until all of them are loaded. `Owner' names the user in log lines.
--spec ensure_tables(atom(), [table_def()]) -> ok | {error, term()}.
-ensure_tables(Owner, Defs) ->
-    Existing = mnesia:system_info(tables),
-    Created = lists:foldl(fun(_, {error, _} = E) -> E;
-                             ({Name, Opts}, Acc) ->
-                                  case lists:member(Name, Existing) of
-                                      true -> Acc;
-                                      false -> create(Owner, Name, Opts, Acc)
-                                  end
-                          end, [], Defs),
-    case Created of
-        {error, _} = E ->
-            E;
-        _ ->
-            Names = [N || {N, _} <- Defs],
-            case mnesia:wait_for_tables(Names, ?WAIT_MS) of
+%% @doc Creates the tables that do not exist yet (on disc, on this node), checks those
+%% that do, and waits until all are loaded (at most `Timeout' ms).
+-spec ensure_tables([table()], timeout()) -> ok | {error, error()}.
+ensure_tables(Tables, Timeout) ->
+    case ensure(Tables) of
+        ok ->
+            Names = [N || {N, _} <- Tables],
+            case mnesia:wait_for_tables(Names, Timeout) of
                 ok -> ok;
-                {timeout, Bad} -> {error, {tables_not_loaded, Bad}};
+                {timeout, Missing} -> {error, {tables_not_loaded, Missing}};
                 {error, Why} -> {error, {mnesia, Why}}
-            end
+            end;
+        {error, _} = E ->
+            E
     end.
 
-create(Owner, Name, Opts, Acc) ->
+ensure([]) ->
+    ok;
+ensure([{Name, Opts} | Rest]) ->
+    Wanted = proplists:get_value(attributes, Opts),
+    Result = try mnesia:table_info(Name, attributes) of
+                 Wanted -> ok;
+                 Other -> {error, {table_differs, Name, Wanted, Other}}
+             catch
+                 exit:{aborted, {no_exists, _, _}} -> create(Name, Opts)
+             end,
+    case Result of
+        ok -> ensure(Rest);
+        E -> E
+    end.
+
+create(Name, Opts) ->
     Storage = proplists:get_value(storage, Opts, disc_copies),
-    Options = [{Storage, [node()]} | proplists:delete(storage, Opts)],
-    case mnesia:create_table(Name, Options) of
+    case mnesia:create_table(Name, [{Storage, [node()]} | proplists:delete(storage, Opts)]) of
         {atomic, ok} ->
-            cell_log:info(cell, "~ts: table ~ts created", [Owner, Name]),
-            [Name | Acc];
+            cell_log:info(cell, "database table ~ts created", [Name]),
+            ok;
         {aborted, {already_exists, Name}} ->
-            Acc;
+            ok;
         {aborted, Why} ->
             {error, {create_table, Name, Why}}
     end.
 
-%% @doc An error of this module in words.
--spec format_error(term()) -> iolist().
-format_error({databases_folder, Dir, Why}) ->
-    io_lib:format("the database folder ~ts cannot be used: ~ts", [Dir, file:format_error(Why)]);
-format_error({database_of_another_node, Dir, Nodes}) ->
-    io_lib:format("the database in ~ts belongs to the node ~ts, not to this node ~ts: "
-                  "start the cell with that node name, or move the folder away",
-                  [Dir, lists:join(", ", [atom_to_list(N) || N <- Nodes]), node()]);
-format_error({tables_not_loaded, Tabs}) ->
-    io_lib:format("the tables ~tp could not be loaded", [Tabs]);
-format_error({create_table, Name, Why}) ->
-    io_lib:format("the table ~ts could not be created: ~tp", [Name, Why]);
+%% @doc Runs a transaction and, once it committed, flushes mnesia's log to the disk,
+%% so what it wrote survives a power cut.
+-spec sync_transaction(fun(() -> T)) -> {atomic, T} | {aborted, term()}.
+sync_transaction(Fun) ->
+    case mnesia:sync_transaction(Fun) of
+        {atomic, _} = Done ->
+            case mnesia:sync_log() of
+                ok -> Done;
+                {error, Why} -> {aborted, {sync_log, Why}}
+            end;
+        Aborted ->
+            Aborted
+    end.
+
+%% @doc An error in words.
+-spec format_error(error() | term()) -> iolist().
+format_error({unusable_folder, Dir, Why}) ->
+    io_lib:format("the database folder ~ts cannot be written (~ts)", [Dir, posix(Why)]);
+format_error({other_folder, Running, Wanted}) ->
+    io_lib:format("the database runs in ~ts, not in the cell's ~ts", [Running, Wanted]);
+format_error({schema, Why}) ->
+    io_lib:format("the database schema cannot be created or read: ~0tp", [Why]);
+format_error({other_node, Node, Owners}) ->
+    io_lib:format("the database in ~ts belongs to node ~ts, this node is ~ts: "
+                  "start the cell with that node name, or move the folder aside to start "
+                  "an empty database",
+                  [dir(), lists:join(", ", [atom_to_list(N) || N <- Owners]), Node]);
 format_error({mnesia, Why}) ->
-    io_lib:format("mnesia: ~ts", [mnesia:error_description(Why)]);
+    io_lib:format("the database (mnesia) cannot start: ~0tp", [Why]);
+format_error({table_differs, Name, Wanted, Other}) ->
+    io_lib:format("the database table ~s has the fields ~0p, this version expects ~0p",
+                  [Name, Other, Wanted]);
+format_error({create_table, Name, Why}) ->
+    io_lib:format("the database table ~s cannot be created: ~0tp", [Name, Why]);
+format_error({tables_not_loaded, Names}) ->
+    io_lib:format("the database tables ~0p did not load in time", [Names]);
 format_error(Other) ->
-    io_lib:format("~tp", [Other]).
+    io_lib:format("~0tp", [Other]).
+
+posix(Why) when is_atom(Why) -> file:format_error(Why);
+posix(Why) -> io_lib:format("~0tp", [Why]).

@@ -13,8 +13,8 @@
 -module(cell_events).
 -behaviour(gen_server).
 
--export([start_link/0, subscribe/0, subscribe/1, unsubscribe/0, publish/1, new/2, new/3,
-         types/0]).
+-export([start_link/0, subscribe/0, subscribe/1, subscribe/2, unsubscribe/0, publish/1,
+         publish/3, new/2, new/3, types/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([event/0, type/0]).
@@ -56,6 +56,16 @@ subscribe(Types) when is_list(Types) ->
         Unknown -> {error, {unknown_types, Unknown}}
     end.
 
+%% @doc Subscribes another process, such as one on another node watching this cell.
+-spec subscribe(pid(), all | [type()]) -> ok | {error, {unknown_types, [term()]}}.
+subscribe(Pid, all) when is_pid(Pid) ->
+    gen_server:call(?MODULE, {subscribe, Pid, all});
+subscribe(Pid, Types) when is_pid(Pid), is_list(Types) ->
+    case [T || T <- Types, not lists:member(T, types())] of
+        [] -> gen_server:call(?MODULE, {subscribe, Pid, lists:usort(Types)});
+        Unknown -> {error, {unknown_types, Unknown}}
+    end.
+
 -spec unsubscribe() -> ok.
 unsubscribe() ->
     gen_server:call(?MODULE, {unsubscribe, self()}).
@@ -73,17 +83,25 @@ new(Type, Task, Fields) ->
 %% @doc Sends an event to every subscriber of its type, from the calling process.
 -spec publish(event()) -> ok.
 publish(#{type := Type} = Event) ->
+    send(subscribers(Type), {cell_event, Event}).
+
+%% @doc As `publish(new(Type, Task, Fields))', but an event nobody subscribed to is not
+%% even made: what a task publishes at every step costs nothing unwatched.
+-spec publish(type(), atom(), map()) -> ok.
+publish(Type, Task, Fields) ->
+    case subscribers(Type) of
+        [] -> ok;
+        Pids -> send(Pids, {cell_event, new(Type, Task, Fields)})
+    end.
+
+subscribers(Type) ->
     Subs = try ets:lookup_element(?TAB, ?KEY, 2)
            catch error:badarg -> []
            end,
-    Msg = {cell_event, Event},
-    lists:foreach(fun({Pid, all}) -> Pid ! Msg;
-                     ({Pid, Types}) ->
-                          case lists:member(Type, Types) of
-                              true -> Pid ! Msg;
-                              false -> ok
-                          end
-                  end, Subs).
+    [Pid || {Pid, Types} <- Subs, Types =:= all orelse lists:member(Type, Types)].
+
+send(Pids, Msg) ->
+    lists:foreach(fun(Pid) -> Pid ! Msg end, Pids).
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->

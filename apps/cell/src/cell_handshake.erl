@@ -38,7 +38,7 @@
          available/2, not_busy/2, phase/2, peek/2, commit/2, complete/2, abort/2,
          connect/3, disconnect/2, confirm_here/1, in_transit/1]).
 %% For the engine and the links.
--export([attach_all/1, handle/2, holding/1, arm/3, hello/2, interrupt_all/1,
+-export([attach_all/1, handle/2, holding/1, arm/3, signal/3, hello/2, interrupt_all/1,
          active_offers/1, reoffer/2]).
 
 -export_type([view/0]).
@@ -60,8 +60,9 @@
 -spec offer(cell_task:task(), atom()) -> cell_task:task().
 offer(#task{product = undefined, id = Id}, Link) ->
     erlang:error({no_product_to_offer, Id, Link});
-offer(#task{product = P, gen = G} = T, Link) ->
-    case call(Link, {offer, self(), P, G}) of
+offer(#task{product = P, gen = G} = T0, Link) ->
+    {T, Reply} = call(T0, Link, {offer, self(), P, G}),
+    case Reply of
         ok ->
             T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined,
                                  link_down => false}),
@@ -78,10 +79,16 @@ offer(#task{product = P, gen = G} = T, Link) ->
 %% @doc Withdraws the offer unless downstream has begun to take the product: `{false,
 %% T}' then, and the transfer must go on (seed: TryAbortOffering).
 -spec try_abort_offering(cell_task:task(), atom()) -> {boolean(), cell_task:task()}.
-try_abort_offering(T, Link) ->
-    case call(Link, {try_abort_offering, self()}) of
+try_abort_offering(T0, Link) ->
+    {T, Reply} = call(T0, Link, {try_abort_offering, self()}),
+    case Reply of
         true -> {true, view(T, Link, #{phase => idle, available => false})};
-        false -> {false, T};
+        false ->
+            %% The answer told the task of the commit before the link's message did,
+            %% and that message is now old news: a wait on the link, armed before
+            %% this call, is looked at again.
+            self() ! {cell_handshake, Link, recheck},
+            {false, T};
         %% No link, no offer.
         {error, link_down} -> {true, view(T, Link, #{phase => idle, available => false})}
     end.
@@ -89,8 +96,9 @@ try_abort_offering(T, Link) ->
 %% @doc Phase 3: the product has left this task (Available off). Downstream owns it
 %% from here; this task holds none.
 -spec release(cell_task:task(), atom()) -> cell_task:task().
-release(#task{id = Id, product = P, gen = G} = T, Link) ->
-    case call(Link, {release, self()}) of
+release(#task{} = T0, Link) ->
+    {#task{id = Id, product = P, gen = G} = T, Reply} = call(T0, Link, {release, self()}),
+    case Reply of
         ok ->
             %% The file stays until downstream owns the product on disk.
             ok = cell_registry:hold(Id, undefined, 0),
@@ -141,8 +149,8 @@ phase(T, Link) -> maps:get(phase, link_view(T, Link), idle).
 
 %% @doc The product on offer, without committing to it (seed: PeekBoardAvailable).
 -spec peek(cell_task:task(), atom()) -> {ok, cell_product:product()} | none.
-peek(_T, Link) ->
-    case call(Link, {peek, self()}) of
+peek(T, Link) ->
+    case element(2, call(T, Link, {peek, self()})) of
         {ok, P} -> {ok, P};
         _ -> none
     end.
@@ -151,26 +159,20 @@ peek(_T, Link) ->
 %% `{not_available, T}' if the offer was withdrawn first. The product becomes the
 %% task's own on disk only at release: until it leaves upstream, upstream owns it.
 -spec commit(cell_task:task(), atom()) -> {ok, cell_task:task()} | {not_available, cell_task:task()}.
-commit(T, Link) ->
-    case call(Link, {lock, self()}) of
-        {ok, Product, Gen} ->
-            case call(Link, {confirm, self()}) of
-                ok ->
-                    {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
-                              #{phase => committed, not_busy => true, from_gen => Gen})};
-                {error, _} ->
-                    %% Upstream stopped while this task was taking the product.
-                    {not_available, T}
-            end;
-        {error, _} ->
+commit(T0, Link) ->
+    case call(T0, Link, {commit, self()}) of
+        {T, {ok, Product, Gen}} ->
+            {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
+                      #{phase => committed, not_busy => true, from_gen => Gen})};
+        {T, {error, _}} ->
             {not_available, T}
     end.
 
 %% @doc Phase 4: the product has arrived (NotBusy off). ItemTransferIn.
 -spec complete(cell_task:task(), atom()) -> cell_task:task().
-complete(#task{product = #{serial := S} = P, gen = G} = T, Link) ->
+complete(#task{product = #{serial := S} = P, gen = G} = T0, Link) ->
     %% After an interruption the link has moved on; the product arrived all the same.
-    _ = call(Link, {complete, self()}),
+    {T, _} = call(T0, Link, {complete, self()}),
     %% The owner is already this task on disk; clearing the in-transit mark may be lost
     %% in a power cut without harm (the operator is then asked once too often).
     T1 = store(T, P, G, undefined, #{sync => false}),
@@ -179,8 +181,9 @@ complete(#task{product = #{serial := S} = P, gen = G} = T, Link) ->
 %% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
 %% product. If upstream is gone the task keeps it, still marked in transit.
 -spec abort(cell_task:task(), atom()) -> cell_task:task().
-abort(#task{} = T, Link) ->
-    case call(Link, {abort, self()}) of
+abort(#task{} = T0, Link) ->
+    {T, Reply} = call(T0, Link, {abort, self()}),
+    case Reply of
         kept_by_upstream ->
             view(T#task{product = undefined, gen = 0}, Link, #{phase => idle});
         given_back ->
@@ -208,19 +211,19 @@ confirm_here(#task{product = P, gen = G} = T) ->
 -spec connect(cell_task:task(), atom(), cell_handshake_link:role()) ->
           {ok, cell_task:task()} | {error, term()}.
 connect(#task{id = Id} = T, Link, Role) ->
-    case call(Link, {attach, Role, Id, self(), holding(T, x)}) of
-        {ok, Status} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
-                                                       T#task.links)}};
-        {error, _} = Error -> Error
+    case plain_call(Link, {attach, Role, Id, self(), holding(T, x)}) of
+        {{ok, Status}, _} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
+                                                            T#task.links)}};
+        {{error, _} = Error, _} -> Error
     end.
 
 %% @doc Disconnects from a link; refused while a transfer is under way on it.
 -spec disconnect(cell_task:task(), atom()) -> {ok, cell_task:task()} | {error, term()}.
 disconnect(T, Link) ->
     #{role := Role} = link_view(T, Link),
-    case call(Link, {detach, Role, self()}) of
-        ok -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
-        {error, _} = Error -> Error
+    case plain_call(Link, {detach, Role, self()}) of
+        {ok, _} -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
+        {{error, _} = Error, _} -> Error
     end.
 
 %% -------------------------------------------------------------------------------------
@@ -274,7 +277,7 @@ holding(#task{product = #{serial := S}, gen = G}, _) -> {S, G}.
 holding(#task{links = Links}) ->
     lists:any(fun was_active/1, maps:values(Links)).
 
-was_active(#{role := up, phase := P}) -> lists:member(P, [locked, committed, released, aborting]);
+was_active(#{role := up, phase := P}) -> lists:member(P, [committed, released, aborting]);
 was_active(#{role := down, phase := P}) -> lists:member(P, [committed, released]);
 was_active(_) -> false.
 
@@ -300,8 +303,8 @@ interrupt_all(#task{links = Links} = T) ->
     maps:fold(fun(Link, View, Acc) ->
                       case was_active(View) orelse maps:get(phase, View) =:= offered of
                           true ->
-                              _ = call(Link, {interrupt, self()}),
-                              element(1, interrupted(Acc, Link, maps:get(phase, View)));
+                              {Acc1, _} = call(Acc, Link, {interrupt, self()}),
+                              element(1, interrupted(Acc1, Link, maps:get(phase, View)));
                           false ->
                               Acc
                       end
@@ -310,18 +313,27 @@ interrupt_all(#task{links = Links} = T) ->
 %% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
 %% it holds (at once if it already does). `link_down' while the link restarts.
 -spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()} | link_down.
+%%
+%% The task's view of the link's signals is kept up to date by the link's numbered
+%% status messages, so a wait needs no call: it holds now, or a later status message
+%% ends it (see {@link handle/2}).
 arm(T, Link, {Signal, Value}) ->
     case maps:get(link_down, maps:get(Link, T#task.links, #{}), false) of
         true ->
-            %% The last call found the link gone: what the task waits for may never
-            %% come from the link that replaced it.
+            %% The link is restarting: what the task waits for may never come from
+            %% the link that replaces it.
             link_down;
         false ->
-            case call(Link, {watch, self(), Signal, Value}) of
-                {ok, Ref} -> {ok, Ref};
-                {error, link_down} -> link_down
-            end
+            Ref = make_ref(),
+            _ = signal(T, Link, Signal) =:= Value
+                andalso (self() ! {cell_handshake_watch, Ref, Link, Signal, Value}),
+            {ok, Ref}
     end.
+
+%% @private A signal of a link as the task last saw it.
+-spec signal(cell_task:task(), atom(), available | not_busy) -> boolean().
+signal(T, Link, available) -> available(T, Link);
+signal(T, Link, not_busy) -> not_busy(T, Link).
 
 %% @private A restarted link's greeting to one of its partners, wherever it runs.
 -spec hello(atom() | {atom(), node()}, atom()) -> ok.
@@ -337,14 +349,17 @@ hello(Task, Link) ->
     end.
 
 %% @private The engine hands every message of a link here. Answers the task and
-%% `{wake, Link, Why}' when a wait on that link should end.
+%% `{wake, Link, Why}' when a wait on that link should end, `{wake, Link, {signals,
+%% Seq}}' when the signals changed and a wait on them may end.
 -spec handle(term(), cell_task:task()) -> {cell_task:task(), [{wake, atom(), term()}]}.
-handle({cell_handshake, Link, signals, Status}, T) ->
+handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T) ->
     case maps:find(Link, T#task.links) of
-        {ok, #{role := Role} = Old} ->
+        {ok, #{role := Role, lpid := LPid, seq := Seen} = Old} when Seq > Seen ->
             New = maps:merge(Old, from_status(Role, Status)),
-            {T#task{links = maps:put(Link, New, T#task.links)}, []};
-        error ->
+            {T#task{links = maps:put(Link, New, T#task.links)}, [{wake, Link, {signals, Seq}}]};
+        _ ->
+            %% Older than what the task already knows (an answer overtook it), or of
+            %% an incarnation of the link the task is no longer attached to.
             {T, []}
     end;
 handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial := Serial},
@@ -352,6 +367,8 @@ handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial 
     {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};
 handle({cell_handshake, _Link, {holder, _Serial, _Gen}}, T) ->
     {T, []};
+handle({cell_handshake, Link, recheck}, T) ->
+    {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
     %% A restarted link: attach again; whatever the task waited for on it is over.
     {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
@@ -362,7 +379,10 @@ handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
     T1 = store(T, Product, Gen + 1, Marker, #{}),
     %% If the link is gone meanwhile, upstream keeps a stale copy the generations
     %% recognise.
-    _ = call(Link, {owned, self()}),
+    _ = case link_pid(T, Link) of
+            undefined -> ok;
+            Pid -> gen_server:cast(Pid, {owned, self()})
+        end,
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
 handle({cell_handshake, Link, owned}, #task{product = undefined, product_path = Path} = T) ->
@@ -379,15 +399,17 @@ handle({cell_handshake, Link, aborted}, T) ->
 %% downstream forget its copy.
 handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
     T1 = store(T, Product, Gen + 2, undefined, #{}),
-    _ = call(Link, {taken_back, self()}),
-    {view(T1, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
+    {T2, _} = call(T1, Link, {taken_back, self()}),
+    {view(T2, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
 handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
     interrupted(T, Link, Phase);
 handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
     interrupted(T, Link, aborting);
 handle({cell_handshake_watch, Ref, Link, Signal, Value}, T) ->
     {T, [{wake, Link, {watch, Ref, Signal, Value}}]};
-handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T) ->
+handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T0) ->
+    %% Until the restarted link says hello, waits on it are not armed (see arm/3).
+    T = view(T0, Link, #{link_down => true}),
     case was_active(link_view(T, Link)) of
         true -> interrupted(T, Link, phase(T, Link));
         false -> {T, []}
@@ -406,7 +428,7 @@ interrupted(#task{links = Links} = T, Link, Phase) ->
     end.
 
 %% Downstream before release: the product never left upstream; this task forgets it.
-after_interruption(down, Phase, T, _Link) when Phase =:= committed; Phase =:= locked ->
+after_interruption(down, committed, T, _Link) ->
     T#task{product = undefined, gen = 0, marker = undefined};
 %% Downstream after release: this task owns it, marked in transit.
 after_interruption(down, _Phase, T, _Link) ->
@@ -450,25 +472,77 @@ view(#task{links = Links} = T, Link, Fields) ->
            end,
     T#task{links = maps:put(Link, maps:merge(Old, Fields#{last_product => Last}), Links)}.
 
-from_status(Role, #{phase := P, available := A, not_busy := N}) ->
-    #{role => Role, phase => P, available => A, not_busy => N}.
+from_status(Role, #{phase := P, available := A, not_busy := N, seq := Seq, link := LPid}) ->
+    #{role => Role, phase => P, available => A, not_busy => N, seq => Seq, lpid => LPid}.
 
 store(T, Product, Gen, Marker, Opts) ->
     cell_task:store(T, Product, Gen, Marker, Opts).
 
+%% A task's call to one of its links: a task the link does not know (it could not
+%% reach the link when it booted, the link restarted, or another node just came in
+%% reach) attaches and asks again. The status the answer carries goes into the task's
+%% view, so a status message it overtook is not taken for news.
+call(T, Link, Request) ->
+    case request(T, Link, Request) of
+        {{error, not_attached}, _, _} ->
+            #{role := Role} = link_view(T, Link),
+            T1 = attach(T, Link, Role),
+            seen(T1, Link, request(T1, Link, Request));
+        Answer ->
+            seen(T, Link, Answer)
+    end.
+
+seen(#task{links = Links} = T, Link, {Reply, #{seq := Seq, link := LPid} = Status, LPid}) ->
+    case maps:find(Link, Links) of
+        {ok, #{role := Role, lpid := LPid, seq := Seen} = View} when Seq > Seen ->
+            {T#task{links = maps:put(Link, maps:merge(View, from_status(Role, Status)), Links)},
+             Reply};
+        _ ->
+            {T, Reply}
+    end;
+seen(T, _Link, {Reply, _, _}) ->
+    {T, Reply}.
+
+%% The link process the task is attached to is called directly: looking a global name
+%% up checks that the process is alive, a round trip to it of its own. Only when that
+%% process is gone is the name looked up (a restarted link answers `not_attached').
+request(T, Link, Request) ->
+    Answer = case link_pid(T, Link) of
+                 undefined ->
+                     plain_call(Link, Request);
+                 Pid ->
+                     case call_pid(Pid, Request) of
+                         {error, link_down} -> plain_call(Link, Request);
+                         Reply -> {Reply, Pid}
+                     end
+             end,
+    case Answer of
+        {{error, link_down}, LPid} -> {{error, link_down}, none, LPid};
+        {{Reply1, Status}, LPid} -> {Reply1, Status, LPid}
+    end.
+
+link_pid(#task{links = Links}, Link) ->
+    case maps:get(Link, Links, #{}) of
+        #{lpid := Pid, link_down := false} when is_pid(Pid) -> Pid;
+        #{lpid := Pid} = View when is_pid(Pid), not is_map_key(link_down, View) -> Pid;
+        _ -> undefined
+    end.
+
 %% A link that is restarting answers `{error, link_down}'; a link that does not answer
 %% within the timeout is a fault, and the task crashes (and is restarted).
-call(Link, Request) ->
+plain_call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
-        undefined ->
-            {error, link_down};
-        Pid ->
-            try
-                gen_server:call(Pid, Request, ?CALL_TIMEOUT)
-            catch
-                exit:{noproc, _} -> {error, link_down};
-                exit:{normal, _} -> {error, link_down};
-                exit:{killed, _} -> {error, link_down};
-                exit:{shutdown, _} -> {error, link_down}
-            end
+        undefined -> {{error, link_down}, undefined};
+        Pid -> {call_pid(Pid, Request), Pid}
+    end.
+
+call_pid(Pid, Request) ->
+    try
+        gen_server:call(Pid, Request, ?CALL_TIMEOUT)
+    catch
+        exit:{noproc, _} -> {error, link_down};
+        exit:{normal, _} -> {error, link_down};
+        exit:{killed, _} -> {error, link_down};
+        exit:{shutdown, _} -> {error, link_down};
+        exit:{{nodedown, _}, _} -> {error, link_down}
     end.

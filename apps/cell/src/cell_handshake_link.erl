@@ -7,9 +7,8 @@
 %%  phase       Available NotBusy  what happened
 %%  idle        false     false
 %%  offered     true      false    upstream offers its product (phase 1)
-%%  locked      true      false    downstream is taking it; the offer can no longer
-%%                                 be withdrawn
-%%  committed   true      true     downstream took it (phase 2)
+%%  committed   true      true     downstream took it (phase 2): from here the offer
+%%                                 can no longer be withdrawn
 %%  released    false     true     the product left upstream (phase 3): downstream
 %%                                 owns it on disk from here
 %%  aborting    false     false    downstream aborted after release; upstream takes
@@ -18,11 +17,12 @@
 %%
 %% Completion (phase 4) and an abort before release return to idle. A partner that
 %% stops mid-transfer ends it: the other side is told `{interrupted, Why, Phase}' and
-%% the link is idle again, so that side can go on. Both partners are
-%% told of every signal change by message (`{cell_handshake, Link, Signal, Value}')
-%% and of the protocol's own steps; they are monitored, across nodes too, and a
-%% partner that stops in any phase ends the transfer on the other side, never leaves
-%% it waiting.
+%% the link is idle again, so that side can go on. Both partners are told of every
+%% signal change by message (`{cell_handshake, Link, signals, Status}', numbered, so a
+%% partner never takes an older status for a newer one) and of the protocol's own
+%% steps; every answer to a partner carries the status it leaves. The
+%% partners are monitored, across nodes too, and a partner that stops in any phase
+%% ends the transfer on the other side, never leaves it waiting.
 -module(cell_handshake_link).
 -behaviour(gen_server).
 
@@ -31,7 +31,7 @@
 
 -export_type([phase/0, role/0, spec/0]).
 
--type phase() :: idle | offered | locked | committed | released | aborting.
+-type phase() :: idle | offered | committed | released | aborting.
 -type role() :: up | down.
 -type task_ref() :: atom() | {atom(), node()} | undefined.
 -type spec() :: #{id := atom(), from := task_ref(), to := task_ref()}.
@@ -47,8 +47,8 @@
                 product :: term(),
                 gen = 0 :: non_neg_integer(),
                 abort = false :: boolean(),
-                waiter :: gen_server:from() | undefined,
-                watches = [] :: [{reference(), pid(), atom(), term()}]}).
+                seq = 0 :: non_neg_integer(),
+                waiter :: gen_server:from() | undefined}).
 
 %% @doc Starts a link; it registers globally, so a partner on another node finds it.
 -spec start_link(spec()) -> {ok, pid()} | {error, term()}.
@@ -93,44 +93,50 @@ handle_call({detach, Role, Pid}, _From, State) ->
     detach(Role, Pid, State);
 handle_call(status, _From, State) ->
     {reply, status(State), State};
-handle_call({watch, Pid, Signal, Value}, _From, State) ->
-    Ref = make_ref(),
-    case signal(Signal, State) =:= Value of
-        true ->
-            Pid ! {cell_handshake_watch, Ref, State#state.id, Signal, Value},
-            {reply, {ok, Ref}, State};
-        false ->
-            {reply, {ok, Ref}, State#state{watches = [{Ref, Pid, Signal, Value}
-                                                      | State#state.watches]}}
-    end;
 handle_call({Op, Pid} = Request, From, State) when is_atom(Op) ->
     case role_of(Pid, State) of
-        undefined -> {reply, {error, not_attached}, State};
-        Role -> op(Role, Request, From, State)
+        undefined -> {reply, {{error, not_attached}, status(State)}, State};
+        Role -> numbered(op(Role, Request, From, State))
     end;
 handle_call({offer, Pid, Product, Gen}, _From, State) ->
-    case {role_of(Pid, State), State#state.phase} of
-        {up, idle} ->
-            {reply, ok, change(State#state{phase = offered, product = Product, gen = Gen,
-                                           abort = false})};
-        {up, Phase} ->
-            {reply, {error, {busy, Phase}}, State};
-        _ ->
-            {reply, {error, not_attached}, State}
-    end.
+    numbered(case {role_of(Pid, State), State#state.phase} of
+                 {up, idle} ->
+                     {reply, ok, change(up, State#state{phase = offered, product = Product,
+                                                    gen = Gen, abort = false})};
+                 {up, Phase} ->
+                     {reply, {error, {busy, Phase}}, State};
+                 _ ->
+                     {reply, {error, not_attached}, State}
+             end).
 
--spec handle_cast(term(), #state{}) -> no_return().
-handle_cast(Msg, _State) ->
-    error({unexpected_cast, Msg}).
+%% Downstream owns the released product on disk: upstream may forget its copy. A
+%% message, not a call: nothing downstream does next depends on it.
+-spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({owned, Pid}, #state{phase = released} = State) ->
+    case role_of(Pid, State) of
+        down -> tell(up, owned, State);
+        _ -> ok
+    end,
+    {noreply, State};
+handle_cast({owned, _Pid}, State) ->
+    %% The transfer ended meanwhile (interrupted): upstream keeps a stale copy, which
+    %% the generations recognise.
+    {noreply, State}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({'DOWN', MRef, process, _Pid, Reason}, #state{up = #end_{mref = MRef}} = State) ->
     {noreply, partner_lost(up, Reason, State)};
 handle_info({'DOWN', MRef, process, _Pid, Reason}, #state{down = #end_{mref = MRef}} = State) ->
     {noreply, partner_lost(down, Reason, State)};
-handle_info({'DOWN', _MRef, process, Pid, _Reason}, State) ->
-    %% A watcher that went away.
-    {noreply, State#state{watches = [W || {_, P, _, _} = W <- State#state.watches, P =/= Pid]}}.
+handle_info({'DOWN', _MRef, process, _Pid, _Reason}, State) ->
+    %% The monitor of a partner that has since detached.
+    {noreply, State}.
+
+%% Every answer to a partner carries the status it leaves, numbered: the partner sees
+%% the signals as they are after its own step, and ignores any older status message
+%% still on its way.
+numbered({reply, Reply, State}) -> {reply, {Reply, status(State)}, State};
+numbered({noreply, State}) -> {noreply, State}.
 
 %% -------------------------------------------------------------------------------------
 %% The protocol
@@ -138,7 +144,7 @@ handle_info({'DOWN', _MRef, process, Pid, _Reason}, State) ->
 
 %% Upstream: withdraw the offer unless downstream has already begun to take it.
 op(up, {try_abort_offering, _}, _From, #state{phase = offered} = State) ->
-    {reply, true, change(State#state{phase = idle, product = undefined, gen = 0})};
+    {reply, true, change(up, State#state{phase = idle, product = undefined, gen = 0})};
 op(up, {try_abort_offering, _}, _From, #state{phase = idle} = State) ->
     {reply, true, State};
 op(up, {try_abort_offering, _}, _From, State) ->
@@ -146,39 +152,34 @@ op(up, {try_abort_offering, _}, _From, State) ->
 %% Upstream, phase 3: the product has left.
 op(up, {release, _}, _From, #state{phase = committed} = State) ->
     tell(down, {released, State#state.product, State#state.gen}, State),
-    {reply, ok, change(State#state{phase = released})};
-%% Downstream owns the released product on disk: upstream may forget its copy.
-op(down, {owned, _}, _From, #state{phase = released} = State) ->
-    tell(up, owned, State),
-    {reply, ok, State};
+    {reply, ok, change(up, State#state{phase = released})};
 %% Upstream took an aborted product back: downstream may forget its copy.
 op(up, {taken_back, _}, _From, #state{phase = aborting, waiter = Waiter} = State) ->
-    Waiter =/= undefined andalso gen_server:reply(Waiter, given_back),
-    {reply, ok, change(State#state{phase = idle, product = undefined, gen = 0,
-                                   waiter = undefined})};
+    State1 = change(up, State#state{phase = idle, product = undefined, gen = 0, waiter = undefined}),
+    Waiter =/= undefined andalso gen_server:reply(Waiter, {given_back, status(State1)}),
+    {reply, ok, State1};
 %% Downstream: look without locking (PeekBoardAvailable).
 op(down, {peek, _}, _From, #state{phase = offered, product = P} = State) ->
     {reply, {ok, P}, State};
 op(down, {peek, _}, _From, State) ->
     {reply, none, State};
-%% Downstream, phase 2 in two steps: lock (no withdrawal from here on), then confirm.
-op(down, {lock, _}, _From, #state{phase = offered, product = P, gen = G} = State) ->
-    {reply, {ok, P, G}, State#state{phase = locked}};
-op(down, {lock, _}, _From, State) ->
+%% Downstream, phase 2: takes the offered product (reads Available with locking and
+%% sets NotBusy in one step, so upstream can no longer withdraw it).
+op(down, {commit, _}, _From, #state{phase = offered, product = P, gen = G} = State) ->
+    {reply, {ok, P, G}, change(down, State#state{phase = committed, abort = false})};
+op(down, {commit, _}, _From, State) ->
     {reply, {error, not_available}, State};
-op(down, {confirm, _}, _From, #state{phase = locked} = State) ->
-    {reply, ok, change(State#state{phase = committed, abort = false})};
 %% Downstream, phase 4: the product has arrived.
 op(down, {complete, _}, _From, #state{phase = released} = State) ->
     tell(up, completed, State),
-    {reply, ok, change(State#state{phase = idle, product = undefined, gen = 0})};
+    {reply, ok, change(down, State#state{phase = idle, product = undefined, gen = 0})};
 op(down, {complete, _}, _From, State) ->
     {reply, {error, {not_released, State#state.phase}}, State};
 %% Downstream aborts: before release upstream still owns the product; after release
 %% upstream must take it back before downstream forgets its copy.
 op(down, {abort, _}, _From, #state{phase = committed} = State) ->
     tell(up, aborted, State),
-    {reply, kept_by_upstream, change(State#state{phase = idle, abort = true,
+    {reply, kept_by_upstream, change(down, State#state{phase = idle, abort = true,
                                                  product = undefined, gen = 0})};
 op(down, {abort, _}, From, #state{phase = released, up = #end_{pid = Up}} = State)
   when Up =/= undefined ->
@@ -186,7 +187,7 @@ op(down, {abort, _}, From, #state{phase = released, up = #end_{pid = Up}} = Stat
     {noreply, change(State#state{phase = aborting, abort = true, waiter = From})};
 op(down, {abort, _}, _From, State) ->
     %% Nobody to give it to (upstream stopped): downstream keeps it.
-    {reply, kept, change(State#state{phase = idle, product = undefined, gen = 0})};
+    {reply, kept, change(down, State#state{phase = idle, product = undefined, gen = 0})};
 %% Either side: an emergency stop or a stop mid-transfer.
 op(Role, {interrupt, _}, _From, State) ->
     {reply, ok, interrupt(Role, stopped, State)};
@@ -201,13 +202,11 @@ interrupt(up, _Why, #state{phase = offered} = State) ->
     change(State#state{phase = idle, product = undefined, gen = 0});
 interrupt(down, _Why, #state{phase = offered} = State) ->
     State;
-interrupt(down, _Why, #state{phase = locked} = State) ->
-    %% Downstream stopped while taking the product: the offer stands.
-    State#state{phase = offered};
 interrupt(Role, Why, #state{phase = aborting, waiter = Waiter} = State) when Role =:= up ->
-    Waiter =/= undefined andalso gen_server:reply(Waiter, kept),
     tell(down, {interrupted, Why}, State),
-    change(State#state{phase = idle, product = undefined, gen = 0, waiter = undefined});
+    State1 = change(State#state{phase = idle, product = undefined, gen = 0, waiter = undefined}),
+    Waiter =/= undefined andalso gen_server:reply(Waiter, {kept, status(State1)}),
+    State1;
 interrupt(Role, Why, #state{phase = Phase} = State) ->
     tell(other(Role), {interrupted, Why, Phase}, State),
     change(State#state{phase = idle, product = undefined, gen = 0}).
@@ -258,24 +257,26 @@ detach(Role, Pid, #state{phase = Phase} = State) ->
             {reply, {error, not_attached}, State}
     end.
 
-status(#state{phase = P, product = Product, gen = G, abort = A} = State) ->
+%% The signals as both partners see them, numbered; `link' tells one incarnation of
+%% the link from the next.
+status(#state{phase = P, product = Product, gen = G, abort = A, seq = Seq}) ->
     #{phase => P, product => Product, gen => G, abort => A,
-      available => signal(available, State), not_busy => signal(not_busy, State)}.
+      available => lists:member(P, [offered, committed]),
+      not_busy => lists:member(P, [committed, released]),
+      seq => Seq, link => self()}.
 
-signal(available, #state{phase = P}) -> lists:member(P, [offered, locked, committed]);
-signal(not_busy, #state{phase = P}) -> lists:member(P, [committed, released]);
-signal(abort, #state{abort = A}) -> A;
-signal(phase, #state{phase = P}) -> P.
-
-%% Tells both partners of every signal that changed, and fires the watches.
+%% Tells both partners of every signal change.
 change(State) ->
+    change(none, State).
+
+%% As change/1, but the partner whose call made the change learns the new status from
+%% the answer, not from a message as well.
+change(Caller, #state{seq = Seq} = State0) ->
+    State = State0#state{seq = Seq + 1},
     Status = status(State),
-    _ = [send(E, {cell_handshake, State#state.id, signals, Status})
-         || E <- [State#state.up, State#state.down]],
-    {Fire, Keep} = lists:partition(fun({_, _, S, V}) -> signal(S, State) =:= V end,
-                                   State#state.watches),
-    _ = [Pid ! {cell_handshake_watch, Ref, State#state.id, S, V} || {Ref, Pid, S, V} <- Fire],
-    State#state{watches = Keep}.
+    _ = [send(get_end(Role, State), {cell_handshake, State#state.id, signals, Status})
+         || Role <- [up, down], Role =/= Caller],
+    State.
 
 tell(Role, Msg, State) ->
     send(get_end(Role, State), {cell_handshake, State#state.id, Msg}).

@@ -146,9 +146,10 @@ is_ready(_) -> false.
 name(off) -> <<"OFF">>;
 name(down) -> <<"DOWN">>;
 name(setup) -> <<"SETUP">>;
-name({ready, A, B}) ->
-    iolist_to_binary(["READY-", string:uppercase(atom_to_list(A)), "-",
-                      string:uppercase(atom_to_list(B))]).
+name({ready, idle, starved}) -> <<"READY-IDLE-STARVED">>;
+name({ready, idle, blocked}) -> <<"READY-IDLE-BLOCKED">>;
+name({ready, processing, active}) -> <<"READY-PROCESSING-ACTIVE">>;
+name({ready, processing, executing}) -> <<"READY-PROCESSING-EXECUTING">>.
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").

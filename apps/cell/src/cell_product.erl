@@ -30,10 +30,12 @@ new(Serial, Recipe) ->
 new(Serial, Recipe, Fields) when is_binary(Serial), is_binary(Recipe), is_map(Fields) ->
     Fields#{serial => Serial, recipe => Recipe, failed => false}.
 
-%% @doc The product file of a task.
--spec path(binary(), binary()) -> file:filename().
+%% @doc The product file of a task, as a binary: it is written at every transfer, and
+%% a binary name goes to the system as it is.
+-spec path(binary(), binary()) -> binary().
 path(Zone, Lane) ->
-    filename:join(cell_config:dir(data), file_name(Zone, Lane)).
+    unicode:characters_to_binary(filename:join(cell_config:dir(data), file_name(Zone, Lane)),
+                                 unicode, file:native_name_encoding()).
 
 %% @doc `<Zone>@<Lane>.product', with characters a file name cannot hold replaced.
 -spec file_name(binary(), binary()) -> string().
@@ -53,9 +55,9 @@ stored(Product, Gen, Marker) ->
     #{product => Product, gen => Gen, marker => Marker}.
 
 %% @doc Loads a task's product file: `undefined' when the task holds none.
--spec load(file:filename()) ->
+-spec load(file:filename_all()) ->
           {ok, stored() | undefined} | {error, {corrupt, atom()} | {bad_product, term()}
-                                        | {file:filename(), term()}}.
+                                        | {file:filename_all(), term()}}.
 load(Path) ->
     case cell_file:read_term(Path) of
         {ok, #{product := Product, gen := Gen, marker := Marker} = Stored}
@@ -75,24 +77,24 @@ valid_marker(#{link := L, phase := in_transit}) -> is_atom(L);
 valid_marker(_) -> false.
 
 %% @doc Saves a product durably; `undefined' deletes the file.
--spec save(file:filename(), stored() | undefined) -> ok | cell_file:error().
+-spec save(file:filename_all(), stored() | undefined) -> ok | cell_file:error().
 save(Path, Stored) ->
     save(Path, Stored, #{}).
 
 %% @doc As {@link save/2}; `#{sync => false}' when a crash losing this write is
 %% harmless (a stale copy the generations recognise, a marker merely left set).
--spec save(file:filename(), stored() | undefined, cell_file:options()) ->
+-spec save(file:filename_all(), stored() | undefined, cell_file:options()) ->
           ok | cell_file:error().
 save(Path, undefined, Opts) ->
     delete(Path, Opts);
 save(Path, Stored, Opts) ->
     cell_file:write_term(Path, Stored, Opts).
 
--spec delete(file:filename()) -> ok | cell_file:error().
+-spec delete(file:filename_all()) -> ok | cell_file:error().
 delete(Path) ->
     cell_file:delete(Path).
 
--spec delete(file:filename(), cell_file:options()) -> ok | cell_file:error().
+-spec delete(file:filename_all(), cell_file:options()) -> ok | cell_file:error().
 delete(Path, Opts) ->
     cell_file:delete(Path, Opts).
 

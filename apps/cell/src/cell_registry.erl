@@ -68,12 +68,20 @@ set_state(Id, State) ->
 %% Answers the other holders of the serial.
 -spec hold(atom(), binary() | undefined, non_neg_integer()) -> ok.
 hold(Id, Serial, Gen) ->
-    true = ets:match_delete(?PRODUCTS, {'_', Id, '_'}),
+    %% Beside the rows by serial, one by task names the serial it holds, so the old row
+    %% goes without a scan of the table.
+    case ets:lookup(?PRODUCTS, {task, Id}) of
+        [{_, Old, OldGen} = Index] ->
+            true = ets:delete_object(?PRODUCTS, {Old, Id, OldGen}),
+            true = ets:delete_object(?PRODUCTS, Index);
+        [] ->
+            ok
+    end,
     case Serial of
         undefined ->
             ok;
         _ ->
-            true = ets:insert(?PRODUCTS, {Serial, Id, Gen}),
+            true = ets:insert(?PRODUCTS, [{Serial, Id, Gen}, {{task, Id}, Serial, Gen}]),
             lists:foreach(fun({_, Other, G}) when Other =/= Id, G < Gen ->
                                   case ets:lookup(?TASKS, Other) of
                                       [{_, #{pid := Pid}}] -> Pid ! {cell_registry, stale, Serial, Gen};

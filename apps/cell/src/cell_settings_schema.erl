@@ -50,7 +50,8 @@
                    type := type(),
                    default => term(),   %% required except for objects, lists, optionals
                    doc => binary(),
-                   unit => binary()}.
+                   unit => binary(),
+                   secret => boolean()}.   %% never shown in a difference (hashes, keys)
 -type path() :: [atom() | binary() | pos_integer()].
 -type error() :: {invalid, path(), term()}.
 -type change() :: #{path := path(), from := term(), to := term()}.
@@ -415,8 +416,15 @@ diff(Mod, A, B) ->
     diff_object(Mod, A, B, []).
 
 diff_object(Mod, A, B, Path) ->
-    lists:append([diff_value(T, maps:get(N, A), maps:get(N, B), Path ++ [N])
-                  || #{name := N, type := T} <- Mod:fields()]).
+    lists:append([hide(F, diff_value(T, maps:get(N, A), maps:get(N, B), Path ++ [N]))
+                  || #{name := N, type := T} = F <- Mod:fields()]).
+
+%% A secret field's change is listed (who changed it and when matters) without its
+%% values: a difference goes to the log and to the panel.
+hide(#{secret := true}, Changes) ->
+    [C#{from => <<"(hidden)">>, to => <<"(hidden)">>} || C <- Changes];
+hide(_Field, Changes) ->
+    Changes.
 
 diff_value(_T, Same, Same, _Path) ->
     [];

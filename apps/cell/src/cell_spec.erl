@@ -14,9 +14,18 @@
 %% A link runs on the node of its downstream end (or of its upstream end when the
 %% downstream connects at run time), so two nodes naming one link start it once.
 %%
+%% A task's module is a device task ({@link cell_task}: init, step, uninit) or a unit
+%% ({@link cell_unit}: the Zeugwerk lifecycle, told apart by its `unit/1'); a unit's
+%% declaration is checked here too. Units take no part in handshakes: a link naming one
+%% is refused.
+%%
 %% A task's `settings' names the settings object (see {@link cell_settings}) whose
 %% snapshot it runs on, taken at each Start; a map gives fixed settings instead. The
 %% cell's `settings' lists the schema modules of its own settings objects.
+%%
+%% `hal' is what the monitor connects (connections, IO groups, hardware objects) and
+%% `monitor' what it watches and drives (general IO, drives, beacon): both optional,
+%% checked by {@link cell_monitor_spec}.
 %%
 %% A cell application's own module returns it from the settings (seed 000 §2.3.3: one
 %% setting switches a cell between simulated and real tasks and IO): the `cell' app's
@@ -30,12 +39,14 @@
 -export_type([spec/0]).
 
 -type spec() :: #{name := binary(), tasks := [cell_task:spec()], settings := [module()],
-                  links := [cell_handshake_link:spec()]}.
+                  links := [cell_handshake_link:spec()],
+                  hal := cell_monitor_spec:hal(), monitor := cell_monitor_spec:monitor()}.
 
 %% @doc A cell without tasks.
 -spec empty() -> spec().
 empty() ->
-    #{name => <<"cell">>, tasks => [], settings => [], links => []}.
+    #{name => <<"cell">>, tasks => [], settings => [], links => [],
+      hal => cell_monitor_spec:empty_hal(), monitor => cell_monitor_spec:empty_monitor()}.
 
 %% @doc The links this node runs.
 -spec hosted_links(spec()) -> [cell_handshake_link:spec()].
@@ -87,11 +98,20 @@ validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
         {ok, Checked} ->
             case is_list(Schemas) andalso lists:all(fun is_schema/1, Schemas) of
                 true ->
-                    case links(maps:get(links, Spec, []), [T || #{id := T} <- Checked]) of
-                        {ok, Links} ->
-                            {ok, Spec#{name => Name, settings => Schemas, links => Links,
-                                       tasks => [with_links(T, Links) || T <- Checked]}};
-                        Error ->
+                    {Units, Steppers} = lists:partition(fun(#{module := M}) ->
+                                                                cell_unit:is_unit_module(M)
+                                                        end, Checked),
+                    case {links(maps:get(links, Spec, []), [T || #{id := T} <- Steppers],
+                                [T || #{id := T} <- Units]),
+                          cell_monitor_spec:validate(Spec)} of
+                        {{ok, Links}, {ok, HalAndMonitor}} ->
+                            {ok, maps:merge(Spec#{name => Name, settings => Schemas,
+                                                  links => Links,
+                                                  tasks => [with_links(T, Links) || T <- Checked]},
+                                            HalAndMonitor)};
+                        {{ok, _}, Error} ->
+                            Error;
+                        {Error, _} ->
                             Error
                     end;
                 false ->
@@ -103,9 +123,13 @@ validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
 validate(Other) ->
     {error, {bad_cell_spec, "a cell spec is a map with a list of tasks", Other}}.
 
-links(Links, TaskIds) when is_list(Links) ->
-    links(Links, TaskIds, [], #{});
-links(Other, _) ->
+links(Links, TaskIds, UnitIds) when is_list(Links) ->
+    case [{L, U} || #{id := L} = Link <- Links, End <- [from, to],
+                    U <- [maps:get(End, Link, undefined)], lists:member(U, UnitIds)] of
+        [] -> links(Links, TaskIds, [], #{});
+        [{L, U} | _] -> {error, {bad_link, L, {unit, U}}}
+    end;
+links(Other, _, _) ->
     {error, {bad_cell_spec, links, Other}}.
 
 links([], _TaskIds, Acc, _Seen) ->
@@ -165,7 +189,7 @@ task(T) ->
                     Unknown = maps:keys(T) -- [id, links | [K || {K, _} <- Checks] ++
                                                           [K || {K, _, _} <- Optional]],
                     case Unknown of
-                        [] -> {ok, maps:merge(maps:from_list([{K, D} || {K, D, _} <- Optional]), T)};
+                        [] -> check_unit(maps:merge(maps:from_list([{K, D} || {K, D, _} <- Optional]), T));
                         _ -> {error, {unknown_keys, Unknown}}
                     end;
                 Bad ->
@@ -184,16 +208,26 @@ is_schema(Mod) when is_atom(Mod) ->
 is_schema(_) ->
     false.
 
+%% A unit's declaration is checked with its args and IO groups.
+check_unit(#{module := Mod} = T) ->
+    case cell_unit:is_unit_module(Mod) andalso cell_unit:check(T) of
+        {error, _} = Error -> Error;
+        _ -> {ok, T}
+    end.
+
 is_task_module(Mod) when is_atom(Mod) ->
+    cell_unit:is_unit_module(Mod) orelse is_step_module(Mod);
+is_task_module(_) ->
+    false.
+
+is_step_module(Mod) ->
     case code:ensure_loaded(Mod) of
         {module, Mod} ->
             lists:all(fun({F, A}) -> erlang:function_exported(Mod, F, A) end,
                       [{init, 1}, {step, 1}, {uninit, 1}]);
         {error, _} ->
             false
-    end;
-is_task_module(_) ->
-    false.
+    end.
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").

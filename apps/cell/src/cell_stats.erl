@@ -59,6 +59,7 @@
 -define(EVENT, cell_trace_event).
 -define(FLUSH_MS, 1000).
 -define(RETRY_MS, 10000).
+-define(LOAD_MS, 60000).
 -define(PURGE_MS, 3600000).
 -define(BACKLOG_MAX, 10000).
 -define(EVENTS, [task_state, item_identifier_read, item_transfer_in, item_work_start,
@@ -85,8 +86,10 @@
              products = #{} :: #{binary() => #prod{}},
              holding = #{} :: #{atom() => binary()},            %% task -> serial
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
-             backlog = [] :: [tuple()],
+             backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
+             early = [] :: [{event, map()} | {record, tuple()}],  %% while opening
+             early_len = 0 :: non_neg_integer(),
              seq = 0 :: non_neg_integer(),
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer()}).
@@ -260,7 +263,7 @@ in_cell() ->
     end.
 
 %% @doc The tables, for {@link cell_db:ensure_tables/2}.
--spec tables() -> [cell_db:table_def()].
+-spec tables() -> [cell_db:table()].
 tables() ->
     [{?COUNTER, [{type, ordered_set}, {attributes, [key, value]}]},
      {?OPEN, [{attributes, [serial, info]}]},
@@ -306,6 +309,9 @@ handle_call(flush, _From, St) ->
     {reply, case St1#st.db of open -> ok; closed -> {error, database_closed} end, St1}.
 
 -spec handle_cast(term(), #st{}) -> {noreply, #st{}}.
+handle_cast({record, _, _, _, _} = Record, #st{db = opening} = St)
+  when St#st.early_len < ?BACKLOG_MAX ->
+    {noreply, early({record, Record}, St)};
 handle_cast({record, Serial, What, Detail, At}, St) ->
     Task = case St#st.products of
                #{Serial := #prod{holder = H}} -> H;
@@ -314,19 +320,33 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
+handle_info({cell_event, Event}, #st{db = opening} = St)
+  when St#st.early_len < ?BACKLOG_MAX ->
+    {noreply, early({event, Event}, St)};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info(flush, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
     {noreply, flush(St)};
 handle_info({db, ok}, St) ->
-    {noreply, opened(St#st{db = open})};
+    {noreply, replay(opened(St#st{db = open}))};
 handle_info({db, {error, Why}}, St) ->
-    {noreply, closed(Why, St)};
+    {noreply, replay(closed(Why, St))};
 handle_info({'EXIT', _Helper, normal}, St) ->
     {noreply, St};
 handle_info({'EXIT', _Helper, Why}, #st{db = opening} = St) ->
-    {noreply, closed({opener_crashed, Why}, St)}.
+    {noreply, replay(closed({opener_crashed, Why}, St))}.
+
+%% While the database opens, events wait: whether a product saved now is new to the
+%% cell or one it held before a restart is only known once the products in the cell
+%% have been read back.
+early(Msg, #st{early = Early, early_len = N} = St) ->
+    St#st{early = [Msg | Early], early_len = N + 1}.
+
+replay(#st{early = Early} = St0) ->
+    lists:foldl(fun({event, E}, St) -> element(2, handle_info({cell_event, E}, St));
+                   ({record, R}, St) -> element(2, handle_cast(R, St))
+                end, St0#st{early = [], early_len = 0}, lists:reverse(Early)).
 
 %% What was counted is written, if the database is open; it is not opened now.
 -spec terminate(term(), #st{}) -> ok.
@@ -620,9 +640,7 @@ merge(set, _Old, V) -> V;
 merge(first, Old, _V) -> Old.
 
 %% One transaction a second: every counter and the time they cover, together.
-write_pending(_Now, #st{db = closed} = St) ->
-    St;
-write_pending(Now, #st{pending = Pending} = St) ->
+write_pending(Now, #st{db = open, pending = Pending} = St) ->
     F = fun() ->
                 maps:foreach(fun(K, {Op, V}) ->
                                      New = case mnesia:read(?COUNTER, K, write) of
@@ -641,7 +659,11 @@ write_pending(Now, #st{pending = Pending} = St) ->
             St#st{pending = #{}};
         {aborted, Why} ->
             closed(Why, St)
-    end.
+    end;
+write_pending(_Now, St) ->
+    %% Not before the database is open: the time of the last write tells how long
+    %% the runtime was down.
+    St.
 
 %%====================================================================
 %% The database
@@ -654,7 +676,7 @@ open(#st{db = closed} = St) ->
     Self = self(),
     _ = spawn_link(fun() ->
                            Result = case cell_db:start() of
-                                        ok -> cell_db:ensure_tables(?MODULE, tables());
+                                        ok -> cell_db:ensure_tables(tables(), ?LOAD_MS);
                                         {error, _} = E -> E
                                     end,
                            Self ! {db, Result}

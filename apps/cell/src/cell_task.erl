@@ -290,13 +290,15 @@ set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
 %% @private
 -spec publish(task(), cell_events:type(), map()) -> ok.
 publish(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
-    cell_events:publish(cell_events:new(Type, Id, Fields#{zone => Z, lane => L})).
+    cell_events:publish(Type, Id, Fields#{zone => Z, lane => L}).
 
 %% IO (seed 000 §4: a task reads and writes points by name, never a driver)
 
 %% @doc The value of a point of the task's default IO group (the first of its spec's
 %% `io'). An input whose connection is down is not read: the task goes DOWN with an
 %% error naming the connection, and the step runs again after Retry once it is back.
+%% A point the device cannot serve (a PLC symbol gone or retyped) is the same with an
+%% error naming the point.
 -spec in(task(), atom()) -> cell_hal_type:value().
 in(T, Point) ->
     in(T, default_group(T), Point).
@@ -308,6 +310,7 @@ in(_T, Group, Point) ->
         {ok, Value} -> Value;
         {error, disconnected} -> throw({cell_io_lost, Group, Point});
         {error, not_yet_read} -> throw({cell_io_lost, Group, Point});
+        {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
         {error, Reason} -> erlang:error({io, Group, Point, Reason})
     end.
 
@@ -331,6 +334,7 @@ out(T, Group, Point, Value) ->
     case cell_hal:write(Group, Point, Value) of
         ok -> T;
         {error, disconnected} -> throw({cell_io_lost, Group, Point});
+        {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
         {error, Reason} -> erlang:error({io, Group, Point, Reason})
     end.
 

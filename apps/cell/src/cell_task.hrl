@@ -12,7 +12,7 @@
     product :: cell_product:product() | undefined,
     gen = 0 :: non_neg_integer(),              %% the product's generation (see cell_product)
     marker :: cell_product:marker(),           %% set while the product is in transit
-    product_path :: file:filename(),
+    product_path :: binary(),
     links = #{} :: #{atom() => map()},         %% handshake links: role, last signals
     ipc = off :: cell_ipc:state(),
     answer :: cell_alarms:solution() | undefined,

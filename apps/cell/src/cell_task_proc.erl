@@ -353,6 +353,9 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                     catch
                         throw:{cell_io_lost, Group, _Point} ->
                             raise(setup, io_error(group_conn(Group)), io,
+                                  D#data{initialized = true, resume = undefined});
+                        throw:{cell_io_unavailable, Group, Point, Why} ->
+                            raise(setup, point_error(Group, Point, Why), io,
                                   D#data{initialized = true, resume = undefined})
                     end
             end
@@ -397,7 +400,10 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         %% dropped and runs again, as it was woken, after Retry.
         throw:{cell_io_lost, Group, _Point} ->
             Conn = group_conn(Group),
-            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State})
+            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State});
+        %% A point its device cannot serve: the same, the connection itself being up.
+        throw:{cell_io_unavailable, Group, Point, Why} ->
+            raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
     end.
 
 after_step({continue, T}, #data{gen = Gen} = D) ->
@@ -590,7 +596,7 @@ answered(io, _Retry, _Who, #data{request = start} = D) ->
 answered(io, _Retry, _Who, D) ->
     {keep_state, D#data{down = {paused, pause}}};
 answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
-    Aside = Path ++ ".damaged-" ++ integer_to_list(os:system_time(second)),
+    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
@@ -688,7 +694,7 @@ handshake(Msg, State, #data{task = T0} = D0) ->
     D = D0#data{task = T},
     case State of
         {ready, _, _} ->
-            case woken(Wakes, D#data.armed) of
+            case woken(Wakes, D#data.armed, T) of
                 undefined ->
                     %% A transfer that ended may free a Pause it held back.
                     case try_pause(State, D) of
@@ -717,18 +723,25 @@ ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when 
 ended_while_down([_ | Rest], Pending) ->
     ended_while_down(Rest, Pending).
 
-woken([], _Armed) ->
+woken([], _Armed, _T) ->
     undefined;
-woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed) ->
+woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed, T) ->
     case lists:keymember(Ref, 2, [A || {handshake, _, _, _, _} = A <- Armed]) of
         true -> {handshake, Link, Signal, Value};
-        false -> woken(Rest, Armed)
+        false -> woken(Rest, Armed, T)
     end;
-woken([{wake, Link, Outcome} | Rest], Armed) ->
+woken([{wake, Link, {signals, _Seq}} | Rest], Armed, T) ->
+    %% The link's signals changed: a wait on one of them that holds now ends.
+    case [{S, V} || {handshake, _, L, S, V} <- Armed, L =:= Link,
+                    cell_handshake:signal(T, Link, S) =:= V] of
+        [{Signal, Value} | _] -> {handshake, Link, Signal, Value};
+        [] -> woken(Rest, Armed, T)
+    end;
+woken([{wake, Link, Outcome} | Rest], Armed, T) ->
     case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
         ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
         [_ | _] -> {handshake, Link, Outcome};
-        [] -> woken(Rest, Armed)
+        [] -> woken(Rest, Armed, T)
     end.
 
 %% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
@@ -814,6 +827,15 @@ io_error(Conn) ->
                     "holds; nothing it reads from there can be trusted. Check the PLC and "
                     "the network, then select RETRY once the connection is back.",
                     [Conn, Where, Why]),
+      [retry]).
+
+point_error(Group, Point, Why) ->
+    cell_task:error_spec(
+      <<"io_point">>, "IO point unavailable",
+      io_lib:format("The point ~ts of the IO group ~ts cannot be used: ~ts.~nThe task "
+                    "holds. Check the PLC program (the variable may have been renamed, "
+                    "removed or retyped), then select RETRY.",
+                    [Point, Group, Why]),
       [retry]).
 
 io_config_error(Group) ->

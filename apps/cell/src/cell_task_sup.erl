@@ -1,7 +1,8 @@
-%% @doc Supervises the device tasks of the cell: one gen_statem each, one_for_one, so
-%% one task's crash never disturbs another. A restarted task comes back DOWN with an
-%% error naming the crash, so restarts cannot run away on their own; the intensity
-%% below only stops a task that crashes while booting, over and over.
+%% @doc Supervises the device tasks of the cell: one gen_statem each (cell_task_proc, or
+%% cell_unit_proc for a unit), one_for_one, so one task's crash never disturbs another.
+%% A restarted task comes back DOWN with an error naming the crash (a unit: in Init,
+%% with such an error), so restarts cannot run away on their own; the intensity below
+%% only stops a task that crashes while booting, over and over.
 -module(cell_task_sup).
 -behaviour(supervisor).
 
@@ -17,7 +18,7 @@ start_link(Tasks) ->
 start_task(Spec) ->
     case cell_spec:validate(#{tasks => [Spec]}) of
         {ok, #{tasks := [Checked]}} ->
-            case supervisor:start_child(?MODULE, cell_task_proc:child_spec(Checked)) of
+            case supervisor:start_child(?MODULE, child_spec(Checked)) of
                 {ok, Pid} -> {ok, Pid};
                 {error, _} = Error -> Error
             end;
@@ -51,4 +52,10 @@ init(Tasks) ->
          || #{id := Id, settings := Name} <- Tasks, is_atom(Name),
             not lists:member(Name, Known)],
     Flags = #{strategy => one_for_one, intensity => 20, period => 60},
-    {ok, {Flags, [cell_task_proc:child_spec(T) || T <- Tasks]}}.
+    {ok, {Flags, [child_spec(T) || T <- Tasks]}}.
+
+child_spec(#{module := Mod} = Spec) ->
+    case cell_unit:is_unit_module(Mod) of
+        true -> cell_unit_proc:child_spec(Spec);
+        false -> cell_task_proc:child_spec(Spec)
+    end.

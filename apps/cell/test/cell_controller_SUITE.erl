@@ -38,6 +38,8 @@ init_per_testcase(Case, Config) ->
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     ok.
 
 start_cell(Root, Specs) ->
@@ -205,7 +207,7 @@ damaged_product_file(Config) ->
     ok = cell_alarms:answer(Id2, reset, <<"op">>),
     ok = cell_controller:sync(),
     ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),
-    ?assertMatch([_], filelib:wildcard(Path ++ ".damaged-*")).
+    ?assertMatch([_], filelib:wildcard(unicode:characters_to_list(Path) ++ ".damaged-*")).
 
 product_survives_restart(Config) ->
     ok = cell_controller:start(),

@@ -84,9 +84,11 @@ step(released, _Woken, T) ->
     end;
 %% -- an interrupted transfer the operator answered ---------------------------------------
 step(in_transit, _Woken, T) ->
-    case cell_task:answer(T) of
-        ignore -> {continue, phase(cell_handshake:confirm_here(T), full)};
-        reset -> {continue, phase(cell_task:clear_product(T), idle)};
+    case {cell_task:answer(T), cell_task:product(T)} of
+        %% Meanwhile a newer record elsewhere took the product from this task.
+        {_, undefined} -> {continue, phase(T, idle)};
+        {ignore, _} -> {continue, phase(cell_handshake:confirm_here(T), full)};
+        {reset, _} -> {continue, phase(cell_task:clear_product(T), idle)};
         _ -> {continue, T}
     end.
 

@@ -134,6 +134,20 @@ diff_and_messages_test() ->
     ?assertEqual({ok, 10}, ?S:get_path(A, [axes, 2, speed])),
     ?assertEqual(error, ?S:get_path(A, [axes, 3, speed])).
 
+%% A secret field's change is listed, never its values (they go to the log and panel).
+secret_fields_are_hidden_test() ->
+    V = cell_test_secret_settings,
+    ?assertEqual(ok, ?S:check_schema(V)),
+    {ok, A} = ?S:validate(V, #{key => <<"s3cr3t-one">>}),
+    {ok, B} = ?S:validate(V, #{key => <<"s3cr3t-two">>, label => <<"gate">>}),
+    Changes = ?S:diff(V, A, B),
+    ?assertEqual([#{path => [label], from => <<"door">>, to => <<"gate">>},
+                  #{path => [key], from => <<"(hidden)">>, to => <<"(hidden)">>}], Changes),
+    Text = iolist_to_binary([?S:format_change(C) || C <- Changes]),
+    ?assertEqual(nomatch, binary:match(Text, <<"s3cr3t">>)),
+    %% Unchanged, it is not listed at all.
+    ?assertEqual([], ?S:diff(V, B, B)).
+
 bad_schema_test_() ->
     [?_assertMatch({error, {bad_schema, cell_test_bad_settings, _}},
                    ?S:check_schema(cell_test_bad_settings)),

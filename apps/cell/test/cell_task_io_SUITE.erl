@@ -1,19 +1,21 @@
 %% Device tasks and their IO (seed 000 §4): a task waits for an IO point by subscription
 %% and writes outputs by name; a lost connection takes it DOWN with an error naming the
-%% connection, and Retry takes it on once the connection is back; a group the HAL does
-%% not know stops it at Start with a clear error.
+%% connection, and Retry takes it on once the connection is back; a point its device
+%% cannot serve does the same naming the point; a group the HAL does not know stops it
+%% at Start with a clear error.
 -module(cell_task_io_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
-         lost_while_paused/1]).
+         lost_while_paused/1, point_unavailable/1]).
 
 -define(TIMEOUT, 10000).
 
 all() ->
-    [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused].
+    [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
+     point_unavailable].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -36,6 +38,8 @@ init_per_testcase(Case, Config) ->
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     _ = cell_hal:remove_group(conv),
     _ = cell_hal:remove_connection(plc1),
     ok.
@@ -84,6 +88,34 @@ connection_lost_and_back(_Config) ->
     %% The wait for the sensor is armed again.
     ok = cell_hal_sim:set({conv, sensor}, true),
     await_woke({io, conv, sensor, true}).
+
+%% The device reports a point it cannot serve (a PLC variable renamed, say): the step
+%% that reads it takes the task DOWN with an error naming the point and why, not a
+%% crash. Retry while the fault stands: still DOWN; once it is gone the step runs
+%% again, as it was woken.
+point_unavailable(_Config) ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    true = cell_hal_store:set_fault({conv, count}, <<"symbol MAIN.nCount not found">>),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(belt)),
+    [#{id := Id, caption := <<"IO point unavailable">>, solutions := [retry],
+       description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"count">>)),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"MAIN.nCount not found">>)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    [#{id := Id2, caption := <<"IO point unavailable">>}] = cell_alarms:list(),
+    true = cell_hal_store:set_fault({conv, count}, undefined),
+    ok = cell_hal_sim:set({conv, count}, 3),
+    ok = cell_alarms:answer(Id2, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(belt)),
+    ?assertEqual([], cell_alarms:list()).
 
 %% A group the HAL does not know: the task cannot start, and says so.
 unknown_group(_Config) ->

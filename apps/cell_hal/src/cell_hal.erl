@@ -28,6 +28,23 @@
 %%   complete read) or down.</li>
 %% </ul>
 %% Subscriptions and watches end when their process exits.
+%%
+%% <b>Time-stamped samples</b> (seed 000 §2.3.7). A driver with device-side
+%% notifications (ADS) stamps each sample with the PLC's time, the time of the PLC
+%% cycle that took it. The HAL keeps the newest samples of each such point, so a task
+%% can find what happened between two moments more precisely than any read could
+%% tell it: the laser-beam latch reads the sensor's and the axis position's samples
+%% and takes the position at the sensor's edge.
+%% ```
+%% Since = os:system_time(nanosecond),      %% the PLC's clock, on the same IPC
+%% ok = cell_hal:write(tool_setter, axis_start, true),
+%% {ok, Ref} = cell_hal:watch(tool_setter, axis_done, {eq, true}),
+%% receive {cell_hal_watch, Ref, true} -> ok end,
+%% {ok, Beam} = cell_hal:samples(tool_setter, beam, Since),
+%% {ok, Pos} = cell_hal:samples(tool_setter, axis_pos, Since),
+%% {ok, #{position := Diameter}} =
+%%     cell_hal_ads_latch:position_at_edge(Beam, Pos, #{edge => rising, from => Since}).
+%% '''
 -module(cell_hal).
 
 -include("cell_hal.hrl").
@@ -37,7 +54,7 @@
 -export([read/2, write/3, write_sync/4, watch/3, cancel_watch/1, subscribe/2,
          unsubscribe/2]).
 -export([subscribe_connection/1, unsubscribe_connection/1, status/1, info/1]).
--export([request/3]).
+-export([request/3, samples/3]).
 
 -export_type([connection_spec/0, group_spec/0, point_info/0, conn_info/0]).
 
@@ -49,7 +66,8 @@
                         address := binary(), caption := binary(), field := term()}.
 -type conn_info() :: #{status := up | down, driver := module(), endpoint := binary(),
                        since := integer() | undefined, reason := binary(),
-                       groups := [atom()]}.
+                       groups := [atom()],
+                       faults := [#{point := {atom(), atom()}, reason := binary()}]}.
 -type error(Why) :: {error, Why}.
 
 %% How long `write/3' may take to hand a write to the worker (it is never blocked on
@@ -63,7 +81,9 @@
 %% @doc Adds a connection to a PLC and starts its worker. `opts' holds the driver's
 %% options and the worker's: `poll_ms' (default 50), `reconnect_ms' (first wait after
 %% a failure, default 500), `max_reconnect_ms' (default 30000), `connect_timeout_ms'
-%% (for connecting and the first read, default 5000).
+%% (for connecting and the first read, default 5000), `samples_kept' (time-stamped
+%% samples kept of each point fed by device notifications, default 1000; see
+%% {@link samples/3}).
 -spec add_connection(connection_spec()) ->
           ok | error({bad_option, atom()} | {already_exists, atom()} | {worker, term()}).
 add_connection(Spec) ->
@@ -131,9 +151,11 @@ info_of(#hal_point{key = {G, N}, conn = C, dir = D, type = T, declared = F, addr
 %% @doc A point's value, from the table (no process hop). An input reads
 %% `disconnected' while its connection is down and `not_yet_read' before the first
 %% read of its group; an output reads its last commanded value (or the value read back
-%% from the device after a (re)connect).
+%% from the device after a (re)connect). A point the driver cannot read or write (a
+%% symbol the PLC lacks) reads `{unavailable, Why}', Why in an operator's words.
 -spec read(atom(), atom()) ->
-          {ok, cell_hal_type:value()} | error(disconnected | unknown_point | not_yet_read).
+          {ok, cell_hal_type:value()}
+        | error(disconnected | unknown_point | not_yet_read | {unavailable, binary()}).
 read(Group, Point) ->
     cell_hal_store:read({Group, Point}).
 
@@ -142,7 +164,7 @@ read(Group, Point) ->
 %% waiting for the device (a write the device then refuses is logged).
 -spec write(atom(), atom(), cell_hal_type:value()) ->
           ok | error(unknown_point | not_an_output | {bad_value, term()} | disconnected
-                     | timeout).
+                     | {unavailable, binary()} | timeout).
 write(Group, Point, Value) ->
     command({Group, Point}, Value, {async, ?QUEUE_TIMEOUT}).
 
@@ -150,12 +172,14 @@ write(Group, Point, Value) ->
 %% ms. After `{error, timeout}' the write may still reach the device.
 -spec write_sync(atom(), atom(), cell_hal_type:value(), timeout()) ->
           ok | error(unknown_point | not_an_output | {bad_value, term()} | disconnected
-                     | timeout | term()).
+                     | {unavailable, binary()} | timeout | term()).
 write_sync(Group, Point, Value, Timeout) ->
     command({Group, Point}, Value, {sync, Timeout}).
 
 command(Key, Value, Mode) ->
     case cell_hal_store:value(Key) of
+        {ok, #hal_value{dir = out, fault = Why}} when is_binary(Why) ->
+            {error, {unavailable, Why}};
         {ok, #hal_value{dir = out, type = T, conn = C}} ->
             case cell_hal_type:check(T, Value) of
                 {ok, V} ->
@@ -237,8 +261,11 @@ info(Conn) ->
                          up -> <<>>;
                          down -> iolist_to_binary(cell_hal_worker:reason_text(Driver, Why))
                      end,
+            Faults = [#{point => K, reason => Text}
+                      || {K, Text} <- cell_hal_store:faults_of_conn(Conn)],
             {ok, #{status => Status, driver => Driver, endpoint => Ep, since => Since,
-                   reason => Reason, groups => cell_hal_store:groups_of(Conn)}};
+                   reason => Reason, groups => cell_hal_store:groups_of(Conn),
+                   faults => Faults}};
         error ->
             {error, unknown_connection}
     end.
@@ -251,6 +278,30 @@ request(Conn, Request, Timeout) when is_integer(Timeout), Timeout > 0 ->
     case up_worker(Conn) of
         {ok, Pid} -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000);
         error -> {error, disconnected}
+    end.
+
+%% @doc The time-stamped samples of a point fed by device notifications, from `Since'
+%% on (nanoseconds since 1970 in the PLC's clock, as the samples are stamped): the
+%% sample in force at `Since' (the last stamped before it), then every later one,
+%% oldest first. Errors: `disconnected' while the connection is down; `not_sampled'
+%% for a point no notification feeds; `{not_kept, Oldest}' when the value at `Since'
+%% is unknown because the oldest sample kept is stamped later (the connection was down
+%% meanwhile, which forgets the samples, or more came than `samples_kept').
+-spec samples(atom(), atom(), integer()) ->
+          {ok, [{integer(), cell_hal_type:value()}]}
+        | error(unknown_point | disconnected | not_sampled | {not_kept, integer()}).
+samples(Group, Point, Since) when is_integer(Since) ->
+    Key = {Group, Point},
+    case cell_hal_store:value(Key) of
+        {ok, #hal_value{conn = C}} ->
+            Result = cell_hal_store:samples(Key, Since),
+            %% Going down forgets samples: a result taken meanwhile may lack some.
+            case cell_hal_store:is_up(C) of
+                true -> Result;
+                false -> {error, disconnected}
+            end;
+        error ->
+            {error, unknown_point}
     end.
 
 up_worker(Conn) ->

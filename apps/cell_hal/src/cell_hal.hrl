@@ -28,8 +28,11 @@
                     caption :: binary()}).
 
 %% A point's value, read without a process hop. `none' until first read or commanded.
+%% `fault' says, in words, why the driver cannot read or write the point (a symbol
+%% the PLC lacks), while the connection is up; the rest of its group works on.
 -record(hal_value, {key :: {atom(), atom()},
                     conn :: atom(),
                     dir :: in | out,
                     type :: cell_hal_type:type(),
-                    value = none :: none | {ok, cell_hal_type:value()}}).
+                    value = none :: none | {ok, cell_hal_type:value()},
+                    fault :: binary() | undefined}).

@@ -12,9 +12,17 @@
 %% one complete read of a plan, however many requests that takes; it ends with exactly
 %% one `{reply, Tag, {ok, Values}}' holding a value for every point of the plan, or
 %% `{reply, Tag, {error, Why}}', or `{lost, Why}'. A driver with device-side
-%% notifications sets them up in `plan/2' or `read/3' and reports later changes as
-%% `{push, Values}' events; its first `read/3' still answers with the full image, so
-%% the worker knows when every value is fresh.
+%% notifications sets them up in `read/3' (it counts the points they feed as
+%% `pushed' in its plan, so a plan of such points alone is still read once) and
+%% reports later changes as `{push, Values}' or, stamped with the device's time,
+%% `{samples, PerPoint}' events; its first `read/3' still answers with the full image,
+%% so the worker knows when every value is fresh.
+%%
+%% <b>Single points.</b> A point the driver cannot serve while the connection works (a
+%% PLC symbol that is missing, or of another type than configured) is reported as
+%% `{faults, [{Key, Why}]}' and left out of the values, and as `{faults, [{Key, ok}]}'
+%% once it can be served again; the rest of the plan is read as usual. A read in
+%% which not one point could be served is an `{error, Why}'.
 %%
 %% <b>Writing.</b> `write/4' queues one output write; writes reach the device in the
 %% order they were queued. A driver may merge queued writes into one exchange (an ADS
@@ -43,7 +51,9 @@
 -type event() :: connected
                | {lost, Why :: term()}
                | {reply, tag(), {ok, values()} | ok | {ok, term()} | {error, term()}}
-               | {push, values()}.
+               | {push, values()}
+               | {samples, [{key(), [{TimeNs :: integer(), cell_hal_type:value()}]}]}
+               | {faults, [{key(), Why :: term() | ok}]}.
 
 %% Checks the connection's options (the `opts' of `cell_hal:add_connection/1') and
 %% fills in defaults. Keys the worker itself reads (`poll_ms', `reconnect_ms',
@@ -66,8 +76,10 @@
 %% Starts connecting; the outcome arrives later as `connected' or `{lost, Why}'.
 -callback connect(State :: term()) -> {ok, State :: term()}.
 
-%% The read plan of the given points; `requests' is how many exchanges one read takes.
--callback plan([point()], State :: term()) -> {Plan :: term(), #{requests := non_neg_integer()}}.
+%% The read plan of the given points; `requests' is how many exchanges one read takes,
+%% `pushed' (default 0) how many of the points device notifications feed.
+-callback plan([point()], State :: term()) ->
+    {Plan :: term(), #{requests := non_neg_integer(), pushed => non_neg_integer()}}.
 
 %% Starts one complete read of a plan.
 -callback read(tag(), Plan :: term(), State :: term()) -> {ok, State :: term()}.
@@ -82,7 +94,8 @@
 
 %% A message that arrived at the worker: the driver's own (socket data, its timers,
 %% a connector's result) become events; a stale one of an earlier connection is
-%% dropped with `{ok, [], State}'; `unknown' means it is not the driver's.
+%% dropped with `{ok, [], State}'; `unknown' means it is not the driver's. Samples are
+%% `{TimeNs, Value}', oldest first, stamped in nanoseconds since 1970 by the device.
 -callback handle_info(Msg :: term(), State :: term()) ->
     {ok, [event()], State :: term()} | unknown.
 

@@ -19,7 +19,8 @@
 -define(WORKER_OPTS, #{poll_ms => 50,
                        reconnect_ms => 500,
                        max_reconnect_ms => 30000,
-                       connect_timeout_ms => 5000}).
+                       connect_timeout_ms => 5000,
+                       samples_kept => 1000}).
 -define(CALL_TIMEOUT, 15000).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.

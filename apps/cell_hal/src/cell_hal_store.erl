@@ -7,7 +7,8 @@
 %% <ul>
 %% <li>`cell_hal_server' writes the configuration (connections, groups, point
 %%   descriptions and their value rows) and the subscriptions;</li>
-%% <li>a connection's worker writes its connection's status and its points' values, and
+%% <li>a connection's worker writes its connection's status, its points' values and
+%%   faults and the time-stamped samples of points fed by device notifications, and
 %%   sends every notification;</li>
 %% <li>readers (tasks) only read.</li>
 %% </ul>
@@ -21,7 +22,9 @@
 -export([conn/1, conns/0, group/1, groups/0, groups_of/1, point/1, points_of_conn/1,
          points_of_group/1, value/1, is_up/1, read/1]).
 -export([put_conn/1, delete_conn/1, put_group/2, delete_group/1]).
--export([set_worker/3, mark/3, announce/2, put_value/2, notify/2, fire_watches/2]).
+-export([set_worker/3, mark/3, announce/2, put_value/2, notify/2, fire_watches/2,
+         set_fault/2, faults_of_conn/1]).
+-export([add_samples/3, samples/2, clear_samples/1]).
 -export([add_sub/2, delete_sub/2, add_conn_sub/2, delete_conn_sub/2, conn_subs/1,
          add_watch/4, cancel_watch/1, forget/1, subscribers/0]).
 
@@ -35,6 +38,7 @@
 -define(CLAIMS, cell_hal_watch_claims).
 -define(SIM, cell_hal_sim_devices).
 -define(HW, cell_hal_hw_objects).
+-define(SAMPLES, cell_hal_samples).
 
 -type key() :: {atom(), atom()}.
 
@@ -53,6 +57,8 @@ create_tables() ->
     ?CLAIMS = ets:new(?CLAIMS, [set | Read]),
     ?SIM = ets:new(?SIM, [set | Read]),
     ?HW = ets:new(?HW, [set | Read]),
+    %% {{Key, Seq}, TimeNs, Value}: a point's samples in arrival order, a range of keys
+    ?SAMPLES = ets:new(?SAMPLES, [ordered_set | Read]),
     ok.
 
 %%====================================================================
@@ -127,11 +133,13 @@ is_up(Conn) ->
 
 %% @doc A point's value as a task may see it: an input only while its connection is
 %% up (a stale input is never presented as fresh), an output as last commanded or read
-%% back.
+%% back; neither while the driver reports it unusable.
 -spec read(key()) -> {ok, cell_hal_type:value()}
-                     | {error, disconnected | unknown_point | not_yet_read}.
+                     | {error, disconnected | unknown_point | not_yet_read
+                               | {unavailable, binary()}}.
 read(Key) ->
     case ets:lookup(?VALUES, Key) of
+        [#hal_value{fault = Why}] when is_binary(Why) -> {error, {unavailable, Why}};
         [#hal_value{dir = out, value = {ok, _} = V}] -> V;
         [#hal_value{conn = C, value = V}] ->
             case is_up(C) of
@@ -174,7 +182,8 @@ delete_group(Id) ->
                           true = ets:delete(?SUBS, K),
                           [true = ets:delete(?CLAIMS, Ref)
                            || {_, Ref, _, _} <- ets:lookup(?WATCHES, K)],
-                          true = ets:delete(?WATCHES, K)
+                          true = ets:delete(?WATCHES, K),
+                          ok = clear_samples([K])
                   end, Keys),
     true = ets:delete(?GROUPS, Id),
     ok.
@@ -231,6 +240,86 @@ fire({_, Ref, Pid, Cond} = W, V) ->
         _ ->
             ok
     end.
+
+%% @doc Marks a point unusable (`Why' in words) or usable again (`undefined');
+%% true when that changed anything.
+-spec set_fault(key(), binary() | undefined) -> boolean().
+set_fault(Key, Why) ->
+    try ets:lookup_element(?VALUES, Key, #hal_value.fault) of
+        Why -> false;
+        _ -> ets:update_element(?VALUES, Key, {#hal_value.fault, Why})
+    catch
+        error:badarg -> false
+    end.
+
+%% @doc The points of a connection its driver reports unusable, with why.
+-spec faults_of_conn(atom()) -> [{key(), binary()}].
+faults_of_conn(Conn) ->
+    Pattern = pattern(hal_value, record_info(size, hal_value),
+                      [{#hal_value.key, '$1'}, {#hal_value.conn, Conn},
+                       {#hal_value.fault, '$2'}]),
+    lists:sort(ets:select(?VALUES, [{Pattern, [{is_binary, '$2'}], [{{'$1', '$2'}}]}])).
+
+%%====================================================================
+%% Time-stamped samples
+%%====================================================================
+
+%% @doc Appends a point's samples (oldest first) and keeps its newest `Keep'.
+-spec add_samples(key(), [{integer(), cell_hal_type:value()}], pos_integer()) -> ok.
+add_samples(_Key, [], _Keep) ->
+    ok;
+add_samples(Key, Samples, Keep) ->
+    {First, Next} = sample_range(Key),
+    {Rows, Last} = lists:mapfoldl(fun({T, V}, Seq) -> {{{Key, Seq}, T, V}, Seq + 1} end,
+                                  Next, Samples),
+    true = ets:insert(?SAMPLES, Rows),
+    Oldest = max(First, Last - Keep),
+    lists:foreach(fun(Seq) -> true = ets:delete(?SAMPLES, {Key, Seq}) end,
+                  lists:seq(First, Oldest - 1)),
+    ok.
+
+%% The sequence numbers a point's samples use: the first kept and the next free.
+sample_range(Key) ->
+    %% Sequence numbers are integers, which sort before the atom `end'.
+    case ets:prev(?SAMPLES, {Key, 'end'}) of
+        {Key, Last} ->
+            {Key, First} = ets:next(?SAMPLES, {Key, -1}),
+            {First, Last + 1};
+        _ ->
+            {0, 0}
+    end.
+
+%% @doc A point's samples kept from `Since' on (nanoseconds, the PLC's stamps): the one
+%% in force at `Since' (the last stamped at or before it) and every later one, oldest
+%% first.
+%% `not_kept' when the oldest kept sample is stamped after `Since' (the value at
+%% `Since' is unknown: the connection was down meanwhile, or more samples came than
+%% are kept); `not_sampled' when none is kept.
+-spec samples(key(), integer()) ->
+          {ok, [{integer(), cell_hal_type:value()}]}
+        | {error, not_sampled | {not_kept, integer()}}.
+samples(Key, Since) ->
+    case ets:select(?SAMPLES, [{{{Key, '_'}, '$1', '$2'}, [], [{{'$1', '$2'}}]}]) of
+        [] ->
+            {error, not_sampled};
+        [{Oldest, _} | _] when Oldest > Since ->
+            {error, {not_kept, Oldest}};
+        All ->
+            {ok, from(Since, All)}
+    end.
+
+%% From the sample in force at Since (the last stamped at or before it) on; samples of
+%% one PLC cycle share a stamp and come together.
+from(Since, All) ->
+    InForce = lists:foldl(fun({T, _}, _) when T =< Since -> T;
+                             (_, Acc) -> Acc
+                          end, Since, All),
+    lists:dropwhile(fun({T, _}) -> T < InForce end, All).
+
+%% @doc Forgets the samples of points (their connection went down, or they are gone).
+-spec clear_samples([key()]) -> ok.
+clear_samples(Keys) ->
+    lists:foreach(fun(K) -> true = ets:match_delete(?SAMPLES, {{K, '_'}, '_', '_'}) end, Keys).
 
 %%====================================================================
 %% Subscriptions (server side)
@@ -299,3 +388,62 @@ subscribers() ->
     lists:usort([P || {_, P} <- ets:tab2list(?SUBS)] ++
                 [P || {_, P} <- ets:tab2list(?CONN_SUBS)] ++
                 [P || {_, _, P} <- ets:tab2list(?CLAIMS)]).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% The tables of a HAL that is not running, owned by a process of their own.
+with_tables(Tests) ->
+    {setup,
+     fun() ->
+             Self = self(),
+             Owner = spawn(fun() ->
+                                   ok = create_tables(),
+                                   Self ! {tables, self()},
+                                   receive stop -> ok end
+                           end),
+             receive {tables, Owner} -> Owner end
+     end,
+     fun(Owner) ->
+             Ref = monitor(process, Owner),
+             Owner ! stop,
+             receive {'DOWN', Ref, process, Owner, _} -> ok end
+     end,
+     Tests}.
+
+samples_test_() ->
+    K = {g, p},
+    Other = {g, q},
+    with_tables(
+      fun() ->
+              ?assertEqual({error, not_sampled}, samples(K, 0)),
+              ok = add_samples(K, [{10, 1}, {20, 2}, {30, 3}], 4),
+              ok = add_samples(Other, [{5, a}], 4),
+              %% from a stamp between two samples: the one in force, then the later
+              ?assertEqual({ok, [{20, 2}, {30, 3}]}, samples(K, 25)),
+              %% from a sample's own stamp: that sample first
+              ?assertEqual({ok, [{20, 2}, {30, 3}]}, samples(K, 20)),
+              ?assertEqual({ok, [{10, 1}, {20, 2}, {30, 3}]}, samples(K, 10)),
+              %% after the last: the last, still in force
+              ?assertEqual({ok, [{30, 3}]}, samples(K, 99)),
+              %% before the oldest kept: the value then is unknown
+              ?assertEqual({error, {not_kept, 10}}, samples(K, 9)),
+              %% only the newest four are kept, one batch or many
+              ok = add_samples(K, [{40, 4}, {50, 5}], 4),
+              ?assertEqual({error, {not_kept, 20}}, samples(K, 15)),
+              ?assertEqual({ok, [{20, 2}, {30, 3}, {40, 4}, {50, 5}]}, samples(K, 20)),
+              ok = add_samples(K, [{T, T div 10} || T <- lists:seq(60, 150, 10)], 4),
+              ?assertEqual({ok, [{120, 12}, {130, 13}, {140, 14}, {150, 15}]}, samples(K, 120)),
+              ?assertEqual(4, length(ets:select(?SAMPLES, [{{{K, '_'}, '_', '_'}, [], [true]}]))),
+              %% equal stamps (one PLC cycle) keep their order
+              ok = add_samples(Other, [{7, b}, {7, c}], 4),
+              ?assertEqual({ok, [{7, b}, {7, c}]}, samples(Other, 7)),
+              ?assertEqual({ok, [{5, a}, {7, b}, {7, c}]}, samples(Other, 6)),
+              ok = clear_samples([K]),
+              ?assertEqual({error, not_sampled}, samples(K, 0)),
+              ?assertEqual({ok, [{7, b}, {7, c}]}, samples(Other, 8)),
+              %% a point's samples go on after a clear
+              ok = add_samples(K, [{200, 20}], 4),
+              ?assertEqual({ok, [{200, 20}]}, samples(K, 200))
+      end).
+-endif.

@@ -26,6 +26,12 @@
 %%
 %% A REAL holds less than an Erlang float: a value is rounded to single precision when
 %% it is checked, so what a task wrote and what it reads back are equal.
+%%
+%% These values are the same for every driver: the simulation keeps them as they
+%% are, Modbus and ADS lay them out in their own ways ({@link cell_hal_type_codec}),
+%% and a task reads and writes the same terms whichever PLC is behind a point (a
+%% `char' is a character code, never a one-byte binary; NaN and the infinities are
+%% the atoms above).
 -module(cell_hal_type).
 
 -export([is_type/1, check/2, check_cond/2, holds/2]).

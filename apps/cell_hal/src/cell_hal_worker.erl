@@ -24,6 +24,13 @@
 %% and then fails is retried ever more slowly. A stale input is never presented as
 %% fresh: values are stored before the connection is marked up, and it is marked down
 %% before anyone is told.
+%%
+%% A point the driver reports unusable (a symbol the PLC lacks, or of another type)
+%% reads as `{error, {unavailable, Why}}' while the rest of its group works on; the
+%% worker logs it once, and again when it can be used. Points fed by device
+%% notifications keep their newest `samples_kept' time-stamped samples for tasks
+%% ({@link cell_hal:samples/3}); going down forgets them, as it forgets the
+%% faults.
 -module(cell_hal_worker).
 -behaviour(gen_statem).
 
@@ -56,6 +63,8 @@
                points = #{} :: #{key() => #pt{}},
                plan :: term(),                         %% the inputs' read plan
                requests = 0 :: non_neg_integer(),      %% exchanges one poll takes
+               pushed = 0 :: non_neg_integer(),        %% inputs fed by notifications
+               samples_kept :: pos_integer(),          %% time-stamped samples a point keeps
                tag = 0 :: tag(),                       %% the next tag
                sync :: tag() | undefined,              %% the first read after connecting
                poll :: tag() | undefined,              %% the poll in flight
@@ -129,6 +138,7 @@ init(Id) ->
               poll_ms = maps:get(poll_ms, W), reconnect_ms = maps:get(reconnect_ms, W),
               max_reconnect_ms = maps:get(max_reconnect_ms, W),
               connect_timeout_ms = maps:get(connect_timeout_ms, W),
+              samples_kept = maps:get(samples_kept, W),
               backoff = maps:get(reconnect_ms, W)},
     {ok, connecting, load_points(D)}.
 
@@ -198,6 +208,11 @@ disconnected(enter, _Old, #data{id = Id, driver = Driver, ds = DS, reason = Why}
     DS1 = Driver:disconnect(DS),
     ok = cell_hal_store:mark(Id, down, Why),
     _ = D#data.was_up andalso cell_hal_store:announce(Id, down),
+    %% What the driver said of single points held for that connection only; samples
+    %% with a gap are no record to latch a position from.
+    Keys = maps:keys(D#data.points),
+    _ = [cell_hal_store:set_fault(K, undefined) || K <- Keys],
+    ok = cell_hal_store:clear_samples(Keys),
     D1 = fail_pending(D#data{ds = DS1}),
     Wait = D#data.backoff,
     D2 = log_failure(Wait, D1),
@@ -289,6 +304,28 @@ event({reply, Tag, Result}, State, #data{pending = P, unread = U} = D) ->
     end;
 event({push, Values}, connected, D) ->
     {connected, publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
+event({samples, PerPoint}, State, D) when State =/= disconnected ->
+    Known = [{K, Ss} || {K, [_ | _] = Ss} <- PerPoint, is_map_key(K, D#data.points)],
+    lists:foreach(fun({K, Ss}) -> cell_hal_store:add_samples(K, Ss, D#data.samples_kept) end,
+                  Known),
+    case State of
+        connected ->
+            Last = [{K, V} || {K, Ss} <- Known, {_, V} <- [lists:last(Ss)]],
+            {connected, publish(Last, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D)};
+        _ ->
+            {State, D}
+    end;
+event({faults, Faults}, State, D) when State =/= disconnected ->
+    Cleared = [K || {K, ok} <- Faults, fault(K, ok, D)],
+    _ = [fault(K, Why, D) || {K, Why} <- Faults, Why =/= ok],
+    %% An output that can be used again shows what the device holds, as after a
+    %% connect.
+    Unread = [K || K <- Cleared, is_map_key(K, D#data.points),
+                   (maps:get(K, D#data.points))#pt.dir =:= out],
+    case State =:= connected andalso Unread =/= [] of
+        true -> {connected, start_readback(forget_values(Unread, D))};
+        false -> {State, D}
+    end;
 event(_, State, D) ->
     %% An answer for an earlier connection.
     {State, D}.
@@ -297,9 +334,9 @@ event(_, State, D) ->
 %% that was not read on this connection.
 start_sync(#data{points = Pts} = D) ->
     case plan(maps:to_list(Pts), D) of
-        {_, 0} ->
+        {_, 0, 0} ->
             {connected, go_up([], D)};
-        {Plan, _} ->
+        {Plan, _, _} ->
             {Tag, D1} = read(Plan, D),
             {connecting, D1#data{sync = Tag}}
     end.
@@ -318,9 +355,13 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
                          end
                  end, Pts),
     ok = cell_hal_store:announce(Id, up),
-    cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll",
+    Pushed = case D#data.pushed of
+                 0 -> "";
+                 N -> [", ", plural(N, "input"), " by notification"]
+             end,
+    cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll~s",
                     [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
-                     plural(D#data.requests, "request")]),
+                     plural(D#data.requests, "request"), Pushed]),
     %% A group added while the first read was on its way: its outputs are read now.
     start_readback(D1#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
                            logged = undefined, unread = #{}}).
@@ -346,9 +387,9 @@ start_readback(#data{points = Pts, unread = U} = D) ->
                               Dir =:= out andalso V =:= none andalso not is_map_key(K, U)
                       end, Pts),
     case plan(maps:to_list(New), D) of
-        {_, 0} ->
+        {_, 0, 0} ->
             D;
-        {Plan, _} ->
+        {Plan, _, _} ->
             {Tag, D1} = read(Plan, D),
             D1#data{unread = maps:merge(U, maps:map(fun(_, _) -> Tag end, New))}
     end.
@@ -357,11 +398,13 @@ read(Plan, #data{driver = Driver, ds = DS, tag = Tag} = D) ->
     {ok, DS1} = Driver:read(Tag, Plan, DS),
     {Tag, D#data{ds = DS1, tag = Tag + 1}}.
 
+%% A plan, the exchanges one read of it takes, and how many of its points device
+%% notifications feed (a read of those alone sends nothing, but is still a read).
 plan(Points, #data{driver = Driver, ds = DS}) ->
-    {Plan, #{requests := N}} =
+    {Plan, #{requests := N} = Info} =
         Driver:plan([#{key => K, dir => Dir, type => T, field => F}
                      || {K, #pt{dir = Dir, type = T, field = F}} <- Points], DS),
-    {Plan, N}.
+    {Plan, N, maps:get(pushed, Info, 0)}.
 
 %%====================================================================
 %% Values
@@ -399,8 +442,8 @@ load_points(#data{id = Id, points = Old} = D) ->
                     <- cell_hal_store:points_of_conn(Id)]),
     Inputs = [P || {_, #pt{dir = in}} = P <- maps:to_list(Pts)],
     D1 = D#data{points = Pts},
-    {Plan, N} = plan(Inputs, D1),
-    D1#data{plan = Plan, requests = N}.
+    {Plan, N, Pushed} = plan(Inputs, D1),
+    D1#data{plan = Plan, requests = N, pushed = Pushed}.
 
 known_value(K, Old) ->
     case Old of
@@ -410,6 +453,42 @@ known_value(K, Old) ->
                 {ok, #hal_value{value = V}} -> V;
                 error -> none
             end
+    end.
+
+%%====================================================================
+%% Faults of single points
+%%====================================================================
+
+%% Marks a point unusable (`Why', the driver's reason) or usable again (`ok'), logged
+%% when that changes; true when it changed.
+fault(K, Why, #data{driver = Driver} = D) ->
+    Text = case Why of
+               ok -> undefined;
+               _ -> iolist_to_binary(Driver:format_reason(Why))
+           end,
+    case cell_hal_store:set_fault(K, Text) of
+        true when Why =:= ok ->
+            cell_log:notice(D#data.source, "~ts can be used again", [point_text(K)]),
+            true;
+        true ->
+            cell_log:error(D#data.source, "~ts cannot be used: ~ts", [point_text(K), Text]),
+            true;
+        false ->
+            false
+    end.
+
+%% An output's value is read from the device again.
+forget_values(Keys, #data{points = Pts} = D) ->
+    D#data{points = lists:foldl(fun(K, Acc) -> Acc#{K := (maps:get(K, Acc))#pt{value = none}} end,
+                                Pts, Keys)}.
+
+%% A point as the IO page shows it: "general.start_button (A1.01.06 Start button)".
+point_text(K) ->
+    case cell_hal_store:point(K) of
+        {ok, #hal_point{address = A, caption = C}} ->
+            [point_name(K), " (", A, " ", C, ")"];
+        error ->
+            point_name(K)
     end.
 
 %%====================================================================

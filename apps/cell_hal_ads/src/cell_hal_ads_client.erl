@@ -25,6 +25,12 @@
 %%   `{error, disconnected}'</td><td>`connecting'</td></tr>
 %% </table>
 %%
+%% With `reconnect => false' the client is one connection and no more: when the
+%% connection cannot be made or is lost it stops with `{shutdown, Reason}' instead of
+%% waiting in `disconnected', logging nothing, for a host that keeps its own back-off
+%% and says in its own words what happened (the HAL's worker, through
+%% {@link cell_hal_ads}).
+%%
 %% The connection is given up, logged in words for the operator, and tried again when
 %% the PLC closes it, sends a frame that cannot be read, or stops answering (a request
 %% timed out with nothing at all received since it was sent; when the connection is
@@ -40,6 +46,13 @@
 %% variables are cached per connection and shared by all callers; the last caller's
 %% {@link release/2} (or exit) gives the handle back after `handle_idle' ms. Reads and
 %% writes of many variables go out as sum commands split at `max_sum'.
+%%
+%% == Without waiting ==
+%% {@link send_request/5} starts a call without waiting for its answer, for a caller
+%% that must stay responsive (the HAL's worker): the answer arrives as a message that
+%% {@link check_response/2} recognizes, labelled as the caller chose. Every request
+%% is answered, at the latest when its timeout passes (`{error, timeout}'), unless the
+%% client exits (the caller's monitor, set up by `send_request', says so).
 %%
 %% == Messages ==
 %% <ul>
@@ -66,10 +79,12 @@
 -export([resolve/2, resolve/3, release/2, read_vars/2, read_vars/3, write_vars/2,
          write_vars/3, read_by_name/3, read_by_name/4, write_by_name/4,
          write_by_name/5, subscribe/2, subscribe/3, unsubscribe/2, symbols/1, symbols/2]).
+-export([send_request/5, check_response/2]).
 -export([format_error/1]).
 -export([callback_mode/0, init/1, handle_event/4, terminate/3, code_change/4]).
 
--export_type([client/0, opts/0, var/0, var_info/0, sub_opts/0, reason/0, status/0]).
+-export_type([client/0, opts/0, var/0, var_info/0, sub_opts/0, reason/0, status/0,
+              async_request/0, request_ids/0]).
 
 -type client() :: pid() | atom().
 -type u32() :: 0..16#FFFFFFFF.
@@ -91,7 +106,9 @@
                   symbol_version => watch | read | ignore,  %% watch
                   handle_idle => non_neg_integer(),     %% ms, 5000
                   link_check => pos_integer() | infinity,   %% ms, 5000
-                  max_frame => pos_integer()}.          %% bytes, 16 MiB
+                  max_frame => pos_integer(),           %% bytes, 16 MiB
+                  reconnect => boolean(),               %% true
+                  log_variables => boolean()}.          %% true
 
 -type var() :: {Name :: binary(), cell_hal_ads_types:type()}.
 
@@ -104,6 +121,22 @@
                       max_delay_us => non_neg_integer()}.  %% 0: at once
 
 -type reason() :: term().
+
+%% Calls that can be made without waiting (see send_request/5); each is answered as
+%% its function of the same name answers.
+-type async_request() :: {resolve, [var()]}
+                       | {release, [var()]}
+                       | {read_vars, [var()]}
+                       | {write_vars, [{var(), cell_hal_ads_types:value()}]}
+                       | {subscribe, [{var(), sub_opts()}]}
+                       | {unsubscribe, [reference()]}
+                       | subscribe_status | symbols
+                       | read_device_info | read_state
+                       | {read, u32(), u32(), u32()}
+                       | {write, u32(), u32(), iodata()}
+                       | {read_write, u32(), u32(), u32(), iodata()}.
+
+-type request_ids() :: gen_statem:request_id_collection().
 
 -type status() :: #{state := up | restoring | connecting | down,
                     name := binary(), peer := binary(), target := binary(),
@@ -122,7 +155,8 @@
                     source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
                     backoff => {500, 30000}, sum_commands => true, max_sum => 500,
                     max_in_flight => 64, access => handle, symbol_version => watch,
-                    handle_idle => 5000, link_check => 5000, max_frame => 16#1000000}).
+                    handle_idle => 5000, link_check => 5000, max_frame => 16#1000000,
+                    reconnect => true, log_variables => true}).
 %% Room for a symbol entry asked for by name: header, name, type, comment and the
 %% extra information TwinCAT 3 appends.
 -define(SYMBOL_INFO_LENGTH, 2048).
@@ -160,6 +194,10 @@
                down :: term(),
                logged :: term(),
                last_rx = 0 :: integer(),
+               %% when the one deadline timer fires (no later than the earliest job's
+               %% deadline; a job that ends leaves it armed, so a round trip costs no
+               %% timer operation)
+               timer_at = infinity :: integer() | infinity,
                received = 0 :: non_neg_integer()}).
 
 -type answer() :: cell_hal_ads_batch:answer().
@@ -167,6 +205,7 @@
 -type cont() :: fun(([answer()], #data{}) -> {#data{}, [action()]}).
 
 -record(job, {from :: gen_statem:from() | undefined,
+              deadline :: integer() | infinity,   % monotonic ms
               n :: pos_integer(),
               left :: non_neg_integer(),
               answers = #{} :: #{pos_integer() => answer()},
@@ -244,7 +283,8 @@ check_opt(K, T) when K =:= request_timeout; K =:= connect_timeout; K =:= max_sum
     ok_if(is_integer(T) andalso T >= 1, T);
 check_opt(backoff, {Min, Max} = B) ->
     ok_if(is_integer(Min) andalso is_integer(Max) andalso Min >= 1 andalso Min =< Max, B);
-check_opt(sum_commands, B) -> ok_if(is_boolean(B), B);
+check_opt(K, B) when K =:= sum_commands; K =:= reconnect; K =:= log_variables ->
+    ok_if(is_boolean(B), B);
 check_opt(access, A) -> ok_if(A =:= handle orelse A =:= address, A);
 check_opt(symbol_version, S) -> ok_if(lists:member(S, [watch, read, ignore]), S);
 check_opt(handle_idle, T) -> ok_if(is_integer(T) andalso T >= 0, T);
@@ -554,6 +594,66 @@ symbols(Client) ->
 symbols(Client, Timeout) ->
     call(Client, symbols, Timeout).
 
+%% @doc Starts a call without waiting for its answer and adds it to `ReqIds' under
+%% `Label'. The arguments are checked here as the waiting functions check them; a bad
+%% one is `{error, Reason}' at once and nothing is sent. The answer, at the latest
+%% after `Timeout' ms, is found by {@link check_response/2}.
+-spec send_request(client(), async_request(), timeout(), term(), request_ids()) ->
+          {ok, request_ids()} | {error, reason()}.
+send_request(Client, Request, Timeout, Label, ReqIds) ->
+    case async_message(Request, Timeout) of
+        {ok, Msg} -> {ok, gen_statem:send_request(Client, Msg, Label, ReqIds)};
+        {error, _} = E -> E
+    end.
+
+async_message({resolve, Vars}, T) -> checked(check_vars(Vars), {resolve, Vars}, T);
+async_message({read_vars, Vars}, T) -> checked(check_shapes(Vars), {read_vars, Vars}, T);
+async_message({write_vars, Pairs}, T) when is_list(Pairs) ->
+    case lists:all(fun({_, _}) -> true; (_) -> false end, Pairs) of
+        true -> checked(check_shapes([V || {V, _} <- Pairs]), {write_vars, Pairs}, T);
+        false -> {error, {bad_argument, Pairs}}
+    end;
+async_message({subscribe, Subs}, T) when is_list(Subs) ->
+    case check_subs(Subs) of
+        {ok, Checked} -> {ok, {req, {subscribe, Checked}, deadline(T)}};
+        Error -> Error
+    end;
+async_message({release, Vars}, _) ->
+    case check_shapes(Vars) of
+        ok -> {ok, {release, Vars}};
+        Error -> Error
+    end;
+async_message({unsubscribe, Refs}, _) when is_list(Refs) ->
+    case lists:all(fun is_reference/1, Refs) of
+        true -> {ok, {unsubscribe, Refs}};
+        false -> {error, {bad_argument, Refs}}
+    end;
+async_message(subscribe_status, _) ->
+    {ok, subscribe_status};
+async_message(symbols, T) ->
+    {ok, {req, symbols, deadline(T)}};
+async_message(Request, T) ->
+    case valid_request(Request) of
+        true -> {ok, {req, {request, Request}, deadline(T)}};
+        false -> {error, {bad_argument, Request}}
+    end.
+
+checked(ok, Request, T) -> {ok, {req, Request, deadline(T)}};
+checked(Error, _, _) -> Error.
+
+%% @doc Whether a message answers a request of `ReqIds': `{Result, Label, Rest}'
+%% with the answer as the waiting function gives it (`{error, {Reason, Client}}' if
+%% the client exited first), `no_request' when none is outstanding, `no_reply' for
+%% another message.
+-spec check_response(term(), request_ids()) ->
+          {term(), term(), request_ids()} | no_request | no_reply.
+check_response(Msg, ReqIds) ->
+    case gen_statem:check_response(Msg, ReqIds, true) of
+        {{reply, Reply}, Label, Rest} -> {Reply, Label, Rest};
+        {{error, _} = E, Label, Rest} -> {E, Label, Rest};
+        Other -> Other
+    end.
+
 %% A request is checked in the caller: a bad argument never reaches the client.
 request(Client, Request, Timeout) ->
     case valid_request(Request) of
@@ -568,7 +668,8 @@ valid_request({write, G, O, Data}) -> u32s([G, O]) andalso is_iodata(Data);
 valid_request({read_write, G, O, L, Data}) -> u32s([G, O, L]) andalso is_iodata(Data);
 valid_request({write_control, State, Dev, Data}) ->
     cell_hal_ads_codec:is_ads_state(State) andalso is_integer(Dev) andalso Dev >= 0
-        andalso Dev =< 16#FFFF andalso is_iodata(Data).
+        andalso Dev =< 16#FFFF andalso is_iodata(Data);
+valid_request(_) -> false.
 
 %% Variables to resolve are checked in full; variables to read, write or release only
 %% for their shape (what was not resolved is answered `{not_resolved, Name}'), which
@@ -664,11 +765,10 @@ text({bad_size, Type, N}) -> io_lib:format("the PLC sent ~b bytes for a ~tp valu
 text({not_resolved, Name}) -> ["variable ", Name, " is not resolved on this connection"];
 text({symbol_table, R}) -> ["the symbol table could not be read: ", text(R)];
 text({symbol_error, Name, R}) -> ["symbol ", Name, ": ", text(R)];
-text({bad_response, What}) -> io_lib:format("the PLC sent a malformed answer (~p)", [What]);
-text({bad_frame, What}) -> io_lib:format("the PLC sent a malformed frame (~p)", [What]);
-text({bad_notification, What}) ->
-    io_lib:format("the PLC sent a malformed notification (~p)", [What]);
-text({bad_symbol, What}) -> io_lib:format("the PLC sent a malformed symbol entry (~p)", [What]);
+text({bad_response, What}) -> ["the PLC sent a malformed answer (", words(What), ")"];
+text({bad_frame, What}) -> ["the PLC sent a malformed frame (", words(What), ")"];
+text({bad_notification, What}) -> ["the PLC sent a malformed notification (", words(What), ")"];
+text({bad_symbol, What}) -> ["the PLC sent a malformed symbol entry (", words(What), ")"];
 text({frame_too_long, N}) ->
     io_lib:format("the PLC announced a frame of ~b bytes, more than allowed", [N]);
 text({unexpected_answer, Cmd, Expected}) ->
@@ -678,6 +778,11 @@ text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options
 text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
 text({restore, R}) -> ["the connection could not be set up: ", text(R)];
 text(Other) -> io_lib:format("~tp", [Other]).
+
+%% What the codec found wrong: `shorter_than_ams_header' reads "shorter than ams
+%% header".
+words(What) when is_atom(What) -> string:replace(atom_to_list(What), "_", " ", all);
+words(What) -> io_lib:format("~tp", [What]).
 
 inet_text(R) ->
     case inet:format_error(R) of
@@ -759,13 +864,18 @@ handle_event(enter, OldState, {connected, ready}, D) ->
      link_check_timer(Check)};
 handle_event({call, From}, {req, Request, Deadline}, {connected, ready}, D) ->
     case expired(Deadline) of
-        true -> keep_state_and_data;   % the caller has given up already
+        %% Its time passed while the connection was being set up: a caller that waits
+        %% has given up already, one that did not wait is told.
+        true -> {keep_state_and_data, [{reply, From, {error, timeout}}]};
         false -> act(serve(Request, From, Deadline, D))
     end;
 
 %%--------------------------------------------------------------------
 %% disconnected: waits the back-off, then connects again.
 %%--------------------------------------------------------------------
+handle_event(enter, _, disconnected, #data{opts = #{reconnect := false}} = D) ->
+    D#data.was_up andalso notify_watchers({down, D#data.down}, D),
+    {stop, {shutdown, D#data.down}};
 handle_event(enter, OldState, disconnected, D) ->
     #data{backoff = Backoff, opts = #{backoff := {_, Max}}} = D,
     Delay = jitter(Backoff),
@@ -782,7 +892,10 @@ handle_event(state_timeout, reconnect, disconnected, D) ->
 handle_event(info, {tcp, Socket, Bin}, {connected, _}, #data{socket = Socket} = D) ->
     %% On a socket the peer just closed this fails; tcp_closed follows and says so.
     _ = inet:setopts(Socket, [{active, once}]),
-    Buffer = <<(D#data.buffer)/binary, Bin/binary>>,
+    Buffer = case D#data.buffer of
+                 <<>> -> Bin;
+                 Old -> <<Old/binary, Bin/binary>>
+             end,
     act(frames(D#data{buffer = Buffer, last_rx = now_ms(), received = D#data.received + 1}, []));
 handle_event(info, {tcp_closed, Socket}, {connected, _}, #data{socket = Socket} = D) ->
     disconnect(closed, D);
@@ -790,8 +903,8 @@ handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = S
     disconnect({socket, Reason}, D);
 handle_event(internal, {fail, Reason}, {connected, _}, D) ->
     disconnect(Reason, D);
-handle_event({timeout, {job, Id}}, Id, {connected, _}, D) ->
-    act(job_timeout(Id, D));
+handle_event({timeout, deadline}, _, {connected, _}, D) ->
+    act(expire(D#data{timer_at = infinity}));
 handle_event({timeout, link_check}, _, {connected, _}, D) ->
     #data{opts = #{link_check := Check}, last_rx = Last} = D,
     case now_ms() - Last >= Check andalso map_size(D#data.inflight) =:= 0 of
@@ -859,8 +972,8 @@ handle_event(info, {tcp_closed, _}, _, _) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, _}, _, _) ->
     keep_state_and_data;
-handle_event({timeout, {job, _}}, _, _, _) ->
-    keep_state_and_data;
+handle_event({timeout, deadline}, _, _, D) ->
+    {keep_state, D#data{timer_at = infinity}};
 handle_event({timeout, link_check}, _, _, _) ->
     keep_state_and_data;
 handle_event(internal, {version, _}, _, _) ->
@@ -943,12 +1056,12 @@ disconnect(Reason, D) ->
     _ = gen_tcp:close(D#data.socket),
     Replies = [{reply, From, {error, disconnected}}
                || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
-    Cancels = [{{timeout, {job, Id}}, cancel} || Id <- maps:keys(D#data.jobs)],
+    Cancels = [{{timeout, deadline}, cancel}],
     Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D#data.subs),
     {next_state, disconnected,
      D#data{socket = undefined, buffer = <<>>, inflight = #{}, waiting = queue:new(),
             jobs = #{}, notes = #{}, subs = Subs, vars = cell_hal_ads_vars:reset(D#data.vars),
-            down = Reason},
+            down = Reason, timer_at = infinity},
      Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
 
 log_down(OldState, Delay, D) ->
@@ -1067,9 +1180,7 @@ apply_resolved(Results, D) ->
                       {Dx#data{vars = cell_hal_ads_vars:resolved(K, Symbol, Access,
                                                                  Dx#data.vars)}, Gone};
                   {{ok, #{name := Name, type := Type}}, {error, Reason}} ->
-                      cell_log:error(Dx#data.log, "variable ~ts (~ts) cannot be used: ~ts",
-                                     [Name, cell_hal_ads_types:plc_name(Type),
-                                      format_error(Reason)]),
+                      log_variable(error, Name, Type, Reason, Dx),
                       {Dx#data{vars = cell_hal_ads_vars:failed(K, Reason, Dx#data.vars)}, Gone}
               end
       end, {D, []}, Results).
@@ -1344,9 +1455,16 @@ register_found({K, {ok, Symbol, Access}}, Names, {D, Extra}) ->
     end;
 register_found({K, {error, Reason}}, Names, {D, Extra}) ->
     {Name, Type} = maps:get(K, Names),
-    cell_log:warning(D#data.log, "variable ~ts (~ts) cannot be used: ~ts",
-                     [Name, cell_hal_ads_types:plc_name(Type), format_error(Reason)]),
+    log_variable(warning, Name, Type, Reason, D),
     {D, Extra}.
+
+%% A host that names the variable in its own words (the HAL names the point) turns
+%% these lines off.
+log_variable(Level, Name, Type, Reason, #data{opts = #{log_variables := true}} = D) ->
+    cell_log:log(Level, D#data.log, "variable ~ts (~ts) cannot be used: ~ts",
+                 [Name, cell_hal_ads_types:plc_name(Type), format_error(Reason)]);
+log_variable(_, _, _, _, _) ->
+    ok.
 
 find_error(K, Found, Names) ->
     case lists:keyfind(K, 1, Found) of
@@ -1653,16 +1771,36 @@ job([], _From, _Deadline, Cont, D) ->
 job(Requests, From, Deadline, Cont, D) ->
     Id = D#data.job_seq + 1,
     N = length(Requests),
-    Job = #job{from = From, n = N, left = N, received = D#data.received, cont = Cont},
-    Waiting = lists:foldl(fun({I, R}, Q) -> queue:in({Id, I, R}, Q) end, D#data.waiting,
-                          lists:zip(lists:seq(1, N), Requests)),
+    Job = #job{from = From, deadline = Deadline, n = N, left = N,
+               received = D#data.received, cont = Cont},
     {D1, Actions} = pump(D#data{job_seq = Id, jobs = (D#data.jobs)#{Id => Job},
-                                waiting = Waiting}),
-    Timeout = case Deadline of
-                  infinity -> [];
-                  _ -> [{{timeout, {job, Id}}, Deadline, Id, [{abs, true}]}]
-              end,
-    {D1, Timeout ++ Actions}.
+                                waiting = enqueue(Requests, Id, 1, D#data.waiting)}),
+    arm(Deadline, D1, Actions).
+
+enqueue([], _, _, Q) -> Q;
+enqueue([R | Rs], Id, I, Q) -> enqueue(Rs, Id, I + 1, queue:in({Id, I, R}, Q)).
+
+%% The deadline timer fires no later than `Deadline'.
+arm(Deadline, #data{timer_at = At} = D, Actions) when At =< Deadline ->
+    {D, Actions};
+arm(Deadline, D, Actions) ->
+    {D#data{timer_at = Deadline}, [{{timeout, deadline}, Deadline, check, [{abs, true}]}
+                                   | Actions]}.
+
+%% The timer fired: jobs past their deadline end, and it is armed again for the
+%% earliest one left.
+expire(D) ->
+    Now = now_ms(),
+    Due = lists:sort([{Dl, Id} || {Id, #job{deadline = Dl}} <- maps:to_list(D#data.jobs),
+                                  Dl =/= infinity, Dl =< Now]),
+    {D1, Actions} = lists:foldl(fun({_, Id}, {Dx, Ax}) ->
+                                        {Dy, Ay} = job_timeout(Id, Dx),
+                                        {Dy, Ax ++ Ay}
+                                end, {D, []}, Due),
+    case [Dl || #job{deadline = Dl} <- maps:values(D1#data.jobs), Dl =/= infinity] of
+        [] -> {D1, Actions};
+        Left -> arm(lists:min(Left), D1, Actions)
+    end.
 
 %% Sends queued requests while there is room, in one write to the socket.
 pump(D) ->
@@ -1712,10 +1850,11 @@ deliver(Id, I, Answer, D) ->
             {D, []}
     end.
 
-complete(Id, #job{n = N, answers = As, cont = Cont}, D) ->
-    Answers = [maps:get(I, As, {error, timeout}) || I <- lists:seq(1, N)],
-    {D1, Actions} = Cont(Answers, D),
-    {D1, [{{timeout, {job, Id}}, cancel} | Actions]}.
+complete(_Id, #job{n = N, answers = As, cont = Cont}, D) ->
+    Cont(answers(N, As, []), D).
+
+answers(0, _, Acc) -> Acc;
+answers(I, As, Acc) -> answers(I - 1, As, [maps:get(I, As, {error, timeout}) | Acc]).
 
 %% The deadline passed: what is missing is a timeout. If nothing at all came from the
 %% PLC since the job was sent, the connection is dead (a pulled cable is noticed here,

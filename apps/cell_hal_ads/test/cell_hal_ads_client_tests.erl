@@ -47,7 +47,30 @@ format_error_test_() ->
      ?_assertEqual(<<"symbol not found (ADS error 0x710)">>,
                    ?C:format_error({ads_error, 16#710, symbol_not_found})),
      ?_assertEqual(<<"cannot connect: connection refused">>,
-                   ?C:format_error({connect, econnrefused}))].
+                   ?C:format_error({connect, econnrefused})),
+     ?_assertEqual(<<"the PLC sent a malformed frame (shorter than ams header)">>,
+                   ?C:format_error({bad_frame, shorter_than_ams_header}))].
+
+%% The HAL's driver sets these itself; a host may too.
+host_options_test_() ->
+    Base = #{host => "plc1", target_net_id => "5.23.1.7.1.1"},
+    [?_assertMatch({ok, #{reconnect := true, log_variables := true}}, ?C:check_opts(Base)),
+     ?_assertMatch({ok, #{reconnect := false, log_variables := false}},
+                   ?C:check_opts(Base#{reconnect => false, log_variables => false})),
+     ?_assertEqual({error, {bad_option, reconnect}}, ?C:check_opts(Base#{reconnect => no}))].
+
+%% Calls without waiting are checked in the caller too.
+send_request_arguments_test_() ->
+    Nobody = list_to_pid("<0.9999.0>"),
+    Ids = gen_statem:reqids_new(),
+    [?_assertEqual({error, {bad_variable, {<<"a*b">>, int32}}},
+                   ?C:send_request(Nobody, {resolve, [{<<"a*b">>, int32}]}, 100, l, Ids)),
+     ?_assertEqual({error, {bad_argument, [x]}},
+                   ?C:send_request(Nobody, {write_vars, [x]}, 100, l, Ids)),
+     ?_assertEqual({error, {bad_argument, {launch, rockets}}},
+                   ?C:send_request(Nobody, {launch, rockets}, 100, l, Ids)),
+     ?_assertEqual({error, {bad_argument, [x]}},
+                   ?C:send_request(Nobody, {unsubscribe, [x]}, 100, l, Ids))].
 
 %% Arguments are checked in the caller, before any message.
 arguments_test_() ->

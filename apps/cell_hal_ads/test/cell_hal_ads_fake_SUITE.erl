@@ -26,7 +26,8 @@
          trigger_enable_by_handle/1, several_requests_in_flight/1,
          timeout_never_blocks_caller/1, garbage_closes_only_the_connection/1,
          oversized_frame_closes_only_the_connection/1, bad_options/1,
-         stop_leaves_plc_tidy/1]).
+         stop_leaves_plc_tidy/1, requests_without_waiting/1,
+         one_connection_without_reconnecting/1]).
 -export([frames_match_adslib/1]).
 -export([reconnect_after_plc_restart/1, connection_refused_then_up/1]).
 
@@ -52,7 +53,8 @@ groups() ->
                    trigger_enable_by_handle, several_requests_in_flight,
                    timeout_never_blocks_caller, garbage_closes_only_the_connection,
                    oversized_frame_closes_only_the_connection, bad_options,
-                   stop_leaves_plc_tidy]},
+                   stop_leaves_plc_tidy, requests_without_waiting,
+                   one_connection_without_reconnecting]},
      {crosscheck, [], [frames_match_adslib]},
      {restart, [], [reconnect_after_plc_restart, connection_refused_then_up]}].
 
@@ -370,7 +372,7 @@ every_type_round_trip(Config) ->
               <<16#FFFFFFFFFFFFFFFF:64/little>>},
              {"MAIN.d", date, {2023, 11, 15}, {1970, 1, 2}, <<86400:32/little>>},
              {"MAIN.t", time, 90000, 1500, <<1500:32/little>>},
-             {"MAIN.c", char, <<"A">>, <<"z">>, <<"z", 0>>},
+             {"MAIN.c", char, $A, $z, <<"z", 0>>},
              {"MAIN.name", {string, 20}, <<"hello">>, <<"abc">>, <<"abc", 0:(18 * 8)>>}],
     Vars = [{list_to_binary(N), T} || {N, T, _, _, _} <- Cases],
     {ok, Infos} = cell_hal_ads_client:resolve(C, Vars),
@@ -838,6 +840,8 @@ bad_options(_Config) ->
                      {symbol_version, #{symbol_version => always}},
                      {link_check, #{link_check => 0}},
                      {max_frame, #{max_frame => 10}},
+                     {reconnect, #{reconnect => sometimes}},
+                     {log_variables, #{log_variables => 1}},
                      {colour, #{colour => blue}}]],
     {error, {bad_option, host}} = cell_hal_ads_client:start_link(#{target_net_id => ?NET}),
     {error, {bad_option, target_net_id}} = cell_hal_ads_client:start_link(#{host => "h"}),
@@ -857,6 +861,98 @@ stop_leaves_plc_tidy(Config) ->
     %% given back by the client before it closed, not cleaned up by the PLC
     ?assertEqual(#{notes_deleted => 2, released => 11},
                  maps:with([notes_deleted, released], stats(Config))).
+
+%% A caller that must not wait (the HAL's worker) starts calls and recognizes their
+%% answers among its other messages; each carries the caller's label.
+requests_without_waiting(Config) ->
+    C = client(Config),
+    Counter = {<<"MAIN.counter">>, int32},
+    Flag = {<<"MAIN.flag">>, bool},
+    Ids0 = gen_statem:reqids_new(),
+    {ok, Ids1} = cell_hal_ads_client:send_request(C, {resolve, [Counter, Flag]}, ?WAIT,
+                                                  resolved, Ids0),
+    {{ok, [{ok, #{symbol := <<"MAIN.counter">>}}, {ok, _}]}, resolved, Ids2} = response(Ids1),
+    {ok, Ids3} = cell_hal_ads_client:send_request(C, {write_vars, [{Flag, true}]}, ?WAIT,
+                                                  {write, 1}, Ids2),
+    {ok, Ids4} = cell_hal_ads_client:send_request(C, {read_vars, [Counter, Flag]}, ?WAIT,
+                                                  {read, 2}, Ids3),
+    %% answered in the order asked: the write reached the PLC before the read
+    {{ok, [ok]}, {write, 1}, Ids5} = response(Ids4),
+    {{ok, [{ok, 42}, {ok, true}]}, {read, 2}, Ids6} = response(Ids5),
+    no_request = cell_hal_ads_client:check_response(anything, Ids6),
+    {ok, Ids7} = cell_hal_ads_client:send_request(C, {subscribe, [{Flag, #{}}]}, ?WAIT, sub, Ids6),
+    {{ok, [{ok, Ref}]}, sub, Ids8} = response(Ids7),
+    {ok, [{_, true}]} = await_samples(Ref, 1),
+    {ok, Ids9} = cell_hal_ads_client:send_request(C, {unsubscribe, [Ref]}, ?WAIT, unsub, Ids8),
+    {ok, unsub, Ids10} = response(Ids9),
+    {ok, Ids11} = cell_hal_ads_client:send_request(C, {release, [Counter, Flag]}, ?WAIT, rel,
+                                                   Ids10),
+    {ok, rel, Ids12} = response(Ids11),
+    %% a time already past is answered, not dropped
+    {ok, Ids13} = cell_hal_ads_client:send_request(C, read_state, 0, late, Ids12),
+    {{error, timeout}, late, Ids14} = response(Ids13),
+    %% bad arguments never leave the caller
+    {error, {bad_variable, {<<"MAIN.x">>, float}}} =
+        cell_hal_ads_client:send_request(C, {resolve, [{<<"MAIN.x">>, float}]}, ?WAIT, x, Ids14),
+    {error, {bad_argument, {read, -1, 0, 4}}} =
+        cell_hal_ads_client:send_request(C, {read, -1, 0, 4}, ?WAIT, x, Ids14),
+    {ok, Ids15} = cell_hal_ads_client:send_request(C, {write_vars, [{Flag, false}]}, ?WAIT,
+                                                   {write, 3}, Ids14),
+    {{ok, [{error, {not_resolved, <<"MAIN.flag">>}}]}, {write, 3}, _} = response(Ids15),
+    ?assertEqual(<<1>>, value(Config, "MAIN.flag")),
+    set(Config, "MAIN.flag", <<0>>).
+
+response(Ids) ->
+    receive
+        Msg ->
+            case cell_hal_ads_client:check_response(Msg, Ids) of
+                no_reply -> self() ! Msg, ct:fail("not an answer: ~p", [Msg]);
+                no_request -> ct:fail(no_request);
+                Answer -> Answer
+            end
+    after ?WAIT -> ct:fail(no_answer)
+    end.
+
+%% `reconnect => false': one connection, no more. A lost connection or one that cannot
+%% be made ends the client with the reason; it logs nothing of its own (its host does).
+one_connection_without_reconnecting(Config) ->
+    Fake = ?config(fake, Config),
+    ok = cell_log:subscribe(),
+    C = client(Config, #{reconnect => false, name => <<"hal/one">>}),
+    Ref = monitor(process, C),
+    ok = cell_hal_ads_peer:cmd(Fake, "drop"),
+    receive {'DOWN', Ref, process, C, Why} -> ?assertEqual({shutdown, closed}, Why)
+    after ?WAIT -> ct:fail(client_still_running)
+    end,
+    {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(Probe),
+    ok = gen_tcp:close(Probe),
+    {ok, C2} = cell_hal_ads_client:start(#{host => {127, 0, 0, 1}, port => Port,
+                                          target_net_id => ?NET, reconnect => false,
+                                          name => <<"hal/one">>}),
+    Ref2 = monitor(process, C2),
+    receive {'DOWN', Ref2, process, C2, Why2} ->
+            ?assertEqual({shutdown, {connect, econnrefused}}, Why2)
+    after ?WAIT -> ct:fail(client_still_running)
+    end,
+    %% the lines of the one source: connected, never "lost" or "retrying"
+    Lines = log_lines(<<"hal/one">>),
+    ct:log("~p", [Lines]),
+    ?assertMatch([_], [T || T <- Lines, binary:match(T, <<"connected to">>) =/= nomatch]),
+    ?assertEqual([], [T || T <- Lines, binary:match(T, [<<"lost">>, <<"retrying">>]) =/= nomatch]),
+    ok = cell_log:unsubscribe().
+
+%% The log lines of a source in the mailbox: a client logs from its own process, so
+%% its lines arrive before the monitor says it exited.
+log_lines(Source) ->
+    collect_lines(Source, []).
+
+collect_lines(Source, Acc) ->
+    receive
+        {cell_log, #{source := Source, text := T}} -> collect_lines(Source, [T | Acc]);
+        {cell_log, _} -> collect_lines(Source, Acc)
+    after 0 -> lists:reverse(Acc)
+    end.
 
 %%--------------------------------------------------------------------
 %% crosscheck: our frames beside AdsLib's, byte for byte

@@ -63,12 +63,30 @@ string_test_() ->
      ?_assertEqual({error, {bad_size, {string, 3}, 3}}, ?D({string, 3}, <<"abc">>))].
 
 char_test_() ->
-    [?_assertEqual({ok, <<"A">>}, ?E(char, <<"A">>)),
-     ?_assertEqual({ok, <<"A", 0>>}, cell_hal_ads_types:encode(char, <<"A">>, 2)),
-     ?_assertEqual({ok, <<"A">>}, ?D(char, <<"A", 0>>)),
-     ?_assertEqual({ok, <<"A">>}, ?D(char, <<"A">>)),
-     ?BAD(char, <<"AB">>),
-     ?BAD(char, $A)].
+    %% a character code, as every HAL driver gives it (cell_hal_type)
+    [?_assertEqual({ok, <<"A">>}, ?E(char, $A)),
+     ?_assertEqual({ok, <<"A", 0>>}, cell_hal_ads_types:encode(char, $A, 2)),
+     ?_assertEqual({ok, $A}, ?D(char, <<"A", 0>>)),
+     ?_assertEqual({ok, $A}, ?D(char, <<"A">>)),
+     ?_assertEqual({ok, 255}, round_trip(char, 255)),
+     ?_assertEqual({ok, 0}, round_trip(char, 0)),
+     ?BAD(char, 256),
+     ?BAD(char, -1),
+     ?BAD(char, <<"A">>),
+     ?_assertEqual({error, {bad_size, char, 3}}, ?D(char, <<"ABC">>)),
+     ?_assertEqual({error, {bad_size, char, 0}}, ?D(char, <<>>))].
+
+%% Every value the HAL's type check accepts is laid out as cell_hal_type_codec lays
+%% it out for ADS: one definition of a point's value across drivers.
+same_as_hal_test_() ->
+    Samples = [{bool, true}, {byte, 7}, {sbyte, -7}, {char, $z}, {int16, -2}, {uint16, 2},
+               {int32, -70000}, {uint32, 70000}, {int64, -1 bsl 40}, {uint64, 1 bsl 40},
+               {real, 0.1}, {real, 3}, {lreal, 0.1}, {lreal, nan}, {{string, 4}, <<"ab">>},
+               {date, {2026, 11, 21}}, {time, 1500}, {decimal, <<9:128>>}],
+    [?_assertEqual({ok, cell_hal_type_codec:encode_ads(T, element(2, cell_hal_type:check(T, V)))},
+                   ?E(T, V)) || {T, V} <- Samples] ++
+    %% a REAL is rounded as the HAL rounds it: what was written reads back equal
+    [?_assertEqual(cell_hal_type:check(real, 0.1), round_trip(real, 0.1))].
 
 date_test_() ->
     [?_assertEqual({ok, <<0:32>>}, ?E(date, {1970, 1, 1})),

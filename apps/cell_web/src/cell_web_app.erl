@@ -63,10 +63,9 @@ check_demo_accounts() ->
         {Open, true} ->
             Text = iolist_to_binary(
                      ["the demo accounts ", lists:join(", ", Open), " still have their demo "
-                      "passwords; a production build does not start with them. Change them on "
-                      "the panel's Users page of a development run of the same root folder, or "
-                      "from its shell: cell_web_users:set_password(<<\"admin\">>, "
-                      "<<\"new password\">>, <<\"your name\">>)."]),
+                      "passwords; a production build does not start with them. Set each "
+                      "one's password with the cell stopped: bin/cellrt set_password ",
+                      hd(Open), " (it asks for the new password)."]),
             cell_log:error(web, "~ts", [Text]),
             refuse_boot(),
             {error, {demo_accounts, Text}};

@@ -45,5 +45,9 @@ routes() ->
      {"/api/users", cell_web_users_h, #{}},
      {"/api/users/:name", cell_web_users_h, #{}},
      {"/api/audit", cell_web_audit_h, #{}},
+     {"/api/inspect", cell_web_inspect_h, #{what => blocks}},
+     {"/api/inspect/messages", cell_web_inspect_h, #{what => messages}},
+     {"/api/inspect/messages/answer", cell_web_inspect_h, #{what => answer}},
+     {"/api/inspect/parts/:serial", cell_web_inspect_h, #{what => part}},
      {"/api/ws", cell_web_ws_h, #{}},
      {'_', cell_web_notfound_h, #{}}].

@@ -22,9 +22,9 @@ fields() ->
      #{name => iterations, type => {integer, 1000, 10000000},
        default => cell_web_password:default_iterations(),
        doc => <<"PBKDF2 iterations of this hash.">>},
-     #{name => salt, type => {string, 64}, default => <<>>,
+     #{name => salt, type => {string, 64}, default => <<>>, secret => true,
        doc => <<"The salt, base64.">>},
-     #{name => hash, type => {string, 64}, default => <<>>,
+     #{name => hash, type => {string, 64}, default => <<>>, secret => true,
        doc => <<"The derived key, base64; empty: the user cannot log in.">>}].
 
 %% @doc A name is 1 to 64 letters, digits and `. _ - @'.

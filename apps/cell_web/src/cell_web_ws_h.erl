@@ -13,7 +13,12 @@
 %%     withdrawn (`cleared' and `who' say which and by whom)</li>
 %% <li>`{"type": "event", "event": Event}' — an IPC-2541 item event and the like</li>
 %% <li>`{"type": "log", "line": Line}' — a task log line</li>
+%% <li>`{"type": "inspect_messages", "messages": [Message]}' — the PLC messages waiting
+%%     for an answer on the panel (the whole list, at connect and at every change)</li>
 %% </ul>
+%%
+%% While a page is connected the panel is a message client of the inspection blocks
+%% that ask for it (`cell_inspect_panel'); that process is monitored like the others.
 %%
 %% A slow browser never slows the cell: publishers send to this process without
 %% waiting, and when more than `?MAX_BACKLOG' messages wait here, they are dropped
@@ -32,7 +37,8 @@
 
 -record(state, {caller :: cell_web_req:caller(),
                 events :: reference() | undefined,
-                log :: reference() | undefined}).
+                log :: reference() | undefined,
+                inspect :: reference() | undefined}).
 
 -spec init(cowboy_req:req(), map()) ->
           {cowboy_websocket, cowboy_req:req(), #state{}, map()} | {ok, cowboy_req:req(), map()}.
@@ -63,14 +69,27 @@ websocket_init(#state{caller = Caller} = State) ->
                                       #{session := Id} -> Id
                                   end),
     _ = erlang:start_timer(?PING_MS, self(), ping),
-    {[snapshot(false, State)],
+    {Inspect, Messages} = join_inspection(),
+    {[snapshot(false, State) | Messages],
      State#state{events = monitor(process, cell_events),
-                 log = monitor(process, cell_log_server)}}.
+                 log = monitor(process, cell_log_server), inspect = Inspect}}.
+
+%% The inspection blocks' messages, when their app runs.
+join_inspection() ->
+    case cell_inspect_panel:join(self()) of
+        {ok, Ms} -> {monitor(process, cell_inspect_panel), [inspect_messages(Ms)]};
+        {error, not_running} -> {undefined, []}
+    end.
+
+inspect_messages(Ms) ->
+    {text, jsx:encode([#{<<"type">> => <<"inspect_messages">>,
+                         <<"messages">> => [cell_web_inspect_h:message_json(M) || M <- Ms]}])}.
 
 -spec websocket_handle(cow_ws:frame(), #state{}) ->
           {[cow_ws:frame()], #state{}}.
-websocket_handle({text, <<"resync">>}, State) ->
-    {[snapshot(true, State)], State};
+websocket_handle({text, <<"resync">>}, #state{inspect = I} = State) ->
+    {[snapshot(true, State) | [inspect_messages(cell_inspect_panel:messages()) || I =/= undefined]],
+     State};
 websocket_handle({text, _}, State) ->
     {[{close, 1003, <<"the panel sends nothing but resync">>}], State};
 websocket_handle(_Frame, State) ->
@@ -84,10 +103,12 @@ websocket_info({cell_log, _} = Msg, State) ->
 websocket_info({timeout, _, ping}, State) ->
     _ = erlang:start_timer(?PING_MS, self(), ping),
     {[ping], State};
+websocket_info({cell_inspect_panel, Ms}, State) ->
+    {[inspect_messages(Ms)], State};
 websocket_info({cell_web_session, ended}, State) ->
     {[{close, 4001, <<"session ended">>}], State};
-websocket_info({'DOWN', Ref, process, _, _}, #state{events = E, log = L} = State)
-  when Ref =:= E; Ref =:= L ->
+websocket_info({'DOWN', Ref, process, _, _}, #state{events = E, log = L, inspect = I} = State)
+  when Ref =:= E; Ref =:= L; Ref =:= I ->
     {[{close, 1012, <<"the cell restarted">>}], State}.
 
 %% The first message, and what waits behind it, in one frame; or, when the browser

@@ -26,7 +26,7 @@ init_per_suite(Config) ->
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     %% Other suites of the same run may have left the cell running on their own root
     %% and spec: start afresh on ours.
-    _ = [application:stop(A) || A <- [cell_web, cell, cell_base]],
+    _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
     _ = [application:load(A) || A <- [cell_base, cell, cell_web]],
     ok = application:set_env(cell_base, root, Root),
     Specs = [cell_web_demo_task:spec(Id, Z, <<"Front">>, self()) || {Id, Z} <- ?TASKS],
@@ -36,7 +36,7 @@ init_per_suite(Config) ->
     [{specs, Specs}, {root, Root} | Config].
 
 end_per_suite(_Config) ->
-    _ = [application:stop(A) || A <- [cell_web, cell, cell_base]],
+    _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
     ok = application:unset_env(cell, cell_spec),
     ok.
 

@@ -263,9 +263,11 @@ start(Root) ->
     after ?DEADLINE_MS -> ct:fail(groups_not_read)
     end.
 
+%% As the node stops: the cell, the router's HAL and physics, the database.
 stop() ->
     _ = application:stop(cell),
     _ = application:stop(router_cell),
+    _ = application:stop(mnesia),
     ok.
 
 write_settings(Root, Objects) ->

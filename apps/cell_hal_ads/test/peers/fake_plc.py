@@ -661,8 +661,11 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--port", type=int, default=0)
     parser.add_argument("--handle-base", type=int, default=0x1000)
+    # Accept connections but answer nothing until `unmute': a PLC still starting up.
+    parser.add_argument("--muted", action="store_true")
     args = parser.parse_args()
     plc = Plc(args.handle_base)
+    plc.muted = args.muted
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
     server = loop.run_until_complete(

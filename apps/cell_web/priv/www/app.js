@@ -15,6 +15,7 @@ const model = {
   tasks: new Map(),
   alarms: new Map(),
   log: [],
+  plcMessages: [],
   connected: false,
 };
 let socket = null;
@@ -55,6 +56,18 @@ async function answer(id, solution) {
     await api('POST', `/api/alarms/${encodeURIComponent(id)}/answer`, { solution });
   } catch (e) {
     toast(e.message);
+  }
+}
+
+// An answer to a message of an inspection block's PLC: yes, no, or a text.
+async function answerPlc(m, answer, text) {
+  try {
+    await api('POST', '/api/inspect/messages/answer',
+      text === undefined ? { block: m.block, ref: m.ref, answer }
+                         : { block: m.block, ref: m.ref, answer, text });
+  } catch (e) {
+    toast(e.message);
+    renderPlcMessages();
   }
 }
 
@@ -123,6 +136,10 @@ function apply(msg) {
     case 'alarm_cleared':
       model.alarms.delete(msg.alarm.id);
       renderAlarms();
+      break;
+    case 'inspect_messages':
+      model.plcMessages = msg.messages;
+      renderPlcMessages();
       break;
     case 'log':
       model.log.push(msg.line);
@@ -255,6 +272,53 @@ function renderAlarms() {
   markErrors();
 }
 
+// The PLC's messages: Yes / No, OK, or a text (a number, a password) with OK and
+// Cancel, as the message asks. Answering needs an operator.
+function renderPlcMessages() {
+  const box = $('plc-messages');
+  box.replaceChildren();
+  const may = RANK[model.session.role] >= RANK.operator;
+  for (const m of model.plcMessages) {
+    const item = document.createElement('div');
+    item.className = 'plc-message';
+    item.dataset.block = m.block;
+    item.dataset.ref = m.ref;
+    item.dataset.kind = m.kind;
+    const head = document.createElement('div');
+    head.className = 'head';
+    head.append(span('caption', m.text), span('who', `${m.block} · message ${m.id} · ${time(m.since)}`));
+    item.append(head);
+    const buttons = document.createElement('div');
+    buttons.className = 'solutions';
+    const button = (label, answer, input) => {
+      const b = document.createElement('button');
+      b.textContent = label;
+      b.dataset.answer = answer;
+      b.disabled = !may;
+      b.addEventListener('click', () => {
+        for (const x of buttons.querySelectorAll('button')) x.disabled = true;
+        answerPlc(m, answer, input ? input.value : undefined);
+      });
+      return b;
+    };
+    if (m.kind === 'yes_no') {
+      buttons.append(button('Yes', 'yes'), button('No', 'no'));
+    } else if (m.kind === 'ok') {
+      buttons.append(button('OK', 'yes'));
+    } else {
+      const input = document.createElement('input');
+      input.type = m.kind === 'password' ? 'password' : m.kind === 'number' ? 'number' : 'text';
+      input.maxLength = m.max_length;
+      input.disabled = !may;
+      input.dataset.testid = 'plc-answer-text';
+      buttons.append(input, button('OK', 'text', input), button('Cancel', 'no'));
+    }
+    item.append(buttons);
+    box.append(item);
+  }
+  $('plc-messages-box').classList.toggle('hidden', model.plcMessages.length === 0);
+}
+
 function renderTicker() {
   const box = $('ticker');
   box.replaceChildren(...model.log.slice(-4).reverse().map((l) =>
@@ -277,6 +341,7 @@ function renderSession() {
   $('demo-banner').classList.toggle('hidden', !s.demo_password);
   renderCommands();
   renderAlarms();
+  renderPlcMessages();
 }
 
 function setLink(up) {

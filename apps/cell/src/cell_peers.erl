@@ -1,0 +1,109 @@
+%% @doc Keeps this cell connected to the nodes of the cells it hands products to or
+%% takes them from (a line of cells, one node each: the ends `{Task, Node}' of the cell
+%% spec's links). It connects at start and after every loss, with a backoff, never
+%% blocking anyone; when a node comes (back) it tells the local tasks whose links reach
+%% it, and they attach to their links again.
+-module(cell_peers).
+-behaviour(gen_server).
+
+-export([start_link/1, child_spec/1, nodes_of/1]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-define(BACKOFF_MIN, 500).
+-define(BACKOFF_MAX, 30000).
+
+-record(state, {peers = #{} :: #{node() => #{links := [{atom(), atom()}],
+                                            backoff := pos_integer(),
+                                            up := boolean()}}}).
+
+-spec start_link(cell_spec:spec()) -> {ok, pid()} | ignore | {error, term()}.
+start_link(Spec) ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, Spec, []).
+
+-spec child_spec(cell_spec:spec()) -> supervisor:child_spec().
+child_spec(Spec) ->
+    #{id => ?MODULE, start => {?MODULE, start_link, [Spec]}}.
+
+%% @doc The remote nodes of a spec's links, each with the local task and link that
+%% reach it.
+-spec nodes_of(cell_spec:spec()) -> #{node() => [{atom(), atom()}]}.
+nodes_of(#{links := Links}) ->
+    lists:foldl(fun(#{id := L, from := From, to := To}, Acc) ->
+                        case {From, To} of
+                            {{_, N}, Local} when is_atom(Local), N =/= node() ->
+                                add(N, {Local, L}, Acc);
+                            {Local, {_, N}} when is_atom(Local), N =/= node() ->
+                                add(N, {Local, L}, Acc);
+                            _ ->
+                                Acc
+                        end
+                end, #{}, Links).
+
+add(Node, Entry, Acc) ->
+    maps:update_with(Node, fun(L) -> [Entry | L] end, [Entry], Acc).
+
+-spec init(cell_spec:spec()) -> {ok, #state{}}.
+init(Spec) ->
+    Peers = maps:map(fun(_, Links) -> #{links => Links, backoff => ?BACKOFF_MIN, up => false} end,
+                     nodes_of(Spec)),
+    case maps:size(Peers) of
+        0 -> ok;
+        _ -> ok = net_kernel:monitor_nodes(true)
+    end,
+    _ = [self() ! {connect, N} || N <- maps:keys(Peers)],
+    {ok, #state{peers = Peers}}.
+
+-spec handle_call(term(), gen_server:from(), #state{}) -> no_return().
+handle_call(Request, _From, _State) ->
+    error({unexpected_call, Request}).
+
+-spec handle_cast(term(), #state{}) -> no_return().
+handle_cast(Msg, _State) ->
+    error({unexpected_cast, Msg}).
+
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({connect, Node}, State) ->
+    %% Connecting may take seconds when the node is away: a process of its own does it.
+    Self = self(),
+    _ = spawn_link(fun() -> Self ! {connected, Node, net_kernel:connect_node(Node)} end),
+    {noreply, State};
+handle_info({connected, Node, true}, State) ->
+    {noreply, node_up(Node, State)};
+handle_info({connected, Node, _False}, State) ->
+    {noreply, retry(Node, State)};
+handle_info({nodeup, Node}, State) ->
+    {noreply, node_up(Node, State)};
+handle_info({nodedown, Node}, #state{peers = Peers} = State) ->
+    case maps:find(Node, Peers) of
+        {ok, #{up := true} = P} ->
+            cell_log:warning(cell, "the cell on node ~ts is out of reach; reconnecting", [Node]),
+            {noreply, retry(Node, State#state{peers = Peers#{Node => P#{up => false}}})};
+        _ ->
+            {noreply, State}
+    end;
+handle_info({'EXIT', _Pid, normal}, State) ->
+    {noreply, State}.
+
+node_up(Node, #state{peers = Peers} = State) ->
+    case maps:find(Node, Peers) of
+        {ok, #{up := false, links := Links} = P} ->
+            cell_log:info(cell, "connected to the cell on node ~ts", [Node]),
+            %% The names the other node registered become visible once global has
+            %% synchronised; then the tasks attach to their links again.
+            _ = spawn_link(fun() ->
+                                   _ = global:sync(),
+                                   [cell_handshake:hello(Task, Link) || {Task, Link} <- Links]
+                           end),
+            State#state{peers = Peers#{Node => P#{up => true, backoff => ?BACKOFF_MIN}}};
+        _ ->
+            State
+    end.
+
+retry(Node, #state{peers = Peers} = State) ->
+    case maps:find(Node, Peers) of
+        {ok, #{backoff := B} = P} ->
+            _ = erlang:send_after(B, self(), {connect, Node}),
+            State#state{peers = Peers#{Node => P#{backoff => min(2 * B, ?BACKOFF_MAX)}}};
+        error ->
+            State
+    end.

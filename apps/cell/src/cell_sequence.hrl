@@ -1,0 +1,37 @@
+%% The records behind a unit's step sequences: opaque to sequence modules, which use the
+%% functions of cell_sequence on the seq() their steps are given.
+
+%% One running sequence: the unit's state's own, or a sub-sequence it called.
+-record(frame, {
+    module :: module(),
+    args = #{} :: map(),
+    mode = several :: several | one,      %% several steps in one go, or one per cycle
+    step :: term(),
+    fresh = true :: boolean(),            %% the step's body has not run since it was entered
+    entered = 0 :: integer(),             %% when the step was entered (monotonic ms)
+    vars = #{} :: map(),                  %% the sequence's own variables
+    return :: term(),                     %% the caller's next step once this one is done
+    timers = [] :: [atom()]               %% the timers this sequence started
+}).
+
+%% The sequences of one unit and the actuators they drive.
+-record(seq, {
+    unit :: atom(),
+    io = [] :: [atom()],                  %% IO group instances; the first is the default
+    frames = [] :: [#frame{}],            %% the running sequence first, then its callers
+    actuators = #{} :: #{atom() => {module(), term()}},
+    haltable = true :: boolean(),         %% Halt applies to this state's sequence
+    halt = false :: boolean(),
+    held = false :: boolean(),            %% Halt has taken hold: the sequence waits
+    service = false :: boolean(),
+    settings = #{} :: map(),
+    waiting :: undefined | {[term()], infinity | {integer(), non_neg_integer()}},
+    armed = #{} :: #{term() => term()},   %% IO watches and the deadline of this step
+    latched = #{} :: #{term() => term()}, %% IO conditions seen to hold in this step
+    replies = #{} :: #{reference() => expected | {term()}},
+    effects = [] :: [term()],             %% what the engine is to do, newest first
+    read :: fun((atom(), atom()) -> {ok, term()} | {error, term()}),
+    estop :: fun(() -> boolean()),
+    now = 0 :: integer(),
+    on_entry = false :: boolean()
+}).

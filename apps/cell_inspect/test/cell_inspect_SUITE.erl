@@ -1,0 +1,749 @@
+%% The inspection block against a PLC played by the test through a real Modbus server
+%% (Debian's pymodbus, holding the block's S7 UDT in holding registers on 127.0.0.1):
+%% the test writes what the PLC writes and checks what the block answers, code by
+%% code and in the order the PLC sees the codes, for each numbered step of the seed's
+%% Trigger, Override and Send Message logic and every error path; the heartbeat, the
+%% echoes, the whole UDT byte for byte, a crash of the block and a lost link.
+-module(cell_inspect_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
+         end_per_testcase/2]).
+-export([heartbeat_toggles/1, echoes/1, udt_bytes/1, trigger_pass/1, trigger_fail_with_string/1,
+         trigger_without_processing/1, unknown_point/1, no_client/1, camera_for_other_points/1,
+         cancel_while_waiting/1, cancel_ignored_when_idle/1, trigger_ignored_unless_ready/1,
+         clear_results/1, processing_error/1, configuration_error/1, workspace_load_fails/1,
+         processing_not_available/1, waiting_for_ipm/1, several_cameras/1,
+         cameras_disconnect_while_waiting/1, override_found/1, override_not_found/1,
+         override_ignored_while_busy/1, message_yes/1, message_no/1, message_text/1,
+         message_text_too_long/1, message_not_found/1, message_no_clients/1,
+         message_clients_disconnect/1, message_replaced/1, restart_while_requesting/1,
+         restart_while_waiting_for_an_answer/1, link_lost_and_back/1,
+         command_raised_while_link_down/1, settings_change_applies_at_once/1,
+         two_blocks_two_plcs/1, traceability_by_serial/1]).
+
+-define(WAIT, 20000).
+-define(P, cell_inspect_plc).
+-define(CAM, <<"cam1">>).
+
+all() ->
+    [heartbeat_toggles, echoes, udt_bytes, trigger_pass, trigger_fail_with_string,
+     trigger_without_processing, unknown_point, no_client, camera_for_other_points,
+     cancel_while_waiting, cancel_ignored_when_idle, trigger_ignored_unless_ready,
+     clear_results, processing_error, configuration_error, workspace_load_fails,
+     processing_not_available, waiting_for_ipm, several_cameras,
+     cameras_disconnect_while_waiting, override_found, override_not_found,
+     override_ignored_while_busy, message_yes, message_no, message_text,
+     message_text_too_long, message_not_found, message_no_clients,
+     message_clients_disconnect, message_replaced, restart_while_requesting,
+     restart_while_waiting_for_an_answer, link_lost_and_back,
+     command_raised_while_link_down, settings_change_applies_at_once,
+     two_blocks_two_plcs, traceability_by_serial].
+
+groups() -> [].
+
+init_per_suite(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root"),
+    _ = application:load(lager),
+    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
+    %% Other suites of the same run may have left apps running on their own root.
+    _ = [application:stop(A) || A <- [cell_inspect, cell_web, cell_shdr, cell, cell_hal,
+                                      cell_base, mnesia]],
+    _ = [application:load(A) || A <- [cell_base, cell, cell_inspect]],
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:set_env(cell, cell_spec, #{name => <<"inspect suite">>, tasks => []}),
+    ok = application:set_env(cell_inspect, processing_types,
+                             #{<<"gate">> => cell_inspect_test_ipm}),
+    {ok, Apps} = application:ensure_all_started(cell),
+    ok = cell_inspect_settings:register(),
+    [{root, Root}, {apps, Apps} | Config].
+
+end_per_suite(Config) ->
+    _ = application:stop(cell_inspect),
+    _ = [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
+    _ = application:stop(mnesia),
+    ok = application:unset_env(cell, cell_spec),
+    ok.
+
+init_per_testcase(Case, Config) ->
+    %% The gated workspace's loader reports to the test case's process.
+    _ = Case =:= waiting_for_ipm andalso register(cell_inspect_test_gate, self()),
+    Log = filename:join(?config(priv_dir, Config), atom_to_list(Case) ++ ".plc.log"),
+    {ok, Plc} = ?P:start(?config(data_dir, Config), Log),
+    ok = application:set_env(cell_inspect, connections, [connection(plc, ?P:port(Plc))]),
+    ok = application:set_env(cell_inspect, blocks,
+                             [#{id => line1, connection => plc, io => #{layout => s7}}]),
+    ok = put_settings([block_settings(line1, Case)]),
+    {ok, _} = application:ensure_all_started(cell_inspect),
+    ok = cell_inspect:subscribe(),
+    ok = ?P:await(Plc, inspection_status, expected_start(Case)),
+    [{plc, Plc} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = [unregister(cell_inspect_test_gate) || whereis(cell_inspect_test_gate) =:= self()],
+    ok = application:stop(cell_inspect),
+    [ok = cell_hal:remove_connection(C) || C <- cell_hal:connections()],
+    ?P:stop(?config(plc, Config)),
+    [?P:stop(P) || P <- proplists:get_value(more_plcs, Config, [])],
+    ok.
+
+expected_start(waiting_for_ipm) -> 0;
+expected_start(_) -> 1.
+
+connection(Id, Port) ->
+    #{id => Id, driver => cell_hal_modbus,
+      opts => #{host => "127.0.0.1", port => Port, poll_ms => 20, reconnect_ms => 50,
+                max_reconnect_ms => 400, timeout_ms => 500, connect_timeout_ms => 2000}}.
+
+put_settings(Blocks) ->
+    cell_settings:put(inspect, #{blocks => Blocks}, <<"inspect suite">>).
+
+%% New settings, and a wait until block line1 has applied them.
+change_settings(Blocks) ->
+    {ok, #{settings_version := V}} = cell_inspect_block:view(line1),
+    ok = put_settings(Blocks),
+    await_view(line1, fun(#{settings_version := V1}) -> V1 > V end).
+
+block_settings(Id, Case) ->
+    #{id => atom_to_binary(Id), heartbeat_ms => case Case of udt_bytes -> 60000; _ -> 300 end,
+      processing_timeout_ms => 5000,
+      panel_messages => false,
+      points => [#{id => <<"STATION1">>, processing => <<"sim">>, workspace => <<"ws1">>},
+                 #{id => <<"NOIPM">>, processing => <<"none">>},
+                 #{id => <<"TOP">>, processing => <<"sim">>, workspace => <<"ws-top">>},
+                 #{id => <<"BROKEN">>, processing => <<"sim">>},
+                 #{id => <<"BADWS">>, processing => <<"sim">>, workspace => <<"fail">>}]
+          ++ [#{id => <<"GATED">>, processing => <<"gate">>, workspace => <<"g">>}
+              || Case =:= waiting_for_ipm],
+      messages => [#{id => 7, text => <<"Part OK?">>, kind => yes_no},
+                   #{id => 8, text => <<"Batch number">>, kind => text},
+                   #{id => 9, text => <<"Count">>, kind => number}],
+      clients => [#{id => ?CAM, type => <<"sim">>, manual => true}]}.
+
+%%--------------------------------------------------------------------
+%% Helpers
+%%--------------------------------------------------------------------
+
+plc(Config) -> ?config(plc, Config).
+
+%% The PLC sets values and waits for their echoes (Trigger steps 2 to 4).
+values(Plc, Pairs) ->
+    [ok = ?P:set(Plc, T, V) || {T, V} <- Pairs],
+    [ok = ?P:await(Plc, cell_inspect_tags:echo(T), V) || {T, V} <- Pairs],
+    ok.
+
+%% The PLC raises a command, waits for its echo, drops it, waits for the echo to
+%% follow: the four-phase handshake the block expects.
+command(Plc, Cmd) ->
+    ok = ?P:set(Plc, Cmd, true),
+    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), true),
+    Seen = ?P:tags(Plc),
+    ok = ?P:set(Plc, Cmd, false),
+    ok = ?P:await(Plc, cell_inspect_tags:echo(Cmd), false),
+    Seen.
+
+trigger(Plc, Point, Serial) ->
+    ok = values(Plc, [{inspection_point_id, Point}, {part_serial, Serial}]),
+    ok = ?P:forget(Plc),
+    command(Plc, trigger_inspection).
+
+subscribe_cam(Id) ->
+    ok = cell_inspect_camera_sim:subscribe(Id).
+
+await_cam(Id, Match) ->
+    receive
+        {cell_inspect_camera_sim, Id, Event} ->
+            case Match(Event) of
+                true -> Event;
+                false -> await_cam(Id, Match)
+            end
+    after ?WAIT -> ct:fail({camera_event_missing, Id})
+    end.
+
+request_seen(Id) ->
+    await_cam(Id, fun({request, _}) -> true; (_) -> false end).
+
+message_seen(Id) ->
+    await_cam(Id, fun({message, _}) -> true; (_) -> false end).
+
+status_codes(Plc) ->
+    ?P:written(Plc, inspection_status).
+
+%% The order the PLC saw: `A' written before `B' (both written).
+before(Plc, A, B) ->
+    Log = ?P:log(Plc),
+    Index = fun(X) -> length(lists:takewhile(fun(E) -> E =/= X end, Log)) end,
+    ?assert(lists:member(A, Log) andalso lists:member(B, Log) andalso Index(A) < Index(B),
+            {A, B, Log}).
+
+%%--------------------------------------------------------------------
+%% Heartbeat, echoes, the UDT
+%%--------------------------------------------------------------------
+
+%% Heartbeat Logic: it toggles, every heartbeat_ms (300 here), never faster.
+heartbeat_toggles(Config) ->
+    Plc = plc(Config),
+    First = ?P:tag(Plc, heartbeat),
+    T0 = erlang:monotonic_time(millisecond),
+    ok = ?P:await(Plc, heartbeat, not First),
+    T1 = erlang:monotonic_time(millisecond),
+    ok = ?P:await(Plc, heartbeat, First),
+    T2 = erlang:monotonic_time(millisecond),
+    ok = ?P:await(Plc, heartbeat, not First),
+    T3 = erlang:monotonic_time(millisecond),
+    %% The first wait may start anywhere in a period; the next ones are whole periods.
+    ?assert(T1 - T0 =< 300 + 2000),
+    ?assert(T2 - T1 >= 200 andalso T3 - T2 >= 200, {T2 - T1, T3 - T2}).
+
+%% Echo Tags: every value the PLC writes is echoed, strings with their S7 lengths.
+echoes(Config) ->
+    Plc = plc(Config),
+    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN 0001">>},
+                      {override_employee_id, <<"EMP-7">>}, {message_id, -5}]),
+    ok = values(Plc, [{part_serial, <<"SN 2">>}, {inspection_point_id, <<>>}]),
+    %% Latin-1 from the PLC, as a byte a character.
+    ok = values(Plc, [{part_serial, <<"Grün"/utf8>>}]),
+    Bytes = ?P:bytes(Plc),
+    %% PartSerial_ECHO at 24: STRING[48], length 4, "Gr\xFCn".
+    ?assertEqual(<<48, 4, "Gr", 252, "n">>, binary:part(Bytes, 24, 6)),
+    ?assertEqual(<<16, 0>>, binary:part(Bytes, 6, 2)),
+    ?assertEqual(<<-5:16/signed>>, binary:part(Bytes, 296, 2)),
+    ?assertEqual(<<48, 5, "EMP-7">>, binary:part(Bytes, 74, 7)).
+
+%% The whole UDT, byte for byte at the seed's offsets, after a complete inspection.
+udt_bytes(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"PASS OCR-12">>}),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-BYTES">>),
+    _ = request_seen(?CAM),
+    ok = cell_inspect_camera_sim:shoot(?CAM),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ok = values(Plc, [{message_id, 7}]),
+    Regs = ?P:registers(Plc, 0, 175),
+    Bin = << <<R:16>> || R <- Regs >>,
+    ?assertEqual(Bin, ?P:bytes(Plc)),
+    HB = case ?P:tag(Plc, heartbeat) of true -> 1; false -> 0 end,
+    %% Byte 0: Heartbeat .0, Inspection_PASS .5.
+    <<B0, _, 0, 2, 0, 0, _/binary>> = Bin,
+    ?assertEqual(HB bor 32, B0),
+    ?assertEqual(<<16, 8, "STATION1">>, binary:part(Bin, 6, 10)),
+    ?assertEqual(<<48, 8, "SN-BYTES">>, binary:part(Bin, 24, 10)),
+    ?assertEqual(<<48, 6, "OCR-12">>, binary:part(Bin, 124, 8)),
+    ?assertEqual(<<0>>, binary:part(Bin, 174, 1)),
+    ?assertEqual(<<16, 8, "STATION1">>, binary:part(Bin, 176, 10)),
+    ?assertEqual(<<48, 8, "SN-BYTES">>, binary:part(Bin, 194, 10)),
+    ?assertEqual(<<0, 7, 0, 7, 0, 0>>, binary:part(Bin, 294, 6)),
+    Layout = cell_inspect_udt:layout(cell_inspect_udt:default_lengths()),
+    ?assertMatch(#{inspection_status := 2, inspection_pass := true, inspection_fail := false,
+                   inspection_string := <<"OCR-12">>, message_id_echo := 7},
+                 cell_inspect_udt:decode(Layout, Bin)).
+
+%%--------------------------------------------------------------------
+%% Trigger Command Logic
+%%--------------------------------------------------------------------
+
+%% Steps 1 to 9: Requesting when the echo comes, Processing on the image, Complete
+%% with the results.
+trigger_pass(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    Seen = trigger(Plc, <<"STATION1">>, <<"SN-PASS">>),
+    %% Step 6: when the PLC reads the echo, InspectionStatus already says Requesting.
+    ?assertEqual(3, maps:get(inspection_status, Seen)),
+    {request, #{point := <<"STATION1">>, serial := <<"SN-PASS">>}} = request_seen(?CAM),
+    ?assertEqual(3, ?P:tag(Plc, inspection_status)),
+    ok = cell_inspect_camera_sim:shoot(?CAM),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ?assertEqual([3, 4, 2], status_codes(Plc)),
+    ?assertMatch(#{inspection_pass := true, inspection_fail := false, error_code := 0,
+                   inspection_string := <<>>}, ?P:tags(Plc)),
+    %% Step 9: the results are written before Complete.
+    before(Plc, {inspection_pass, true}, {inspection_status, 2}).
+
+trigger_fail_with_string(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL DMC 1234">>}),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-FAIL">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ?assertMatch(#{inspection_pass := false, inspection_fail := true,
+                   inspection_string := <<"DMC 1234">>}, ?P:tags(Plc)),
+    before(Plc, {inspection_fail, true}, {inspection_status, 2}),
+    before(Plc, {inspection_string, <<"DMC 1234">>}, {inspection_status, 2}).
+
+%% A point without image processing: the image is recorded, the inspection passes.
+trigger_without_processing(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
+    _ = trigger(Plc, <<"NOIPM">>, <<"SN-NOIPM">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ?assert(?P:tag(Plc, inspection_pass)).
+
+%% Step 6: the point does not exist: Error, InspectionNotFound.
+unknown_point(Config) ->
+    Plc = plc(Config),
+    Seen = trigger(Plc, <<"NOSUCH">>, <<"SN-X">>),
+    ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
+    ?assertEqual([3, 5], status_codes(Plc)),
+    before(Plc, {error_code, 2}, {inspection_status, 5}).
+
+%% Step 6: no camera connected for the point: Error, DeviceNotFound.
+no_client(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:disconnect(?CAM),
+    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
+    ?assertEqual([3, 5], status_codes(Plc)).
+
+%% A camera configured for other points is no camera for this one.
+camera_for_other_points(Config) ->
+    Plc = plc(Config),
+    [B] = cell_settings:get(inspect, blocks),
+    ok = change_settings([B#{clients => [#{id => ?CAM, type => <<"sim">>, manual => true,
+                                           points => [<<"TOP">>]}]}]),
+    ok = cell_inspect_block_ready(line1, ?CAM),
+    Seen = trigger(Plc, <<"STATION1">>, <<"SN-X">>),
+    ?assertMatch(#{inspection_status := 5, error_code := 1}, Seen),
+    ok = command_and_status(Plc, clear_results, 1),
+    subscribe_cam(?CAM),
+    Seen2 = trigger(Plc, <<"TOP">>, <<"SN-X">>),
+    ?assertMatch(#{inspection_status := 3}, Seen2),
+    _ = request_seen(?CAM).
+
+%% Step 7: CancelInspection while waiting for the image: Canceled.
+cancel_while_waiting(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-C">>),
+    {request, #{ref := Ref}} = request_seen(?CAM),
+    Seen = command(Plc, cancel_inspection),
+    ?assertEqual(6, maps:get(inspection_status, Seen)),
+    {cancel, Ref} = await_cam(?CAM, fun({cancel, _}) -> true; (_) -> false end),
+    %% A late image changes nothing.
+    ?assertEqual({error, nothing_requested}, cell_inspect_camera_sim:shoot(?CAM)),
+    ?assertEqual([3, 6], status_codes(Plc)),
+    %% Canceled accepts a new trigger.
+    Seen2 = trigger(Plc, <<"STATION1">>, <<"SN-C2">>),
+    ?assertEqual(3, maps:get(inspection_status, Seen2)).
+
+cancel_ignored_when_idle(Config) ->
+    Plc = plc(Config),
+    ok = ?P:forget(Plc),
+    Seen = command(Plc, cancel_inspection),
+    ?assertEqual(1, maps:get(inspection_status, Seen)),
+    ?assertEqual([], status_codes(Plc)).
+
+%% Step 1: a trigger is ignored unless Ready, Complete or Canceled (here: Error, then
+%% Requesting); its echo is written all the same.
+trigger_ignored_unless_ready(Config) ->
+    Plc = plc(Config),
+    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
+    ok = ?P:await(Plc, inspection_status, 5),
+    subscribe_cam(?CAM),
+    Seen = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    ?assertMatch(#{inspection_status := 5, error_code := 2}, Seen),
+    ?assertEqual([], status_codes(Plc)),
+    ?assertEqual(#{requests => [], messages => []}, cell_inspect_camera_sim:pending(?CAM)),
+    ok = command_and_status(Plc, clear_results, 1),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-I">>),
+    _ = request_seen(?CAM),
+    %% Requesting: ignored too.
+    Seen3 = command(Plc, trigger_inspection),
+    ?assertEqual(3, maps:get(inspection_status, Seen3)),
+    ?assertMatch(#{requests := [_]}, cell_inspect_camera_sim:pending(?CAM)).
+
+%% ClearResults: PASS 0, FAIL 0, ErrorCode 0, Ready.
+clear_results(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-CL">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    true = ?P:tag(Plc, inspection_fail),
+    Seen = command(Plc, clear_results),
+    ?assertMatch(#{inspection_pass := false, inspection_fail := false, error_code := 0,
+                   inspection_status := 1}, Seen),
+    _ = trigger(Plc, <<"NOSUCH">>, <<>>),
+    Seen2 = command(Plc, clear_results),
+    ?assertMatch(#{error_code := 0, inspection_status := 1}, Seen2).
+
+command_and_status(Plc, Cmd, Status) ->
+    Seen = command(Plc, Cmd),
+    ?assertEqual(Status, maps:get(inspection_status, Seen)),
+    ok.
+
+%% An image the processing cannot read: ProcessingError.
+processing_error(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"BLURRED">>}),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-PE">>),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(3, ?P:tag(Plc, error_code)),
+    ?assertEqual([3, 4, 5], status_codes(Plc)).
+
+%% A point whose processing has no workspace: InspectionConfigurationError.
+configuration_error(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
+    _ = trigger(Plc, <<"BROKEN">>, <<"SN-CE">>),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(5, ?P:tag(Plc, error_code)).
+
+%% A workspace that cannot be loaded: InspectionConfigurationError too.
+workspace_load_fails(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
+    _ = trigger(Plc, <<"BADWS">>, <<"SN-WF">>),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(5, ?P:tag(Plc, error_code)).
+
+%% A point added while Ready, its workspace still loading when the image comes:
+%% ProcessingNotAvailable.
+processing_not_available(Config) ->
+    Plc = plc(Config),
+    true = register(cell_inspect_test_gate, self()),
+    [B] = cell_settings:get(inspection_settings_name(), blocks),
+    ok = change_settings([B#{points => maps:get(points, B) ++
+                              [#{id => <<"GATED">>, processing => <<"gate">>,
+                                 workspace => <<"g">>}]}]),
+    Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
+    _ = trigger(Plc, <<"GATED">>, <<"SN-NA">>),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(6, ?P:tag(Plc, error_code)),
+    Loader ! release,
+    unregister(cell_inspect_test_gate).
+
+inspection_settings_name() -> inspect.
+
+%% WaitingForIPM until the workspaces are loaded; meanwhile a point without image
+%% processing may be triggered, one with processing is ignored, and ClearResults
+%% leaves WaitingForIPM (the system is loading).
+waiting_for_ipm(Config) ->
+    Plc = plc(Config),
+    Loader = receive {cell_inspect_test_ipm, loading, P} -> P after ?WAIT -> ct:fail(no_load) end,
+    ok = cell_inspect_block_ready(line1, ?CAM),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false}),
+    Seen = trigger(Plc, <<"STATION1">>, <<"SN-W">>),
+    ?assertEqual(0, maps:get(inspection_status, Seen)),
+    _ = trigger(Plc, <<"NOIPM">>, <<"SN-W">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    Seen2 = command(Plc, clear_results),
+    ?assertEqual(0, maps:get(inspection_status, Seen2)),
+    Loader ! release,
+    ok = ?P:await(Plc, inspection_status, 1).
+
+%% Several cameras: all are asked; the first image wins, the others are told to stop.
+several_cameras(Config) ->
+    Plc = plc(Config),
+    [B] = cell_settings:get(inspect, blocks),
+    Cams = [#{id => <<"camA">>, type => <<"sim">>, manual => true},
+            #{id => <<"camB">>, type => <<"sim">>, manual => true}],
+    ok = change_settings([B#{clients => Cams}]),
+    [ok = cell_inspect_block_ready(line1, C) || C <- [<<"camA">>, <<"camB">>]],
+    [subscribe_cam(C) || C <- [<<"camA">>, <<"camB">>]],
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-M">>),
+    _ = request_seen(<<"camA">>),
+    {request, #{ref := Ref}} = request_seen(<<"camB">>),
+    ok = cell_inspect_camera_sim:shoot(<<"camB">>),
+    {cancel, Ref} = await_cam(<<"camA">>, fun({cancel, _}) -> true; (_) -> false end),
+    ok = ?P:await(Plc, inspection_status, 2).
+
+%% Every camera asked leaves before sending an image: DeviceNotFound.
+cameras_disconnect_while_waiting(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-D">>),
+    _ = request_seen(?CAM),
+    ok = cell_inspect_camera_sim:disconnect(?CAM),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(1, ?P:tag(Plc, error_code)).
+
+%%--------------------------------------------------------------------
+%% PLC Override Logic
+%%--------------------------------------------------------------------
+
+%% Steps 1 to 4: a result exists for point and serial: the override is logged,
+%% Complete.
+override_found(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"FAIL">>}),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-OV">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ok = values(Plc, [{override_employee_id, <<"E-1001">>}]),
+    ok = ?P:forget(Plc),
+    _ = command(Plc, log_override),
+    %% Processing (4), then Complete (2) once the override is recorded.
+    ok = ?P:await(Plc, inspection_status, 2),
+    ?assertEqual([4, 2], status_codes(Plc)),
+    {ok, #{overrides := [#{employee := <<"E-1001">>, point := <<"STATION1">>,
+                           serial := <<"SN-OV">>, block := line1}]}} =
+        cell_inspect:traceability(<<"SN-OV">>).
+
+%% No result for that serial: Error, InspectionNotFound.
+override_not_found(Config) ->
+    Plc = plc(Config),
+    ok = values(Plc, [{override_employee_id, <<"E-1">>}, {inspection_point_id, <<"STATION1">>},
+                      {part_serial, <<"SN-NEVER">>}]),
+    ok = ?P:forget(Plc),
+    _ = command(Plc, log_override),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(2, ?P:tag(Plc, error_code)),
+    ?assertEqual([4, 5], status_codes(Plc)),
+    {ok, #{overrides := []}} = cell_inspect:traceability(<<"SN-NEVER">>).
+
+%% Step 1: ignored while not Ready, Complete or Canceled.
+override_ignored_while_busy(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-B">>),
+    _ = request_seen(?CAM),
+    ok = ?P:forget(Plc),
+    Seen = command(Plc, log_override),
+    ?assertEqual(3, maps:get(inspection_status, Seen)),
+    ?assertEqual([], status_codes(Plc)).
+
+%%--------------------------------------------------------------------
+%% Send Message Logic
+%%--------------------------------------------------------------------
+
+send(Plc, Id) ->
+    ok = values(Plc, [{message_id, Id}]),
+    command(Plc, send_message).
+
+%% Steps 1 to 9: Waiting, then AffirmativeResponse.
+message_yes(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    Seen = send(Plc, 7),
+    ?assertEqual(1, maps:get(message_status, Seen)),
+    {message, #{id := 7, text := <<"Part OK?">>, kind := yes_no}} = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:answer(?CAM, yes),
+    ok = ?P:await(Plc, message_status, 5).
+
+message_no(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 7),
+    _ = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:answer(?CAM, no),
+    ok = ?P:await(Plc, message_status, 6).
+
+%% Step 11: a text goes to MessageResult, then AffirmativeResponse; the next message
+%% empties MessageResult before it says Waiting.
+message_text(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 8),
+    _ = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"LOT-42">>}),
+    ok = ?P:await(Plc, message_status, 5),
+    ?assertEqual(<<"LOT-42">>, ?P:tag(Plc, message_result)),
+    before(Plc, {message_result, <<"LOT-42">>}, {message_status, 5}),
+    Seen = send(Plc, 7),
+    ?assertMatch(#{message_status := 1, message_result := <<>>}, Seen).
+
+%% A text the PLC cannot hold is refused; the message keeps waiting.
+message_text_too_long(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 8),
+    _ = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:answer(?CAM, {text, binary:copy(<<"x">>, 49)}),
+    {answer_refused, _, {too_long, 48}} =
+        await_cam(?CAM, fun({answer_refused, _, _}) -> true; (_) -> false end),
+    ?assertEqual(1, ?P:tag(Plc, message_status)).
+
+%% Step 5: an unknown MessageID: MessageNotFound.
+message_not_found(Config) ->
+    Plc = plc(Config),
+    Seen = send(Plc, 99),
+    ?assertEqual(2, maps:get(message_status, Seen)).
+
+%% Step 4 (before step 5): no client: NoAvailableClients, even for an unknown id.
+message_no_clients(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:disconnect(?CAM),
+    ?assertEqual(3, maps:get(message_status, send(Plc, 7))),
+    ?assertEqual(3, maps:get(message_status, send(Plc, 99))).
+
+%% Step 6: every client disconnects before an answer: NoAvailableClients.
+message_clients_disconnect(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 7),
+    _ = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:disconnect(?CAM),
+    ok = ?P:await(Plc, message_status, 3).
+
+%% SendMessage overrides a message not answered yet.
+message_replaced(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 7),
+    {message, #{ref := Ref7}} = message_seen(?CAM),
+    _ = send(Plc, 8),
+    {withdrawn, Ref7} = await_cam(?CAM, fun({withdrawn, _}) -> true; (_) -> false end),
+    {message, #{id := 8}} = message_seen(?CAM),
+    ok = cell_inspect_camera_sim:answer(?CAM, {text, <<"B">>}),
+    ok = ?P:await(Plc, message_result, <<"B">>),
+    ok = ?P:await(Plc, message_status, 5).
+
+%%--------------------------------------------------------------------
+%% Crashes and a lost link
+%%--------------------------------------------------------------------
+
+%% The block crashes while Requesting: it comes back, the PLC gets Error with
+%% InternalError instead of waiting for ever; the heartbeat goes on.
+restart_while_requesting(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-R">>),
+    _ = request_seen(?CAM),
+    Old = cell_inspect_block:whereis(line1),
+    exit(Old, kill),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(4, ?P:tag(Plc, error_code)),
+    HB = ?P:tag(Plc, heartbeat),
+    ok = ?P:await(Plc, heartbeat, not HB),
+    ok = command_and_status(Plc, clear_results, 1).
+
+restart_while_waiting_for_an_answer(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = send(Plc, 7),
+    _ = message_seen(?CAM),
+    exit(cell_inspect_block:whereis(line1), kill),
+    ok = ?P:await(Plc, message_status, 4).
+
+%% The PLC stops answering while the camera sends its image: the block goes on and
+%% writes Complete when the PLC is back.
+link_lost_and_back(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-L">>),
+    _ = request_seen(?CAM),
+    ok = cell_hal_subscribe(plc),
+    ok = ?P:silent(Plc, true),
+    ok = await_conn(plc, down),
+    ok = cell_inspect_camera_sim:shoot(?CAM),
+    ok = await_view(line1, fun(#{status := S}) -> S =:= complete end),
+    ?assertEqual(3, ?P:tag(Plc, inspection_status)),
+    ok = ?P:silent(Plc, false),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ?assert(?P:tag(Plc, inspection_pass)).
+
+%% A command raised while the link is down is taken when the PLC is read again.
+command_raised_while_link_down(Config) ->
+    Plc = plc(Config),
+    ok = values(Plc, [{inspection_point_id, <<"STATION1">>}, {part_serial, <<"SN-LD">>}]),
+    ok = cell_hal_subscribe(plc),
+    ok = ?P:silent(Plc, true),
+    ok = await_conn(plc, down),
+    ok = ?P:set(Plc, trigger_inspection, true),
+    ok = ?P:silent(Plc, false),
+    ok = ?P:await(Plc, trigger_inspection_echo, true),
+    ?assertEqual(3, ?P:tag(Plc, inspection_status)).
+
+%% A new inspection point in the settings is usable at the next trigger.
+settings_change_applies_at_once(Config) ->
+    Plc = plc(Config),
+    [B] = cell_settings:get(inspect, blocks),
+    ok = change_settings([B#{points => [#{id => <<"NEW">>, processing => <<"none">>}]}]),
+    ok = cell_inspect_block_ready(line1, ?CAM),
+    subscribe_cam(?CAM),
+    Seen = trigger(Plc, <<"NEW">>, <<"SN-N">>),
+    ?assertEqual(3, maps:get(inspection_status, Seen)),
+    _ = request_seen(?CAM).
+
+%% Two blocks on two PLCs, each with its own cameras: a camera serves its block only.
+two_blocks_two_plcs(Config) ->
+    Plc1 = plc(Config),
+    Log = filename:join(?config(priv_dir, Config), "second.plc.log"),
+    {ok, Plc2} = ?P:start(?config(data_dir, Config), Log, 500),
+    ok = application:stop(cell_inspect),
+    ok = application:set_env(cell_inspect, connections,
+                             [connection(plc, ?P:port(Plc1)), connection(plc2, ?P:port(Plc2))]),
+    ok = application:set_env(cell_inspect, blocks,
+                             [#{id => line1, connection => plc, io => #{layout => s7}},
+                              #{id => line2, connection => plc2, io => #{layout => s7, base => 500}}]),
+    B2 = (block_settings(line2, x))#{clients => [#{id => <<"cam2">>, type => <<"sim">>,
+                                                   manual => true}]},
+    ok = put_settings([block_settings(line1, x), B2]),
+    {ok, _} = application:ensure_all_started(cell_inspect),
+    ok = cell_inspect:subscribe(),
+    ok = ?P:await(Plc2, inspection_status, 1),
+    ok = cell_inspect_camera_sim:disconnect(?CAM),
+    %% line1 has no camera left; line2's camera is not line1's.
+    ?assertMatch(#{inspection_status := 5, error_code := 1},
+                 trigger(Plc1, <<"STATION1">>, <<"SN-2B">>)),
+    subscribe_cam(<<"cam2">>),
+    ?assertMatch(#{inspection_status := 3}, trigger(Plc2, <<"STATION1">>, <<"SN-2B">>)),
+    _ = request_seen(<<"cam2">>),
+    ok = cell_inspect_camera_sim:shoot(<<"cam2">>),
+    ok = ?P:await(Plc2, inspection_status, 2),
+    ?assertEqual(5, ?P:tag(Plc1, inspection_status)),
+    {ok, #{inspections := [#{block := line2}]}} = cell_inspect:traceability(<<"SN-2B">>),
+    ?P:stop(Plc2).
+
+%% Every inspection and override by serial, with its image saved under Data/.
+traceability_by_serial(Config) ->
+    Plc = plc(Config),
+    ok = cell_inspect_camera_sim:set(?CAM, #{manual => false, scene => <<"PASS 77">>}),
+    _ = trigger(Plc, <<"STATION1">>, <<"SN-T">>),
+    ok = ?P:await(Plc, inspection_status, 2),
+    ok = cell_inspect_camera_sim:set(?CAM, #{scene => <<"FAIL">>}),
+    _ = trigger(Plc, <<"TOP">>, <<"SN-T">>),
+    ok = ?P:await(Plc, trigger_inspection_echo, false),
+    ok = await_view(line1, fun(#{status := S}) -> S =:= complete end),
+    _ = command(Plc, log_override),
+    ok = ?P:await(Plc, inspection_status, 2),
+    {ok, #{inspections := [I1, I2], overrides := [O]}} = cell_inspect:traceability(<<"SN-T">>),
+    ?assertMatch(#{point := <<"STATION1">>, result := pass, text := <<"77">>, client := ?CAM}, I1),
+    ?assertMatch(#{point := <<"TOP">>, result := fail}, I2),
+    ?assertMatch(#{point := <<"TOP">>, employee := <<>>}, O),
+    #{image := Image, time := T} = I1,
+    {ok, <<"P5\n# cellrt-sim PASS 77", _/binary>>} =
+        file:read_file(filename:join(cell_config:dir(data), Image)),
+    ?assert(abs(os:system_time(millisecond) - T) < 60000).
+
+%%--------------------------------------------------------------------
+
+%% Waits until the block counts a client as connected.
+cell_inspect_block_ready(Block, Client) ->
+    await_view(Block, fun(#{clients := Cs}) -> lists:member(Client, Cs) end).
+
+%% Waits for a block's view to satisfy `Cond': the test is subscribed to every change
+%% (cell_inspect:subscribe/0 in init_per_testcase).
+await_view(Block, Cond) ->
+    case cell_inspect_block:view(Block) of
+        {ok, V} ->
+            case Cond(V) of
+                true -> ok;
+                false -> next_view(Block, Cond)
+            end;
+        {error, _} -> next_view(Block, Cond)
+    end.
+
+next_view(Block, Cond) ->
+    receive
+        {cell_inspect, view, #{id := Block} = V} ->
+            case Cond(V) of
+                true -> ok;
+                false -> next_view(Block, Cond)
+            end
+    after ?WAIT -> ct:fail({view_never, Block, cell_inspect_block:view(Block)})
+    end.
+
+cell_hal_subscribe(Conn) ->
+    {ok, _} = cell_hal:subscribe_connection(Conn),
+    ok.
+
+await_conn(Conn, Status) ->
+    case cell_hal:status(Conn) of
+        Status -> ok;
+        _ ->
+            receive {cell_hal_conn, Conn, Status} -> ok
+            after ?WAIT -> ct:fail({connection_never, Conn, Status})
+            end
+    end.

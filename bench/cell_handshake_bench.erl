@@ -1,0 +1,190 @@
+%% @doc Handshake benchmarks: products passed through a line of conveyor segments
+%% (cell_line_task, no physical delay), each hand-over a full transfer of seed 000
+%% §2.3.6 (offer, commit, release, complete).
+%%
+%% <ul>
+%% <li>the protocol alone: products kept on a RAM-backed folder, beside a raw message
+%%     round trip between two processes measured in the same run;</li>
+%% <li>durable: products on the disk, flushed at every commit point, beside the disk's
+%%     own rate of the same small write + fsync + rename (+ folder fsync) in the same
+%%     folder and run;</li>
+%% <li>several lines at once on the disk: do concurrent commits pass more transfers per
+%%     second than one writer can fsync?</li>
+%% </ul>
+-module(cell_handshake_bench).
+
+-export([run/0]).
+
+-define(RAM, "/dev/shm").
+
+-spec run() -> [cell_bench:result()].
+run() ->
+    quiet(),
+    RoundTrips = round_trips(),
+    RamRoot = filename:join(?RAM, "cellrt-bench-" ++ os:getpid()),
+    DiskRoot = filename:join(os:getenv("CELLRT_ROOT", "_build/bench/root"), "handshake"),
+    Ram2 = line_rate(RamRoot, 1, 2, 3000),
+    Ram10 = line_rate(RamRoot, 1, 10, 1500),
+    Lat = latency(RamRoot, 300),
+    DiskUnit = disk_rate(DiskRoot, 400),
+    Disk2 = line_rate(DiskRoot, 1, 2, 150),
+    Disk10 = line_rate(DiskRoot, 1, 10, 60),
+    DiskLines = line_rate(DiskRoot, 4, 5, 60),
+    _ = os:cmd("rm -rf '" ++ RamRoot ++ "'"),
+    #{median := LM, p99 := LP} = cell_bench:stats(Lat),
+    [#{title => "Transfers per second, line of 2, RAM folder", unit => "transfers/s",
+       ours => Ram2, peer => RoundTrips, peer_name => "raw message round trips/s",
+       better => higher, goal => ">= 20000 transfers/s"},
+     #{title => "Transfers per second, line of 10, RAM folder", unit => "transfers/s",
+       ours => Ram10, peer => RoundTrips, peer_name => "raw message round trips/s",
+       better => higher},
+     #{title => "One product through a line of 2, RAM folder, median", unit => "ms",
+       ours => LM / 1000, peer => 1000 / RoundTrips, peer_name => "one raw round trip",
+       better => lower},
+     #{title => "One product through a line of 2, RAM folder, p99", unit => "ms",
+       ours => LP / 1000, peer => 1000 / RoundTrips, peer_name => "one raw round trip",
+       better => lower},
+     #{title => "Transfers per second, line of 2, durable", unit => "transfers/s",
+       ours => Disk2, peer => DiskUnit, peer_name => "write+fsync+rename/s, same disk",
+       better => higher,
+       note => "A line of 2 also saves each new product at the first segment and "
+               "removes it at the last, both durably: three flushes per transfer here."},
+     #{title => "Transfers per second, line of 10, durable", unit => "transfers/s",
+       ours => Disk10, peer => DiskUnit, peer_name => "write+fsync+rename/s, same disk",
+       better => higher, goal => ">= 0.5 of the disk's rate"},
+     #{title => "Transfers per second, 4 lines of 5 at once, durable", unit => "transfers/s",
+       ours => DiskLines, peer => DiskUnit, peer_name => "write+fsync+rename/s, one writer",
+       better => higher, goal => "more transfers than one writer's fsyncs"}].
+
+%% -------------------------------------------------------------------------------------
+
+%% Transfers per second through `Lines' lines of `Len' segments, `Per' products each.
+line_rate(Root, Lines, Len, Per) ->
+    {Specs, Feeds, Refs} = lines(Lines, Len),
+    start_cell(Root, Specs),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    T0 = erlang:monotonic_time(microsecond),
+    [feed(Feed, Ref, Src, Per) || {Feed, Ref, Src} <- lists:zip3(Feeds, Refs, srcs(Lines))],
+    await_out(Lines * Per),
+    T1 = erlang:monotonic_time(microsecond),
+    ok = cell_controller:stop(),
+    stop_cell(),
+    Lines * Per * (Len - 1) / ((T1 - T0) / 1000000).
+
+%% Microseconds for one product through a line of 2 (one transfer), one at a time.
+latency(Root, N) ->
+    {Specs, [Feed], [Ref]} = lines(1, 2),
+    start_cell(Root, Specs),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    Samples = [begin
+                   T0 = erlang:monotonic_time(microsecond),
+                   feed(Feed, Ref, hd(srcs(1)), 1),
+                   await_out(1),
+                   erlang:monotonic_time(microsecond) - T0
+               end || _ <- lists:seq(1, N)],
+    ok = cell_controller:stop(),
+    stop_cell(),
+    Samples.
+
+lines(Lines, Len) ->
+    Self = self(),
+    Built = [begin
+                 Feed = ets:new(feed, [ordered_set, public]),
+                 Out = ets:new(out, [set, public]),
+                 Ref = make_ref(),
+                 Seg = fun(I) -> list_to_atom(lists:flatten(io_lib:format("l~p_s~p", [L, I]))) end,
+                 Link = fun(I) -> list_to_atom(lists:flatten(io_lib:format("l~p_h~p", [L, I]))) end,
+                 Tasks = [#{id => Seg(I), module => cell_line_task,
+                            zone => <<"Bench">>, lane => iolist_to_binary(io_lib:format("~p-~p", [L, I])),
+                            args => #{prev => case I of 1 -> undefined; _ -> Link(I - 1) end,
+                                      next => case I of Len -> undefined; _ -> Link(I) end,
+                                      feed => Feed, out => Out, ref => Ref,
+                                      notify => case I of Len -> Self; _ -> undefined end}}
+                          || I <- lists:seq(1, Len)],
+                 Links = [#{id => Link(I), from => Seg(I), to => Seg(I + 1)} || I <- lists:seq(1, Len - 1)],
+                 {Tasks, Links, Feed, Ref}
+             end || L <- lists:seq(1, Lines)],
+    Specs = #{tasks => lists:append([T || {T, _, _, _} <- Built]),
+              links => lists:append([Ls || {_, Ls, _, _} <- Built])},
+    {Specs, [F || {_, _, F, _} <- Built], [R || {_, _, _, R} <- Built]}.
+
+srcs(Lines) ->
+    [list_to_atom(lists:flatten(io_lib:format("l~p_s1", [L]))) || L <- lists:seq(1, Lines)].
+
+feed(Feed, Ref, Src, N) ->
+    Base = erlang:unique_integer([positive]) * 100000,
+    true = ets:insert(Feed, [{Base + I, <<"B-", (integer_to_binary(Base + I))/binary>>}
+                             || I <- lists:seq(1, N)]),
+    cell_task_proc:whereis(Src) ! {Ref, fed},
+    ok.
+
+await_out(0) ->
+    ok;
+await_out(N) ->
+    receive
+        {line_out, _, _} -> await_out(N - 1);
+        %% The last segment reports its phases too: taken here, never left to pile up
+        %% in the mailbox (a selective receive over them would measure the mailbox).
+        {line_phase, _, _} -> await_out(N)
+    after 60000 ->
+        erlang:error({products_missing, N})
+    end.
+
+%% -------------------------------------------------------------------------------------
+%% Peers
+%% -------------------------------------------------------------------------------------
+
+%% Round trips per second between two bare processes, for about a second.
+round_trips() ->
+    Echo = spawn_link(fun Loop() -> receive {From, M} -> From ! M, Loop() end end),
+    T0 = erlang:monotonic_time(microsecond),
+    N = ping(Echo, 0, T0 + 1000000),
+    T1 = erlang:monotonic_time(microsecond),
+    unlink(Echo),
+    exit(Echo, kill),
+    N / ((T1 - T0) / 1000000).
+
+ping(Echo, N, Until) ->
+    case N rem 1000 =:= 0 andalso erlang:monotonic_time(microsecond) >= Until of
+        true ->
+            N;
+        false ->
+            Echo ! {self(), N},
+            receive N -> ok end,
+            ping(Echo, N + 1, Until)
+    end.
+
+%% The disk's rate of the write a transfer's commit makes: a small term written to a
+%% temporary file, flushed, renamed over the target, the folder flushed.
+disk_rate(Root, N) ->
+    Dir = filename:join(Root, "fsync-peer"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    Term = cell_product:stored(cell_product:new(<<"B-1">>, <<"line">>), 1, undefined),
+    Path = filename:join(Dir, "peer.product"),
+    T0 = erlang:monotonic_time(microsecond),
+    [ok = cell_file:write_term(Path, Term) || _ <- lists:seq(1, N)],
+    T1 = erlang:monotonic_time(microsecond),
+    N / ((T1 - T0) / 1000000).
+
+%% -------------------------------------------------------------------------------------
+
+start_cell(Root, Spec) ->
+    _ = os:cmd("rm -rf '" ++ filename:join(Root, "Data") ++ "'"),
+    _ = application:load(cell_base),
+    _ = application:load(cell),
+    %% The environment's root (the bench's own) would win over the application's.
+    true = os:putenv("CELLRT_ROOT", Root),
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:set_env(cell, cell_spec, Spec),
+    {ok, _} = application:ensure_all_started(cell),
+    ok.
+
+stop_cell() ->
+    ok = application:stop(cell).
+
+quiet() ->
+    _ = application:load(lager),
+    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
+    ok = application:set_env(lager, error_logger_redirect, false).
