@@ -1,12 +1,11 @@
 %% @doc The router cell's application: when the router is the cell the runtime runs
 %% (the `cell' application's `cell_module'), it puts the demo recipes in place if they
-%% are missing, connects the cell's HAL and, in simulation mode, starts the machine's
-%% physics. Otherwise it starts and does nothing.
+%% are missing and, in simulation mode, starts the machine's physics behind the
+%% simulated PLC. Otherwise it starts and does nothing.
 %%
-%% It starts before the `cell' application and stops after it, as the seed's
-%% controller creates its hardware objects before its device tasks and disposes of
-%% them last: the tasks find their IO at their first Start and secure their outputs
-%% through it when they stop.
+%% It starts after the `cell' application, whose monitor connects the HAL of the cell
+%% spec (the router's PLC, simulated or real, and its IO groups): the physics finds
+%% the simulated PLC's points in place, and stops before the monitor takes them down.
 -module(router_cell_app).
 -behaviour(application).
 
@@ -18,10 +17,10 @@ start(_Type, _Args) ->
         true ->
             ok = router_recipes:ensure_demo(),
             Machine = router_cell:machine_settings(),
-            router_cell_sup:start_link(router_cell:cell_spec(Machine, router_cell:router_settings()),
-                                       maps:get(simulation_mode, Machine, true));
+            router_cell_sup:start_link(maps:get(simulation_mode, Machine, true),
+                                       router_cell:lanes(Machine));
         false ->
-            router_cell_sup:start_link()
+            router_cell_sup:start_link(false, [])
     end.
 
 -spec stop(term()) -> ok.

@@ -28,6 +28,12 @@
 %%
 %% Every duration is multiplied by the settings' `time_scale' (0: none), which the
 %% settings owner lets change while the cell runs.
+%%
+%% The simulated PLC and its points are the cell's HAL, which the cell's monitor
+%% connects. The physics starts after it; should the HAL be taken down under it (the
+%% cell's supervisor restarting the monitor), a write fails, the physics crashes and,
+%% restarted, waits for the HAL to be back (retried 100 ms, then up to 5 s apart),
+%% then goes on from the world it saved.
 -module(router_sim).
 -behaviour(gen_server).
 
@@ -39,6 +45,8 @@
 -define(WORLD_FILE, "router_sim.world").
 %% The settings the arrivals and the magazine's timers were set with.
 -define(RHYTHM, [time_scale, arrival_ms, arrival_jitter, upstream_capacity, magazine_low_s]).
+-define(ATTACH_MIN, 100).
+-define(ATTACH_MAX, 5000).
 
 -type lane() :: front | rear.
 -type action() :: fun((map()) -> map()).
@@ -67,7 +75,7 @@ world() ->
 %% gen_server
 %%====================================================================
 
--spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, restore}}.
+-spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, attach}}.
 init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
                                            || K <- [loading, work, unloading]] || L <- Lanes])
@@ -75,12 +83,28 @@ init(#{lanes := Lanes}) ->
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
-           armed => #{}},
-     {continue, restore}}.
+           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN},
+     {continue, attach}}.
+
+-spec handle_continue(attach, map()) -> {noreply, map()}.
+handle_continue(attach, S) ->
+    {noreply, attach(S)}.
+
+%% The physics needs the simulated PLC's points, which the cell's monitor adds.
+attach(#{groups := Groups, attach_ms := Ms} = S) ->
+    case [G || G <- maps:keys(Groups), cell_hal:points(G) =:= {error, unknown_group}] of
+        [] ->
+            restore(S#{attached := true});
+        Missing ->
+            Ms =:= ?ATTACH_MIN andalso
+                cell_log:notice(router, "simulated router waits for the cell's HAL (~ts)",
+                                [lists:join(", ", [atom_to_list(G) || G <- lists:sort(Missing)])]),
+            _ = erlang:send_after(Ms, self(), attach),
+            S#{attach_ms := min(Ms * 2, ?ATTACH_MAX)}
+    end.
 
 %% The world as it was saved, its sensors set, and a rule on every output.
--spec handle_continue(restore, map()) -> {noreply, map()}.
-handle_continue(restore, #{lanes := Lanes, groups := Groups} = S0) ->
+restore(#{lanes := Lanes, groups := Groups} = S0) ->
     World = case cell_file:read_term(path()) of
                 {ok, #{counters := _} = W} -> settle(maps:merge(empty_world(Lanes), W), Lanes);
                 _ -> empty_world(Lanes)
@@ -103,7 +127,7 @@ handle_continue(restore, #{lanes := Lanes, groups := Groups} = S0) ->
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
-    {noreply, maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed}))))}.
+    maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
 
 -spec handle_call(world, gen_server:from(), map()) -> {reply, map(), map()}.
 handle_call(world, _From, #{world := W} = S) ->
@@ -114,6 +138,8 @@ handle_cast(Msg, _S) ->
     erlang:error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), map()) -> {noreply, map()}.
+handle_info(attach, #{attached := false} = S) ->
+    {noreply, attach(S)};
 handle_info(Msg, S) ->
     %% The settings as they are now, read once for everything this message causes.
     {noreply, S1} = info(Msg, rearm(S#{settings => settings()})),

@@ -11,7 +11,7 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([panels_pass_the_line/1, product_lost_answers/1, jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
-         real_mode_spec/1, diagnostics/1]).
+         physics_waits_for_the_hal/1, real_mode_spec/1, diagnostics/1]).
 
 -define(DEADLINE_MS, 60000).
 %% What the cases listen to (subscribing again replaces a subscription: one list).
@@ -19,7 +19,8 @@
 
 all() ->
     [panels_pass_the_line, product_lost_answers, jams_and_magazine_warning, dual_lane,
-     restart_keeps_every_panel, stop_and_start_while_running, real_mode_spec, diagnostics].
+     restart_keeps_every_panel, stop_and_start_while_running, physics_waits_for_the_hal,
+     real_mode_spec, diagnostics].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -192,6 +193,34 @@ stop_and_start_while_running(_Config) ->
     ?assertEqual(In, OutN + InCell),
     ?assertEqual([], cell_alarms:list()).
 
+%% The cell's monitor takes the HAL down under the physics (the cell stops) and the
+%% physics restarts meanwhile: it waits for the HAL, and once the cell is back it
+%% goes on from the world it saved; the line runs again.
+physics_waits_for_the_hal(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(2, fun never_answer/1),
+    ok = stop_cell(),
+    ok = application:stop(cell),
+    ?assertEqual([], cell_hal:groups()),
+    Old = whereis(router_sim),
+    Ref = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', Ref, process, Old, _} -> ok end,
+    %% Restarted by its supervisor (which answers once it has), it waits: the
+    %% simulated PLC has no points.
+    [{router_sim, New, _, _}] = supervisor:which_children(router_cell_sup),
+    ?assert(is_pid(New) andalso New =/= Old),
+    {ok, _} = application:ensure_all_started(cell),
+    await_up(router_plc),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(3, fun never_answer/1),
+    ?assertEqual(New, whereis(router_sim)),
+    ok = stop_cell(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell).
+
 %% With simulation off the same tasks are bound to the router's PLC over Modbus TCP,
 %% each lane's groups at their own addresses; the groups pass the driver's checks.
 real_mode_spec(_Config) ->
@@ -254,7 +283,6 @@ start(Root) ->
     ok = application:unset_env(cell, cell_spec),
     ok = application:set_env(cell, cell_module, router_cell),
     {ok, _} = application:ensure_all_started(router_cell),
-    {ok, _} = application:ensure_all_started(cell),
     await_up(router_plc),
     %% The groups are read in the poll after they were added: a task reading them at
     %% its first Start finds values.
@@ -263,10 +291,11 @@ start(Root) ->
     after ?DEADLINE_MS -> ct:fail(groups_not_read)
     end.
 
-%% As the node stops: the cell, the router's HAL and physics, the database.
+%% As the node stops: the physics, the cell (its monitor takes the HAL down), the
+%% database.
 stop() ->
-    _ = application:stop(cell),
     _ = application:stop(router_cell),
+    _ = application:stop(cell),
     _ = application:stop(mnesia),
     ok.
 
