@@ -90,6 +90,7 @@
              backlog_len = 0 :: non_neg_integer(),
              early = [] :: [{event, map()} | {record, tuple()}],  %% while opening
              early_len = 0 :: non_neg_integer(),
+             flushers = [] :: [gen_server:from()],                %% while opening
              seq = 0 :: non_neg_integer(),
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer()}).
@@ -124,7 +125,8 @@ exits(#{tasks := Tasks} = Spec) ->
     Internal = [F || #{from := F, to := To} <- Links, is_atom(To)],
     [Id || #{id := Id} <- Tasks, not lists:member(Id, Internal)].
 
-%% @doc Writes what is counted so far; returns when it is in the database.
+%% @doc Writes what is counted so far; returns when it is in the database (while the
+%% database opens, once it has).
 -spec flush() -> ok | {error, database_closed}.
 flush() ->
     gen_server:call(?MODULE, flush, 30000).
@@ -303,10 +305,16 @@ handle_continue(open, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
     {noreply, open(St)}.
 
--spec handle_call(term(), gen_server:from(), #st{}) -> {reply, term(), #st{}}.
+-spec handle_call(term(), gen_server:from(), #st{}) ->
+          {reply, term(), #st{}} | {noreply, #st{}}.
+handle_call(flush, From, #st{db = opening, flushers = Fs} = St) ->
+    {noreply, St#st{flushers = [From | Fs]}};
 handle_call(flush, _From, St) ->
     St1 = flush(St),
-    {reply, case St1#st.db of open -> ok; closed -> {error, database_closed} end, St1}.
+    {reply, flushed(St1), St1}.
+
+flushed(#st{db = open}) -> ok;
+flushed(#st{db = closed}) -> {error, database_closed}.
 
 -spec handle_cast(term(), #st{}) -> {noreply, #st{}}.
 handle_cast({record, _, _, _, _} = Record, #st{db = opening} = St)
@@ -343,10 +351,19 @@ handle_info({'EXIT', _Helper, Why}, #st{db = opening} = St) ->
 early(Msg, #st{early = Early, early_len = N} = St) ->
     St#st{early = [Msg | Early], early_len = N + 1}.
 
-replay(#st{early = Early} = St0) ->
-    lists:foldl(fun({event, E}, St) -> element(2, handle_info({cell_event, E}, St));
-                   ({record, R}, St) -> element(2, handle_cast(R, St))
-                end, St0#st{early = [], early_len = 0}, lists:reverse(Early)).
+replay(#st{early = Early, flushers = Fs} = St0) ->
+    St1 = lists:foldl(fun({event, E}, St) -> element(2, handle_info({cell_event, E}, St));
+                         ({record, R}, St) -> element(2, handle_cast(R, St))
+                      end, St0#st{early = [], early_len = 0, flushers = []},
+                      lists:reverse(Early)),
+    case Fs of
+        [] ->
+            St1;
+        _ ->
+            St2 = flush(St1),
+            _ = [gen_server:reply(F, flushed(St2)) || F <- Fs],
+            St2
+    end.
 
 %% What was counted is written, if the database is open; it is not opened now.
 -spec terminate(term(), #st{}) -> ok.
