@@ -111,18 +111,21 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
             end,
     Outputs = [{{G, P}, Type} || G <- maps:keys(Groups), {ok, Points} <- [cell_hal:points(G)],
                                  #{name := P, dir := out, type := Type} <- Points],
-    %% The outputs as the PLC holds them (after a restart of this process, what the
-    %% tasks commanded), but the clamps and the gripper hold what the world says.
-    Outs = maps:merge(maps:from_list([{Key, case cell_hal_sim:get(Key) of
-                                                {ok, V} -> V;
-                                                {error, _} -> zero(Type)
-                                            end} || {Key, Type} <- Outputs]),
-                      holding(World, Lanes)),
-    ok = cell_hal_sim:preset(?CONN, maps:merge(Outs, image(World, Outs, Lanes))),
+    %% A rule on every output first, then the outputs read: a write the tasks make
+    %% meanwhile is in the read, or in a message, or both; never in neither.
     ok = cell_hal_sim:clear_rules(?CONN),
     Self = self(),
     _ = [ok = cell_hal_sim:on_change(Key, fun(V) -> Self ! {out, Key, V}, [] end)
          || {Key, _} <- Outputs],
+    %% The outputs as the PLC holds them (after a restart of this process, what the
+    %% tasks commanded), but the clamps and the gripper hold what the world says.
+    Holding = holding(World, Lanes),
+    Outs = maps:merge(maps:from_list([{Key, case cell_hal_sim:get(Key) of
+                                                {ok, V} -> V;
+                                                {error, _} -> zero(Type)
+                                            end} || {Key, Type} <- Outputs]),
+                      Holding),
+    ok = cell_hal_sim:preset(?CONN, maps:merge(Holding, image(World, Outs, Lanes))),
     S = S0#{world := World, outs := Outs, settings => settings()},
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
