@@ -1,4 +1,5 @@
-%% @doc The core runtime application: starts the controller supervisor.
+%% @doc The core runtime application: starts the cell's database and the controller
+%% supervisor.
 -module(cell_app).
 -behaviour(application).
 
@@ -11,6 +12,10 @@ start(_Type, _Args) ->
         ok ->
             cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
             _ = cell_file:cleanup(cell_config:dir(data)),
+            %% The database in Databases/ (statistics, traceability), started here
+            %% where the application controller is free to start mnesia; if it cannot
+            %% be, the statistics say why and try again (cell_stats).
+            _ = cell_db:start(),
             cell_controller_sup:start_link();
         {error, Reason} ->
             {error, {cell_root_folder, Reason}}

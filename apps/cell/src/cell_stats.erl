@@ -77,7 +77,7 @@
                last :: map() | undefined,              %% its fields as last saved
                at = #{} :: #{{atom(), in | work} => integer()}}).
 
--record(st, {db = closed :: closed | opening | open,
+-record(st, {db = closed :: closed | open,
              exits :: all | [atom()],
              started :: integer(),                              %% wall µs
              tasks = #{} :: #{atom() => {atom(), integer()}},   %% state, accounted up to
@@ -88,9 +88,6 @@
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
              backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
-             early = [] :: [{event, map()} | {record, tuple()}],  %% while opening
-             early_len = 0 :: non_neg_integer(),
-             flushers = [] :: [gen_server:from()],                %% while opening
              seq = 0 :: non_neg_integer(),
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer()}).
@@ -125,8 +122,7 @@ exits(#{tasks := Tasks} = Spec) ->
     Internal = [F || #{from := F, to := To} <- Links, is_atom(To)],
     [Id || #{id := Id} <- Tasks, not lists:member(Id, Internal)].
 
-%% @doc Writes what is counted so far; returns when it is in the database (while the
-%% database opens, once it has).
+%% @doc Writes what is counted so far; returns when it is in the database.
 -spec flush() -> ok | {error, database_closed}.
 flush() ->
     gen_server:call(?MODULE, flush, 30000).
@@ -305,10 +301,7 @@ handle_continue(open, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
     {noreply, open(St)}.
 
--spec handle_call(term(), gen_server:from(), #st{}) ->
-          {reply, term(), #st{}} | {noreply, #st{}}.
-handle_call(flush, From, #st{db = opening, flushers = Fs} = St) ->
-    {noreply, St#st{flushers = [From | Fs]}};
+-spec handle_call(term(), gen_server:from(), #st{}) -> {reply, term(), #st{}}.
 handle_call(flush, _From, St) ->
     St1 = flush(St),
     {reply, flushed(St1), St1}.
@@ -317,9 +310,6 @@ flushed(#st{db = open}) -> ok;
 flushed(#st{db = closed}) -> {error, database_closed}.
 
 -spec handle_cast(term(), #st{}) -> {noreply, #st{}}.
-handle_cast({record, _, _, _, _} = Record, #st{db = opening} = St)
-  when St#st.early_len < ?BACKLOG_MAX ->
-    {noreply, early({record, Record}, St)};
 handle_cast({record, Serial, What, Detail, At}, St) ->
     Task = case St#st.products of
                #{Serial := #prod{holder = H}} -> H;
@@ -328,42 +318,11 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
-handle_info({cell_event, Event}, #st{db = opening} = St)
-  when St#st.early_len < ?BACKLOG_MAX ->
-    {noreply, early({event, Event}, St)};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info(flush, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
-    {noreply, flush(St)};
-handle_info({db, ok}, St) ->
-    {noreply, replay(opened(St#st{db = open}))};
-handle_info({db, {error, Why}}, St) ->
-    {noreply, replay(closed(Why, St))};
-handle_info({'EXIT', _Helper, normal}, St) ->
-    {noreply, St};
-handle_info({'EXIT', _Helper, Why}, #st{db = opening} = St) ->
-    {noreply, replay(closed({opener_crashed, Why}, St))}.
-
-%% While the database opens, events wait: whether a product saved now is new to the
-%% cell or one it held before a restart is only known once the products in the cell
-%% have been read back.
-early(Msg, #st{early = Early, early_len = N} = St) ->
-    St#st{early = [Msg | Early], early_len = N + 1}.
-
-replay(#st{early = Early, flushers = Fs} = St0) ->
-    St1 = lists:foldl(fun({event, E}, St) -> element(2, handle_info({cell_event, E}, St));
-                         ({record, R}, St) -> element(2, handle_cast(R, St))
-                      end, St0#st{early = [], early_len = 0, flushers = []},
-                      lists:reverse(Early)),
-    case Fs of
-        [] ->
-            St1;
-        _ ->
-            St2 = flush(St1),
-            _ = [gen_server:reply(F, flushed(St2)) || F <- Fs],
-            St2
-    end.
+    {noreply, flush(St)}.
 
 %% What was counted is written, if the database is open; it is not opened now.
 -spec terminate(term(), #st{}) -> ok.
@@ -686,19 +645,20 @@ write_pending(_Now, St) ->
 %% The database
 %%====================================================================
 
-%% The database is opened by a linked helper, so the statistics go on counting while
-%% mnesia starts (it may wait for the application controller, which may be busy
-%% stopping this very application: the helper then dies with this process).
+%% The database is opened here, before any event is taken: whether a product saved
+%% now is new to the cell or one it held before a restart is only known once the
+%% products in the cell have been read back. mnesia itself is normally running
+%% already (the `cell' application starts it before the controller); if it could
+%% not be, this tries again.
 open(#st{db = closed} = St) ->
-    Self = self(),
-    _ = spawn_link(fun() ->
-                           Result = case cell_db:start() of
-                                        ok -> cell_db:ensure_tables(tables(), ?LOAD_MS);
-                                        {error, _} = E -> E
-                                    end,
-                           Self ! {db, Result}
-                   end),
-    St#st{db = opening};
+    Result = case cell_db:start() of
+                 ok -> cell_db:ensure_tables(tables(), ?LOAD_MS);
+                 {error, _} = E -> E
+             end,
+    case Result of
+        ok -> opened(St#st{db = open});
+        {error, Why} -> closed(Why, St)
+    end;
 open(St) ->
     St.
 

@@ -212,7 +212,9 @@ physics_waits_for_the_hal(_Config) ->
     [{router_sim, New, _, _}] = supervisor:which_children(router_cell_sup),
     ?assert(is_pid(New) andalso New =/= Old),
     {ok, _} = application:ensure_all_started(cell),
-    await_up(router_plc),
+    await_hal(),
+    %% What the tasks said as their IO went away with the old cell is history.
+    drain_events(),
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
     _ = collect_out(3, fun never_answer/1),
@@ -283,9 +285,12 @@ start(Root) ->
     ok = application:unset_env(cell, cell_spec),
     ok = application:set_env(cell, cell_module, router_cell),
     {ok, _} = application:ensure_all_started(router_cell),
+    await_hal().
+
+%% The router's PLC connected and its groups read (in the poll after they were
+%% added): a task reading them at its first Start finds values.
+await_hal() ->
     await_up(router_plc),
-    %% The groups are read in the poll after they were added: a task reading them at
-    %% its first Start finds values.
     {ok, Ref} = cell_hal:watch(upper_io, done, {ge, 0}),
     receive {cell_hal_watch, Ref, _} -> ok
     after ?DEADLINE_MS -> ct:fail(groups_not_read)
@@ -362,6 +367,11 @@ collect_out(N, Answer, Acc, Deadline) ->
             collect_out(N, Answer, Acc, Deadline)
     after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
         ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+drain_events() ->
+    receive {cell_event, _} -> drain_events()
+    after 0 -> ok
     end.
 
 never_answer(#{kind := error} = A) -> ct:fail({unexpected_error, A});
