@@ -350,8 +350,11 @@ try_start(unload, L, #{world := W} = S) ->
         _ ->
             S
     end;
+%% The next machine takes modules only when told a board is available (SMEMA), and
+%% only while it is ready.
 try_start(handout, L, #{world := W, busy := Busy} = S) ->
-    case {slot(W, unloading, L), out(S, unloading, L, belt_run), maps:get(L, Busy, false)} of
+    case {slot(W, unloading, L), out(S, unloading, L, belt_run)
+          andalso out(S, unloading, L, board_available), maps:get(L, Busy, false)} of
         {{_Serial, exit}, true, false} ->
             conveyor({handout, L}, handout_ms,
                      [{1.0, fun(X) ->
