@@ -106,7 +106,7 @@ other_folder(Config) ->
 %% stopped again; once the folder is moved aside, a new database starts.
 other_node(Config) ->
     Dir = filename:join(?config(root, Config), "Databases"),
-    Peer = make_foreign_database(Dir),
+    Peer = cell_test_db:foreign(Dir),
     {error, {other_node, _, [Peer]} = E} = cell_db:start(),
     ?assertEqual(no, mnesia:system_info(is_running)),
     Text = lists:flatten(cell_db:format_error(E)),
@@ -115,18 +115,3 @@ other_node(Config) ->
     ok = file:rename(Dir, Dir ++ ".old"),
     ok = cell_db:start(),
     ok = cell_db:ensure_tables(?TABLES, 10000).
-
-%% The database a node of another name leaves: made by such a node, in a VM of its own.
-make_foreign_database(Dir) ->
-    Peer = 'cell_db_suite_other@localhost',
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    Erl = os:find_executable("erl"),
-    Port = open_port({spawn_executable, Erl},
-                     [{args, ["-noshell", "-sname", atom_to_list(Peer), "-mnesia", "dir",
-                              "\"" ++ Dir ++ "\"", "-eval",
-                              "ok = mnesia:create_schema([node()]), halt()."]},
-                      exit_status, stderr_to_stdout]),
-    receive {Port, {exit_status, 0}} -> ok
-    after 60000 -> ct:fail(peer_did_not_create_its_database)
-    end,
-    Peer.
