@@ -15,9 +15,10 @@
 
 -define(WARMUP_S, 120).
 
+%% @doc Entry point: `erl -run router_soak main Minutes'.
 -spec main([string()]) -> no_return().
-main(_Args) ->
-    Minutes = env_int("SOAK_MINUTES", 30),
+main([Minutes0]) ->
+    Minutes = list_to_integer(Minutes0),
     SampleS = env_int("SOAK_SAMPLE_S", 60),
     ok = router_bench_cell:start(#{settings => settings(), with_panel => true}),
     Operator = spawn_link(fun operator/0),
