@@ -6,7 +6,7 @@ REBAR ?= rebar3
 export ERL_LIBS := $(CURDIR)/_debdeps
 export CELLRT_TOP := $(CURDIR)
 
-.PHONY: all setup setup-test compile release run test bench dist clean
+.PHONY: all setup setup-test compile release run test bench soak dist clean
 
 all: compile
 
@@ -33,6 +33,11 @@ test: setup-test
 ## Every benchmark, each beside its peer; rewrites docs/benchmarks.md.
 bench: setup-test
 	@scripts/bench
+
+## The default cell for SOAK_MINUTES (default 30) at a high rate: memory and message
+## queues over time; not part of `make test`. A run of 30 minutes rewrites docs/soak.md.
+soak: setup
+	@scripts/bench soak
 
 ## A self-contained tarball of the release with ERTS.
 dist: setup

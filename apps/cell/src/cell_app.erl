@@ -1,8 +1,11 @@
-%% @doc The core runtime application: starts the controller supervisor.
+%% @doc The core runtime application: starts the cell's database and the controller
+%% supervisor.
 -module(cell_app).
 -behaviour(application).
 
--export([start/2, stop/1]).
+-export([start/2, prep_stop/1, stop/1]).
+
+-define(STOP_MS, 10000).
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
@@ -11,9 +14,43 @@ start(_Type, _Args) ->
         ok ->
             cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
             _ = cell_file:cleanup(cell_config:dir(data)),
+            %% The database in Databases/ (statistics, traceability), started here
+            %% where the application controller is free to start mnesia; if it cannot
+            %% be, the statistics say why and try again (cell_stats).
+            _ = cell_db:start(),
             cell_controller_sup:start_link();
         {error, Reason} ->
             {error, {cell_root_folder, Reason}}
+    end.
+
+%% @doc Before the controller's tree goes down, the cell stops as at an operator's Stop:
+%% every task ends in OFF through its uninit (outputs secured, product saved) while the
+%% HAL is still connected. The supervisor stops its children in reverse order, so the
+%% monitor, which disconnects the HAL, would otherwise go before the tasks.
+-spec prep_stop(term()) -> term().
+prep_stop(State) ->
+    try
+        ok = cell_events:subscribe([cell_state]),
+        ok = cell_controller:stop(<<"shutdown">>),
+        ok = cell_controller:sync(),
+        case cell_controller:state() of
+            off -> ok;
+            _ -> await_off()
+        end,
+        cell_events:unsubscribe()
+    catch
+        exit:Why ->
+            cell_log:error(cell, "the cell could not be stopped before shutting down: ~0tp",
+                           [Why])
+    end,
+    State.
+
+await_off() ->
+    receive
+        {cell_event, #{type := cell_state, state := off}} -> ok
+    after ?STOP_MS ->
+        cell_log:error(cell, "the tasks did not all stop within ~b s; shutting down anyway",
+                       [?STOP_MS div 1000])
     end.
 
 -spec stop(term()) -> ok.

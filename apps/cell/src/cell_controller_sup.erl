@@ -5,8 +5,8 @@
 %% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
 %% peers and the handshake links connect the tasks; the monitor connects the HAL the
 %% spec names and watches the general IO (the tasks read their IO only once started);
-%% the controller drives the tasks. A child that dies takes down only those started
-%% after it. Ten restarts a minute is a
+%% the controller drives the tasks; the statistics only listen to all of them. A child
+%% that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by itself on an unattended machine: beyond that the node
 %% reports it instead of spinning.
 -module(cell_controller_sup).
@@ -37,5 +37,7 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                 #{id => cell_task_sup, start => {cell_task_sup, start_link, [Tasks]},
                   type => supervisor, shutdown => infinity},
                 cell_monitor:child_spec(Spec),
-                #{id => cell_controller, start => {cell_controller, start_link, []}}],
+                #{id => cell_controller, start => {cell_controller, start_link, []}},
+                %% Last: it only listens, so its restart touches nothing else.
+                cell_stats:child_spec(Spec)],
     {ok, {Flags, Children}}.

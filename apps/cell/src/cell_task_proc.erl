@@ -571,6 +571,10 @@ answered(step, Reset, _Who, D) when Reset =:= reset ->
     reinit(D);
 answered(step, Solution, _Who, #data{request = start} = D) ->
     resume(D#data{pending = {step, {answer, Solution}}});
+answered(step, Solution, _Who, #data{deferred = Deferred} = D) when Deferred =/= undefined ->
+    %% The error came while a transfer held a Pause or Stop back: the transfer goes on,
+    %% and the request applies once it has ended, as it would have without the error.
+    resume(D#data{pending = {step, {answer, Solution}}});
 answered(step, Solution, _Who, D) ->
     {keep_state, D#data{down = {paused, pause}, pending = {step, {answer, Solution}}}};
 answered(init, retry, _Who, D) ->

@@ -13,7 +13,7 @@
 -export([products_pass/1, pause_waits_for_transfer/1, estop_while_moving/1,
          kill_downstream_before_release/1, kill_upstream_after_release/1,
          kill_link_mid_transfer/1, try_abort_offering_race/1, dynamic_feeders/1,
-         abort_after_release_gives_back/1]).
+         abort_after_release_gives_back/1, stop_waits_for_transfer_through_an_error/1]).
 
 -define(SEGMENTS, [src, a, b, sink]).
 -define(TIMEOUT, 10000).
@@ -21,7 +21,8 @@
 all() ->
     [products_pass, pause_waits_for_transfer, estop_while_moving,
      kill_downstream_before_release, kill_upstream_after_release, kill_link_mid_transfer,
-     try_abort_offering_race, dynamic_feeders, abort_after_release_gives_back].
+     try_abort_offering_race, dynamic_feeders, abort_after_release_gives_back,
+     stop_waits_for_transfer_through_an_error].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -40,11 +41,20 @@ init_per_testcase(Case, Config) ->
         try_abort_offering_race -> Config1;
         dynamic_feeders -> Config1;
         abort_after_release_gives_back -> Config1;
+        stop_waits_for_transfer_through_an_error ->
+            #{tasks := Tasks} = Spec = line_spec(?SEGMENTS, Config1),
+            Jam = fun(#{id := a, args := Args} = Task) -> Task#{args := Args#{jam => true}};
+                     (Task) -> Task
+                  end,
+            start_cell(Root, Spec#{tasks := lists:map(Jam, Tasks)}),
+            Config1;
         _ -> start_cell(Root, line_spec(?SEGMENTS, Config1)), Config1
     end.
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     ok.
 
 %% -------------------------------------------------------------------------------------
@@ -84,6 +94,32 @@ pause_waits_for_transfer(Config) ->
     ok = cell_controller:start(),
     Out = await_outs(3),
     ?assertEqual(lists:sort(Serials), lists:sort(Out)),
+    check_conservation(Config, Serials).
+
+%% Stop while a takes the product from src, and the product sticks before it arrives:
+%% a reports it after the Stop. Once the operator answers Retry the transfer finishes,
+%% then the Stop it held back applies: every segment ends OFF, nothing is lost.
+stop_waits_for_transfer_through_an_error(Config) ->
+    Serials = feed(Config, 1),
+    ok = cell_events:subscribe([alarm_raised, cell_state]),
+    ok = cell_controller:start(),
+    await_phase(a, arriving),
+    ok = cell_controller:stop(),
+    ok = cell_controller:sync(),
+    Id = receive
+             {cell_event, #{type := alarm_raised, alarm := #{task := a, id := AlarmId}}} ->
+                 AlarmId
+         after ?TIMEOUT -> ct:fail(no_jam)
+         end,
+    ?assertEqual(down, cell_task_proc:state(a)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    receive
+        {cell_event, #{type := cell_state, state := off}} -> ok
+    after ?TIMEOUT ->
+        ct:fail({not_off, [{T, cell_task_proc:state(T)} || T <- ?SEGMENTS]})
+    end,
+    #{product := #{serial := S}} = cell_task_proc:info(a),
+    ?assertEqual(hd(Serials), S),
     check_conservation(Config, Serials).
 
 %% An emergency stop while the product moves from src to a: a owns it, marked in

@@ -5,7 +5,8 @@
 %% physical moves (0: none).
 %%
 %% Args: #{prev => Link, next => Link, feed => Tab, out => Tab, ref => Ref,
-%%         delay => Ms, notify => Pid}. The feed is an ordered_set of {N, Serial}; when
+%%         delay => Ms, notify => Pid, jam => true}. With `jam' the first product taken
+%% sticks before it arrives: an error with Retry. The feed is an ordered_set of {N, Serial}; when
 %% it runs dry the first segment waits for `{Ref, fed}'. The out table gets
 %% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change and
 %% `{line_out, Task, Serial}' for every product sent out.
@@ -47,7 +48,13 @@ step(moving_in, {handshake, _Prev, interrupted}, T) ->
 step(moving_in, _Woken, T) ->
     {wait, {handshake, arg(T, prev), available, false}, T};
 step(arriving, _Woken, T) ->
-    arrived(arg(T, prev), T);
+    case cell_task:arg(T, jam, false) andalso not cell_task:get(T, jammed, false) of
+        true ->
+            {error, cell_task:error_spec(<<"jam">>, "Jam", "The product sticks.", [retry]),
+             cell_task:put(T, jammed, true)};
+        false ->
+            arrived(arg(T, prev), T)
+    end;
 %% -- full: hand the product on -----------------------------------------------------------
 step(full, _Woken, T) ->
     case arg(T, next) of

@@ -61,6 +61,8 @@ init_per_testcase(Case, Config) ->
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     %% The simulated PLC outlives the HAL's connections (a real PLC keeps its memory):
     %% each case starts from a blank one.
     [ok = cell_hal_sim_sup:stop_device(D) || D <- [plc1, plc2]],

@@ -38,6 +38,8 @@ init_per_testcase(Case, Config) ->
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     _ = cell_hal:remove_group(conv),
     _ = cell_hal:remove_connection(plc1),
     ok.

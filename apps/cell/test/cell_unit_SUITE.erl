@@ -56,6 +56,8 @@ init_per_testcase(_Case, Config) ->
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     _ = cell_log:unsubscribe(),
     [ok = cell_hal:remove_group(G) || G <- cell_hal:groups()],
     [begin ok = cell_hal:remove_connection(C), ok = cell_hal_sim_sup:stop_device(C) end

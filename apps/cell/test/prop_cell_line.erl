@@ -332,6 +332,8 @@ setup(Size) ->
 
 teardown() ->
     ok = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     ets:delete(maps:get(feed, config())),
     ets:delete(prop_cell_line_tab),
     ets:delete(prop_cell_line_out),

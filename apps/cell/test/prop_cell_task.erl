@@ -469,6 +469,8 @@ setup() ->
 
 teardown() ->
     ok = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     flush().
 
 tab() -> prop_cell_task_tab.

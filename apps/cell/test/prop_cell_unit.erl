@@ -555,6 +555,8 @@ setup(Modes) ->
 
 teardown() ->
     ok = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     flush().
 
 root() ->

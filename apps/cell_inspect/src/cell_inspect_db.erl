@@ -4,7 +4,9 @@
 %% database ({@link cell_db}), queryable by part serial.
 %%
 %% Writes are flushed to the disk before they return ({@link cell_db:sync_transaction/1}):
-%% the block reports Complete to the PLC only once the record is safe.
+%% the block reports Complete to the PLC only once the record is safe. Each is also
+%% added to the part's history in the cell's traceability ({@link cell_stats:record/3}),
+%% beside what the cell's tasks did with it.
 -module(cell_inspect_db).
 
 -export([tables/0, start/0, record_inspection/1, log_override/1, by_serial/1]).
@@ -69,8 +71,12 @@ record_inspection(#{block := B, point := P, serial := S, result := R} = I) ->
                                    client = maps:get(client, I, <<>>),
                                    image = maps:get(image, I, <<>>), time = Time},
     case cell_db:sync_transaction(fun() -> mnesia:write(Rec) end) of
-        {atomic, ok} -> {ok, Rec#cell_inspect_inspection.id};
-        {aborted, Why} -> {error, Why}
+        {atomic, ok} ->
+            Detail = maps:with([point, result, code, text, image], inspection_map(Rec)),
+            ok = history(S, inspection, Detail#{block => B}),
+            {ok, Rec#cell_inspect_inspection.id};
+        {aborted, Why} ->
+            {error, Why}
     end.
 
 %% @doc Override step 4: finds the latest result (PASS or FAIL) of this block for the
@@ -97,9 +103,20 @@ log_override(#{block := B, point := P, serial := S, employee := E} = O) ->
                   end
           end,
     case cell_db:sync_transaction(Fun) of
-        {atomic, Result} -> Result;
-        {aborted, Why} -> {error, Why}
+        {atomic, {ok, _} = Done} ->
+            ok = history(S, inspection_override, #{block => B, point => P, employee => E}),
+            Done;
+        {atomic, Result} ->
+            Result;
+        {aborted, Why} ->
+            {error, Why}
     end.
+
+%% The part's history in the cell's traceability; a part without a serial has none.
+history(<<>>, _What, _Detail) ->
+    ok;
+history(Serial, What, Detail) ->
+    cell_stats:record(Serial, What, Detail).
 
 %% @doc Everything recorded for a part serial, oldest first.
 -spec by_serial(binary()) -> {ok, #{inspections := [map()], overrides := [map()]}}

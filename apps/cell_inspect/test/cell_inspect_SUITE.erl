@@ -595,7 +595,15 @@ traceability_by_serial(Config) ->
     #{image := Image, time := T} = I1,
     {ok, <<"P5\n# cellrt-sim PASS 77", _/binary>>} =
         file:read_file(filename:join(cell_config:dir(data), Image)),
-    ?assert(abs(os:system_time(millisecond) - T) < 60000).
+    ?assert(abs(os:system_time(millisecond) - T) < 60000),
+    %% The part's history in the cell's traceability has them too, oldest first.
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(<<"SN-T">>),
+    ?assertMatch([#{event := inspection, detail := #{block := line1, point := <<"STATION1">>,
+                                                      result := pass, image := Image}},
+                  #{event := inspection, detail := #{point := <<"TOP">>, result := fail}},
+                  #{event := inspection_override, detail := #{point := <<"TOP">>}}],
+                 Events).
 
 %%--------------------------------------------------------------------
 

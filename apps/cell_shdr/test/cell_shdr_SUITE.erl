@@ -56,6 +56,8 @@ init_per_testcase(Case, Config) ->
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell_shdr),
     _ = application:stop(cell),
+    %% The statistics started the database in this root: it goes with the cell.
+    _ = application:stop(mnesia),
     cell_shdr_test_hal:stop(),
     ok.
 

@@ -1,10 +1,8 @@
 %% @doc `/api/products' — the products in the cell: which task holds which serial,
 %% with the product as the task keeps it; `/api/products/:serial' — one of them;
-%% `/api/products/:serial/history' — where a product has been.
-%%
-%% The history needs the traceability records of the statistics work, which the
-%% runtime does not keep yet: that route answers 501 and says so, rather than
-%% inventing a history from what happens to be in the cell now.
+%% `/api/products/:serial/history' — where a product has been: its traceability
+%% record from `cell_stats' (status, recipe, entry and exit, every event, change,
+%% error and answer, oldest first), and where it is now if it is in the cell.
 -module(cell_web_products_h).
 -behaviour(cowboy_handler).
 
@@ -25,14 +23,19 @@ handle(What, Req, Caller) ->
             Serial = cell_web_req:binding(serial, Req),
             case [P || #{<<"serial">> := S} = P <- in_cell(), S =:= Serial] of
                 [] -> cell_web_req:fail(404, not_found,
-                                        [Serial, " is not in the cell (a product's history is "
-                                         "not recorded yet)"]);
+                                        [Serial, " is not in the cell (its history: ",
+                                         "/api/products/", Serial, "/history)"]);
                 Where -> {json, 200, #{<<"serial">> => Serial, <<"in_cell">> => Where}}
             end;
         history ->
-            cell_web_req:fail(501, not_recorded,
-                              "product history is not recorded yet: the runtime keeps no "
-                              "traceability records so far")
+            Serial = cell_web_req:binding(serial, Req),
+            case cell_stats:product(Serial) of
+                {ok, Record} ->
+                    Where = [P || #{<<"serial">> := S} = P <- in_cell(), S =:= Serial],
+                    {json, 200, (cell_web_json:term(Record))#{<<"in_cell">> => Where}};
+                {error, not_found} ->
+                    cell_web_req:fail(404, not_found, [Serial, " has never been recorded"])
+            end
     end.
 
 %% Every task holding a product, with the product as its task keeps it.

@@ -1,9 +1,12 @@
-%% @doc `GET /api/statistics' — what the cell can count now: tasks by state, products
-%% in the cell, active errors, alarms and warnings, answers given.
+%% @doc `GET /api/statistics' — what the cell can count now (tasks by state, products
+%% in the cell, active errors, alarms and warnings, answers given) and the production
+%% statistics `cell_stats' keeps in `Databases/': per task the time in each IPC-2541
+%% state and the items, for the cell items in, out, good, failed and scrapped, lead
+%% and cycle times, throughput per hour.
 %%
-%% Production statistics (throughput, cycle times, yield, time per state over a
-%% shift) need the statistics records of `Databases/', which the runtime does not
-%% keep yet: `production' is null, and says so, until they exist.
+%% `?period=' chooses the production figures: `shift' (the shift running now, the
+%% default) and `total', or one shift by its name, `2024-05-01/2'; the answer always
+%% lists the `periods' recorded.
 -module(cell_web_stats_h).
 -behaviour(cowboy_handler).
 
@@ -17,6 +20,7 @@ handle(Req, Caller) ->
     cowboy_req:method(Req) =:= <<"GET">>
         orelse cell_web_req:fail(405, method_not_allowed, "use GET", #{allow => <<"GET">>}),
     _ = cell_web_req:require(Caller, view),
+    Period = period(maps:get(<<"period">>, cell_web_req:qs(Req), <<"shift">>)),
     Tasks = cell_controller:tasks(),
     ByState = lists:foldl(fun(#{state := S}, Acc) ->
                                   maps:update_with(cell_web_json:state(S), fun(N) -> N + 1 end,
@@ -32,6 +36,19 @@ handle(Req, Caller) ->
        <<"active">> => #{<<"errors">> => Count(error), <<"alarms">> => Count(alarm),
                          <<"warnings">> => Count(warning)},
        <<"answers_recorded">> => length(cell_alarms:history()),
-       <<"production">> => null,
-       <<"production_note">> => <<"production statistics (throughput, cycle times, yield) "
-                                  "are not recorded yet">>}}.
+       <<"production">> => cell_web_json:term(cell_stats:summary(Period)),
+       <<"periods">> => [label(P) || P <- cell_stats:periods()]}}.
+
+period(<<"shift">>) ->
+    cell_stats:shift_now();
+period(<<"total">>) ->
+    total;
+period(Text) ->
+    case [P || P <- cell_stats:periods(), label(P) =:= Text] of
+        [P] -> P;
+        [] -> cell_web_req:fail(404, not_found, ["no statistics for the period ", Text,
+                                                 "; see periods"])
+    end.
+
+label(total) -> <<"total">>;
+label(Shift) -> cell_stats_shift:label(Shift).

@@ -26,7 +26,7 @@ init_per_suite(Config) ->
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     %% Other suites of the same run may have left the cell running on their own root
     %% and spec: start afresh on ours.
-    _ = [application:stop(A) || A <- [cell_web, cell, cell_base]],
+    _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
     _ = [application:load(A) || A <- [cell_base, cell, cell_web]],
     ok = application:set_env(cell_base, root, Root),
     Specs = [cell_web_demo_task:spec(Id, Z, <<"Front">>, self()) || {Id, Z} <- ?TASKS],
@@ -36,7 +36,7 @@ init_per_suite(Config) ->
     [{specs, Specs}, {root, Root} | Config].
 
 end_per_suite(_Config) ->
-    _ = [application:stop(A) || A <- [cell_web, cell, cell_base]],
+    _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
     ok = application:unset_env(cell, cell_spec),
     ok.
 
@@ -280,7 +280,13 @@ tasks_and_products(Config) ->
     {200, [#{<<"serial">> := <<"P-7">>, <<"task">> := <<"router">>}], _} = req(Op, get, "/api/products"),
     {200, #{<<"in_cell">> := [#{<<"task">> := <<"router">>}]}, _} = req(Op, get, "/api/products/P-7"),
     assert_error(404, <<"not_found">>, req(Op, get, "/api/products/P-8")),
-    assert_error(501, <<"not_recorded">>, req(Op, get, "/api/products/P-7/history")),
+    %% The statistics record the product as it happens; a flush waits for them.
+    ok = cell_stats:flush(),
+    {200, #{<<"serial">> := <<"P-7">>, <<"status">> := <<"in_cell">>, <<"recipe">> := <<"demo">>,
+            <<"events">> := [#{<<"event">> := <<"entered">>, <<"task">> := <<"router">>} | _],
+            <<"in_cell">> := [#{<<"task">> := <<"router">>}]}, _} =
+        req(Op, get, "/api/products/P-7/history"),
+    assert_error(404, <<"not_found">>, req(Op, get, "/api/products/P-8/history")),
     cmd(Config, router, {product, undefined}),
     {200, [], _} = req(Op, get, "/api/products"),
     ok = cell_controller:pause(),
@@ -316,7 +322,8 @@ log_is_queried(Config) ->
 settings_are_edited(Config) ->
     Sv = as(service, Config),
     {200, Names, _} = req(Sv, get, "/api/settings"),
-    ?assertEqual([<<"machine">>, <<"web">>], lists:sort([N || #{<<"name">> := N} <- Names])),
+    ?assertEqual([<<"machine">>, <<"statistics">>, <<"web">>],
+                 lists:sort([N || #{<<"name">> := N} <- Names])),
     {200, #{<<"values">> := #{<<"speed_override">> := Old}, <<"fields">> := Fields}, _} =
         req(Sv, get, "/api/settings/machine"),
     [#{<<"type">> := <<"integer">>, <<"min">> := 1, <<"max">> := 100, <<"unit">> := <<"%">>}] =
@@ -415,9 +422,24 @@ password_is_changed(Config) ->
 statistics_and_history(Config) ->
     A = anon(Config),
     _ = started(Config),
+    ok = cell_stats:flush(),
     {200, #{<<"tasks">> := #{<<"total">> := 2, <<"by_state">> := #{<<"READY-IDLE-STARVED">> := 2}},
-            <<"production">> := null, <<"active">> := #{<<"errors">> := 0}}, _} =
-        req(A, get, "/api/statistics").
+            <<"production">> := #{<<"cell">> := #{<<"in">> := In0},
+                                  <<"tasks">> := #{<<"router">> := #{<<"time_ms">> := _}}},
+            <<"periods">> := [<<"total">> | _], <<"active">> := #{<<"errors">> := 0}}, _} =
+        req(A, get, "/api/statistics?period=total"),
+    %% A product enters the cell: the production figures count it.
+    cmd(Config, router, {product, <<"P-9">>}),
+    ok = cell_stats:flush(),
+    {200, #{<<"production">> := #{<<"period">> := <<"total">>, <<"cell">> := #{<<"in">> := In1},
+                                  <<"in_cell">> := InCell}}, _} =
+        req(A, get, "/api/statistics?period=total"),
+    ?assertEqual(In0 + 1, In1),
+    ?assert(InCell >= 1),
+    cmd(Config, router, {product, undefined}),
+    {200, #{<<"production">> := #{<<"cell">> := #{<<"in">> := _}}}, _} =
+        req(A, get, "/api/statistics"),
+    assert_error(404, <<"not_found">>, req(A, get, "/api/statistics?period=1999-01-01/1")).
 
 audit_trail_is_kept(Config) ->
     Op = as(operator, Config),

@@ -1,17 +1,17 @@
-%% The cell's database: mnesia started in Databases/ of the cell root, tables created
-%% once and kept, records that survive a restart, clear errors for a folder that
-%% cannot be used, and the traceability queries of the inspection block.
--module(cell_db_SUITE).
+%% The inspection block's traceability in the cell's database: its tables created in
+%% Databases/ and kept, records that survive a restart, several blocks starting the
+%% database at once, and overrides logged against the inspection they override.
+-module(cell_inspect_db_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2, end_per_testcase/2]).
--export([fresh_folder/1, records_survive_a_restart/1, callers_at_once/1, table_differs/1,
-         unusable_folder/1, other_folder/1, overrides_find_their_inspection/1]).
+-export([fresh_folder/1, records_survive_a_restart/1, callers_at_once/1,
+         overrides_find_their_inspection/1]).
 
 all() ->
-    [fresh_folder, records_survive_a_restart, callers_at_once, table_differs, unusable_folder,
-     other_folder, overrides_find_their_inspection].
+    [fresh_folder, records_survive_a_restart, callers_at_once,
+     overrides_find_their_inspection].
 
 init_per_suite(Config) ->
     _ = application:stop(mnesia),
@@ -36,7 +36,6 @@ fresh_folder(Config) ->
     ok = cell_inspect_db:start(),
     Dir = filename:join(?config(root, Config), "Databases"),
     ?assertEqual(Dir, mnesia:system_info(directory)),
-    ?assert(filelib:is_regular(filename:join(Dir, "schema.DAT"))),
     ?assertEqual(disc_copies, mnesia:table_info(cell_inspect_inspection, storage_type)),
     %% Again: nothing to do.
     ok = cell_inspect_db:start().
@@ -51,35 +50,11 @@ records_survive_a_restart(_Config) ->
     {ok, #{inspections := [#{point := <<"P">>, result := pass, text := <<"ok">>,
                              image := <<"img">>}]}} = cell_inspect_db:by_serial(<<"S-1">>).
 
-%% Several apps start the database at once: one creates the schema, all succeed.
+%% Several blocks start the database at once: one creates the schema, all succeed.
 callers_at_once(_Config) ->
     Self = self(),
     Pids = [spawn(fun() -> Self ! {self(), cell_inspect_db:start()} end) || _ <- lists:seq(1, 6)],
-    [receive {P, R} -> ?assertEqual(ok, R) after 60000 -> ct:fail(timeout) end || P <- Pids],
-    ok = cell_db:ensure_tables([{other_app_table, [{attributes, [k, v]}]}], 10000),
-    ok = cell_db:ensure_tables([{other_app_table, [{attributes, [k, v]}]}], 10000).
-
-table_differs(_Config) ->
-    ok = cell_db:start(),
-    ok = cell_db:ensure_tables([{t1, [{attributes, [a, b]}]}], 10000),
-    {error, {table_differs, t1, [a, c], [a, b]} = E} =
-        cell_db:ensure_tables([{t1, [{attributes, [a, c]}]}], 10000),
-    ?assertMatch({match, _}, re:run(cell_db:format_error(E), "fields \\[a,b\\]")).
-
-%% Databases/ is a file: a clear error, mnesia not started.
-unusable_folder(Config) ->
-    Root = ?config(root, Config),
-    ok = filelib:ensure_dir(filename:join(Root, "x")),
-    ok = file:write_file(filename:join(Root, "Databases"), <<"not a folder">>),
-    {error, {unusable_folder, _, _} = E} = cell_db:start(),
-    ?assertEqual(no, mnesia:system_info(is_running)),
-    ?assertMatch({match, _}, re:run(cell_db:format_error(E), "cannot be written")).
-
-%% mnesia runs already in another folder: refused, not silently used.
-other_folder(Config) ->
-    ok = cell_db:start(),
-    ok = application:set_env(cell_base, root, ?config(root, Config) ++ "-other"),
-    {error, {other_folder, _, _}} = cell_db:start().
+    [receive {P, R} -> ?assertEqual(ok, R) after 60000 -> ct:fail(timeout) end || P <- Pids].
 
 %% An override is logged against the latest result of its block for its point and
 %% serial; never without a serial, never against another block's or an error.

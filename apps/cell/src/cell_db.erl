@@ -1,20 +1,26 @@
-%% @doc The cell's database: mnesia on this node, its folder `Databases/' of the cell
-%% root (seed 000 §3), tables on disc (`disc_copies').
+%% @doc The cell's database: mnesia on this node, in the `Databases/' folder of the
+%% cell root (seed 000 §3), shared by every part of the runtime that keeps records
+%% there: the statistics and traceability ({@link cell_stats}), the inspection
+%% results of `cell_inspect', and any cell's own tables.
 %%
-%% Any app that keeps tables calls {@link start/0}, then {@link ensure_tables/2} with
-%% its own tables. Both are idempotent and safe to call from several apps at once: the
-%% first caller sets mnesia's folder, creates the schema if the folder has none and
-%% starts mnesia; later callers find it running in the right folder. A table that
-%% exists is checked (same attributes), never recreated, so data survives restarts of
-%% the app and of the node.
+%% A user calls {@link start/0}, then {@link ensure_tables/2} with its own tables.
+%% Both are idempotent and safe to call from several processes at once: the first
+%% caller sets mnesia's folder, creates the schema if the folder has none and starts
+%% mnesia; later callers find it running in the right folder. A table that exists is
+%% checked (same fields), never recreated, so records survive restarts of the app and
+%% of the node. Tables live on disc on this node: `disc_copies' (in memory too, for
+%% tables read often) unless a table asks for `{storage, disc_only_copies}' (tables
+%% that grow with the products, which memory must not).
 %%
 %% mnesia is not started by the release's boot script (it is loaded only): its folder
 %% must be set first, and that folder comes from `cell_config'. An app using this
 %% module does not list mnesia among its applications for the same reason.
 %%
 %% Errors say what is wrong in words ({@link format_error/1}): a folder that cannot be
-%% written, a database made by another node name, a table of the same name with other
-%% fields, mnesia already running elsewhere.
+%% written, a database made by a node of another name, a table of the same name with
+%% other fields, mnesia already running in another folder. A database of another node
+%% is left alone and mnesia stopped again, so once the folder is moved aside the next
+%% {@link start/0} starts an empty database.
 -module(cell_db).
 
 -export([start/0, ensure_tables/2, dir/0, sync_transaction/1, format_error/1]).
@@ -22,7 +28,9 @@
 -export_type([table/0, error/0]).
 
 -type table() :: {atom(), [{attributes, [atom()]} | {record_name, atom()}
-                           | {index, [atom()]} | {type, set | ordered_set | bag}]}.
+                           | {index, [atom() | pos_integer()]}
+                           | {type, set | ordered_set | bag}
+                           | {storage, disc_copies | disc_only_copies}]}.
 -type error() :: {unusable_folder, file:filename(), term()}
                | {other_folder, file:filename(), file:filename()}
                | {schema, term()}
@@ -35,7 +43,7 @@
 %% @doc The folder mnesia uses: `Databases/' of the cell root.
 -spec dir() -> file:filename().
 dir() ->
-    cell_config:dir(databases).
+    filename:absname(cell_config:dir(databases)).
 
 %% @doc Starts mnesia in `Databases/' with a disc schema of this node, if it does not
 %% run already.
@@ -52,9 +60,9 @@ start_locked() ->
     end.
 
 check_running(Dir) ->
-    case same_dir(mnesia:system_info(directory), Dir) of
-        true -> check_schema();
-        false -> {error, {other_folder, mnesia:system_info(directory), Dir}}
+    case filename:absname(mnesia:system_info(directory)) of
+        Dir -> check_schema();
+        Other -> {error, {other_folder, Other, Dir}}
     end.
 
 start_stopped(Dir) ->
@@ -63,9 +71,13 @@ start_stopped(Dir) ->
             _ = application:load(mnesia),
             ok = application:set_env(mnesia, dir, Dir),
             case mnesia:create_schema([node()]) of
-                ok -> start_mnesia();
-                {error, {_, {already_exists, _}}} -> start_mnesia();
-                {error, Why} -> {error, {schema, Why}}
+                ok ->
+                    cell_log:notice(cell, "a new database was created in ~ts", [Dir]),
+                    start_mnesia();
+                {error, {_, {already_exists, _}}} ->
+                    start_mnesia();
+                {error, Why} ->
+                    {error, {schema, Why}}
             end;
         {error, _} = E ->
             E
@@ -73,8 +85,17 @@ start_stopped(Dir) ->
 
 start_mnesia() ->
     case application:ensure_started(mnesia) of
-        ok -> check_schema();
-        {error, Why} -> {error, {mnesia, Why}}
+        ok ->
+            case check_schema() of
+                ok ->
+                    ok;
+                {error, _} = E ->
+                    %% Not this node's database: leave it as it is.
+                    _ = application:stop(mnesia),
+                    E
+            end;
+        {error, Why} ->
+            {error, {mnesia, Why}}
     end.
 
 %% The schema must be on disc on this node: a folder made by a node of another name
@@ -103,9 +124,6 @@ usable(Dir) ->
             {error, {unusable_folder, Dir, Why}}
     end.
 
-same_dir(A, B) ->
-    filename:absname(A) =:= filename:absname(B).
-
 %% @doc Creates the tables that do not exist yet (on disc, on this node), checks those
 %% that do, and waits until all are loaded (at most `Timeout' ms).
 -spec ensure_tables([table()], timeout()) -> ok | {error, error()}.
@@ -130,16 +148,23 @@ ensure([{Name, Opts} | Rest]) ->
                  Wanted -> ok;
                  Other -> {error, {table_differs, Name, Wanted, Other}}
              catch
-                 exit:{aborted, {no_exists, _, _}} ->
-                     case mnesia:create_table(Name, [{disc_copies, [node()]} | Opts]) of
-                         {atomic, ok} -> ok;
-                         {aborted, {already_exists, Name}} -> ok;
-                         {aborted, Why} -> {error, {create_table, Name, Why}}
-                     end
+                 exit:{aborted, {no_exists, _, _}} -> create(Name, Opts)
              end,
     case Result of
         ok -> ensure(Rest);
         E -> E
+    end.
+
+create(Name, Opts) ->
+    Storage = proplists:get_value(storage, Opts, disc_copies),
+    case mnesia:create_table(Name, [{Storage, [node()]} | proplists:delete(storage, Opts)]) of
+        {atomic, ok} ->
+            cell_log:info(cell, "database table ~ts created", [Name]),
+            ok;
+        {aborted, {already_exists, Name}} ->
+            ok;
+        {aborted, Why} ->
+            {error, {create_table, Name, Why}}
     end.
 
 %% @doc Runs a transaction and, once it committed, flushes mnesia's log to the disk,
@@ -165,10 +190,10 @@ format_error({other_folder, Running, Wanted}) ->
 format_error({schema, Why}) ->
     io_lib:format("the database schema cannot be created or read: ~0tp", [Why]);
 format_error({other_node, Node, Owners}) ->
-    io_lib:format("the database in Databases/ belongs to node ~ts, this node is ~ts: "
+    io_lib:format("the database in ~ts belongs to node ~ts, this node is ~ts: "
                   "start the cell with that node name, or move the folder aside to start "
-                  "an empty database", [lists:join(", ", [atom_to_list(N) || N <- Owners]),
-                                         Node]);
+                  "an empty database",
+                  [dir(), lists:join(", ", [atom_to_list(N) || N <- Owners]), Node]);
 format_error({mnesia, Why}) ->
     io_lib:format("the database (mnesia) cannot start: ~0tp", [Why]);
 format_error({table_differs, Name, Wanted, Other}) ->

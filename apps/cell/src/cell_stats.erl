@@ -1,0 +1,842 @@
+%% @doc Statistics and traceability: what the cell did, per shift and in total, and
+%% every product's history by serial, kept in the cell's database (`Databases/', see
+%% {@link cell_db}) so they survive restarts.
+%%
+%% The process only listens: it subscribes to {@link cell_events} and never calls a
+%% task, so a task never waits for it. It counts in memory and writes the counters in
+%% one transaction a second (a crash loses at most that second); a product's history is
+%% written as it happens.
+%%
+%% <b>Time per IPC-2541 state</b>, per task: each `task_state' event closes the time
+%% spent in the state before. The time is split at shift boundaries and added to the
+%% shift and to the total, in microseconds. Time while the runtime was not running
+%% (from the last write before a stop or crash until the next start) is counted as OFF,
+%% so for every task the states add up to the wall-clock time since it was first seen.
+%%
+%% <b>Products.</b> A serial first saved by a task enters the cell (`in'); a
+%% transfer out of a task that hands to no other task of this cell takes it out
+%% (`out', `good' or `failed' by its failed flag); a product no task holds any more
+%% for two writes in a row (about two seconds: a handshake hands over in far less) was
+%% forgotten inside the cell (`scrapped': an operator's Reset, say). So at every
+%% moment `in = out + scrapped + in_cell'. Per task: items in and out, work completed
+%% and aborted, errors, crashes; cycle time (between two products out), lead time
+%% (a product's time in the task, or in the cell) and work time (work start to
+%% complete) as count, sum, min and max.
+%%
+%% <b>History</b> by serial: entry with recipe, every item event (identifier read,
+%% transfer in and out, work start, pause, resume, complete, abort), every change of
+%% the product's fields (failed flag, progress, inspection results ...), the errors and
+%% warnings raised and answered while a task held it, and how it left. Other parts of
+%% the runtime add their own records with {@link record/3}.
+%%
+%% Tables (mnesia): `cell_stats_counter' (ordered_set, disc_copies: key
+%% `{Period, Scope, Metric}', Period `total' or a shift id, Scope a task or `cell');
+%% `cell_trace_open' (disc_copies: the products in the cell); `cell_trace_product'
+%% (disc_only_copies: one summary per serial) and `cell_trace_event' (disc_only_copies,
+%% bag: the history by serial). The traceability tables live on disc only, so memory
+%% does not grow with the number of products; they are purged after the `statistics'
+%% settings' `trace_days', shift counters after `shift_days'.
+%%
+%% If the database cannot be opened the statistics go on in memory, say why in the
+%% log, and try again every ten seconds.
+-module(cell_stats).
+-behaviour(gen_server).
+
+-export([start_link/1, child_spec/1, exits/1]).
+-export([flush/0, record/3, summary/0, summary/1, counters/1, periods/0, shift_now/0,
+         product/1, in_cell/0, tables/0]).
+-export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
+         terminate/2]).
+
+-export_type([period/0, options/0]).
+
+-type period() :: total | cell_stats_shift:id().
+-type options() :: #{exits => all | [atom()]}.
+
+-define(COUNTER, cell_stats_counter).
+-define(OPEN, cell_trace_open).
+-define(PRODUCT, cell_trace_product).
+-define(EVENT, cell_trace_event).
+-define(FLUSH_MS, 1000).
+-define(RETRY_MS, 10000).
+-define(LOAD_MS, 60000).
+-define(PURGE_MS, 3600000).
+-define(BACKLOG_MAX, 10000).
+-define(EVENTS, [task_state, item_identifier_read, item_transfer_in, item_work_start,
+                 item_work_pause, item_work_resume, item_work_complete, item_work_abort,
+                 item_transfer_out, alarm_raised, alarm_cleared, product_saved,
+                 task_crashed]).
+
+-record(prod, {entered :: integer(),                  %% wall µs
+               recipe = <<>> :: binary(),
+               failed = false :: boolean(),
+               entry :: atom(),                        %% the task it entered at
+               holder :: atom() | undefined,           %% the task holding it now
+               by :: atom(),                           %% the last task that held it
+               unheld = 0 :: 0..2,                     %% writes seen with no holder
+               last :: map() | undefined,              %% its fields as last saved
+               at = #{} :: #{{atom(), in | work} => integer()}}).
+
+-record(st, {db = closed :: closed | open,
+             exits :: all | [atom()],
+             started :: integer(),                              %% wall µs
+             tasks = #{} :: #{atom() => {atom(), integer()}},   %% state, accounted up to
+             shift :: {cell_stats_shift:id(), integer(), integer()} | undefined,
+             pending = #{} :: #{term() => {add | min | max | set | first, integer()}},
+             products = #{} :: #{binary() => #prod{}},
+             holding = #{} :: #{atom() => binary()},            %% task -> serial
+             last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
+             backlog = [] :: [fun(() -> term())],
+             backlog_len = 0 :: non_neg_integer(),
+             seq = 0 :: non_neg_integer(),
+             retry_at = 0 :: integer() | infinity,
+             purge_at = 0 :: integer()}).
+
+%%====================================================================
+%% API
+%%====================================================================
+
+-spec start_link(options()) -> {ok, pid()} | {error, term()}.
+start_link(Opts) ->
+    case Opts of
+        #{exits := E} when E =/= all, not is_list(E) -> {error, {bad_option, exits}};
+        _ when is_map(Opts) ->
+            case maps:keys(Opts) -- [exits] of
+                [] -> gen_server:start_link({local, ?MODULE}, ?MODULE, Opts, []);
+                [K | _] -> {error, {bad_option, K}}
+            end;
+        _ -> {error, {bad_option, options}}
+    end.
+
+%% @doc The child spec for the controller's supervisor, from the cell spec.
+-spec child_spec(cell_spec:spec()) -> supervisor:child_spec().
+child_spec(Spec) ->
+    #{id => ?MODULE, start => {?MODULE, start_link, [#{exits => exits(Spec)}]},
+      shutdown => 10000}.
+
+%% @doc The tasks whose products leave the cell when they transfer them out: those
+%% that hand over to no task of this cell (a link to another node's task leaves it).
+-spec exits(cell_spec:spec()) -> [atom()].
+exits(#{tasks := Tasks} = Spec) ->
+    Links = maps:get(links, Spec, []),
+    Internal = [F || #{from := F, to := To} <- Links, is_atom(To)],
+    [Id || #{id := Id} <- Tasks, not lists:member(Id, Internal)].
+
+%% @doc Writes what is counted so far; returns when it is in the database.
+-spec flush() -> ok | {error, database_closed}.
+flush() ->
+    gen_server:call(?MODULE, flush, 30000).
+
+%% @doc Adds a record to a product's history (an inspection result, a measurement).
+%% Never waits: the record is written by the statistics process.
+-spec record(binary(), atom() | binary(), term()) -> ok.
+record(Serial, What, Detail) when is_binary(Serial) ->
+    gen_server:cast(?MODULE, {record, Serial, What, Detail, now_us()}).
+
+%% @doc The current shift and the total.
+-spec summary() -> #{shift := map(), total := map()}.
+summary() ->
+    #{shift => summary(shift_now()), total => summary(total)}.
+
+%% @doc What happened in one period (a shift id or `total'), in words a report uses:
+%% times in milliseconds, per task time in each state, items, cycle, lead and work
+%% times; for the cell items in, out, good, failed, scrapped, lead and cycle times and
+%% throughput per hour. Read from the database (what was written up to a second ago).
+-spec summary(period()) -> map().
+summary(Period) ->
+    Counters = counters(Period),
+    {From, To} = span(Period),
+    Hours = max(To - From, 0) / 3600.0e6,
+    Cell = maps:get(cell, Counters, #{}),
+    Out = maps:get(out, Cell, 0),
+    Tasks = maps:without([cell], Counters),
+    #{period => period_label(Period), from => From div 1000, to => To div 1000,
+      cell => #{in => maps:get(in, Cell, 0), out => Out, good => maps:get(good, Cell, 0),
+                failed => maps:get(failed, Cell, 0),
+                scrapped => maps:get(scrapped, Cell, 0),
+                lead_ms => times(lead, Cell), cycle_ms => times(cycle, Cell),
+                throughput_per_hour => case Hours > 0 of
+                                           true -> round1(Out / Hours);
+                                           false -> 0.0
+                                       end},
+      in_cell => in_cell(),
+      tasks => maps:map(fun(_, C) -> task_summary(C) end, Tasks)}.
+
+task_summary(C) ->
+    Time = maps:from_list([{S, V div 1000} || {{time, S}, V} <- maps:to_list(C)]),
+    Total = lists:sum(maps:values(Time)),
+    #{time_ms => Time, total_ms => Total,
+      share => maps:map(fun(_, V) when Total > 0 -> round1(100 * V / Total);
+                           (_, _) -> 0.0
+                        end, Time),
+      in => maps:get(in, C, 0), out => maps:get(out, C, 0),
+      completed => maps:get(completed, C, 0), aborted => maps:get(aborted, C, 0),
+      scrapped => maps:get(scrapped, C, 0), errors => maps:get(errors, C, 0),
+      warnings => maps:get(warnings, C, 0), crashes => maps:get(crashes, C, 0),
+      cycle_ms => times(cycle, C), lead_ms => times(lead, C), work_ms => times(work, C)}.
+
+times(Kind, C) ->
+    case maps:get({Kind, n}, C, 0) of
+        0 -> #{n => 0};
+        N -> #{n => N, mean => round1(maps:get({Kind, sum}, C) / N / 1000),
+               min => round1(maps:get({Kind, min}, C) / 1000),
+               max => round1(maps:get({Kind, max}, C) / 1000)}
+    end.
+
+round1(X) -> round(X * 10) / 10.
+
+%% @doc The raw counters of a period as written: `#{Scope => #{Metric => Value}}',
+%% times in microseconds.
+-spec counters(period()) -> #{atom() => map()}.
+counters(Period) ->
+    Rows = safe(fun() ->
+                        mnesia:dirty_select(?COUNTER, [{{?COUNTER, {Period, '$1', '$2'}, '$3'},
+                                                        [], [{{'$1', '$2', '$3'}}]}])
+                end, []),
+    lists:foldl(fun({Scope, Metric, V}, Acc) ->
+                        maps:update_with(Scope, fun(M) -> M#{Metric => V} end,
+                                         #{Metric => V}, Acc)
+                end, #{}, Rows).
+
+%% The time a period covers: a shift from its start to its end or to the last write;
+%% the total from the first task seen to the last write.
+%% Both begin no earlier than the first task was seen.
+span(total) ->
+    Flushed = meta(flushed, now_us()),
+    {first_seen(Flushed), Flushed};
+span({_, _} = Id) ->
+    #{start := S, 'end' := E} = shift_by_id(Id),
+    Flushed = meta(flushed, now_us()),
+    {max(to_us(S), first_seen(Flushed)), min(to_us(E), Flushed)}.
+
+first_seen(Default) ->
+    Firsts = safe(fun() ->
+                          mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {first, '_'}}, '$1'},
+                                                          [], ['$1']}])
+                  end, []),
+    lists:min([Default | Firsts]).
+
+meta(Key, Default) ->
+    case safe(fun() -> mnesia:dirty_read(?COUNTER, {meta, Key}) end, []) of
+        [{?COUNTER, _, V}] -> V;
+        [] -> Default
+    end.
+
+%% @doc The periods recorded: `total' and the shifts, oldest first.
+-spec periods() -> [period()].
+periods() ->
+    Keys = safe(fun() -> mnesia:dirty_all_keys(?COUNTER) end, []),
+    [total | lists:usort([P || {{_, _} = P, _, _} <- Keys])].
+
+%% @doc The shift running now, by the `statistics' settings.
+-spec shift_now() -> cell_stats_shift:id().
+shift_now() ->
+    #{id := Id} = cell_stats_shift:at(local(now_us()), shift_starts()),
+    Id.
+
+%% @doc A product's history: where it is or how it left, and every record, oldest
+%% first (times in milliseconds since the epoch).
+-spec product(binary()) -> {ok, map()} | {error, not_found}.
+product(Serial) when is_binary(Serial) ->
+    Summary = safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []),
+    Events = safe(fun() -> mnesia:dirty_read(?EVENT, Serial) end, []),
+    case {Summary, Events} of
+        {[], []} ->
+            {error, not_found};
+        _ ->
+            Info = case Summary of
+                       [{?PRODUCT, _, I}] -> I;
+                       [] -> #{serial => Serial, status => unknown}
+                   end,
+            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
+            {ok, Info#{events => [E#{time => T} || {T, _, E} <- Sorted]}}
+    end.
+
+%% @doc How many products are in the cell.
+-spec in_cell() -> non_neg_integer().
+in_cell() ->
+    case safe(fun() -> mnesia:table_info(?OPEN, size) end, 0) of
+        N when is_integer(N) -> N;
+        _ -> 0
+    end.
+
+%% @doc The tables, for {@link cell_db:ensure_tables/2}.
+-spec tables() -> [cell_db:table()].
+tables() ->
+    [{?COUNTER, [{type, ordered_set}, {attributes, [key, value]}]},
+     {?OPEN, [{attributes, [serial, info]}]},
+     {?PRODUCT, [{storage, disc_only_copies}, {attributes, [serial, info]}]},
+     {?EVENT, [{storage, disc_only_copies}, {type, bag},
+               {attributes, [serial, time, seq, entry]}]}].
+
+%% Reads skip the process; while the database is not open they find nothing.
+safe(Fun, Default) ->
+    try Fun()
+    catch exit:{aborted, _} -> Default
+    end.
+
+%%====================================================================
+%% gen_server
+%%====================================================================
+
+-spec init(options()) -> {ok, #st{}, {continue, open}}.
+init(Opts) ->
+    process_flag(trap_exit, true),
+    ok = cell_events:subscribe(?EVENTS),
+    %% The shift plan is there (its file read by the settings owner) before the cell
+    %% has started.
+    ok = cell_settings:register(cell_stats_settings),
+    Now = now_us(),
+    %% Every task as the registry has it now: counting starts here.
+    Tasks = maps:from_list([{Id, {name(S), Now}} || #{id := Id, state := S}
+                                                         <- cell_registry:tasks()]),
+    Holding = maps:from_list([{Id, S} || #{id := Id, serial := S} <- cell_registry:tasks(),
+                                         is_binary(S)]),
+    {ok, #st{exits = maps:get(exits, Opts, all), started = Now, tasks = Tasks,
+             holding = Holding},
+     {continue, open}}.
+
+-spec handle_continue(open, #st{}) -> {noreply, #st{}}.
+handle_continue(open, St) ->
+    _ = erlang:send_after(?FLUSH_MS, self(), flush),
+    {noreply, open(St)}.
+
+-spec handle_call(term(), gen_server:from(), #st{}) -> {reply, term(), #st{}}.
+handle_call(flush, _From, St) ->
+    St1 = flush(St),
+    {reply, flushed(St1), St1}.
+
+flushed(#st{db = open}) -> ok;
+flushed(#st{db = closed}) -> {error, database_closed}.
+
+-spec handle_cast(term(), #st{}) -> {noreply, #st{}}.
+handle_cast({record, Serial, What, Detail, At}, St) ->
+    Task = case St#st.products of
+               #{Serial := #prod{holder = H}} -> H;
+               _ -> undefined
+           end,
+    {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
+
+-spec handle_info(term(), #st{}) -> {noreply, #st{}}.
+handle_info({cell_event, Event}, St) ->
+    {noreply, event(Event, St)};
+handle_info(flush, St) ->
+    _ = erlang:send_after(?FLUSH_MS, self(), flush),
+    {noreply, flush(St)}.
+
+%% What was counted is written, if the database is open; it is not opened now.
+-spec terminate(term(), #st{}) -> ok.
+terminate(_Reason, #st{db = open} = St) ->
+    _ = flush(St#st{retry_at = infinity}),
+    ok;
+terminate(_Reason, _St) ->
+    ok.
+
+%%====================================================================
+%% Events
+%%====================================================================
+
+event(#{type := task_state, task := T, state := S} = E, St) ->
+    At = event_us(E),
+    {St1, Upto} = account_task(T, At, St),
+    St1#st{tasks = maps:put(T, {name(S), Upto}, St1#st.tasks)};
+event(#{type := product_saved, task := T} = E, St) ->
+    saved(T, maps:get(item, E, undefined), maps:get(product, E, undefined), event_us(E), St);
+event(#{type := item_transfer_in, task := T, item := S} = E, St) ->
+    At = event_us(E),
+    St1 = at(S, {T, in}, At, count([{T, in}], At, St)),
+    trace_event(E, At, St1);
+event(#{type := item_transfer_out, task := T, item := S} = E, St) ->
+    At = event_us(E),
+    St1 = trace_event(E, At, count([{T, out}], At, St)),
+    St2 = timing({T, lead}, since(S, {T, in}, St1), At, St1),
+    St3 = timing({T, cycle}, maps:get(T, St2#st.last_out, undefined), At, St2),
+    St4 = St3#st{last_out = maps:put(T, At, St3#st.last_out)},
+    case exit_task(T, St4) of
+        true -> leave(S, T, At, St4);
+        false -> St4
+    end;
+event(#{type := item_work_start, item := S, task := T} = E, St) ->
+    At = event_us(E),
+    trace_event(E, At, at(S, {T, work}, At, St));
+event(#{type := item_work_complete, item := S, task := T} = E, St) ->
+    At = event_us(E),
+    St1 = timing({T, work}, since(S, {T, work}, St), At, count([{T, completed}], At, St)),
+    trace_event(E, At, St1);
+event(#{type := item_work_abort, task := T, item := _} = E, St) ->
+    At = event_us(E),
+    trace_event(E, At, count([{T, aborted}], At, St));
+event(#{item := S} = E, St) when is_binary(S) ->
+    %% identifier read, work pause and resume: history only.
+    trace_event(E, event_us(E), St);
+event(#{type := alarm_raised, task := T, alarm := A} = E, St) when T =/= cell ->
+    At = event_us(E),
+    St1 = case maps:get(kind, A, error) of
+              error -> count([{T, errors}], At, St);
+              warning -> count([{T, warnings}], At, St);
+              alarm -> St
+          end,
+    held_trace(T, At, #{event => alarm_raised, kind => maps:get(kind, A, error),
+                        id => maps:get(id, A, <<>>), caption => maps:get(caption, A, <<>>)},
+               St1);
+event(#{type := alarm_cleared, task := T, alarm := A} = E, St) when T =/= cell ->
+    held_trace(T, event_us(E), #{event => alarm_cleared, id => maps:get(id, A, <<>>),
+                                 caption => maps:get(caption, A, <<>>),
+                                 cleared => maps:get(cleared, A, undefined),
+                                 who => maps:get(who, A, undefined)}, St);
+event(#{type := task_crashed, task := T} = E, St) ->
+    count([{T, crashes}], event_us(E), St);
+event(_Other, St) ->
+    St.
+
+%% A task saved its product (or holds none any more).
+saved(T, Serial, Product, At, #st{holding = Holding} = St) ->
+    St1 = case maps:get(T, Holding, undefined) of
+              Serial -> St;
+              undefined -> St;
+              Old -> let_go(Old, T, St)
+          end,
+    case Serial of
+        undefined ->
+            St1#st{holding = maps:remove(T, Holding)};
+        _ ->
+            St2 = St1#st{holding = maps:put(T, Serial, Holding)},
+            case maps:find(Serial, St2#st.products) of
+                error -> enter(Serial, T, product_map(Product), At, St2);
+                {ok, P} -> claim(Serial, T, P, product_map(Product), At, St2)
+            end
+    end.
+
+product_map(P) when is_map(P) -> P;
+product_map(_) -> #{}.
+
+%% The task no longer holds the serial: handed over, sent out, or forgotten.
+let_go(Serial, T, #st{products = Ps} = St) ->
+    case maps:find(Serial, Ps) of
+        {ok, #prod{holder = T} = P} ->
+            St#st{products = Ps#{Serial := P#prod{holder = undefined, unheld = 0}}};
+        _ ->
+            St
+    end.
+
+enter(Serial, T, Product, At, St) ->
+    Recipe = text(maps:get(recipe, Product, <<>>)),
+    Failed = maps:get(failed, Product, false) =:= true,
+    P = #prod{entered = At, recipe = Recipe, failed = Failed, entry = T, holder = T, by = T,
+              last = Product},
+    St1 = count_cell([in], At, St),
+    St2 = St1#st{products = maps:put(Serial, P, St1#st.products)},
+    St3 = write_product(Serial, P, in_cell, undefined, St2),
+    St4 = db(fun() -> mnesia:dirty_write({?OPEN, Serial, #{entered => At, recipe => Recipe,
+                                                            failed => Failed, entry => T}})
+             end, St3),
+    trace(Serial, At, T, #{event => entered, recipe => Recipe,
+                           product => maps:without([serial], Product)}, St4).
+
+claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
+    P = P0#prod{holder = T, by = T, unheld = 0, last = Product,
+                failed = maps:get(failed, Product, P0#prod.failed) =:= true,
+                recipe = text(maps:get(recipe, Product, P0#prod.recipe))},
+    St1 = St#st{products = maps:put(Serial, P, St#st.products)},
+    Changes = case Last of
+                  undefined -> #{};      %% restored after a restart: nothing to compare
+                  _ -> maps:filter(fun(K, V) -> maps:get(K, Last, '$none') =/= V end,
+                                   maps:without([serial], Product))
+              end,
+    case map_size(Changes) of
+        0 ->
+            St1;
+        _ ->
+            St2 = case P#prod.failed =/= P0#prod.failed orelse P#prod.recipe =/= P0#prod.recipe of
+                      true -> write_product(Serial, P, in_cell, undefined, St1);
+                      false -> St1
+                  end,
+            trace(Serial, At, T, #{event => changed, changes => Changes}, St2)
+    end.
+
+%% The product left the cell through an exit task.
+leave(Serial, T, At, #st{products = Ps} = St) ->
+    P = case maps:find(Serial, Ps) of
+            {ok, Found} -> Found;
+            error -> #prod{entered = At, entry = T}
+        end,
+    Quality = case P#prod.failed of true -> failed; false -> good end,
+    St1 = count_cell([out, Quality], At, St),
+    St2 = timing({cell, lead}, P#prod.entered, At, St1),
+    St3 = timing({cell, cycle}, maps:get(cell, St2#st.last_out, undefined), At, St2),
+    St4 = St3#st{last_out = maps:put(cell, At, St3#st.last_out),
+                 products = maps:remove(Serial, Ps)},
+    St5 = write_product(Serial, P, out, {T, At}, St4),
+    St6 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St5),
+    trace(Serial, At, T, #{event => left, quality => Quality}, St6).
+
+%% No task has held the product for two writes in a row: it was forgotten inside the
+%% cell. The registry is asked too, so a product whose new holder's event is still
+%% on its way is not taken for lost.
+reconcile(Now, #st{products = Ps} = St) ->
+    maps:fold(fun(Serial, #prod{holder = undefined, unheld = N} = P, Acc) ->
+                      case holders(Serial) of
+                          [_ | _] ->
+                              Acc#st{products = maps:put(Serial, P#prod{unheld = 0},
+                                                         Acc#st.products)};
+                          [] when N >= 1 ->
+                              scrap(Serial, P, Now, Acc);
+                          [] ->
+                              Acc#st{products = maps:put(Serial, P#prod{unheld = N + 1},
+                                                         Acc#st.products)}
+                      end;
+                 (_, _, Acc) ->
+                      Acc
+              end, St, Ps).
+
+holders(Serial) ->
+    try cell_registry:holders(Serial)
+    catch error:badarg -> [undefined]          %% the registry is restarting: wait
+    end.
+
+scrap(Serial, #prod{by = Task} = P, At, St) ->
+    St1 = count_cell([scrapped], At, case Task of
+                                         undefined -> St;
+                                         _ -> count([{Task, scrapped}], At, St)
+                                     end),
+    St2 = St1#st{products = maps:remove(Serial, St1#st.products)},
+    St3 = write_product(Serial, P, scrapped, {Task, At}, St2),
+    St4 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St3),
+    trace(Serial, At, Task, #{event => scrapped, failed => P#prod.failed,
+                              text => <<"no task holds it any more: it was forgotten in "
+                                        "the cell (an operator's Reset) or taken out by hand">>},
+          St4).
+
+held_trace(T, At, Entry, #st{holding = Holding} = St) ->
+    case maps:find(T, Holding) of
+        {ok, Serial} -> trace(Serial, At, T, Entry, St);
+        error -> St
+    end.
+
+trace_event(#{type := Type, task := T, item := S} = E, At, St) ->
+    Detail = maps:with([scanner, pause_id, abort_id, zone, lane], E),
+    trace(S, At, T, Detail#{event => Type}, St).
+
+exit_task(_T, #st{exits = all}) -> true;
+exit_task(T, #st{exits = Exits}) -> lists:member(T, Exits).
+
+%% When a product reached a point in a task, for the times that end later.
+at(Serial, Key, At, #st{products = Ps} = St) ->
+    case maps:find(Serial, Ps) of
+        {ok, #prod{at = M} = P} -> St#st{products = Ps#{Serial := P#prod{at = M#{Key => At}}}};
+        error -> St
+    end.
+
+since(Serial, Key, #st{products = Ps}) ->
+    case maps:find(Serial, Ps) of
+        {ok, #prod{at = #{Key := T}}} -> T;
+        _ -> undefined
+    end.
+
+%%====================================================================
+%% Time per state
+%%====================================================================
+
+%% Closes a task's interval in its current state at `At'; answers the point it was
+%% counted up to (never backwards: events of different tasks arrive in any order).
+account_task(T, At, #st{tasks = Tasks} = St) ->
+    case maps:find(T, Tasks) of
+        {ok, {State, Since}} ->
+            Upto = max(At, Since),
+            {account(T, State, Since, Upto, St), Upto};
+        error ->
+            %% A task seen for the first time: its time starts now.
+            {op({meta, {first, T}}, first, At, St), At}
+    end.
+
+%% Adds a stretch of time in a state to the shift(s) it falls in and to the total.
+account(_Scope, _State, From, To, St) when To =< From ->
+    St;
+account(Scope, State, From, To, St) ->
+    {Id, _Start, End, St1} = shift_of(From, St),
+    Upto = min(To, End),
+    St2 = add([{Id, Scope, {time, State}}, {total, Scope, {time, State}}], Upto - From, St1),
+    account(Scope, State, Upto, To, St2).
+
+flush(St0) ->
+    Now = now_us(),
+    St1 = maps:fold(fun(T, {State, Since}, Acc) ->
+                            Acc1 = account(T, State, Since, max(Now, Since), Acc),
+                            Acc1#st{tasks = maps:put(T, {State, max(Now, Since)}, Acc1#st.tasks)}
+                    end, St0, St0#st.tasks),
+    St2 = reconcile(Now, St1),
+    St3 = case St2#st.db of
+              closed when Now >= St2#st.retry_at -> open(St2);
+              _ -> St2
+          end,
+    St4 = write_pending(Now, St3),
+    case St4#st.db =:= open andalso Now >= St4#st.purge_at of
+        true -> purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000});
+        false -> St4
+    end.
+
+%%====================================================================
+%% Counters
+%%====================================================================
+
+count(Keys, At, St) ->
+    {Id, _, _, St1} = shift_of(At, St),
+    add(lists:append([[{Id, Scope, M}, {total, Scope, M}] || {Scope, M} <- Keys]), 1, St1).
+
+count_cell(Metrics, At, St) ->
+    count([{cell, M} || M <- Metrics], At, St).
+
+%% A duration ending at `At' since `From' (nothing when there is no start).
+timing(_Key, undefined, _At, St) ->
+    St;
+timing({Scope, Kind}, From, At, St) ->
+    D = max(At - From, 0),
+    {Id, _, _, St1} = shift_of(At, St),
+    lists:foldl(fun(P, Acc) ->
+                        Acc1 = add([{P, Scope, {Kind, n}}], 1, Acc),
+                        Acc2 = add([{P, Scope, {Kind, sum}}], D, Acc1),
+                        Acc3 = op({P, Scope, {Kind, min}}, min, D, Acc2),
+                        op({P, Scope, {Kind, max}}, max, D, Acc3)
+                end, St1, [Id, total]).
+
+add(Keys, N, St) ->
+    lists:foldl(fun(K, Acc) -> op(K, add, N, Acc) end, St, Keys).
+
+op(Key, Op, V, #st{pending = Pending} = St) ->
+    New = case maps:find(Key, Pending) of
+              {ok, {Op, Old}} -> {Op, merge(Op, Old, V)};
+              error -> {Op, V}
+          end,
+    St#st{pending = maps:put(Key, New, Pending)}.
+
+merge(add, Old, V) -> Old + V;
+merge(min, Old, V) -> min(Old, V);
+merge(max, Old, V) -> max(Old, V);
+merge(set, _Old, V) -> V;
+merge(first, Old, _V) -> Old.
+
+%% One transaction a second: every counter and the time they cover, together.
+write_pending(Now, #st{db = open, pending = Pending} = St) ->
+    F = fun() ->
+                maps:foreach(fun(K, {Op, V}) ->
+                                     New = case mnesia:read(?COUNTER, K, write) of
+                                               [{?COUNTER, _, Old}] when Op =/= set ->
+                                                   merge(Op, Old, V);
+                                               _ ->
+                                                   V
+                                           end,
+                                     mnesia:write({?COUNTER, K, New})
+                             end, Pending),
+                mnesia:write({?COUNTER, {meta, flushed}, Now})
+        end,
+    case mnesia:transaction(F) of
+        {atomic, ok} ->
+            _ = mnesia:sync_log(),
+            St#st{pending = #{}};
+        {aborted, Why} ->
+            closed(Why, St)
+    end;
+write_pending(_Now, St) ->
+    %% Not before the database is open: the time of the last write tells how long
+    %% the runtime was down.
+    St.
+
+%%====================================================================
+%% The database
+%%====================================================================
+
+%% The database is opened here, before any event is taken: whether a product saved
+%% now is new to the cell or one it held before a restart is only known once the
+%% products in the cell have been read back. mnesia itself is normally running
+%% already (the `cell' application starts it before the controller); if it could
+%% not be, this tries again.
+open(#st{db = closed} = St) ->
+    Result = case cell_db:start() of
+                 ok -> cell_db:ensure_tables(tables(), ?LOAD_MS);
+                 {error, _} = E -> E
+             end,
+    case Result of
+        ok -> opened(St#st{db = open});
+        {error, Why} -> closed(Why, St)
+    end;
+open(St) ->
+    St.
+
+closed(Why, #st{db = Was} = St) ->
+    case Was of
+        open -> cell_log:error(cell, "statistics: the database stopped working (~ts); "
+                               "counting goes on in memory", [cell_db:format_error(Why)]);
+        _ -> cell_log:error(cell, "statistics: the database cannot be opened (~ts); "
+                                 "counting goes on in memory, trying again in ~b s",
+                                 [cell_db:format_error(Why), ?RETRY_MS div 1000])
+    end,
+    St#st{db = closed, retry_at = now_us() + ?RETRY_MS * 1000}.
+
+%% The database is open: the time the runtime was not running is OFF; the products
+%% the cell held are known again; what was kept in memory meanwhile is written.
+opened(#st{started = Started} = St0) ->
+    Flushed = meta(flushed, undefined),
+    St1 = maps:fold(fun(T, _, Acc) ->
+                            case meta({first, T}, undefined) of
+                                undefined ->
+                                    op({meta, {first, T}}, first, Started, Acc);
+                                _ when is_integer(Flushed), Flushed < Started ->
+                                    account(T, off, Flushed, Started, Acc);
+                                _ ->
+                                    Acc
+                            end
+                    end, St0, St0#st.tasks),
+    Open = safe(fun() -> ets_list(?OPEN) end, []),
+    Known = lists:foldl(
+              fun({?OPEN, Serial, Info}, Acc) ->
+                      case maps:is_key(Serial, Acc) of
+                          true -> Acc;
+                          false ->
+                              P = #prod{entered = maps:get(entered, Info, Started),
+                                        recipe = maps:get(recipe, Info, <<>>),
+                                        failed = maps:get(failed, Info, false),
+                                        entry = maps:get(entry, Info, undefined)},
+                              Acc#{Serial => P}
+                      end
+              end, St1#st.products, Open),
+    %% The holders now, as the registry knows them.
+    St2 = maps:fold(fun(T, Serial, Acc) ->
+                            case maps:find(Serial, Acc#st.products) of
+                                {ok, P} -> Acc#st{products = maps:put(Serial, P#prod{holder = T, by = T},
+                                                                      Acc#st.products)};
+                                error -> enter(Serial, T, #{}, Started, Acc)
+                            end
+                    end, St1#st{products = Known}, St1#st.holding),
+    Backlog = lists:reverse(St2#st.backlog),
+    St3 = St2#st{backlog = [], backlog_len = 0},
+    lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
+
+ets_list(Tab) ->
+    mnesia:dirty_select(Tab, [{'_', [], ['$_']}]).
+
+%% A write of the history: at once when the database is open, else kept (up to a
+%% limit) until it is.
+db(Fun, #st{db = open} = St) ->
+    try Fun() of
+        _ -> St
+    catch
+        exit:{aborted, Why} -> keep(Fun, closed(Why, St))
+    end;
+db(Fun, St) ->
+    keep(Fun, St).
+
+keep(Fun, #st{backlog_len = N} = St) when N >= ?BACKLOG_MAX ->
+    St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)]};
+keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
+    St#st{backlog = [Fun | B], backlog_len = N + 1}.
+
+trace(undefined, _At, _Task, _Entry, St) ->
+    St;
+trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
+    Rec = {?EVENT, Serial, At div 1000, Seq, Entry#{task => Task}},
+    db(fun() -> mnesia:dirty_write(Rec) end, St#st{seq = Seq + 1}).
+
+write_product(Serial, #prod{} = P, Status, Left, St) ->
+    {ExitTask, LeftAt} = case Left of
+                             undefined -> {undefined, undefined};
+                             {T, At} -> {T, At div 1000}
+                         end,
+    Info = #{serial => Serial, status => Status, recipe => P#prod.recipe,
+             failed => P#prod.failed, entered => P#prod.entered div 1000,
+             entry_task => P#prod.entry, left => LeftAt, exit_task => ExitTask},
+    db(fun() -> mnesia:dirty_write({?PRODUCT, Serial, Info}) end, St).
+
+%% Records older than the settings keep are removed, once an hour.
+purge(Now, St) ->
+    #{trace_days := TraceDays, shift_days := ShiftDays} = settings(),
+    {CutDate, _} = local(Now - ShiftDays * 86400 * 1000000),
+    OldShifts = safe(fun() ->
+                             mnesia:dirty_select(?COUNTER, [{{?COUNTER, {{'$1', '_'}, '_', '_'}, '_'},
+                                                             [{'<', '$1', {const, CutDate}}],
+                                                             [{element, 2, '$_'}]}])
+                     end, []),
+    St1 = lists:foldl(fun(K, Acc) -> db(fun() -> mnesia:dirty_delete(?COUNTER, K) end, Acc) end,
+                      St, OldShifts),
+    Cut = (Now div 1000) - TraceDays * 86400 * 1000,
+    Old = safe(fun() ->
+                       mnesia:dirty_select(?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},
+                                                       [{is_integer, '$2'}, {'<', '$2', Cut}],
+                                                       ['$1']}])
+               end, []),
+    lists:foldl(fun(Serial, Acc) ->
+                        db(fun() ->
+                                   ok = mnesia:dirty_delete(?EVENT, Serial),
+                                   mnesia:dirty_delete(?PRODUCT, Serial)
+                           end, Acc)
+                end, St1, Old).
+
+%%====================================================================
+%% Time and shifts
+%%====================================================================
+
+now_us() ->
+    erlang:system_time(microsecond).
+
+%% An event's moment on this node's clock (its monotonic stamp, made comparable).
+event_us(#{mono := Mono}) -> Mono + erlang:time_offset(microsecond);
+event_us(_) -> now_us().
+
+%% The shift a moment falls in: the one last used if it still does.
+shift_of(Us, #st{shift = {Id, Start, End}} = St) when Us >= Start, Us < End ->
+    {Id, Start, End, St};
+shift_of(Us, St) ->
+    #{id := Id, start := S, 'end' := E} = cell_stats_shift:at(local(Us), shift_starts()),
+    Start = to_us(S),
+    End = max(to_us(E), Us + 1),
+    {Id, Start, End, St#st{shift = {Id, Start, End}}}.
+
+shift_by_id({Date, N} = Id) ->
+    Starts = shift_starts(),
+    Minute = lists:nth(min(N, length(Starts)), Starts),
+    #{id := Found} = Shift = cell_stats_shift:at({Date, {Minute div 60, Minute rem 60, 0}},
+                                                 Starts),
+    case Found of
+        Id -> Shift;
+        _ -> Shift#{id := Id}
+    end.
+
+shift_starts() ->
+    #{shifts := Texts} = settings(),
+    case cell_stats_shift:parse_all(Texts) of
+        {ok, Starts} -> Starts;
+        {error, _} -> [0]
+    end.
+
+settings() ->
+    Defaults = #{shifts => [<<"06:00">>, <<"14:00">>, <<"22:00">>], trace_days => 90,
+                 shift_days => 400},
+    try maps:merge(Defaults, cell_settings:get(statistics))
+    catch error:_ -> Defaults;
+          exit:_ -> Defaults
+    end.
+
+local(Us) ->
+    calendar:system_time_to_local_time(Us, microsecond).
+
+to_us(Local) ->
+    Utc = case calendar:local_time_to_universal_time_dst(Local) of
+              [U | _] -> U;
+              [] -> erlang:localtime_to_universaltime(Local)        %% a DST gap
+          end,
+    (calendar:datetime_to_gregorian_seconds(Utc) - 62167219200) * 1000000.
+
+period_label(total) -> <<"total">>;
+period_label(Id) -> cell_stats_shift:label(Id).
+
+%% The short name of a state in the counters.
+name(off) -> off;
+name(down) -> down;
+name(setup) -> setup;
+name({ready, idle, blocked}) -> blocked;
+name({ready, idle, starved}) -> starved;
+name({ready, processing, active}) -> active;
+name({ready, processing, executing}) -> executing.
+
+text(B) when is_binary(B) -> B;
+text(A) when is_atom(A) -> atom_to_binary(A, utf8);
+text(Other) -> iolist_to_binary(io_lib:format("~tp", [Other])).

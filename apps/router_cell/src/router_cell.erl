@@ -1,0 +1,167 @@
+%% @doc The default cell: a standard inline router (seed 000 §2.3), written as a user
+%% of cellrt writes a cell. This module is the cell spec the controller builds the cell
+%% from (the `cell' application's `cell_module').
+%%
+%% ```
+%%   previous   ┌─────────┐ load_work ┌──────┐ work_route ┌───────┐ route_pick ┌───────┐ pick_unload ┌───────────┐   next
+%%   machine ──▶│ loading │──────────▶│ work │───────────▶│ lower │───────────▶│ upper │────────────▶│ unloading │──▶ machine
+%%              └─────────┘           └──────┘            └───────┘            └───────┘             └───────────┘
+%% '''
+%%
+%% Per lane (front, and rear when the machine settings say `dual_lane'): a loading
+%% conveyor segment, a work segment with the routing fixture, an unloading conveyor
+%% segment. Shared by the lanes: the lower routing robot, which routes the panel in
+%% whichever fixture offers one, and the upper manipulator robot, which lifts the
+%% routed modules out of the nest and puts them on the unloading segment of their lane.
+%% Every arrow is a handshake link (seed §2.3.6); the panel's serial travels along them.
+%%
+%% As in seed 000 §2.3.3 the settings choose the cell when it boots: `simulation_mode'
+%% connects the IO groups to a simulated PLC moved by {@link router_sim}, otherwise to
+%% the router's PLC over Modbus TCP (`plc_host', `plc_port', `plc_unit' of the
+%% `router' settings); `dual_lane' adds the rear lane. The task modules are the same
+%% either way: they only know their IO by name. A change of these settings applies at
+%% the next boot of the cell.
+-module(router_cell).
+
+-export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, machine_settings/0,
+         router_settings/0, is_configured/0]).
+
+-define(CONN, router_plc).
+
+%% @doc The cell spec, from the settings files as they are at boot.
+-spec cell_spec() -> map().
+cell_spec() ->
+    cell_spec(machine_settings(), router_settings()).
+
+%% @doc The cell spec for given machine and router settings.
+-spec cell_spec(map(), map()) -> map().
+cell_spec(Machine, Router) ->
+    Lanes = lanes(Machine),
+    LaneTasks = lists:append([lane_tasks(L) || L <- Lanes]),
+    Robots = [#{id => lower, module => router_lower_task, zone => <<"Lower robot">>,
+                lane => <<"Shared">>, io => [lower_io], settings => router,
+                args => #{prevs => [link(work_route, L) || L <- Lanes], next => route_pick}},
+              #{id => upper, module => router_upper_task, zone => <<"Upper robot">>,
+                lane => <<"Shared">>, io => [upper_io], settings => router,
+                args => #{prev => route_pick,
+                          nexts => maps:from_list([{L, link(pick_unload, L)} || L <- Lanes])}}],
+    Links = lists:append([[#{id => link(load_work, L), from => task(loading, L),
+                             to => task(work, L)},
+                           #{id => link(work_route, L), from => task(work, L), to => lower},
+                           #{id => link(pick_unload, L), from => upper,
+                             to => task(unloading, L)}] || L <- Lanes])
+        ++ [#{id => route_pick, from => lower, to => upper}],
+    #{name => maps:get(cell_name, Machine, <<"Router">>),
+      tasks => LaneTasks ++ Robots,
+      links => Links,
+      settings => [router_settings, router_sim_settings],
+      hal => hal(Machine, Router)}.
+
+lane_tasks(L) ->
+    Lane = lane_name(L),
+    [#{id => task(loading, L), module => router_loading_task, zone => <<"Loading">>,
+       lane => Lane, io => [group(loading, L)], settings => router,
+       args => #{lane => L, next => link(load_work, L)}},
+     #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
+       io => [group(work, L)], settings => router,
+       args => #{lane => L, prev => link(load_work, L), next => link(work_route, L)}},
+     #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
+       lane => Lane, io => [group(unloading, L)], settings => router,
+       args => #{lane => L, prev => link(pick_unload, L)}}].
+
+%% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
+%% TCP) and the IO group instances bound to it.
+-spec hal(map(), map()) -> #{connections := [cell_hal:connection_spec()],
+                             groups := [cell_hal:group_spec()]}.
+hal(Machine, Router) ->
+    Poll = maps:get(hal_poll_ms, Router, 20),
+    Conn = case maps:get(simulation_mode, Machine, true) of
+               true ->
+                   #{id => ?CONN, driver => cell_hal_sim, opts => #{poll_ms => Poll}};
+               false ->
+                   #{id => ?CONN, driver => cell_hal_modbus,
+                     opts => #{host => binary_to_list(maps:get(plc_host, Router)),
+                               port => maps:get(plc_port, Router),
+                               unit => maps:get(plc_unit, Router), poll_ms => Poll}}
+           end,
+    %% Each lane's groups 100 addresses apart in the PLC's image.
+    Groups = lists:append([[#{id => group(K, L), module => module(K), connection => ?CONN,
+                              opts => #{base => Base + Off}}
+                            || {K, Off} <- [{loading, 0}, {work, 20}, {unloading, 40}]]
+                           || {L, Base} <- [{front, 0}, {rear, 100}],
+                              lists:member(L, lanes(Machine))])
+        ++ [#{id => lower_io, module => router_lower_io, connection => ?CONN,
+              opts => #{base => 200}},
+            #{id => upper_io, module => router_upper_io, connection => ?CONN,
+              opts => #{base => 260}}],
+    #{connections => [Conn], groups => Groups}.
+
+%% @doc The lanes of the machine.
+-spec lanes(map()) -> [front | rear].
+lanes(#{dual_lane := true}) -> [front, rear];
+lanes(_) -> [front].
+
+%% @doc The IO group instance of a lane's segment.
+-spec group(loading | work | unloading, front | rear) -> atom().
+group(loading, front) -> loading_front_io;
+group(loading, rear) -> loading_rear_io;
+group(work, front) -> work_front_io;
+group(work, rear) -> work_rear_io;
+group(unloading, front) -> unloading_front_io;
+group(unloading, rear) -> unloading_rear_io.
+
+module(loading) -> router_loading_io;
+module(work) -> router_work_io;
+module(unloading) -> router_unloading_io.
+
+task(loading, front) -> loading_front;
+task(loading, rear) -> loading_rear;
+task(work, front) -> work_front;
+task(work, rear) -> work_rear;
+task(unloading, front) -> unloading_front;
+task(unloading, rear) -> unloading_rear.
+
+link(load_work, front) -> load_work_front;
+link(load_work, rear) -> load_work_rear;
+link(work_route, front) -> work_route_front;
+link(work_route, rear) -> work_route_rear;
+link(pick_unload, front) -> pick_unload_front;
+link(pick_unload, rear) -> pick_unload_rear.
+
+lane_name(front) -> <<"Front">>;
+lane_name(rear) -> <<"Rear">>.
+
+%% @doc The machine settings as saved (the controller is not running yet when the cell
+%% spec is built): defaults for a missing file, and for a file that does not validate
+%% (the settings owner logs that one when it loads it).
+-spec machine_settings() -> map().
+machine_settings() ->
+    from_file(cell_machine_settings).
+
+%% @doc The router settings as saved.
+-spec router_settings() -> map().
+router_settings() ->
+    from_file(router_settings).
+
+from_file(Schema) ->
+    Path = filename:join(cell_config:dir(settings), atom_to_list(Schema:name()) ++ ".json"),
+    case file:read_file(Path) of
+        {ok, Bin} ->
+            case cell_settings_schema:from_json(Schema, Bin) of
+                {ok, Obj} -> Obj;
+                {error, _} -> cell_settings_schema:defaults(Schema)
+            end;
+        {error, _} ->
+            cell_settings_schema:defaults(Schema)
+    end.
+
+%% @doc Whether this is the cell the runtime runs (the `cell' application's
+%% `cell_module').
+-spec is_configured() -> boolean().
+is_configured() ->
+    case cell_config:get(cell, cell_module, undefined) of
+        ?MODULE -> true;
+        "router_cell" -> true;
+        <<"router_cell">> -> true;
+        _ -> false
+    end.

@@ -1,0 +1,28 @@
+%% @doc The router cell's application: when the router is the cell the runtime runs
+%% (the `cell' application's `cell_module'), it puts the demo recipes in place if they
+%% are missing and, in simulation mode, starts the machine's physics behind the
+%% simulated PLC. Otherwise it starts and does nothing.
+%%
+%% It starts after the `cell' application, whose monitor connects the HAL of the cell
+%% spec (the router's PLC, simulated or real, and its IO groups): the physics finds
+%% the simulated PLC's points in place, and stops before the monitor takes them down.
+-module(router_cell_app).
+-behaviour(application).
+
+-export([start/2, stop/1]).
+
+-spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
+start(_Type, _Args) ->
+    case router_cell:is_configured() of
+        true ->
+            ok = router_recipes:ensure_demo(),
+            Machine = router_cell:machine_settings(),
+            router_cell_sup:start_link(maps:get(simulation_mode, Machine, true),
+                                       router_cell:lanes(Machine));
+        false ->
+            router_cell_sup:start_link(false, [])
+    end.
+
+-spec stop(term()) -> ok.
+stop(_State) ->
+    ok.

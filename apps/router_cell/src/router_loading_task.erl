@@ -1,0 +1,161 @@
+%% @doc The loading conveyor segment (seed 000 §2.3): takes panels from the previous
+%% machine over SMEMA, reads each panel's code at the stopper, and hands the panel to
+%% the work segment over the handshake of §2.3.6 as the "previous device".
+%%
+%% <pre>
+%%  phase       waits for                                   then
+%%  idle        a panel at the previous machine             belt on, ready to receive → intake
+%%              (STARVED)
+%%  intake      the panel at the stopper, or the watchdog   belt off; the code read: the product
+%%                                                          (ItemIdentifierRead, ItemTransferIn) → full
+%%  full        -                                           offer it to the work segment (phase 1,
+%%                                                          BLOCKED) → offered
+%%  offered     the work segment's NotBusy                  belt on (phase 2) → leaving
+%%  leaving     the panel past the stopper, or the watchdog release (phase 3) → released
+%%  released    the work segment's NotBusy off (phase 4)    belt off; ItemTransferOut → idle
+%%  in_transit  the operator, after a transfer was cut off  Ignore: it is here → full;
+%%              while the panel moved                        Reset: it is not → idle
+%% </pre>
+%%
+%% A watchdog that runs out is a "Conveyor jam" error: the belt stops until the
+%% operator has freed the panel and chosen Retry. The previous machine's magazine
+%% running low is a warning, set and reset as its input changes (the seed's feeder).
+-module(router_loading_task).
+-behaviour(cell_task).
+
+-export([init/1, step/1, uninit/1]).
+
+-spec init(cell_task:task()) -> {ok, cell_task:task()}.
+init(T0) ->
+    T = case router_task:reset_chosen(T0) of
+            {forget, T1} -> cell_task:clear_product(T1);
+            {none, T1} -> T1
+        end,
+    %% The warning follows the magazine input from the first step on.
+    T2 = cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined),
+    case cell_task:product(T2) of
+        undefined -> {ok, phase(cell_task:out(T2, belt_run, false), idle)};
+        %% A panel waits at the stopper, as its product file says.
+        _ -> {ok, phase(T2, full)}
+    end.
+
+%% Stop the belt and tell the previous machine to hold; the panel stays where it is.
+-spec uninit(cell_task:task()) -> cell_task:task().
+uninit(T) ->
+    cell_task:out(cell_task:out(T, belt_run, false), upstream_ready, false).
+
+-spec step(cell_task:task()) -> cell_task:step_result().
+step(T) ->
+    T1 = magazine(T),
+    step(router_task:phase(T1), cell_task:woken_by(T1), T1).
+
+%% -- empty: a panel from the previous machine ---------------------------------------
+step(idle, _Woken, T) ->
+    case cell_task:in(T, upstream_available) of
+        true ->
+            T1 = cell_task:out(cell_task:out(T, belt_run, true), upstream_ready, true),
+            watch(intake, panel_at_stop, true, router_task:unstarved(T1));
+        false ->
+            {wait, [{io, upstream_available, {eq, true}} | magazine_wait(T)],
+             router_task:starved(T)}
+    end;
+step(intake, {timer, _}, T) ->
+    jam(T, "did not reach the stopper");
+step(intake, _Woken, T) ->
+    case cell_task:in(T, panel_at_stop) of
+        true ->
+            T1 = cell_task:out(cell_task:out(T, belt_run, false), upstream_ready, false),
+            identified(cell_task:in(T1, code), T1);
+        false ->
+            %% After Retry: the belt runs again.
+            watch(intake, panel_at_stop, true, cell_task:out(T, belt_run, true))
+    end;
+%% -- full: hand it to the work segment ----------------------------------------------
+step(full, _Woken, T) ->
+    {wait, {handshake, next(T), not_busy, true}, phase(cell_handshake:offer(T, next(T)), offered)};
+step(offered, {handshake, _Next, not_busy, true}, T) ->
+    watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true));
+step(offered, _Woken, T) ->
+    case cell_handshake:phase(T, next(T)) of
+        offered -> {wait, {handshake, next(T), not_busy, true}, T};
+        _ -> {continue, phase(T, full)}                %% the offer is gone: offer again
+    end;
+step(leaving, {timer, _}, T) ->
+    jam(T, "did not leave the stopper");
+step(leaving, _Woken, T) ->
+    case cell_task:in(T, panel_at_stop) of
+        false ->
+            T1 = cell_handshake:release(T, next(T)),
+            {wait, {handshake, next(T), not_busy, false}, phase(T1, released)};
+        true ->
+            watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true))
+    end;
+step(released, {handshake, _Next, interrupted}, T) ->
+    router_task:interrupted(cell_task:out(T, belt_run, false), full, idle);
+step(released, _Woken, T) ->
+    case cell_handshake:finish(T, next(T)) of
+        {completed, T1} -> {continue, phase(cell_task:out(T1, belt_run, false), idle)};
+        {aborted, T1} -> {continue, phase(cell_task:out(T1, belt_run, false), full)};
+        {interrupted, T1} -> router_task:interrupted(cell_task:out(T1, belt_run, false), full, idle);
+        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
+    end;
+%% -- the operator said the panel of an interrupted transfer is here ------------------
+step(in_transit, _Woken, T) ->
+    {continue, phase(cell_handshake:confirm_here(T), full)}.
+
+%% The code reader read the panel at the stopper: it is the cell's from now on.
+identified(<<>>, T) ->
+    {error, cell_task:error_spec(<<"no_code">>, "Code not read",
+                                 "The code reader read no code on the panel at the stopper. "
+                                 "Clean the label or the reader, then select RETRY.", [retry]),
+     T};
+identified(Serial, T) ->
+    Lane = router_task:lane(T),
+    Recipe = cell_task:setting(T, recipe_key(Lane), <<"demo-2x2">>),
+    T1 = cell_task:set_product(T, cell_product:new(Serial, Recipe, #{lane => Lane})),
+    T2 = cell_task:transfer_in(cell_task:identifier_read(T1, Serial, <<"code reader">>), Serial),
+    cell_task:log(T2, brief, "panel ~ts (~ts) at the stopper", [Serial, Recipe]),
+    {continue, phase(T2, full)}.
+
+recipe_key(front) -> recipe_front;
+recipe_key(rear) -> recipe_rear.
+
+jam(T, What) ->
+    Serial = case cell_task:product(T) of
+                 undefined -> <<"from the previous machine">>;
+                 #{serial := S} -> S
+             end,
+    Ms = cell_task:setting(T, transfer_timeout_ms, 10000),
+    {error, cell_task:error_spec(
+              <<"jam">>, "Conveyor jam",
+              io_lib:format("Panel ~ts ~ts within ~.1f s: the belt is stopped.~nFree the "
+                            "panel on the loading conveyor, then select RETRY to run the "
+                            "belt again.", [Serial, What, Ms / 1000]),
+              [retry]),
+     cell_task:out(T, belt_run, false)}.
+
+watch(Phase, Point, Value, T) ->
+    router_task:watch(T, Phase, Point, Value, transfer_timeout_ms).
+
+%% The seed's feeder: a warning while the previous machine's magazine is low.
+magazine(T) ->
+    Low = cell_task:in(T, magazine_low),
+    case {Low, cell_task:get(T, magazine_low, false)} of
+        {Same, Same} ->
+            T;
+        {true, _} ->
+            cell_task:put(cell_task:warning(T, <<"magazine_low">>, "Panel magazine low",
+                                            "The previous machine's panel magazine is nearly "
+                                            "empty: refill it."), magazine_low, true);
+        {false, _} ->
+            cell_task:put(cell_task:reset_warning(T, <<"magazine_low">>), magazine_low, false)
+    end.
+
+magazine_wait(T) ->
+    [{io, magazine_low, {ne, cell_task:get(T, magazine_low, false)}}].
+
+next(T) ->
+    cell_task:arg(T, next, undefined).
+
+phase(T, Phase) ->
+    router_task:phase(T, Phase).

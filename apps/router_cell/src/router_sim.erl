@@ -1,0 +1,664 @@
+%% @doc The simulated router: the machine's physics behind its simulated PLC, so the
+%% device tasks run exactly as they would on the real machine.
+%%
+%% It watches the PLC's outputs (a rule on each output of the simulated PLC tells it
+%% when the HAL wrote one) and moves the world in return, setting the PLC's inputs as
+%% the sensors would see it, with timers for everything that takes time; it never
+%% polls. The world: panels waiting at the previous machine's output, a panel on each
+%% loading segment, in each fixture (whole, or its frame once the modules are lifted),
+%% modules in the upper robot's gripper and on each unloading segment, the robots'
+%% positions, and what was delivered to the next machine or dropped into the scrap bin.
+%% The world is saved in `Data/router_sim.world' whenever a panel moves, so a
+%% restarted machine finds its panels where they were, as a real one would.
+%%
+%% <ul>
+%% <li>Panels arrive at the previous machine's output at the `router_sim' settings'
+%%   rate (`arrival_ms', `arrival_jitter'), each with a new serial, up to
+%%   `upstream_capacity'; the previous machine offers one (SMEMA) while it has any.</li>
+%% <li>A conveyor move runs only while the belts it needs run: stopped, the panel
+%%   stops, and goes on when they run again.</li>
+%% <li>The routing robot's moves take their path length at their feed; the upper
+%%   robot's a fixed time; spindle, bit, clamps and gripper their own times.</li>
+%% <li>Faults: a conveyor move may stick (`jam_rate'; free again after `jam_ms'); the
+%%   modules may slip in the gripper on a move (`product_lost_rate'; the gripper's
+%%   sensor loses them until the operator has seated them again, `reseat_ms'); the
+%%   previous machine's magazine runs low now and then (`magazine_low_s',
+%%   `magazine_refill_s').</li>
+%% </ul>
+%%
+%% Every duration is multiplied by the settings' `time_scale' (0: none), which the
+%% settings owner lets change while the cell runs.
+%%
+%% The simulated PLC and its points are the cell's HAL, which the cell's monitor
+%% connects. The physics starts after it; should the HAL be taken down under it (the
+%% cell's supervisor restarting the monitor), a write fails, the physics crashes and,
+%% restarted, waits for the HAL to be back (retried 100 ms, then up to 5 s apart),
+%% then goes on from the world it saved.
+-module(router_sim).
+-behaviour(gen_server).
+
+-export([start_link/1, world/0]).
+-export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
+         terminate/2]).
+
+-define(CONN, router_plc).
+-define(WORLD_FILE, "router_sim.world").
+%% The settings the arrivals and the magazine's timers were set with.
+-define(RHYTHM, [time_scale, arrival_ms, arrival_jitter, upstream_capacity, magazine_low_s]).
+-define(ATTACH_MIN, 100).
+-define(ATTACH_MAX, 5000).
+
+-type lane() :: front | rear.
+-type action() :: fun((map()) -> map()).
+
+-record(move, {steps :: [{non_neg_integer(), action()}],   %% offset (ms) and what happens
+               done = 0 :: non_neg_integer(),              %% ms run so far
+               t0 :: integer() | undefined,                %% running since (monotonic ms)
+               timer :: reference() | undefined}).
+
+%%====================================================================
+%% API
+%%====================================================================
+
+%% @doc Starts the physics of a router with these lanes.
+-spec start_link(#{lanes := [lane()]}) -> {ok, pid()} | {error, term()}.
+start_link(#{lanes := Lanes} = Opts) when is_list(Lanes) ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, Opts, []).
+
+%% @doc The world as it is now: where every panel is, and the counters `arrived',
+%% `delivered', `scrapped' and `frames'.
+-spec world() -> map().
+world() ->
+    gen_server:call(?MODULE, world).
+
+%%====================================================================
+%% gen_server
+%%====================================================================
+
+-spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, attach}}.
+init(#{lanes := Lanes}) ->
+    Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
+                                           || K <- [loading, work, unloading]] || L <- Lanes])
+                            ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}}]),
+    {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
+           rand => rand:seed_s(exsss), world => empty_world(Lanes),
+           lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
+           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN},
+     {continue, attach}}.
+
+-spec handle_continue(attach, map()) -> {noreply, map()}.
+handle_continue(attach, S) ->
+    {noreply, attach(S)}.
+
+%% The physics needs the simulated PLC's points, which the cell's monitor adds.
+attach(#{groups := Groups, attach_ms := Ms} = S) ->
+    case [G || G <- maps:keys(Groups), cell_hal:points(G) =:= {error, unknown_group}] of
+        [] ->
+            restore(S#{attached := true});
+        Missing ->
+            Ms =:= ?ATTACH_MIN andalso
+                cell_log:notice(router, "simulated router waits for the cell's HAL (~ts)",
+                                [lists:join(", ", [atom_to_list(G) || G <- lists:sort(Missing)])]),
+            _ = erlang:send_after(Ms, self(), attach),
+            S#{attach_ms := min(Ms * 2, ?ATTACH_MAX)}
+    end.
+
+%% The world as it was saved, its sensors set, and a rule on every output.
+restore(#{lanes := Lanes, groups := Groups} = S0) ->
+    World = case cell_file:read_term(path()) of
+                {ok, #{counters := _} = W} -> settle(maps:merge(empty_world(Lanes), W), Lanes);
+                _ -> empty_world(Lanes)
+            end,
+    Outputs = [{{G, P}, Type} || G <- maps:keys(Groups), {ok, Points} <- [cell_hal:points(G)],
+                                 #{name := P, dir := out, type := Type} <- Points],
+    %% A rule on every output first, then the outputs read: a write the tasks make
+    %% meanwhile is in the read, or in a message, or both; never in neither.
+    ok = cell_hal_sim:clear_rules(?CONN),
+    Self = self(),
+    _ = [ok = cell_hal_sim:on_change(Key, fun(V) -> Self ! {out, Key, V}, [] end)
+         || {Key, _} <- Outputs],
+    %% The outputs as the PLC holds them (after a restart of this process, what the
+    %% tasks commanded), but the clamps and the gripper hold what the world says.
+    Holding = holding(World, Lanes),
+    Outs = maps:merge(maps:from_list([{Key, case cell_hal_sim:get(Key) of
+                                                {ok, V} -> V;
+                                                {error, _} -> zero(Type)
+                                            end} || {Key, Type} <- Outputs]),
+                      Holding),
+    ok = cell_hal_sim:preset(?CONN, maps:merge(Holding, image(World, Outs, Lanes))),
+    S = S0#{world := World, outs := Outs, settings => settings()},
+    Armed = maps:with(?RHYTHM, maps:get(settings, S)),
+    cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
+                    "at the previous machine", [length(panels(World)), queued(World)]),
+    maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
+
+-spec handle_call(world, gen_server:from(), map()) -> {reply, map(), map()}.
+handle_call(world, _From, #{world := W} = S) ->
+    {reply, W, S}.
+
+-spec handle_cast(term(), map()) -> no_return().
+handle_cast(Msg, _S) ->
+    erlang:error({unexpected_cast, Msg}).
+
+-spec handle_info(term(), map()) -> {noreply, map()}.
+handle_info(attach, #{attached := false} = S) ->
+    {noreply, attach(S)};
+handle_info(Msg, S) ->
+    %% The settings as they are now, read once for everything this message causes.
+    {noreply, S1} = info(Msg, rearm(S#{settings => settings()})),
+    {noreply, maps:remove(settings, S1)}.
+
+info({out, Key, V}, #{outs := Outs, groups := Groups} = S) ->
+    {G, P} = Key,
+    S1 = S#{outs := Outs#{Key => V}},
+    {noreply, kick(output(maps:get(G, Groups), P, V, maps:get(Key, Outs, undefined), S1))};
+info({timeout, Ref, {step, Id}}, #{moves := Moves} = S) ->
+    case maps:find(Id, Moves) of
+        {ok, #move{timer = Ref} = M} -> {noreply, kick(run_move(Id, M, S))};
+        _ -> {noreply, S}
+    end;
+info({timeout, _, {later, Fun}}, S) ->
+    {noreply, kick(Fun(S))};
+info({timeout, TRef, {arrive, Lane}}, #{arrival := Pending} = S) ->
+    case maps:get(Lane, Pending, undefined) of
+        TRef -> {noreply, kick(arrivals(arrive(Lane, S)))};
+        _ -> {noreply, S}                       %% cancelled when the rhythm changed
+    end;
+info({timeout, TRef, magazine}, #{magazine := TRef} = S) ->
+    {noreply, magazine(S#{magazine := undefined})};
+info({timeout, _, magazine}, S) ->
+    {noreply, S}.
+
+-spec terminate(term(), map()) -> ok.
+terminate(_Reason, S) ->
+    save(S).
+
+%%====================================================================
+%% Outputs: what the machine does when the PLC commands it
+%%====================================================================
+
+%% Conveyors: a belt or SMEMA output only changes which moves can run (kick/1).
+output(_Where, _Point, Same, Same, S) ->
+    S;
+output({work, L}, clamp, V, _Old, S) ->
+    later(delay(clamp_ms, S), fun(S1) -> set(S1, work, L, clamped, V) end, S);
+output({lower, _}, spindle_run, V, _Old, S) ->
+    Ms = case V of true -> delay(spindle_ramp_ms, S); false -> delay(spindle_ramp_ms, S) div 2 end,
+    later(Ms, fun(S1) -> set(S1, lower, none, spindle_at_speed, V) end, S);
+output({lower, _}, plunge, V, _Old, S) ->
+    later(delay(plunge_ms, S), fun(S1) -> set(S1, lower, none, plunged, V) end, S);
+output({lower, _}, command, Command, _Old, #{outs := Outs} = S) ->
+    X = maps:get({lower_io, target_x}, Outs, 0.0),
+    Y = maps:get({lower_io, target_y}, Outs, 0.0),
+    Path = maps:get({lower_io, path_mm}, Outs, 0.0),
+    Feed = max(maps:get({lower_io, feed}, Outs, 1.0), 0.001),
+    Ms = round(Path / Feed * 1000 * scale(S)),
+    later(Ms, fun(S1) ->
+                      S2 = set(set(S1, lower, none, pos_x, X), lower, none, pos_y, Y),
+                      set(S2, lower, none, done, Command)
+              end, S);
+output({upper, _}, command, Command, _Old, #{outs := Outs} = S) ->
+    To = position(maps:get({upper_io, target}, Outs, 0)),
+    later(delay(upper_move_ms, S), fun(S1) -> arrived(To, Command, S1) end, lift(S));
+output({upper, _}, gripper_close, V, _Old, S) ->
+    later(delay(gripper_ms, S), fun(S1) -> gripper(V, S1) end, S);
+output(_Where, _Point, _V, _Old, S) ->
+    S.
+
+%% The upper robot leaves where it is: modules it holds over a nest leave the nest,
+%% and may slip in the gripper on the way.
+lift(#{world := #{gripper := Serial, upper_at := {nest, L}} = W} = S) when Serial =/= empty ->
+    S1 = case maps:get(L, maps:get(work, W)) of
+             {Serial, full} ->
+                 set(world(S, work, L, {Serial, frame}), work, L, nest_empty, true);
+             _ ->
+                 S
+         end,
+    slip(S1);
+lift(#{world := #{gripper := Serial}} = S) when Serial =/= empty ->
+    slip(S);
+lift(S) ->
+    S.
+
+slip(S) ->
+    case chance(product_lost_rate, S) of
+        {true, S1} ->
+            Ref = make_ref(),
+            S2 = set(S1#{lost := Ref}, upper, none, product_present, false),
+            later(delay(reseat_ms, S2), fun(S3) -> reseated(Ref, S3) end, S2);
+        {false, S1} ->
+            S1
+    end.
+
+%% The operator's hand has seated the slipped modules again.
+reseated(Ref, #{lost := Ref, world := #{gripper := G}} = S) when G =/= empty ->
+    set(S#{lost := undefined}, upper, none, product_present, true);
+reseated(_Ref, S) ->
+    S.
+
+arrived(To, Command, #{world := W} = S) ->
+    set(S#{world := W#{upper_at := To}}, upper, none, done, Command).
+
+gripper(true, #{world := #{gripper := empty, upper_at := {nest, L}} = W} = S) ->
+    %% The part sensor sees the modules before the jaws report closed.
+    S1 = case maps:get(L, maps:get(work, W)) of
+             {Serial, full} ->
+                 save(set(S#{world := W#{gripper := Serial}}, upper, none, product_present, true));
+             _ ->
+                 S
+         end,
+    set(S1, upper, none, gripper_closed, true);
+gripper(true, S) ->
+    set(S, upper, none, gripper_closed, true);
+gripper(false, #{world := #{gripper := empty}} = S) ->
+    set(S, upper, none, gripper_closed, false);
+%% Modules let go of anywhere but on a free unloading segment or back in their nest
+%% fall into the scrap bin.
+gripper(false, #{world := #{gripper := Serial, upper_at := At} = W} = S) ->
+    S1 = set(set(S#{lost := undefined}, upper, none, gripper_closed, false),
+             upper, none, product_present, false),
+    S2 = S1#{world := (maps:get(world, S1))#{gripper := empty}},
+    save(case At of
+             {unloading, L} ->
+                 case maps:get(L, maps:get(unloading, W)) of
+                     empty -> set(world(S2, unloading, L, {Serial, entry}), unloading, L,
+                                  panel_at_entry, true);
+                     _ -> scrap(S2)
+                 end;
+             {nest, L} ->
+                 case maps:get(L, maps:get(work, W)) of
+                     {Serial, full} -> S2;             %% put back in the nest
+                     _ -> scrap(S2)
+                 end;
+             _ ->
+                 scrap(S2)
+         end).
+
+%%====================================================================
+%% Conveyor moves
+%%====================================================================
+
+%% Starts the moves whose conditions hold, and runs or holds the others as their
+%% belts run or stop.
+kick(#{lanes := Lanes} = S) ->
+    gate(lists:foldl(fun(L, Acc) -> start_moves(L, Acc) end, S, Lanes)).
+
+start_moves(L, S) ->
+    lists:foldl(fun(Kind, Acc) ->
+                        case maps:is_key({Kind, L}, maps:get(moves, Acc)) of
+                            true -> Acc;
+                            false -> try_start(Kind, L, Acc)
+                        end
+                end, S, [intake, transfer, eject, unload, handout]).
+
+try_start(intake, L, #{world := W} = S) ->
+    case {slot(W, loading, L), maps:get(L, maps:get(upstream, W)),
+          out(S, loading, L, belt_run) andalso out(S, loading, L, upstream_ready)} of
+        {empty, [Serial | Rest], true} ->
+            S1 = S#{world := W#{upstream := (maps:get(upstream, W))#{L := Rest}}},
+            S2 = refill(L, world(S1, loading, L, {Serial, entering})),
+            S3 = set(set(S2, loading, L, upstream_available, upstream(L, S2)),
+                     loading, L, panel_at_entry, true),
+            conveyor({intake, L}, intake_ms,
+                     [{1.0, fun(X) ->
+                                    X1 = set(set(X, loading, L, panel_at_entry, false),
+                                             loading, L, code, Serial),
+                                    save(set(world(X1, loading, L, {Serial, stop}),
+                                             loading, L, panel_at_stop, true))
+                            end}], S3);
+        _ ->
+            S
+    end;
+try_start(transfer, L, #{world := W} = S) ->
+    case {slot(W, loading, L), slot(W, work, L),
+          out(S, loading, L, belt_run) andalso out(S, work, L, belt_run)} of
+        {{Serial, stop}, empty, true} ->
+            conveyor({transfer, L}, transfer_ms,
+                     [{0.4, fun(X) -> set(X, loading, L, panel_at_stop, false) end},
+                      {1.0, fun(X) ->
+                                    X1 = world(world(X, loading, L, empty), work, L, {Serial, full}),
+                                    save(set(set(X1, work, L, nest_empty, false),
+                                             work, L, panel_in_position, true))
+                            end}], S);
+        _ ->
+            S
+    end;
+try_start(eject, L, #{world := W} = S) ->
+    %% Only a frame leaves: the fixture's end stop holds a whole panel, whatever the
+    %% belt does, and lets the frame pass once the clamps are open.
+    case {slot(W, work, L), out(S, work, L, belt_run) andalso not out(S, work, L, clamp)
+          andalso not input(S, work, L, clamped)} of
+        {{_Serial, frame}, true} ->
+            conveyor({eject, L}, eject_ms,
+                     [{1.0, fun(X) ->
+                                    X1 = set(world(X, work, L, empty), work, L,
+                                             panel_in_position, false),
+                                    save(count(frames, set(X1, work, L, nest_empty, true)))
+                            end}], S);
+        _ ->
+            S
+    end;
+try_start(unload, L, #{world := W} = S) ->
+    case {slot(W, unloading, L), out(S, unloading, L, belt_run)} of
+        {{Serial, entry}, true} ->
+            conveyor({unload, L}, unload_ms,
+                     [{0.2, fun(X) -> set(X, unloading, L, panel_at_entry, false) end},
+                      {1.0, fun(X) ->
+                                    save(set(world(X, unloading, L, {Serial, exit}),
+                                             unloading, L, panel_at_exit, true))
+                            end}], S);
+        _ ->
+            S
+    end;
+%% The next machine takes modules only when told a board is available (SMEMA), and
+%% only while it is ready.
+try_start(handout, L, #{world := W, busy := Busy} = S) ->
+    case {slot(W, unloading, L), out(S, unloading, L, belt_run)
+          andalso out(S, unloading, L, board_available), maps:get(L, Busy, false)} of
+        {{_Serial, exit}, true, false} ->
+            conveyor({handout, L}, handout_ms,
+                     [{1.0, fun(X) ->
+                                    X1 = set(world(X, unloading, L, empty), unloading, L,
+                                             panel_at_exit, false),
+                                    X2 = count(delivered, X1),
+                                    %% The next machine is busy with them for a while.
+                                    X3 = set(X2#{busy := (maps:get(busy, X2))#{L => true}},
+                                             unloading, L, downstream_ready, false),
+                                    save(later(delay(downstream_busy_ms, X3),
+                                               fun(Y) -> ready_again(L, Y) end, X3))
+                            end}], S);
+        _ ->
+            S
+    end.
+
+ready_again(L, #{busy := Busy} = S) ->
+    set(S#{busy := Busy#{L => false}}, unloading, L, downstream_ready, true).
+
+%% A conveyor move: its steps at fractions of its duration, perhaps stuck for a while.
+conveyor(Id, Setting, Fractions, S) ->
+    D = delay(Setting, S),
+    {Jam, S1} = chance(jam_rate, S),
+    Total = case Jam of
+                true -> D + delay(jam_ms, S1);
+                false -> D
+            end,
+    Steps = [{case F of 1.0 -> Total; _ -> round(F * D) end, Fun} || {F, Fun} <- Fractions],
+    S1#{moves := (maps:get(moves, S1))#{Id => #move{steps = Steps}}}.
+
+%% Runs the moves whose belts run, holds those whose belts stopped.
+gate(#{moves := Moves} = S) ->
+    maps:fold(fun(Id, M, Acc) ->
+                      Go = runs(Id, Acc),
+                      case {Go, M#move.t0} of
+                          {true, undefined} -> resume(Id, M, Acc);
+                          {false, T0} when T0 =/= undefined -> hold(Id, M, Acc);
+                          _ -> Acc
+                      end
+              end, S, Moves).
+
+runs({intake, L}, S) -> out(S, loading, L, belt_run);
+runs({transfer, L}, S) -> out(S, loading, L, belt_run) andalso out(S, work, L, belt_run);
+runs({eject, L}, S) -> out(S, work, L, belt_run);
+runs({unload, L}, S) -> out(S, unloading, L, belt_run);
+runs({handout, L}, S) -> out(S, unloading, L, belt_run).
+
+resume(Id, #move{steps = [{At, _} | _], done = Done} = M, #{moves := Moves} = S) ->
+    Ref = erlang:start_timer(max(At - Done, 0), self(), {step, Id}),
+    S#{moves := Moves#{Id => M#move{t0 = now_ms(), timer = Ref}}}.
+
+hold(Id, #move{t0 = T0, timer = Ref, done = Done} = M, #{moves := Moves} = S) ->
+    _ = erlang:cancel_timer(Ref),
+    S#{moves := Moves#{Id := M#move{t0 = undefined, timer = undefined,
+                                    done = Done + now_ms() - T0}}}.
+
+%% A move's timer: the steps that are due happen; the move ends after its last.
+run_move(Id, #move{t0 = T0, done = Done, steps = Steps} = M, #{moves := Moves} = S) ->
+    Elapsed = Done + now_ms() - T0,
+    {Due, Left} = lists:splitwith(fun({At, _}) -> At =< Elapsed end, Steps),
+    S1 = S#{moves := maps:remove(Id, Moves)},
+    S2 = lists:foldl(fun({_, Fun}, Acc) -> Fun(Acc) end, S1, Due),
+    case Left of
+        [] -> S2;
+        _ -> resume(Id, M#move{steps = Left, done = Elapsed}, S2)
+    end.
+
+%%====================================================================
+%% The previous machine
+%%====================================================================
+
+%% Panels arrive at the previous machine's output, lane by lane.
+arrivals(#{lanes := Lanes} = S) ->
+    lists:foldl(fun refill/2, S, Lanes).
+
+refill(L, #{world := W, arrival := Pending} = S) ->
+    Queue = maps:get(L, maps:get(upstream, W)),
+    Capacity = setting(upstream_capacity, S),
+    case {length(Queue) < Capacity, delay(arrival_ms, S), maps:get(L, Pending, undefined)} of
+        {false, _, _} -> S;
+        {true, 0, _} -> refill(L, arrive(L, S));
+        {true, _, TRef} when TRef =/= undefined -> S;      %% one is on its way
+        {true, Mean, undefined} ->
+            {U, R} = rand:uniform_s(maps:get(rand, S)),
+            Jitter = setting(arrival_jitter, S),
+            Ms = round(Mean * (1 - Jitter + 2 * Jitter * U)),
+            S#{rand := R, arrival := Pending#{L => erlang:start_timer(Ms, self(), {arrive, L})}}
+    end.
+
+%% The settings of the rhythm changed (or the settings owner has just started): the
+%% next arrivals and the magazine follow the new ones.
+rearm(#{settings := Settings, armed := Armed} = S) ->
+    case maps:with(?RHYTHM, Settings) of
+        Armed ->
+            S;
+        New ->
+            _ = [erlang:cancel_timer(T) || T <- maps:values(maps:get(arrival, S)),
+                                           T =/= undefined],
+            _ = [erlang:cancel_timer(T) || T <- [maps:get(magazine, S)], T =/= undefined],
+            arrivals(magazine_timer(S#{armed := New, arrival := #{}, magazine := undefined}))
+    end.
+
+arrive(L, #{world := #{next := N} = W} = S) ->
+    Serial = serial(N),
+    Upstream = maps:get(upstream, W),
+    S1 = S#{world := W#{next := N + 1,
+                        upstream := Upstream#{L := maps:get(L, Upstream) ++ [Serial]}},
+            arrival := (maps:get(arrival, S))#{L => undefined}},
+    save(set(count(arrived, S1), loading, L, upstream_available, true)).
+
+upstream(L, #{world := W}) ->
+    maps:get(L, maps:get(upstream, W)) =/= [].
+
+%% The previous machine's magazine runs low now and then, and is refilled.
+magazine_timer(S) ->
+    Mean = setting(magazine_low_s, S) * 1000 * scale(S),
+    case Mean > 0 of
+        true ->
+            {U, R} = rand:uniform_s(maps:get(rand, S)),
+            TRef = erlang:start_timer(round(-Mean * math:log(1 - U)), self(), magazine),
+            S#{rand := R, magazine := TRef};
+        false ->
+            S
+    end.
+
+magazine(#{lanes := Lanes} = S) ->
+    S1 = lists:foldl(fun(L, Acc) -> set(Acc, loading, L, magazine_low, true) end, S, Lanes),
+    later(round(setting(magazine_refill_s, S) * 1000 * scale(S)),
+          fun(S2) ->
+                  magazine_timer(lists:foldl(fun(L, Acc) ->
+                                                     set(Acc, loading, L, magazine_low, false)
+                                             end, S2, Lanes))
+          end, S1).
+
+%%====================================================================
+%% The world
+%%====================================================================
+
+empty_world(Lanes) ->
+    Empty = maps:from_list([{L, empty} || L <- Lanes]),
+    #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
+      unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
+      next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0}}.
+
+%% A world read back: a panel that was entering the loading segment is back at the
+%% previous machine (the belt stopped under it); lanes the machine no longer has are
+%% dropped (their panels taken out by hand).
+settle(#{upstream := Up, loading := Lo} = W, Lanes) ->
+    Lanes1 = [L || L <- Lanes, maps:is_key(L, Lo)],
+    Back = maps:from_list([{L, case maps:get(L, Lo) of
+                                   {S, entering} -> [S | maps:get(L, Up, [])];
+                                   _ -> maps:get(L, Up, [])
+                               end} || L <- Lanes1]),
+    Loading = maps:from_list([{L, case maps:get(L, Lo) of
+                                      {_, entering} -> empty;
+                                      Slot -> Slot
+                                  end} || L <- Lanes1]),
+    Fill = fun(Key) -> maps:merge(maps:from_list([{L, empty} || L <- Lanes]),
+                                  maps:with(Lanes, maps:get(Key, W))) end,
+    W#{upstream := maps:merge(maps:from_list([{L, []} || L <- Lanes]), Back),
+       loading := maps:merge(maps:from_list([{L, empty} || L <- Lanes]), Loading),
+       work := Fill(work), unloading := Fill(unloading)}.
+
+%% The outputs that hold what the world holds: the clamps on a panel in a fixture, the
+%% gripper on modules.
+holding(W, Lanes) ->
+    maps:from_list([{{router_cell:group(work, L), clamp}, slot(W, work, L) =/= empty}
+                    || L <- Lanes]
+                   ++ [{{upper_io, gripper_close}, maps:get(gripper, W) =/= empty}]).
+
+%% Every input of the PLC for a world and the outputs as they are: what the sensors
+%% see, and the actuators at rest where their outputs put them.
+image(W, Outs, Lanes) ->
+    Holding = maps:get(gripper, W) =/= empty,
+    Out = fun(Key) -> maps:get(Key, Outs) end,
+    {X, Y} = maps:get(lower_at, W),
+    maps:from_list(
+      lists:append(
+        [[{{router_cell:group(loading, L), upstream_available}, maps:get(L, maps:get(upstream, W)) =/= []},
+          {{router_cell:group(loading, L), panel_at_entry}, false},
+          {{router_cell:group(loading, L), panel_at_stop}, is_at(slot(W, loading, L), stop)},
+          {{router_cell:group(loading, L), code}, code(slot(W, loading, L))},
+          {{router_cell:group(loading, L), magazine_low}, false},
+          {{router_cell:group(work, L), panel_in_position}, slot(W, work, L) =/= empty},
+          {{router_cell:group(work, L), clamped}, Out({router_cell:group(work, L), clamp})},
+          {{router_cell:group(work, L), nest_empty}, not is_at(slot(W, work, L), full)},
+          {{router_cell:group(unloading, L), panel_at_entry}, is_at(slot(W, unloading, L), entry)},
+          {{router_cell:group(unloading, L), panel_at_exit}, is_at(slot(W, unloading, L), exit)},
+          {{router_cell:group(unloading, L), downstream_ready}, true}]
+         || L <- Lanes])
+      ++ [{{upper_io, gripper_closed}, Out({upper_io, gripper_close})},
+          {{upper_io, product_present}, Holding},
+          {{upper_io, done}, Out({upper_io, command})},
+          {{lower_io, done}, Out({lower_io, command})},
+          {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
+          {{lower_io, plunged}, Out({lower_io, plunge})},
+          {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]).
+
+is_at({_, Where}, Where) -> true;
+is_at(_, _) -> false.
+
+code({Serial, _}) -> Serial;
+code(empty) -> <<>>.
+
+slot(W, Where, L) ->
+    maps:get(L, maps:get(Where, W)).
+
+world(#{world := W} = S, Where, L, Slot) ->
+    S#{world := W#{Where := (maps:get(Where, W))#{L := Slot}}}.
+
+panels(W) ->
+    [P || Where <- [loading, work, unloading], {_, P} <- maps:to_list(maps:get(Where, W)),
+          P =/= empty] ++ [G || G <- [maps:get(gripper, W)], G =/= empty].
+
+queued(W) ->
+    lists:sum([length(Q) || Q <- maps:values(maps:get(upstream, W))]).
+
+count(Key, #{world := #{counters := C} = W} = S) ->
+    S#{world := W#{counters := C#{Key => maps:get(Key, C, 0) + 1}}}.
+
+scrap(S) ->
+    cell_log:info(router, "simulated router: modules dropped into the scrap bin", []),
+    count(scrapped, S).
+
+save(#{world := W} = S) ->
+    case cell_file:write_term(path(), W, #{sync => false}) of
+        ok -> S;
+        {error, Why} ->
+            cell_log:error(router, "the simulated world could not be saved to ~ts: ~tp",
+                           [path(), Why]),
+            S
+    end;
+save(S) ->
+    S.
+
+path() ->
+    filename:join(cell_config:dir(data), ?WORLD_FILE).
+
+serial(N) ->
+    {{Y, M, D}, _} = calendar:local_time(),
+    iolist_to_binary(io_lib:format("P~2..0b~2..0b~2..0b-~6..0b", [Y rem 100, M, D, N])).
+
+position(0) -> home;
+position(1) -> {nest, front};
+position(2) -> {nest, rear};
+position(3) -> {unloading, front};
+position(4) -> {unloading, rear};
+position(_) -> home.
+
+%%====================================================================
+%% The PLC and the settings
+%%====================================================================
+
+%% Sets an input of a segment's (or a robot's) group in the simulated PLC.
+set(S, Kind, L, Point, V) ->
+    Group = case Kind of
+                lower -> lower_io;
+                upper -> upper_io;
+                _ -> router_cell:group(Kind, L)
+            end,
+    case cell_hal_sim:set({Group, Point}, V) of
+        ok -> S;
+        {error, Why} -> erlang:error({cannot_set, Group, Point, V, Why})
+    end.
+
+out(#{outs := Outs}, Kind, L, Point) ->
+    maps:get({router_cell:group(Kind, L), Point}, Outs, false) =:= true.
+
+input(_S, Kind, L, Point) ->
+    cell_hal_sim:get({router_cell:group(Kind, L), Point}) =:= {ok, true}.
+
+later(Ms, Fun, S) ->
+    _ = erlang:start_timer(Ms, self(), {later, Fun}),
+    S.
+
+chance(Setting, #{rand := R} = S) ->
+    {U, R1} = rand:uniform_s(R),
+    {U < setting(Setting, S), S#{rand := R1}}.
+
+delay(Setting, S) ->
+    round(setting(Setting, S) * scale(S)).
+
+scale(S) ->
+    setting(time_scale, S).
+
+setting(Key, #{settings := Settings}) ->
+    maps:get(Key, Settings).
+
+%% The settings as saved now (they apply at once); their defaults until the settings
+%% owner has them (the physics starts before the cell does).
+settings() ->
+    Defaults = cell_settings_schema:defaults(router_sim_settings),
+    try cell_settings:get(router_sim) of
+        Now -> maps:merge(Defaults, Now)
+    catch
+        error:_ -> Defaults;
+        exit:_ -> Defaults
+    end.
+
+zero(bool) -> false;
+zero(lreal) -> 0.0;
+zero(real) -> 0.0;
+zero({string, _}) -> <<>>;
+zero(_) -> 0.
+
+now_ms() ->
+    erlang:monotonic_time(millisecond).

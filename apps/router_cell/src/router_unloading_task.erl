@@ -1,0 +1,127 @@
+%% @doc The unloading conveyor segment (seed 000 §2.3): takes the modules the upper
+%% robot puts down at its entry, conveys them to the exit and hands them to the next
+%% machine over SMEMA. Its transfer out is the product leaving the cell.
+%%
+%% <pre>
+%%  phase      waits for                                       then
+%%  idle       the upper robot's offer (STARVED)               commit (phase 2) → receiving
+%%  receiving  the robot's Available off (it let go, phase 3)  → landing
+%%  landing    the modules at the entry, or the watchdog       complete (phase 4, ItemTransferIn);
+%%                                                             belt on → conveying
+%%  conveying  the modules at the exit, or the watchdog        belt off; board available to the
+%%                                                             next machine → waiting
+%%  waiting    the next machine ready (BLOCKED)                saved as handed out; belt on → leaving
+%%  leaving    the modules gone from the exit, or the watchdog belt off, board available off;
+%%                                                             ItemTransferOut → idle
+%% </pre>
+-module(router_unloading_task).
+-behaviour(cell_task).
+
+-export([init/1, step/1, uninit/1]).
+
+-spec init(cell_task:task()) -> {ok, cell_task:task()}.
+init(T0) ->
+    T = case router_task:reset_chosen(T0) of
+            {forget, T1} -> cell_task:clear_product(T1);
+            {none, T1} -> T1
+        end,
+    T2 = cell_task:out(cell_task:out(T, belt_run, false), board_available, false),
+    case cell_task:product(T2) of
+        undefined -> {ok, phase(T2, idle)};
+        %% Handed to the next machine when it stopped: they may have gone meanwhile.
+        #{handing_out := true} -> {ok, phase(T2, leaving)};
+        _ -> {ok, phase(T2, landing)}
+    end.
+
+-spec uninit(cell_task:task()) -> cell_task:task().
+uninit(T) ->
+    cell_task:out(cell_task:out(T, belt_run, false), board_available, false).
+
+-spec step(cell_task:task()) -> cell_task:step_result().
+step(T) ->
+    step(router_task:phase(T), cell_task:woken_by(T), T).
+
+%% -- empty: modules from the upper robot -------------------------------------------------
+step(idle, _Woken, T) ->
+    Prev = prev(T),
+    case cell_handshake:available(T, Prev) of
+        true ->
+            case cell_handshake:commit(T, Prev) of
+                {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(T1, receiving)};
+                {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1}
+            end;
+        false ->
+            {wait, {handshake, Prev, available, true}, T}
+    end;
+step(receiving, {handshake, _Prev, interrupted}, T) ->
+    router_task:interrupted(T, landing, idle);
+step(receiving, {handshake, _Prev, available, false}, T) ->
+    watch(T, landing, panel_at_entry, true);
+step(receiving, _Woken, T) ->
+    {wait, {handshake, prev(T), available, false}, T};
+step(landing, {timer, _}, T) ->
+    fault(T, "are not at the entry");
+step(landing, _Woken, T) ->
+    case cell_task:in(T, panel_at_entry) orelse cell_task:in(T, panel_at_exit) of
+        true ->
+            T1 = case cell_handshake:phase(T, prev(T)) of
+                     released -> cell_handshake:complete(T, prev(T));
+                     _ -> T                        %% after a restart: it is here already
+                 end,
+            watch(cell_task:out(T1, belt_run, true), conveying, panel_at_exit, true);
+        false ->
+            watch(T, landing, panel_at_entry, true)
+    end;
+step(conveying, {timer, _}, T) ->
+    fault(T, "did not reach the exit");
+step(conveying, _Woken, T) ->
+    case cell_task:in(T, panel_at_exit) of
+        true ->
+            T1 = cell_task:out(cell_task:out(T, belt_run, false), board_available, true),
+            {continue, phase(router_task:blocked(T1), waiting)};
+        false ->
+            watch(cell_task:out(T, belt_run, true), conveying, panel_at_exit, true)
+    end;
+%% -- full: the next machine takes them -----------------------------------------------------
+step(waiting, _Woken, T) ->
+    case cell_task:in(T, downstream_ready) of
+        true ->
+            %% Saved first: once the belt runs, the next machine may take them even
+            %% if this task stops before it sees them go.
+            P = cell_task:product(T),
+            T1 = cell_task:set_product(router_task:unblocked(T), P#{handing_out => true}),
+            watch(cell_task:out(T1, belt_run, true), leaving, panel_at_exit, false);
+        false ->
+            {wait, {io, downstream_ready, {eq, true}}, router_task:blocked(T)}
+    end;
+step(leaving, {timer, _}, T) ->
+    fault(T, "did not leave to the next machine");
+step(leaving, _Woken, T) ->
+    case cell_task:in(T, panel_at_exit) of
+        false ->
+            T1 = cell_task:out(cell_task:out(T, belt_run, false), board_available, false),
+            #{serial := S} = cell_task:product(T1),
+            T2 = cell_task:clear_product(cell_task:transfer_out(T1, S)),
+            cell_task:log(T2, brief, "modules of panel ~ts handed to the next machine", [S]),
+            {continue, phase(T2, idle)};
+        true ->
+            watch(cell_task:out(T, belt_run, true), leaving, panel_at_exit, false)
+    end;
+step(in_transit, _Woken, T) ->
+    {continue, phase(cell_handshake:confirm_here(T), landing)}.
+
+fault(T, What) ->
+    #{serial := S} = cell_task:product(T),
+    {error, cell_task:error_spec(
+              <<"jam">>, "Conveyor jam",
+              io_lib:format("The modules of panel ~ts ~ts in time: the belt is stopped.~n"
+                            "Free them on the unloading conveyor, then select RETRY.", [S, What]),
+              [retry]),
+     cell_task:out(T, belt_run, false)}.
+
+watch(T, Phase, Point, Value) ->
+    router_task:watch(T, Phase, Point, Value, transfer_timeout_ms).
+
+prev(T) -> cell_task:arg(T, prev, undefined).
+
+phase(T, Phase) -> router_task:phase(T, Phase).

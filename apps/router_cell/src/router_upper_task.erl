@@ -1,0 +1,251 @@
+%% @doc The upper manipulator robot (seed 000 §2.3): lifts the routed modules out of
+%% the nest of the fixture they were routed in, carries them to the unloading segment
+%% of their lane and puts them down there. If they are not in the gripper when it
+%% arrives, it is the seed's "Product lost" error (§2.3.8), word for word.
+%%
+%% <pre>
+%%  phase     waits for                                       then
+%%  idle      the routing robot's offer (STARVED)             commit (phase 2) → taking
+%%  taking    the routing robot's Available off (phase 3)     move to the lane's nest → to_nest
+%%  to_nest   there, or the watchdog                          close the gripper → gripping
+%%  gripping  the gripper closed, or the watchdog             modules in the gripper: complete
+%%                                                            (phase 4, ItemTransferIn); move to the
+%%                                                            lane's unloading segment → carrying
+%%  carrying  there, or the watchdog                          modules still in the gripper → full;
+%%                                                            not: "Product lost" → lost
+%%  lost      the operator                                    RETRY: the sensor again; IGNORE: go on,
+%%                                                            the product marked failed; RESET: the
+%%                                                            product forgotten (init) → to_scrap
+%%  full      -                                               offer to the unloading segment
+%%                                                            (phase 1, BLOCKED) → offered
+%%  offered   the unloading segment's NotBusy                 open the gripper → placing
+%%  placing   the gripper open, or the watchdog               release (phase 3) → released
+%%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle
+%%  to_scrap  after a Reset: at home, or the watchdog         open the gripper over the scrap bin
+%%                                                            → emptying
+%%  emptying  the gripper open, or the watchdog               → idle
+%% </pre>
+-module(router_upper_task).
+-behaviour(cell_task).
+
+-export([init/1, step/1, uninit/1]).
+
+-spec init(cell_task:task()) -> {ok, cell_task:task()}.
+init(T0) ->
+    T = cell_task:put(T0, command, cell_task:in(T0, done)),
+    case router_task:reset_chosen(T) of
+        {scrap, T1} ->
+            %% Seed §2.3.8, RESET: "delete product data and continue with empty gripper".
+            #{serial := S} = cell_task:product(T1),
+            cell_task:log(T1, brief, "product ~ts forgotten; its modules go to the scrap bin",
+                          [S]),
+            T2 = cell_task:clear_product(cell_task:work_abort(T1, <<"product lost">>)),
+            {ok, phase(T2, to_scrap)};
+        {_, T1} ->
+            case cell_task:product(T1) of
+                undefined ->
+                    {ok, phase(cell_task:out(T1, gripper_close, false), idle)};
+                _ ->
+                    %% Modules in the gripper: hold them and carry them on.
+                    {ok, phase(cell_task:out(T1, gripper_close, true), to_unloading)}
+            end
+    end.
+
+%% The robot stops where it is; the gripper keeps hold of what it has.
+-spec uninit(cell_task:task()) -> cell_task:task().
+uninit(T) ->
+    T.
+
+-spec step(cell_task:task()) -> cell_task:step_result().
+step(T) ->
+    step(router_task:phase(T), cell_task:woken_by(T), T).
+
+%% -- empty: take the routed modules ------------------------------------------------------
+step(idle, _Woken, T) ->
+    Prev = prev(T),
+    case cell_handshake:available(T, Prev) of
+        true ->
+            case cell_handshake:commit(T, Prev) of
+                {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(T1, taking)};
+                {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1}
+            end;
+        false ->
+            {wait, {handshake, Prev, available, true}, T}
+    end;
+step(taking, {handshake, _Prev, interrupted}, T) ->
+    router_task:interrupted(T, to_nest, idle);
+step(taking, {handshake, _Prev, available, false}, T) ->
+    move(T, nest, to_nest);
+step(taking, _Woken, T) ->
+    {wait, {handshake, prev(T), available, false}, T};
+step(to_nest, {timer, _}, T) ->
+    fault(T, "reach the module nest");
+step(to_nest, {answer, retry}, T) ->
+    move(T, nest, to_nest);
+step(to_nest, _Woken, T) ->
+    wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true);
+step(gripping, {timer, _}, T) ->
+    fault(T, "close the gripper");
+step(gripping, {answer, retry}, T) ->
+    %% The gripper was opened: to the nest again, and grip again.
+    move(T, nest, to_nest);
+step(gripping, _Woken, T) ->
+    case {cell_task:in(T, gripper_closed), cell_task:in(T, product_present)} of
+        {true, true} ->
+            T1 = case cell_handshake:phase(T, prev(T)) of
+                     released -> cell_handshake:complete(T, prev(T));
+                     _ -> T                      %% after a restart: it is ours already
+                 end,
+            move(T1, unloading, carrying);
+        {true, false} ->
+            {error, cell_task:error_spec(
+                      <<"not_gripped">>, "Modules not gripped",
+                      io_lib:format("The gripper closed on the nest but does not hold the "
+                                    "modules of panel ~ts.~nPlease check gripper sensor: ~ts "
+                                    "(~ts). Select RETRY to grip again.",
+                                    [serial(T), address(product_present),
+                                     caption(product_present)]),
+                      [retry]),
+             cell_task:out(T, gripper_close, false)};
+        {false, _} ->
+            wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true)
+    end;
+%% -- after a Reset: what is left in the gripper goes to the scrap bin -------------------
+step(to_scrap, {timer, _}, T) ->
+    fault(T, "reach its home position");
+step(to_scrap, {io, _Group, done, _}, T) ->
+    wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false);
+step(to_scrap, _Woken, T) ->
+    move(T, home, to_scrap);
+step(emptying, {timer, _}, T) ->
+    fault(T, "open the gripper");
+step(emptying, _Woken, T) ->
+    case cell_task:in(T, gripper_closed) of
+        false -> {continue, phase(T, idle)};
+        true -> wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
+    end;
+step(to_unloading, _Woken, T) ->
+    %% After a restart with modules in the gripper.
+    move(T, unloading, carrying);
+step(carrying, {timer, _}, T) ->
+    fault(T, "reach the unloading segment");
+step(carrying, {answer, retry}, T) ->
+    move(T, unloading, carrying);
+step(carrying, _Woken, T) ->
+    present(T);
+%% -- Product lost (seed §2.3.8) ----------------------------------------------------------
+step(lost, {answer, ignore}, T) ->
+    %% IGNORE: the sensor is not believed; the modules go on, marked for inspection.
+    P = cell_task:product(T),
+    T1 = cell_task:set_product(T, P#{failed => true,
+                                     note => <<"lost from the gripper; the operator chose "
+                                               "to go on">>}),
+    {continue, phase(T1, full)};
+step(lost, _Retry, T) ->
+    present(T);
+%% -- full: put the modules down on the unloading segment --------------------------------
+step(full, _Woken, T) ->
+    %% The link of the product's lane, kept: the product is gone once released.
+    Next = lane_link(T),
+    T1 = cell_handshake:offer(cell_task:put(T, next, Next), Next),
+    {wait, {handshake, Next, not_busy, true}, phase(T1, offered)};
+step(offered, {handshake, _Next, not_busy, true}, T) ->
+    wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false);
+step(offered, _Woken, T) ->
+    case cell_handshake:phase(T, next(T)) of
+        offered -> {wait, {handshake, next(T), not_busy, true}, T};
+        _ -> {continue, phase(T, full)}
+    end;
+step(placing, {timer, _}, T) ->
+    fault(T, "open the gripper");
+step(placing, _Woken, T) ->
+    case cell_task:in(T, gripper_closed) of
+        false ->
+            T1 = cell_handshake:release(T, next(T)),
+            {wait, {handshake, next(T), not_busy, false}, phase(T1, released)};
+        true ->
+            wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false)
+    end;
+step(released, {handshake, _Next, interrupted}, T) ->
+    router_task:interrupted(T, full, idle);
+step(released, _Woken, T) ->
+    case cell_handshake:finish(T, next(T)) of
+        {completed, T1} -> {continue, phase(T1, idle)};
+        {aborted, T1} -> {continue, phase(cell_task:out(T1, gripper_close, true), full)};
+        {interrupted, T1} -> router_task:interrupted(T1, full, idle);
+        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
+    end;
+step(in_transit, _Woken, T) ->
+    {continue, phase(cell_handshake:confirm_here(T), to_unloading)}.
+
+%% Over the unloading segment: are the modules still in the gripper?
+present(T) ->
+    case cell_task:in(T, product_present) of
+        true ->
+            {continue, phase(T, full)};
+        false ->
+            router_task:error(
+              phase(T, lost), <<"lost">>, "Product lost",
+              io_lib:format("Product was lost from gripper during move.~n"
+                            "Please check gripper sensor:~n\t~ts (~ts)~n"
+                            "Select RETRY to check sensor again.~n"
+                            "Select IGNORE to ignore sensors state and continue.~n"
+                            "Select RESET to delete product data and continue with empty "
+                            "gripper.", [address(product_present), caption(product_present)]),
+              [retry, ignore, reset], scrap)
+    end.
+
+%% A move to a taught position of the product's lane.
+move(T, Where, Phase) ->
+    Lane = case cell_task:product(T) of
+               #{lane := L} -> L;
+               _ -> front
+           end,
+    Command = cell_task:get(T, command) + 1,
+    T1 = cell_task:out(T, target, router_upper_io:position(Where, Lane)),
+    T2 = cell_task:out(T1, command, Command),
+    {wait, [{io, done, {eq, Command}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
+     phase(cell_task:put(T2, command, Command), Phase)}.
+
+wait_io(T, Phase, Point, Value) ->
+    {wait, [{io, Point, {eq, Value}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
+     phase(T, Phase)}.
+
+fault(T, What) ->
+    {error, cell_task:error_spec(
+              <<"motion">>, "Upper robot fault",
+              io_lib:format("The upper robot did not ~ts in time (product ~ts).~nCheck the "
+                            "robot, then select RETRY to do it again.", [What, serial(T)]),
+              [retry]),
+     T}.
+
+address(Point) -> point_field(Point, address).
+caption(Point) -> point_field(Point, caption).
+
+point_field(Point, Field) ->
+    case cell_hal:describe(upper_io, Point) of
+        {ok, Info} -> maps:get(Field, Info);
+        {error, _} -> atom_to_binary(Point, utf8)
+    end.
+
+serial(T) ->
+    case cell_task:product(T) of
+        #{serial := S} -> S;
+        undefined -> <<"-">>
+    end.
+
+prev(T) -> cell_task:arg(T, prev, route_pick).
+
+%% The link to the unloading segment of the product's lane.
+lane_link(T) ->
+    Links = cell_task:arg(T, nexts, #{}),
+    case cell_task:product(T) of
+        #{lane := L} -> maps:get(L, Links);
+        _ -> maps:get(front, Links)
+    end.
+
+%% The link the product was offered on.
+next(T) ->
+    cell_task:get(T, next).
+
+phase(T, Phase) -> router_task:phase(T, Phase).

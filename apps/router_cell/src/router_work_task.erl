@@ -1,0 +1,177 @@
+%% @doc The work segment (seed 000 §2.3): brings a panel from the loading segment into
+%% the routing fixture, clamps it, and hands it to the lower routing robot. Once the
+%% upper robot has lifted the routed modules out of the nest, it opens the clamps and
+%% runs the panel's frame out into the waste bin, and the fixture is free again.
+%%
+%% <pre>
+%%  phase      waits for                                    then
+%%  idle       the fixture free (no panel in position)     → take
+%%  take       the loading segment's offer (STARVED)        commit (phase 2), belt on → moving_in
+%%  moving_in  the panel off the loading segment            → arriving
+%%             (Available off, phase 3)
+%%  arriving   the panel in position, or the watchdog       belt off; complete (phase 4,
+%%                                                          ItemTransferIn); clamps → clamping
+%%  clamping   the clamps closed, or the watchdog           offer it to the routing robot
+%%                                                          (phase 1, BLOCKED) → offered
+%%  offered    the robot's NotBusy                          release at once: the panel stays
+%%                                                          clamped, the robot takes charge → released
+%%  released   the robot's NotBusy off                      ItemTransferOut → emptying
+%%  emptying   the module nest empty (the upper robot       clamps open → unclamping
+%%             lifted the modules)
+%%  unclamping the clamps open, or the watchdog             belt on → ejecting
+%%  ejecting   the frame out of position, or the watchdog   belt off → idle
+%%  in_transit the operator, after a transfer was cut off   Ignore: here → clamping; Reset → idle
+%% </pre>
+-module(router_work_task).
+-behaviour(cell_task).
+
+-export([init/1, step/1, uninit/1]).
+
+-spec init(cell_task:task()) -> {ok, cell_task:task()}.
+init(T0) ->
+    T = case router_task:reset_chosen(T0) of
+            {forget, T1} -> cell_task:clear_product(T1);
+            {none, T1} -> T1
+        end,
+    T2 = cell_task:out(T, belt_run, false),
+    case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
+        {undefined, true} ->
+            %% A panel the routing robot has, or its frame: the clamps hold it until the
+            %% modules are out.
+            {ok, phase(cell_task:out(T2, clamp, true), emptying)};
+        {undefined, false} ->
+            {ok, phase(T2, idle)};
+        {_, _} ->
+            {ok, phase(T2, arriving)}
+    end.
+
+%% The belt stops; the clamps stay as they are (opening them under a panel the robot
+%% routes would spoil it).
+-spec uninit(cell_task:task()) -> cell_task:task().
+uninit(T) ->
+    cell_task:out(T, belt_run, false).
+
+-spec step(cell_task:task()) -> cell_task:step_result().
+step(T) ->
+    step(router_task:phase(T), cell_task:woken_by(T), T).
+
+%% -- empty: take a panel from the loading segment ------------------------------------
+step(idle, _Woken, T) ->
+    case cell_task:in(T, panel_in_position) of
+        false -> {continue, phase(T, take)};
+        true -> {continue, phase(T, emptying)}
+    end;
+step(take, _Woken, T) ->
+    Prev = prev(T),
+    case cell_handshake:available(T, Prev) of
+        true ->
+            case cell_handshake:commit(T, Prev) of
+                {ok, T1} ->
+                    %% Phase 2: both belts run.
+                    {wait, {handshake, Prev, available, false},
+                     phase(cell_task:out(T1, belt_run, true), moving_in)};
+                {not_available, T1} ->
+                    {wait, {handshake, Prev, available, true}, T1}
+            end;
+        false ->
+            {wait, {handshake, Prev, available, true}, T}
+    end;
+step(moving_in, {handshake, _Prev, interrupted}, T) ->
+    router_task:interrupted(cell_task:out(T, belt_run, false), arriving, idle);
+step(moving_in, {handshake, _Prev, available, false}, T) ->
+    watch(T, arriving, panel_in_position, true, transfer_timeout_ms);
+step(moving_in, _Woken, T) ->
+    {wait, {handshake, prev(T), available, false}, T};
+step(arriving, {timer, _}, T) ->
+    fault(T, "did not arrive in the fixture", "Free the panel between the loading "
+          "conveyor and the fixture");
+step(arriving, _Woken, T) ->
+    case cell_task:in(T, panel_in_position) of
+        true ->
+            T1 = cell_task:out(T, belt_run, false),
+            T2 = case cell_handshake:phase(T1, prev(T1)) of
+                     released -> cell_handshake:complete(T1, prev(T1));
+                     _ -> T1                   %% after a restart: it is here already
+                 end,
+            watch(cell_task:out(T2, clamp, true), clamping, clamped, true, motion_timeout_ms);
+        false ->
+            watch(cell_task:out(T, belt_run, true), arriving, panel_in_position, true,
+                  transfer_timeout_ms)
+    end;
+step(clamping, {timer, _}, T) ->
+    fault(T, "could not be clamped", "Check the clamps and their air supply");
+step(clamping, _Woken, T) ->
+    case cell_task:in(T, clamped) of
+        true ->
+            T1 = cell_handshake:offer(T, next(T)),
+            {wait, {handshake, next(T), not_busy, true}, phase(T1, offered)};
+        false ->
+            watch(cell_task:out(T, clamp, true), clamping, clamped, true, motion_timeout_ms)
+    end;
+%% -- full: the routing robot takes charge of the clamped panel -------------------------
+step(offered, {handshake, Next, not_busy, true}, T) ->
+    %% Nothing moves: the panel is the robot's to route where it lies.
+    T1 = cell_handshake:release(T, Next),
+    {wait, {handshake, Next, not_busy, false}, phase(T1, released)};
+step(offered, _Woken, T) ->
+    case cell_handshake:phase(T, next(T)) of
+        offered -> {wait, {handshake, next(T), not_busy, true}, T};
+        _ -> {continue, phase(T, clamping)}           %% the offer is gone: offer again
+    end;
+step(released, {handshake, _Next, interrupted}, T) ->
+    router_task:interrupted(T, clamping, emptying);
+step(released, _Woken, T) ->
+    case cell_handshake:finish(T, next(T)) of
+        {completed, T1} -> {continue, phase(T1, emptying)};
+        {aborted, T1} -> {continue, phase(T1, clamping)};
+        {interrupted, T1} -> router_task:interrupted(T1, clamping, emptying);
+        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
+    end;
+%% -- the modules are out: the frame goes --------------------------------------------------
+step(emptying, _Woken, T) ->
+    case cell_task:in(T, nest_empty) of
+        true -> watch(cell_task:out(T, clamp, false), unclamping, clamped, false,
+                      motion_timeout_ms);
+        false -> {wait, {io, nest_empty, {eq, true}}, phase(T, emptying)}
+    end;
+step(unclamping, {timer, _}, T) ->
+    fault(T, "could not be unclamped", "Check the clamps and their air supply");
+step(unclamping, _Woken, T) ->
+    case cell_task:in(T, clamped) of
+        false -> watch(cell_task:out(T, belt_run, true), ejecting, panel_in_position, false,
+                       transfer_timeout_ms);
+        true -> watch(cell_task:out(T, clamp, false), unclamping, clamped, false,
+                      motion_timeout_ms)
+    end;
+step(ejecting, {timer, _}, T) ->
+    fault(T, "did not leave the fixture", "Take the panel frame out of the fixture");
+step(ejecting, _Woken, T) ->
+    case cell_task:in(T, panel_in_position) of
+        false -> {continue, phase(cell_task:out(T, belt_run, false), idle)};
+        true -> watch(cell_task:out(T, belt_run, true), ejecting, panel_in_position, false,
+                      transfer_timeout_ms)
+    end;
+%% -- the operator said the panel of an interrupted transfer is here --------------------
+step(in_transit, _Woken, T) ->
+    {continue, phase(cell_handshake:confirm_here(T), arriving)}.
+
+%% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
+fault(T, What, Todo) ->
+    Serial = case cell_task:product(T) of
+                 undefined -> <<"in the fixture">>;
+                 #{serial := S} -> S
+             end,
+    {error, cell_task:error_spec(
+              <<"fixture">>, "Work segment fault",
+              io_lib:format("Panel ~ts ~ts in time: the belt is stopped.~n~ts, then select "
+                            "RETRY.", [Serial, What, Todo]),
+              [retry]),
+     cell_task:out(T, belt_run, false)}.
+
+watch(T, Phase, Point, Value, Watchdog) ->
+    router_task:watch(T, Phase, Point, Value, Watchdog).
+
+prev(T) -> cell_task:arg(T, prev, undefined).
+next(T) -> cell_task:arg(T, next, undefined).
+
+phase(T, Phase) -> router_task:phase(T, Phase).

@@ -1,0 +1,546 @@
+%% The simulated router, run in this node: panels pass the whole line; the operator's
+%% answers to the injected faults do what the seed says; nothing is lost or counted
+%% twice, across a restart too; statistics add up; every serial has its history.
+%%
+%% The physics runs fast (`time_scale') so a case sees dozens of panels in seconds;
+%% every wait is for an event with a deadline.
+-module(router_cell_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([panels_pass_the_line/1, product_lost_answers/1, jams_and_magazine_warning/1,
+         dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
+         physics_waits_for_the_hal/1, node_stop_secures_outputs/1, real_mode_spec/1,
+         diagnostics/1]).
+
+-define(DEADLINE_MS, 60000).
+%% What the cases listen to (subscribing again replaces a subscription: one list).
+-define(EVENTS, [item_transfer_out, item_transfer_in, alarm_raised, alarm_cleared, cell_state]).
+
+all() ->
+    [panels_pass_the_line, product_lost_answers, jams_and_magazine_warning, dual_lane,
+     restart_keeps_every_panel, stop_and_start_while_running, physics_waits_for_the_hal,
+     node_stop_secures_outputs, real_mode_spec, diagnostics].
+
+init_per_testcase(Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    Sim = maps:merge(#{time_scale => 0.02, arrival_ms => 0, product_lost_rate => 0.0,
+                       jam_rate => 0.0, magazine_low_s => 0},
+                     sim_settings(Case)),
+    Machine = #{dual_lane => Case =:= dual_lane},
+    ok = write_settings(Root, #{machine => Machine, router_sim => Sim,
+                                router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
+                                            motion_timeout_ms => 3000}}),
+    ok = start(Root),
+    [{root, Root} | Config].
+
+end_per_testcase(_Case, _Config) ->
+    stop(),
+    ok.
+
+sim_settings(product_lost_answers) ->
+    %% Seated again after 2 s (at the time scale): a Retry at once finds them missing.
+    #{product_lost_rate => 1.0, reseat_ms => 100000};
+sim_settings(jams_and_magazine_warning) ->
+    %% The tasks' watchdogs are not scaled (3 s here), the physics is (0.02): a jam of
+    %% 200 s of machine time is 4 s, enough for the watchdog to see it.
+    #{jam_rate => 0.5, jam_ms => 200000, magazine_low_s => 20, magazine_refill_s => 10};
+sim_settings(node_stop_secures_outputs) ->
+    %% Routing a panel takes a few seconds: the spindle runs when the node stops.
+    #{time_scale => 0.2};
+sim_settings(_) ->
+    #{}.
+
+%% -------------------------------------------------------------------------------------
+
+%% Twenty panels enter, pass every station and leave; the counts agree with the
+%% physics, each serial's history runs from its entry to its exit, and the time of
+%% every task in its states adds up to the time it was watched.
+panels_pass_the_line(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Out = collect_out(20, fun never_answer/1),
+    ok = stop_cell(),
+    Stats = settle(),
+    #{counters := #{delivered := Delivered, scrapped := 0}} = router_sim:world(),
+    #{cell := #{in := In, out := OutN, good := Good, scrapped := 0}, in_cell := InCell} = Stats,
+    ?assertEqual(Delivered, OutN),
+    ?assertEqual(OutN, Good),
+    ?assertEqual(In, OutN + InCell),
+    ?assertEqual(InCell, length(held())),
+    [assert_left(S, good) || S <- Out],
+    %% The cell's states: every stretch of time counted once.
+    assert_time_adds_up(),
+    #{tasks := #{lower := #{completed := Routed, work_ms := #{n := Routed}}}} = Stats,
+    ?assert(Routed >= 20).
+
+%% Every carry loses the modules: the seed's "Product lost" error, answered in turn.
+%% Retry before they are seated again finds them missing (the error again); Retry
+%% after, goes on; Ignore goes on with the product marked failed; Reset forgets it,
+%% and its modules go to the scrap bin. Nothing is lost from the books either way.
+product_lost_answers(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    %% Answers by turn: an immediate Retry (still lost), Ignore, an immediate Retry,
+    %% Reset, and so on; a Retry that comes late finds the modules seated again.
+    Policy = fun(N) -> lists:nth(N rem 4 + 1, [retry, ignore, retry, reset]) end,
+    {Answers0, Out0} = answer_lost(Policy, 8),
+    %% The modules hold from now on; two more products out, so the last Reset's
+    %% modules have gone to the scrap bin (the robot empties its gripper first).
+    ok = cell_settings:put(router_sim, #{product_lost_rate => 0.0}, <<"suite">>),
+    {Answers1, Out1} = answer_lost(fun(_) -> ignore end, infinity, 2),
+    Answers = Answers0 ++ Answers1,
+    Out = Out0 ++ Out1,
+    ok = stop_cell(),
+    Stats = settle(),
+    #{counters := #{delivered := Delivered, scrapped := Scrapped}} = router_sim:world(),
+    #{cell := #{in := In, out := OutN, good := Good, failed := Failed, scrapped := ScrappedN},
+      in_cell := InCell} = Stats,
+    Resets = length([R || {reset, R} <- Answers]),
+    ?assert(Resets >= 1),
+    ?assertEqual({Resets, [R || {reset, R} <- Answers]}, {ScrappedN, scrapped()}),
+    ?assertEqual(Scrapped, ScrappedN),
+    ?assertEqual(Delivered, OutN),
+    ?assertEqual(In, OutN + ScrappedN + InCell),
+    ?assertEqual(OutN, Good + Failed),
+    ?assert(Failed >= 1),
+    %% Each Reset's product: its history says what happened, and it never left.
+    [begin
+         {ok, #{status := scrapped, events := Events}} = cell_stats:product(S),
+         Kinds = [maps:get(event, E) || E <- Events],
+         ?assert(lists:member(item_work_abort, Kinds)),
+         ?assert(lists:member(alarm_raised, Kinds)),
+         ?assert(lists:member(scrapped, Kinds)),
+         ?assertNot(lists:member(S, Out))
+     end || {reset, S} <- Answers],
+    %% Each Ignore's product left marked failed.
+    [assert_left(S, failed) || {ignore, S} <- Answers, lists:member(S, Out)].
+
+%% Conveyor jams stop a belt until the operator answers Retry (after freeing the
+%% panel: here, once the simulation has it free); the magazine warning comes and goes
+%% by itself, set and reset by the loading segment's code.
+jams_and_magazine_warning(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Self = self(),
+    %% A stuck panel moves on when its belt runs again after Retry.
+    Answer = fun(#{id := Id}) -> Self ! {retry, Id}, ok end,
+    {Jams, Warnings} = jam_loop(Answer, 6, {0, #{}}),
+    %% A panel may stick while the cell stops: Retry lets it finish its move.
+    ok = stop_cell(fun(#{id := Id, kind := error}) -> cell_alarms:answer(Id, retry, <<"suite">>);
+                      (_) -> ok
+                   end),
+    ?assert(Jams >= 1),
+    ?assertMatch(#{raised := R, cleared := C} when R >= 1 andalso C >= 1, Warnings),
+    Stats = settle(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = Stats,
+    ?assertEqual(In, OutN + InCell).
+
+%% Two lanes: both loading segments feed, the shared robots serve both, and each
+%% product leaves on the unloading segment of its own lane.
+dual_lane(_Config) ->
+    Tasks = [Id || #{id := Id} <- cell_controller:tasks()],
+    ?assertEqual(lists:sort([loading_front, loading_rear, work_front, work_rear,
+                             unloading_front, unloading_rear, lower, upper]),
+                 lists:sort(Tasks)),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Lanes = lanes_out(#{}, 12),
+    ok = stop_cell(),
+    ?assertMatch(#{front := F, rear := R} when F >= 3 andalso R >= 3, Lanes),
+    #{cell := #{in := In, out := OutN}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell).
+
+%% Stopped with panels in the machine, the node's applications stopped and started
+%% again: the panels are where they were (product files, and the simulated machine's
+%% world), the line goes on, no serial is lost or doubled, and the statistics still
+%% add up (the time the runtime was down counts as OFF).
+restart_keeps_every_panel(Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    First = collect_out(6, fun never_answer/1),
+    ok = stop_cell(),
+    ok = cell_stats:flush(),
+    Held = held(),
+    ?assert(length(Held) >= 1),
+    stop(),
+    ok = start(?config(root, Config)),
+    ?assertEqual(lists:sort(Held), lists:sort(held())),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Second = collect_out(6, fun never_answer/1),
+    ok = stop_cell(),
+    Stats = settle(),
+    Out = First ++ Second,
+    ?assertEqual(length(Out), length(lists:usort(Out))),
+    %% The panels held at the restart left after it.
+    [?assert(lists:member(S, Second)) || S <- Held, not lists:member(S, held())],
+    #{counters := #{delivered := Delivered}} = router_sim:world(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = Stats,
+    ?assertEqual(Delivered, OutN),
+    ?assertEqual(length(Out), OutN),
+    ?assertEqual(In, OutN + InCell),
+    [assert_left(S, good) || S <- Out],
+    assert_time_adds_up().
+
+%% Stop while panels move, Start again at once, a few times: every transfer either
+%% finishes or is taken up again; nothing is lost.
+stop_and_start_while_running(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(2, fun never_answer/1),
+    lists:foreach(fun(_) ->
+                          ok = stop_cell(),
+                          ok = cell_controller:start(<<"suite">>),
+                          _ = collect_out(1, fun never_answer/1)
+                  end, lists:seq(1, 4)),
+    ok = stop_cell(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell),
+    ?assertEqual([], cell_alarms:list()).
+
+%% The cell's monitor takes the HAL down under the physics (the cell stops) and the
+%% physics restarts meanwhile: it waits for the HAL, and once the cell is back it
+%% goes on from the world it saved; the line runs again.
+physics_waits_for_the_hal(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(2, fun never_answer/1),
+    ok = stop_cell(),
+    ok = application:stop(cell),
+    ?assertEqual([], cell_hal:groups()),
+    Old = whereis(router_sim),
+    Ref = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', Ref, process, Old, _} -> ok end,
+    %% Restarted by its supervisor (which answers once it has), it waits: the
+    %% simulated PLC has no points.
+    [{router_sim, New, _, _}] = supervisor:which_children(router_cell_sup),
+    ?assert(is_pid(New) andalso New =/= Old),
+    {ok, _} = application:ensure_all_started(cell),
+    await_hal(),
+    %% What the tasks said as their IO went away with the old cell is history.
+    drain_events(),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(3, fun never_answer/1),
+    ?assertEqual(New, whereis(router_sim)),
+    ok = stop_cell(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell).
+
+%% The node stops while the line runs: every task stops as at a Stop, through its
+%% uninit, while the HAL is still connected, so the spindle, the bit, the belts and
+%% the SMEMA signals are off in the PLC when the monitor disconnects it.
+node_stop_secures_outputs(_Config) ->
+    ok = cell_controller:start(<<"suite">>),
+    {ok, Ref} = cell_hal:watch(lower_io, spindle_at_speed, {eq, true}),
+    receive {cell_hal_watch, Ref, _} -> ok
+    after ?DEADLINE_MS -> ct:fail(spindle_never_on)
+    end,
+    ok = application:stop(cell),
+    %% The physics saw every output the tasks wrote (a rule on each).
+    #{outs := Outs} = sys:get_state(router_sim),
+    Safe = [{loading_front_io, belt_run}, {loading_front_io, upstream_ready},
+            {work_front_io, belt_run}, {lower_io, spindle_run}, {lower_io, plunge},
+            {unloading_front_io, belt_run}, {unloading_front_io, board_available}],
+    ?assertEqual([{K, false} || K <- Safe], [{K, maps:get(K, Outs)} || K <- Safe]).
+
+%% With simulation off the same tasks are bound to the router's PLC over Modbus TCP,
+%% each lane's groups at their own addresses; the groups pass the driver's checks.
+real_mode_spec(_Config) ->
+    Machine = (cell_settings_schema:defaults(cell_machine_settings))#{simulation_mode => false,
+                                                                       dual_lane => true},
+    Router = cell_settings_schema:defaults(router_settings),
+    #{hal := #{connections := [Conn], groups := Groups}, tasks := Tasks} =
+        router_cell:cell_spec(Machine, Router),
+    ?assertMatch(#{driver := cell_hal_modbus, opts := #{host := "192.168.0.10", port := 502}},
+                 Conn),
+    ?assertEqual(8, length(Tasks)),
+    {ok, _} = cell_spec:validate(router_cell:cell_spec(Machine, Router)),
+    %% No PLC answers at this address; the configuration is checked all the same.
+    Real = Conn#{id => router_plc_real, opts => (maps:get(opts, Conn))#{host => "127.0.0.1",
+                                                                        port => 1}},
+    ok = cell_hal:add_connection(Real),
+    try
+        [ok = cell_hal:add_group(G#{id => list_to_atom(atom_to_list(Id) ++ "_real"),
+                                    connection => router_plc_real})
+         || #{id := Id} = G <- Groups],
+        ?assertEqual(length(Groups), length(cell_hal:groups()) - 5)
+    after
+        [cell_hal:remove_group(list_to_atom(atom_to_list(Id) ++ "_real")) || #{id := Id} <- Groups],
+        cell_hal:remove_connection(router_plc_real)
+    end.
+
+%% The shell's one-call answers say what is going on.
+diagnostics(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    [Serial | _] = collect_out(2, fun never_answer/1),
+    ok = cell_stats:flush(),
+    Status = captured(fun cell_diag:status/0),
+    ?assertNotEqual(nomatch, string:find(Status, "HAL router_plc: up")),
+    ?assertNotEqual(nomatch, string:find(Status, "request start")),
+    Tasks = captured(fun cell_diag:tasks/0),
+    [?assertNotEqual(nomatch, string:find(Tasks, atom_to_list(T)))
+     || T <- [loading_front, work_front, lower, upper, unloading_front]],
+    Io = captured(fun() -> cell_diag:io(upper_io) end),
+    ?assertNotEqual(nomatch, string:find(Io, "product_present")),
+    ?assertNotEqual(nomatch, string:find(Io, "A4.01.02")),
+    ?assertEqual({error, unknown_group}, cell_diag:io(no_such_group)),
+    Product = captured(fun() -> cell_diag:product(Serial) end),
+    ?assertNotEqual(nomatch, string:find(Product, "item_transfer_out")),
+    ?assertNotEqual(nomatch, string:find(Product, "entered")),
+    ?assertEqual({error, not_found}, cell_diag:product(<<"no such panel">>)),
+    Stats = captured(fun cell_diag:stats/0),
+    ?assertNotEqual(nomatch, string:find(Stats, "lower")),
+    ok = cell_diag:trace(work_front, 5000),
+    ?assertEqual(verbose, cell_log:level(work_front)),
+    ?assertNotEqual(nomatch, string:find(captured(fun cell_diag:alarms/0), "No active")),
+    ?assertNotEqual(nomatch, string:find(captured(fun cell_diag:top/0), "QUEUE")),
+    ok = stop_cell().
+
+%% -------------------------------------------------------------------------------------
+
+start(Root) ->
+    _ = [application:load(A) || A <- [cell_base, cell_hal, cell, router_cell]],
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:unset_env(cell, cell_spec),
+    ok = application:set_env(cell, cell_module, router_cell),
+    {ok, _} = application:ensure_all_started(router_cell),
+    await_hal().
+
+%% The router's PLC connected and its groups read (in the poll after they were
+%% added): a task reading them at its first Start finds values.
+await_hal() ->
+    await_up(router_plc),
+    {ok, Ref} = cell_hal:watch(upper_io, done, {ge, 0}),
+    receive {cell_hal_watch, Ref, _} -> ok
+    after ?DEADLINE_MS -> ct:fail(groups_not_read)
+    end.
+
+%% As the node stops: the physics, the cell (its monitor takes the HAL down), the
+%% database.
+stop() ->
+    _ = application:stop(router_cell),
+    _ = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok.
+
+write_settings(Root, Objects) ->
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects).
+
+await_up(Conn) ->
+    case cell_hal:subscribe_connection(Conn) of
+        {ok, up} -> ok;
+        {ok, down} ->
+            receive {cell_hal_conn, Conn, up} -> ok
+            after ?DEADLINE_MS -> ct:fail({connection_not_up, Conn})
+            end
+    end.
+
+%% Stop, and wait until every task is OFF; errors raised meanwhile are answered by
+%% `Answer' (none is expected unless one is given).
+stop_cell() ->
+    stop_cell(fun never_answer/1).
+
+stop_cell(Answer) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:stop(<<"suite">>),
+    ok = cell_controller:sync(),
+    case cell_controller:state() of
+        off -> ok;
+        _ -> await_event(fun(#{type := cell_state, state := off}) -> true;
+                            (#{type := alarm_raised, alarm := A}) -> ok = Answer(A), false;
+                            (_) -> false
+                         end)
+    end.
+
+await_event(Match) ->
+    Deadline = erlang:monotonic_time(millisecond) + ?DEADLINE_MS,
+    await_event(Match, Deadline).
+
+await_event(Match, Deadline) ->
+    receive
+        {cell_event, E} ->
+            case Match(E) of
+                true -> ok;
+                false -> await_event(Match, Deadline)
+            end
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({no_event, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% Products the unloading segments hand out, until N have left; errors are answered
+%% by `Answer'.
+collect_out(N, Answer) ->
+    collect_out(N, Answer, [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS).
+
+collect_out(0, _Answer, Acc, _Deadline) ->
+    lists:reverse(Acc);
+collect_out(N, Answer, Acc, Deadline) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := T, item := S}} ->
+            case is_unloading(T) of
+                true -> collect_out(N - 1, Answer, [S | Acc], Deadline);
+                false -> collect_out(N, Answer, Acc, Deadline)
+            end;
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = Answer(A),
+            collect_out(N, Answer, Acc, Deadline);
+        {cell_event, _} ->
+            collect_out(N, Answer, Acc, Deadline)
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+drain_events() ->
+    receive {cell_event, _} -> drain_events()
+    after 0 -> ok
+    end.
+
+never_answer(#{kind := error} = A) -> ct:fail({unexpected_error, A});
+never_answer(_) -> ok.
+
+is_unloading(T) -> lists:member(T, [unloading_front, unloading_rear]).
+
+%% Answers "Product lost" by the policy until N have been answered (or, the other
+%% way, until M products have left); returns the answers with the serial each was
+%% about, and what left.
+answer_lost(Policy, N) ->
+    answer_lost(Policy, N, infinity).
+
+answer_lost(Policy, N, M) ->
+    answer_lost(Policy, {N, M}, 0, [], [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS * 2).
+
+answer_lost(_Policy, {N, _}, N, Answers, Out, _Deadline) ->
+    {lists:reverse(Answers), lists:reverse(Out)};
+answer_lost(_Policy, {_, M}, _Done, Answers, Out, _Deadline) when length(Out) =:= M ->
+    {lists:reverse(Answers), lists:reverse(Out)};
+answer_lost(Policy, N, Done, Answers, Out, Deadline) ->
+    receive
+        {cell_event, #{type := alarm_raised,
+                       alarm := #{id := <<"upper:lost">> = Id, kind := error}}} ->
+            Serial = upper_serial(),
+            Solution = Policy(Done),
+            ok = cell_alarms:answer(Id, Solution, <<"suite">>),
+            answer_lost(Policy, N, Done + 1, [{Solution, Serial} | Answers], Out, Deadline);
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error} = A}} ->
+            ct:fail({unexpected_error, A});
+        {cell_event, #{type := item_transfer_out, task := T, item := S}} ->
+            case is_unloading(T) of
+                true -> answer_lost(Policy, N, Done, Answers, [S | Out], Deadline);
+                false -> answer_lost(Policy, N, Done, Answers, Out, Deadline)
+            end;
+        {cell_event, _} ->
+            answer_lost(Policy, N, Done, Answers, Out, Deadline)
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({only_answered, Done, cell_controller:tasks(), cell_alarms:list(),
+                 [cell_task_proc:info(T) || T <- [upper, lower]]})
+    end.
+
+upper_serial() ->
+    {ok, #{serial := S}} = cell_registry:task(upper),
+    S.
+
+%% Retries every jam once its panel is free; counts jams and the warning's comings
+%% and goings until N products left.
+jam_loop(_Answer, 0, {Jams, Warnings}) ->
+    {Jams, Warnings};
+jam_loop(Answer, N, {Jams, W} = Acc) ->
+    receive
+        {retry, Id} ->
+            ok = cell_alarms:answer(Id, retry, <<"suite">>),
+            jam_loop(Answer, N, Acc);
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error, caption := C} = A}} ->
+            lists:member(C, [<<"Conveyor jam">>, <<"Work segment fault">>])
+                orelse ct:fail({unexpected_error, A}),
+            ok = Answer(A),
+            jam_loop(Answer, N, {Jams + 1, W});
+        {cell_event, #{type := alarm_raised, alarm := #{kind := warning,
+                                                        caption := <<"Panel magazine low">>}}} ->
+            jam_loop(Answer, N, {Jams, maps:update_with(raised, fun(X) -> X + 1 end, 1, W)});
+        {cell_event, #{type := alarm_cleared, alarm := #{kind := warning, cleared := cleared}}} ->
+            jam_loop(Answer, N, {Jams, maps:update_with(cleared, fun(X) -> X + 1 end, 1, W)});
+        {cell_event, #{type := item_transfer_out, task := T}} ->
+            case is_unloading(T) of
+                true -> jam_loop(Answer, N - 1, Acc);
+                false -> jam_loop(Answer, N, Acc)
+            end;
+        {cell_event, _} ->
+            jam_loop(Answer, N, Acc)
+    after ?DEADLINE_MS ->
+        ct:fail({stuck, Acc, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+lanes_out(Lanes, 0) ->
+    Lanes;
+lanes_out(Lanes, N) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := T, item := S}} ->
+            case T of
+                unloading_front -> check_lane(S, front), lanes_out(inc(front, Lanes), N - 1);
+                unloading_rear -> check_lane(S, rear), lanes_out(inc(rear, Lanes), N - 1);
+                _ -> lanes_out(Lanes, N)
+            end;
+        {cell_event, _} ->
+            lanes_out(Lanes, N)
+    after ?DEADLINE_MS ->
+        ct:fail({only, Lanes, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% A product leaves on its own lane: it entered on the loading segment of that lane.
+check_lane(Serial, Lane) ->
+    {ok, #{entry_task := Entry}} = cell_stats:product(Serial),
+    ?assertEqual(Entry, case Lane of front -> loading_front; rear -> loading_rear end).
+
+inc(K, M) -> maps:update_with(K, fun(X) -> X + 1 end, 1, M).
+
+%% The statistics once every product the tasks dropped has been found scrapped (two
+%% writes without a holder) and written.
+settle() ->
+    ok = cell_stats:flush(),
+    ok = cell_stats:flush(),
+    ok = cell_stats:flush(),
+    cell_stats:summary(total).
+
+scrapped() ->
+    lists:sort(mnesia:dirty_select(cell_trace_product,
+                                   [{{cell_trace_product, '$1', #{status => scrapped}}, [], ['$1']}])).
+
+held() ->
+    [S || #{serial := S} <- cell_controller:tasks(), is_binary(S)].
+
+assert_left(Serial, Quality) ->
+    {ok, #{status := out, events := Events} = Info} = cell_stats:product(Serial),
+    ?assertEqual(Quality =:= failed, maps:get(failed, Info)),
+    Kinds = [maps:get(event, E) || E <- Events],
+    ?assertEqual(entered, hd(Kinds)),
+    ?assertEqual(left, lists:last(Kinds)),
+    %% It passed every station.
+    Tasks = lists:usort([T || #{event := item_transfer_in, task := T} <- Events]),
+    ?assertEqual(5, length(Tasks)).
+
+%% For every task, the time in each state adds up to the time since it was first seen
+%% to the last write, to the microsecond.
+assert_time_adds_up() ->
+    ok = cell_stats:flush(),
+    Counters = cell_stats:counters(total),
+    [{_, _, Flushed}] = mnesia:dirty_read(cell_stats_counter, {meta, flushed}),
+    [begin
+         [{_, _, First}] = mnesia:dirty_read(cell_stats_counter, {meta, {first, T}}),
+         Times = [V || {{time, _}, V} <- maps:to_list(maps:get(T, Counters))],
+         ?assertEqual({T, Flushed - First}, {T, lists:sum(Times)})
+     end || #{id := T} <- cell_controller:tasks()].
+
+captured(Fun) ->
+    ct:capture_start(),
+    _ = Fun(),
+    ct:capture_stop(),
+    lists:flatten(ct:capture_get()).

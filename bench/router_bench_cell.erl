@@ -1,0 +1,81 @@
+%% What the router benchmark and the soak run share: the default cell started in this
+%% node on a fresh root folder with given settings, stopped again, and the products
+%% the unloading segments hand out, waited for as events.
+-module(router_bench_cell).
+
+-export([start/1, stop/0, await_out/2, settings/1]).
+
+-define(APPS, [router_cell, cell_shdr, cell_web]).
+
+%% @doc Starts the router cell (and, with `with_panel', the SHDR adapter and the web
+%% panel on ports of their own) on the root folder `CELLRT_ROOT' names, emptied first,
+%% with these settings objects written to `Settings/'; returns when its PLC's points
+%% have been read.
+-spec start(#{settings := #{atom() => map()}, with_panel => boolean()}) -> ok.
+start(#{settings := Objects} = Opts) ->
+    quiet(),
+    Root = os:getenv("CELLRT_ROOT"),
+    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects),
+    _ = [application:load(A) || A <- [cell_base, cell, cell_web, cell_shdr, router_cell]],
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:set_env(cell, cell_module, router_cell),
+    ok = application:set_env(cell_web, port, 0),
+    ok = application:set_env(cell_shdr, port, 0),
+    Apps = case maps:get(with_panel, Opts, false) of
+               true -> ?APPS;
+               false -> [router_cell]
+           end,
+    _ = [{ok, _} = application:ensure_all_started(A) || A <- Apps],
+    case cell_hal:subscribe_connection(router_plc) of
+        {ok, up} -> ok;
+        {ok, down} -> receive {cell_hal_conn, router_plc, up} -> ok end
+    end,
+    %% The groups are read in the poll after they were added: the tasks find values
+    %% at their first Start.
+    {ok, Ref} = cell_hal:watch(upper_io, done, {ge, 0}),
+    receive {cell_hal_watch, Ref, _} -> ok end.
+
+%% @doc Stops the cell, its physics and the database, as the node would.
+-spec stop() -> ok.
+stop() ->
+    _ = [application:stop(A) || A <- lists:reverse(?APPS) ++ [cell, mnesia]],
+    ok.
+
+%% @doc Waits until `N' products have left the cell (the caller subscribed to
+%% `item_transfer_out'); returns the time each left, in µs of the monotonic clock.
+-spec await_out(non_neg_integer(), timeout()) -> [integer()].
+await_out(N, Timeout) ->
+    await_out(N, Timeout, []).
+
+await_out(0, _Timeout, Acc) ->
+    lists:reverse(Acc);
+await_out(N, Timeout, Acc) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := T}}
+          when T =:= unloading_front; T =:= unloading_rear ->
+            await_out(N - 1, Timeout, [erlang:monotonic_time(microsecond) | Acc]);
+        {cell_event, _} ->
+            await_out(N, Timeout, Acc)
+    after Timeout ->
+        erlang:error({products_stopped, N, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% @doc The settings of a machine that passes panels as fast as it can: a panel always
+%% waiting upstream, no faults, physical delays at `Scale' of the real machine's.
+-spec settings(#{scale := float(), dual_lane := boolean()}) -> #{atom() => map()}.
+settings(#{scale := Scale, dual_lane := Dual}) ->
+    #{machine => #{dual_lane => Dual},
+      router_sim => #{time_scale => Scale, arrival_ms => 0, product_lost_rate => 0.0,
+                      jam_rate => 0.0, magazine_low_s => 0}}.
+
+%% Figures and tables, not the cell's log.
+quiet() ->
+    _ = application:load(lager),
+    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
+    ok = application:set_env(lager, error_logger_redirect, false).

@@ -1,0 +1,222 @@
+%% The system test of the default cell in the built release: the simulated router runs,
+%% the operator starts it and answers its injected errors through the REST API (Retry,
+%% Ignore and Reset in turn), stops it; the node is stopped and started again and the
+%% line goes on. Through it all no product is lost or counted twice (in = out +
+%% scrapped + in the cell, and the simulated machine agrees), the statistics of every
+%% task add up to the wall-clock time, and every serial has its history.
+%%
+%% The suite talks to the release as an operator would (HTTP), and waits on the cell's
+%% own events through a small probe it loads into the node over distribution.
+-module(router_release_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_suite/1, end_per_suite/1]).
+-export([run_answer_stop_restart/1]).
+
+-define(COOKIE, cellrt_ct_router).
+-define(WAIT_MS, 120000).
+
+all() ->
+    [run_answer_stop_restart].
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(inets),
+    Bin = filename:join([top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]),
+    filelib:is_regular(Bin) orelse ct:fail("no release: build it with `rebar3 release`"),
+    Started = case node() of
+                  nonode@nohost ->
+                      Name = list_to_atom("router_suite_" ++ os:getpid() ++ "@localhost"),
+                      {ok, _} = net_kernel:start([Name, shortnames]),
+                      true;
+                  _ ->
+                      false
+              end,
+    [{bin, Bin}, {started_dist, Started} | Config].
+
+end_per_suite(Config) ->
+    case ?config(started_dist, Config) of
+        true -> _ = net_kernel:stop(), ok;
+        false -> ok
+    end.
+
+run_answer_stop_restart(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root"),
+    NodeName = "cellrt_ct_router_" ++ os:getpid(),
+    Node = list_to_atom(NodeName ++ "@localhost"),
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
+           {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
+           {"CELLRT_SHDR_PORT", "0"}],
+    %% A fast machine that makes mistakes: every third carry slips, a conveyor move
+    %% in twenty sticks (for longer than the tasks' watchdog), the magazine runs low.
+    ok = write_settings(Root, #{router_sim => #{time_scale => 0.05, arrival_ms => 0,
+                                                product_lost_rate => 0.3, reseat_ms => 2000,
+                                                jam_rate => 0.05, jam_ms => 80000,
+                                                magazine_low_s => 60, magazine_refill_s => 20},
+                                router => #{hal_poll_ms => 10, transfer_timeout_ms => 3000,
+                                            motion_timeout_ms => 5000}}),
+    Bin = ?config(bin, Config),
+    true = erlang:set_cookie(Node, ?COOKIE),
+    try
+        %% First run: 25 products out, every error answered through the API.
+        Op = boot(Bin, Env, Node),
+        {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
+        Answers1 = run(Op, Node, 25, #{}),
+        {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
+        ok = erpc:call(Node, router_release_probe, await_state, [off, ?WAIT_MS]),
+        Before = erpc:call(Node, router_release_probe, snapshot, []),
+        check_books(Before),
+        {0, _} = cellrt(Bin, ["stop"], Env),
+        ok = await_down(Node),
+
+        %% Second run, after a restart: the same products are in the cell, the books
+        %% are as they were, and the line goes on.
+        Op2 = boot(Bin, Env, Node),
+        After = erpc:call(Node, router_release_probe, snapshot, []),
+        ?assertEqual(maps:get(held, Before), maps:get(held, After)),
+        #{total := #{cell := TotalBefore}} = Before,
+        #{total := #{cell := TotalAfter}} = After,
+        ?assertEqual(maps:with([in, out, scrapped], TotalBefore),
+                     maps:with([in, out, scrapped], TotalAfter)),
+        {200, InCell, _} = cell_web_client:req(Op2, get, "/api/products"),
+        ?assertEqual(maps:get(held, Before), lists:sort([S || #{<<"serial">> := S} <- InCell])),
+        {200, _, _} = cell_web_client:req(Op2, post, "/api/cell/start"),
+        #{world := #{counters := #{delivered := D0}}} = After,
+        Answers2 = run(Op2, Node, D0 + 10, Answers1),
+        {200, _, _} = cell_web_client:req(Op2, post, "/api/cell/stop"),
+        ok = erpc:call(Node, router_release_probe, await_state, [off, ?WAIT_MS]),
+        End = erpc:call(Node, router_release_probe, snapshot, []),
+        check_books(End),
+
+        %% Each answer was given at least once.
+        [?assert(maps:get(S, Answers2, 0) >= 1, S) || S <- [retry, ignore, reset]],
+
+        %% Statistics: for every task the states add up to the wall-clock time (the
+        %% time the node was down counted as OFF), and the API says the same.
+        [?assertEqual({T, Span}, {T, Sum}) || {T, Sum, Span} <- erpc:call(Node, router_release_probe,
+                                                                            time_check, [])],
+        {200, #{<<"production">> := #{<<"cell">> := ApiCell, <<"tasks">> := ApiTasks}}, _} =
+            cell_web_client:req(Op2, get, "/api/statistics?period=total"),
+        #{total := #{cell := #{in := In, out := Out, scrapped := Scrapped}}} = End,
+        ?assertMatch(#{<<"in">> := In, <<"out">> := Out, <<"scrapped">> := Scrapped}, ApiCell),
+        ?assertEqual(5, maps:size(ApiTasks)),
+
+        %% Traceability: every serial that entered has its history, and each left at
+        %% most once.
+        Serials = erpc:call(Node, mnesia, dirty_all_keys, [cell_trace_product]),
+        ?assertEqual(In, length(Serials)),
+        [check_history(Op2, S) || S <- Serials]
+    after
+        cellrt(Bin, ["stop"], Env)
+    end.
+
+%% The books balance, and agree with the simulated machine.
+check_books(#{world := #{counters := #{delivered := Delivered, scrapped := PhysScrapped}},
+              total := #{cell := #{in := In, out := Out, good := Good, failed := Failed,
+                                   scrapped := Scrapped}, in_cell := InCell},
+              held := Held}) ->
+    ?assertEqual(In, Out + Scrapped + InCell),
+    ?assertEqual(InCell, length(Held)),
+    ?assertEqual(Delivered, Out),
+    ?assertEqual(PhysScrapped, Scrapped),
+    ?assertEqual(Out, Good + Failed).
+
+check_history(Op, Serial) ->
+    {200, #{<<"status">> := Status, <<"events">> := Events}, _} =
+        cell_web_client:req(Op, get, "/api/products/" ++ binary_to_list(Serial) ++ "/history"),
+    Kinds = [K || #{<<"event">> := K} <- Events],
+    ?assertEqual(<<"entered">>, hd(Kinds)),
+    Left = length([K || K <- Kinds, K =:= <<"left">>]),
+    case Status of
+        <<"out">> -> ?assertEqual(1, Left);
+        <<"scrapped">> -> ?assertEqual(0, Left),
+                          ?assert(lists:member(<<"scrapped">>, Kinds));
+        <<"in_cell">> -> ?assertEqual(0, Left)
+    end.
+
+%% Runs the line until `Target' products were delivered, answering every error
+%% through the API: Retry, Ignore, Reset in turn where offered, else the first offered.
+run(Op, Node, Target, Answers) ->
+    case erpc:call(Node, router_release_probe, await, [Target, ?WAIT_MS], ?WAIT_MS + 5000) of
+        {out, _} ->
+            Answers;
+        timeout ->
+            ct:fail({stuck, erpc:call(Node, cell_controller, tasks, [])});
+        {error, #{id := Id, solutions := Solutions}} ->
+            Turn = [retry, ignore, reset],
+            N = lists:sum(maps:values(Answers)),
+            Preferred = lists:nth(N rem 3 + 1, Turn),
+            Solution = case lists:member(Preferred, Solutions) of
+                           true -> Preferred;
+                           false -> hd(Solutions)
+                       end,
+            Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(Id)) ++ "/answer",
+            {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => Solution}),
+            run(Op, Node, Target, maps:update_with(Solution, fun(X) -> X + 1 end, 1, Answers))
+    end.
+
+%% Starts the release, loads the probe into it, logs in as the operator.
+boot(Bin, Env, Node) ->
+    {0, _} = cellrt(Bin, ["daemon"], Env),
+    ok = await_pong(Node, 200),
+    {Mod, Beam, File} = code:get_object_code(router_release_probe),
+    {module, Mod} = erpc:call(Node, code, load_binary, [Mod, File, Beam]),
+    %% Returns once the boot has started the panel (the application controller
+    %% answers after the start under way).
+    {ok, _} = erpc:call(Node, application, ensure_all_started, [cell_web], ?WAIT_MS),
+    Port = erpc:call(Node, cell_web, port, []),
+    {ok, Op} = cell_web_client:login(cell_web_client:new(Port), "operator", "operator"),
+    Op.
+
+%% A ping waits for its answer: each try is a round trip, not a sleep.
+await_pong(_Node, 0) ->
+    {error, not_up};
+await_pong(Node, N) ->
+    case net_adm:ping(Node) of
+        pong -> ok;
+        pang -> await_pong(Node, N - 1)
+    end.
+
+await_down(Node) ->
+    case net_adm:ping(Node) of
+        pang ->
+            ok;
+        pong ->
+            true = monitor_node(Node, true),
+            receive {nodedown, Node} -> ok
+            after ?WAIT_MS -> {error, still_up}
+            end
+    end.
+
+write_settings(Root, Objects) ->
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects).
+
+cellrt(Bin, Args, Env) ->
+    Port = open_port({spawn_executable, Bin},
+                     [{args, Args}, {env, Env}, exit_status, stderr_to_stdout, binary]),
+    collect(Port, [], erlang:monotonic_time(millisecond) + 60000).
+
+collect(Port, Acc, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after Left ->
+        catch port_close(Port),
+        ct:fail("bin/cellrt timed out; output so far: ~s", [Acc])
+    end.
+
+top() ->
+    case os:getenv("CELLRT_TOP") of
+        false ->
+            case string:split(?FILE, "/_build/") of
+                [Top, _] -> Top;
+                [_] -> filename:dirname(filename:dirname(?FILE))
+            end;
+        Top -> Top
+    end.

@@ -1,0 +1,68 @@
+%% Loaded by router_release_SUITE into the running release, to wait there for what the
+%% cell does: waiting is done on the cell's events, never by asking again and again.
+-module(router_release_probe).
+
+-export([await/2, await_state/2, snapshot/0, time_check/0]).
+
+%% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
+%% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
+-spec await(non_neg_integer(), pos_integer()) ->
+          {error, map()} | {out, non_neg_integer()} | timeout.
+await(Target, Timeout) ->
+    ok = cell_events:subscribe([alarm_raised, item_transfer_out]),
+    loop(Target, erlang:monotonic_time(millisecond) + Timeout).
+
+loop(Target, Deadline) ->
+    case [A || #{kind := error} = A <- cell_alarms:list()] of
+        [A | _] ->
+            {error, maps:with([id, caption, solutions, task], A)};
+        [] ->
+            #{counters := #{delivered := N}} = router_sim:world(),
+            case N >= Target of
+                true ->
+                    {out, N};
+                false ->
+                    receive
+                        {cell_event, _} -> loop(Target, Deadline)
+                    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+                        timeout
+                    end
+            end
+    end.
+
+%% Returns when the cell's state is `State' (or `timeout').
+-spec await_state(cell_ipc:state(), pos_integer()) -> ok | timeout.
+await_state(State, Timeout) ->
+    ok = cell_events:subscribe([cell_state]),
+    case cell_controller:state() of
+        State ->
+            ok;
+        _ ->
+            receive
+                {cell_event, #{type := cell_state, state := State}} -> ok
+            after Timeout ->
+                timeout
+            end
+    end.
+
+%% What the machine and the books say now.
+-spec snapshot() -> map().
+snapshot() ->
+    ok = cell_stats:flush(),
+    ok = cell_stats:flush(),
+    ok = cell_stats:flush(),
+    #{world => router_sim:world(), total => cell_stats:summary(total),
+      held => lists:sort([S || #{serial := S} <- cell_controller:tasks(), is_binary(S)])}.
+
+%% For every task: the time in its states and the time since it was first seen to the
+%% last write, in microseconds.
+-spec time_check() -> [{atom(), integer(), integer()}].
+time_check() ->
+    ok = cell_stats:flush(),
+    Counters = cell_stats:counters(total),
+    [{_, _, Flushed}] = mnesia:dirty_read(cell_stats_counter, {meta, flushed}),
+    [begin
+         [{_, _, First}] = mnesia:dirty_read(cell_stats_counter, {meta, {first, T}}),
+         {T, lists:sum([V || {{time, _}, V} <- maps:to_list(maps:get(T, Counters))]),
+          Flushed - First}
+     end || #{id := T} <- cell_controller:tasks()].
