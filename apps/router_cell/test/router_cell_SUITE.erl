@@ -36,6 +36,7 @@ init_per_testcase(Case, Config) ->
     [{root, Root} | Config].
 
 end_per_testcase(_Case, _Config) ->
+    _ = application:unset_env(cell, shutdown_wait_ms),
     stop(),
     ok.
 
@@ -234,6 +235,8 @@ physics_waits_for_the_hal(_Config) ->
 %% uninit, while the HAL is still connected, so the spindle, the bit, the belts and
 %% the SMEMA signals are off in the PLC when the monitor disconnects it.
 node_stop_secures_outputs(_Config) ->
+    %% As the release has it.
+    ok = application:set_env(cell, shutdown_wait_ms, 10000),
     ok = cell_controller:start(<<"suite">>),
     {ok, Ref} = cell_hal:watch(lower_io, spindle_at_speed, {eq, true}),
     receive {cell_hal_watch, Ref, _} -> ok
