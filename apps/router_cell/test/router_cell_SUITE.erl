@@ -29,7 +29,7 @@ init_per_testcase(Case, Config) ->
                        jam_rate => 0.0, magazine_low_s => 0},
                      sim_settings(Case)),
     Machine = #{dual_lane => Case =:= dual_lane},
-    ok = write_settings(Root, #{machine => Machine, router_sim => Sim,
+    ok = router_test_settings:write(Root, #{machine => Machine, router_sim => Sim,
                                 router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
                                             motion_timeout_ms => 3000}}),
     ok = start(Root),
@@ -328,14 +328,6 @@ stop() ->
     _ = application:stop(mnesia),
     ok.
 
-write_settings(Root, Objects) ->
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects).
-
 await_up(Conn) ->
     case cell_hal:subscribe_connection(Conn) of
         {ok, up} -> ok;
@@ -530,14 +522,7 @@ assert_left(Serial, Quality) ->
 %% For every task, the time in each state adds up to the time since it was first seen
 %% to the last write, to the microsecond.
 assert_time_adds_up() ->
-    ok = cell_stats:flush(),
-    Counters = cell_stats:counters(total),
-    [{_, _, Flushed}] = mnesia:dirty_read(cell_stats_counter, {meta, flushed}),
-    [begin
-         [{_, _, First}] = mnesia:dirty_read(cell_stats_counter, {meta, {first, T}}),
-         Times = [V || {{time, _}, V} <- maps:to_list(maps:get(T, Counters))],
-         ?assertEqual({T, Flushed - First}, {T, lists:sum(Times)})
-     end || #{id := T} <- cell_controller:tasks()].
+    [?assertEqual({T, Span}, {T, Sum}) || {T, Sum, Span} <- router_release_probe:time_check()].
 
 captured(Fun) ->
     ct:capture_start(),
