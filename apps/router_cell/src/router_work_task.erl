@@ -134,14 +134,15 @@ step(in_transit, _Woken, T) ->
 
 %% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
 fault(T, What, Todo) ->
-    Serial = case cell_task:product(T) of
-                 undefined -> <<"in the fixture">>;
-                 #{serial := S} -> S
-             end,
+    %% Once the robot has the panel, what is left in the fixture is its frame.
+    Which = case cell_task:product(T) of
+                undefined -> <<"The panel frame">>;
+                #{serial := S} -> [<<"Panel ">>, S]
+            end,
     {error, cell_task:error_spec(
               <<"fixture">>, "Work segment fault",
-              io_lib:format("Panel ~ts ~ts in time: the belt is stopped.~n~ts, then select "
-                            "RETRY.", [Serial, What, Todo]),
+              io_lib:format("~ts ~ts in time: the belt is stopped.~n~ts, then select RETRY.",
+                            [Which, What, Todo]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
 
