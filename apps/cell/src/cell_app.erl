@@ -24,19 +24,18 @@ start(_Type, _Args) ->
     end.
 
 %% @doc Before the controller's tree goes down, the cell stops as at an operator's Stop:
-%% every task ends in OFF through its uninit (outputs secured, product saved) while the
-%% HAL is still connected. The supervisor stops its children in reverse order, so the
-%% monitor, which disconnects the HAL, would otherwise go before the tasks.
+%% every running task ends in OFF through its uninit (outputs secured, product saved)
+%% while the HAL is still connected. The supervisor stops its children in reverse
+%% order, so the monitor, which disconnects the HAL, would otherwise go before the
+%% tasks. A task finishing a transfer is waited for, up to ten seconds; one DOWN (an
+%% error, a pause) holds as it is.
 -spec prep_stop(term()) -> term().
 prep_stop(State) ->
     try
-        ok = cell_events:subscribe([cell_state]),
+        ok = cell_events:subscribe([task_state]),
         ok = cell_controller:stop(<<"shutdown">>),
         ok = cell_controller:sync(),
-        case cell_controller:state() of
-            off -> ok;
-            _ -> await_off()
-        end,
+        await_settled(erlang:monotonic_time(millisecond) + ?STOP_MS),
         cell_events:unsubscribe()
     catch
         exit:Why ->
@@ -45,12 +44,18 @@ prep_stop(State) ->
     end,
     State.
 
-await_off() ->
-    receive
-        {cell_event, #{type := cell_state, state := off}} -> ok
-    after ?STOP_MS ->
-        cell_log:error(cell, "the tasks did not all stop within ~b s; shutting down anyway",
-                       [?STOP_MS div 1000])
+await_settled(Deadline) ->
+    case [Id || #{id := Id, state := {ready, _, _}} <- cell_controller:tasks()] of
+        [] ->
+            ok;
+        Running ->
+            receive
+                {cell_event, #{type := task_state}} -> await_settled(Deadline)
+            after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+                cell_log:error(cell, "~ts did not stop within ~b s; shutting down anyway",
+                               [lists:join(", ", [atom_to_list(Id) || Id <- Running]),
+                                ?STOP_MS div 1000])
+            end
     end.
 
 -spec stop(term()) -> ok.
