@@ -16,7 +16,7 @@ all() ->
 
 init_per_suite(Config) ->
     Rel = case os:getenv("CELLRT_REL") of
-              false -> filename:join([top(), "_build", "default", "rel", "cellrt"]);
+              false -> filename:join([cellrt_rel:top(), "_build", "default", "rel", "cellrt"]);
               Dir -> Dir
           end,
     Bin = filename:join([Rel, "bin", "cellrt"]),
@@ -101,36 +101,11 @@ bad_root_folder_is_refused(Config) ->
 
 %% Helpers
 
-%% The project folder: $CELLRT_TOP (set by the Makefile), else derived from this
-%% file's path, which rebar3 copies under _build/.
-top() ->
-    case os:getenv("CELLRT_TOP") of
-        false ->
-            case string:split(?FILE, "/_build/") of
-                [Top, _] -> Top;
-                [_] -> filename:dirname(filename:dirname(?FILE))
-            end;
-        Top -> Top
-    end.
-
 cellrt(Config, Args) ->
     cellrt(Config, Args, 30000).
 
 cellrt(Config, Args, Timeout) ->
-    Port = open_port({spawn_executable, ?config(bin, Config)},
-                     [{args, Args}, {env, ?config(env, Config)}, exit_status,
-                      stderr_to_stdout, binary]),
-    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
-
-collect(Port, Acc, Deadline) ->
-    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
-    receive
-        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
-        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after Left ->
-        catch port_close(Port),
-        ct:fail("bin/cellrt timed out; output so far: ~s", [Acc])
-    end.
+    cellrt_rel:run(?config(bin, Config), Args, ?config(env, Config), Timeout).
 
 await_pong(Config) ->
     await(Config, fun(Out) -> string:trim(Out) =:= "pong" end, 100).

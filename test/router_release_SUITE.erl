@@ -22,7 +22,7 @@ all() ->
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
-    Bin = filename:join([top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]),
+    Bin = cellrt_rel:bin(),
     filelib:is_regular(Bin) orelse ct:fail("no release: build it with `rebar3 release`"),
     Started = case node() of
                   nonode@nohost ->
@@ -49,7 +49,7 @@ run_answer_stop_restart(Config) ->
            {"CELLRT_SHDR_PORT", "0"}],
     %% A fast machine that makes mistakes: every third carry slips, a conveyor move
     %% in twenty sticks (for longer than the tasks' watchdog), the magazine runs low.
-    ok = write_settings(Root, #{router_sim => #{time_scale => 0.05, arrival_ms => 0,
+    ok = router_test_settings:write(Root, #{router_sim => #{time_scale => 0.05, arrival_ms => 0,
                                                 product_lost_rate => 0.3, reseat_ms => 2000,
                                                 jam_rate => 0.05, jam_ms => 80000,
                                                 magazine_low_s => 60, magazine_refill_s => 20},
@@ -188,35 +188,5 @@ await_down(Node) ->
             end
     end.
 
-write_settings(Root, Objects) ->
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects).
-
 cellrt(Bin, Args, Env) ->
-    Port = open_port({spawn_executable, Bin},
-                     [{args, Args}, {env, Env}, exit_status, stderr_to_stdout, binary]),
-    collect(Port, [], erlang:monotonic_time(millisecond) + 60000).
-
-collect(Port, Acc, Deadline) ->
-    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
-    receive
-        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
-        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after Left ->
-        catch port_close(Port),
-        ct:fail("bin/cellrt timed out; output so far: ~s", [Acc])
-    end.
-
-top() ->
-    case os:getenv("CELLRT_TOP") of
-        false ->
-            case string:split(?FILE, "/_build/") of
-                [Top, _] -> Top;
-                [_] -> filename:dirname(filename:dirname(?FILE))
-            end;
-        Top -> Top
-    end.
+    cellrt_rel:run(Bin, Args, Env, 60000).

@@ -20,7 +20,7 @@ end_per_suite(Config) ->
     Config.
 
 release_serves_the_panel(Config) ->
-    Bin = filename:join([top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]),
+    Bin = filename:join([cellrt_rel:top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]),
     filelib:is_regular(Bin) orelse ct:fail("no release: build it with `rebar3 release`"),
     Env = env(Config, "web_default"),
     try
@@ -44,8 +44,8 @@ release_serves_the_panel(Config) ->
 
 prod_release_refuses_demo_passwords(Config) ->
     %% Build the prod release (a few seconds; the suite runs where `make test' built).
-    {0, _} = run(os:find_executable("rebar3"), ["as", "prod", "release"], [], 300000, top()),
-    Bin = filename:join([top(), "_build", "prod", "rel", "cellrt", "bin", "cellrt"]),
+    {0, _} = run(os:find_executable("rebar3"), ["as", "prod", "release"], [], 300000, cellrt_rel:top()),
+    Bin = filename:join([cellrt_rel:top(), "_build", "prod", "rel", "cellrt", "bin", "cellrt"]),
     Env = env(Config, "web_prod"),
     {Status, Out} = run(Bin, ["foreground"], Env, 120000),
     ?assertEqual(1, Status),
@@ -87,42 +87,22 @@ env(Config, Name) ->
     [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"},
      {"CELLRT_WEB_PORT", "0"}].
 
-top() ->
-    case os:getenv("CELLRT_TOP") of
-        false ->
-            case string:split(?FILE, "/_build/") of
-                [Top, _] -> Top;
-                [_] -> filename:dirname(filename:dirname(?FILE))
-            end;
-        Top -> Top
-    end.
-
 run(Bin, Args, Env, Timeout) ->
     run(Bin, Args, Env, Timeout, filename:dirname(filename:dirname(Bin))).
 
 run(Bin, Args, Env, Timeout, Dir) ->
     Port = open(Bin, Args, Env, Dir),
-    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+    cellrt_rel:collect(Port, Timeout).
 
 %% As run/4, with `Input' on the command's standard input.
 run_input(Bin, Args, Env, Timeout, Input) ->
     Port = open(Bin, Args, Env, filename:dirname(filename:dirname(Bin))),
     true = port_command(Port, Input),
-    collect(Port, [], erlang:monotonic_time(millisecond) + Timeout).
+    cellrt_rel:collect(Port, Timeout).
 
 open(Bin, Args, Env, Dir) ->
     open_port({spawn_executable, Bin},
               [{args, Args}, {env, Env}, {cd, Dir}, exit_status, stderr_to_stdout, binary]).
-
-collect(Port, Acc, Deadline) ->
-    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
-    receive
-        {Port, {data, D}} -> collect(Port, [Acc, D], Deadline);
-        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after Left ->
-        catch port_close(Port),
-        ct:fail("timed out; output so far: ~s", [Acc])
-    end.
 
 %% `ping' waits for its answer: each try is a round trip, not a sleep.
 await_pong(_Bin, _Env, 0) ->

@@ -35,7 +35,8 @@
 %% (disc_only_copies: one summary per serial) and `cell_trace_event' (disc_only_copies,
 %% bag: the history by serial). The traceability tables live on disc only, so memory
 %% does not grow with the number of products; they are purged after the `statistics'
-%% settings' `trace_days', shift counters after `shift_days'.
+%% settings' `trace_days' (or sooner, past `trace_max_records'), shift counters after
+%% `shift_days'.
 %%
 %% If the database cannot be opened the statistics go on in memory, say why in the
 %% log, and try again every ten seconds.
@@ -571,8 +572,8 @@ flush(St0) ->
           end,
     St4 = write_pending(Now, St3),
     case St4#st.db =:= open andalso Now >= St4#st.purge_at of
-        true -> purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000});
-        false -> St4
+        true -> trim(purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000}));
+        false -> trim(St4)
     end.
 
 %%====================================================================
@@ -763,12 +764,53 @@ purge(Now, St) ->
                                                        [{is_integer, '$2'}, {'<', '$2', Cut}],
                                                        ['$1']}])
                end, []),
+    forget(Old, St1).
+
+forget(Serials, St) ->
     lists:foldl(fun(Serial, Acc) ->
                         db(fun() ->
                                    ok = mnesia:dirty_delete(?EVENT, Serial),
                                    mnesia:dirty_delete(?PRODUCT, Serial)
                            end, Acc)
-                end, St1, Old).
+                end, St, Serials).
+
+%% The histories live in a dets file, which cannot pass 2 GB. Past the settings'
+%% `trace_max_records' (checked at every write: the count costs nothing) the histories
+%% of the products that left longest ago go, down to nine tenths of it, and the log
+%% says so: a cell that makes products faster than `trace_days' allows keeps fewer
+%% days, never stops recording.
+trim(#st{db = open} = St) ->
+    #{trace_max_records := Max} = settings(),
+    case safe(fun() -> mnesia:table_info(?EVENT, size) end, 0) of
+        N when is_integer(N), N > Max ->
+            Left = lists:sort(safe(fun() ->
+                                           mnesia:dirty_select(
+                                             ?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},
+                                                         [{is_integer, '$2'}],
+                                                         [{{'$2', '$1'}}]}])
+                                   end, [])),
+            Products = max(1, safe(fun() -> mnesia:table_info(?PRODUCT, size) end, 1)),
+            Drop = lists:sublist(Left, ceil((N - Max * 0.9) * Products / N)),
+            case Drop of
+                [] ->
+                    St;
+                _ ->
+                    {Until, _} = lists:last(Drop),
+                    cell_log:warning(cell, "statistics: the product histories reached ~b "
+                                     "records; the histories of the ~b products that left "
+                                     "until ~ts were removed", [Max, length(Drop),
+                                                               time_text(Until)]),
+                    forget([S || {_, S} <- Drop], St)
+            end;
+        _ ->
+            St
+    end;
+trim(St) ->
+    St.
+
+time_text(Ms) ->
+    {{Y, Mo, D}, {H, Mi, _}} = calendar:system_time_to_local_time(Ms, millisecond),
+    io_lib:format("~4..0b-~2..0b-~2..0b ~2..0b:~2..0b", [Y, Mo, D, H, Mi]).
 
 %%====================================================================
 %% Time and shifts
@@ -808,8 +850,7 @@ shift_starts() ->
     end.
 
 settings() ->
-    Defaults = #{shifts => [<<"06:00">>, <<"14:00">>, <<"22:00">>], trace_days => 90,
-                 shift_days => 400},
+    Defaults = cell_settings_schema:defaults(cell_stats_settings),
     try maps:merge(Defaults, cell_settings:get(statistics))
     catch error:_ -> Defaults;
           exit:_ -> Defaults

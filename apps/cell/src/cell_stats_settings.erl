@@ -17,6 +17,10 @@ fields() ->
                 "shift ends where the next begins.">>},
      #{name => trace_days, type => {integer, 1, 3650}, default => 90, unit => <<"days">>,
        doc => <<"How long a product's history is kept after it left the cell.">>},
+     #{name => trace_max_records, type => {integer, 1000, 10000000}, default => 6000000,
+       doc => <<"Most records of product histories kept (about 170 bytes each on disc, "
+                "some 40 a product; the file cannot pass 2 GB): past it the histories of "
+                "the products that left longest ago are removed first.">>},
      #{name => shift_days, type => {integer, 1, 3650}, default => 400, unit => <<"days">>,
        doc => <<"How long the statistics of each shift are kept (the totals are kept "
                 "for ever).">>}].

@@ -5,7 +5,7 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
--export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2, end_per_testcase/2]).
+-export([all/0, init_per_suite/1, end_per_suite/1]).
 -export([fresh_folder/1, records_survive_a_restart/1, callers_at_once/1,
          overrides_find_their_inspection/1]).
 
@@ -13,24 +13,16 @@ all() ->
     [fresh_folder, records_survive_a_restart, callers_at_once,
      overrides_find_their_inspection].
 
+%% One database for the suite, in a root of its own; each case uses serials of its own.
 init_per_suite(Config) ->
     _ = application:stop(mnesia),
     _ = application:load(cell_base),
-    Config.
-
-end_per_suite(_Config) ->
-    _ = application:stop(mnesia),
-    ok.
-
-init_per_testcase(Case, Config) ->
-    _ = application:stop(mnesia),
-    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    Root = filename:join(?config(priv_dir, Config), "root"),
     ok = application:set_env(cell_base, root, Root),
     [{root, Root} | Config].
 
-end_per_testcase(_Case, _Config) ->
-    _ = application:stop(mnesia),
-    ok.
+end_per_suite(_Config) ->
+    application:stop(mnesia).
 
 fresh_folder(Config) ->
     ok = cell_inspect_db:start(),
@@ -50,8 +42,9 @@ records_survive_a_restart(_Config) ->
     {ok, #{inspections := [#{point := <<"P">>, result := pass, text := <<"ok">>,
                              image := <<"img">>}]}} = cell_inspect_db:by_serial(<<"S-1">>).
 
-%% Several blocks start the database at once: one creates the schema, all succeed.
+%% Several blocks start the database at once, as after a restart: all succeed.
 callers_at_once(_Config) ->
+    stopped = mnesia:stop(),
     Self = self(),
     Pids = [spawn(fun() -> Self ! {self(), cell_inspect_db:start()} end) || _ <- lists:seq(1, 6)],
     [receive {P, R} -> ?assertEqual(ok, R) after 60000 -> ct:fail(timeout) end || P <- Pids].

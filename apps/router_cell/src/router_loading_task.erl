@@ -27,10 +27,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    T = case router_task:reset_chosen(T0) of
-            {forget, T1} -> cell_task:clear_product(T1);
-            {none, T1} -> T1
-        end,
+    T = router_task:after_reset(T0),
     %% The warning follows the magazine input from the first step on.
     T2 = cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined),
     case cell_task:product(T2) of
@@ -76,10 +73,7 @@ step(full, _Woken, T) ->
 step(offered, {handshake, _Next, not_busy, true}, T) ->
     watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true));
 step(offered, _Woken, T) ->
-    case cell_handshake:phase(T, next(T)) of
-        offered -> {wait, {handshake, next(T), not_busy, true}, T};
-        _ -> {continue, phase(T, full)}                %% the offer is gone: offer again
-    end;
+    router_task:offered(T, next(T), full);
 step(leaving, {timer, _}, T) ->
     jam(T, "did not leave the stopper");
 step(leaving, _Woken, T) ->
@@ -93,12 +87,7 @@ step(leaving, _Woken, T) ->
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(cell_task:out(T, belt_run, false), full, idle);
 step(released, _Woken, T) ->
-    case cell_handshake:finish(T, next(T)) of
-        {completed, T1} -> {continue, phase(cell_task:out(T1, belt_run, false), idle)};
-        {aborted, T1} -> {continue, phase(cell_task:out(T1, belt_run, false), full)};
-        {interrupted, T1} -> router_task:interrupted(cell_task:out(T1, belt_run, false), full, idle);
-        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
-    end;
+    router_task:finish(T, next(T), idle, full, fun(_, T1) -> cell_task:out(T1, belt_run, false) end);
 %% -- the operator said the panel of an interrupted transfer is here ------------------
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), full)}.

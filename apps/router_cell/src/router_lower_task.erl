@@ -97,19 +97,11 @@ step(offered, {handshake, Next, not_busy, true}, T) ->
     T1 = cell_handshake:release(T, Next),
     {wait, {handshake, Next, not_busy, false}, phase(T1, released)};
 step(offered, _Woken, T) ->
-    case cell_handshake:phase(T, next(T)) of
-        offered -> {wait, {handshake, next(T), not_busy, true}, T};
-        _ -> {continue, phase(T, routed)}
-    end;
+    router_task:offered(T, next(T), routed);
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(T, routed, idle);
 step(released, _Woken, T) ->
-    case cell_handshake:finish(T, next(T)) of
-        {completed, T1} -> {continue, phase(T1, idle)};
-        {aborted, T1} -> {continue, phase(T1, routed)};
-        {interrupted, T1} -> router_task:interrupted(T1, routed, idle);
-        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
-    end;
+    router_task:finish(T, next(T), idle, routed);
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), routing)}.
 

@@ -12,7 +12,8 @@
 -module(router_task).
 
 -export([phase/2, phase/1, starved/1, unstarved/1, blocked/1, unblocked/1]).
--export([watch/5, watchdog/3, error/6, reset_chosen/1, interrupted/3, lane/1]).
+-export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3, lane/1]).
+-export([take/3, take/4, offered/3, finish/4, finish/5]).
 
 %% @doc Sets the task's phase (its own state within its IPC-2541 state).
 -spec phase(cell_task:task(), atom()) -> cell_task:task().
@@ -25,33 +26,30 @@ phase(T) ->
 
 %% @doc EquipmentStarved, unless the task is already STARVED.
 -spec starved(cell_task:task()) -> cell_task:task().
-starved(T) ->
-    case cell_task:state(T) of
-        {ready, idle, starved} -> T;
-        _ -> cell_task:starved(T)
-    end.
+starved(T) -> idle(T, starved, fun cell_task:starved/1).
 
 %% @doc EquipmentUnstarved, if the task is STARVED.
 -spec unstarved(cell_task:task()) -> cell_task:task().
-unstarved(T) ->
-    case cell_task:state(T) of
-        {ready, idle, starved} -> cell_task:unstarved(T);
-        _ -> T
-    end.
+unstarved(T) -> not_idle(T, starved, fun cell_task:unstarved/1).
 
 %% @doc EquipmentBlocked, unless the task is already BLOCKED.
 -spec blocked(cell_task:task()) -> cell_task:task().
-blocked(T) ->
-    case cell_task:state(T) of
-        {ready, idle, blocked} -> T;
-        _ -> cell_task:blocked(T)
-    end.
+blocked(T) -> idle(T, blocked, fun cell_task:blocked/1).
 
 %% @doc EquipmentUnblocked, if the task is BLOCKED.
 -spec unblocked(cell_task:task()) -> cell_task:task().
-unblocked(T) ->
+unblocked(T) -> not_idle(T, blocked, fun cell_task:unblocked/1).
+
+%% The event once, when the task enters or leaves that idle state.
+idle(T, Why, Event) ->
     case cell_task:state(T) of
-        {ready, idle, blocked} -> cell_task:unblocked(T);
+        {ready, idle, Why} -> T;
+        _ -> Event(T)
+    end.
+
+not_idle(T, Why, Event) ->
+    case cell_task:state(T) of
+        {ready, idle, Why} -> Event(T);
         _ -> T
     end.
 
@@ -95,6 +93,63 @@ reset_chosen(T) ->
                 true -> {OnReset, T1};
                 false -> {none, T1}
             end
+    end.
+
+%% @doc In `init': the task as it is, or without its product if the operator answered
+%% its last error with a Reset that forgets it.
+-spec after_reset(cell_task:task()) -> cell_task:task().
+after_reset(T0) ->
+    case reset_chosen(T0) of
+        {forget, T} -> cell_task:clear_product(T);
+        {_, T} -> T
+    end.
+
+%%--------------------------------------------------------------------
+%% The steps of a hand-over every station writes alike (seed §2.3.6)
+%%--------------------------------------------------------------------
+
+%% @doc Downstream, empty: commits to the partner's offer if it makes one (phase 2),
+%% then waits in `Phase' for it to let go (phase 3); else waits for an offer.
+-spec take(cell_task:task(), atom(), atom()) -> cell_task:step_result().
+take(T, Prev, Phase) ->
+    take(T, Prev, Phase, fun(T1) -> T1 end).
+
+%% @doc As {@link take/3}, `OnCommit' applied once committed (a belt started).
+-spec take(cell_task:task(), atom(), atom(), fun((cell_task:task()) -> cell_task:task())) ->
+          cell_task:step_result().
+take(T, Prev, Phase, OnCommit) ->
+    case cell_handshake:available(T, Prev) andalso cell_handshake:commit(T, Prev) of
+        {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(OnCommit(T1), Phase)};
+        {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1};
+        false -> {wait, {handshake, Prev, available, true}, T}
+    end.
+
+%% @doc Upstream, offered: an offer still open waits for the partner's commit; one
+%% that is gone (the link restarted) is made again from `Again'.
+-spec offered(cell_task:task(), atom(), atom()) -> cell_task:step_result().
+offered(T, Next, Again) ->
+    case cell_handshake:phase(T, Next) of
+        offered -> {wait, {handshake, Next, not_busy, true}, T};
+        _ -> {continue, phase(T, Again)}
+    end.
+
+%% @doc Upstream, released: the end of the transfer (phase 4). Completed: on in
+%% `Done'; aborted (the partner gave the product back): again from `Again';
+%% interrupted: {@link interrupted/3}; else it waits.
+-spec finish(cell_task:task(), atom(), atom(), atom()) -> cell_task:step_result().
+finish(T, Next, Done, Again) ->
+    finish(T, Next, Done, Again, fun(_, T1) -> T1 end).
+
+%% @doc As {@link finish/4}, `Settle(Outcome, T)' applied first once it has ended.
+-spec finish(cell_task:task(), atom(), atom(), atom(),
+             fun((completed | aborted | interrupted, cell_task:task()) -> cell_task:task())) ->
+          cell_task:step_result().
+finish(T, Next, Done, Again, Settle) ->
+    case cell_handshake:finish(T, Next) of
+        {completed, T1} -> {continue, phase(Settle(completed, T1), Done)};
+        {aborted, T1} -> {continue, phase(Settle(aborted, T1), Again)};
+        {interrupted, T1} -> interrupted(Settle(interrupted, T1), Again, Done);
+        {pending, T1} -> {wait, {handshake, Next, not_busy, false}, T1}
     end.
 
 %% @doc After a transfer ended early (seed §2.3.6): a product that had not moved stays

@@ -21,10 +21,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    T = case router_task:reset_chosen(T0) of
-            {forget, T1} -> cell_task:clear_product(T1);
-            {none, T1} -> T1
-        end,
+    T = router_task:after_reset(T0),
     T2 = cell_task:out(cell_task:out(T, belt_run, false), board_available, false),
     case cell_task:product(T2) of
         undefined -> {ok, phase(T2, idle)};
@@ -43,16 +40,7 @@ step(T) ->
 
 %% -- empty: modules from the upper robot -------------------------------------------------
 step(idle, _Woken, T) ->
-    Prev = prev(T),
-    case cell_handshake:available(T, Prev) of
-        true ->
-            case cell_handshake:commit(T, Prev) of
-                {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(T1, receiving)};
-                {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1}
-            end;
-        false ->
-            {wait, {handshake, Prev, available, true}, T}
-    end;
+    router_task:take(T, prev(T), receiving);
 step(receiving, {handshake, _Prev, interrupted}, T) ->
     router_task:interrupted(T, landing, idle);
 step(receiving, {handshake, _Prev, available, false}, T) ->

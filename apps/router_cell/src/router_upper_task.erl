@@ -62,16 +62,7 @@ step(T) ->
 
 %% -- empty: take the routed modules ------------------------------------------------------
 step(idle, _Woken, T) ->
-    Prev = prev(T),
-    case cell_handshake:available(T, Prev) of
-        true ->
-            case cell_handshake:commit(T, Prev) of
-                {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(T1, taking)};
-                {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1}
-            end;
-        false ->
-            {wait, {handshake, Prev, available, true}, T}
-    end;
+    router_task:take(T, prev(T), taking);
 step(taking, {handshake, _Prev, interrupted}, T) ->
     router_task:interrupted(T, to_nest, idle);
 step(taking, {handshake, _Prev, available, false}, T) ->
@@ -152,10 +143,7 @@ step(full, _Woken, T) ->
 step(offered, {handshake, _Next, not_busy, true}, T) ->
     wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false);
 step(offered, _Woken, T) ->
-    case cell_handshake:phase(T, next(T)) of
-        offered -> {wait, {handshake, next(T), not_busy, true}, T};
-        _ -> {continue, phase(T, full)}
-    end;
+    router_task:offered(T, next(T), full);
 step(placing, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(placing, _Woken, T) ->
@@ -169,12 +157,11 @@ step(placing, _Woken, T) ->
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(T, full, idle);
 step(released, _Woken, T) ->
-    case cell_handshake:finish(T, next(T)) of
-        {completed, T1} -> {continue, phase(T1, idle)};
-        {aborted, T1} -> {continue, phase(cell_task:out(T1, gripper_close, true), full)};
-        {interrupted, T1} -> router_task:interrupted(T1, full, idle);
-        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
-    end;
+    %% Given back: the modules are gripped again, to be offered again.
+    router_task:finish(T, next(T), idle, full,
+                       fun(aborted, T1) -> cell_task:out(T1, gripper_close, true);
+                          (_, T1) -> T1
+                       end);
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), to_unloading)}.
 

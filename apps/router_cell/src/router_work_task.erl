@@ -29,10 +29,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    T = case router_task:reset_chosen(T0) of
-            {forget, T1} -> cell_task:clear_product(T1);
-            {none, T1} -> T1
-        end,
+    T = router_task:after_reset(T0),
     T2 = cell_task:out(T, belt_run, false),
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
@@ -62,20 +59,8 @@ step(idle, _Woken, T) ->
         true -> {continue, phase(T, emptying)}
     end;
 step(take, _Woken, T) ->
-    Prev = prev(T),
-    case cell_handshake:available(T, Prev) of
-        true ->
-            case cell_handshake:commit(T, Prev) of
-                {ok, T1} ->
-                    %% Phase 2: both belts run.
-                    {wait, {handshake, Prev, available, false},
-                     phase(cell_task:out(T1, belt_run, true), moving_in)};
-                {not_available, T1} ->
-                    {wait, {handshake, Prev, available, true}, T1}
-            end;
-        false ->
-            {wait, {handshake, Prev, available, true}, T}
-    end;
+    %% Phase 2: both belts run.
+    router_task:take(T, prev(T), moving_in, fun(T1) -> cell_task:out(T1, belt_run, true) end);
 step(moving_in, {handshake, _Prev, interrupted}, T) ->
     router_task:interrupted(cell_task:out(T, belt_run, false), arriving, idle);
 step(moving_in, {handshake, _Prev, available, false}, T) ->
@@ -114,19 +99,11 @@ step(offered, {handshake, Next, not_busy, true}, T) ->
     T1 = cell_handshake:release(T, Next),
     {wait, {handshake, Next, not_busy, false}, phase(T1, released)};
 step(offered, _Woken, T) ->
-    case cell_handshake:phase(T, next(T)) of
-        offered -> {wait, {handshake, next(T), not_busy, true}, T};
-        _ -> {continue, phase(T, clamping)}           %% the offer is gone: offer again
-    end;
+    router_task:offered(T, next(T), clamping);
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(T, clamping, emptying);
 step(released, _Woken, T) ->
-    case cell_handshake:finish(T, next(T)) of
-        {completed, T1} -> {continue, phase(T1, emptying)};
-        {aborted, T1} -> {continue, phase(T1, clamping)};
-        {interrupted, T1} -> router_task:interrupted(T1, clamping, emptying);
-        {pending, T1} -> {wait, {handshake, next(T1), not_busy, false}, T1}
-    end;
+    router_task:finish(T, next(T), emptying, clamping);
 %% -- the modules are out: the frame goes --------------------------------------------------
 step(emptying, _Woken, T) ->
     case cell_task:in(T, nest_empty) of
@@ -157,14 +134,15 @@ step(in_transit, _Woken, T) ->
 
 %% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
 fault(T, What, Todo) ->
-    Serial = case cell_task:product(T) of
-                 undefined -> <<"in the fixture">>;
-                 #{serial := S} -> S
-             end,
+    %% Once the robot has the panel, what is left in the fixture is its frame.
+    Which = case cell_task:product(T) of
+                undefined -> <<"The panel frame">>;
+                #{serial := S} -> [<<"Panel ">>, S]
+            end,
     {error, cell_task:error_spec(
               <<"fixture">>, "Work segment fault",
-              io_lib:format("Panel ~ts ~ts in time: the belt is stopped.~n~ts, then select "
-                            "RETRY.", [Serial, What, Todo]),
+              io_lib:format("~ts ~ts in time: the belt is stopped.~n~ts, then select RETRY.",
+                            [Which, What, Todo]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
 

@@ -11,8 +11,8 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([panels_pass_the_line/1, product_lost_answers/1, jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
-         physics_waits_for_the_hal/1, node_stop_secures_outputs/1, real_mode_spec/1,
-         diagnostics/1]).
+         physics_waits_for_the_hal/1, node_stop_secures_outputs/1,
+         histories_kept_within_their_limit/1, real_mode_spec/1, diagnostics/1]).
 
 -define(DEADLINE_MS, 60000).
 %% What the cases listen to (subscribing again replaces a subscription: one list).
@@ -21,7 +21,8 @@
 all() ->
     [panels_pass_the_line, product_lost_answers, jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, physics_waits_for_the_hal,
-     node_stop_secures_outputs, real_mode_spec, diagnostics].
+     node_stop_secures_outputs, histories_kept_within_their_limit, real_mode_spec,
+     diagnostics].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -29,9 +30,11 @@ init_per_testcase(Case, Config) ->
                        jam_rate => 0.0, magazine_low_s => 0},
                      sim_settings(Case)),
     Machine = #{dual_lane => Case =:= dual_lane},
-    ok = write_settings(Root, #{machine => Machine, router_sim => Sim,
-                                router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
-                                            motion_timeout_ms => 3000}}),
+    ok = router_test_settings:write(Root, #{machine => Machine, router_sim => Sim,
+                                            router => #{hal_poll_ms => 5,
+                                                        transfer_timeout_ms => 3000,
+                                                        motion_timeout_ms => 3000},
+                                            statistics => stats_settings(Case)}),
     ok = start(Root),
     [{root, Root} | Config].
 
@@ -51,6 +54,11 @@ sim_settings(node_stop_secures_outputs) ->
     %% Routing a panel takes a few seconds: the spindle runs when the node stops.
     #{time_scale => 0.2};
 sim_settings(_) ->
+    #{}.
+
+stats_settings(histories_kept_within_their_limit) ->
+    #{trace_max_records => 1000};
+stats_settings(_) ->
     #{}.
 
 %% -------------------------------------------------------------------------------------
@@ -250,6 +258,24 @@ node_stop_secures_outputs(_Config) ->
             {unloading_front_io, belt_run}, {unloading_front_io, board_available}],
     ?assertEqual([{K, false} || K <- Safe], [{K, maps:get(K, Outs)} || K <- Safe]).
 
+%% A cell that makes products faster than its histories may grow: past the limit the
+%% histories of the products that left longest ago go, and the log says so; the
+%% newest and those in the cell keep theirs, and the counts are untouched.
+histories_kept_within_their_limit(_Config) ->
+    ok = cell_log:subscribe(),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    await_log(<<"statistics: the product histories reached 1000 records">>),
+    %% The next two out (not those that left before).
+    drain_events(),
+    Out = collect_out(2, fun never_answer/1),
+    ok = stop_cell(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell),
+    ?assert(mnesia:table_info(cell_trace_event, size) =< 1000),
+    ?assert(mnesia:table_info(cell_trace_product, size) < In),
+    [{ok, #{events := [_ | _]}} = cell_stats:product(S) || S <- Out ++ held()].
+
 %% With simulation off the same tasks are bound to the router's PLC over Modbus TCP,
 %% each lane's groups at their own addresses; the groups pass the driver's checks.
 real_mode_spec(_Config) ->
@@ -331,14 +357,6 @@ stop() ->
     _ = application:stop(mnesia),
     ok.
 
-write_settings(Root, Objects) ->
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects).
-
 await_up(Conn) ->
     case cell_hal:subscribe_connection(Conn) of
         {ok, up} -> ok;
@@ -401,6 +419,14 @@ collect_out(N, Answer, Acc, Deadline) ->
             collect_out(N, Answer, Acc, Deadline)
     after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
         ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% Waits for a task log line that begins with `Prefix' (the case subscribed).
+await_log(Prefix) ->
+    receive
+        {cell_log, #{text := <<Prefix:(byte_size(Prefix))/binary, _/binary>>}} -> ok
+    after ?DEADLINE_MS ->
+        ct:fail({no_log_line, Prefix})
     end.
 
 drain_events() ->
@@ -533,14 +559,7 @@ assert_left(Serial, Quality) ->
 %% For every task, the time in each state adds up to the time since it was first seen
 %% to the last write, to the microsecond.
 assert_time_adds_up() ->
-    ok = cell_stats:flush(),
-    Counters = cell_stats:counters(total),
-    [{_, _, Flushed}] = mnesia:dirty_read(cell_stats_counter, {meta, flushed}),
-    [begin
-         [{_, _, First}] = mnesia:dirty_read(cell_stats_counter, {meta, {first, T}}),
-         Times = [V || {{time, _}, V} <- maps:to_list(maps:get(T, Counters))],
-         ?assertEqual({T, Flushed - First}, {T, lists:sum(Times)})
-     end || #{id := T} <- cell_controller:tasks()].
+    [?assertEqual({T, Span}, {T, Sum}) || {T, Sum, Span} <- router_release_probe:time_check()].
 
 captured(Fun) ->
     ct:capture_start(),
