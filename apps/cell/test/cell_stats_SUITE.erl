@@ -17,7 +17,8 @@ all() ->
 init_per_testcase(_Case, Config) ->
     _ = application:stop(cell),
     _ = application:stop(mnesia),
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% The priv_dir is shared by every suite of the run: a root of this suite's own.
+    Root = filename:join(?config(priv_dir, Config), "cell_stats_SUITE.root"),
     _ = application:load(cell_base),
     _ = application:load(cell),
     ok = application:set_env(cell_base, root, Root),
