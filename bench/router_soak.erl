@@ -93,7 +93,7 @@ summary(Samples) ->
             Panels = (maps:get(out, Last) - maps:get(out, First)) / Hours,
             io_lib:format("From minute ~.1f to ~.1f: memory ~.1f -> ~.1f MB (~s), processes "
                           "~b -> ~b, ETS ~.1f -> ~.1f MB, binaries ~.1f -> ~.1f MB; longest "
-                          "message queue seen ~b; ~.0f panels an hour (at 20x the machine's "
+                          "message queue seen ~b; ~b panels an hour (at 20x the machine's "
                           "speed); Databases/ ~.1f -> ~.1f MB.~n",
                           [maps:get(s, First) / 60, maps:get(s, Last) / 60,
                            mb(maps:get(total, First)), mb(maps:get(total, Last)),
@@ -101,7 +101,7 @@ summary(Samples) ->
                            maps:get(count, First), maps:get(count, Last),
                            mb(maps:get(ets, First)), mb(maps:get(ets, Last)),
                            mb(maps:get(binary, First)), mb(maps:get(binary, Last)),
-                           MaxQ, Panels, mb(maps:get(db, First)), mb(maps:get(db, Last))]);
+                           MaxQ, round(Panels), mb(maps:get(db, First)), mb(maps:get(db, Last))]);
         [] ->
             io_lib:format("Shorter than the warm-up (~b s): no growth figures.~n", [?WARMUP_S])
     end.
