@@ -64,7 +64,7 @@ run_answer_stop_restart(Config) ->
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
         Answers1 = run(Op, Node, 25, #{}),
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
-        ok = erpc:call(Node, router_release_probe, await_state, [off, ?WAIT_MS]),
+        ok = stopped(Op, Node),
         Before = erpc:call(Node, router_release_probe, snapshot, []),
         check_books(Before),
         {0, _} = cellrt(Bin, ["stop"], Env),
@@ -85,7 +85,7 @@ run_answer_stop_restart(Config) ->
         #{world := #{counters := #{delivered := D0}}} = After,
         Answers2 = run(Op2, Node, D0 + 10, Answers1),
         {200, _, _} = cell_web_client:req(Op2, post, "/api/cell/stop"),
-        ok = erpc:call(Node, router_release_probe, await_state, [off, ?WAIT_MS]),
+        ok = stopped(Op2, Node),
         End = erpc:call(Node, router_release_probe, snapshot, []),
         check_books(End),
 
@@ -154,6 +154,25 @@ run(Op, Node, Target, Answers) ->
             Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(Id)) ++ "/answer",
             {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => Solution}),
             run(Op, Node, Target, maps:update_with(Solution, fun(X) -> X + 1 end, 1, Answers))
+    end.
+
+%% Waits for OFF after a Stop, answering Retry to an error a move that was finishing
+%% raised meanwhile, as the operator would.
+stopped(Op, Node) ->
+    case erpc:call(Node, router_release_probe, await_state_or_error, [off, ?WAIT_MS],
+                   ?WAIT_MS + 5000) of
+        ok ->
+            ok;
+        timeout ->
+            ct:fail({not_off, erpc:call(Node, cell_controller, tasks, [])});
+        {error, #{id := Id, solutions := Solutions}} ->
+            Solution = case lists:member(retry, Solutions) of
+                           true -> retry;
+                           false -> hd(Solutions)
+                       end,
+            Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(Id)) ++ "/answer",
+            {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => Solution}),
+            stopped(Op, Node)
     end.
 
 %% Starts the release, loads the probe into it, logs in as the operator.

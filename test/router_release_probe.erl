@@ -2,7 +2,7 @@
 %% cell does: waiting is done on the cell's events, never by asking again and again.
 -module(router_release_probe).
 
--export([await/2, await_state/2, snapshot/0, time_check/0]).
+-export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0]).
 
 %% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
 %% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
@@ -27,6 +27,25 @@ loop(Target, Deadline) ->
                     after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
                         timeout
                     end
+            end
+    end.
+
+%% Returns when the cell's state is `State', or with the first error waiting for an
+%% answer (or `timeout').
+-spec await_state_or_error(cell_ipc:state(), pos_integer()) -> ok | {error, map()} | timeout.
+await_state_or_error(State, Timeout) ->
+    ok = cell_events:subscribe([cell_state, alarm_raised]),
+    case {cell_controller:state(), [A || #{kind := error} = A <- cell_alarms:list()]} of
+        {State, _} ->
+            ok;
+        {_, [Error | _]} ->
+            {error, Error};
+        _ ->
+            receive
+                {cell_event, #{type := cell_state, state := State}} -> ok;
+                {cell_event, #{type := alarm_raised}} -> await_state_or_error(State, Timeout)
+            after Timeout ->
+                timeout
             end
     end.
 

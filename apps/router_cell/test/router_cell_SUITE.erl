@@ -25,6 +25,8 @@ all() ->
      diagnostics].
 
 init_per_testcase(Case, Config) ->
+    %% The cell stops its tasks before it goes down, as the release has it.
+    ok = application:set_env(cell, shutdown_wait_ms, 10000),
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     Sim = maps:merge(#{time_scale => 0.02, arrival_ms => 0, product_lost_rate => 0.0,
                        jam_rate => 0.0, magazine_low_s => 0},
@@ -243,8 +245,6 @@ physics_waits_for_the_hal(_Config) ->
 %% uninit, while the HAL is still connected, so the spindle, the bit, the belts and
 %% the SMEMA signals are off in the PLC when the monitor disconnects it.
 node_stop_secures_outputs(_Config) ->
-    %% As the release has it.
-    ok = application:set_env(cell, shutdown_wait_ms, 10000),
     ok = cell_controller:start(<<"suite">>),
     {ok, Ref} = cell_hal:watch(lower_io, spindle_at_speed, {eq, true}),
     receive {cell_hal_watch, Ref, _} -> ok
