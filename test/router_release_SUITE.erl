@@ -41,7 +41,8 @@ end_per_suite(Config) ->
     end.
 
 run_answer_stop_restart(Config) ->
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% A root of its own: the system suites share one priv_dir.
+    Root = filename:join(?config(priv_dir, Config), "router_root"),
     NodeName = "cellrt_ct_router_" ++ os:getpid(),
     Node = list_to_atom(NodeName ++ "@localhost"),
     Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
