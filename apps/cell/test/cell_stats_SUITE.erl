@@ -17,7 +17,8 @@ all() ->
 init_per_testcase(_Case, Config) ->
     _ = application:stop(cell),
     _ = application:stop(mnesia),
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% The suites of an app share a priv_dir: a root of its own.
+    Root = filename:join(?config(priv_dir, Config), "cell_stats_root"),
     _ = application:load(cell_base),
     _ = application:load(cell),
     ok = application:set_env(cell_base, root, Root),
