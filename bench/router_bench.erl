@@ -49,11 +49,11 @@ lane(Dual) ->
        note => io_lib:format(
                  "Router, ~s: at zero delay the bottleneck takes ~.2f s a panel, the "
                  "runtime's own time (mostly one HAL poll, 20 ms, per sensor change it "
-                 "waits for). Run at ~s of the machine's delays that time weighs ~.0f "
+                 "waits for). Run at ~s of the machine's delays that time weighs ~b "
                  "times what it does on the machine: at full length the line would pass "
-                 "about ~.0f%% of its theoretical maximum.",
-                 [Lanes, 3600 / Zero, fmt(?REAL_SCALE), 1 / ?REAL_SCALE,
-                  100 * (3600000 / Theory) / (3600000 / Theory + 3600000 / Zero)])}].
+                 "about ~b% of its theoretical maximum.",
+                 [Lanes, 3600 / Zero, fmt(?REAL_SCALE), round(1 / ?REAL_SCALE),
+                  round(100 * (3600000 / Theory) / (3600000 / Theory + 3600000 / Zero))])}].
 
 %% Panels per hour of wall-clock time at a time scale, after a warm-up.
 measure(Dual, Scale, Panels) ->

@@ -36,16 +36,15 @@ start(#{settings := Objects} = Opts) ->
         {ok, up} -> ok;
         {ok, down} -> receive {cell_hal_conn, router_plc, up} -> ok end
     end,
-    %% The groups are read in the poll after they were added: the tasks find values
-    %% at their first Start.
-    {ok, Ref} = cell_hal:watch(upper_io, done, {ge, 0}),
-    receive {cell_hal_watch, Ref, _} -> ok end.
+    %% The tasks find the machine as it is at their first Start.
+    ok = router_sim:ready(60000).
 
 %% @doc Stops the cell, its physics and the database, as the node would.
 -spec stop() -> ok.
 stop() ->
     _ = [application:stop(A) || A <- lists:reverse(?APPS) ++ [cell, mnesia]],
-    ok.
+    %% A new node would have a new simulated PLC.
+    cell_hal_sim_sup:stop_device(router_plc).
 
 %% @doc Waits until `N' products have left the cell (the caller subscribed to
 %% `item_transfer_out'); returns the time each left, in µs of the monotonic clock.

@@ -30,7 +30,8 @@ end_per_suite(Config) ->
     Config.
 
 init_per_testcase(Case, Config) ->
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% A root per case: a cell's database belongs to the node name that made it.
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     %% Unique per run: two checkouts may run this suite on one machine at once.
     Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "_" ++ os:getpid() ++ "@localhost",
     Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"},

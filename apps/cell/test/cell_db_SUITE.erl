@@ -28,7 +28,8 @@ end_per_suite(_Config) ->
 
 init_per_testcase(Case, Config) ->
     _ = application:stop(mnesia),
-    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    %% The suites of an app share a priv_dir: roots of their own.
+    Root = filename:join(?config(priv_dir, Config), "cell_db_" ++ atom_to_list(Case)),
     ok = application:set_env(cell_base, root, Root),
     [{root, Root} | Config].
 

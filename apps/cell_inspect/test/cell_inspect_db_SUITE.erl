@@ -17,7 +17,8 @@ all() ->
 init_per_suite(Config) ->
     _ = application:stop(mnesia),
     _ = application:load(cell_base),
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% The suites of an app share a priv_dir: a root of its own.
+    Root = filename:join(?config(priv_dir, Config), "inspect_db_root"),
     ok = application:set_env(cell_base, root, Root),
     [{root, Root} | Config].
 

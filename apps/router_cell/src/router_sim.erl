@@ -37,7 +37,7 @@
 -module(router_sim).
 -behaviour(gen_server).
 
--export([start_link/1, world/0]).
+-export([start_link/1, world/0, ready/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -71,6 +71,28 @@ start_link(#{lanes := Lanes} = Opts) when is_list(Lanes) ->
 world() ->
     gen_server:call(?MODULE, world).
 
+%% @doc Returns once the physics runs and the HAL has read every input of the
+%% simulated PLC as the physics set it, so a Start from now on finds the machine as it
+%% is (a PLC just created reads zero everywhere until the physics has set it up).
+-spec ready(timeout()) -> ok | {error, timeout}.
+ready(Timeout) ->
+    #{groups := Groups} = gen_server:call(?MODULE, groups, Timeout),
+    Watches = [begin
+                   {ok, V} = cell_hal_sim:get({G, P}),
+                   {ok, Ref} = cell_hal:watch(G, P, {eq, V}),
+                   Ref
+               end || G <- Groups, {ok, Points} <- [cell_hal:points(G)],
+                      #{name := P, dir := in} <- Points],
+    Deadline = erlang:monotonic_time(millisecond) + Timeout,
+    lists:foldl(fun(Ref, ok) ->
+                        receive {cell_hal_watch, Ref, _} -> ok
+                        after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+                            {error, timeout}
+                        end;
+                   (_, Error) ->
+                        Error
+                end, ok, Watches).
+
 %%====================================================================
 %% gen_server
 %%====================================================================
@@ -83,7 +105,7 @@ init(#{lanes := Lanes}) ->
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
-           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN},
+           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => []},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -94,7 +116,10 @@ handle_continue(attach, S) ->
 attach(#{groups := Groups, attach_ms := Ms} = S) ->
     case [G || G <- maps:keys(Groups), cell_hal:points(G) =:= {error, unknown_group}] of
         [] ->
-            restore(S#{attached := true});
+            S1 = restore(S#{attached := true}),
+            _ = [gen_server:reply(R, #{groups => maps:keys(Groups)})
+                 || R <- maps:get(readers, S1)],
+            S1#{readers := []};
         Missing ->
             Ms =:= ?ATTACH_MIN andalso
                 cell_log:notice(router, "simulated router waits for the cell's HAL (~ts)",
@@ -132,9 +157,15 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
                     "at the previous machine", [length(panels(World)), queued(World)]),
     maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
 
--spec handle_call(world, gen_server:from(), map()) -> {reply, map(), map()}.
+-spec handle_call(world | groups, gen_server:from(), map()) ->
+          {reply, map(), map()} | {noreply, map()}.
 handle_call(world, _From, #{world := W} = S) ->
-    {reply, W, S}.
+    {reply, W, S};
+handle_call(groups, _From, #{groups := Groups, attached := true} = S) ->
+    {reply, #{groups => maps:keys(Groups)}, S};
+handle_call(groups, From, #{attached := false} = S) ->
+    %% Answered once attached.
+    {noreply, S#{readers := [From | maps:get(readers, S)]}}.
 
 -spec handle_cast(term(), map()) -> no_return().
 handle_cast(Msg, _S) ->

@@ -340,21 +340,20 @@ start(Root) ->
     {ok, _} = application:ensure_all_started(router_cell),
     await_hal().
 
-%% The router's PLC connected and its groups read (in the poll after they were
-%% added): a task reading them at its first Start finds values.
+%% The router's PLC connected, and its inputs read as the physics set them up: a task
+%% reading them at its first Start finds the machine as it is.
 await_hal() ->
     await_up(router_plc),
-    {ok, Ref} = cell_hal:watch(upper_io, done, {ge, 0}),
-    receive {cell_hal_watch, Ref, _} -> ok
-    after ?DEADLINE_MS -> ct:fail(groups_not_read)
-    end.
+    ok = router_sim:ready(?DEADLINE_MS).
 
 %% As the node stops: the physics, the cell (its monitor takes the HAL down), the
-%% database.
+%% database; and the simulated PLC, which a new node has anew (the world it simulates
+%% is on disc).
 stop() ->
     _ = application:stop(router_cell),
     _ = application:stop(cell),
     _ = application:stop(mnesia),
+    ok = cell_hal_sim_sup:stop_device(router_plc),
     ok.
 
 await_up(Conn) ->
