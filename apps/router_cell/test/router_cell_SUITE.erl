@@ -11,6 +11,7 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([panels_pass_the_line/1, product_lost_answers/1, jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
+         stop_at_any_moment/1,
          physics_waits_for_the_hal/1, node_stop_secures_outputs/1,
          histories_kept_within_their_limit/1, real_mode_spec/1, diagnostics/1]).
 
@@ -20,7 +21,8 @@
 
 all() ->
     [panels_pass_the_line, product_lost_answers, jams_and_magazine_warning, dual_lane,
-     restart_keeps_every_panel, stop_and_start_while_running, physics_waits_for_the_hal,
+     restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
+     physics_waits_for_the_hal,
      node_stop_secures_outputs, histories_kept_within_their_limit, real_mode_spec,
      diagnostics].
 
@@ -52,6 +54,9 @@ sim_settings(jams_and_magazine_warning) ->
     %% The tasks' watchdogs are not scaled (3 s here), the physics is (0.02): a jam of
     %% 200 s of machine time is 4 s, enough for the watchdog to see it.
     #{jam_rate => 0.5, jam_ms => 200000, magazine_low_s => 20, magazine_refill_s => 10};
+sim_settings(stop_at_any_moment) ->
+    %% Moves long enough for a Stop to fall inside them.
+    #{time_scale => 0.1};
 sim_settings(node_stop_secures_outputs) ->
     %% Routing a panel takes a few seconds: the spindle runs when the node stops.
     #{time_scale => 0.2};
@@ -208,6 +213,26 @@ stop_and_start_while_running(_Config) ->
                   end, lists:seq(1, 4)),
     ok = stop_cell(),
     #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell),
+    ?assertEqual([], cell_alarms:list()).
+
+%% Stop at many different moments of the line's work (after a varying number of the
+%% cell's events, so inside transfers, motions and waits alike): every Stop ends in
+%% OFF with no error for the operator, since a move under way finishes first; and
+%% after the last, every panel that entered has left or is still in the cell.
+stop_at_any_moment(_Config) ->
+    Rand = rand:seed_s(exsss, {7, 11, 13}),
+    lists:foldl(fun(Round, R0) ->
+                        {Skip, R1} = rand:uniform_s(150, R0),
+                        ok = cell_events:subscribe(),
+                        ok = cell_controller:start(<<"suite">>),
+                        ok = skip_events(Skip),
+                        ct:log("round ~b: Stop after ~b events", [Round, Skip]),
+                        ok = stop_cell(),
+                        R1
+                end, Rand, lists:seq(1, 25)),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assert(In > 0),
     ?assertEqual(In, OutN + InCell),
     ?assertEqual([], cell_alarms:list()).
 
@@ -426,6 +451,19 @@ await_log(Prefix) ->
         {cell_log, #{text := <<Prefix:(byte_size(Prefix))/binary, _/binary>>}} -> ok
     after ?DEADLINE_MS ->
         ct:fail({no_log_line, Prefix})
+    end.
+
+%% Lets N events of the cell pass; an error among them fails the case.
+skip_events(0) ->
+    ok;
+skip_events(N) ->
+    receive
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error} = A}} ->
+            ct:fail({unexpected_error, A});
+        {cell_event, _} ->
+            skip_events(N - 1)
+    after ?DEADLINE_MS ->
+        ct:fail({no_event, cell_controller:tasks()})
     end.
 
 drain_events() ->
