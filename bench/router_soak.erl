@@ -34,8 +34,9 @@ main([Minutes0]) ->
     Samples = loop(T0, Minutes * 60, SampleS, []),
     ok = cell_controller:stop(<<"soak">>),
     Books = books(Operator, Agent),
-    Report = [Header, [row(S) || S <- Samples], "\n", summary(Samples), Books],
-    io:put_chars(["\n", summary(Samples), Books]),
+    Tables = largest_tables(8),
+    Report = [Header, [row(S) || S <- Samples], "\n", summary(Samples), Books, Tables],
+    io:put_chars(["\n", summary(Samples), Books, Tables]),
     case Minutes >= 30 of
         true -> ok = write_doc(Minutes, SampleS, Report);
         false -> ok
@@ -105,6 +106,19 @@ summary(Samples) ->
         [] ->
             io_lib:format("Shorter than the warm-up (~b s): no growth figures.~n", [?WARMUP_S])
     end.
+
+%% The ETS tables that hold the most memory at the end, with their entries: what the
+%% ETS figure above is made of (bounded buffers fill during the first minutes).
+largest_tables(N) ->
+    Sizes = [{Words * erlang:system_info(wordsize), Name, Size}
+             || T <- ets:all(),
+                [{memory, Words}, {name, Name}, {size, Size}]
+                    <- [[{K, ets:info(T, K)} || K <- [memory, name, size]]],
+                is_integer(Words)],
+    Top = lists:sublist(lists:reverse(lists:sort(Sizes)), N),
+    ["Largest ETS tables at the end: ",
+     lists:join(", ", [io_lib:format("~s ~.2f MB (~b entries)", [Name, mb(Bytes), Size])
+                       || {Bytes, Name, Size} <- Top]), ".\n"].
 
 %% The operator's answers and the books once the cell has stopped.
 books(Operator, Agent) ->
