@@ -7,7 +7,9 @@
 %%  idle       the upper robot's offer (STARVED)               commit (phase 2) → receiving
 %%  receiving  the robot's Available off (it let go, phase 3)  → landing
 %%  landing    the modules at the entry, or the watchdog       complete (phase 4, ItemTransferIn);
-%%                                                             belt on → conveying
+%%                                                             belt on → conveying. Put down
+%%                                                             before a restart and seen by
+%%                                                             neither sensor: belt on → conveying
 %%  conveying  the modules at the exit, or the watchdog        belt off; board available to the
 %%                                                             next machine → waiting
 %%  waiting    the next machine ready (BLOCKED)                saved as handed out; belt on → leaving
@@ -58,7 +60,15 @@ step(landing, _Woken, T) ->
                  end,
             watch(cell_task:out(T1, belt_run, true), conveying, panel_at_exit, true);
         false ->
-            watch(T, landing, panel_at_entry, true)
+            case cell_handshake:phase(T, prev(T)) of
+                released ->
+                    %% Being put down now.
+                    watch(T, landing, panel_at_entry, true);
+                _ ->
+                    %% Put down before a Stop or a restart, and on their way to the
+                    %% exit when the belt stopped: between the two sensors.
+                    watch(cell_task:out(T, belt_run, true), conveying, panel_at_exit, true)
+            end
     end;
 step(conveying, {timer, _}, T) ->
     fault(T, "did not reach the exit");
