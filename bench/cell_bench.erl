@@ -42,8 +42,10 @@ main(Args) ->
 
 all_modules() ->
     Dir = filename:dirname(code:which(?MODULE)),
-    lists:sort([list_to_atom(filename:basename(F, ".beam"))
-                || F <- filelib:wildcard(filename:join(Dir, "*_bench.beam"))]).
+    %% The runner's own name ends in _bench too.
+    lists:sort([M || F <- filelib:wildcard(filename:join(Dir, "*_bench.beam")),
+                     M <- [list_to_atom(filename:basename(F, ".beam"))],
+                     M =/= ?MODULE]).
 
 run_module(Mod) ->
     io:format("~n== ~s~n", [Mod]),
