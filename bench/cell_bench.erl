@@ -23,29 +23,41 @@
                     goal => iodata(),         %% the issue's goal, said plainly
                     note => iodata()}.
 
-%% @doc Entry point: `erl -run cell_bench main all' or `... main Mod1 Mod2'.
+%% @doc Entry points, as `scripts/bench' calls them:
+%% <ul>
+%% <li>`erl -run cell_bench main run Mod File': runs one module in this VM, prints its
+%%     figures and keeps them in `File' for the document;</li>
+%% <li>`erl -run cell_bench main doc File...': rewrites `docs/benchmarks.md' from the
+%%     kept figures of a full run;</li>
+%% <li>`erl -run cell_bench main Mod1 Mod2': runs modules here and only prints.</li>
+%% </ul>
+%% A full run gives every module a VM of its own: a benchmark starts and stops the
+%% cell's applications, and what one leaves behind (a database folder, a connection, a
+%% busy scheduler) must not move the next one's figures.
 -spec main([string()]) -> no_return().
-main(Args) ->
-    Mods = case Args of
-               ["all"] -> all_modules();
-               Names -> [list_to_atom(N) || N <- Names]
-           end,
-    Full = Args =:= ["all"],
-    Sections = [run_module(M) || M <- Mods],
+main(["run", Name, File]) ->
+    Mod = list_to_atom(Name),
+    Section = run_module(Mod),
+    ok = file:write_file(File, term_to_binary(Section)),
+    erlang:halt(case Section of {_, {ok, _}} -> 0; _ -> 1 end);
+main(["doc" | Files]) ->
+    Sections = [binary_to_term(B) || F <- Files, {ok, B} <- [file:read_file(F)]],
     Failed = [M || {M, {error, _}} <- Sections],
-    case Full andalso Failed =:= [] of
-        true -> ok = write_doc(Sections);
-        false -> ok
-    end,
-    io:format("~n~p benchmark module(s) run, ~p failed~n", [length(Mods), length(Failed)]),
+    case {length(Sections) =:= length(Files), Failed} of
+        {true, []} ->
+            ok = write_doc(Sections),
+            io:format("~ndocs/benchmarks.md rewritten from ~p module(s)~n", [length(Files)]),
+            erlang:halt(0);
+        _ ->
+            io:format("~ndocs/benchmarks.md kept: ~p of ~p module(s) ran, failed: ~p~n",
+                      [length(Sections) - length(Failed), length(Files), Failed]),
+            erlang:halt(1)
+    end;
+main(Names) ->
+    Sections = [run_module(list_to_atom(N)) || N <- Names],
+    Failed = [M || {M, {error, _}} <- Sections],
+    io:format("~n~p benchmark module(s) run, ~p failed~n", [length(Names), length(Failed)]),
     erlang:halt(case Failed of [] -> 0; _ -> 1 end).
-
-all_modules() ->
-    Dir = filename:dirname(code:which(?MODULE)),
-    %% The runner's own name ends in _bench too.
-    lists:sort([M || F <- filelib:wildcard(filename:join(Dir, "*_bench.beam")),
-                     M <- [list_to_atom(filename:basename(F, ".beam"))],
-                     M =/= ?MODULE]).
 
 run_module(Mod) ->
     io:format("~n== ~s~n", [Mod]),
