@@ -9,8 +9,12 @@
 %%
 %% <b>Time per IPC-2541 state</b>, per task: each `task_state' event closes the time
 %% spent in the state before. The time is split at shift boundaries and added to the
-%% shift and to the total, in microseconds. Time while the runtime was not running
-%% (from the last write before a stop or crash until the next start) is counted as OFF,
+%% shift and to the total, in microseconds. The state each task is in, and since when,
+%% is written with the counters; a query adds that open stretch up to the last write,
+%% so the process does no work for a task that stays in its state (a thousand waiting
+%% tasks cost it nothing) and closes the open stretches only when a shift ends. Time
+%% while the runtime was not running (from the last write before a stop or crash until
+%% the next start) is counted as OFF, the time before it in the state the task was in,
 %% so for every task the states add up to the wall-clock time since it was first seen.
 %%
 %% <b>Products.</b> A serial first saved by a task enters the cell (`in'); a
@@ -83,7 +87,7 @@
              started :: integer(),                              %% wall µs
              tasks = #{} :: #{atom() => {atom(), integer()}},   %% state, accounted up to
              shift :: {cell_stats_shift:id(), integer(), integer()} | undefined,
-             pending = #{} :: #{term() => {add | min | max | set | first, integer()}},
+             pending :: ets:tid(),        %% {Key, add | min | max | set | first, Value}
              products = #{} :: #{binary() => #prod{}},
              holding = #{} :: #{atom() => binary()},            %% task -> serial
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
@@ -91,7 +95,8 @@
              backlog_len = 0 :: non_neg_integer(),
              seq = 0 :: non_neg_integer(),
              retry_at = 0 :: integer() | infinity,
-             purge_at = 0 :: integer()}).
+             purge_at = 0 :: integer(),
+             shift_end = 0 :: integer()}).                      %% wall µs
 
 %%====================================================================
 %% API
@@ -145,8 +150,8 @@ summary() ->
 %% throughput per hour. Read from the database (what was written up to a second ago).
 -spec summary(period()) -> map().
 summary(Period) ->
-    Counters = counters(Period),
     {From, To} = span(Period),
+    Counters = counters(Period),
     Hours = max(To - From, 0) / 3600.0e6,
     Cell = maps:get(cell, Counters, #{}),
     Out = maps:get(out, Cell, 0),
@@ -186,10 +191,15 @@ times(Kind, C) ->
 
 round1(X) -> round(X * 10) / 10.
 
-%% @doc The raw counters of a period as written: `#{Scope => #{Metric => Value}}',
-%% times in microseconds.
+%% @doc The counters of a period up to the last write: `#{Scope => #{Metric =>
+%% Value}}', times in microseconds, the time of tasks still in their state included.
 -spec counters(period()) -> #{atom() => map()}.
 counters(Period) ->
+    {From, To} = span(Period),
+    with_open(From, To, written(Period)).
+
+%% The counters as written.
+written(Period) ->
     Rows = safe(fun() ->
                         mnesia:dirty_select(?COUNTER, [{{?COUNTER, {Period, '$1', '$2'}, '$3'},
                                                         [], [{{'$1', '$2', '$3'}}]}])
@@ -198,6 +208,27 @@ counters(Period) ->
                         maps:update_with(Scope, fun(M) -> M#{Metric => V} end,
                                          #{Metric => V}, Acc)
                 end, #{}, Rows).
+
+%% The counters with the time of every task in the state it was in at the last write,
+%% as much of it as falls in the period's span.
+with_open(From, To, Counters) ->
+    Open = safe(fun() ->
+                        mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
+                                                        [], [{{'$1', '$2'}}]}])
+                end, []),
+    lists:foldl(fun({T, {State, Since}}, Acc) when is_integer(Since) ->
+                        case To - max(From, Since) of
+                            D when D > 0 ->
+                                maps:update_with(T, fun(C) -> maps:update_with({time, State},
+                                                                               fun(V) -> V + D end,
+                                                                               D, C)
+                                                    end, #{{time, State} => D}, Acc);
+                            _ ->
+                                Acc
+                        end;
+                   (_, Acc) ->
+                        Acc
+                end, Counters, Open).
 
 %% The time a period covers: a shift from its start to its end or to the last write;
 %% the total from the first task seen to the last write.
@@ -283,6 +314,11 @@ safe(Fun, Default) ->
 -spec init(options()) -> {ok, #st{}, {continue, open}}.
 init(Opts) ->
     process_flag(trap_exit, true),
+    %% Counting never competes with the tasks: a burst of events (an emergency stop
+    %% of a thousand tasks) is counted once the tasks have done what it asked of them.
+    process_flag(priority, low),
+    %% A burst waits outside the heap: a collection never copies the queue.
+    process_flag(message_queue_data, off_heap),
     ok = cell_events:subscribe(?EVENTS),
     %% The shift plan is there (its file read by the settings owner) before the cell
     %% has started.
@@ -293,8 +329,12 @@ init(Opts) ->
                                                          <- cell_registry:tasks()]),
     Holding = maps:from_list([{Id, S} || #{id := Id, serial := S} <- cell_registry:tasks(),
                                          is_binary(S)]),
+    %% What is counted until the next write, kept outside the heap: a thousand tasks
+    %% change thousands of counters a second, and a map of them would be copied at
+    %% every collection.
+    Pending = ets:new(cell_stats_pending, [set, private]),
     {ok, #st{exits = maps:get(exits, Opts, all), started = Now, tasks = Tasks,
-             holding = Holding},
+             holding = Holding, pending = Pending},
      {continue, open}}.
 
 -spec handle_continue(open, #st{}) -> {noreply, #st{}}.
@@ -340,7 +380,7 @@ terminate(_Reason, _St) ->
 event(#{type := task_state, task := T, state := S} = E, St) ->
     At = event_us(E),
     {St1, Upto} = account_task(T, At, St),
-    St1#st{tasks = maps:put(T, {name(S), Upto}, St1#st.tasks)};
+    counting(T, name(S), Upto, St1);
 event(#{type := product_saved, task := T} = E, St) ->
     saved(T, maps:get(item, E, undefined), maps:get(product, E, undefined), event_us(E), St);
 event(#{type := item_transfer_in, task := T, item := S} = E, St) ->
@@ -559,12 +599,28 @@ account(Scope, State, From, To, St) ->
     St2 = add([{Id, Scope, {time, State}}, {total, Scope, {time, State}}], Upto - From, St1),
     account(Scope, State, Upto, To, St2).
 
+%% A task is in `State', counted up to `Upto': kept, and written with the counters
+%% (queries add the time since; a restart counts it up to the runtime's last write).
+counting(T, State, Upto, St) ->
+    St1 = op({meta, {open, T}}, set, {State, Upto}, St),
+    St1#st{tasks = maps:put(T, {State, Upto}, St1#st.tasks)}.
+
+%% Once a shift has ended, every task's time in its state is closed at that moment, so
+%% the shift's counters hold all of its time.
+shift_ended(Now, #st{shift_end = End} = St) when Now < End ->
+    St;
+shift_ended(Now, St0) ->
+    St1 = maps:fold(fun(T, {State, Since}, Acc) ->
+                            counting(T, State, max(Now, Since),
+                                     account(T, State, Since, max(Now, Since), Acc))
+                    end, St0, St0#st.tasks),
+    {_, _, End, St2} = shift_of(Now, St1),
+    St2#st{shift_end = End}.
+
+%% What is counted so far written, with the time of the write.
 flush(St0) ->
     Now = now_us(),
-    St1 = maps:fold(fun(T, {State, Since}, Acc) ->
-                            Acc1 = account(T, State, Since, max(Now, Since), Acc),
-                            Acc1#st{tasks = maps:put(T, {State, max(Now, Since)}, Acc1#st.tasks)}
-                    end, St0, St0#st.tasks),
+    St1 = shift_ended(Now, St0),
     St2 = reconcile(Now, St1),
     St3 = case St2#st.db of
               closed when Now >= St2#st.retry_at -> open(St2);
@@ -603,12 +659,16 @@ timing({Scope, Kind}, From, At, St) ->
 add(Keys, N, St) ->
     lists:foldl(fun(K, Acc) -> op(K, add, N, Acc) end, St, Keys).
 
+op(Key, add, V, #st{pending = Pending} = St) ->
+    _ = ets:update_counter(Pending, Key, {3, V}, {Key, add, 0}),
+    St;
 op(Key, Op, V, #st{pending = Pending} = St) ->
-    New = case maps:find(Key, Pending) of
-              {ok, {Op, Old}} -> {Op, merge(Op, Old, V)};
-              error -> {Op, V}
+    New = case ets:lookup(Pending, Key) of
+              [{_, Op, Old}] -> merge(Op, Old, V);
+              [] -> V
           end,
-    St#st{pending = maps:put(Key, New, Pending)}.
+    true = ets:insert(Pending, {Key, Op, New}),
+    St.
 
 merge(add, Old, V) -> Old + V;
 merge(min, Old, V) -> min(Old, V);
@@ -619,21 +679,25 @@ merge(first, Old, _V) -> Old.
 %% One transaction a second: every counter and the time they cover, together.
 write_pending(Now, #st{db = open, pending = Pending} = St) ->
     F = fun() ->
-                maps:foreach(fun(K, {Op, V}) ->
-                                     New = case mnesia:read(?COUNTER, K, write) of
-                                               [{?COUNTER, _, Old}] when Op =/= set ->
-                                                   merge(Op, Old, V);
-                                               _ ->
-                                                   V
-                                           end,
-                                     mnesia:write({?COUNTER, K, New})
-                             end, Pending),
+                %% One lock for all: a thousand tasks starting change thousands of
+                %% counters, and a lock request each would cost more than the writes.
+                ok = mnesia:write_lock_table(?COUNTER),
+                ets:foldl(fun({K, Op, V}, ok) ->
+                                  New = case mnesia:read(?COUNTER, K, write) of
+                                            [{?COUNTER, _, Old}] when Op =/= set ->
+                                                merge(Op, Old, V);
+                                            _ ->
+                                                V
+                                        end,
+                                  mnesia:write({?COUNTER, K, New})
+                          end, ok, Pending),
                 mnesia:write({?COUNTER, {meta, flushed}, Now})
         end,
     case mnesia:transaction(F) of
         {atomic, ok} ->
             _ = mnesia:sync_log(),
-            St#st{pending = #{}};
+            true = ets:delete_all_objects(Pending),
+            St;
         {aborted, Why} ->
             closed(Why, St)
     end;
@@ -673,11 +737,27 @@ closed(Why, #st{db = Was} = St) ->
     end,
     St#st{db = closed, retry_at = now_us() + ?RETRY_MS * 1000}.
 
-%% The database is open: the time the runtime was not running is OFF; the products
-%% the cell held are known again; what was kept in memory meanwhile is written.
+%% The database is open: each task's time in the state it was in at the last write
+%% before a stop or crash is closed there, the time the runtime was not running is OFF;
+%% the products the cell held are known again; what was kept in memory meanwhile is
+%% written.
 opened(#st{started = Started} = St0) ->
     Flushed = meta(flushed, undefined),
-    St1 = maps:fold(fun(T, _, Acc) ->
+    Counting = safe(fun() ->
+                            mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
+                                                            [], [{{'$1', '$2'}}]}])
+                    end, []),
+    St0a = lists:foldl(fun({T, Was}, Acc) ->
+                               Acc1 = until_down(T, Was, Flushed, Acc),
+                               case maps:is_key(T, Acc1#st.tasks) of
+                                   true -> Acc1;
+                                   %% Not in this cell any more: nothing of it is open.
+                                   false -> db(fun() -> mnesia:dirty_delete(?COUNTER, {meta, {open, T}})
+                                               end, Acc1)
+                               end
+                       end, St0, Counting),
+    St1 = maps:fold(fun(T, {State, Since}, Acc0) ->
+                            Acc = counting(T, State, Since, Acc0),
                             case meta({first, T}, undefined) of
                                 undefined ->
                                     op({meta, {first, T}}, first, Started, Acc);
@@ -686,7 +766,7 @@ opened(#st{started = Started} = St0) ->
                                 _ ->
                                     Acc
                             end
-                    end, St0, St0#st.tasks),
+                    end, St0a, St0a#st.tasks),
     Open = safe(fun() -> ets_list(?OPEN) end, []),
     Known = lists:foldl(
               fun({?OPEN, Serial, Info}, Acc) ->
@@ -711,6 +791,14 @@ opened(#st{started = Started} = St0) ->
     Backlog = lists:reverse(St2#st.backlog),
     St3 = St2#st{backlog = [], backlog_len = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
+
+%% The time from where a task was last counted to the runtime's last write, in the
+%% state it was in then.
+until_down(T, {State, Upto}, Flushed, St) when is_atom(State), is_integer(Upto),
+                                                 is_integer(Flushed), Upto < Flushed ->
+    account(T, State, Upto, Flushed, St);
+until_down(_T, _Was, _Flushed, St) ->
+    St.
 
 ets_list(Tab) ->
     mnesia:dirty_select(Tab, [{'_', [], ['$_']}]).

@@ -2,18 +2,30 @@
 %% node name in Databases/): the cell runs all the same, the log says why in words,
 %% what happens is counted and recorded in memory, and once the folder is moved aside
 %% the statistics start an empty database and write what they kept.
+%%
+%% The time of tasks that stay in one state: counted up to the last write without the
+%% statistics doing anything for them, and across a crash of the statistics kept in
+%% the state the task was in up to the last write before it, the gap counted as OFF.
 -module(cell_stats_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1]).
+-export([database_unusable_then_back/1, time_in_a_state_across_a_crash/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back].
+    [database_unusable_then_back, time_in_a_state_across_a_crash].
 
+init_per_testcase(time_in_a_state_across_a_crash = Case, Config) ->
+    Config1 = init_per_testcase({Case, common}, Config),
+    Tab = ets:new(stats_suite_tasks, [public]),
+    Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
+    ok = application:set_env(cell, cell_spec, #{name => <<"stats suite">>, tasks => Tasks}),
+    [{tab, Tab} | Config1];
+init_per_testcase({_Case, common}, Config) ->
+    init_per_testcase(common, Config);
 init_per_testcase(_Case, Config) ->
     _ = application:stop(cell),
     _ = application:stop(mnesia),
@@ -50,6 +62,65 @@ database_unusable_then_back(Config) ->
     ok = cell_stats:flush(),
     {ok, #{events := [#{event := measured, detail := #{width := 12}}]}} =
         cell_stats:product(<<"S-1">>).
+
+time_in_a_state_across_a_crash(_Config) ->
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    Ids = [waits_a, waits_b],
+    %% Each task now waits for a command in READY-IDLE-STARVED, and stays there.
+    [{ready, idle, starved} = cell_task_proc:state(Id) || Id <- Ids],
+    ok = cell_stats:flush(),
+    Before = times(Ids),
+    %% Time passes, which is what is counted here.
+    receive after 300 -> ok end,
+    ok = cell_stats:flush(),
+    Later = times(Ids),
+    %% Nothing happened to the tasks; their time in their state grew with the clock.
+    [?assert(starved_ms(Id, Later) - starved_ms(Id, Before) >= 300) || Id <- Ids],
+    assert_adds_up(Ids),
+    %% The statistics crash; the time until their last write stays where it was.
+    LastWrite = meta(flushed),
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    %% The supervisor has handled the exit (it reached it before this call) and
+    %% started the statistics again.
+    _ = supervisor:which_children(cell_controller_sup),
+    ?assertNotEqual(Old, whereis(cell_stats)),
+    ok = cell_stats:flush(),
+    After = times(Ids),
+    [begin
+         ?assert(starved_ms(Id, After) >= starved_ms(Id, Later)),
+         ?assert(maps:get(off, maps:get(Id, After), 0) > maps:get(off, maps:get(Id, Later), 0))
+     end || Id <- Ids],
+    ?assert(meta(flushed) > LastWrite),
+    assert_adds_up(Ids).
+
+%% Per task, its time in each state in milliseconds, up to the last write.
+times(Ids) ->
+    Counters = cell_stats:counters(total),
+    maps:from_list([{Id, maps:from_list([{S, V div 1000}
+                                          || {{time, S}, V} <- maps:to_list(maps:get(Id, Counters))])}
+                    || Id <- Ids]).
+
+starved_ms(Id, Times) ->
+    maps:get(starved, maps:get(Id, Times), 0).
+
+%% For every task, its states add up to the time since it was first seen.
+assert_adds_up(Ids) ->
+    Counters = cell_stats:counters(total),
+    Flushed = meta(flushed),
+    [begin
+         First = meta({first, Id}),
+         Sum = lists:sum([V || {{time, _}, V} <- maps:to_list(maps:get(Id, Counters))]),
+         ?assertEqual({Id, Flushed - First}, {Id, Sum})
+     end || Id <- Ids].
+
+meta(Key) ->
+    [{_, _, V}] = mnesia:dirty_read(cell_stats_counter, {meta, Key}),
+    V.
 
 %% The text of the first task log line that begins with `Prefix'.
 await_log(Prefix) ->
