@@ -102,6 +102,9 @@ sync() ->
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
+    %% A thousand tasks change state at once (an emergency stop): their events wait
+    %% outside the heap, so a collection in the middle of the burst copies none of them.
+    process_flag(message_queue_data, off_heap),
     ok = cell_events:subscribe([task_state]),
     Counts = lists:foldl(fun incr/2, #{}, cell_registry:states()),
     Cell = top(Counts),
@@ -203,8 +206,14 @@ request(Request, Who) ->
     publish(request, #{request => Request, who => Who}).
 
 broadcast(Key, Value) ->
+    %% At high priority, so that no task woken by the first messages runs before the
+    %% last is sent: every task then does the first part of what the message asks
+    %% (an emergency stop: securing its outputs) before any does the rest.
+    Was = process_flag(priority, high),
     lists:foreach(fun(Pid) -> cell_task_proc:control(Pid, Key, Value) end,
-                  cell_registry:pids()).
+                  cell_registry:pids()),
+    _ = process_flag(priority, Was),
+    ok.
 
 %% A task's move from one state to another: only the counts per state are kept.
 task_state(From, New, #state{counts = Counts0} = State) ->

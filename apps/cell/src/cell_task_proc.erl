@@ -53,7 +53,8 @@
     settings = #{} :: map(),              %% the snapshot for the next start
     deferred :: pause | service | undefined, %% a pause a transfer holds back
     conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
-    reoffer = [] :: [atom()]              %% offers a pause withdrew, made again at resume
+    reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
+    estop_flag :: atomics:atomics_ref()    %% the node's emergency-stop flag, read before every step
 }).
 
 -define(STEP(Gen), {'$cell_step', Gen}).
@@ -128,7 +129,8 @@ callback_mode() ->
 init(Spec) ->
     process_flag(trap_exit, true),
     Task = cell_task:new(Spec),
-    {ok, off, #data{task = Task, spec = Spec, settings = Task#task.settings},
+    {ok, off, #data{task = Task, spec = Spec, settings = Task#task.settings,
+                    estop_flag = cell_registry:estop_flag()},
      [{next_event, internal, boot}]}.
 
 -spec handle_event(gen_statem:event_type(), term(), cell_ipc:state(), #data{}) ->
@@ -336,7 +338,7 @@ start_from_off(D) ->
     {keep_state, D#data{crash = undefined}}.
 
 run_init(#data{task = #task{module = Mod} = T0} = D0) ->
-    case estop_raised() of
+    case estop_raised(D0) of
         true ->
             estop(setup, D0#data{estop = true});
         false ->
@@ -377,9 +379,12 @@ ready_after_init(Woken, #data{task = T} = D) ->
 %% --------------------------------------------------------------------------------------
 
 run_step(State, D0) ->
-    case estop_raised() of
+    case estop_raised(D0) of
         true ->
             estop(State, D0#data{estop = true});
+        false when D0#data.request =:= start, D0#data.deferred =:= undefined ->
+            %% Running, nothing held back: the common case, at every step.
+            do_step(D0);
         false ->
             %% Every step boundary is a wait point: a Pause or Stop that came while the
             %% task was elsewhere (re-initialising after a Reset, say) is honoured here,
@@ -405,9 +410,13 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
             raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
     end.
 
-after_step({continue, T}, #data{gen = Gen} = D) ->
+after_step({continue, T}, #data{gen = Gen, task = #task{ipc = Ipc}} = D) ->
     self() ! ?STEP(Gen),
-    {next_state, T#task.ipc, D#data{task = clean(T), pending = {step, undefined}}};
+    D1 = D#data{task = clean(T), pending = {step, undefined}},
+    case T#task.ipc of
+        Ipc -> {keep_state, D1};
+        New -> {next_state, New, D1}
+    end;
 after_step({wait, Wait, T}, D) ->
     Waits = case Wait of
                 L when is_list(L) -> L;
@@ -480,7 +489,9 @@ arm_watch(Ref, Link, Signal, Value, T0) ->
     {{handshake, Ref, Link, Signal, Value}, T}.
 
 disarm(#data{armed = Armed, gen = Gen} = D) ->
-    _ = [erlang:cancel_timer(TRef) || {timer, TRef, _} <- Armed],
+    %% Not waited for: a timer that fires meanwhile sends a message of an older
+    %% generation, which is ignored.
+    _ = [erlang:cancel_timer(TRef, [{async, true}, {info, false}]) || {timer, TRef, _} <- Armed],
     _ = [cell_hal:cancel_watch(Ref) || {io, Ref, _, _} <- Armed],
     %% Watches on links are not cancelled: when one fires later its reference is no
     %% longer armed and the message is ignored.
@@ -644,13 +655,18 @@ estop(_State, #data{down = Down} = D0) ->
         {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
         _ -> ok
     end,
-    D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
-                           deferred = undefined, reoffer = []},
+    D1 = D0#data{down = undefined, pending = undefined, resume = undefined,
+                 deferred = undefined, reoffer = []},
     D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
-    goto(off, estop, D, []).
+    %% The outputs are secure. The rest (waits cancelled, the new state recorded and
+    %% announced) waits until the tasks the emergency stop reached after this one have
+    %% secured theirs: they are ahead in the run queue now.
+    erlang:yield(),
+    goto(off, estop, disarm(D), []).
 
-estop_raised() ->
-    cell_registry:estop_active().
+%% The flag is made once per node and never replaced, so the task keeps it.
+estop_raised(#data{estop_flag = Flag}) ->
+    atomics:get(Flag, 1) =:= 1.
 
 %% uninit is the seed's "must not fail": an error in it is logged, never raised, so
 %% a failing uninit cannot keep a task from stopping.
