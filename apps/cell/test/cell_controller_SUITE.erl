@@ -276,14 +276,14 @@ events_have_their_fields(Config) ->
 cell_state_follows_tasks(Config) ->
     ok = cell_events:subscribe([cell_state]),
     ok = cell_controller:start(),
-    ok = cell_controller:sync(),
+    ok = settle(Config),
     cmd(Config, load, {event, blocked}),
     cmd(Config, work, {event, unstarved}),
-    ok = cell_controller:sync(),
+    ok = settle(Config),
     %% ACTIVE outranks STARVED and BLOCKED.
     ?assertEqual({ready, processing, active}, cell_controller:state()),
     cmd(Config, work, {event, starved}),
-    ok = cell_controller:sync(),
+    ok = settle(Config),
     ?assertEqual({ready, idle, starved}, cell_controller:state()),
     States = [S || #{state := S} <- drain([])],
     ?assertEqual([setup, {ready, idle, starved}, {ready, processing, active},
@@ -328,6 +328,12 @@ counts(Config, Id) ->
 
 cmd(Config, Id, Command) ->
     ok = cell_test_task:command(Id, maps:get(Id, ?config(refs, Config)), Command).
+
+%% Every task has done what it was sent, and the controller has seen the states that
+%% came of it (a task's events reach the controller before the task answers a call).
+settle(Config) ->
+    _ = [ok = cell_task_proc:sync(Id) || Id <- maps:keys(?config(refs, Config))],
+    cell_controller:sync().
 
 settle_alarms() ->
     cell_alarms:sync().
