@@ -2,7 +2,7 @@
 %%
 %% rest_for_one, in dependency order: the sessions table and the audit trail are used
 %% by every request; the password hasher by logins; the listener serves the requests;
-%% the recent log lines feed new websockets. Ten restarts a minute is a fault that
+%% the recent log lines feed new websockets, the feed every connected one. Ten restarts a minute is a fault that
 %% will not heal: beyond that the panel stops and says so, and the cell runs on (the
 %% release starts this application as temporary).
 -module(cell_web_sup).
@@ -22,5 +22,6 @@ init([]) ->
                 #{id => cell_web_audit, start => {cell_web_audit, start_link, []}},
                 #{id => cell_web_hasher, start => {cell_web_hasher, start_link, []}},
                 #{id => cell_web_listener, start => {cell_web_listener, start_link, []}},
-                #{id => cell_web_recent, start => {cell_web_recent, start_link, []}}],
+                #{id => cell_web_recent, start => {cell_web_recent, start_link, []}},
+                #{id => cell_web_feed, start => {cell_web_feed, start_link, []}}],
     {ok, {Flags, Children}}.

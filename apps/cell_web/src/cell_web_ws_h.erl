@@ -20,11 +20,13 @@
 %% While a page is connected the panel is a message client of the inspection blocks
 %% that ask for it (`cell_inspect_panel'); that process is monitored like the others.
 %%
-%% A slow browser never slows the cell: publishers send to this process without
-%% waiting, and when more than `?MAX_BACKLOG' messages wait here, they are dropped
-%% and a fresh snapshot (`"resync": true') is sent instead. A browser that stops
+%% The changes come already encoded from {@link cell_web_feed}, which makes them once
+%% for every page. A slow browser never slows the cell: the feed sends to this process
+%% without waiting, and when more than `?MAX_BACKLOG' messages wait here, they are
+%% dropped and a fresh snapshot (`"resync": true') is sent instead. A browser that stops
 %% reading altogether is dropped by the socket's send timeout. The socket closes with
-%% 4001 when the session ends, 1012 when the cell restarts; the page connects again.
+%% 4001 when the session ends, 1012 when the cell (or the feed) restarts; the page
+%% connects again.
 -module(cell_web_ws_h).
 -behaviour(cowboy_websocket).
 
@@ -36,8 +38,7 @@
 -define(PING_MS, 30000).
 
 -record(state, {caller :: cell_web_req:caller(),
-                events :: reference() | undefined,
-                log :: reference() | undefined,
+                feed :: reference() | undefined,
                 inspect :: reference() | undefined}).
 
 -spec init(cowboy_req:req(), map()) ->
@@ -60,10 +61,10 @@ init(Req, Opts) ->
 
 -spec websocket_init(#state{}) -> {[cow_ws:frame()], #state{}}.
 websocket_init(#state{caller = Caller} = State) ->
-    %% Subscribe first, then read the snapshot: nothing that happens in between is
+    %% Join the feed first, then read the snapshot: nothing that happens in between is
     %% missed (a change seen twice is harmless, the page applies it again).
-    ok = cell_events:subscribe(),
-    ok = cell_log:subscribe(),
+    Feed = monitor(process, cell_web_feed),
+    ok = cell_web_feed:join(self()),
     ok = cell_web_sessions:attach(case Caller of
                                       #{session := undefined} -> anonymous;
                                       #{session := Id} -> Id
@@ -71,8 +72,7 @@ websocket_init(#state{caller = Caller} = State) ->
     _ = erlang:start_timer(?PING_MS, self(), ping),
     {Inspect, Messages} = join_inspection(),
     {[snapshot(false, State) | Messages],
-     State#state{events = monitor(process, cell_events),
-                 log = monitor(process, cell_log_server), inspect = Inspect}}.
+     State#state{feed = Feed, inspect = Inspect}}.
 
 %% The inspection blocks' messages, when their app runs.
 join_inspection() ->
@@ -96,10 +96,8 @@ websocket_handle(_Frame, State) ->
     {[], State}.
 
 -spec websocket_info(term(), #state{}) -> {[cow_ws:frame()], #state{}}.
-websocket_info({cell_event, _} = Msg, State) ->
-    batch(Msg, State);
-websocket_info({cell_log, _} = Msg, State) ->
-    batch(Msg, State);
+websocket_info({cell_web_feed, Json}, State) ->
+    batch(Json, State);
 websocket_info({timeout, _, ping}, State) ->
     _ = erlang:start_timer(?PING_MS, self(), ping),
     {[ping], State};
@@ -107,8 +105,8 @@ websocket_info({cell_inspect_panel, Ms}, State) ->
     {[inspect_messages(Ms)], State};
 websocket_info({cell_web_session, ended}, State) ->
     {[{close, 4001, <<"session ended">>}], State};
-websocket_info({'DOWN', Ref, process, _, _}, #state{events = E, log = L, inspect = I} = State)
-  when Ref =:= E; Ref =:= L; Ref =:= I ->
+websocket_info({'DOWN', Ref, process, _, _}, #state{feed = F, inspect = I} = State)
+  when Ref =:= F; Ref =:= I ->
     {[{close, 1012, <<"the cell restarted">>}], State}.
 
 %% The first message, and what waits behind it, in one frame; or, when the browser
@@ -119,24 +117,21 @@ batch(First, State) ->
             drop(),
             {[snapshot(true, State)], State};
         _ ->
-            Msgs = [First | drain(?BATCH)],
-            {[{text, jsx:encode(lists:append([messages(M) || M <- Msgs]))}], State}
+            {[{text, [$[, lists:join($,, [First | drain(?BATCH)]), $]]}], State}
     end.
 
 drain(0) ->
     [];
 drain(N) ->
     receive
-        {cell_event, _} = M -> [M | drain(N - 1)];
-        {cell_log, _} = M -> [M | drain(N - 1)]
+        {cell_web_feed, Json} -> [Json | drain(N - 1)]
     after 0 ->
         []
     end.
 
 drop() ->
     receive
-        {cell_event, _} -> drop();
-        {cell_log, _} -> drop()
+        {cell_web_feed, _} -> drop()
     after 0 ->
         ok
     end.

@@ -521,6 +521,8 @@ websocket_resyncs_when_behind(Config) ->
     true = erlang:suspend_process(Pid),
     Event = cell_events:new(item_transfer_in, loader, #{item => <<"X">>}),
     _ = [cell_events:publish(Event) || _ <- lists:seq(1, 3000)],
+    %% The feed has passed them all on (it answers after its queue).
+    _ = sys:get_state(cell_web_feed),
     true = erlang:resume_process(Pid),
     %% What it sends next is a fresh snapshot, not 3000 events.
     {[#{<<"type">> := <<"snapshot">>, <<"resync">> := true}], Ws2} = cell_web_client:ws_next(Ws1, 10000),
