@@ -365,6 +365,11 @@ handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T)
             %% an incarnation of the link the task is no longer attached to.
             {T, []}
     end;
+handle({cell_handshake, Link, Step, #{} = Status}, T) ->
+    %% A step of the protocol and the signals it left, in one message.
+    {T1, Wakes} = handle({cell_handshake, Link, Step}, T),
+    {T2, More} = handle({cell_handshake, Link, signals, Status}, T1),
+    {T2, Wakes ++ More};
 handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial := Serial},
                                                           gen = G} = T) when G < Gen ->
     {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};

@@ -20,7 +20,9 @@
 %% the link is idle again, so that side can go on. Both partners are told of every
 %% signal change by message (`{cell_handshake, Link, signals, Status}', numbered, so a
 %% partner never takes an older status for a newer one) and of the protocol's own
-%% steps; every answer to a partner carries the status it leaves. The
+%% steps (`{cell_handshake, Link, Step}', or `{cell_handshake, Link, Step, Status}'
+%% when the step changes the signals: one message for both); every answer to a partner
+%% carries the status it leaves. The
 %% partners are monitored, across nodes too, and a partner that stops in any phase
 %% ends the transfer on the other side, never leaves it waiting.
 -module(cell_handshake_link).
@@ -151,8 +153,8 @@ op(up, {try_abort_offering, _}, _From, State) ->
     {reply, false, State};
 %% Upstream, phase 3: the product has left.
 op(up, {release, _}, _From, #state{phase = committed} = State) ->
-    tell(down, {released, State#state.product, State#state.gen}, State),
-    {reply, ok, change(up, State#state{phase = released})};
+    {reply, ok, change(up, {released, State#state.product, State#state.gen},
+                       State#state{phase = released})};
 %% Upstream took an aborted product back: downstream may forget its copy.
 op(up, {taken_back, _}, _From, #state{phase = aborting, waiter = Waiter} = State) ->
     State1 = change(up, State#state{phase = idle, product = undefined, gen = 0, waiter = undefined}),
@@ -171,16 +173,14 @@ op(down, {commit, _}, _From, State) ->
     {reply, {error, not_available}, State};
 %% Downstream, phase 4: the product has arrived.
 op(down, {complete, _}, _From, #state{phase = released} = State) ->
-    tell(up, completed, State),
-    {reply, ok, change(down, State#state{phase = idle, product = undefined, gen = 0})};
+    {reply, ok, change(down, completed, State#state{phase = idle, product = undefined, gen = 0})};
 op(down, {complete, _}, _From, State) ->
     {reply, {error, {not_released, State#state.phase}}, State};
 %% Downstream aborts: before release upstream still owns the product; after release
 %% upstream must take it back before downstream forgets its copy.
 op(down, {abort, _}, _From, #state{phase = committed} = State) ->
-    tell(up, aborted, State),
-    {reply, kept_by_upstream, change(down, State#state{phase = idle, abort = true,
-                                                 product = undefined, gen = 0})};
+    {reply, kept_by_upstream, change(down, aborted, State#state{phase = idle, abort = true,
+                                                          product = undefined, gen = 0})};
 op(down, {abort, _}, From, #state{phase = released, up = #end_{pid = Up}} = State)
   when Up =/= undefined ->
     tell(up, {take_back, State#state.product, State#state.gen}, State),
@@ -271,10 +271,16 @@ change(State) ->
 
 %% As change/1, but the partner whose call made the change learns the new status from
 %% the answer, not from a message as well.
-change(Caller, #state{seq = Seq} = State0) ->
+change(Caller, State) ->
+    change(Caller, signals, State).
+
+%% As change/2, the other partner told of a step of the protocol in the same message
+%% (it handles the step first, then the signals, as if they had come one after the
+%% other).
+change(Caller, Step, #state{seq = Seq} = State0) ->
     State = State0#state{seq = Seq + 1},
     Status = status(State),
-    _ = [send(get_end(Role, State), {cell_handshake, State#state.id, signals, Status})
+    _ = [send(get_end(Role, State), {cell_handshake, State#state.id, Step, Status})
          || Role <- [up, down], Role =/= Caller],
     State.
 

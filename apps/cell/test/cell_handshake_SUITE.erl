@@ -253,7 +253,10 @@ abort_after_release_gives_back(Config) ->
     ok = as(Up, ab, {offer, Up, P, 3}),
     {ok, P, 3} = as(Down, ab, {commit, Down}),
     ok = as(Up, ab, {release, Up}),
-    receive {partner_got, Down, {cell_handshake, ab, {released, P, 3}}} -> ok
+    %% The step and the signals it leaves (Available off, NotBusy still on), together.
+    receive {partner_got, Down, {cell_handshake, ab, {released, P, 3},
+                                 #{phase := released, available := false,
+                                   not_busy := true}}} -> ok
     after ?TIMEOUT -> ct:fail(no_released)
     end,
     %% Downstream's abort waits for upstream to take the product back.
