@@ -35,8 +35,8 @@
 -type ret() :: {outcome(), cell_sequence:seq(), [cell_sequence:effect()]}.
 
 %% @doc The sequences of a unit, with its actuators built from their options.
-%% `read' (default `cell_hal:read/2') and `estop' (default
-%% `cell_registry:estop_active/0') are given to tests.
+%% `read' (default `cell_hal:read/2') is given to tests; `estop' (default
+%% `cell_registry:estop_active/0') by tests and by the unit, which keeps the flag.
 -spec new(#{unit := atom(), io := [atom()], actuators := #{atom() => {module(), map()}},
             read => fun(), estop => fun()}) ->
           {ok, cell_sequence:seq()} | {error, {actuator, atom(), term()}}.

@@ -122,8 +122,12 @@ init(#{id := Id} = Spec) ->
     process_flag(trap_exit, true),
     %% The cell spec was checked at boot: a declaration failing here is a bug.
     {ok, Decl} = cell_unit:check(Spec),
+    %% The node's emergency-stop flag is made once and never replaced: kept here, it is
+    %% read before every step without a lookup.
+    Flag = cell_registry:estop_flag(),
     {ok, Seq} = cell_sequence_runner:new(#{unit => Id, io => maps:get(io, Spec, []),
-                                          actuators => maps:get(actuators, Decl)}),
+                                          actuators => maps:get(actuators, Decl),
+                                          estop => fun() -> atomics:get(Flag, 1) =:= 1 end}),
     Task = cell_task:new(Spec),
     {ok, booting, #data{id = Id, spec = Spec, task = Task, decl = Decl, seq = Seq,
                         settings = cell_task:settings(Task),
