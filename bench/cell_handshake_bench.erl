@@ -39,7 +39,8 @@ run() ->
                "segment, offer, commit, release with the product saved by its new "
                "owner, completion, the product sent out and forgotten at the last, and "
                "every IPC-2541 event on the way to the controller and the statistics: "
-               "some 25 messages between processes and five record writes."},
+               "over 40 messages between processes (four of them to the benchmark) and "
+               "five record writes."},
      #{title => "Transfers per second, line of 10, RAM folder", unit => "transfers/s",
        ours => Ram10, peer => RoundTrips, peer_name => "raw message round trips/s",
        better => higher},
