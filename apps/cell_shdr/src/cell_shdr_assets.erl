@@ -1,8 +1,12 @@
 %% @doc Recipes as MTConnect assets (pure): each recipe `Products/<name>.zprd' is a
 %% File asset (MTConnect 2.0 Assets) of category PROCESS and type PRODUCTION_PROGRAM,
-%% with its size, its modification time as version, and its description as a
-%% comment. The document is written over several lines, so it travels in the SHDR
-%% multiline form.
+%% with its size, its modification time as version, its description as a comment, and
+%% the cell's own device as its destination. The document is written over several
+%% lines, so it travels in the SHDR multiline form.
+%%
+%% The schema leaves `Destinations' out when it likes, but the reference agent
+%% (cppagent) refuses a File asset without one, so every recipe names the cell it is
+%% for.
 -module(cell_shdr_assets).
 
 -export([recipe/2, xml_escape/1, type/0]).
@@ -28,6 +32,8 @@ recipe(#{name := Name, description := Desc, author := Author, modified := Modifi
          "applicationType=\"PRODUCTION_PROGRAM\" size=\"">>, integer_to_binary(Bytes),
        <<"\" versionId=\"">>, integer_to_binary(Modified), <<"\" state=\"PRODUCTION\">\n">>,
        <<"  <FileLocation href=\"Products/">>, xml_escape(uri_escape(Name)), <<".zprd\"/>\n">>,
+       <<"  <Destinations>\n    <Destination>">>, xml_escape(Uuid), <<"</Destination>\n"
+         "  </Destinations>\n">>,
        Comment,
        <<"  <CreationTime>">>, Time, <<"</CreationTime>\n">>,
        <<"  <ModificationTime>">>, Time, <<"</ModificationTime>\n">>,

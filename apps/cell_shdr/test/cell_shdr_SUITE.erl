@@ -306,7 +306,7 @@ relative_time(_Config) ->
 
 %% Recipes as File assets: multiline documents, changed ones sent again, removed
 %% ones removed; a new client starts from @REMOVE_ALL_ASSETS@.
-multiline_assets(_Config) ->
+multiline_assets(Config) ->
     ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up\nfront | rear">>},
                           <<"anna">>),
     ok = cell_shdr:refresh_assets(),
@@ -317,7 +317,12 @@ multiline_assets(_Config) ->
     ?assertNotEqual(nomatch, binary:match(Doc, <<"Two up">>)),
     ?assertNotEqual(nomatch, binary:match(Doc, <<"&#124;">>)),
     ?assertEqual(nomatch, binary:match(Doc, <<"|">>)),
-    {#xmlElement{name = 'File'}, []} = xmerl_scan:string(binary_to_list(Doc)),
+    {#xmlElement{name = 'File'} = File, []} = xmerl_scan:string(binary_to_list(Doc)),
+    %% The reference agent refuses a File asset without a destination: the cell itself.
+    Uuid = binary_to_list(maps:get(uuid, cell_settings:get(shdr))),
+    ?assertMatch([#xmlText{value = Uuid}],
+                 xmerl_xpath:string("/File/Destinations/Destination/text()", File)),
+    schema_check("MTConnectAssets_2.0_1.0.xsd", assets_document(Doc), Config),
     ok = cell_recipe:save(<<"Panel 4712">>, #{description => <<"One up">>}, <<"bert">>),
     ok = cell_shdr:refresh_assets(),
     L = barrier(S),
@@ -511,14 +516,8 @@ devices_xml_matches_stream(Config) ->
     ?assertMatch([_], xmerl_xpath:string("//Device[@uuid='" ++ Uuid ++ "']", Doc)),
     [?assertMatch([_], xmerl_xpath:string("//Path[@name='" ++ atom_to_list(T) ++ "']", Doc))
      || T <- ?TASKS],
-    case {os:find_executable("xmllint"), os:getenv("MTCONNECT_XSD_DIR")} of
-        {false, _} -> ct:fail("xmllint is missing: scripts/setup test installs libxml2-utils");
-        {_, false} -> ct:comment("schema check skipped: MTCONNECT_XSD_DIR not set");
-        {Lint, XsdDir} ->
-            Xsd = filename:join(XsdDir, "MTConnectDevices_2.0_1.0.xsd"),
-            Out = os:cmd(Lint ++ " --noout --schema " ++ Xsd ++ " " ++ File ++ " 2>&1"),
-            ?assertNotEqual(nomatch, string:find(Out, "validates"), Out)
-    end,
+    {ok, Xml} = file:read_file(File),
+    schema_check("MTConnectDevices_2.0_1.0.xsd", Xml, Config),
     ok = gen_tcp:close(S).
 
 %% -------------------------------------------------------------------------------------
@@ -716,6 +715,31 @@ await_log(Text, Deadline) ->
     after left(Deadline) ->
         false
     end.
+
+%% Validates a document against an MTConnect schema of MTCONNECT_XSD_DIR with xmllint
+%% (the case says so when the variable is not set).
+schema_check(Xsd, Xml, Config) ->
+    case {os:find_executable("xmllint"), os:getenv("MTCONNECT_XSD_DIR")} of
+        {false, _} -> ct:fail("xmllint is missing: scripts/setup test installs libxml2-utils");
+        {_, false} -> ct:comment("schema check skipped: MTCONNECT_XSD_DIR not set");
+        {Lint, XsdDir} ->
+            N = integer_to_list(erlang:unique_integer([positive])),
+            File = filename:join(?config(priv_dir, Config), "schema-check-" ++ N ++ ".xml"),
+            ok = file:write_file(File, Xml),
+            Out = os:cmd(Lint ++ " --noout --schema " ++ filename:join(XsdDir, Xsd) ++ " "
+                         ++ File ++ " 2>&1"),
+            ?assertNotEqual(nomatch, string:find(Out, "validates"), Out)
+    end.
+
+%% An asset document as the agent's assets response carries it, so the schema can
+%% check it.
+assets_document(Doc) ->
+    [<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+       "<MTConnectAssets xmlns=\"urn:mtconnect.org:MTConnectAssets:2.0\">\n"
+       "  <Header creationTime=\"2026-01-01T00:00:00Z\" sender=\"suite\" instanceId=\"1\" "
+       "version=\"2.0\" assetBufferSize=\"1024\" assetCount=\"1\" "
+       "deviceModelChangeTime=\"2026-01-01T00:00:00Z\"/>\n  <Assets>\n">>,
+     Doc, <<"\n  </Assets>\n</MTConnectAssets>\n">>].
 
 attr(E, Name) ->
     [#xmlAttribute{value = V}] = xmerl_xpath:string("@" ++ atom_to_list(Name), E),
