@@ -67,6 +67,7 @@
                 tasks = #{} :: #{atom() => #task{}},
                 counts = {0, 0} :: {non_neg_integer(), non_neg_integer()}, %% good, bad
                 points = [] :: [map()],
+                messages = #{} :: #{binary() => true},   %% keys of MESSAGE points
                 watched = #{} :: #{reference() => atom()},
                 attached = false :: boolean(),
                 backoff = ?BACKOFF_MIN :: pos_integer(),
@@ -276,7 +277,10 @@ load_settings(State) ->
             _ ->
                 S0
         end,
-    State#state{settings = S, points = usable_points(maps:get(points, S))}.
+    Points = usable_points(maps:get(points, S)),
+    State#state{settings = S, points = Points,
+                messages = maps:from_list([{N, true} || #{name := N} = P <- Points,
+                                                        cell_shdr_items:is_message(P)])}.
 
 settings_changed(#state{settings = Old} = State) ->
     S1 = load_settings(State),
@@ -377,7 +381,7 @@ initial(#state{prefixes = P, tasks = Tasks, counts = {Good, Bad}}) ->
 resync_points(#state{points = Points} = State) ->
     Stamp = now_stamp(),
     Plain = [P || #{time_series := false} = P <- Points],
-    Updates = [{N, hal_read(G, Pt)} || #{name := N, group := G, point := Pt} <- Plain],
+    Updates = [{N, hal_read(P)} || #{name := N} = P <- Plain],
     set(Updates, Stamp, State).
 
 %%====================================================================
@@ -508,7 +512,7 @@ set(Updates, Stamp, State) ->
             true = ets:insert(?VALUES, Changed),
             {Ms, Mono} = Stamp,
             S = stamp(Ms, Mono, State),
-            emit([cell_shdr_codec:data_line(S, Chunk) || Chunk <- chunks(Changed)], State)
+            emit(value_lines(S, Changed, State), State)
     end.
 
 %% The last update of a key wins; unchanged keys drop out.
@@ -528,6 +532,14 @@ changed([{K, V} | Rest], Seen, Acc) ->
                 _ -> changed(Rest, Seen#{K => true}, [{K, V} | Acc])
             end
     end.
+
+%% Plain values share lines; a MESSAGE takes a line of its own, `key|code|text' (seed
+%% 003), since an agent reads two fields after a message's key: on a shared line its
+%% text would be taken for the next key.
+value_lines(Stamp, Pairs, #state{messages = Messages}) ->
+    {Msgs, Plain} = lists:partition(fun({K, _}) -> is_map_key(K, Messages) end, Pairs),
+    [cell_shdr_codec:data_line(Stamp, Chunk) || Plain =/= [], Chunk <- chunks(Plain)]
+        ++ [cell_shdr_codec:message_line(Stamp, K, <<>>, V) || {K, V} <- Msgs].
 
 chunks(L) when length(L) =< ?ITEMS_A_LINE -> [L];
 chunks(L) ->
@@ -610,23 +622,17 @@ hal_subscribe(Points) ->
                                               <- Points],
     ok.
 
-hal_read(Group, Point) ->
+hal_read(#{group := Group, point := Point} = P) ->
     case cell_shdr_hal:read(Group, Point) of
-        {ok, V} -> hal_value(V);
+        {ok, V} -> cell_shdr_items:point_value(P, V);
         {error, _} -> unavailable
     end.
 
 hal_value(Group, Point, Value, #state{points = Points} = State) ->
-    Updates = [{N, hal_value(Value)} || #{time_series := false, name := N} = P <- Points,
-                                        cell_shdr_hal:same_point(P, Group, Point)],
+    Updates = [{N, cell_shdr_items:point_value(P, Value)}
+               || #{time_series := false, name := N} = P <- Points,
+                  cell_shdr_hal:same_point(P, Group, Point)],
     set(Updates, now_stamp(), State).
-
-hal_value(true) -> <<"true">>;
-hal_value(false) -> <<"false">>;
-hal_value(V) when is_number(V); is_binary(V) -> V;
-hal_value({Y, M, D}) when is_integer(Y), is_integer(M), is_integer(D) ->
-    iolist_to_binary(io_lib:format("~4..0w-~2..0w-~2..0w", [Y, M, D]));
-hal_value(V) -> iolist_to_binary(io_lib:format("~0tp", [V])).
 
 %%====================================================================
 %% The snapshot a new client starts from
@@ -646,7 +652,7 @@ snapshot(State) ->
                false -> []
            end,
     Values = lists:sort(ets:tab2list(?VALUES)),
-    Data = [cell_shdr_codec:data_line(S, Chunk) || Values =/= [], Chunk <- chunks(Values)],
+    Data = value_lines(S, Values, State),
     Conds = lists:append(
               [case maps:size(Codes) of
                    0 -> [cell_shdr_codec:condition_line(S, K, #{level => normal})];

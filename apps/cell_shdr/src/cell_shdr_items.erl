@@ -68,7 +68,7 @@
 
 -export([items/2, prefixes/1, task_key/3, valid_name/1]).
 -export([execution/1, wait_state/1, part_state/1, controller_mode/1, estop/1,
-         condition/1, native_code/1, condition_owner/2]).
+         condition/1, native_code/1, condition_owner/2, is_message/1, point_value/2]).
 
 -export_type([item/0, component/0, category/0]).
 
@@ -234,6 +234,44 @@ condition(#{id := Id, kind := Kind, caption := Caption, description := Desc}) ->
 -spec native_code(binary()) -> binary().
 native_code(Id) ->
     binary:replace(Id, <<":">>, <<".">>, [global]).
+
+%% @doc Whether a configured point is a MESSAGE, whose lines carry a native code and
+%% a text (`key|code|text') instead of one value.
+-spec is_message(#{type := binary(), atom() => term()}) -> boolean().
+is_message(#{type := Type}) ->
+    Type =:= <<"MESSAGE">>.
+
+%% @doc The value a HAL point's reading is published as. An agent reads a sample as a
+%% number and drops anything else, so a sample is a number: a boolean is 1 or 0, text
+%% that reads as a number stays, and any other reading is UNAVAILABLE. An event
+%% carries its reading as text.
+-spec point_value(#{category := sample | event, atom() => term()}, term()) ->
+          cell_shdr_codec:value().
+point_value(#{category := sample}, V) when is_number(V) -> V;
+point_value(#{category := sample}, true) -> 1;
+point_value(#{category := sample}, false) -> 0;
+point_value(#{category := sample}, V) when is_binary(V) ->
+    case number(string:trim(V)) of
+        {ok, _} -> string:trim(V);
+        error -> unavailable
+    end;
+point_value(#{category := sample}, _) -> unavailable;
+point_value(#{category := event}, true) -> <<"true">>;
+point_value(#{category := event}, false) -> <<"false">>;
+point_value(#{category := event}, V) when is_number(V); is_binary(V) -> V;
+point_value(#{category := event}, {Y, M, D}) when is_integer(Y), is_integer(M),
+                                                  is_integer(D) ->
+    iolist_to_binary(io_lib:format("~4..0w-~2..0w-~2..0w", [Y, M, D]));
+point_value(#{category := event}, V) ->
+    iolist_to_binary(io_lib:format("~0tp", [V])).
+
+number(B) ->
+    try {ok, binary_to_integer(B)}
+    catch error:badarg ->
+            try {ok, binary_to_float(B)}
+            catch error:badarg -> error
+            end
+    end.
 
 %% @doc The condition item an alarm of `Task' shows on: the task's own, or the
 %% cell's `system' for the cell's alarms and tasks the adapter does not know.

@@ -70,14 +70,23 @@ schedule(#series{key = Key, due = Due} = S) ->
 
 sample(#series{group = G, point = P, period = Period, due = Due} = S) ->
     Now = erlang:monotonic_time(microsecond),
-    case {Now - Due > Period, cell_shdr_hal:read(G, P)} of
-        {false, {ok, V}} when is_number(V) ->
+    case {Now - Due > Period, number(cell_shdr_hal:read(G, P))} of
+        {false, {ok, V}} ->
             Taken = {os:system_time(millisecond), Now},
             add(V, Taken, S#series{due = Due + Period});
         _ ->
             %% Late or unreadable: what was taken goes out, the series starts anew.
             schedule(flush(S#series{due = Now + Period}))
     end.
+
+%% A reading as a sample's number (a boolean is 1 or 0), as other samples publish it.
+number({ok, V0}) ->
+    case cell_shdr_items:point_value(#{category => sample}, V0) of
+        V when is_number(V) -> {ok, V};
+        _ -> error
+    end;
+number({error, _}) ->
+    error.
 
 add(V, Taken, #series{samples = Samples, count = Count} = S) ->
     S1 = S#series{samples = [V | Samples], last = Taken},

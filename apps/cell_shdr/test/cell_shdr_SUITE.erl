@@ -3,7 +3,8 @@
 %% conditions (several codes, mark and sweep, clear all), time series and relative
 %% time, HAL samples, multiline assets, PING/PONG and the heartbeat, a slow client,
 %% a flood of clients, garbage input, the adapter's crash and the cell's restarts,
-%% and the Devices.xml against the stream and the MTConnect schema.
+%% the Devices.xml against the stream and the MTConnect schema, and the stream read
+%% field by field as the reference agent (cppagent) reads it.
 %%
 %% Every wait is on a message or a reply with a deadline. A barrier makes "every line
 %% sent so far" observable: the cell's and the cache's sync calls, then a PING, whose
@@ -20,7 +21,7 @@
          ping_pong/1, silent_agent_disconnected/1, slow_client_dropped/1,
          flood_of_clients/1, garbage_input/1, adapter_crash_spares_the_cell/1,
          cell_services_restart/1, identity_changes_announced/1,
-         devices_xml_matches_stream/1]).
+         devices_xml_matches_stream/1, stream_reads_as_agent/1]).
 
 -define(TASKS, [load, robot]).
 -define(WAIT, 20000).
@@ -32,7 +33,7 @@ all() ->
      hal_samples_and_events, time_series, relative_time, multiline_assets, ping_pong,
      silent_agent_disconnected, slow_client_dropped, flood_of_clients, garbage_input,
      adapter_crash_spares_the_cell, cell_services_restart, identity_changes_announced,
-     devices_xml_matches_stream].
+     devices_xml_matches_stream, stream_reads_as_agent].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -402,7 +403,7 @@ slow_client_dropped(_Config) ->
     %% to the last change instead of to a barrier.
     LastValue = <<Text/binary, (integer_to_binary(N))/binary>>,
     {Before, LastLine} = read_until(Fast, fun(L) -> has(L, LastValue) end, deadline()),
-    Got = [V || {<<"flood">>, V} <- pairs(Before ++ [LastLine])],
+    Got = [V || {_, [<<"flood">>, <<>>, V]} <- [split(L) || L <- Before ++ [LastLine]]],
     ?assert(Got =:= [<<Text/binary, (integer_to_binary(I))/binary>> || I <- lists:seq(1, N)]),
     %% The slow one is gone, and the log says why.
     ?assertEqual(1, length(await_down(Refs, 1, deadline()))),
@@ -518,6 +519,67 @@ devices_xml_matches_stream(Config) ->
      || T <- ?TASKS],
     {ok, Xml} = file:read_file(File),
     schema_check("MTConnectDevices_2.0_1.0.xsd", Xml, Config),
+    ok = gen_tcp:close(S).
+
+%% Every line as the reference agent (cppagent) reads it with SHDR version 2: each key
+%% is a data item of Devices.xml and takes as many fields as its kind, so no value is
+%% read as a key or a key as a value. A MESSAGE carries a native code and a text on a
+%% line of its own; a sample is a number (a boolean point 1 or 0) or UNAVAILABLE.
+stream_reads_as_agent(Config) ->
+    ok = cell_shdr_test_hal:set(oven, temp, 21.5),
+    ok = cell_shdr_test_hal:set(oven, heating, true),
+    ok = cell_shdr_test_hal:set(oven, door, <<"OPEN">>),
+    ok = cell_shdr_test_hal:set(oven, note, <<"Preheat | done">>),
+    ok = cell_shdr_test_hal:counter(spindle, current),
+    ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up">>}, <<"anna">>),
+    ok = put_settings(#{points => [point(<<"oven_temp">>, <<"oven">>, <<"temp">>, sample,
+                                         <<"TEMPERATURE">>, <<"CELSIUS">>),
+                                   point(<<"oven_heating">>, <<"oven">>, <<"heating">>, sample,
+                                         <<"POWER">>, <<"WATT">>),
+                                   point(<<"oven_door">>, <<"oven">>, <<"door">>, event,
+                                         <<"DOOR_STATE">>, <<>>),
+                                   point(<<"oven_note">>, <<"oven">>, <<"note">>, event,
+                                         <<"MESSAGE">>, <<>>),
+                                   (point(<<"current">>, <<"spindle">>, <<"current">>, sample,
+                                          <<"AMPERAGE">>, <<"AMPERE">>))#{time_series => true,
+                                                                          rate => 50.0,
+                                                                          count => 5}]}),
+    ok = cell_shdr:refresh_assets(),
+    File = filename:join(?config(priv_dir, Config), "Devices-agent.xml"),
+    ok = cell_shdr:devices_xml(File),
+    Declared = declared(File),
+    S = connect(),
+    Snap = agent_read(snapshot(S), Declared),
+    Read = fun(Key, Obs) -> [F || {K, F} <- Obs, K =:= Key] end,
+    %% Every declared item but the time series has its value in the snapshot.
+    ?assertEqual(lists:sort([K || {K, Kind} <- maps:to_list(Declared), Kind =/= time_series]),
+                 lists:usort([K || {K, _} <- Snap, binary:first(K) =/= $@])),
+    ?assertEqual([[<<>>, <<"Preheat | done">>]], Read(<<"oven_note">>, Snap)),
+    ?assertEqual([[<<"1">>]], Read(<<"oven_heating">>, Snap)),
+    ?assertEqual([[<<"21.5">>]], Read(<<"oven_temp">>, Snap)),
+    ?assertEqual([[<<"OPEN">>]], Read(<<"oven_door">>, Snap)),
+    ?assertMatch([[<<"Panel 4711">>, <<"File">>, <<"<File ", _/binary>>]],
+                 Read(<<"@ASSET@">>, Snap)),
+    %% Changes read the same way: a message alone, conditions with all five fields.
+    ok = cell_shdr_test_hal:set(oven, note, <<"Door | open">>),
+    ok = cell_shdr_test_hal:set(oven, heating, false),
+    ok = cell_shdr_test_hal:set(oven, door, <<"CLOSED">>),
+    ok = cell_alarms:warning(robot, <<"w1">>, "Vacuum | weak", "check \"air\""),
+    ok = cell_alarms:alarm(robot, <<"a1">>, "Door open", ""),
+    Changes = agent_read(barrier(S) ++ read_until_series(S, <<"current">>), Declared),
+    ?assertEqual([[<<>>, <<"Door | open">>]], Read(<<"oven_note">>, Changes)),
+    ?assertEqual([[<<"0">>]], Read(<<"oven_heating">>, Changes)),
+    ?assertEqual([[<<"CLOSED">>]], Read(<<"oven_door">>, Changes)),
+    ?assertEqual(lists:sort([[<<"WARNING">>, <<"robot.w1">>, <<"warning">>, <<>>,
+                              <<"Vacuum | weak: check \"air\"">>],
+                             [<<"FAULT">>, <<"robot.a1">>, <<"alarm">>, <<>>, <<"Door open">>]]),
+                 lists:sort(Read(<<"robot_system">>, Changes))),
+    [[Count, <<"50">>, Values] | _] = Read(<<"current">>, Changes),
+    ?assertEqual(binary_to_integer(Count), length(binary:split(Values, <<" ">>, [global]))),
+    %% Samples read as numbers (or UNAVAILABLE), as the agent converts them.
+    [?assert(V =:= <<"UNAVAILABLE">> orelse is_number(catch binary_to_float(V))
+             orelse is_integer(catch binary_to_integer(V)), {K, V})
+     || {K, [V]} <- Snap ++ Changes, maps:get(K, Declared, none) =:= sample],
     ok = gen_tcp:close(S).
 
 %% -------------------------------------------------------------------------------------
@@ -740,6 +802,85 @@ assets_document(Doc) ->
        "version=\"2.0\" assetBufferSize=\"1024\" assetCount=\"1\" "
        "deviceModelChangeTime=\"2026-01-01T00:00:00Z\"/>\n  <Assets>\n">>,
      Doc, <<"\n  </Assets>\n</MTConnectAssets>\n">>].
+
+%% The data items of a Devices.xml by id, each with the fields an agent reads after
+%% its key: condition, message, time_series, sample or event.
+declared(File) ->
+    {Doc, _} = xmerl_scan:file(File),
+    maps:from_list(
+      [{list_to_binary(attr(E, id)),
+        case {attr(E, category), attr(E, type),
+              [V || #xmlAttribute{value = V} <- xmerl_xpath:string("@representation", E)]} of
+            {"CONDITION", _, _} -> condition;
+            {_, "MESSAGE", _} -> message;
+            {_, _, ["TIME_SERIES"]} -> time_series;
+            {"SAMPLE", _, _} -> sample;
+            {"EVENT", _, _} -> event
+        end} || E <- xmerl_xpath:string("//DataItem", Doc)]).
+
+%% Lines as the reference agent reads them with SHDR version 2: protocol lines
+%% aside, a multiline asset joined up to its end tag, then after the timestamp each
+%% key takes the fields of its kind: a condition five (level, native code, native
+%% severity, qualifier, text), a message two (native code, text), a time series three
+%% (count, rate, values), @ASSET@ three, @REMOVE_ASSET@ one, @REMOVE_ALL_ASSETS@ one
+%% (its type), anything else one. A key that is no declared item fails the case.
+agent_read(Lines, Declared) ->
+    agent_read(Lines, Declared, []).
+
+agent_read([], _Declared, Acc) ->
+    lists:append(lists:reverse(Acc));
+agent_read([<<"*", _/binary>> | Rest], Declared, Acc) ->
+    agent_read(Rest, Declared, Acc);
+agent_read([Line | Rest], Declared, Acc) ->
+    case binary:match(Line, <<"--multiline--">>) of
+        nomatch ->
+            agent_read(Rest, Declared, [agent_fields(agent_tokens(Line), Declared) | Acc]);
+        {Pos, _} ->
+            Tag = binary:part(Line, Pos, byte_size(Line) - Pos),
+            {Body, [Tag | After]} = lists:splitwith(fun(L) -> L =/= Tag end, Rest),
+            Joined = iolist_to_binary(lists:join($\n, [binary:part(Line, 0, Pos) | Body])),
+            agent_read(After, Declared, [agent_fields(agent_tokens(Joined), Declared) | Acc])
+    end.
+
+%% The fields after the timestamp, blanks and line breaks at both ends dropped as the
+%% agent drops them.
+agent_tokens(Line) ->
+    [string:trim(F) || F <- tl(tokens(Line))].
+
+agent_fields([], _Declared) ->
+    [];
+agent_fields([<<"@", _/binary>> = Command | Rest], Declared) ->
+    N = case Command of
+            <<"@ASSET@">> -> 3;
+            <<"@REMOVE_ASSET@">> -> 1;
+            <<"@REMOVE_ALL_ASSETS@">> -> min(1, length(Rest))
+        end,
+    take(Command, N, Rest, Declared);
+agent_fields([Key | Rest], Declared) ->
+    N = case Declared of
+            #{Key := condition} -> 5;
+            #{Key := message} -> 2;
+            #{Key := time_series} -> 3;
+            #{Key := _} -> 1;
+            _ -> ct:fail("the agent finds no data item ~ts (declared: ~p)",
+                         [Key, lists:sort(maps:keys(Declared))])
+        end,
+    take(Key, N, Rest, Declared).
+
+take(Key, N, Fields, Declared) when length(Fields) >= N ->
+    {Mine, Rest} = lists:split(N, Fields),
+    [{Key, Mine} | agent_fields(Rest, Declared)];
+take(Key, N, Fields, _Declared) ->
+    ct:fail("~ts has ~p fields where the agent reads ~p: ~p", [Key, length(Fields), N, Fields]).
+
+%% Lines up to and with the next time series line of an item.
+read_until_series(S, Key) ->
+    {Before, Line} = read_until(S, fun(L) -> case split(L) of
+                                                 {_, [Key | _]} -> true;
+                                                 _ -> false
+                                             end
+                                   end, deadline()),
+    Before ++ [Line].
 
 attr(E, Name) ->
     [#xmlAttribute{value = V}] = xmerl_xpath:string("@" ++ atom_to_list(Name), E),

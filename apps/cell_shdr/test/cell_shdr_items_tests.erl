@@ -81,3 +81,28 @@ items_unique_test() ->
     ?assertEqual(11 + 8 * length(Tasks) + 2, length(Items)),
     ?assertMatch([#{time_series := true, rate := 10.0, sub_type := <<"ACTUAL">>}],
                  [I || #{key := <<"current">>} = I <- Items]).
+
+%% A sample is what an agent reads as a number, or UNAVAILABLE; an event is text.
+point_value_test_() ->
+    Sample = #{category => sample},
+    Event = #{category => event},
+    [?_assertEqual(21.5, cell_shdr_items:point_value(Sample, 21.5)),
+     ?_assertEqual(-3, cell_shdr_items:point_value(Sample, -3)),
+     ?_assertEqual(1, cell_shdr_items:point_value(Sample, true)),
+     ?_assertEqual(0, cell_shdr_items:point_value(Sample, false)),
+     ?_assertEqual(<<"12.5">>, cell_shdr_items:point_value(Sample, <<" 12.5 ">>)),
+     ?_assertEqual(<<"7">>, cell_shdr_items:point_value(Sample, <<"7">>)),
+     ?_assertEqual(unavailable, cell_shdr_items:point_value(Sample, <<"open">>)),
+     ?_assertEqual(unavailable, cell_shdr_items:point_value(Sample, <<>>)),
+     ?_assertEqual(unavailable, cell_shdr_items:point_value(Sample, {2026, 1, 2})),
+     ?_assertEqual(<<"true">>, cell_shdr_items:point_value(Event, true)),
+     ?_assertEqual(<<"false">>, cell_shdr_items:point_value(Event, false)),
+     ?_assertEqual(<<"OPEN">>, cell_shdr_items:point_value(Event, <<"OPEN">>)),
+     ?_assertEqual(3, cell_shdr_items:point_value(Event, 3)),
+     ?_assertEqual(<<"2026-01-02">>, cell_shdr_items:point_value(Event, {2026, 1, 2})),
+     ?_assertEqual(<<"{a,1}">>, cell_shdr_items:point_value(Event, {a, 1}))].
+
+is_message_test_() ->
+    [?_assert(cell_shdr_items:is_message(#{type => <<"MESSAGE">>})),
+     ?_assertNot(cell_shdr_items:is_message(#{type => <<"PROGRAM">>})),
+     ?_assertNot(cell_shdr_items:is_message(#{type => <<"TEMPERATURE">>}))].
