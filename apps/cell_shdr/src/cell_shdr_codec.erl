@@ -23,6 +23,15 @@
 %%     value can break the line format.</li>
 %% <li>An asset document with line breaks goes in the `--multiline--TAG' form, its tag
 %%     derived from the document so that no line of the document can end it early.</li>
+%% <li>The reference agent takes any line holding `--multiline--' for the start of a
+%%     multiline asset and reads every line after it as the asset's until a line equal
+%%     to the rest: a value or an announcement holding those letters would stop the
+%%     stream for good. So a text never carries them as they are: it says
+%%     `--multi-line--' instead; an asset document holding them goes in the multiline
+%%     form, where only a whole line equal to the tag ends it.</li>
+%% <li>Inside a multiline document the agent still takes a line starting `* PONG' for
+%%     a heartbeat: a `*' starting a line of the document is written `&#42;', which
+%%     reads the same as XML.</li>
 %% <li>Protocol commands: `* PING' from the agent is answered `* PONG <ms>'; the
 %%     adapter announces itself with `* name: value' lines.</li>
 %% </ul>
@@ -91,7 +100,7 @@ value(B) when is_binary(B) -> escape(B).
 %% starting with `"' is quoted, with `\' before each `\', `"' and `|'.
 -spec escape(binary()) -> binary().
 escape(B) ->
-    Flat = trim_blanks(flatten(B)),
+    Flat = defuse(trim_blanks(flatten(B))),
     case needs_quotes(Flat) of
         false -> Flat;
         true -> <<$", (quote(Flat))/binary, $">>
@@ -112,6 +121,13 @@ trim_blanks(B) ->
                 C when C =:= $\s; C =:= $\t -> string:trim(B, both, " \t");
                 _ -> B
             end
+    end.
+
+%% See the module doc: no text may start a multiline asset in the agent.
+defuse(B) ->
+    case binary:match(B, <<"--multiline--">>) of
+        nomatch -> B;
+        _ -> binary:replace(B, <<"--multiline--">>, <<"--multi-line--">>, [global])
     end.
 
 needs_quotes(<<$", _/binary>>) -> true;
@@ -167,23 +183,28 @@ format_rate(R) when is_integer(R) -> integer_to_binary(R);
 format_rate(R) when is_float(R), R == trunc(R) -> integer_to_binary(trunc(R));
 format_rate(R) when is_float(R) -> float_to_binary(R, [short]).
 
-%% @doc An asset added or changed: one line when the document has no line break,
-%% the multiline form otherwise. A `|' in the document would split the agent's
-%% tokens even inside the multiline form, so it is written as the XML character
-%% reference `&#124;', which reads the same.
+%% @doc An asset added or changed: one line when the document has no line break (and
+%% no `--multiline--'), the multiline form otherwise. A `|' in the document would
+%% split the agent's tokens even inside the multiline form, so it is written as the
+%% XML character reference `&#124;', which reads the same; so is a `*' starting a
+%% line of a multiline document (`&#42;'), which the agent could take for a PONG.
 -spec asset_line(stamp(), binary(), binary(), binary()) -> iodata().
 asset_line(Stamp, Id, Type, Doc0) ->
     Doc = binary:replace(Doc0, <<"|">>, <<"&#124;">>, [global]),
     Head = [stamp(Stamp), <<"|@ASSET@|">>, escape(Id), $|, escape(Type), $|],
-    case binary:match(Doc, [<<"\n">>, <<"\r">>]) of
+    case binary:match(Doc, [<<"\n">>, <<"\r">>, <<"--multiline--">>]) of
         nomatch ->
             [Head, Doc, $\n];
         _ ->
-            Lines = [L || L <- binary:split(Doc, [<<"\r\n">>, <<"\n">>, <<"\r">>], [global]),
-                          trim(L) =/= <<>>],
+            Lines = [star(L) || L <- binary:split(Doc, [<<"\r\n">>, <<"\n">>, <<"\r">>],
+                                                  [global]),
+                                trim(L) =/= <<>>],
             Tag = terminator(Doc),
             [Head, Tag, $\n, lists:join($\n, Lines), $\n, Tag, $\n]
     end.
+
+star(<<$*, Rest/binary>>) -> <<"&#42;", Rest/binary>>;
+star(Line) -> Line.
 
 %% The end tag of a multiline document: a hash of the document, so no line of it can
 %% equal the tag.
@@ -205,7 +226,7 @@ remove_all_assets_line(Stamp, Type) ->
 %% @doc A protocol command announcing a property: `* uuid: 7f4e...'.
 -spec command(binary(), binary()) -> iodata().
 command(Name, Value) ->
-    [<<"* ">>, Name, <<": ">>, flatten(Value), $\n].
+    [<<"* ">>, Name, <<": ">>, defuse(flatten(Value)), $\n].
 
 %% @doc The answer to `* PING': the heartbeat period the adapter promises.
 -spec pong(pos_integer()) -> iodata().

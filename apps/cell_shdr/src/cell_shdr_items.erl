@@ -155,7 +155,8 @@ unique(P, Taken, N) ->
     end.
 
 sanitize(B) ->
-    S = << <<(case name_char(C) of true -> C; false -> $_ end)>> || <<C>> <= B >>,
+    S0 = << <<(case name_char(C) of true -> C; false -> $_ end)>> || <<C>> <= B >>,
+    S = binary:replace(S0, <<"--multiline--">>, <<"_multiline_">>, [global]),
     case S of
         <<C, _/binary>> when (C >= $a andalso C =< $z); (C >= $A andalso C =< $Z); C =:= $_ -> S;
         _ -> <<"t_", S/binary>>
@@ -171,12 +172,14 @@ task_key(Prefixes, Task, Suffix) ->
     <<(maps:get(Task, Prefixes))/binary, $_, Suffix/binary>>.
 
 %% @doc A valid data item id and name: an XML name without colons, of at most 64
-%% characters, that a line cannot misread (no `|', no blanks, no `@' first).
+%% characters, that a line cannot misread (no `|', no blanks, no `@' first, no
+%% `--multiline--', which an agent takes for the start of an asset anywhere in a line).
 -spec valid_name(binary()) -> boolean().
 valid_name(<<C, _/binary>> = B) when byte_size(B) =< 64,
                                      ((C >= $a andalso C =< $z) orelse
                                       (C >= $A andalso C =< $Z) orelse C =:= $_) ->
-    lists:all(fun name_char/1, binary_to_list(B));
+    lists:all(fun name_char/1, binary_to_list(B)) andalso
+        binary:match(B, <<"--multiline--">>) =:= nomatch;
 valid_name(_) ->
     false.
 

@@ -531,7 +531,9 @@ stream_reads_as_agent(Config) ->
     ok = cell_shdr_test_hal:set(oven, door, <<"OPEN">>),
     ok = cell_shdr_test_hal:set(oven, note, <<"Preheat | done">>),
     ok = cell_shdr_test_hal:counter(spindle, current),
-    ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up">>}, <<"anna">>),
+    %% A line of the document starting `* PONG' is a heartbeat to the agent.
+    ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up:\n* PONG 5">>},
+                          <<"anna">>),
     ok = put_settings(#{points => [point(<<"oven_temp">>, <<"oven">>, <<"temp">>, sample,
                                          <<"TEMPERATURE">>, <<"CELSIUS">>),
                                    point(<<"oven_heating">>, <<"oven">>, <<"heating">>, sample,
@@ -558,14 +560,17 @@ stream_reads_as_agent(Config) ->
     ?assertEqual([[<<"1">>]], Read(<<"oven_heating">>, Snap)),
     ?assertEqual([[<<"21.5">>]], Read(<<"oven_temp">>, Snap)),
     ?assertEqual([[<<"OPEN">>]], Read(<<"oven_door">>, Snap)),
-    ?assertMatch([[<<"Panel 4711">>, <<"File">>, <<"<File ", _/binary>>]],
-                 Read(<<"@ASSET@">>, Snap)),
+    [[<<"Panel 4711">>, <<"File">>, <<"<File ", _/binary>> = Asset]] =
+        Read(<<"@ASSET@">>, Snap),
+    ?assertNotEqual(nomatch, binary:match(Asset, <<"Two up:\n&#42; PONG 5 (by anna)">>)),
     %% Changes read the same way: a message alone, conditions with all five fields.
     ok = cell_shdr_test_hal:set(oven, note, <<"Door | open">>),
     ok = cell_shdr_test_hal:set(oven, heating, false),
     ok = cell_shdr_test_hal:set(oven, door, <<"CLOSED">>),
     ok = cell_alarms:warning(robot, <<"w1">>, "Vacuum | weak", "check \"air\""),
     ok = cell_alarms:alarm(robot, <<"a1">>, "Door open", ""),
+    %% Text holding --multiline-- would start an asset in the agent and stop the stream.
+    ok = cell_alarms:warning(load, <<"w2">>, "see --multiline--X", ""),
     Changes = agent_read(barrier(S) ++ read_until_series(S, <<"current">>), Declared),
     ?assertEqual([[<<>>, <<"Door | open">>]], Read(<<"oven_note">>, Changes)),
     ?assertEqual([[<<"0">>]], Read(<<"oven_heating">>, Changes)),
@@ -574,6 +579,8 @@ stream_reads_as_agent(Config) ->
                               <<"Vacuum | weak: check \"air\"">>],
                              [<<"FAULT">>, <<"robot.a1">>, <<"alarm">>, <<>>, <<"Door open">>]]),
                  lists:sort(Read(<<"robot_system">>, Changes))),
+    ?assertEqual([[<<"WARNING">>, <<"load.w2">>, <<"warning">>, <<>>,
+                   <<"see --multi-line--X">>]], Read(<<"load_system">>, Changes)),
     [[Count, <<"50">>, Values] | _] = Read(<<"current">>, Changes),
     ?assertEqual(binary_to_integer(Count), length(binary:split(Values, <<" ">>, [global]))),
     %% Samples read as numbers (or UNAVAILABLE), as the agent converts them.
@@ -818,12 +825,13 @@ declared(File) ->
             {"EVENT", _, _} -> event
         end} || E <- xmerl_xpath:string("//DataItem", Doc)]).
 
-%% Lines as the reference agent reads them with SHDR version 2: protocol lines
-%% aside, a multiline asset joined up to its end tag, then after the timestamp each
-%% key takes the fields of its kind: a condition five (level, native code, native
-%% severity, qualifier, text), a message two (native code, text), a time series three
-%% (count, rate, values), @ASSET@ three, @REMOVE_ASSET@ one, @REMOVE_ALL_ASSETS@ one
-%% (its type), anything else one. A key that is no declared item fails the case.
+%% Lines as the reference agent reads them with SHDR version 2: protocol lines aside,
+%% any line holding --multiline-- starts an asset joined up to its end tag (heartbeats
+%% left out); then after the timestamp each key takes the fields of its kind: a
+%% condition five (level, native code, native severity, qualifier, text), a message two
+%% (native code, text), a time series three (count, rate, values), @ASSET@ three,
+%% @REMOVE_ASSET@ one, @REMOVE_ALL_ASSETS@ one (its type), anything else one. A key
+%% that is no declared item fails the case.
 agent_read(Lines, Declared) ->
     agent_read(Lines, Declared, []).
 
@@ -838,9 +846,14 @@ agent_read([Line | Rest], Declared, Acc) ->
         {Pos, _} ->
             Tag = binary:part(Line, Pos, byte_size(Line) - Pos),
             {Body, [Tag | After]} = lists:splitwith(fun(L) -> L =/= Tag end, Rest),
-            Joined = iolist_to_binary(lists:join($\n, [binary:part(Line, 0, Pos) | Body])),
+            Joined = iolist_to_binary(lists:join($\n, [binary:part(Line, 0, Pos)
+                                                       | [L || L <- Body, not pong(L)]])),
             agent_read(After, Declared, [agent_fields(agent_tokens(Joined), Declared) | Acc])
     end.
+
+%% The agent takes a line starting `* PONG' for a heartbeat wherever it comes.
+pong(Line) ->
+    binary:longest_common_prefix([Line, <<"* PONG">>]) =:= 6.
 
 %% The fields after the timestamp, blanks and line breaks at both ends dropped as the
 %% agent drops them.

@@ -68,7 +68,26 @@ escape_test_() ->
      ?_assertEqual(<<"two lines">>, E(<<"two\nlines">>)),
      ?_assertEqual(<<"crlf too">>, E(<<"crlf\r\ntoo">>)),
      ?_assertEqual(<<"say \"hi\"">>, E(<<"say \"hi\"">>)),
+     %% the reference agent would take these letters for a multiline asset and stop
+     ?_assertEqual(<<"see --multi-line--X">>, E(<<"see --multiline--X">>)),
+     ?_assertEqual(<<"\"a\\|--multi-line----multi-line--\"">>,
+                   E(<<"a|--multiline----multiline--">>)),
      ?_assertEqual(<<>>, E(<<>>))].
+
+%% No line the codec writes outside an asset document holds `--multiline--', since the
+%% reference agent reads everything after such a line as an asset.
+no_multiline_start_test_() ->
+    T = <<"x --multiline--TAG y">>,
+    Lines = [cell_shdr_codec:data_line({utc, ?T0}, [{<<"k">>, T}]),
+             cell_shdr_codec:condition_line({utc, ?T0}, <<"c">>,
+                                            #{level => fault, code => T, severity => T,
+                                              qualifier => T, text => T}),
+             cell_shdr_codec:message_line({utc, ?T0}, <<"m">>, T, T),
+             cell_shdr_codec:command(<<"station">>, T),
+             cell_shdr_codec:remove_asset_line({utc, ?T0}, T),
+             cell_shdr_codec:remove_all_assets_line({utc, ?T0}, T)],
+    [?_assertEqual(nomatch, binary:match(iolist_to_binary(L), <<"--multiline--">>))
+     || L <- Lines].
 
 %% Any text, as a value between other fields, reads back as itself: no character can
 %% break the line (line breaks become blanks, and blanks at the ends are the agent's
@@ -181,6 +200,23 @@ asset_multiline_test() ->
     ?assertEqual([<<"<File a=\"1\">">>, <<"  <X>one</X>">>, <<"  <Y>two</Y>">>, <<"</File>">>],
                  lists:droplast(Rest)).
 
+%% A document holding the letters goes in the multiline form (there only a whole line
+%% equal to the tag ends it), its id and type defused like any text.
+asset_multiline_letters_test() ->
+    Doc = <<"<File d=\"--multiline--X\"/>">>,
+    Out = iolist_to_binary(cell_shdr_codec:asset_line({utc, ?T0}, <<"R--multiline--1">>,
+                                                      <<"File">>, Doc)),
+    {Head, Body} = agent_multiline(binary:split(Out, <<"\n">>, [global, trim])),
+    ?assertEqual(<<"2026-06-20T05:31:43.512Z|@ASSET@|R--multi-line--1|File|">>, Head),
+    ?assertEqual([Doc], Body).
+
+%% A document line starting `* PONG' would be taken for a heartbeat by the agent.
+asset_star_line_test() ->
+    Doc = <<"<File>\n* PONG 5\n*x\n</File>">>,
+    Out = iolist_to_binary(cell_shdr_codec:asset_line({utc, ?T0}, <<"R1">>, <<"File">>, Doc)),
+    {_, Body} = agent_multiline(binary:split(Out, <<"\n">>, [global, trim])),
+    ?assertEqual([<<"<File>">>, <<"&#42; PONG 5">>, <<"&#42;x">>, <<"</File>">>], Body).
+
 asset_pipe_test() ->
     Out = iolist_to_binary(cell_shdr_codec:asset_line({utc, ?T0}, <<"R|1">>, <<"File">>,
                                                       <<"<File d=\"a|b\"/>">>)),
@@ -199,16 +235,22 @@ prop_multiline_reads_back() ->
                                                                   <<"File">>, Doc)),
                 {Head, Body} = agent_multiline(binary:split(Out, <<"\n">>, [global, trim])),
                 Head =:= <<"2026-06-20T05:31:43.512Z|@ASSET@|id|File|">> andalso
-                    Body =:= [binary:replace(L, <<"|">>, <<"&#124;">>, [global])
+                    Body =:= [star(binary:replace(L, <<"|">>, <<"&#124;">>, [global]))
                               || L <- binary:split(Doc, <<"\n">>, [global]),
                                  string:trim(L) =/= <<>>]
             end).
 
+star(<<$*, Rest/binary>>) -> <<"&#42;", Rest/binary>>;
+star(L) -> L.
+
 non_empty_line() ->
-    ?LET(Chars, list(oneof([$a, $<, $>, $-, $\s, $m, $=, $", range(33, 126)])),
+    ?LET(Chars, list(oneof([$a, $<, $>, $-, $\s, $m, $=, $", $*, range(33, 126)])),
          list_to_binary(Chars)).
 
-agent_multiline([First | Rest]) ->
+%% The reference agent's reading: a line starting `* PONG' is a heartbeat wherever it
+%% comes; after a line holding --multiline--TAG, lines up to one equal to the tag.
+agent_multiline(Lines) ->
+    [First | Rest] = [L || L <- Lines, binary:longest_common_prefix([L, <<"* PONG">>]) < 6],
     {Pos, _} = binary:match(First, <<"--multiline--">>),
     Tag = binary:part(First, Pos, byte_size(First) - Pos),
     {Body, [Tag]} = lists:splitwith(fun(L) -> L =/= Tag end, Rest),

@@ -54,11 +54,14 @@ names_test_() ->
     [?_assert(V(<<"avail">>)), ?_assert(V(<<"_x.y-1">>)), ?_assert(V(binary:copy(<<"a">>, 64))),
      ?_assertNot(V(binary:copy(<<"a">>, 65))), ?_assertNot(V(<<>>)), ?_assertNot(V(<<"1a">>)),
      ?_assertNot(V(<<"a b">>)), ?_assertNot(V(<<"a|b">>)), ?_assertNot(V(<<"a:b">>)),
-     ?_assertNot(V(<<"@ASSET@">>))].
+     ?_assertNot(V(<<"@ASSET@">>)), ?_assertNot(V(<<"a--multiline--b">>)),
+     ?_assert(V(<<"a--multi-line--b">>))].
 
 prefixes_test() ->
-    P = cell_shdr_items:prefixes(['robot', 'Robot 1', 'Robot_1', '1st', 'a:b']),
+    P = cell_shdr_items:prefixes(['robot', 'Robot 1', 'Robot_1', '1st', 'a:b',
+                                  'x--multiline--y']),
     ?assertEqual(<<"robot">>, maps:get(robot, P)),
+    ?assertEqual(<<"x_multiline_y">>, maps:get('x--multiline--y', P)),
     ?assertEqual(<<"t_1st">>, maps:get('1st', P)),
     ?assertEqual(<<"a_b">>, maps:get('a:b', P)),
     %% two ids that write the same get distinct prefixes
