@@ -36,6 +36,7 @@
 %% busy scheduler) must not move the next one's figures.
 -spec main([string()]) -> no_return().
 main(["run", Name, File]) ->
+    unicode_out(),
     Mod = list_to_atom(Name),
     Section = run_module(Mod),
     ok = file:write_file(File, term_to_binary(Section)),
@@ -54,10 +55,15 @@ main(["doc" | Files]) ->
             erlang:halt(1)
     end;
 main(Names) ->
+    unicode_out(),
     Sections = [run_module(list_to_atom(N)) || N <- Names],
     Failed = [M || {M, {error, _}} <- Sections],
     io:format("~n~p benchmark module(s) run, ~p failed~n", [length(Names), length(Failed)]),
     erlang:halt(case Failed of [] -> 0; _ -> 1 end).
+
+%% Titles and units say µs and ×: the console of a VM without a shell is Latin-1.
+unicode_out() ->
+    ok = io:setopts(standard_io, [{encoding, unicode}]).
 
 run_module(Mod) ->
     io:format("~n== ~s~n", [Mod]),
@@ -162,7 +168,7 @@ write_doc(Sections) ->
            "delay). Figures move from run to run on a shared 2-core machine: read the ",
            "ratios, not the third digit.\n\n",
            Rows],
-    file:write_file(Path, Doc).
+    file:write_file(Path, unicode:characters_to_binary(Doc)).
 
 section(Mod, Results) ->
     ["## ", atom_to_list(Mod), "\n\nReproduce: `", command(Mod), "`\n\n",
