@@ -195,10 +195,12 @@ point_changed(P, Old, V, #core{io = Io, drives = Drives} = C) ->
                        K <- [error, warning, code], maps:get(K, S, none) =:= P],
     lists:foldl(fun({Id, K}, {Ci, Ei}) -> drive_input(Id, K, V, Ci, Ei) end, {C1, E1}, Uses).
 
+%% The monitor knows of an emergency stop it raised before the controller's event
+%% about it arrives: resets hold from the moment the circuit opened.
 role(estop_ok, _Old, false, C, E) ->
-    {C#core{estop_raised = true}, E ++ [{estop, true}]};
+    estop_edge(estop_active(C), C#core{estop_raised = true}, E ++ [{estop, true}]);
 role(estop_ok, _Old, true, #core{estop_raised = true} = C, E) ->
-    {C#core{estop_raised = false}, E ++ [{estop, false}]};
+    estop_edge(estop_active(C), C#core{estop_raised = false}, E ++ [{estop, false}]);
 role(service_key, unknown, On, #core{cell = #{service_mode := On}} = C, E) ->
     {C, E};
 role(service_key, _Old, On, C, E) when is_boolean(On) ->
@@ -406,16 +408,21 @@ reassert({hardware, _}, C, E) ->
 %% The cell's flags: beacon, emergency stop, service mode
 %%====================================================================
 
-cell_changed(Old, New, C) ->
+cell_changed(Old, New, #core{estop_raised = Raised} = C) ->
     {C1, E1} = beacon(C, []),
-    {C2, E2} = case {maps:get(estop, Old), maps:get(estop, New)} of
-                   {false, true} -> estop_holds_resets(C1, E1);
-                   {true, false} -> estop_released(C1, E1);
-                   _ -> {C1, E1}
-               end,
+    {C2, E2} = estop_edge(maps:get(estop, Old) orelse Raised, C1, E1),
     case maps:get(service_mode, Old) =:= maps:get(service_mode, New) of
         true -> {C2, E2};
         false -> overrides(C2, E2)
+    end.
+
+%% The emergency stop is active while the controller says so or while the circuit the
+%% monitor watches is open, whichever it learnt of first.
+estop_edge(WasActive, C, E) ->
+    case {WasActive, estop_active(C)} of
+        {false, true} -> estop_holds_resets(C, E);
+        {true, false} -> estop_released(C, E);
+        _ -> {C, E}
     end.
 
 %% Resets under way stop; the drives' warnings say they wait for the release.
@@ -434,7 +441,7 @@ estop_released(#core{drives = Drives} = C, E) ->
                         Acc
                 end, {C, E}, lists:sort(maps:to_list(Drives))).
 
-estop_active(#core{cell = #{estop := On}}) -> On.
+estop_active(#core{cell = #{estop := On}, estop_raised = Raised}) -> On orelse Raised.
 
 beacon(#core{cell = Cell, lamps = Old} = C, E) ->
     Lamps = cell_beacon:lamps(Cell, setting(beacon, C)),

@@ -201,6 +201,28 @@ drive_waits_for_the_estop_release_test() ->
     E2 = effects([{cell, cell()}], C1),
     ?assert(lists:member({?X_RESET, true}, writes(E2))).
 
+%% The operator's Retry can reach the monitor before the controller's event about the
+%% emergency stop the monitor itself raised: no reset either way.
+retry_before_the_estop_event_test() ->
+    Steps = [{point, ?X_ERROR, true}]
+        ++ lists:append(lists:duplicate(3, [{timeout, {reset_pulse, x}},
+                                            {timeout, {reset_wait, x}}])),
+    {C1, _} = run(Steps, healthy()),
+    {C2, E2} = run([{point, ?ESTOP, false}, {answer, <<"drive.x.failed">>, retry}], C1),
+    ?assertEqual([], [W || {?X_RESET, true} = W <- writes(E2)]),
+    %% The controller's event changes nothing; its release starts the resets.
+    {C3, E3} = run([{cell, (cell())#{estop := true}}], C2),
+    ?assertEqual([], writes(E3)),
+    {C4, E4} = run([{point, ?ESTOP, true}], C3),
+    ?assertEqual([], writes(E4)),
+    ?assert(lists:member({?X_RESET, true}, writes(effects([{cell, cell()}], C4)))).
+
+estop_circuit_opens_during_a_pulse_test() ->
+    {C1, _} = run([{point, ?X_ERROR, true}], healthy()),
+    E = effects([{point, ?ESTOP, false}], C1),
+    ?assertEqual([{?X_RESET, false}], writes(E)),
+    ?assert(lists:member({cancel, {reset_pulse, x}}, E)).
+
 estop_during_a_pulse_test() ->
     {C1, _} = run([{point, ?X_ERROR, true}], healthy()),
     E = effects([{cell, (cell())#{estop := true}}], C1),
@@ -310,7 +332,7 @@ answer_for_something_else_test() ->
 
 kinds_test() ->
     %% Everything the monitor decides is one of the effects it knows how to carry out.
-    {_, E} = run([{point, ?ESTOP, false}, {point, ?DOOR, false}, {point, ?X_ERROR, true},
+    {_, E} = run([{point, ?X_ERROR, true}, {point, ?ESTOP, false}, {point, ?DOOR, false},
                   {device, ?PLC, {down, <<>>}}, {cell, (cell())#{state := down}}],
                  healthy()),
     Known = [estop, service_mode, warning, reset_warning, error, withdraw, write, timer,
