@@ -212,10 +212,6 @@ written(Period) ->
 %% The counters with the time of every task in the state it was in at the last write,
 %% as much of it as falls in the period's span.
 with_open(From, To, Counters) ->
-    Open = safe(fun() ->
-                        mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
-                                                        [], [{{'$1', '$2'}}]}])
-                end, []),
     lists:foldl(fun({T, {State, Since}}, Acc) when is_integer(Since) ->
                         case To - max(From, Since) of
                             D when D > 0 ->
@@ -228,7 +224,14 @@ with_open(From, To, Counters) ->
                         end;
                    (_, Acc) ->
                         Acc
-                end, Counters, Open).
+                end, Counters, open_rows()).
+
+%% Each task's state and since when it is counted there, as last written.
+open_rows() ->
+    safe(fun() ->
+                 mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
+                                                 [], [{{'$1', '$2'}}]}])
+         end, []).
 
 %% The time a period covers: a shift from its start to its end or to the last write;
 %% the total from the first task seen to the last write.
@@ -743,19 +746,17 @@ closed(Why, #st{db = Was} = St) ->
 %% written.
 opened(#st{started = Started} = St0) ->
     Flushed = meta(flushed, undefined),
-    Counting = safe(fun() ->
-                            mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
-                                                            [], [{{'$1', '$2'}}]}])
-                    end, []),
-    St0a = lists:foldl(fun({T, Was}, Acc) ->
-                               Acc1 = until_down(T, Was, Flushed, Acc),
-                               case maps:is_key(T, Acc1#st.tasks) of
-                                   true -> Acc1;
-                                   %% Not in this cell any more: nothing of it is open.
-                                   false -> db(fun() -> mnesia:dirty_delete(?COUNTER, {meta, {open, T}})
-                                               end, Acc1)
-                               end
-                       end, St0, Counting),
+    Closed = lists:foldl(fun({T, Was}, Acc) ->
+                                 Acc1 = until_down(T, Was, Flushed, Acc),
+                                 case maps:is_key(T, Acc1#st.tasks) of
+                                     true ->
+                                         Acc1;
+                                     false ->
+                                         %% Not in this cell any more: nothing of it is open.
+                                         Key = {meta, {open, T}},
+                                         db(fun() -> mnesia:dirty_delete(?COUNTER, Key) end, Acc1)
+                                 end
+                         end, St0, open_rows()),
     St1 = maps:fold(fun(T, {State, Since}, Acc0) ->
                             Acc = counting(T, State, Since, Acc0),
                             case meta({first, T}, undefined) of
@@ -766,7 +767,7 @@ opened(#st{started = Started} = St0) ->
                                 _ ->
                                     Acc
                             end
-                    end, St0a, St0a#st.tasks),
+                    end, Closed, Closed#st.tasks),
     Open = safe(fun() -> ets_list(?OPEN) end, []),
     Known = lists:foldl(
               fun({?OPEN, Serial, Info}, Acc) ->
