@@ -9,7 +9,8 @@
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
-         cell_state_follows_tasks/1, bad_spec_is_refused/1, settings_snapshot_at_start/1]).
+         cell_state_follows_tasks/1, bad_spec_is_refused/1, settings_snapshot_at_start/1,
+         recipe_buffer_cleared_at_start/1]).
 
 -define(IDS, [load, work, unload, robot]).
 
@@ -17,7 +18,8 @@ all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, damaged_product_file,
      product_survives_restart, warnings, events_have_their_fields,
-     cell_state_follows_tasks, bad_spec_is_refused, settings_snapshot_at_start].
+     cell_state_follows_tasks, bad_spec_is_refused, settings_snapshot_at_start,
+     recipe_buffer_cleared_at_start].
 
 init_per_testcase(bad_spec_is_refused, Config) ->
     Config;
@@ -317,6 +319,25 @@ settings_snapshot_at_start(_Config) ->
     ?assertMatch({error, {invalid, [speed_override], _}},
                  cell_settings:put(machine, #{speed_override => 500}, <<"service">>)),
     ?assertEqual(80, cell_settings:get(machine, speed_override)).
+
+%% Seed 000 §3.2.3: a recipe is loaded the first time a product of its type arrives
+%% and the buffer is emptied at every Start, so an edited recipe file is read again.
+recipe_buffer_cleared_at_start(_Config) ->
+    ok = cell_recipe:save(<<"panel A">>, #{description => <<"first">>}, <<"suite">>),
+    ?assertEqual([], cell_recipe_buffer:loaded()),
+    ?assertMatch({ok, #{description := <<"first">>}}, cell_recipe_buffer:get(<<"panel A">>)),
+    ?assertEqual([<<"panel A">>], cell_recipe_buffer:loaded()),
+    %% Edited on disk while buffered: the cell keeps the copy it loaded ...
+    ok = cell_recipe:save(<<"panel A">>, #{description => <<"second">>}, <<"suite">>),
+    ?assertMatch({ok, #{description := <<"first">>}}, cell_recipe_buffer:get(<<"panel A">>)),
+    %% ... until the next Start, which empties the buffer.
+    ok = cell_controller:start(),
+    ?assertEqual([], cell_recipe_buffer:loaded()),
+    ?assertMatch({ok, #{description := <<"second">>}}, cell_recipe_buffer:get(<<"panel A">>)),
+    %% A Start refused during an emergency stop leaves it alone.
+    ok = cell_controller:estop(true),
+    ?assertEqual({error, estop_active}, cell_controller:start()),
+    ?assertEqual([<<"panel A">>], cell_recipe_buffer:loaded()).
 
 %% -------------------------------------------------------------------------------------
 
