@@ -9,10 +9,14 @@
 %%
 %% <b>Time per IPC-2541 state</b>, per task: each `task_state' event closes the time
 %% spent in the state before. The time is split at shift boundaries and added to the
-%% shift and to the total, in microseconds. The state each task is in, and since when,
-%% is written with the counters; a query adds that open stretch up to the last write,
-%% so the process does no work for a task that stays in its state (a thousand waiting
-%% tasks cost it nothing) and closes the open stretches only when a shift ends. Time
+%% shift and to the total, in microseconds. A new shift plan (the `statistics'
+%% settings' `shifts') saved while the runtime runs applies when the running shift
+%% ends, or at the runtime's next start; a shift's span is kept as the plan had it
+%% when the shift was first counted, so reports of past shifts stay right. The state
+%% each task is in, and since when, is written with the counters; a query adds that
+%% open stretch up to the last write, so the process does no work for a task that
+%% stays in its state (a thousand waiting tasks cost it nothing) and closes the open
+%% stretches only when a shift ends. Time
 %% while the runtime was not running (from the last write before a stop or crash until
 %% the next start) is counted as OFF, the time before it in the state the task was in,
 %% so for every task the states add up to the wall-clock time since it was first seen.
@@ -240,9 +244,15 @@ span(total) ->
     Flushed = meta(flushed, now_us()),
     {first_seen(Flushed), Flushed};
 span({_, _} = Id) ->
-    #{start := S, 'end' := E} = shift_by_id(Id),
+    {Start, End} = case meta({shift, Id}, undefined) of
+                       {_, _} = Recorded ->
+                           Recorded;
+                       undefined ->
+                           #{start := S, 'end' := E} = shift_by_id(Id),
+                           {to_us(S), to_us(E)}
+                   end,
     Flushed = meta(flushed, now_us()),
-    {max(to_us(S), first_seen(Flushed)), min(to_us(E), Flushed)}.
+    {max(Start, first_seen(Flushed)), min(End, Flushed)}.
 
 first_seen(Default) ->
     Firsts = safe(fun() ->
@@ -613,12 +623,15 @@ counting(T, State, Upto, St) ->
 shift_ended(Now, #st{shift_end = End} = St) when Now < End ->
     St;
 shift_ended(Now, St0) ->
-    St1 = maps:fold(fun(T, {State, Since}, Acc) ->
-                            counting(T, State, max(Now, Since),
-                                     account(T, State, Since, max(Now, Since), Acc))
-                    end, St0, St0#st.tasks),
+    St1 = close_stretches(Now, St0),
     {_, _, End, St2} = shift_of(Now, St1),
     St2#st{shift_end = End}.
+
+close_stretches(Now, St) ->
+    maps:fold(fun(T, {State, Since}, Acc) ->
+                      counting(T, State, max(Now, Since),
+                               account(T, State, Since, max(Now, Since), Acc))
+              end, St, St#st.tasks).
 
 %% What is counted so far written, with the time of the write.
 flush(St0) ->
@@ -845,8 +858,13 @@ purge(Now, St) ->
                                                              [{'<', '$1', {const, CutDate}}],
                                                              [{element, 2, '$_'}]}])
                      end, []),
+    Spans = safe(fun() ->
+                         mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {shift, {'$1', '_'}}}, '_'},
+                                                         [{'<', '$1', {const, CutDate}}],
+                                                         [{element, 2, '$_'}]}])
+                 end, []),
     St1 = lists:foldl(fun(K, Acc) -> db(fun() -> mnesia:dirty_delete(?COUNTER, K) end, Acc) end,
-                      St, OldShifts),
+                      St, OldShifts ++ Spans),
     Cut = (Now div 1000) - TraceDays * 86400 * 1000,
     Old = safe(fun() ->
                        mnesia:dirty_select(?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},
@@ -919,7 +937,10 @@ shift_of(Us, St) ->
     #{id := Id, start := S, 'end' := E} = cell_stats_shift:at(local(Us), shift_starts()),
     Start = to_us(S),
     End = max(to_us(E), Us + 1),
-    {Id, Start, End, St#st{shift = {Id, Start, End}}}.
+    %% A shift's span as the plan had it when the shift was first counted: a report of
+    %% it stays right after the plan has changed.
+    St1 = op({meta, {shift, Id}}, first, {Start, End}, St),
+    {Id, Start, End, St1#st{shift = {Id, Start, End}}}.
 
 shift_by_id({Date, N} = Id) ->
     Starts = shift_starts(),

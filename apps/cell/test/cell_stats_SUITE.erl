@@ -11,14 +11,16 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1, time_in_a_state_across_a_crash/1]).
+-export([database_unusable_then_back/1, time_in_a_state_across_a_crash/1,
+         shifts_split_the_time/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, time_in_a_state_across_a_crash].
+    [database_unusable_then_back, time_in_a_state_across_a_crash, shifts_split_the_time].
 
-init_per_testcase(time_in_a_state_across_a_crash = Case, Config) ->
+init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
+                                     Case =:= shifts_split_the_time ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -97,6 +99,59 @@ time_in_a_state_across_a_crash(_Config) ->
      end || Id <- Ids],
     ?assert(meta(flushed) > LastWrite),
     assert_adds_up(Ids).
+
+%% When a shift ends, the time of tasks that stay in their state is split there: the
+%% ended shift holds its time to the microsecond, the next one the time since.
+shifts_split_the_time(Config) ->
+    %% One shift a day, beginning at the next whole minute at least 5 s away, saved
+    %% before the statistics start counting.
+    {ok, _} = application:ensure_all_started(cell),
+    NowS = erlang:system_time(second),
+    BoundaryS = case (NowS div 60 + 1) * 60 of
+                    B when B - NowS < 5 -> B + 60;
+                    B -> B
+                end,
+    {_, {H, M, 0}} = calendar:system_time_to_local_time(BoundaryS, second),
+    Start = iolist_to_binary(io_lib:format("~2..0b:~2..0b", [H, M])),
+    ok = cell_settings:put(statistics, #{shifts => [Start]}, <<"suite">>),
+    ok = application:stop(cell),
+    ok = application:stop(mnesia),
+    ok = file:del_dir_r(filename:join(?config(root, Config), "Databases")),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    Ids = [waits_a, waits_b],
+    [{ready, idle, starved} = cell_task_proc:state(Id) || Id <- Ids],
+    ok = cell_stats:flush(),
+    Running = cell_stats:shift_now(),
+    Boundary = BoundaryS * 1000000,
+    %% Time passes until the shift ends, which is what is counted here.
+    receive after BoundaryS * 1000 + 100 - os:system_time(millisecond) -> ok end,
+    ok = cell_stats:flush(),
+    Next = cell_stats:shift_now(),
+    ?assertNotEqual(Running, Next),
+    ?assertEqual([total, Running, Next], cell_stats:periods()),
+    Ran = cell_stats:counters(Running),
+    Later = cell_stats:counters(Next),
+    [begin
+         %% The ended shift: from the task's first sight to the shift's end, exactly,
+         %% most of it waiting for a product.
+         ?assertEqual({Id, Boundary - meta({first, Id})}, {Id, time_sum(Id, Ran)}),
+         ?assert(maps:get({time, starved}, maps:get(Id, Ran)) > 1000000),
+         %% The next shift: the time since, in the same state.
+         ?assert(maps:get({time, starved}, maps:get(Id, Later)) > 0),
+         ?assert(time_sum(Id, Later) =< os:system_time(microsecond) - Boundary)
+     end || Id <- Ids],
+    %% The report of the ended shift covers it up to its end.
+    #{to := To, tasks := Tasks} = cell_stats:summary(Running),
+    ?assertEqual(BoundaryS * 1000, To),
+    [?assert(abs(maps:get(total_ms, maps:get(Id, Tasks))
+                 - (Boundary - meta({first, Id})) div 1000) =< 3)
+     || Id <- Ids],
+    assert_adds_up(Ids).
+
+time_sum(Id, Counters) ->
+    lists:sum([V || {{time, _}, V} <- maps:to_list(maps:get(Id, Counters, #{}))]).
 
 %% Per task, its time in each state in milliseconds, up to the last write.
 times(Ids) ->
