@@ -75,10 +75,12 @@ stats_settings(_) ->
 %% every task in its states adds up to the time it was watched.
 panels_pass_the_line(_Config) ->
     ok = cell_events:subscribe(?EVENTS),
+    T0 = os:system_time(millisecond),
     ok = cell_controller:start(<<"suite">>),
     Out = collect_out(20, fun never_answer/1),
     ok = stop_cell(),
     Stats = settle(),
+    Watched = os:system_time(millisecond) - T0,
     #{counters := #{delivered := Delivered, scrapped := 0}} = router_sim:world(),
     #{cell := #{in := In, out := OutN, good := Good, scrapped := 0}, in_cell := InCell} = Stats,
     ?assertEqual(Delivered, OutN),
@@ -89,7 +91,20 @@ panels_pass_the_line(_Config) ->
     %% The cell's states: every stretch of time counted once.
     assert_time_adds_up(),
     #{tasks := #{lower := #{completed := Routed, work_ms := #{n := Routed}}}} = Stats,
-    ?assert(Routed >= 20).
+    ?assert(Routed >= 20),
+    %% Cycle time between two panels out, lead time of each in the cell, throughput
+    %% over the time the statistics cover.
+    #{from := From, to := To,
+      cell := #{cycle_ms := #{n := NCycles, mean := Cycle, min := CycleMin, max := CycleMax},
+                lead_ms := #{n := NLeads, min := LeadMin, max := LeadMax},
+                throughput_per_hour := PerHour}} = Stats,
+    ?assertEqual(OutN - 1, NCycles),
+    ?assert(0 < CycleMin andalso CycleMin =< Cycle andalso Cycle =< CycleMax),
+    ?assert(Cycle * NCycles =< Watched),
+    ?assertEqual(OutN, NLeads),
+    ?assert(0 < LeadMin andalso LeadMax =< Watched),
+    ?assert(To - From >= Watched div 2),
+    ?assert(abs(PerHour - OutN * 3600000 / (To - From)) =< 0.1).
 
 %% Every carry loses the modules: the seed's "Product lost" error, answered in turn.
 %% Retry before they are seated again finds them missing (the error again); Retry
