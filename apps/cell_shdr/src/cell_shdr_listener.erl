@@ -131,4 +131,5 @@ address() ->
 
 why({shutdown, {failed_to_start_child, _, {listen_error, _, Posix}}}) -> inet:format_error(Posix);
 why({listen_error, _, Posix}) -> inet:format_error(Posix);
+why(Posix) when is_atom(Posix) -> inet:format_error(Posix);
 why(Other) -> io_lib:format("~0tp", [Other]).

@@ -21,7 +21,8 @@
          ping_pong/1, silent_agent_disconnected/1, slow_client_dropped/1,
          flood_of_clients/1, garbage_input/1, adapter_crash_spares_the_cell/1,
          cell_services_restart/1, identity_changes_announced/1,
-         devices_xml_matches_stream/1, stream_reads_as_agent/1]).
+         devices_xml_matches_stream/1, stream_reads_as_agent/1,
+         taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1]).
 
 -define(TASKS, [load, robot]).
 -define(WAIT, 20000).
@@ -33,13 +34,20 @@ all() ->
      hal_samples_and_events, time_series, relative_time, multiline_assets, ping_pong,
      silent_agent_disconnected, slow_client_dropped, flood_of_clients, garbage_input,
      adapter_crash_spares_the_cell, cell_services_restart, identity_changes_announced,
-     devices_xml_matches_stream, stream_reads_as_agent].
+     devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
+     a_unit_is_a_path_like_a_task].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
     Root = filename:join(?config(priv_dir, Config), "root-" ++ atom_to_list(Case)),
     Tab = ets:new(cell_shdr_suite, [public]),
-    Specs = [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS],
+    Specs = [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
+        ++ case Case of
+               a_unit_is_a_path_like_a_task ->
+                   [cell_test_unit:spec(picker, #{tab => Tab, booting => false})];
+               _ ->
+                   []
+           end,
     {ok, _} = cell_shdr_test_hal:start(),
     _ = [application:load(A) || A <- [cell_base, cell, cell_shdr]],
     ok = application:set_env(cell_base, root, Root),
@@ -51,8 +59,8 @@ init_per_testcase(Case, Config) ->
     {ok, _} = application:ensure_all_started(cell_shdr),
     %% The listener listens once its continue has run: it answers after that.
     _ = sys:get_state(cell_shdr_listener),
-    Refs = maps:from_list([{Id, maps:get(ref, maps:get(args, S))} || #{id := Id} = S <- Specs]),
-    [{refs, Refs}, {root, Root} | Config].
+    Refs = maps:from_list([{Id, Ref} || #{id := Id, args := #{ref := Ref}} <- Specs]),
+    [{refs, Refs}, {root, Root}, {tab, Tab} | Config].
 
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell_shdr),
@@ -598,6 +606,64 @@ deadline() ->
 
 left(Deadline) ->
     max(0, Deadline - erlang:monotonic_time(millisecond)).
+
+%% A unit (the Zeugwerk lifecycle) is a Path of the controller like any task: its
+%% IPC-2541 state reaches the agent as EXECUTION and WAIT_STATE the same way.
+a_unit_is_a_path_like_a_task(Config) ->
+    Tab = ?config(tab, Config),
+    S = connect(),
+    V0 = values(snapshot(S)),
+    ?assertEqual(<<"STOPPED">>, maps:get(<<"picker_execution">>, V0)),
+    ?assertEqual(<<"0">>, maps:get(<<"picker_part_count">>, V0)),
+    ok = cell_controller:start(),
+    %% GoHome is SETUP: the agent sees the unit powering up.
+    await_pair(S, <<"picker_wait_state">>, <<"POWERING_UP">>),
+    _ = cell_unit:info(picker),
+    go_home = cell_test_seq:complete(Tab, picker),
+    %% Automatic: READY-PROCESSING-ACTIVE.
+    await_pair(S, <<"picker_execution">>, <<"ACTIVE">>),
+    ok = cell_controller:stop(),
+    _ = cell_unit:info(picker),
+    stop = cell_test_seq:complete(Tab, picker),
+    await_pair(S, <<"picker_execution">>, <<"STOPPED">>),
+    ok = gen_tcp:close(S).
+
+%% Reads lines until one sets `Key' to `Value'.
+await_pair(S, Key, Value) ->
+    read_until(S, fun(L) -> lists:member({Key, Value}, pairs([L])) end, deadline()).
+
+%% A port another program holds: the adapter says so and tries again until it is free;
+%% a new port in the settings moves the listener, and the old port is let go.
+taken_port_waited_for_and_moved(_Config) ->
+    ok = cell_log:subscribe(),
+    {ok, Holder} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}, {reuseaddr, false}]),
+    {ok, Taken} = inet:port(Holder),
+    ok = application:unset_env(cell_shdr, port),
+    put_settings(#{port => Taken, bind => <<"127.0.0.1">>}),
+    Busy = iolist_to_binary(io_lib:format("cannot listen on 127.0.0.1:~p (address already "
+                                          "in use); trying again in 1 s", [Taken])),
+    ?assert(await_log(Busy, deadline())),
+    ?assertEqual(undefined, cell_shdr:port()),
+    %% The cell is not disturbed meanwhile.
+    ?assertEqual(ok, cell_controller:sync()),
+    ok = gen_tcp:close(Holder),
+    Listening = iolist_to_binary(io_lib:format("listening on 127.0.0.1:~p", [Taken])),
+    ?assert(await_log(Listening, deadline())),
+    ?assertEqual(Taken, cell_shdr:port()),
+    S1 = connect(),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(S1)),
+    %% Moved: its clients are closed and reconnect to the new port.
+    {ok, Free} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Other} = inet:port(Free),
+    ok = gen_tcp:close(Free),
+    put_settings(#{port => Other}),
+    ?assertEqual(Other, cell_shdr:port()),
+    ?assertEqual({error, closed}, gen_tcp:recv(S1, 0, 5000)),
+    ?assertEqual({error, econnrefused},
+                 gen_tcp:connect({127, 0, 0, 1}, Taken, [binary, {active, false}])),
+    S2 = connect(),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(S2)),
+    ok = gen_tcp:close(S2).
 
 connect() ->
     Port = cell_shdr:port(),
