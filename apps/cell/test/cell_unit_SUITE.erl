@@ -390,6 +390,12 @@ pause_holds_at_once_where_the_picker_waits(_Config) ->
     ?assertMatch(#{unit_state := automatic, halt := true, down := {paused, pause},
                    sequence := #{held := true, sequences := [#{step := wait_part_at_end}]}},
                  cell_unit:info(?U)),
+    %% The panel's view of it (`/api/tasks/picker').
+    ?assertMatch(#{<<"state">> := <<"automatic">>, <<"halt">> := true, <<"fault">> := null,
+                   <<"step">> := #{<<"sequence">> := <<"cell_picker_automatic">>,
+                                   <<"step">> := <<"wait_part_at_end">>},
+                   <<"sequences">> := [#{<<"step">> := <<"wait_part_at_end">>}]},
+                 cell_web_json:unit(cell_unit:info(?U))),
     %% A part comes while paused: nothing moves.
     part(),
     true = await_value(part_is_at_end, true),

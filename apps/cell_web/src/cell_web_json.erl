@@ -6,7 +6,7 @@
 %% since the epoch (UTC).
 -module(cell_web_json).
 
--export([encode/1, cell/2, task/1, alarm/1, alarm_record/1, line/1, event/1, state/1,
+-export([unit/1, encode/1, cell/2, task/1, alarm/1, alarm_record/1, line/1, event/1, state/1,
          term/1, product/1]).
 
 %% @doc JSON text of a value built by the functions here (or any term).
@@ -30,6 +30,26 @@ task(Row) ->
       <<"state">> => state(maps:get(state, Row, off)),
       <<"serial">> => term(maps:get(serial, Row, undefined)),
       <<"running">> => is_pid(maps:get(pid, Row, undefined))}.
+
+%% @doc What a unit is doing, from its info: the unit's own state (`automatic',
+%% `fault' ...), the step it runs (sequence module and step, nested sequences
+%% innermost last), why it faulted and whether it is halted; `null' for a task.
+-spec unit(map() | undefined) -> map() | null.
+unit(#{kind := unit} = Info) ->
+    #{sequences := Seqs} = Sequence = maps:get(sequence, Info, #{sequences => []}),
+    #{<<"state">> => term(maps:get(unit_state, Info, undefined)),
+      <<"step">> => case maps:get(step, Info, undefined) of
+                        {_Depth, Mod, Step} -> #{<<"sequence">> => term(Mod),
+                                                 <<"step">> => term(Step)};
+                        undefined -> null
+                    end,
+      <<"sequences">> => [#{<<"sequence">> => term(M), <<"step">> => term(S)}
+                          || #{module := M, step := S} <- Seqs],
+      <<"waiting_for">> => [term(W) || W <- maps:get(waiting, Sequence, [])],
+      <<"fault">> => term(maps:get(fault, Info, undefined)),
+      <<"halt">> => maps:get(halt, Info, false) =:= true};
+unit(_) ->
+    null.
 
 %% @doc An error, alarm or warning.
 -spec alarm(map()) -> map().

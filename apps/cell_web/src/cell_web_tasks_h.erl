@@ -1,6 +1,7 @@
 %% @doc `/api/tasks' — every device task: state, product serial, zone and lane;
 %% `/api/tasks/:id' — one task in full: why it is DOWN, its pending request, its
-%% product, and the settings it runs on (the snapshot taken at the last Start).
+%% product, the settings it runs on (the snapshot taken at the last Start) and, for a
+%% unit, its own state and the step its sequence is at.
 -module(cell_web_tasks_h).
 -behaviour(cowboy_handler).
 
@@ -52,7 +53,8 @@ detail(Id) ->
                                _ -> cell_web_json:product(maps:get(product, Info, undefined))
                            end,
           <<"alarms">> => [cell_web_json:alarm(A) || A <- cell_alarms:list(Id)],
-          <<"settings">> => settings(maps:get(settings_key, Row, undefined))}.
+          <<"settings">> => settings(maps:get(settings_key, Row, undefined)),
+          <<"unit">> => cell_web_json:unit(Info)}.
 
 info(_Key, undefined) -> null;
 info(Key, Info) -> cell_web_json:term(maps:get(Key, Info, undefined)).
