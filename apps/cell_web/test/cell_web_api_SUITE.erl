@@ -29,11 +29,16 @@ init_per_suite(Config) ->
     _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
     _ = [application:load(A) || A <- [cell_base, cell, cell_web]],
     ok = application:set_env(cell_base, root, Root),
-    Specs = [cell_web_demo_task:spec(Id, Z, <<"Front">>, self()) || {Id, Z} <- ?TASKS],
+    %% The router runs on a snapshot of the machine settings, the loader on none.
+    Specs = [with_settings(cell_web_demo_task:spec(Id, Z, <<"Front">>, self()))
+             || {Id, Z} <- ?TASKS],
     ok = application:set_env(cell, cell_spec, #{name => <<"suite">>, tasks => Specs}),
     ok = application:set_env(cell_web, port, 0),
     {ok, _} = application:ensure_all_started(cell_web),
     [{specs, Specs}, {root, Root} | Config].
+
+with_settings(#{id := router} = Spec) -> Spec#{settings => machine};
+with_settings(Spec) -> Spec.
 
 end_per_suite(_Config) ->
     _ = [application:stop(A) || A <- [cell_web, cell, mnesia, cell_base]],
@@ -275,8 +280,12 @@ tasks_and_products(Config) ->
            #{<<"id">> := <<"router">>, <<"state">> := <<"READY-PROCESSING-ACTIVE">>,
              <<"serial">> := <<"P-7">>, <<"zone">> := <<"Routing">>}], _} = req(Op, get, "/api/tasks"),
     {200, #{<<"id">> := <<"router">>, <<"request">> := <<"start">>, <<"down">> := null,
-            <<"product">> := #{<<"serial">> := <<"P-7">>, <<"recipe">> := <<"demo">>}}, _} =
+            <<"product">> := #{<<"serial">> := <<"P-7">>, <<"recipe">> := <<"demo">>},
+            <<"settings">> := #{<<"name">> := <<"machine">>, <<"pending">> := false,
+                                <<"in_force">> := #{<<"speed_override">> := Speed}}}, _} =
         req(Op, get, "/api/tasks/router"),
+    ?assertEqual(Speed, cell_settings:get(machine, speed_override)),
+    {200, #{<<"settings">> := null}, _} = req(Op, get, "/api/tasks/loader"),
     {200, [#{<<"serial">> := <<"P-7">>, <<"task">> := <<"router">>}], _} = req(Op, get, "/api/products"),
     {200, #{<<"in_cell">> := [#{<<"task">> := <<"router">>}]}, _} = req(Op, get, "/api/products/P-7"),
     assert_error(404, <<"not_found">>, req(Op, get, "/api/products/P-8")),
@@ -317,7 +326,19 @@ log_is_queried(Config) ->
     {200, #{<<"lines">> := []}, _} = req(A, get, "/api/log?task=router&level=error"),
     Future = os:system_time(millisecond) + 3600000,
     {200, #{<<"lines">> := []}, _} =
-        req(A, get, io_lib:format("/api/log?from=~p&to=~p", [Future, Future + 1000])).
+        req(A, get, io_lib:format("/api/log?from=~p&to=~p", [Future, Future + 1000])),
+    %% A time range gives the lines from its start up to, not including, its end.
+    [T1, _, T3] = [T || #{<<"text">> := <<"cut", _/binary>>, <<"time">> := T} <- Lines],
+    {200, #{<<"lines">> := First}, _} =
+        req(A, get, io_lib:format("/api/log?task=router&from=~p&to=~p", [T1, T1 + 1])),
+    ?assert(lists:member(<<"cut 1 of 3">>, [T || #{<<"text">> := T} <- First])),
+    ?assertEqual([T1], lists:usort([T || #{<<"time">> := T} <- First])),
+    {200, #{<<"lines">> := After}, _} =
+        req(A, get, io_lib:format("/api/log?task=router&from=~p", [T3 + 1])),
+    ?assertEqual([], [L || #{<<"time">> := T} = L <- After, T =< T3]),
+    {200, #{<<"lines">> := Before}, _} =
+        req(A, get, io_lib:format("/api/log?task=router&to=~p", [T1])),
+    ?assertEqual([], [L || #{<<"time">> := T} = L <- Before, T >= T1]).
 
 settings_are_edited(Config) ->
     Sv = as(service, Config),
@@ -334,6 +355,10 @@ settings_are_edited(Config) ->
             <<"in_force">> := #{<<"speed_override">> := Old}}, _} =
         req(Sv, put, "/api/settings/machine", #{speed_override => New}),
     ?assertEqual(New, cell_settings:get(machine, speed_override)),
+    %% The task runs on what was in force at Start until the next one.
+    {200, #{<<"settings">> := #{<<"pending">> := true,
+                                <<"in_force">> := #{<<"speed_override">> := Old}}}, _} =
+        req(Sv, get, "/api/tasks/router"),
     {200, [#{<<"rev">> := Rev, <<"who">> := <<"service">>}, #{<<"rev">> := Prev} | _], _} =
         req(Sv, get, "/api/settings/machine/revisions"),
     {200, #{<<"values">> := #{<<"speed_override">> := Old}}, _} =
@@ -469,8 +494,17 @@ websocket_snapshot_and_live(Config) ->
     Ws2 = until(Ws1, fun(#{<<"type">> := <<"task">>, <<"task">> := #{<<"id">> := <<"router">>,
                                                                      <<"state">> := <<"READY-IDLE-STARVED">>}}) -> true;
                         (_) -> false end),
+    %% Every other event of the cell reaches the page as it is, with its task and time.
+    Before = os:system_time(millisecond),
+    cmd(Config, router, {event, unstarved}),
+    Ws2b = until(Ws2, fun(#{<<"type">> := <<"event">>,
+                            <<"event">> := #{<<"type">> := <<"equipment_unstarved">>,
+                                             <<"task">> := <<"router">>, <<"time">> := T} = E}) ->
+                              ?assertNot(maps:is_key(<<"mono">>, E)),
+                              T >= Before;
+                         (_) -> false end),
     cmd(Config, router, {error, [retry]}),
-    Ws3 = until(Ws2, fun(#{<<"type">> := <<"alarm">>, <<"alarm">> := #{<<"kind">> := <<"error">>}}) -> true;
+    Ws3 = until(Ws2b, fun(#{<<"type">> := <<"alarm">>, <<"alarm">> := #{<<"kind">> := <<"error">>}}) -> true;
                         (_) -> false end),
     ok = cell_alarms:answer(<<"router:jam">>, retry, <<"suite">>),
     Ws4 = until(Ws3, fun(#{<<"type">> := <<"alarm_cleared">>, <<"alarm">> := #{<<"cleared">> := <<"retry">>,
