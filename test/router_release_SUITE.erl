@@ -61,6 +61,11 @@ run_answer_stop_restart(Config) ->
     try
         %% First run: 25 products out, every error answered through the API.
         Op = boot(Bin, Env, Node),
+        %% Factory IT sees the cell over MTConnect SHDR from the start.
+        Shdr = shdr_snapshot(Node),
+        ?assertMatch([<<"* shdrVersion: 2">> | _], Shdr),
+        ?assert(lists:any(fun(L) -> binary:match(L, <<"|avail|AVAILABLE">>) =/= nomatch end,
+                          Shdr)),
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
         Answers1 = run(Op, Node, 25, #{}),
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
@@ -109,6 +114,22 @@ run_answer_stop_restart(Config) ->
         [check_history(Op2, S) || S <- Serials]
     after
         cellrt(Bin, ["stop"], Env)
+    end.
+
+%% The lines an MTConnect agent receives when it connects, up to the answer to a PING.
+shdr_snapshot(Node) ->
+    Port = erpc:call(Node, cell_shdr, port, []),
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {packet, line}]),
+    ok = gen_tcp:send(S, <<"* PING\n">>),
+    Lines = shdr_lines(S, []),
+    ok = gen_tcp:close(S),
+    Lines.
+
+shdr_lines(S, Acc) ->
+    {ok, Line} = gen_tcp:recv(S, 0, 10000),
+    case string:trim(Line, trailing, "\r\n") of
+        <<"* PONG", _/binary>> -> lists:reverse(Acc);
+        L -> shdr_lines(S, [L | Acc])
     end.
 
 %% The books balance, and agree with the simulated machine.
