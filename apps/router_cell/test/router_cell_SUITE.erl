@@ -364,8 +364,14 @@ diagnostics(_Config) ->
     ?assertEqual({error, not_found}, cell_diag:product(<<"no such panel">>)),
     Stats = captured(fun cell_diag:stats/0),
     ?assertNotEqual(nomatch, string:find(Stats, "lower")),
-    ok = cell_diag:trace(work_front, 5000),
+    %% Tracing lasts as long as asked, then the task logs as before.
+    Before = cell_log:level(work_front),
+    ?assertNotEqual(verbose, Before),
+    ok = cell_diag:trace(work_front, 300),
     ?assertEqual(verbose, cell_log:level(work_front)),
+    receive after 400 -> ok end,
+    _ = sys:get_state(cell_log_server),
+    ?assertEqual(Before, cell_log:level(work_front)),
     ?assertNotEqual(nomatch, string:find(captured(fun cell_diag:alarms/0), "No active")),
     ?assertNotEqual(nomatch, string:find(captured(fun cell_diag:top/0), "QUEUE")),
     ok = stop_cell().
