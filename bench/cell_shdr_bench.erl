@@ -115,10 +115,10 @@ delay(Reps) ->
     #{median := OM, p99 := OP} = cell_bench:stats(Ours),
     #{median := PM, p99 := PP} = cell_bench:stats(Peer),
     [#{title => "Delay from a value change to its bytes on a client's socket, median",
-       unit => "us", ours => OM, peer => PM, better => lower,
+       unit => "µs", ours => OM, peer => PM, better => lower,
        peer_name => "same line written straight to the socket"},
      #{title => "Delay from a value change to its bytes on a client's socket, p99",
-       unit => "us", ours => OP, peer => PP, better => lower,
+       unit => "µs", ours => OP, peer => PP, better => lower,
        peer_name => "same line written straight to the socket"}].
 
 %% -------------------------------------------------------------------------------------

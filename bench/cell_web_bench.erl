@@ -52,7 +52,7 @@ run() ->
      #{title => [Fan, ", events delivered"], unit => "events/s", ours => OurRate,
        peer => PeerRate, peer_name => "bare cowboy websockets, a frame an event",
        better => higher},
-     #{title => [Fan, ", the publisher's time an event"], unit => "us", ours => OurCost,
+     #{title => [Fan, ", the publisher's time an event"], unit => "µs", ours => OurCost,
        peer => PeerCost, peer_name => "bare cowboy websockets, a frame an event",
        better => lower},
      #{title => [Fan, ", median delay"], unit => "ms", ours => ODM / 1000, peer => PDM / 1000,
