@@ -11,27 +11,36 @@
 %%     text; code can reset it, the operator can close it.</li>
 %% </ul>
 %%
+%% Any of them may carry a qualifier, `high' or `low', when it is about a measured
+%% value above or below its limit (MTConnect conditions pass it on).
+%%
 %% Ids are `<<"Task:LocalId">>', unique per task. Every answer and close records who,
 %% what and when, in the history and in the task log. Errors of an owner that exits are
 %% withdrawn (a restarted task raises its own).
 -module(cell_alarms).
 -behaviour(gen_server).
 
--export([start_link/0, raise_error/3, withdraw/1, answer/3, warning/4, reset_warning/2,
-         close/2, alarm/4, clear_alarm/2, list/0, list/1, get/1, history/0,
+-export([start_link/0, raise_error/3, withdraw/1, answer/3, warning/4, warning/5,
+         reset_warning/2, close/2, alarm/4, alarm/5, clear_alarm/2, list/0, list/1, get/1,
+         history/0,
          has_error/0, has_error/1, has_alarm/0, has_alarm/1, has_warning/0,
          has_warning/1, solutions/0, sync/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
--export_type([alarm/0, kind/0, solution/0, spec/0, answer_record/0]).
+-export_type([alarm/0, kind/0, solution/0, spec/0, answer_record/0, qualifier/0, options/0]).
 
 -type kind() :: error | alarm | warning.
 -type solution() :: retry | ignore | reset | close.
+%% Which side of its limit a measured value is on, for a condition about a value out of
+%% range (MTConnect's condition qualifier).
+-type qualifier() :: high | low.
 -type spec() :: #{id := binary(), caption := iodata(), description => iodata(),
-                  solutions := [solution()]}.
+                  solutions := [solution()], qualifier => qualifier()}.
+-type options() :: #{qualifier => qualifier()}.
 -type alarm() :: #{id := binary(), local_id := binary(), kind := kind(),
                    task := atom(), caption := binary(), description := binary(),
-                   solutions := [solution()], raised := integer()}.
+                   solutions := [solution()], raised := integer(),
+                   qualifier => qualifier()}.
 -type answer_record() :: #{id := binary(), task := atom(), caption := binary(),
                            what := solution() | reset | cleared | withdrawn,
                            who := binary(), time := integer()}.
@@ -73,7 +82,13 @@ answer(Id, Solution, Who) ->
 %% @doc Sets a warning; setting it again with the same id updates caption and text.
 -spec warning(atom(), binary(), iodata(), iodata()) -> ok.
 warning(Task, LocalId, Caption, Description) ->
-    gen_server:cast(?MODULE, {set, warning, Task, LocalId, Caption, Description}).
+    warning(Task, LocalId, Caption, Description, #{}).
+
+%% @doc As {@link warning/4}, with a qualifier (`high' or `low': a value above or
+%% below its limit).
+-spec warning(atom(), binary(), iodata(), iodata(), options()) -> ok.
+warning(Task, LocalId, Caption, Description, Opts) ->
+    set(warning, Task, LocalId, Caption, Description, Opts).
 
 %% @doc Resets a warning from code; nothing happens if it is not set.
 -spec reset_warning(atom(), binary()) -> ok.
@@ -83,7 +98,18 @@ reset_warning(Task, LocalId) ->
 %% @doc Raises a dangerous condition; cleared by code only.
 -spec alarm(atom(), binary(), iodata(), iodata()) -> ok.
 alarm(Task, LocalId, Caption, Description) ->
-    gen_server:cast(?MODULE, {set, alarm, Task, LocalId, Caption, Description}).
+    alarm(Task, LocalId, Caption, Description, #{}).
+
+%% @doc As {@link alarm/4}, with a qualifier.
+-spec alarm(atom(), binary(), iodata(), iodata(), options()) -> ok.
+alarm(Task, LocalId, Caption, Description, Opts) ->
+    set(alarm, Task, LocalId, Caption, Description, Opts).
+
+set(Kind, Task, LocalId, Caption, Description, Opts) ->
+    case check_options(Opts) of
+        ok -> gen_server:cast(?MODULE, {set, Kind, Task, LocalId, Caption, Description, Opts});
+        {error, Why} -> erlang:error({bad_options, Why}, [Task, LocalId, Caption, Description, Opts])
+    end.
 
 -spec clear_alarm(atom(), binary()) -> ok.
 clear_alarm(Task, LocalId) ->
@@ -141,12 +167,27 @@ any(Kind, Task) ->
 
 check_spec(#{id := Id, caption := _, solutions := [_ | _] = Sols} = Spec)
   when is_binary(Id), Id =/= <<>> ->
-    case [S || S <- Sols, not lists:member(S, solutions())] of
-        [] -> ok;
-        Bad -> {error, {bad_spec, {unknown_solutions, Bad, Spec}}}
+    case {[S || S <- Sols, not lists:member(S, solutions())],
+          check_options(maps:with([qualifier], Spec))} of
+        {[], ok} -> ok;
+        {[], {error, Why}} -> {error, {bad_spec, {Why, Spec}}};
+        {Bad, _} -> {error, {bad_spec, {unknown_solutions, Bad, Spec}}}
     end;
 check_spec(Spec) ->
     {error, {bad_spec, Spec}}.
+
+check_options(Opts) when is_map(Opts) ->
+    case maps:keys(Opts) -- [qualifier] of
+        [] ->
+            case maps:get(qualifier, Opts, high) of
+                Q when Q =:= high; Q =:= low -> ok;
+                Q -> {error, {bad_qualifier, Q}}
+            end;
+        [K | _] ->
+            {error, {unknown_option, K}}
+    end;
+check_options(Opts) ->
+    {error, {bad_options, Opts}}.
 
 public(A) -> maps:without([owner, monitor], A).
 
@@ -159,9 +200,10 @@ init([]) ->
 handle_call({raise_error, Task, Spec, Owner}, _From, State) ->
     #{id := Local, caption := Caption, solutions := Sols} = Spec,
     Id = global_id(Task, Local),
-    Alarm = #{id => Id, local_id => Local, kind => error, task => Task,
-              caption => text(Caption), description => text(maps:get(description, Spec, <<>>)),
-              solutions => Sols, raised => os:system_time(millisecond), owner => Owner},
+    Alarm0 = #{id => Id, local_id => Local, kind => error, task => Task,
+               caption => text(Caption), description => text(maps:get(description, Spec, <<>>)),
+               solutions => Sols, raised => os:system_time(millisecond), owner => Owner},
+    Alarm = maps:merge(Alarm0, maps:with([qualifier], Spec)),
     State1 = case ets:lookup(?TAB, Id) of
                  [{Id, _}] -> remove(Id, withdrawn, <<"cell">>, State);
                  [] -> State
@@ -207,14 +249,18 @@ handle_call(sync, _From, State) ->
     {reply, ok, State}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast({set, Kind, Task, Local, Caption, Description}, State) ->
+handle_cast({set, Kind, Task, Local, Caption, Description, Opts}, State) ->
     Id = global_id(Task, Local),
-    New = #{id => Id, local_id => Local, kind => Kind, task => Task,
-            caption => text(Caption), description => text(Description),
-            solutions => case Kind of warning -> [close]; alarm -> [] end},
+    New = maps:merge(#{id => Id, local_id => Local, kind => Kind, task => Task,
+                       caption => text(Caption), description => text(Description),
+                       solutions => case Kind of warning -> [close]; alarm -> [] end},
+                     maps:with([qualifier], Opts)),
     case ets:lookup(?TAB, Id) of
         [{Id, #{kind := Kind} = Old}] ->
-            Updated = maps:merge(Old, maps:with([caption, description], New)),
+            %% Caption, text and qualifier as now (a value back within its limit but
+            %% still warned about has no qualifier any more).
+            Updated = maps:merge(maps:remove(qualifier, Old),
+                                 maps:with([caption, description, qualifier], New)),
             case Updated =:= Old of
                 true -> ok;
                 false ->

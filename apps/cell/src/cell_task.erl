@@ -43,7 +43,7 @@
 -export([starved/1, unstarved/1, blocked/1, unblocked/1, identifier_read/3,
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
          work_abort/2, transfer_out/2]).
--export([error_spec/4, warning/4, reset_warning/2, log/4]).
+-export([error_spec/4, warning/4, warning/5, reset_warning/2, log/4]).
 -export([in/2, in/3, read/2, read/3, out/3, out/4]).
 %% For the engine and the handshake.
 -export([new/1, set_state/3, publish/3, store/5]).
@@ -351,8 +351,14 @@ error_spec(Id, Caption, Description, Solutions) ->
 
 %% @doc Sets (or updates) a warning; the task goes on at once.
 -spec warning(task(), binary(), iodata(), iodata()) -> task().
-warning(#task{id = Id} = T, WarningId, Caption, Description) ->
-    ok = cell_alarms:warning(Id, WarningId, Caption, Description),
+warning(T, WarningId, Caption, Description) ->
+    warning(T, WarningId, Caption, Description, #{}).
+
+%% @doc As {@link warning/4}, with a qualifier: `#{qualifier => high}' for a value above
+%% its limit, `low' below.
+-spec warning(task(), binary(), iodata(), iodata(), cell_alarms:options()) -> task().
+warning(#task{id = Id} = T, WarningId, Caption, Description, Opts) ->
+    ok = cell_alarms:warning(Id, WarningId, Caption, Description, Opts),
     T.
 
 %% @doc Resets a warning this task set.

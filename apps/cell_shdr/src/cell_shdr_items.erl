@@ -224,14 +224,19 @@ estop(false) -> <<"ARMED">>.
 
 %% @doc A condition for an active error, alarm or warning.
 -spec condition(cell_alarms:alarm()) -> cell_shdr_codec:condition().
-condition(#{id := Id, kind := Kind, caption := Caption, description := Desc}) ->
+condition(#{id := Id, kind := Kind, caption := Caption, description := Desc} = Alarm) ->
     Level = case Kind of warning -> warning; _ -> fault end,
     Text = case Desc of
                <<>> -> Caption;
                _ -> <<Caption/binary, ": ", Desc/binary>>
            end,
-    #{level => Level, code => native_code(Id), severity => atom_to_binary(Kind, utf8),
-      text => Text}.
+    C = #{level => Level, code => native_code(Id), severity => atom_to_binary(Kind, utf8),
+          text => Text},
+    case Alarm of
+        #{qualifier := high} -> C#{qualifier => <<"HIGH">>};
+        #{qualifier := low} -> C#{qualifier => <<"LOW">>};
+        _ -> C
+    end.
 
 %% @doc The native code of an error id: `robot:lost' is `robot.lost'.
 -spec native_code(binary()) -> binary().

@@ -223,6 +223,29 @@ conditions_mark_and_sweep(_Config) ->
                  [F || {_, F} <- conditions(barrier(S))]),
     %% The other task's condition was never touched.
     ?assertEqual([], [F || {_, [<<"load_system">> | _] = F} <- conditions(barrier(S2))]),
+    %% A value beyond its limit: the qualifier says on which side, and goes when the
+    %% warning is set again without one.
+    ok = cell_alarms:warning(robot, <<"oil">>, "Oil hot", "60 C", #{qualifier => high}),
+    ?assertEqual([[<<"robot_system">>, <<"WARNING">>, <<"robot.oil">>, <<"warning">>, <<"HIGH">>,
+                   <<"Oil hot: 60 C">>]],
+                 [F || {_, F} <- conditions(barrier(S))]),
+    ok = cell_alarms:warning(robot, <<"oil">>, "Oil hot", "60 C", #{qualifier => low}),
+    ?assertMatch([[<<"robot_system">>, <<"WARNING">>, <<"robot.oil">>, _, <<"LOW">>, _]],
+                 [F || {_, F} <- conditions(barrier(S))]),
+    ok = cell_alarms:warning(robot, <<"oil">>, "Oil hot", "60 C"),
+    ?assertMatch([[<<"robot_system">>, <<"WARNING">>, <<"robot.oil">>, _, <<>>, _]],
+                 [F || {_, F} <- conditions(barrier(S))]),
+    ?assertError({bad_options, {bad_qualifier, hot}},
+                 cell_alarms:warning(robot, <<"oil">>, "Oil hot", "", #{qualifier => hot})),
+    %% An error may carry one too.
+    Spec = #{id => <<"pressure">>, caption => "Pressure low", solutions => [retry]},
+    ?assertMatch({error, {bad_spec, {{bad_qualifier, hot}, _}}},
+                 cell_alarms:raise_error(robot, Spec#{qualifier => hot}, self())),
+    {ok, Err} = cell_alarms:raise_error(robot, Spec#{qualifier => low}, self()),
+    ?assertEqual([[<<"robot_system">>, <<"FAULT">>, <<"robot.pressure">>, <<"error">>, <<"LOW">>,
+                   <<"Pressure low">>]],
+                 [F || {_, F} <- conditions(barrier(S))]),
+    ok = cell_alarms:withdraw(Err),
     ok = gen_tcp:close(S),
     ok = gen_tcp:close(S2).
 

@@ -54,8 +54,8 @@ unit(_) ->
 %% @doc An error, alarm or warning.
 -spec alarm(map()) -> map().
 alarm(A) ->
-    term(maps:with([id, kind, task, caption, description, solutions, raised, cleared, who],
-                   A)).
+    term(maps:with([id, kind, task, caption, description, solutions, raised, cleared, who,
+                    qualifier], A)).
 
 %% @doc An entry of the history of answers.
 -spec alarm_record(map()) -> map().
