@@ -26,6 +26,7 @@ release_serves_the_panel(Config) ->
     try
         {0, _} = run(Bin, ["daemon"], Env, 30000),
         ok = await_pong(Bin, Env, 100),
+        ok = await_boot(Bin, Env),
         {0, Out} = run(Bin, ["eval", "cell_web:port()."], Env, 30000),
         Port = list_to_integer(string:trim(Out)),
         ?assert(Port > 0),
@@ -69,6 +70,7 @@ prod_release_refuses_demo_passwords(Config) ->
     try
         {0, _} = run(Bin, ["daemon"], Env, 30000),
         ok = await_pong(Bin, Env, 100),
+        ok = await_boot(Bin, Env),
         %% The new password logs in; the command refuses to touch a running cell.
         {0, Ok} = run(Bin, ["eval", "cell_web_users:authenticate(<<\"admin\">>, "
                                     "<<\"changed-admin\">>)."], Env, 30000),
@@ -103,6 +105,14 @@ run_input(Bin, Args, Env, Timeout, Input) ->
 open(Bin, Args, Env, Dir) ->
     open_port({spawn_executable, Bin},
               [{args, Args}, {env, Env}, {cd, Dir}, exit_status, stderr_to_stdout, binary]).
+
+%% A node answers ping while its boot still starts the applications: this returns
+%% once the panel's application is up (the application controller answers a start
+%% of an application being started when it has started).
+await_boot(Bin, Env) ->
+    {0, Out} = run(Bin, ["eval", "application:ensure_all_started(cell_web)."], Env, 120000),
+    ?assertNotEqual(nomatch, string:find(Out, "{ok,"), Out),
+    ok.
 
 %% `ping' waits for its answer: each try is a round trip, not a sleep.
 await_pong(_Bin, _Env, 0) ->
