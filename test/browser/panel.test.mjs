@@ -238,3 +238,46 @@ test('logging out ends the session: the panel is read-only again', async () => {
     fetch('/api/cell/start', { method: 'POST' }).then((r) => r.status));
   assert.equal(status, 401);
 });
+
+test('an admin manages the users on the Users page; others do not see it', async () => {
+  await page.waitForSelector('[data-testid=tab-users]', { state: 'hidden' });
+  await login('admin', 'admin');
+  await page.waitForSelector('#user-button:has-text("admin (admin)")');
+  await page.click('[data-testid=tab-users]');
+  await page.waitForSelector('[data-testid=users] tr[data-user="operator"] td.role:has-text("operator")');
+  // A new user, with a role and a password.
+  await page.fill('#user-name', 'line-lead');
+  await page.selectOption('#user-role', 'service');
+  await page.fill('#user-password', 'lead-password');
+  await page.click('[data-testid=user-save]');
+  await page.waitForSelector('tr[data-user="line-lead"] td.role:has-text("service")');
+  const session = (password) => fetch(new URL('api/session', cell.url), {
+    method: 'POST', headers: { 'content-type': 'application/json', origin: cell.url.slice(0, -1) },
+    body: JSON.stringify({ user: 'line-lead', password }),
+  }).then((r) => r.status);
+  assert.equal(await session('lead-password'), 200);
+  // Its role changed from its row, the password left as it is.
+  await page.click('tr[data-user="line-lead"] td.name');
+  assert.equal(await page.inputValue('#user-name'), 'line-lead');
+  await page.selectOption('#user-role', 'operator');
+  await page.click('[data-testid=user-save]');
+  await page.waitForSelector('tr[data-user="line-lead"] td.role:has-text("operator")');
+  assert.equal(await session('lead-password'), 200);
+  // A new user without a password is refused, and the operator is told why.
+  await page.fill('#user-name', 'no-password');
+  await page.fill('#user-password', '');
+  await page.click('[data-testid=user-save]');
+  await page.waitForSelector('[data-testid=toast]:has-text("needs a role and a password")');
+  assert.equal(await page.locator('tr[data-user="no-password"]').count(), 0);
+  await shot('07-users');
+  // Removed after a confirmation; it cannot log in any more.
+  page.once('dialog', (d) => d.accept());
+  await page.click('[data-testid=remove-line-lead]');
+  await page.waitForSelector('tr[data-user="line-lead"]', { state: 'detached' });
+  assert.equal(await session('lead-password'), 401);
+  // Logged out, the page goes back to the line and hides the tab.
+  await page.click('#user-button');
+  await page.click('[data-testid=logout]');
+  await page.waitForSelector('[data-testid=tab-users]', { state: 'hidden' });
+  await page.waitForSelector('#view-line:not(.hidden)');
+});

@@ -8,8 +8,9 @@
 %% password, and a production build refuses to start while there are any.
 %%
 %% The object is edited through {@link put_user/3} and {@link delete_user/2} (for
-%% admins, `/api/users'), never through the general settings pages: the hashes are not
-%% shown there. Each user changes their own password on the panel.
+%% admins, the panel's Users page over `/api/users'), never through the general
+%% settings pages: the hashes are not shown there. Each user changes their own
+%% password on the panel.
 -module(cell_web_users).
 -behaviour(cell_settings_schema).
 

@@ -342,6 +342,9 @@ function renderSession() {
   renderCommands();
   renderAlarms();
   renderPlcMessages();
+  const admin = RANK[s.role] >= RANK.admin;
+  $('tab-users').classList.toggle('hidden', !admin);
+  if (!admin && !$('view-users').classList.contains('hidden')) show('line');
 }
 
 function setLink(up) {
@@ -479,6 +482,66 @@ function toast(text) {
 }
 
 // ---------------------------------------------------------------------------------
+// Users (admins)
+
+async function loadUsers() {
+  try {
+    renderUsers(await api('GET', '/api/users'));
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+function renderUsers(users) {
+  const body = $('users');
+  body.replaceChildren();
+  for (const u of users) {
+    const tr = document.createElement('tr');
+    tr.dataset.user = u.name;
+    const remove = document.createElement('button');
+    remove.className = 'small';
+    remove.textContent = 'Remove';
+    remove.dataset.testid = `remove-${u.name}`;
+    remove.addEventListener('click', () => removeUser(u.name));
+    const edit = td('', '');
+    edit.append(remove);
+    tr.append(td('name', u.name), td('role', u.role), edit);
+    tr.addEventListener('click', (ev) => {
+      if (ev.target === remove) return;
+      $('user-name').value = u.name;
+      $('user-role').value = u.role;
+      $('user-password').value = '';
+    });
+    body.append(tr);
+  }
+}
+
+async function saveUser(ev) {
+  ev.preventDefault();
+  const name = $('user-name').value;
+  const body = { role: $('user-role').value };
+  if ($('user-password').value) body.password = $('user-password').value;
+  try {
+    renderUsers(await api('PUT', `/api/users/${encodeURIComponent(name)}`, body));
+    $('user-password').value = '';
+    toast(`User ${name} saved.`);
+    if (name === model.session.user) await loadSession();
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+async function removeUser(name) {
+  if (!window.confirm(`Remove the user ${name}?`)) return;
+  try {
+    renderUsers(await api('DELETE', `/api/users/${encodeURIComponent(name)}`));
+    toast(`User ${name} removed.`);
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
+// ---------------------------------------------------------------------------------
 // Small DOM helpers
 
 function div(cls, text) { const e = document.createElement('div'); e.className = cls; e.textContent = text; return e; }
@@ -497,7 +560,7 @@ function time(ms, full) {
 // Start
 
 function show(view) {
-  for (const v of ['line', 'log']) {
+  for (const v of ['line', 'log', 'users']) {
     $(`view-${v}`).classList.toggle('hidden', v !== view);
     $(`tab-${v}`).classList.toggle('active', v === view);
   }
@@ -509,6 +572,8 @@ function wire() {
   $('cmd-stop').addEventListener('click', () => command('stop'));
   $('tab-line').addEventListener('click', () => show('line'));
   $('tab-log').addEventListener('click', () => show('log'));
+  $('tab-users').addEventListener('click', () => { show('users'); loadUsers(); });
+  $('user-form').addEventListener('submit', saveUser);
   $('user-button').addEventListener('click', () => {
     if (model.session.user) {
       $('account-title').textContent = `${model.session.user} (${model.session.role})`;
