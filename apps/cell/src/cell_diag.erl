@@ -181,8 +181,8 @@ trace(Task) ->
 -spec trace(atom(), pos_integer()) -> ok.
 trace(Task, Ms) when is_atom(Task), is_integer(Ms), Ms > 0 ->
     ok = cell_log:verbose_for(Task, Ms),
-    print(io_lib:format("~ts logs at Verbose for ~b s, then goes back to ~ts.~n",
-                        [Task, Ms div 1000, cell_log:default_level()])).
+    print(io_lib:format("~ts logs at Verbose for ~b s, then as before.~n",
+                        [Task, Ms div 1000])).
 
 %% @doc The processes with the longest message queues and the most memory.
 -spec top() -> ok.

@@ -13,7 +13,8 @@
 -define(HANDLERS, [{{cell_log_file, task}, task}, {{cell_log_file, trace}, trace}]).
 
 -record(state, {monitors = #{} :: #{pid() => reference()},
-                timers = #{} :: #{binary() => reference()}}).
+                %% Sources at Verbose for a while: the timer, and the level after it.
+                timers = #{} :: #{binary() => {reference(), cell_log:threshold() | default}}}).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -50,14 +51,17 @@ handle_call({reset_level, Source}, _From, State) ->
     true = ets:delete(?TAB, Source),
     {reply, ok, cancel_timer(Source, State)};
 handle_call({verbose_for, Source, Ms}, _From, State0) ->
-    Previous = case ets:lookup(?TAB, Source) of
-                   [{_, L}] -> L;
-                   [] -> default
+    %% Asked again while at Verbose for a while: the new time counts, and afterwards
+    %% the level is the one from before the first ask.
+    Previous = case {maps:find(Source, State0#state.timers), ets:lookup(?TAB, Source)} of
+                   {{ok, {_, Before}}, _} -> Before;
+                   {error, [{_, L}]} -> L;
+                   {error, []} -> default
                end,
     State = cancel_timer(Source, State0),
     true = ets:insert(?TAB, {Source, verbose}),
-    Ref = erlang:start_timer(Ms, self(), {restore, Source, Previous}),
-    {reply, ok, State#state{timers = maps:put(Source, Ref, State#state.timers)}};
+    Ref = erlang:start_timer(Ms, self(), {restore, Source}),
+    {reply, ok, State#state{timers = maps:put(Source, {Ref, Previous}, State#state.timers)}};
 handle_call({subscribe, Pid}, _From, #state{monitors = Mons} = State) ->
     case maps:is_key(Pid, Mons) of
         true ->
@@ -75,9 +79,9 @@ handle_cast(Msg, _State) ->
     error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({timeout, Ref, {restore, Source, Previous}}, #state{timers = Timers} = State) ->
+handle_info({timeout, Ref, {restore, Source}}, #state{timers = Timers} = State) ->
     case maps:find(Source, Timers) of
-        {ok, Ref} ->
+        {ok, {Ref, Previous}} ->
             true = case Previous of
                        default -> ets:delete(?TAB, Source);
                        Level -> ets:insert(?TAB, {Source, Level})
@@ -120,7 +124,7 @@ store_subscribers(Mons) ->
 
 cancel_timer(Source, #state{timers = Timers} = State) ->
     case maps:take(Source, Timers) of
-        {Ref, Timers1} ->
+        {{Ref, _}, Timers1} ->
             _ = erlang:cancel_timer(Ref),
             State#state{timers = Timers1};
         error ->

@@ -366,9 +366,11 @@ diagnostics(_Config) ->
     ?assertEqual({error, not_found}, cell_diag:product(<<"no such panel">>)),
     Stats = captured(fun cell_diag:stats/0),
     ?assertNotEqual(nomatch, string:find(Stats, "lower")),
-    %% Tracing lasts as long as asked, then the task logs as before.
+    %% Tracing lasts as long as asked (the last ask counts), then the task logs as
+    %% before.
     Before = cell_log:level(work_front),
     ?assertNotEqual(verbose, Before),
+    ok = cell_diag:trace(work_front, 60000),
     ok = cell_diag:trace(work_front, 300),
     ?assertEqual(verbose, cell_log:level(work_front)),
     receive after 400 -> ok end,
