@@ -9,7 +9,7 @@
 %% only prints.
 -module(cell_bench).
 
--export([main/1, stats/1, percentile/2, result/1]).
+-export([main/1, stats/1, percentile/2, result/1, alternating_rates/3]).
 -export([build_c/2, start_c_server/1, stop_c_server/1]).
 
 -export_type([result/0]).
@@ -116,6 +116,38 @@ stats(Samples) ->
     Sorted = lists:sort(Samples),
     #{median => percentile(Sorted, 50), p99 => percentile(Sorted, 99),
       mean => lists:sum(Sorted) / max(1, length(Sorted)), n => length(Sorted)}.
+
+%% @doc The rates of two counting processes, ours and a peer, measured in `Turns'
+%% short turns of `Ms' each, one running while the other is suspended, so the
+%% machine's speed, which moves on a shared host, falls on both alike: the median
+%% counts per second of each. Both are left running.
+-spec alternating_rates({pid(), counters:counters_ref()}, {pid(), counters:counters_ref()},
+                        #{turns := pos_integer(), ms := pos_integer()}) ->
+          {Ours :: float(), Peer :: float()}.
+alternating_rates({Ours, OurCounter}, {Peer, PeerCounter}, #{turns := N, ms := Ms}) ->
+    ok = sys:suspend(Peer),
+    Turns = [begin
+                 ok = sys:resume(Ours),
+                 O = rate(OurCounter, Ms),
+                 ok = sys:suspend(Ours),
+                 ok = sys:resume(Peer),
+                 P = rate(PeerCounter, Ms),
+                 ok = sys:suspend(Peer),
+                 {O, P}
+             end || _ <- lists:seq(1, N)],
+    ok = sys:resume(Ours),
+    ok = sys:resume(Peer),
+    #{median := OurRate} = stats([O || {O, _} <- Turns]),
+    #{median := PeerRate} = stats([P || {_, P} <- Turns]),
+    {OurRate, PeerRate}.
+
+rate(Counter, Ms) ->
+    C0 = counters:get(Counter, 1),
+    T0 = erlang:monotonic_time(microsecond),
+    receive after Ms -> ok end,
+    C1 = counters:get(Counter, 1),
+    T1 = erlang:monotonic_time(microsecond),
+    (C1 - C0) / ((T1 - T0) / 1000000).
 
 %% @doc The nearest-rank percentile of a sorted list.
 -spec percentile([number()], 0..100) -> number().

@@ -171,36 +171,15 @@ step_rate() ->
     ok = cell_controller:sync(),
     PeerCounter = counters:new(1, []),
     {ok, Peer} = cell_bench_peer:start_spin(PeerCounter),
-    ok = sys:suspend(Peer),
-    %% In short turns, the other one suspended: the machine's speed, which moves on a
-    %% shared host, falls on both alike.
     Spinner = cell_task_proc:whereis(spinner),
-    Turns = [begin
-               ok = sys:resume(Spinner),
-               O = rate(Counter),
-               ok = sys:suspend(Spinner),
-               ok = sys:resume(Peer),
-               P = rate(PeerCounter),
-               ok = sys:suspend(Peer),
-               {O, P}
-           end || _ <- lists:seq(1, ?STEP_TURNS)],
-    #{median := Ours} = cell_bench:stats([O || {O, _} <- Turns]),
-    #{median := PeerRate} = cell_bench:stats([P || {_, P} <- Turns]),
-    ok = sys:resume(Spinner),
+    {Ours, PeerRate} = cell_bench:alternating_rates({Spinner, Counter}, {Peer, PeerCounter},
+                                                    #{turns => ?STEP_TURNS, ms => ?STEP_MS}),
     exit(Peer, kill),
     ok = cell_controller:stop(),
     stop_cell(),
     [#{title => "Steps per second, a task that never waits", unit => "steps/s",
        ours => Ours, peer => PeerRate, peer_name => "bare gen_statem, same loop",
        better => higher, goal => "ratio >= 0.5"}].
-
-rate(Counter) ->
-    C0 = counters:get(Counter, 1),
-    T0 = erlang:monotonic_time(microsecond),
-    receive after ?STEP_MS -> ok end,
-    C1 = counters:get(Counter, 1),
-    T1 = erlang:monotonic_time(microsecond),
-    (C1 - C0) / ((T1 - T0) / 1000000).
 
 %% -------------------------------------------------------------------------------------
 

@@ -44,22 +44,9 @@ step_rate(Mode) ->
     PeerCounter = counters:new(1, []),
     Burst = case Mode of one -> 1; several -> ?RING end,
     {ok, Peer} = cell_bench_step_peer:start(PeerCounter, Burst),
-    ok = sys:suspend(Peer),
-    %% In short turns, the other one suspended: the machine's speed, which moves on a
-    %% shared host, falls on both alike.
     Unit = cell_task_proc:whereis(bench_unit),
-    Turns = [begin
-                 ok = sys:resume(Unit),
-                 O = rate(Counter),
-                 ok = sys:suspend(Unit),
-                 ok = sys:resume(Peer),
-                 P = rate(PeerCounter),
-                 ok = sys:suspend(Peer),
-                 {O, P}
-             end || _ <- lists:seq(1, ?STEP_TURNS)],
-    #{median := Ours} = cell_bench:stats([O || {O, _} <- Turns]),
-    #{median := PeerRate} = cell_bench:stats([P || {_, P} <- Turns]),
-    ok = sys:resume(Unit),
+    {Ours, PeerRate} = cell_bench:alternating_rates({Unit, Counter}, {Peer, PeerCounter},
+                                                    #{turns => ?STEP_TURNS, ms => ?STEP_MS}),
     exit(Peer, kill),
     ok = cell_controller:stop(),
     stop_cell(),
@@ -74,13 +61,6 @@ step_rate(Mode) ->
                     end,
        better => higher}].
 
-rate(Counter) ->
-    C0 = counters:get(Counter, 1),
-    T0 = erlang:monotonic_time(microsecond),
-    receive after ?STEP_MS -> ok end,
-    C1 = counters:get(Counter, 1),
-    T1 = erlang:monotonic_time(microsecond),
-    (C1 - C0) / ((T1 - T0) / 1000000).
 
 %% -------------------------------------------------------------------------------------
 %% From a sensor change to the next step

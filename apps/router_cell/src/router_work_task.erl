@@ -133,7 +133,7 @@ step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), arriving)}.
 
 %% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
-fault(T, What, Todo) ->
+fault(T, What, Check) ->
     %% Once the robot has the panel, what is left in the fixture is its frame.
     Which = case cell_task:product(T) of
                 undefined -> <<"The panel frame">>;
@@ -142,7 +142,7 @@ fault(T, What, Todo) ->
     {error, cell_task:error_spec(
               <<"fixture">>, "Work segment fault",
               io_lib:format("~ts ~ts in time: the belt is stopped.~n~ts, then select RETRY.",
-                            [Which, What, Todo]),
+                            [Which, What, Check]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
 
