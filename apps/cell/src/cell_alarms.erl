@@ -22,8 +22,7 @@
 
 -export([start_link/0, raise_error/3, withdraw/1, answer/3, warning/4, warning/5,
          reset_warning/2, close/2, alarm/4, alarm/5, clear_alarm/2, list/0, list/1, get/1,
-         history/0,
-         has_error/0, has_error/1, has_alarm/0, has_alarm/1, has_warning/0,
+         history/0, has_error/0, has_error/1, has_alarm/0, has_alarm/1, has_warning/0,
          has_warning/1, solutions/0, sync/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
@@ -177,14 +176,10 @@ check_spec(Spec) ->
     {error, {bad_spec, Spec}}.
 
 check_options(Opts) when is_map(Opts) ->
-    case maps:keys(Opts) -- [qualifier] of
-        [] ->
-            case maps:get(qualifier, Opts, high) of
-                Q when Q =:= high; Q =:= low -> ok;
-                Q -> {error, {bad_qualifier, Q}}
-            end;
-        [K | _] ->
-            {error, {unknown_option, K}}
+    case {maps:keys(Opts) -- [qualifier], maps:find(qualifier, Opts)} of
+        {[K | _], _} -> {error, {unknown_option, K}};
+        {[], {ok, Q}} when Q =/= high, Q =/= low -> {error, {bad_qualifier, Q}};
+        {[], _} -> ok
     end;
 check_options(Opts) ->
     {error, {bad_options, Opts}}.

@@ -16,10 +16,10 @@
 %% each task is in, and since when, is written with the counters; a query adds that
 %% open stretch up to the last write, so the process does no work for a task that
 %% stays in its state (a thousand waiting tasks cost it nothing) and closes the open
-%% stretches only when a shift ends. Time
-%% while the runtime was not running (from the last write before a stop or crash until
-%% the next start) is counted as OFF, the time before it in the state the task was in,
-%% so for every task the states add up to the wall-clock time since it was first seen.
+%% stretches only when a shift ends. Time while the runtime was not running (from the
+%% last write before a stop or crash until the next start) is counted as OFF, the time
+%% before it in the state the task was in, so for every task the states add up to the
+%% wall-clock time since it was first seen.
 %%
 %% <b>Products.</b> A serial first saved by a task enters the cell (`in'); a
 %% transfer out of a task that hands to no other task of this cell takes it out
@@ -853,18 +853,17 @@ write_product(Serial, #prod{} = P, Status, Left, St) ->
 purge(Now, St) ->
     #{trace_days := TraceDays, shift_days := ShiftDays} = settings(),
     {CutDate, _} = local(Now - ShiftDays * 86400 * 1000000),
-    OldShifts = safe(fun() ->
-                             mnesia:dirty_select(?COUNTER, [{{?COUNTER, {{'$1', '_'}, '_', '_'}, '_'},
-                                                             [{'<', '$1', {const, CutDate}}],
-                                                             [{element, 2, '$_'}]}])
-                     end, []),
-    Spans = safe(fun() ->
-                         mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {shift, {'$1', '_'}}}, '_'},
-                                                         [{'<', '$1', {const, CutDate}}],
-                                                         [{element, 2, '$_'}]}])
-                 end, []),
+    %% A shift's counters, and its span, by the date the shift began.
+    Before = fun(Key) ->
+                     safe(fun() ->
+                                  mnesia:dirty_select(?COUNTER, [{{?COUNTER, Key, '_'},
+                                                                  [{'<', '$1', {const, CutDate}}],
+                                                                  [{element, 2, '$_'}]}])
+                          end, [])
+             end,
+    Keys = Before({{'$1', '_'}, '_', '_'}) ++ Before({meta, {shift, {'$1', '_'}}}),
     St1 = lists:foldl(fun(K, Acc) -> db(fun() -> mnesia:dirty_delete(?COUNTER, K) end, Acc) end,
-                      St, OldShifts ++ Spans),
+                      St, Keys),
     Cut = (Now div 1000) - TraceDays * 86400 * 1000,
     Old = safe(fun() ->
                        mnesia:dirty_select(?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},

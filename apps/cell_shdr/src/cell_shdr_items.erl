@@ -259,8 +259,9 @@ point_value(#{category := sample}, V) when is_number(V) -> V;
 point_value(#{category := sample}, true) -> 1;
 point_value(#{category := sample}, false) -> 0;
 point_value(#{category := sample}, V) when is_binary(V) ->
-    case number(string:trim(V)) of
-        {ok, _} -> string:trim(V);
+    Text = string:trim(V),
+    case number(Text) of
+        {ok, _} -> Text;
         error -> unavailable
     end;
 point_value(#{category := sample}, _) -> unavailable;

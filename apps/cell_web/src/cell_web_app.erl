@@ -71,7 +71,8 @@ check_demo_accounts() ->
             {error, {demo_accounts, Text}};
         {Open, false} ->
             cell_log:warning(web, "demo accounts open on the operator panel: ~ts (each with "
-                             "its name as password); change each one's password on the panel (its name, "
-                             "top right) before production", [lists:join(", ", [[N, "/", N] || N <- Open])]),
+                             "its name as password); change each one's password on the panel "
+                             "(its name, top right) before production",
+                             [lists:join(", ", [[N, "/", N] || N <- Open])]),
             cell_web_sup:start_link()
     end.

@@ -6,7 +6,7 @@
 %% since the epoch (UTC).
 -module(cell_web_json).
 
--export([unit/1, encode/1, cell/2, task/1, alarm/1, alarm_record/1, line/1, event/1, state/1,
+-export([encode/1, cell/2, task/1, unit/1, alarm/1, alarm_record/1, line/1, event/1, state/1,
          term/1, product/1]).
 
 %% @doc JSON text of a value built by the functions here (or any term).

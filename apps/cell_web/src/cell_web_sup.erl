@@ -2,9 +2,9 @@
 %%
 %% rest_for_one, in dependency order: the sessions table and the audit trail are used
 %% by every request; the password hasher by logins; the listener serves the requests;
-%% the recent log lines feed new websockets, the feed every connected one. Ten restarts a minute is a fault that
-%% will not heal: beyond that the panel stops and says so, and the cell runs on (the
-%% release starts this application as temporary).
+%% the recent log lines feed new websockets, the feed every connected one. Ten restarts
+%% a minute is a fault that will not heal: beyond that the panel stops and says so, and
+%% the cell runs on (the release starts this application as temporary).
 -module(cell_web_sup).
 -behaviour(supervisor).
 
