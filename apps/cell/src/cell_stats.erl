@@ -154,8 +154,8 @@ summary() ->
 %% throughput per hour. Read from the database (what was written up to a second ago).
 -spec summary(period()) -> map().
 summary(Period) ->
-    {From, To} = span(Period),
-    Counters = counters(Period),
+    {{From, To}, Counters} = view(fun() -> counted(Period) end,
+                                  {{now_us(), now_us()}, #{}}),
     Hours = max(To - From, 0) / 3600.0e6,
     Cell = maps:get(cell, Counters, #{}),
     Out = maps:get(out, Cell, 0),
@@ -199,15 +199,27 @@ round1(X) -> round(X * 10) / 10.
 %% Value}}', times in microseconds, the time of tasks still in their state included.
 -spec counters(period()) -> #{atom() => map()}.
 counters(Period) ->
+    {_Span, Counters} = view(fun() -> counted(Period) end, {undefined, #{}}),
+    Counters.
+
+%% Reads the counters in one transaction: a report never sees part of a write, nor a
+%% write that came between two of its reads (the span of one and the counters of the
+%% next would not add up).
+view(Fun, Default) ->
+    case mnesia:transaction(Fun) of
+        {atomic, Result} -> Result;
+        {aborted, _} -> Default
+    end.
+
+%% In a transaction: the period's span and its counters.
+counted(Period) ->
     {From, To} = span(Period),
-    with_open(From, To, written(Period)).
+    {{From, To}, with_open(From, To, written(Period))}.
 
 %% The counters as written.
 written(Period) ->
-    Rows = safe(fun() ->
-                        mnesia:dirty_select(?COUNTER, [{{?COUNTER, {Period, '$1', '$2'}, '$3'},
-                                                        [], [{{'$1', '$2', '$3'}}]}])
-                end, []),
+    Rows = mnesia:select(?COUNTER, [{{?COUNTER, {Period, '$1', '$2'}, '$3'},
+                                     [], [{{'$1', '$2', '$3'}}]}]),
     lists:foldl(fun({Scope, Metric, V}, Acc) ->
                         maps:update_with(Scope, fun(M) -> M#{Metric => V} end,
                                          #{Metric => V}, Acc)
@@ -232,10 +244,7 @@ with_open(From, To, Counters) ->
 
 %% Each task's state and since when it is counted there, as last written.
 open_rows() ->
-    safe(fun() ->
-                 mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'},
-                                                 [], [{{'$1', '$2'}}]}])
-         end, []).
+    mnesia:select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'}, [], [{{'$1', '$2'}}]}]).
 
 %% The time a period covers: a shift from its start to its end or to the last write;
 %% the total from the first task seen to the last write.
@@ -255,14 +264,14 @@ span({_, _} = Id) ->
     {max(Start, first_seen(Flushed)), min(End, Flushed)}.
 
 first_seen(Default) ->
-    Firsts = safe(fun() ->
-                          mnesia:dirty_select(?COUNTER, [{{?COUNTER, {meta, {first, '_'}}, '$1'},
-                                                          [], ['$1']}])
-                  end, []),
-    lists:min([Default | Firsts]).
+    lists:min([Default | [First || {_, First} <- firsts()]]).
+
+%% Each task's first time seen.
+firsts() ->
+    mnesia:select(?COUNTER, [{{?COUNTER, {meta, {first, '$1'}}, '$2'}, [], [{{'$1', '$2'}}]}]).
 
 meta(Key, Default) ->
-    case safe(fun() -> mnesia:dirty_read(?COUNTER, {meta, Key}) end, []) of
+    case mnesia:read(?COUNTER, {meta, Key}) of
         [{?COUNTER, _, V}] -> V;
         [] -> Default
     end.
@@ -758,7 +767,9 @@ closed(Why, #st{db = Was} = St) ->
 %% the products the cell held are known again; what was kept in memory meanwhile is
 %% written.
 opened(#st{started = Started} = St0) ->
-    Flushed = meta(flushed, undefined),
+    {Flushed, OpenRows, Firsts} =
+        view(fun() -> {meta(flushed, undefined), open_rows(), maps:from_list(firsts())} end,
+             {undefined, [], #{}}),
     Closed = lists:foldl(fun({T, Was}, Acc) ->
                                  Acc1 = until_down(T, Was, Flushed, Acc),
                                  case maps:is_key(T, Acc1#st.tasks) of
@@ -769,11 +780,11 @@ opened(#st{started = Started} = St0) ->
                                          Key = {meta, {open, T}},
                                          db(fun() -> mnesia:dirty_delete(?COUNTER, Key) end, Acc1)
                                  end
-                         end, St0, open_rows()),
+                         end, St0, OpenRows),
     St1 = maps:fold(fun(T, {State, Since}, Acc0) ->
                             Acc = counting(T, State, Since, Acc0),
-                            case meta({first, T}, undefined) of
-                                undefined ->
+                            case maps:find(T, Firsts) of
+                                error ->
                                     op({meta, {first, T}}, first, Started, Acc);
                                 _ when is_integer(Flushed), Flushed < Started ->
                                     account(T, off, Flushed, Started, Acc);

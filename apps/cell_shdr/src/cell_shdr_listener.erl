@@ -11,7 +11,7 @@
 -behaviour(gen_server).
 
 -export([start_link/0, restart/0, max_clients/1, port/0]).
--export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
 -define(REF, cell_shdr).
@@ -44,15 +44,13 @@ port() ->
     catch error:badarg -> undefined
     end.
 
--spec init([]) -> {ok, #state{}, {continue, listen}}.
+%% The first try is made here, not later: once the application has started, port/0
+%% answers (a port taken is tried again on a timer, without holding up the start).
+-spec init([]) -> {ok, #state{}}.
 init([]) ->
     %% terminate/2 must run to stop the listener, which lives under ranch's supervisor.
     process_flag(trap_exit, true),
-    {ok, #state{}, {continue, listen}}.
-
--spec handle_continue(listen, #state{}) -> {noreply, #state{}}.
-handle_continue(listen, State) ->
-    {noreply, listen(State)}.
+    {ok, listen(#state{})}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> no_return().
 handle_call(Msg, _From, _State) ->
