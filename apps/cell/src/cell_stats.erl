@@ -39,8 +39,9 @@
 %%
 %% Tables (mnesia): `cell_stats_counter' (ordered_set, disc_copies: key
 %% `{Period, Scope, Metric}', Period `total' or a shift id, Scope a task or `cell');
-%% `cell_trace_open' (disc_copies: the products in the cell); `cell_trace_product'
-%% (disc_only_copies: one summary per serial) and `cell_trace_event' (disc_only_copies,
+%% `cell_trace_open' (disc_copies: the products in the cell, the summary of each);
+%% `cell_trace_product' (disc_only_copies: the summary of each product that left,
+%% written once, when it leaves) and `cell_trace_event' (disc_only_copies,
 %% bag: the history by serial). The traceability tables live on disc only, so memory
 %% does not grow with the number of products; they are purged after the `statistics'
 %% settings' `trace_days' (or sooner, past `trace_max_records'), shift counters after
@@ -292,18 +293,38 @@ shift_now() ->
 %% first (times in milliseconds since the epoch).
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
-    Summary = safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []),
+    %% The row in the cell first: a product leaving has its summary written before
+    %% that row goes, so one of the two is found.
+    InCell = in_cell_summary(Serial),
+    Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                  [{?PRODUCT, _, Left}] -> Left;
+                  [] -> InCell
+              end,
     Events = safe(fun() -> mnesia:dirty_read(?EVENT, Serial) end, []),
     case {Summary, Events} of
-        {[], []} ->
+        {undefined, []} ->
             {error, not_found};
         _ ->
             Info = case Summary of
-                       [{?PRODUCT, _, I}] -> I;
-                       [] -> #{serial => Serial, status => unknown}
+                       undefined -> #{serial => Serial, status => unknown};
+                       I -> I
                    end,
             Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
             {ok, Info#{events => [E#{time => T} || {T, _, E} <- Sorted]}}
+    end.
+
+%% The summary of a product still in the cell, from its row there (as write_product/5
+%% would write it).
+in_cell_summary(Serial) ->
+    case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
+        [{?OPEN, _, Info}] ->
+            #{serial => Serial, status => in_cell, recipe => maps:get(recipe, Info, <<>>),
+              failed => maps:get(failed, Info, false),
+              entered => maps:get(entered, Info, 0) div 1000,
+              entry_task => maps:get(entry, Info, undefined), left => undefined,
+              exit_task => undefined};
+        [] ->
+            undefined
     end.
 
 %% @doc How many products are in the cell.
@@ -489,12 +510,9 @@ enter(Serial, T, Product, At, St) ->
               last = Product},
     St1 = count_cell([in], At, St),
     St2 = St1#st{products = maps:put(Serial, P, St1#st.products)},
-    St3 = write_product(Serial, P, in_cell, undefined, St2),
-    St4 = db(fun() -> mnesia:dirty_write({?OPEN, Serial, #{entered => At, recipe => Recipe,
-                                                            failed => Failed, entry => T}})
-             end, St3),
+    St3 = write_open(Serial, P, St2),
     trace(Serial, At, T, #{event => entered, recipe => Recipe,
-                           product => maps:without([serial], Product)}, St4).
+                           product => maps:without([serial], Product)}, St3).
 
 claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
     P = P0#prod{holder = T, by = T, unheld = 0, last = Product,
@@ -511,7 +529,7 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
             St1;
         _ ->
             St2 = case P#prod.failed =/= P0#prod.failed orelse P#prod.recipe =/= P0#prod.recipe of
-                      true -> write_product(Serial, P, in_cell, undefined, St1);
+                      true -> write_open(Serial, P, St1);
                       false -> St1
                   end,
             trace(Serial, At, T, #{event => changed, changes => Changes}, St2)
@@ -850,14 +868,18 @@ trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
     Rec = {?EVENT, Serial, At div 1000, Seq, Entry#{task => Task}},
     db(fun() -> mnesia:dirty_write(Rec) end, St#st{seq = Seq + 1}).
 
-write_product(Serial, #prod{} = P, Status, Left, St) ->
-    {ExitTask, LeftAt} = case Left of
-                             undefined -> {undefined, undefined};
-                             {T, At} -> {T, At div 1000}
-                         end,
+%% A product in the cell: its summary is its row of the products in the cell (a RAM
+%% table with a log, cheap to write); the summary on disc only is written when it leaves.
+write_open(Serial, #prod{} = P, St) ->
+    Info = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
+             entry => P#prod.entry},
+    db(fun() -> mnesia:dirty_write({?OPEN, Serial, Info}) end, St).
+
+%% The summary of a product that left: `out' or `scrapped', by which task and when.
+write_product(Serial, #prod{} = P, Status, {ExitTask, At}, St) ->
     Info = #{serial => Serial, status => Status, recipe => P#prod.recipe,
              failed => P#prod.failed, entered => P#prod.entered div 1000,
-             entry_task => P#prod.entry, left => LeftAt, exit_task => ExitTask},
+             entry_task => P#prod.entry, left => At div 1000, exit_task => ExitTask},
     db(fun() -> mnesia:dirty_write({?PRODUCT, Serial, Info}) end, St).
 
 %% Records older than the settings keep are removed, once an hour.

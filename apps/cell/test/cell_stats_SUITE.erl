@@ -12,20 +12,23 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([database_unusable_then_back/1, time_in_a_state_across_a_crash/1,
-         shifts_split_the_time/1]).
+         shifts_split_the_time/1, a_product_in_the_cell_and_after/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, time_in_a_state_across_a_crash, shifts_split_the_time].
+    [database_unusable_then_back, time_in_a_state_across_a_crash, shifts_split_the_time,
+     a_product_in_the_cell_and_after].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
-                                     Case =:= shifts_split_the_time ->
+                                     Case =:= shifts_split_the_time;
+                                     Case =:= a_product_in_the_cell_and_after ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
     ok = application:set_env(cell, cell_spec, #{name => <<"stats suite">>, tasks => Tasks}),
-    [{tab, Tab} | Config1];
+    Refs = maps:from_list([{Id, Ref} || #{id := Id, args := #{ref := Ref}} <- Tasks]),
+    [{tab, Tab}, {refs, Refs} | Config1];
 init_per_testcase({_Case, common}, Config) ->
     init_per_testcase(common, Config);
 init_per_testcase(_Case, Config) ->
@@ -149,6 +152,54 @@ shifts_split_the_time(Config) ->
                  - (Boundary - meta({first, Id})) div 1000) =< 3)
      || Id <- Ids],
     assert_adds_up(Ids).
+
+%% A product's summary while it is in the cell follows its fields (kept with the products
+%% in the cell, also across a crash of the statistics); once it is gone, the summary
+%% says how it left.
+a_product_in_the_cell_and_after(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved]),
+    Serial = <<"S-42">>,
+    Good = cell_product:new(Serial, <<"r1">>),
+    save(Ref, Good),
+    ?assertMatch({ok, #{serial := Serial, status := in_cell, recipe := <<"r1">>, failed := false,
+                        entry_task := waits_a, left := undefined,
+                        events := [#{event := entered, task := waits_a}]}},
+                 cell_stats:product(Serial)),
+    #{in_cell := 1} = cell_stats:summary(total),
+    %% Marked failed while in the cell: the summary says so at once ...
+    save(Ref, Good#{failed => true}),
+    ?assertMatch({ok, #{status := in_cell, failed := true}}, cell_stats:product(Serial)),
+    %% ... and after the statistics crashed and read the products in the cell again.
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    _ = supervisor:which_children(cell_controller_sup),
+    ok = cell_stats:flush(),
+    ?assertMatch({ok, #{status := in_cell, failed := true}}, cell_stats:product(Serial)),
+    %% Forgotten by its task: found scrapped after two writes, still failed.
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    receive {cell_event, #{type := product_saved, task := waits_a}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(product_not_cleared)
+    end,
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    {ok, #{status := scrapped, failed := true, events := Events}} = cell_stats:product(Serial),
+    ?assertEqual(scrapped, maps:get(event, lists:last(Events))),
+    ?assertMatch(#{in_cell := 0, cell := #{in := 1, scrapped := 1}}, cell_stats:summary(total)).
+
+%% The task saves the product; returns once the statistics have written what it did.
+save(Ref, Product) ->
+    Serial = maps:get(serial, Product),
+    ok = cell_test_task:command(waits_a, Ref, {product, Product}),
+    receive {cell_event, #{type := product_saved, task := waits_a, item := Serial}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail({product_not_saved, Product})
+    end,
+    ok = cell_stats:flush(),
+    ok = cell_stats:flush().
 
 time_sum(Id, Counters) ->
     lists:sum([V || {{time, _}, V} <- maps:to_list(maps:get(Id, Counters, #{}))]).
