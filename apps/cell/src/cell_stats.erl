@@ -297,6 +297,8 @@ product(Serial) when is_binary(Serial) ->
     %% that row goes, so one of the two is found.
     InCell = in_cell_summary(Serial),
     Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                  %% Written at entry by an older version: the row in the cell is newer.
+                  [{?PRODUCT, _, #{status := in_cell}}] when InCell =/= undefined -> InCell;
                   [{?PRODUCT, _, Left}] -> Left;
                   [] -> InCell
               end,
