@@ -73,22 +73,11 @@ snapshot() ->
     #{world => router_sim:world(), total => cell_stats:summary(total),
       held => lists:sort([S || #{serial := S} <- cell_controller:tasks(), is_binary(S)])}.
 
-%% For every task: the time in its states and the time since it was first seen to the
-%% last write, in microseconds.
+%% For every task of the cell: the time in its states and the time since it was first
+%% seen to the last write, in microseconds.
 -spec time_check() -> [{atom(), integer(), integer()}].
-%% Read in one transaction, so that the statistics' next write cannot come between.
 time_check() ->
     ok = cell_stats:flush(),
-    Tasks = [T || #{id := T} <- cell_controller:tasks()],
-    {atomic, Checks} =
-        mnesia:transaction(
-          fun() ->
-                  Counters = cell_stats:counters(total),
-                  [{_, _, Flushed}] = mnesia:read(cell_stats_counter, {meta, flushed}),
-                  [begin
-                       [{_, _, First}] = mnesia:read(cell_stats_counter, {meta, {first, T}}),
-                       {T, lists:sum([V || {{time, _}, V} <- maps:to_list(maps:get(T, Counters))]),
-                        Flushed - First}
-                   end || T <- Tasks]
-          end),
-    Checks.
+    Checks = cell_stats:time_check(),
+    [begin {Sum, Span} = maps:get(T, Checks), {T, Sum, Span} end
+     || #{id := T} <- cell_controller:tasks()].

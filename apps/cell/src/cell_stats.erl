@@ -53,8 +53,8 @@
 -behaviour(gen_server).
 
 -export([start_link/1, child_spec/1, exits/1]).
--export([flush/0, record/3, summary/0, summary/1, counters/1, periods/0, shift_now/0,
-         product/1, in_cell/0, tables/0]).
+-export([flush/0, record/3, summary/0, summary/1, counters/1, time_check/0, periods/0,
+         shift_now/0, product/1, in_cell/0, tables/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -203,6 +203,24 @@ counters(Period) ->
     {_Span, Counters} = view(fun() -> counted(Period) end, {undefined, #{}}),
     Counters.
 
+%% @doc For every task seen, the time counted in its states and the time from when it
+%% was first seen to the last write, in microseconds, read together: the books are
+%% right when the two are equal (for tests and diagnostics).
+-spec time_check() -> #{atom() => {non_neg_integer(), non_neg_integer()}}.
+time_check() ->
+    view(fun() ->
+                 {_Span, Counters} = counted(total),
+                 case meta(flushed, undefined) of
+                     undefined ->
+                         #{};
+                     Flushed ->
+                         maps:from_list(
+                           [{T, {lists:sum([V || {{time, _}, V} <- maps:to_list(
+                                                                      maps:get(T, Counters, #{}))]),
+                                 Flushed - First}} || {T, First} <- firsts()])
+                 end
+         end, #{}).
+
 %% Reads the counters in one transaction: a report never sees part of a write, nor a
 %% write that came between two of its reads (the span of one and the counters of the
 %% next would not add up).
@@ -295,12 +313,14 @@ shift_now() ->
 product(Serial) when is_binary(Serial) ->
     %% The row in the cell first: a product leaving has its summary written before
     %% that row goes, so one of the two is found.
-    InCell = in_cell_summary(Serial),
-    Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
-                  %% Written at entry by an older version: the row in the cell is newer.
-                  [{?PRODUCT, _, #{status := in_cell}}] when InCell =/= undefined -> InCell;
-                  [{?PRODUCT, _, Left}] -> Left;
-                  [] -> InCell
+    Summary = case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
+                  [{?OPEN, _, Row}] ->
+                      summary(Serial, from_open(Row, 0), in_cell, undefined);
+                  [] ->
+                      case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                          [{?PRODUCT, _, Left}] -> Left;
+                          [] -> undefined
+                      end
               end,
     Events = safe(fun() -> mnesia:dirty_read(?EVENT, Serial) end, []),
     case {Summary, Events} of
@@ -313,20 +333,6 @@ product(Serial) when is_binary(Serial) ->
                    end,
             Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
             {ok, Info#{events => [E#{time => T} || {T, _, E} <- Sorted]}}
-    end.
-
-%% The summary of a product still in the cell, from its row there (as write_product/5
-%% would write it).
-in_cell_summary(Serial) ->
-    case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
-        [{?OPEN, _, Info}] ->
-            #{serial => Serial, status => in_cell, recipe => maps:get(recipe, Info, <<>>),
-              failed => maps:get(failed, Info, false),
-              entered => maps:get(entered, Info, 0) div 1000,
-              entry_task => maps:get(entry, Info, undefined), left => undefined,
-              exit_task => undefined};
-        [] ->
-            undefined
     end.
 
 %% @doc How many products are in the cell.
@@ -818,11 +824,7 @@ opened(#st{started = Started} = St0) ->
                       case maps:is_key(Serial, Acc) of
                           true -> Acc;
                           false ->
-                              P = #prod{entered = maps:get(entered, Info, Started),
-                                        recipe = maps:get(recipe, Info, <<>>),
-                                        failed = maps:get(failed, Info, false),
-                                        entry = maps:get(entry, Info, undefined)},
-                              Acc#{Serial => P}
+                              Acc#{Serial => from_open(Info, Started)}
                       end
               end, St1#st.products, Open),
     %% The holders now, as the registry knows them.
@@ -873,16 +875,29 @@ trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
 %% table with a log, cheap to write); the summary on disc only is written when it leaves.
 write_open(Serial, #prod{} = P, St) ->
-    Info = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
-             entry => P#prod.entry},
-    db(fun() -> mnesia:dirty_write({?OPEN, Serial, Info}) end, St).
+    Row = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
+            entry => P#prod.entry},
+    db(fun() -> mnesia:dirty_write({?OPEN, Serial, Row}) end, St).
+
+%% A product as its row in the cell has it (`Entered' when the row lacks the time).
+from_open(Row, Entered) ->
+    #prod{entered = maps:get(entered, Row, Entered), recipe = maps:get(recipe, Row, <<>>),
+          failed = maps:get(failed, Row, false), entry = maps:get(entry, Row, undefined)}.
 
 %% The summary of a product that left: `out' or `scrapped', by which task and when.
-write_product(Serial, #prod{} = P, Status, {ExitTask, At}, St) ->
-    Info = #{serial => Serial, status => Status, recipe => P#prod.recipe,
-             failed => P#prod.failed, entered => P#prod.entered div 1000,
-             entry_task => P#prod.entry, left => At div 1000, exit_task => ExitTask},
+write_product(Serial, #prod{} = P, Status, Left, St) ->
+    Info = summary(Serial, P, Status, Left),
     db(fun() -> mnesia:dirty_write({?PRODUCT, Serial, Info}) end, St).
+
+%% A product's summary (times in ms): where it is, or how it left (`{Task, At}').
+summary(Serial, #prod{} = P, Status, Left) ->
+    {ExitTask, LeftAt} = case Left of
+                             undefined -> {undefined, undefined};
+                             {T, At} -> {T, At div 1000}
+                         end,
+    #{serial => Serial, status => Status, recipe => P#prod.recipe, failed => P#prod.failed,
+      entered => P#prod.entered div 1000, entry_task => P#prod.entry, left => LeftAt,
+      exit_task => ExitTask}.
 
 %% Records older than the settings keep are removed, once an hour.
 purge(Now, St) ->
