@@ -4,9 +4,11 @@
 %%
 %% Commands are written to the registry first (a task that restarts reads them there),
 %% then sent to every task. The emergency stop sets an atomic flag before anything
-%% else, so no task starts another step once it is raised; a task that has not reached
-%% OFF shortly after is killed (its restart secures its outputs), so one stuck task
-%% cannot hold up the stop.
+%% else, so no task starts another step once it is raised; a task that has not secured
+%% its outputs shortly after is killed (its restart secures them), so one stuck task
+%% cannot hold up the stop. Securing comes before bookkeeping: the tasks announce OFF
+%% only once every task of the fan-out has secured its outputs (a barrier the last of
+%% them reports here), so no task waits for a scheduler behind the announcements.
 %%
 %% The cell state is kept from the tasks' `task_state' events: counts per state, so a
 %% change costs the same for 10 tasks or 10,000. Every change is published as a
@@ -22,7 +24,13 @@
 
 -record(state, {counts = #{} :: #{cell_ipc:state() => pos_integer()},
                 cell = off :: cell_ipc:state(),
-                estop_timer :: reference() | undefined}).
+                estop_timer :: reference() | undefined,
+                %% the emergency stop's fan-out, until every task secured its outputs
+                barrier :: barrier() | undefined}).
+
+%% The emergency stop's fan-out: the barrier's atomics, the tasks in slot order, and
+%% who raised it, answered once the stop is settled.
+-type barrier() :: {atomics:atomics_ref(), [pid()], binary(), gen_server:from()}.
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -50,7 +58,9 @@ stop() -> stop(<<"cell">>).
 stop(Who) -> gen_server:call(?MODULE, {request, stop, Who}).
 
 %% @doc Raises or releases the emergency stop. Raising it also sets the request to
-%% Stop: after a release the cell waits for a new Start.
+%% Stop: after a release the cell waits for a new Start. Raising it returns once every
+%% task has secured its outputs (a task stuck in a step: once the deadline killed it),
+%% with the operator's alarm raised.
 -spec estop(boolean()) -> ok.
 estop(On) -> estop(On, <<"cell">>).
 
@@ -131,21 +141,24 @@ handle_call(sync, From, State) ->
 handle_call({request, Request, Who}, _From, State) ->
     ok = request(Request, Who),
     {reply, ok, State};
-handle_call({estop, true, Who}, _From, State) ->
+handle_call({estop, true, Who}, From, State0) ->
     ok = cell_registry:set_control(estop, true),
     %% A task that takes the emergency stop also takes Stop as its request: one
     %% message each, the fastest fan-out there is.
     ok = cell_registry:set_control(request, stop),
-    broadcast(estop, true),
-    cell_log:error(cell, "emergency stop (~ts)", [Who]),
-    ok = cell_alarms:alarm(cell, <<"estop">>, "Emergency stop",
-                           "The emergency stop is active. Release it, then press Start."),
-    ok = cell_alarms:sync(),
-    ok = publish(estop, #{active => true, who => Who}),
+    State = settle(State0),
+    %% The log, the alarm and the answer wait until the tasks have secured their
+    %% outputs: until then the schedulers are theirs.
+    {Ref, Pids} = estop_fanout(),
     cancel(State#state.estop_timer),
     TRef = erlang:start_timer(?ESTOP_DEADLINE_MS, self(), estop_deadline),
-    {reply, ok, State#state{estop_timer = TRef}};
-handle_call({estop, false, Who}, _From, State) ->
+    Pending = State#state{estop_timer = TRef, barrier = {Ref, Pids, Who, From}},
+    case Pids of
+        [] -> {noreply, settle(Pending)};
+        [_ | _] -> {noreply, Pending}
+    end;
+handle_call({estop, false, Who}, _From, State0) ->
+    State = settle(State0),
     ok = cell_registry:set_control(estop, false),
     broadcast(estop, false),
     cell_log:notice(cell, "emergency stop released (~ts); press Start to go on", [Who]),
@@ -168,14 +181,19 @@ handle_cast(Msg, _State) ->
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({cell_event, #{type := task_state, from := From, state := New}}, State) ->
     {noreply, task_state(From, New, State)};
+handle_info({estop_secured, Ref}, #state{barrier = {Ref, _, _, _}} = State) ->
+    {noreply, settle(State)};
+handle_info({estop_secured, _}, State) ->
+    {noreply, State};
 handle_info({timeout, TRef, estop_deadline}, #state{estop_timer = TRef} = State) ->
+    Secured = secured(State#state.barrier),
     _ = [begin
              cell_log:error(Id, "did not stop within ~p ms of the emergency stop; killed "
                             "(its restart secures its outputs)", [?ESTOP_DEADLINE_MS]),
              exit(Pid, kill)
          end || #{id := Id, pid := Pid, state := S} <- cell_registry:tasks(), S =/= off,
-                cell_registry:control(estop)],
-    {noreply, State#state{estop_timer = undefined}};
+                not sets:is_element(Pid, Secured), cell_registry:control(estop)],
+    {noreply, settle(State#state{estop_timer = undefined})};
 handle_info({timeout, _, estop_deadline}, State) ->
     {noreply, State};
 handle_info({synced, From}, State) ->
@@ -204,6 +222,46 @@ request(Request, Who) ->
     broadcast(request, Request),
     cell_log:notice(cell, "~ts requested (~ts)", [request_name(Request), Who]),
     publish(request, #{request => Request, who => Who}).
+
+%% The emergency stop to every task, each with its slot of the barrier.
+estop_fanout() ->
+    Pids = cell_registry:pids(),
+    Total = length(Pids),
+    Ref = atomics:new(Total + 1, [{signed, false}]),
+    Was = process_flag(priority, high),
+    _ = lists:foldl(fun(Pid, Slot) ->
+                            cell_task_proc:control(Pid, estop, {true, {Ref, Slot, Total, self()}}),
+                            Slot + 1
+                    end, 1, Pids),
+    _ = process_flag(priority, Was),
+    {Ref, Pids}.
+
+%% Every task of the fan-out secured its outputs (or the deadline passed, or the
+%% emergency stop changed): the held tasks announce OFF, the operator is told, and the
+%% caller answered.
+settle(#state{barrier = undefined} = State) ->
+    State;
+settle(#state{barrier = {Ref, Pids, Who, From}} = State) ->
+    _ = [cell_task_proc:control(Pid, estop_settled, Ref) || Pid <- Pids],
+    cell_log:error(cell, "emergency stop (~ts)", [Who]),
+    ok = cell_alarms:alarm(cell, <<"estop">>, "Emergency stop",
+                           "The emergency stop is active. Release it, then press Start."),
+    ok = cell_alarms:sync(),
+    ok = publish(estop, #{active => true, who => Who}),
+    gen_server:reply(From, ok),
+    State#state{barrier = undefined}.
+
+%% The tasks of the fan-out that secured their outputs.
+secured(undefined) ->
+    sets:new([{version, 2}]);
+secured({Ref, Pids, _, _}) ->
+    {Marked, _} = lists:foldl(fun(Pid, {Acc, Slot}) ->
+                                      case atomics:get(Ref, Slot) of
+                                          1 -> {[Pid | Acc], Slot + 1};
+                                          0 -> {Acc, Slot + 1}
+                                      end
+                              end, {[], 1}, Pids),
+    sets:from_list(Marked, [{version, 2}]).
 
 broadcast(Key, Value) ->
     %% At high priority, so that no task woken by the first messages runs before the

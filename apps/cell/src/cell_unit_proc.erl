@@ -478,6 +478,14 @@ control(request, stop, State, D0) ->
     end;
 control(estop, true, State, D) ->
     estop(State, D#data{estop = true, request = stop, auto = false, halt = false});
+control(estop, {true, Barrier}, State, D) ->
+    %% The controller's fan-out: secured at once, and counted (a unit announces its
+    %% state at once; it holds nothing back).
+    Result = control(estop, true, State, D),
+    ok = cell_task_proc:estop_secured(Barrier),
+    Result;
+control(estop_settled, _, State, D) ->
+    keep(State, D);
 control(estop, false, booting, #data{estop = true, error = undefined} = D) ->
     %% The booting sequence was interrupted: it runs again from its start.
     {keep_state, report(booting, booting, D#data{estop = false}),

@@ -10,7 +10,8 @@
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
          cell_state_follows_tasks/1, bad_spec_is_refused/1, settings_snapshot_at_start/1,
-         recipe_buffer_cleared_at_start/1]).
+         recipe_buffer_cleared_at_start/1, estop_secures_all_before_any_announces/1,
+         estop_deadline_kills_a_stuck_task/1]).
 
 -define(IDS, [load, work, unload, robot]).
 
@@ -19,14 +20,21 @@ all() ->
      service_mode_pauses, crash_restores_product, damaged_product_file,
      product_survives_restart, warnings, events_have_their_fields,
      cell_state_follows_tasks, bad_spec_is_refused, settings_snapshot_at_start,
-     recipe_buffer_cleared_at_start].
+     recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
+     estop_deadline_kills_a_stuck_task].
+
+-define(MANY, 200).
 
 init_per_testcase(bad_spec_is_refused, Config) ->
     Config;
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), "root"),
     Tab = ets:new(cell_suite, [public]),
-    Specs0 = [cell_test_task:spec(Id, Tab, self()) || Id <- ?IDS],
+    Ids = case Case of
+              estop_secures_all_before_any_announces -> many();
+              _ -> ?IDS
+          end,
+    Specs0 = [cell_test_task:spec(Id, Tab, self()) || Id <- Ids],
     %% One task runs on the machine settings object: it gets its snapshot at Start.
     Specs = case Case of
                 settings_snapshot_at_start ->
@@ -339,7 +347,84 @@ recipe_buffer_cleared_at_start(_Config) ->
     ?assertEqual({error, estop_active}, cell_controller:start()),
     ?assertEqual([<<"panel A">>], cell_recipe_buffer:loaded()).
 
+%% The emergency stop of many tasks: when estop(true) returns, every task has secured
+%% its outputs and the operator's alarm is up; no task announced OFF before the last
+%% one secured its outputs (the barrier); then every task announces OFF.
+estop_secures_all_before_any_announces(Config) ->
+    Ids = many(),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual(lists:duplicate(?MANY, {ready, idle, starved}), [cell_task_proc:state(Id) || Id <- Ids]),
+    ok = cell_events:subscribe([task_state]),
+    ok = cell_controller:estop(true, <<"estop circuit">>),
+    %% On return, without waiting for anything else.
+    ?assertEqual([], [Id || Id <- Ids, maps:get(uninit, counts(Config, Id)) =/= 1]),
+    ?assertMatch([#{kind := alarm, caption := <<"Emergency stop">>}], cell_alarms:list()),
+    Offs = off_events(sets:from_list(Ids, [{version, 2}]), #{}),
+    LastSecured = lists:max([cell_test_task:uninit_at(?config(tab, Config), Id) || Id <- Ids]),
+    FirstAnnounced = lists:min(maps:values(Offs)),
+    ?assert(LastSecured =< FirstAnnounced),
+    ok = cell_controller:sync(),
+    ?assertEqual(off, cell_controller:state()),
+    ?assertEqual(lists:duplicate(?MANY, off), [cell_task_proc:state(Id) || Id <- Ids]).
+
+%% A task whose code blocks in a step cannot secure its outputs: the controller kills
+%% it at the deadline (its restart secures them), and only then answers; the other
+%% tasks were not held longer than that.
+estop_deadline_kills_a_stuck_task(Config) ->
+    ok = cell_events:subscribe([task_crashed]),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    Stuck = cell_task_proc:whereis(work),
+    Ref = monitor(process, Stuck),
+    flush_notes(),
+    cmd(Config, work, {stuck, 30000}),
+    %% In the step that blocks: the step that takes the command has begun.
+    receive {cell_test_task, work, step, _} -> ok
+    after 5000 -> ct:fail(no_step)
+    end,
+    T0 = erlang:monotonic_time(millisecond),
+    ok = cell_controller:estop(true, <<"estop circuit">>),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    ?assert(Took >= 900 andalso Took < 5000, Took),
+    receive {'DOWN', Ref, process, Stuck, killed} -> ok
+    after 5000 -> ct:fail(stuck_task_not_killed)
+    end,
+    %% Restarted (the event comes once its new incarnation has booted).
+    receive {cell_event, #{type := task_crashed, task := work}} -> ok
+    after 5000 -> ct:fail(no_restart)
+    end,
+    [?assertMatch(#{uninit := 1}, counts(Config, Id)) || Id <- ?IDS, Id =/= work],
+    ok = cell_controller:sync(),
+    %% The restarted task secured its outputs and stays OFF: the request is Stop.
+    ?assertEqual([off, off, off, off], states()),
+    ?assertMatch(#{uninit := N} when N >= 1, counts(Config, work)),
+    ?assertEqual(off, cell_controller:state()).
+
 %% -------------------------------------------------------------------------------------
+
+flush_notes() ->
+    receive {cell_test_task, _, _, _} -> flush_notes() after 0 -> ok end.
+
+many() ->
+    [list_to_atom("t" ++ integer_to_list(I)) || I <- lists:seq(1, ?MANY)].
+
+%% The OFF event of every task of the set, with its monotonic time.
+off_events(Left, Acc) ->
+    case sets:size(Left) of
+        0 ->
+            Acc;
+        _ ->
+            receive
+                {cell_event, #{type := task_state, task := Id, state := off, cause := estop,
+                               mono := Mono}} ->
+                    off_events(sets:del_element(Id, Left), Acc#{Id => Mono});
+                {cell_event, _} ->
+                    off_events(Left, Acc)
+            after 10000 ->
+                ct:fail({no_off_event, sets:to_list(Left)})
+            end
+    end.
 
 states() ->
     [cell_task_proc:state(Id) || Id <- ?IDS].

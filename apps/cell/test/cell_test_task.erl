@@ -5,12 +5,13 @@
 %%
 %% Commands: {event, Fun} (a cell_task event function of arity 1), {error, Solutions},
 %% reset, crash, {continue, N} (N steps that do not wait), {product, Map | undefined},
-%% {timer, Ms}.
+%% {timer, Ms}, {stuck, Ms} (a step that does not return for Ms: a task whose code
+%% blocks). uninit also notes when it ran (`uninit_at/2').
 -module(cell_test_task).
 -behaviour(cell_task).
 
 -export([init/1, step/1, uninit/1]).
--export([spec/3, command/3, counts/2, recorded/3]).
+-export([spec/3, command/3, counts/2, recorded/3, uninit_at/2]).
 
 %% A spec for a task of this module.
 -spec spec(atom(), ets:tid() | atom(), pid()) -> cell_task:spec().
@@ -63,8 +64,18 @@ step(T) ->
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
+    true = ets:insert(cell_task:arg(T, tab, undefined),
+                      {{uninit_at, cell_task:id(T)}, erlang:monotonic_time(microsecond)}),
     count(T, uninit),
     T.
+
+%% The monotonic time (microseconds) of the task's last uninit.
+-spec uninit_at(ets:tid() | atom(), atom()) -> integer() | undefined.
+uninit_at(Tab, Id) ->
+    case ets:lookup(Tab, {uninit_at, Id}) of
+        [{_, At}] -> At;
+        [] -> undefined
+    end.
 
 do({event, {identifier_read, Serial}}, T, Ref) ->
     {wait, {reply, Ref}, cell_task:identifier_read(T, Serial, <<"scanner">>)};
@@ -77,7 +88,10 @@ do(crash, _T, _Ref) -> erlang:error(scripted_crash);
 do({continue, N}, T, _Ref) -> {continue, cell_task:put(T, continue, N)};
 do({product, undefined}, T, Ref) -> {wait, {reply, Ref}, cell_task:clear_product(T)};
 do({product, P}, T, Ref) -> {wait, {reply, Ref}, cell_task:set_product(T, P)};
-do({timer, Ms}, T, _Ref) -> {wait, {timer, Ms}, T}.
+do({timer, Ms}, T, _Ref) -> {wait, {timer, Ms}, T};
+do({stuck, Ms}, T, Ref) ->
+    receive after Ms -> ok end,
+    {wait, {reply, Ref}, T}.
 
 %% Values a task recorded (the answers its steps received), oldest first.
 -spec recorded(ets:tid() | atom(), atom(), atom()) -> [term()].
