@@ -228,12 +228,8 @@ estop_fanout() ->
     Pids = cell_registry:pids(),
     Total = length(Pids),
     Ref = atomics:new(Total + 1, [{signed, false}]),
-    Was = process_flag(priority, high),
-    _ = lists:foldl(fun(Pid, Slot) ->
-                            cell_task_proc:control(Pid, estop, {true, {Ref, Slot, Total, self()}}),
-                            Slot + 1
-                    end, 1, Pids),
-    _ = process_flag(priority, Was),
+    Controller = self(),
+    fan_out(Pids, estop, fun(Slot) -> {true, {Ref, Slot, Total, Controller}} end),
     {Ref, Pids}.
 
 %% Every task of the fan-out secured its outputs (or the deadline passed, or the
@@ -255,21 +251,22 @@ settle(#state{barrier = {Ref, Pids, Who, From}} = State) ->
 secured(undefined) ->
     sets:new([{version, 2}]);
 secured({Ref, Pids, _, _}) ->
-    {Marked, _} = lists:foldl(fun(Pid, {Acc, Slot}) ->
-                                      case atomics:get(Ref, Slot) of
-                                          1 -> {[Pid | Acc], Slot + 1};
-                                          0 -> {Acc, Slot + 1}
-                                      end
-                              end, {[], 1}, Pids),
-    sets:from_list(Marked, [{version, 2}]).
+    Slots = lists:zip(Pids, lists:seq(1, length(Pids))),
+    sets:from_list([Pid || {Pid, Slot} <- Slots, atomics:get(Ref, Slot) =:= 1],
+                   [{version, 2}]).
 
 broadcast(Key, Value) ->
-    %% At high priority, so that no task woken by the first messages runs before the
-    %% last is sent: every task then does the first part of what the message asks
-    %% (an emergency stop: securing its outputs) before any does the rest.
+    fan_out(cell_registry:pids(), Key, fun(_Slot) -> Value end).
+
+%% A command to every task, its value made for the task's place in the list (its slot).
+%% At high priority, so that no task woken by the first messages runs before the last
+%% is sent.
+fan_out(Pids, Key, ValueOf) ->
     Was = process_flag(priority, high),
-    lists:foreach(fun(Pid) -> cell_task_proc:control(Pid, Key, Value) end,
-                  cell_registry:pids()),
+    _ = lists:foldl(fun(Pid, Slot) ->
+                            cell_task_proc:control(Pid, Key, ValueOf(Slot)),
+                            Slot + 1
+                    end, 1, Pids),
     _ = process_flag(priority, Was),
     ok.
 

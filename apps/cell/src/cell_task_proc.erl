@@ -99,8 +99,9 @@ child_spec(#{id := Id} = Spec) ->
     #{id => Id, start => {?MODULE, start_link, [Spec]}, shutdown => 5000}.
 
 %% @doc A command of the controller: `request' (start | pause | stop), `estop'
-%% (`true', or `{true, Barrier}' from the controller's fan-out, see {@link estop_barrier()}),
-%% (boolean), `service_mode' (boolean), `settings' (the snapshot for the next start).
+%% (`{true, Barrier}', see {@link estop_barrier()}, or `false'), `estop_settled' (the
+%% barrier's atomics: every task secured its outputs), `service_mode' (boolean),
+%% `settings' (the snapshot for the next start).
 -spec control(pid(), request | estop | estop_settled | service_mode | settings, term()) -> ok.
 control(Pid, Key, Value) ->
     Pid ! {control, Key, Value},
@@ -253,8 +254,6 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
 %% --------------------------------------------------------------------------------------
 %% every state
 %% --------------------------------------------------------------------------------------
-handle_event(info, {control, estop, true}, State, D) ->
-    estop(State, D#data{estop = true, request = stop});
 handle_event(info, {control, estop, {true, Barrier}}, State, D) ->
     estop(State, D#data{estop = true, request = stop}, Barrier);
 handle_event(info, {control, estop_settled, _}, _State, _D) ->
@@ -679,9 +678,7 @@ stop_to_off(#data{down = Down} = D0) ->
     D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
     goto(off, {arrow, 9}, D, []).
 
-%% From any state: leave at once, secure the outputs, OFF.
-estop(off, D) ->
-    {keep_state, D};
+%% The flag seen before a step or an init: leave at once, secure the outputs, OFF.
 estop(_State, D) ->
     announce_off(secure(D)).
 

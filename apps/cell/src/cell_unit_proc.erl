@@ -476,16 +476,14 @@ control(request, stop, State, D0) ->
             {Outcome, D1} = halt_flag(false, State, D),
             outcome(Outcome, State, D1)
     end;
-control(estop, true, State, D) ->
-    estop(State, D#data{estop = true, request = stop, auto = false, halt = false});
 control(estop, {true, Barrier}, State, D) ->
-    %% The controller's fan-out: secured at once, and counted (a unit announces its
-    %% state at once; it holds nothing back).
-    Result = control(estop, true, State, D),
+    %% Secured at once, and counted in the controller's barrier; a unit announces its
+    %% state at once, it holds nothing back.
+    Result = estop(State, D#data{estop = true, request = stop, auto = false, halt = false}),
     ok = cell_task_proc:estop_secured(Barrier),
     Result;
-control(estop_settled, _, State, D) ->
-    keep(State, D);
+control(estop_settled, _, _State, _D) ->
+    keep_state_and_data;
 control(estop, false, booting, #data{estop = true, error = undefined} = D) ->
     %% The booting sequence was interrupted: it runs again from its start.
     {keep_state, report(booting, booting, D#data{estop = false}),
