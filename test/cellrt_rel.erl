@@ -2,7 +2,7 @@
 %% script with a deadline.
 -module(cellrt_rel).
 
--export([top/0, bin/0, run/4, collect/2]).
+-export([top/0, bin/0, run/4, collect/2, boot_apps/0, await_boot/2, await_boot_expr/0]).
 
 %% The project folder: $CELLRT_TOP (set by the Makefile and scripts/test), else derived
 %% from this file's path, which rebar3 copies under _build/.
@@ -19,6 +19,36 @@ top() ->
 %% The start script of the default release.
 bin() ->
     filename:join([top(), "_build", "default", "rel", "cellrt", "bin", "cellrt"]).
+
+%% The applications the release's boot starts and how (permanent unless it says
+%% otherwise), in its order; those it only loads are left out.
+boot_apps() ->
+    [Rel] = filelib:wildcard(filename:join([top(), "_build", "default", "rel", "cellrt",
+                                            "releases", "*", "cellrt.rel"])),
+    {ok, [{release, _, _, Apps}]} = file:consult(Rel),
+    [{App, Type} || {App, Type} <- [{element(1, A), case A of
+                                                     {_, _, T} when is_atom(T) -> T;
+                                                     _ -> permanent
+                                                 end} || A <- Apps],
+                    Type =/= load].
+
+%% Returns once the boot of `Node', a node just up, has started every application
+%% (see await_boot_expr/0).
+await_boot(Node, Timeout) ->
+    lists:foreach(fun({App, Type}) ->
+                          {ok, _} = erpc:call(Node, application, ensure_all_started,
+                                              [App, Type], Timeout)
+                  end, boot_apps()).
+
+%% An expression to evaluate in a node just up, which returns `ok' once its boot has
+%% started every application. A node answers ping while its boot still starts them,
+%% and starting one application waits only for those it needs: asking for each in
+%% the boot's own order, the way the boot starts it, waits for the boot (a start under
+%% way is waited for, not repeated).
+await_boot_expr() ->
+    lists:flatten(io_lib:format("lists:foreach(fun({A, T}) -> {ok, _} = "
+                                "application:ensure_all_started(A, T) end, ~w).",
+                                [boot_apps()])).
 
 %% Runs the start script `Bin' with `Args' and `Env'; its exit status and output.
 run(Bin, Args, Env, Timeout) ->

@@ -45,7 +45,7 @@ end_per_testcase(_Case, Config) ->
 %% bin/cellrt daemon | ping | eval | stop.
 daemon_ping_eval_stop(Config) ->
     {0, _} = cellrt(Config, ["daemon"]),
-    ok = await_pong(Config),
+    ok = await_up(Config),
     {0, Apps} = cellrt(Config, ["eval", "[A || {A, _, _} <- application:which_applications()]."]),
     [?assertNotEqual(nomatch, string:find(Apps, atom_to_list(A)), A)
      || A <- [cell, cell_base, lager, cowboy, ranch, jsx, mnesia, cell_inspect]],
@@ -57,7 +57,7 @@ daemon_ping_eval_stop(Config) ->
 root_folder_from_environment(Config) ->
     Root = ?config(root, Config),
     {0, _} = cellrt(Config, ["daemon"]),
-    ok = await_pong(Config),
+    ok = await_up(Config),
     [?assert(filelib:is_dir(filename:join(Root, D)), D)
      || D <- ["Settings", "Products", "Data", "Logs", "Databases"]],
     {0, _} = cellrt(Config, ["eval", "cell_log:notice(release_suite, \"hello from the test\", [])."]),
@@ -70,13 +70,13 @@ root_folder_from_environment(Config) ->
 %% A VM killed with SIGKILL starts again without manual clean-up.
 restart_after_sigkill(Config) ->
     {0, _} = cellrt(Config, ["daemon"]),
-    ok = await_pong(Config),
+    ok = await_up(Config),
     {0, Pid} = cellrt(Config, ["eval", "os:getpid()."]),
     OsPid = string:trim(Pid, both, "\"\n "),
     _ = os:cmd("kill -9 " ++ OsPid),
     ok = await_down(Config),
     {0, _} = cellrt(Config, ["daemon"]),
-    ok = await_pong(Config),
+    ok = await_up(Config),
     {0, Pid2} = cellrt(Config, ["eval", "os:getpid()."]),
     ?assertNotEqual(Pid, Pid2).
 
@@ -84,7 +84,7 @@ restart_after_sigkill(Config) ->
 sigterm_stops_cleanly(Config) ->
     Root = ?config(root, Config),
     {0, _} = cellrt(Config, ["daemon"]),
-    ok = await_pong(Config),
+    ok = await_up(Config),
     {0, Pid} = cellrt(Config, ["eval", "os:getpid()."]),
     _ = os:cmd("kill -TERM " ++ string:trim(Pid, both, "\"\n ")),
     ok = await_down(Config),
@@ -108,8 +108,13 @@ cellrt(Config, Args) ->
 cellrt(Config, Args, Timeout) ->
     cellrt_rel:run(?config(bin, Config), Args, ?config(env, Config), Timeout).
 
-await_pong(Config) ->
-    await(Config, fun(Out) -> string:trim(Out) =:= "pong" end, 100).
+%% Up: answering ping, and its boot done (a node answers ping while its boot still
+%% starts the applications).
+await_up(Config) ->
+    ok = await(Config, fun(Out) -> string:trim(Out) =:= "pong" end, 100),
+    {0, Out} = cellrt(Config, ["eval", cellrt_rel:await_boot_expr()], 120000),
+    ?assertEqual("ok", string:trim(Out)),
+    ok.
 
 await_down(Config) ->
     await(Config, fun(Out) -> string:trim(Out) =/= "pong" end, 100).

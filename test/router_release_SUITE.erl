@@ -205,9 +205,8 @@ boot(Bin, Env, Node) ->
     ok = await_pong(Node, 200),
     {Mod, Beam, File} = code:get_object_code(router_release_probe),
     {module, Mod} = erpc:call(Node, code, load_binary, [Mod, File, Beam]),
-    %% Returns once the boot has started the panel (the application controller
-    %% answers after the start under way).
-    {ok, _} = erpc:call(Node, application, ensure_all_started, [cell_web], ?WAIT_MS),
+    %% The node answers ping while its boot still starts the applications.
+    ok = cellrt_rel:await_boot(Node, ?WAIT_MS),
     Port = erpc:call(Node, cell_web, port, []),
     {ok, Op} = cell_web_client:login(cell_web_client:new(Port), "operator", "operator"),
     Op.
