@@ -14,16 +14,17 @@
 %%  carrying  there, or the watchdog                          modules still in the gripper → full;
 %%                                                            not: "Product lost" → lost
 %%  lost      the operator                                    RETRY: the sensor again; IGNORE: go on,
-%%                                                            the product marked failed; RESET: the
-%%                                                            product forgotten (init) → to_scrap
+%%                                                            the product marked failed; RESET:
+%%                                                            (init) → to_scrap
 %%  full      -                                               offer to the unloading segment
 %%                                                            (phase 1, BLOCKED) → offered
 %%  offered   the unloading segment's NotBusy                 open the gripper → placing
 %%  placing   the gripper open, or the watchdog               release (phase 3) → released
 %%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle
-%%  to_scrap  after a Reset: at home, or the watchdog         open the gripper over the scrap bin
-%%                                                            → emptying
-%%  emptying  the gripper open, or the watchdog               → idle
+%%  to_scrap  after a Reset (the product kept, marked         open the gripper over the scrap bin
+%%            `scrap'): at home, or the watchdog              → emptying
+%%  emptying  the gripper open, or the watchdog               the product forgotten (ItemWorkAbort)
+%%                                                            → idle
 %% </pre>
 -module(router_upper_task).
 -behaviour(cell_task).
@@ -36,15 +37,19 @@ init(T0) ->
     case router_task:reset_chosen(T) of
         {scrap, T1} ->
             %% Seed §2.3.8, RESET: "delete product data and continue with empty gripper".
-            #{serial := S} = cell_task:product(T1),
-            cell_task:log(T1, brief, "product ~ts forgotten; its modules go to the scrap bin",
-                          [S]),
-            T2 = cell_task:clear_product(cell_task:work_abort(T1, <<"product lost">>)),
-            {ok, phase(T2, to_scrap)};
+            %% The data goes when the modules are in the scrap bin: until then they are
+            %% in the gripper, and a stop on the way leaves them there, still this
+            %% task's, to be scrapped when it starts again.
+            #{serial := S} = P = cell_task:product(T1),
+            cell_task:log(T1, brief, "product ~ts to be forgotten; its modules go to the "
+                          "scrap bin", [S]),
+            {ok, to_scrap(cell_task:set_product(T1, P#{scrap => true}))};
         {_, T1} ->
             case cell_task:product(T1) of
                 undefined ->
                     {ok, phase(cell_task:out(T1, gripper_close, false), idle)};
+                #{scrap := true} ->
+                    {ok, to_scrap(T1)};
                 _ ->
                     %% Modules in the gripper: hold them and carry them on.
                     {ok, phase(cell_task:out(T1, gripper_close, true), to_unloading)}
@@ -112,7 +117,12 @@ step(emptying, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(emptying, _Woken, T) ->
     case cell_task:in(T, gripper_closed) of
-        false -> {continue, phase(T, idle)};
+        false ->
+            #{serial := S} = cell_task:product(T),
+            cell_task:log(T, brief, "product ~ts forgotten: its modules are in the scrap bin",
+                          [S]),
+            T1 = cell_task:clear_product(cell_task:work_abort(T, <<"product lost">>)),
+            {continue, phase(T1, idle)};
         true -> wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
     end;
 step(to_unloading, _Woken, T) ->
@@ -181,6 +191,10 @@ present(T) ->
                             "gripper.", [address(product_present), caption(product_present)]),
               [retry, ignore, reset], scrap)
     end.
+
+%% On the way to the scrap bin, the gripper holding on to the modules.
+to_scrap(T) ->
+    phase(cell_task:out(T, gripper_close, true), to_scrap).
 
 %% A move to a taught position of the product's lane.
 move(T, Where, Phase) ->

@@ -9,7 +9,8 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([panels_pass_the_line/1, product_lost_answers/1, jams_and_magazine_warning/1,
+-export([panels_pass_the_line/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
+         jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
          stop_at_any_moment/1,
          physics_waits_for_the_hal/1, node_stop_secures_outputs/1,
@@ -20,7 +21,8 @@
 -define(EVENTS, [item_transfer_out, item_transfer_in, alarm_raised, alarm_cleared, cell_state]).
 
 all() ->
-    [panels_pass_the_line, product_lost_answers, jams_and_magazine_warning, dual_lane,
+    [panels_pass_the_line, product_lost_answers, reset_scrap_survives_a_stop,
+     jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
      physics_waits_for_the_hal,
      node_stop_secures_outputs, histories_kept_within_their_limit, real_mode_spec,
@@ -50,6 +52,10 @@ end_per_testcase(_Case, _Config) ->
 sim_settings(product_lost_answers) ->
     %% Seated again after 2 s (at the time scale): a Retry at once finds them missing.
     #{product_lost_rate => 1.0, reseat_ms => 100000};
+sim_settings(reset_scrap_survives_a_stop) ->
+    %% Every carry slips; moves long enough for a Stop to fall inside the one to the
+    %% scrap bin.
+    #{product_lost_rate => 1.0, reseat_ms => 100000, time_scale => 0.1};
 sim_settings(jams_and_magazine_warning) ->
     %% The tasks' watchdogs are not scaled (3 s here), the physics is (0.02): a jam of
     %% 200 s of machine time is 4 s, enough for the watchdog to see it.
@@ -149,6 +155,40 @@ product_lost_answers(_Config) ->
      end || {reset, S} <- Answers],
     %% Each Ignore's product left marked failed.
     [assert_left(S, failed) || {ignore, S} <- Answers, lists:member(S, Out)].
+
+%% Reset on "Product lost" sends the modules to the scrap bin: the product is the upper
+%% robot's until they are in it. A Stop on the way leaves them in the gripper and the
+%% product with the robot (the books still agree with the machine); the next Start
+%% takes them to the bin, and only then is the product counted scrapped.
+reset_scrap_survives_a_stop(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = await_event(fun(#{type := alarm_raised, alarm := #{id := <<"upper:lost">>}}) -> true;
+                        (_) -> false
+                     end),
+    Serial = upper_serial(),
+    ok = cell_alarms:answer(<<"upper:lost">>, reset, <<"suite">>),
+    ok = stop_cell(),
+    %% Stopped on the way: the modules in the gripper, the product the robot's.
+    #{gripper := Serial, counters := #{scrapped := 0}} = router_sim:world(),
+    ?assertMatch({ok, #{serial := Serial}}, cell_registry:task(upper)),
+    #{cell := #{scrapped := 0, in := In0, out := Out0}, in_cell := InCell0} = settle(),
+    ?assertEqual(In0, Out0 + InCell0),
+    ?assert(lists:member(Serial, held())),
+    %% Started again (the modules hold from now on): to the scrap bin first.
+    ok = cell_settings:put(router_sim, #{product_lost_rate => 0.0}, <<"suite">>),
+    ok = cell_events:subscribe(?EVENTS ++ [item_work_abort]),
+    ok = cell_controller:start(<<"suite">>),
+    ok = await_event(fun(#{type := item_work_abort, task := upper, item := S}) -> S =:= Serial;
+                        (_) -> false
+                     end),
+    ok = stop_cell(),
+    #{counters := #{scrapped := 1, delivered := Delivered}} = router_sim:world(),
+    #{cell := #{scrapped := 1, in := In, out := Out}, in_cell := InCell} = settle(),
+    ?assertEqual(Delivered, Out),
+    ?assertEqual(In, Out + 1 + InCell),
+    ?assertNot(lists:member(Serial, held())),
+    ?assertEqual([Serial], scrapped()).
 
 %% Conveyor jams stop a belt until the operator answers Retry (after freeing the
 %% panel: here, once the simulation has it free); the magazine warning comes and goes
