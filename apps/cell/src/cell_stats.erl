@@ -5,7 +5,7 @@
 %% The process only listens: it subscribes to {@link cell_events} and never calls a
 %% task, so a task never waits for it. It counts in memory and writes the counters in
 %% one transaction a second (a crash loses at most that second); a product's history is
-%% written as it happens.
+%% handed as it happens to {@link cell_stats_writer}, which writes it in batches.
 %%
 %% <b>Time per IPC-2541 state</b>, per task: each `task_state' event closes the time
 %% spent in the state before. The time is split at shift boundaries and added to the
@@ -98,6 +98,10 @@
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
              backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
+             writer :: pid() | undefined,                       %% see cell_stats_writer
+             batch = 0 :: non_neg_integer(),                    %% the last batch handed over
+             writing = false :: boolean(),                      %% ... and not done yet
+             queued = [] :: [fun(() -> term())],                %% for the next, newest first
              seq = 0 :: non_neg_integer(),
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer(),
@@ -384,8 +388,9 @@ init(Opts) ->
     %% change thousands of counters a second, and a map of them would be copied at
     %% every collection.
     Pending = ets:new(cell_stats_pending, [set, private]),
+    {ok, Writer} = cell_stats_writer:start_link(),
     {ok, #st{exits = maps:get(exits, Opts, all), started = Now, tasks = Tasks,
-             holding = Holding, pending = Pending},
+             holding = Holding, pending = Pending, writer = Writer},
      {continue, open}}.
 
 -spec handle_continue(open, #st{}) -> {noreply, #st{}}.
@@ -395,7 +400,7 @@ handle_continue(open, St) ->
 
 -spec handle_call(term(), gen_server:from(), #st{}) -> {reply, term(), #st{}}.
 handle_call(flush, _From, St) ->
-    St1 = flush(St),
+    St1 = history_written(flush(St)),
     {reply, flushed(St1), St1}.
 
 flushed(#st{db = open}) -> ok;
@@ -409,17 +414,24 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
            end,
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
--spec handle_info(term(), #st{}) -> {noreply, #st{}}.
+-spec handle_info(term(), #st{}) -> {noreply, #st{}} | {stop, term(), #st{}}.
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info(flush, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
-    {noreply, flush(St)}.
+    {noreply, flush(St)};
+handle_info({cell_stats_writer, N, Result}, #st{batch = N} = St) ->
+    {noreply, batch_done(Result, St#st{writing = false})};
+handle_info({cell_stats_writer, _Old, Result}, St) ->
+    %% A batch overtaken by a write that waited for it (see history_written/1).
+    {noreply, batch_done(Result, St)};
+handle_info({'EXIT', Writer, Reason}, #st{writer = Writer} = St) ->
+    {stop, {history_writer, Reason}, St#st{writer = undefined}}.
 
 %% What was counted is written, if the database is open; it is not opened now.
 -spec terminate(term(), #st{}) -> ok.
-terminate(_Reason, #st{db = open} = St) ->
-    _ = flush(St#st{retry_at = infinity}),
+terminate(_Reason, #st{db = open, writer = Writer} = St) when Writer =/= undefined ->
+    _ = history_written(flush(St#st{retry_at = infinity})),
     ok;
 terminate(_Reason, _St) ->
     ok.
@@ -836,6 +848,9 @@ opened(#st{started = Started} = St0) ->
                             end
                     end, St1#st{products = Known}, St1#st.holding),
     Backlog = lists:reverse(St2#st.backlog),
+    _ = Backlog =:= [] orelse
+        cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
+                        "memory meanwhile are written", [length(Backlog)]),
     St3 = St2#st{backlog = [], backlog_len = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
 
@@ -850,16 +865,38 @@ until_down(_T, _Was, _Flushed, St) ->
 ets_list(Tab) ->
     mnesia:dirty_select(Tab, [{'_', [], ['$_']}]).
 
-%% A write of the history: at once when the database is open, else kept (up to a
-%% limit) until it is.
-db(Fun, #st{db = open} = St) ->
-    try Fun() of
-        _ -> St
-    catch
-        exit:{aborted, Why} -> keep(Fun, closed(Why, St))
-    end;
+%% A write of the history: when the database is open, handed to the writer at once
+%% if it is idle, else with what else comes until it is; when it is not, kept (up to
+%% a limit) until it is.
+db(Fun, #st{db = open, writing = false} = St) ->
+    hand_over([Fun], St);
+db(Fun, #st{db = open, queued = Q} = St) ->
+    St#st{queued = [Fun | Q]};
 db(Fun, St) ->
     keep(Fun, St).
+
+hand_over(Writes, #st{writer = Writer, batch = N} = St) ->
+    ok = cell_stats_writer:write(Writer, N + 1, Writes),
+    St#st{batch = N + 1, writing = true, queued = []}.
+
+%% A batch written, or stopped by a database that went away: the rest of it, and what
+%% was queued after it, kept until the database is back.
+batch_done(done, #st{writing = false, queued = [_ | _] = Q, db = open} = St) ->
+    hand_over(lists:reverse(Q), St);
+batch_done(done, St) ->
+    St;
+batch_done({failed, Why, Rest}, #st{queued = Q} = St) ->
+    St1 = case St#st.db of
+              open -> closed(Why, St);
+              closed -> St
+          end,
+    lists:foldl(fun keep/2, St1#st{queued = []}, Rest ++ lists:reverse(Q)).
+
+%% Every write so far is in the database (or kept, if it went away): what is queued is
+%% written now, after the batch under way.
+history_written(#st{writer = Writer, queued = Q} = St) ->
+    batch_done(cell_stats_writer:write_now(Writer, lists:reverse(Q)),
+               St#st{queued = [], writing = false}).
 
 keep(Fun, #st{backlog_len = N} = St) when N >= ?BACKLOG_MAX ->
     St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)]};

@@ -11,13 +11,15 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1, time_in_a_state_across_a_crash/1,
+-export([database_unusable_then_back/1, database_lost_then_back/1,
+         time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, time_in_a_state_across_a_crash, shifts_split_the_time,
+    [database_unusable_then_back, database_lost_then_back, time_in_a_state_across_a_crash,
+     shifts_split_the_time,
      a_product_in_the_cell_and_after].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
@@ -67,6 +69,26 @@ database_unusable_then_back(Config) ->
     ok = cell_stats:flush(),
     {ok, #{events := [#{event := measured, detail := #{width := 12}}]}} =
         cell_stats:product(<<"S-1">>).
+
+%% The database goes away while the cell runs: what the history gets meanwhile is kept
+%% in memory, in its order, and written when the database is back.
+database_lost_then_back(_Config) ->
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:record(<<"S-2">>, measured, #{width => 1}),
+    ok = cell_stats:flush(),
+    {ok, #{events := [#{detail := #{width := 1}}]}} = cell_stats:product(<<"S-2">>),
+    stopped = mnesia:stop(),
+    [ok = cell_stats:record(<<"S-2">>, measured, #{width => W}) || W <- lists:seq(2, 200)],
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Why = await_log(<<"statistics: the database stopped working">>),
+    ?assertNotEqual(nomatch, binary:match(Why, <<"counting goes on in memory">>)),
+    %% The statistics start the database again at their next try.
+    Back = await_log(<<"statistics: the database is open; the">>),
+    ?assertNotEqual(nomatch, binary:match(Back, <<" 199 records ">>)),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(<<"S-2">>),
+    ?assertEqual(lists:seq(1, 200), [W || #{detail := #{width := W}} <- Events]).
 
 time_in_a_state_across_a_crash(_Config) ->
     {ok, _} = application:ensure_all_started(cell),
