@@ -430,8 +430,10 @@ handle_info({'EXIT', Writer, Reason}, #st{writer = Writer} = St) ->
 
 %% What was counted is written, if the database is open; it is not opened now.
 -spec terminate(term(), #st{}) -> ok.
-terminate(_Reason, #st{db = open, writer = Writer} = St) when Writer =/= undefined ->
-    _ = history_written(flush(St#st{retry_at = infinity})),
+terminate(_Reason, #st{db = open} = St) ->
+    St1 = flush(St#st{retry_at = infinity}),
+    %% The histories handed over are written too, unless their writer is what failed.
+    _ = St1#st.writer =/= undefined andalso history_written(St1),
     ok;
 terminate(_Reason, _St) ->
     ok.

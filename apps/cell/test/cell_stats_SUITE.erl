@@ -11,14 +11,15 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1, database_lost_then_back/1,
+-export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, database_lost_then_back, time_in_a_state_across_a_crash,
+    [database_unusable_then_back, database_lost_then_back, writer_crash,
+     time_in_a_state_across_a_crash,
      shifts_split_the_time,
      a_product_in_the_cell_and_after].
 
@@ -89,6 +90,26 @@ database_lost_then_back(_Config) ->
     ok = cell_stats:flush(),
     {ok, #{events := Events}} = cell_stats:product(<<"S-2">>),
     ?assertEqual(lists:seq(1, 200), [W || #{detail := #{width := W}} <- Events]).
+
+%% The writer of the histories dies: the statistics stop with it, saying so, and their
+%% supervisor starts both again; what was written stays, and writing goes on.
+writer_crash(_Config) ->
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:record(<<"S-3">>, measured, #{width => 1}),
+    ok = cell_stats:flush(),
+    Stats = whereis(cell_stats),
+    {links, Links} = process_info(Stats, links),
+    [Writer] = [P || P <- Links, is_pid(P),
+                     proc_lib:initial_call(P) =:= {cell_stats_writer, init, ['Argument__1']}],
+    MRef = monitor(process, Stats),
+    exit(Writer, kill),
+    receive {'DOWN', MRef, process, Stats, Why} -> ?assertEqual({history_writer, killed}, Why) end,
+    _ = supervisor:which_children(cell_controller_sup),
+    ?assertNotEqual(Stats, whereis(cell_stats)),
+    ok = cell_stats:record(<<"S-3">>, measured, #{width => 2}),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(<<"S-3">>),
+    ?assertEqual([1, 2], [W || #{detail := #{width := W}} <- Events]).
 
 time_in_a_state_across_a_crash(_Config) ->
     {ok, _} = application:ensure_all_started(cell),
