@@ -23,14 +23,13 @@ bin() ->
 %% The applications the release's boot starts and how (permanent unless it says
 %% otherwise), in its order; those it only loads are left out.
 boot_apps() ->
-    [Rel] = filelib:wildcard(filename:join([top(), "_build", "default", "rel", "cellrt",
-                                            "releases", "*", "cellrt.rel"])),
-    {ok, [{release, _, _, Apps}]} = file:consult(Rel),
-    [{App, Type} || {App, Type} <- [{element(1, A), case A of
-                                                     {_, _, T} when is_atom(T) -> T;
-                                                     _ -> permanent
-                                                 end} || A <- Apps],
-                    Type =/= load].
+    Rel = filename:dirname(filename:dirname(bin())),
+    [File] = filelib:wildcard(filename:join([Rel, "releases", "*", "cellrt.rel"])),
+    {ok, [{release, _, _, Apps}]} = file:consult(File),
+    [{element(1, A), start_type(A)} || A <- Apps, start_type(A) =/= load].
+
+start_type({_, _, Type}) when is_atom(Type) -> Type;
+start_type(_) -> permanent.
 
 %% Returns once the boot of `Node', a node just up, has started every application
 %% (see await_boot_expr/0).

@@ -800,7 +800,11 @@ closed(Why, #st{db = Was} = St) ->
                                  "counting goes on in memory, trying again in ~b s",
                                  [cell_db:format_error(Why), ?RETRY_MS div 1000])
     end,
-    St#st{db = closed, retry_at = now_us() + ?RETRY_MS * 1000}.
+    %% Writes queued for the writer wait with the others: nothing is handed over
+    %% while the database is closed.
+    Queued = lists:reverse(St#st.queued),
+    lists:foldl(fun keep/2, St#st{db = closed, retry_at = now_us() + ?RETRY_MS * 1000,
+                                  queued = []}, Queued).
 
 %% The database is open: each task's time in the state it was in at the last write
 %% before a stop or crash is closed there, the time the runtime was not running is OFF;
@@ -881,18 +885,18 @@ hand_over(Writes, #st{writer = Writer, batch = N} = St) ->
     ok = cell_stats_writer:write(Writer, N + 1, Writes),
     St#st{batch = N + 1, writing = true, queued = []}.
 
-%% A batch written, or stopped by a database that went away: the rest of it, and what
-%% was queued after it, kept until the database is back.
-batch_done(done, #st{writing = false, queued = [_ | _] = Q, db = open} = St) ->
+%% A batch written, or stopped by a database that went away: the rest of it kept until
+%% the database is back (what was queued after it goes there too, see closed/2).
+batch_done(done, #st{writing = false, queued = [_ | _] = Q} = St) ->
     hand_over(lists:reverse(Q), St);
 batch_done(done, St) ->
     St;
-batch_done({failed, Why, Rest}, #st{queued = Q} = St) ->
-    St1 = case St#st.db of
-              open -> closed(Why, St);
-              closed -> St
-          end,
-    lists:foldl(fun keep/2, St1#st{queued = []}, Rest ++ lists:reverse(Q)).
+batch_done({failed, Why, Rest}, St) ->
+    St1 = lists:foldl(fun keep/2, St, Rest),
+    case St1#st.db of
+        open -> closed(Why, St1);
+        closed -> St1
+    end.
 
 %% Every write so far is in the database (or kept, if it went away): what is queued is
 %% written now, after the batch under way.
