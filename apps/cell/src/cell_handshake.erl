@@ -393,8 +393,8 @@ handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
         end,
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
-handle({cell_handshake, Link, owned}, #task{product = undefined, product_path = Path} = T) ->
-    _ = cell_product:delete(Path, #{sync => false}),
+handle({cell_handshake, Link, owned}, #task{product = undefined, product_file = File} = T) ->
+    _ = cell_product:delete(File, #{sync => false}),
     {view(T, Link, #{owned => true}), []};
 handle({cell_handshake, Link, owned}, T) ->
     {view(T, Link, #{owned => true}), []};

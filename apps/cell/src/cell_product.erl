@@ -84,7 +84,8 @@ save(Path, Stored) ->
 
 %% @doc As {@link save/2}; `#{sync => false}' when a crash losing this write is
 %% harmless (a stale copy the generations recognise, a marker merely left set).
--spec save(file:filename_all(), stored() | undefined, cell_file:options()) ->
+-spec save(file:filename_all() | cell_file:record_file(), stored() | undefined,
+           cell_file:options()) ->
           ok | cell_file:error().
 save(Path, Stored, Opts) ->
     cell_file:put_record(Path, Stored, Opts).
@@ -94,7 +95,8 @@ save(Path, Stored, Opts) ->
 delete(Path) ->
     delete(Path, #{}).
 
--spec delete(file:filename_all(), cell_file:options()) -> ok | cell_file:error().
+-spec delete(file:filename_all() | cell_file:record_file(), cell_file:options()) ->
+          ok | cell_file:error().
 delete(Path, Opts) ->
     cell_file:put_record(Path, undefined, Opts).
 

@@ -83,6 +83,7 @@
 %% @private The task of a spec, before anything is loaded.
 -spec new(spec()) -> task().
 new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
+    Path = cell_product:path(Zone, Lane),
     #task{id = Id, module = Mod, zone = Zone, lane = Lane,
           args = maps:get(args, Spec, #{}), io = maps:get(io, Spec, []),
           settings = case maps:get(settings, Spec, #{}) of
@@ -93,7 +94,7 @@ new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
                                    #{role => Role, phase => idle, available => false,
                                      not_busy => false}
                            end, maps:get(links, Spec, #{})),
-          product_path = cell_product:path(Zone, Lane)}.
+          product_path = Path, product_file = cell_file:record_file(Path)}.
 
 %% Accessors
 
@@ -160,12 +161,12 @@ clear_product(T) ->
 %% removes the file), and tells the registry.
 -spec store(task(), cell_product:product() | undefined, non_neg_integer(),
             cell_product:marker(), cell_file:options()) -> task().
-store(#task{id = Id, product_path = Path} = T, Product, Gen, Marker, Opts) ->
+store(#task{id = Id, product_file = File} = T, Product, Gen, Marker, Opts) ->
     Stored = case Product of
                  undefined -> undefined;
                  _ -> cell_product:stored(Product, Gen, Marker)
              end,
-    case cell_product:save(Path, Stored, Opts) of
+    case cell_product:save(File, Stored, Opts) of
         ok ->
             Serial = cell_product:serial(Product),
             ok = cell_registry:hold(Id, Serial, Gen),

@@ -13,6 +13,8 @@
     gen = 0 :: non_neg_integer(),              %% the product's generation (see cell_product)
     marker :: cell_product:marker(),           %% set while the product is in transit
     product_path :: binary(),
+    %% The product file kept open for the task's writes (cell_file:record_file/1).
+    product_file :: cell_file:record_file(),
     links = #{} :: #{atom() => map()},         %% handshake links: role, last signals
     ipc = off :: cell_ipc:state(),
     answer :: cell_alarms:solution() | undefined,

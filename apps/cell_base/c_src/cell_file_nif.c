@@ -23,7 +23,9 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/uio.h>
 #include <string.h>
 #include <unistd.h>
 #ifdef __linux__
@@ -429,62 +431,121 @@ static ERL_NIF_TERM record_fresh(ErlNifEnv *env, const char *tmp, const char *pa
     return result;
 }
 
-static ERL_NIF_TERM record_put_in(ErlNifEnv *env, const char *tmp, const char *path,
+/* What a write needs to know of a record file: the size of its slots, the Seq of its
+ * record and the slot holding it. */
+typedef struct {
+    size_t slot;
+    unsigned long long seq;
+    int cur;
+} rec_state;
+
+/* rec_state of an open file, read whole: 0, an errno, or REC_NOT_OURS for a file that is
+ * not a record file or holds no whole record (it is written whole, with a Seq above
+ * st->seq, 0 if it is not a record file at all). */
+#define REC_NOT_OURS (-1)
+
+static int rec_read_state(int fd, rec_state *st)
+{
+    struct stat fs;
+    unsigned char *file;
+    unsigned long long seq_a, seq_b;
+    size_t slot;
+    ssize_t n;
+    int err;
+
+    st->seq = 0;
+    if (fstat(fd, &fs) < 0)
+        return errno;
+    slot = (size_t)fs.st_size / 2;
+    if (fs.st_size % 2 != 0 || slot < REC_HEADER || slot > 64 * 1024 * 1024)
+        return REC_NOT_OURS;
+    file = enif_alloc((size_t)fs.st_size);
+    if (file == NULL)
+        return ENOMEM;
+    do { n = pread(fd, file, (size_t)fs.st_size, 0); } while (n < 0 && errno == EINTR);
+    if (n != fs.st_size) {
+        err = n < 0 ? errno : EIO;
+        enif_free(file);
+        return err;
+    }
+    seq_a = slot_seq(file, slot);
+    seq_b = slot_seq(file + slot, slot);
+    enif_free(file);
+    st->slot = slot;
+    st->seq = seq_a > seq_b ? seq_a : seq_b;
+    st->cur = seq_a >= seq_b ? 0 : 1;
+    return st->seq == 0 ? REC_NOT_OURS : 0;
+}
+
+/* Writes a body as the next record of a file whose state is known, in the slot not
+ * holding the record, and flushes it (sync): 0 or an errno. The state follows. */
+static int rec_write_next(int fd, rec_state *st, const ErlNifBinary *body, int sync)
+{
+    unsigned char header[REC_HEADER];
+    struct iovec iov[2];
+    size_t target = st->cur == 0 ? st->slot : 0, total = REC_HEADER + body->size;
+    ssize_t n;
+    int err = 0;
+
+    slot_header(header, st->seq + 1, body);
+    iov[0].iov_base = header;
+    iov[0].iov_len = REC_HEADER;
+    iov[1].iov_base = body->data;
+    iov[1].iov_len = body->size;
+    do { n = pwritev(fd, iov, 2, (off_t)target); } while (n < 0 && errno == EINTR);
+    if (n < 0)
+        return errno;
+    /* The rest of a short write, piece by piece. */
+    if ((size_t)n < REC_HEADER)
+        err = pwrite_all(fd, header + n, REC_HEADER - (size_t)n, target + (size_t)n);
+    if (err == 0 && (size_t)n < total)
+        err = n <= REC_HEADER
+            ? pwrite_all(fd, body->data, body->size, target + REC_HEADER)
+            : pwrite_all(fd, body->data + (n - REC_HEADER), total - (size_t)n, target + (size_t)n);
+    if (err == 0 && sync && fdatasync(fd) < 0)
+        err = errno;
+    if (err == 0) {
+        st->seq++;
+        st->cur = target == 0 ? 0 : 1;
+    }
+    return err;
+}
+
+/* The name of the temporary file of a record written whole: "<Path>.tmp-<os pid>-<n>",
+ * the name cell_file:cleanup/1 knows. False if it is too long. */
+static int tmp_name(const char *path, char *tmp, size_t size)
+{
+    static unsigned long tmp_count;
+    unsigned long n;
+
+    enif_mutex_lock(flight_lock);
+    n = ++tmp_count;
+    enif_mutex_unlock(flight_lock);
+    return snprintf(tmp, size, "%s.tmp-%ld-%lu", path, (long)getpid(), n) < (int)size;
+}
+
+static ERL_NIF_TERM record_put_in(ErlNifEnv *env, const char *path,
                                   const ErlNifBinary *body, int sync)
 {
-    unsigned char *file;
-    unsigned char header[REC_HEADER];
-    unsigned long long seq_a, seq_b, top;
-    struct stat st;
-    size_t slot, target;
-    ssize_t n;
-    int fd, err = 0;
+    char tmp[PATH_MAX];
+    rec_state st;
+    int fd, err;
 
+    if (!tmp_name(path, tmp, sizeof tmp))
+        return enif_make_badarg(env);
     do { fd = open(path, O_RDWR | O_CLOEXEC); } while (fd < 0 && errno == EINTR);
     if (fd < 0) {
         if (errno == ENOENT)
             return record_fresh(env, tmp, path, body, 1, sync);
         return error2(env, "write", errno);
     }
-    if (fstat(fd, &st) < 0) {
-        err = errno;
+    err = rec_read_state(fd, &st);
+    if (err == REC_NOT_OURS || (err == 0 && REC_HEADER + body->size > st.slot)) {
         close(fd);
-        return error2(env, "write", err);
+        return record_fresh(env, tmp, path, body, st.seq + 1, sync);
     }
-    slot = (size_t)st.st_size / 2;
-    if (st.st_size % 2 != 0 || slot < REC_HEADER || slot > 64 * 1024 * 1024) {
-        /* Not a record file (or not one of ours): written whole. */
-        close(fd);
-        return record_fresh(env, tmp, path, body, 1, sync);
-    }
-    file = enif_alloc((size_t)st.st_size);
-    if (file == NULL) {
-        close(fd);
-        return error2(env, "write", ENOMEM);
-    }
-    do { n = pread(fd, file, (size_t)st.st_size, 0); } while (n < 0 && errno == EINTR);
-    if (n != st.st_size) {
-        err = n < 0 ? errno : EIO;
-        enif_free(file);
-        close(fd);
-        return error2(env, "write", err);
-    }
-    seq_a = slot_seq(file, slot);
-    seq_b = slot_seq(file + slot, slot);
-    enif_free(file);
-    top = seq_a > seq_b ? seq_a : seq_b;
-    if (top == 0 || REC_HEADER + body->size > slot) {
-        close(fd);
-        return record_fresh(env, tmp, path, body, top + 1, sync);
-    }
-    /* The other slot than the record's: a torn or older one. */
-    target = seq_a >= seq_b ? slot : 0;
-    slot_header(header, top + 1, body);
-    err = pwrite_all(fd, header, REC_HEADER, target);
     if (err == 0)
-        err = pwrite_all(fd, body->data, body->size, target + REC_HEADER);
-    if (err == 0 && sync && fdatasync(fd) < 0)
-        err = errno;
+        err = rec_write_next(fd, &st, body, sync);
     if (close(fd) < 0 && err == 0 && errno != EINTR)
         err = errno;
     if (err != 0)
@@ -493,30 +554,186 @@ static ERL_NIF_TERM record_put_in(ErlNifEnv *env, const char *tmp, const char *p
 }
 
 /* record_put(Path, Body, Sync): Body becomes the record of Path. ok, or
- * {error, {Where, Posix}} with Where one of write, rename, dir. A file written whole
- * goes through "<Path>.tmp-<os pid>-<n>", the temporary name cell_file:cleanup/1
- * knows. */
+ * {error, {Where, Posix}} with Where one of write, rename, dir. */
 static ERL_NIF_TERM record_put(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    static unsigned long tmp_count;
-    char tmp[PATH_MAX], path[PATH_MAX];
+    char path[PATH_MAX];
     ErlNifBinary body;
     ERL_NIF_TERM result;
-    unsigned long n;
     int sync, slot;
 
     (void)argc;
     if (!get_path(env, argv[0], path, sizeof path) || !enif_inspect_iolist_as_binary(env, argv[1], &body) ||
         !get_bool(env, argv[2], &sync) || body.size > 0xFFFFFFFFUL)
         return enif_make_badarg(env);
-    enif_mutex_lock(flight_lock);
-    n = ++tmp_count;
-    enif_mutex_unlock(flight_lock);
-    if (snprintf(tmp, sizeof tmp, "%s.tmp-%ld-%lu", path, (long)getpid(), n) >= (int)sizeof tmp)
-        return enif_make_badarg(env);
     slot = flight_begin(path);
-    result = record_put_in(env, tmp, path, &body, sync);
+    result = record_put_in(env, path, &body, sync);
     flight_end(slot);
+    return result;
+}
+
+/* -- Record files kept open ------------------------------------------------------------
+ *
+ * A task rewrites its product file at every step of a transfer. A handle on the file
+ * keeps it open and remembers its state, so a write is a check that the file at the
+ * path is still the one open (it may have been set aside, replaced or deleted
+ * meanwhile: the handle then opens the file anew) and one pwritev, instead of an open,
+ * a read of both slots and a close. Every write of the file must go through its
+ * handle while the handle is used; a write by path is not seen by it.
+ *
+ * Few files are kept open at once (a quarter of the process's file limit, at most
+ * 4096); past that a handle opens its file for each write as record_put does. */
+
+typedef struct {
+    ErlNifMutex *lock;
+    char *path;
+    int fd;
+    int kept;              /* counted in kept_open */
+    dev_t dev;
+    ino_t ino;
+    rec_state st;
+} rec_handle;
+
+static ErlNifResourceType *rec_handle_type;
+static int kept_open, kept_max;
+
+/* Closes the file, if open: the next write opens it anew. */
+static void handle_forget(rec_handle *h)
+{
+    if (h->fd < 0)
+        return;
+    close(h->fd);
+    h->fd = -1;
+    if (h->kept) {
+        enif_mutex_lock(flight_lock);
+        kept_open--;
+        enif_mutex_unlock(flight_lock);
+        h->kept = 0;
+    }
+}
+
+static void handle_dtor(ErlNifEnv *env, void *obj)
+{
+    rec_handle *h = obj;
+
+    (void)env;
+    handle_forget(h);
+    if (h->lock != NULL)
+        enif_mutex_destroy(h->lock);
+    enif_free(h->path);
+}
+
+/* Opens the file and reads its state: 0, an errno, or REC_NOT_OURS (h->st.seq is then
+ * the Seq to write above). */
+static int handle_adopt(rec_handle *h)
+{
+    struct stat fs;
+    int err;
+
+    do { h->fd = open(h->path, O_RDWR | O_CLOEXEC); } while (h->fd < 0 && errno == EINTR);
+    if (h->fd < 0) {
+        h->st.seq = 0;
+        return errno;
+    }
+    err = rec_read_state(h->fd, &h->st);
+    if (err == 0 && fstat(h->fd, &fs) < 0)
+        err = errno;
+    if (err != 0) {
+        close(h->fd);
+        h->fd = -1;
+        return err;
+    }
+    h->dev = fs.st_dev;
+    h->ino = fs.st_ino;
+    enif_mutex_lock(flight_lock);
+    h->kept = kept_open < kept_max;
+    kept_open += h->kept;
+    enif_mutex_unlock(flight_lock);
+    return 0;
+}
+
+static ERL_NIF_TERM handle_put_in(ErlNifEnv *env, rec_handle *h, const ErlNifBinary *body,
+                                  int sync)
+{
+    char tmp[PATH_MAX];
+    struct stat fs;
+    int err;
+
+    if (h->fd >= 0 && (stat(h->path, &fs) < 0 || fs.st_dev != h->dev || fs.st_ino != h->ino
+                       || (size_t)fs.st_size != 2 * h->st.slot))
+        handle_forget(h);
+    if (h->fd < 0) {
+        err = handle_adopt(h);
+        if (err != 0 && err != ENOENT && err != REC_NOT_OURS)
+            return error2(env, "write", err);
+        if (err != 0) {
+            if (!tmp_name(h->path, tmp, sizeof tmp))
+                return enif_make_badarg(env);
+            return record_fresh(env, tmp, h->path, body, h->st.seq + 1, sync);
+        }
+    }
+    if (REC_HEADER + body->size > h->st.slot) {
+        /* Outgrown: written whole with bigger slots, opened anew next time. */
+        handle_forget(h);
+        if (!tmp_name(h->path, tmp, sizeof tmp))
+            return enif_make_badarg(env);
+        return record_fresh(env, tmp, h->path, body, h->st.seq + 1, sync);
+    }
+    err = rec_write_next(h->fd, &h->st, body, sync);
+    if (err != 0 || !h->kept)
+        handle_forget(h);
+    if (err != 0)
+        return error2(env, "write", err);
+    return enif_make_atom(env, "ok");
+}
+
+/* record_open(Path): a handle on the record file Path (nothing is opened yet). */
+static ERL_NIF_TERM record_open(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    char path[PATH_MAX];
+    rec_handle *h;
+    ERL_NIF_TERM term;
+    size_t len;
+
+    (void)argc;
+    if (!get_path(env, argv[0], path, sizeof path))
+        return enif_make_badarg(env);
+    h = enif_alloc_resource(rec_handle_type, sizeof *h);
+    if (h == NULL)
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    memset(h, 0, sizeof *h);
+    h->fd = -1;
+    len = strlen(path) + 1;
+    h->path = enif_alloc(len);
+    h->lock = enif_mutex_create("cell_file_record");
+    if (h->path == NULL || h->lock == NULL) {
+        enif_release_resource(h);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    memcpy(h->path, path, len);
+    term = enif_make_resource(env, h);
+    enif_release_resource(h);
+    return term;
+}
+
+/* record_put_handle(Handle, Body, Sync): as record_put, through a handle. */
+static ERL_NIF_TERM record_put_handle(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    rec_handle *h;
+    ErlNifBinary body;
+    ERL_NIF_TERM result;
+    int sync, slot;
+
+    (void)argc;
+    if (!enif_get_resource(env, argv[0], rec_handle_type, (void **)&h) ||
+        !enif_inspect_iolist_as_binary(env, argv[1], &body) || !get_bool(env, argv[2], &sync) ||
+        body.size > 0xFFFFFFFFUL)
+        return enif_make_badarg(env);
+    enif_mutex_lock(h->lock);
+    slot = flight_begin(h->path);
+    result = handle_put_in(env, h, &body, sync);
+    flight_end(slot);
+    enif_mutex_unlock(h->lock);
     return result;
 }
 
@@ -581,19 +798,29 @@ static ErlNifFunc funcs[] = {
     {"in_ram_nif", 1, in_ram, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"record_put_nif", 3, record_put, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"record_put_ram_nif", 3, record_put, 0},
+    {"record_open_nif", 1, record_open, 0},
+    {"record_put_handle_nif", 3, record_put_handle, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"record_put_handle_ram_nif", 3, record_put_handle, 0},
     {"writing_nif", 1, writing, 0},
     {"settle_nif", 1, settle, ERL_NIF_DIRTY_JOB_IO_BOUND}
 };
 
 static int load(ErlNifEnv *env, void **priv_data, ERL_NIF_TERM load_info)
 {
-    (void)env;
+    struct rlimit lim;
+
     (void)priv_data;
     (void)load_info;
     crc_init();
+    rec_handle_type = enif_open_resource_type(env, NULL, "cell_file_record", handle_dtor,
+                                              ERL_NIF_RT_CREATE, NULL);
+    kept_max = 16;
+    if (getrlimit(RLIMIT_NOFILE, &lim) == 0)
+        kept_max = lim.rlim_cur == RLIM_INFINITY || lim.rlim_cur / 4 > 4096
+            ? 4096 : (int)(lim.rlim_cur / 4);
     flight_lock = enif_mutex_create("cell_file_in_flight");
     flight_change = enif_cond_create("cell_file_in_flight");
-    return flight_lock == NULL || flight_change == NULL;
+    return rec_handle_type == NULL || flight_lock == NULL || flight_change == NULL;
 }
 
 ERL_NIF_INIT(cell_file, funcs, load, NULL, NULL, NULL)

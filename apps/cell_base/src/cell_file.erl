@@ -19,21 +19,24 @@
 %%
 %% A file rewritten at every change (a task's product) is a record file instead: two
 %% slots, each write in place to the slot not holding the record, one write and one
-%% flush (see {@link put_record/3}).
+%% flush (see {@link put_record/3}). Its writer may keep it open through a handle
+%% ({@link record_file/1}), so a write needs no open, read and close.
 -module(cell_file).
 
 -export([write/2, write/3, delete/1, delete/2, fsync_dir/1]).
 -export([write_term/2, write_term/3, read_term/1, encode_term/1, decode_term/1]).
--export([put_record/2, put_record/3, get_record/1]).
+-export([put_record/2, put_record/3, get_record/1, record_file/1]).
 -export([cleanup/1, in_ram/1]).
 
--export_type([options/0, error/0]).
+-export_type([options/0, error/0, record_file/0]).
 
 -on_load(load_nif/0).
 
 -type options() :: #{sync => boolean()}.
 %% `sync => false' skips the flushes: for folders on a RAM disk and for tests.
 -type error() :: {error, {file:filename_all(), term()}}.
+-opaque record_file() :: {record_file, Path :: binary(), Folder :: binary(), reference()}.
+%% A record file kept open by its writer (see {@link record_file/1}).
 
 -define(MAGIC, "cellrt-term 1\n").
 -define(TMP_MARK, ".tmp-").
@@ -83,11 +86,20 @@ in_c(Path, Target, InRam, OnDisk) ->
                  true -> InRam();
                  false -> OnDisk()
              end,
-    case Result of
-        ok -> ok;
-        {error, {dir, Reason}} -> {error, {parent(Path), Reason}};
-        {error, {_Where, Reason}} -> {error, {Path, Reason}}
-    end.
+    named(Path, Result).
+
+named(_Path, ok) -> ok;
+named(Path, {error, {dir, Reason}}) -> {error, {parent(Path), Reason}};
+named(Path, {error, {_Where, Reason}}) -> {error, {Path, Reason}}.
+
+%% @doc A handle on the record file `Path' for its one writer: the file is kept open
+%% between writes through it (see {@link put_record/3}), and closed when the handle is
+%% no longer referenced. While a handle is used, every write of the file must go
+%% through it. A file set aside, replaced or deleted meanwhile is opened anew.
+-spec record_file(file:filename_all()) -> record_file().
+record_file(Path) ->
+    Target = native(Path),
+    {record_file, Target, folder(Target), record_open_nif(Target)}.
 
 %% @doc Flushes a folder's entries (renames, creations, deletions) to the disk.
 -spec fsync_dir(file:filename_all()) -> ok | {error, file:posix()}.
@@ -104,6 +116,17 @@ record_put_nif(_Path, _Body, _Sync) ->
     erlang:nif_error(nif_not_loaded).
 
 record_put_ram_nif(_Path, _Body, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
+%% A handle on a record file, and a write through it (on a dirty I/O scheduler, or
+%% the calling one in a folder held in RAM).
+record_open_nif(_Path) ->
+    erlang:nif_error(nif_not_loaded).
+
+record_put_handle_nif(_Handle, _Body, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
+record_put_handle_ram_nif(_Handle, _Body, _Sync) ->
     erlang:nif_error(nif_not_loaded).
 
 %% Deletes Path and flushes its folder (if Sync), in one call.
@@ -162,13 +185,11 @@ in_ram(Dir) ->
 
 %% The folder of a file name (a binary): what is before its last slash.
 folder(Path) ->
-    folder(Path, byte_size(Path) - 1).
-
-%% Looked for from the end: a file name is short beside its folder's path.
-folder(_Path, -1) -> <<".">>;
-folder(Path, 0) when binary_part(Path, 0, 1) =:= <<"/">> -> <<"/">>;
-folder(Path, Pos) when binary_part(Path, Pos, 1) =:= <<"/">> -> binary_part(Path, 0, Pos);
-folder(Path, Pos) -> folder(Path, Pos - 1).
+    case binary:matches(Path, <<"/">>) of
+        [] -> <<".">>;
+        [{0, 1}] -> <<"/">>;
+        Slashes -> binary_part(Path, 0, element(1, lists:last(Slashes)))
+    end.
 
 %% A file name as the system calls take it, encoded as the file module encodes it.
 native(Path) when is_binary(Path) ->
@@ -216,8 +237,17 @@ read_term(Path) ->
 put_record(Path, Term) ->
     put_record(Path, Term, #{}).
 
-%% @doc As {@link put_record/2}; `#{sync => false}' skips the flush.
--spec put_record(file:filename_all(), term(), options()) -> ok | error().
+%% @doc As {@link put_record/2}; `#{sync => false}' skips the flush. Through a handle
+%% of {@link record_file/1} the file stays open between writes.
+-spec put_record(file:filename_all() | record_file(), term(), options()) -> ok | error().
+put_record({record_file, Target, Folder, Handle}, Term, Opts) ->
+    Sync = maps:get(sync, Opts, true),
+    Body = term_to_binary(Term),
+    Result = case in_ram(Folder) of
+                 true -> record_put_handle_ram_nif(Handle, Body, Sync);
+                 false -> record_put_handle_nif(Handle, Body, Sync)
+             end,
+    named(Target, Result);
 put_record(Path, Term, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
@@ -298,6 +328,7 @@ cleanup(Dir) ->
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
+-include_lib("kernel/include/file.hrl").
 
 %% A folder no earlier run has used: the OS pid and a per-VM unique number, emptied.
 tmp_dir() ->
@@ -478,6 +509,97 @@ record_torn_write_test() ->
               ok = put_record(P, {r, 5}),
               ?assertEqual({ok, {r, 5}}, get_record(P))
       end, lists:seq(1, Written - 1)).
+
+%% Through a handle the file stays open: the writes alternate between its slots in
+%% place, and every one is the record at once, for any reader.
+record_handle_test_() ->
+    [{Where, fun() -> record_handle(Dir) end}
+     || {Where, Dir} <- [{"disk", tmp_dir()}, {"RAM", ram_dir()}]].
+
+record_handle(Dir) ->
+    try
+        P = filename:join(Dir, "h.product"),
+        H = record_file(P),
+        ok = put_record(H, {h, 0}),
+        {ok, #file_info{inode = Inode}} = file:read_file_info(P),
+        [begin
+             ok = put_record(H, {h, N}, #{sync => N rem 2 =:= 0}),
+             ?assertEqual({ok, {h, N}}, get_record(P))
+         end || N <- lists:seq(1, 6)],
+        ?assertMatch({ok, #file_info{inode = Inode, size = 8192}}, file:read_file_info(P)),
+        %% Outgrown: written whole, with bigger slots; then in place again.
+        Big = binary:copy(<<"b">>, 10000),
+        ok = put_record(H, Big),
+        ?assertEqual({ok, Big}, get_record(P)),
+        ok = put_record(H, small),
+        ok = put_record(H, undefined),
+        ?assertEqual({ok, undefined}, get_record(P)),
+        ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir))
+    after
+        file:del_dir_r(Dir)
+    end.
+
+%% The file at the path changed behind the handle: set aside, deleted, replaced. The
+%% next write goes to the file now at the path, never to the one the handle had open.
+record_handle_file_changed_test_() ->
+    [{Where, fun() -> record_handle_file_changed(Dir) end}
+     || {Where, Dir} <- [{"disk", tmp_dir()}, {"RAM", ram_dir()}]].
+
+record_handle_file_changed(Dir) ->
+    try
+        P = filename:join(Dir, "c.product"),
+        Aside = P ++ ".damaged",
+        H = record_file(P),
+        ok = put_record(H, {c, 1}),
+        ok = file:rename(P, Aside),
+        ok = put_record(H, {c, 2}),
+        ?assertEqual({ok, {c, 1}}, get_record(Aside)),
+        ?assertEqual({ok, {c, 2}}, get_record(P)),
+        ok = file:delete(P),
+        ok = put_record(H, {c, 3}),
+        ?assertEqual({ok, {c, 3}}, get_record(P)),
+        ok = write_term(P, {term, 4}),
+        ok = put_record(H, {c, 5}),
+        ?assertEqual({ok, {c, 5}}, get_record(P)),
+        ok = put_record(H, {c, 6}),
+        ?assertEqual({ok, {c, 6}}, get_record(P)),
+        ?assertEqual({ok, {c, 1}}, get_record(Aside)),
+        %% A folder gone: the error names the file, and the handle recovers with it.
+        ok = file:del_dir_r(Dir),
+        ?assertEqual({error, {native(P), enoent}}, put_record(H, {c, 7})),
+        ok = file:make_dir(Dir),
+        ok = put_record(H, {c, 8}),
+        ?assertEqual({ok, {c, 8}}, get_record(P))
+    after
+        file:del_dir_r(Dir)
+    end.
+
+%% A handle no longer referenced closes its file.
+record_handle_closes_test() ->
+    Dir = tmp_dir(),
+    Open = fun() -> length(element(2, file:list_dir("/proc/self/fd"))) end,
+    Self = self(),
+    Before = Open(),
+    %% Handles made and written in a process of their own, which ends.
+    {Pid, MRef} = spawn_monitor(
+                    fun() ->
+                            Hs = [record_file(filename:join(Dir, integer_to_list(N)))
+                                  || N <- lists:seq(1, 50)],
+                            %% The first write creates a file, the second keeps it open.
+                            [ok = put_record(H, {N, I}) || {N, H} <- lists:enumerate(Hs),
+                                                           I <- [1, 2]],
+                            Self ! {open, Open()}
+                    end),
+    receive {open, During} -> ?assert(During >= Before + 50) end,
+    receive {'DOWN', MRef, process, Pid, normal} -> ok end,
+    %% The resources go with the process's heap; the files close with them.
+    ?assertEqual(Before, Open()).
+
+ram_dir() ->
+    Dir = filename:join("/dev/shm", "cell_file_test-" ++ os:getpid() ++ "-"
+                        ++ integer_to_list(erlang:unique_integer([positive]))),
+    ok = file:make_dir(Dir),
+    Dir.
 
 errors_name_the_file_test() ->
     Dir = tmp_dir(),
