@@ -8,8 +8,8 @@
 %%         delay => Ms, notify => Pid, jam => true}. With `jam' the first product taken
 %% sticks before it arrives: an error with Retry. The feed is an ordered_set of {N, Serial}; when
 %% it runs dry the first segment waits for `{Ref, fed}'. The out table gets
-%% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change and
-%% `{line_out, Task, Serial}' for every product sent out.
+%% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change
+%% (unless `phases => false') and `{line_out, Task, Serial}' for every product sent out.
 -module(cell_line_task).
 -behaviour(cell_task).
 
@@ -168,7 +168,8 @@ after_delay(Phase, T, Now) ->
 phase(T, Phase) ->
     case cell_task:get(T, phase, undefined) of
         Phase -> T;
-        _ -> notify(T, {line_phase, cell_task:id(T), Phase}),
+        _ -> cell_task:arg(T, phases, true)
+                 andalso notify(T, {line_phase, cell_task:id(T), Phase}),
              cell_task:put(T, phase, Phase)
     end.
 
