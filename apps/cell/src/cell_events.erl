@@ -13,7 +13,8 @@
 -module(cell_events).
 -behaviour(gen_server).
 
--export([start_link/0, subscribe/0, subscribe/1, subscribe/2, unsubscribe/0, publish/1,
+-export([start_link/0, subscribe/0, subscribe/1, subscribe/2, unsubscribe/0, unsubscribe/1,
+         publish/1,
          publish/3, new/2, new/3, types/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
@@ -69,6 +70,11 @@ subscribe(Pid, Types) when is_pid(Pid), is_list(Types) ->
 -spec unsubscribe() -> ok.
 unsubscribe() ->
     gen_server:call(?MODULE, {unsubscribe, self()}).
+
+%% @doc Unsubscribes another process (see {@link subscribe/2}).
+-spec unsubscribe(pid()) -> ok.
+unsubscribe(Pid) when is_pid(Pid) ->
+    gen_server:call(?MODULE, {unsubscribe, Pid}).
 
 %% @doc An event of a type for a source, stamped now.
 -spec new(type(), atom()) -> event().
