@@ -78,10 +78,7 @@ run() ->
 %% the statistics attached to the cell's events or detached.
 line_rate(Root, Lines, Len, Per, Stats) ->
     {Specs, Feeds, Refs} = lines(Lines, Len),
-    start_cell(Root, Specs),
-    Stats =:= detached andalso detach_statistics(),
-    ok = cell_controller:start(),
-    ok = cell_controller:sync(),
+    start_line(Root, Specs, Stats),
     T0 = erlang:monotonic_time(microsecond),
     [feed(Feed, Ref, Src, Per) || {Feed, Ref, Src} <- lists:zip3(Feeds, Refs, srcs(Lines))],
     await_out(Lines * Per),
@@ -93,10 +90,7 @@ line_rate(Root, Lines, Len, Per, Stats) ->
 %% Microseconds for one product through a line of 2 (one transfer), one at a time.
 latency(Root, N) ->
     {Specs, [Feed], [Ref]} = lines(1, 2),
-    start_cell(Root, Specs),
-    detach_statistics(),
-    ok = cell_controller:start(),
-    ok = cell_controller:sync(),
+    start_line(Root, Specs, detached),
     Samples = [begin
                    T0 = erlang:monotonic_time(microsecond),
                    feed(Feed, Ref, hd(srcs(1)), 1),
@@ -187,6 +181,13 @@ disk_rate(Root, N) ->
 
 %% -------------------------------------------------------------------------------------
 
+%% A cell of lines started and running, its statistics attached to its events or not.
+start_line(Root, Specs, Stats) ->
+    start_cell(Root, Specs),
+    _ = Stats =:= detached andalso cell_events:unsubscribe(whereis(cell_stats)),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync().
+
 start_cell(Root, Spec) ->
     _ = os:cmd("rm -rf '" ++ filename:join(Root, "Data") ++ "'"),
     _ = application:load(cell_base),
@@ -200,9 +201,6 @@ start_cell(Root, Spec) ->
 
 stop_cell() ->
     ok = application:stop(cell).
-
-detach_statistics() ->
-    ok = cell_events:unsubscribe(whereis(cell_stats)).
 
 quiet() ->
     _ = application:load(lager),

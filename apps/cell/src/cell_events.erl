@@ -14,8 +14,7 @@
 -behaviour(gen_server).
 
 -export([start_link/0, subscribe/0, subscribe/1, subscribe/2, unsubscribe/0, unsubscribe/1,
-         publish/1,
-         publish/3, new/2, new/3, types/0]).
+         publish/1, publish/3, new/2, new/3, types/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([event/0, type/0]).

@@ -412,15 +412,31 @@ static void slot_header(unsigned char *h, unsigned long long seq, const ErlNifBi
     put_be(h + 28, crc32_of(crc32_of(0, h + 16, 12), body->data, body->size), 4);
 }
 
+/* The name of the temporary file of a record written whole: "<Path>.tmp-<os pid>-<n>",
+ * the name cell_file:cleanup/1 knows. False if it is too long. */
+static int tmp_name(const char *path, char *tmp, size_t size)
+{
+    static unsigned long tmp_count;
+    unsigned long n;
+
+    enif_mutex_lock(flight_lock);
+    n = ++tmp_count;
+    enif_mutex_unlock(flight_lock);
+    return snprintf(tmp, size, "%s.tmp-%ld-%lu", path, (long)getpid(), n) < (int)size;
+}
+
 /* The whole file for a first record or one that outgrew its slots: the record in the
  * first slot, the second empty; slots twice the record's size, in pages. */
-static ERL_NIF_TERM record_fresh(ErlNifEnv *env, const char *tmp, const char *path,
+static ERL_NIF_TERM record_fresh(ErlNifEnv *env, const char *path,
                                  const ErlNifBinary *body, unsigned long long seq, int sync)
 {
     size_t slot = ((REC_HEADER + body->size) * 2 + REC_MIN_SLOT - 1) / REC_MIN_SLOT * REC_MIN_SLOT;
+    char tmp[PATH_MAX];
     ErlNifBinary file;
     ERL_NIF_TERM result;
 
+    if (!tmp_name(path, tmp, sizeof tmp))
+        return enif_make_badarg(env);
     if (!enif_alloc_binary(slot * 2, &file))
         return error2(env, "write", ENOMEM);
     memset(file.data, 0, file.size);
@@ -439,14 +455,13 @@ typedef struct {
     int cur;
 } rec_state;
 
-/* rec_state of an open file, read whole: 0, an errno, or REC_NOT_OURS for a file that is
- * not a record file or holds no whole record (it is written whole, with a Seq above
- * st->seq, 0 if it is not a record file at all). */
+/* rec_state of an open file, read whole, and its stat (fs): 0, an errno, or REC_NOT_OURS
+ * for a file that is not a record file or holds no whole record (it is written whole,
+ * with a Seq above st->seq, 0 if it is not a record file at all). */
 #define REC_NOT_OURS (-1)
 
-static int rec_read_state(int fd, rec_state *st)
+static int rec_read_state(int fd, rec_state *st, struct stat *fs)
 {
-    struct stat fs;
     unsigned char *file;
     unsigned long long seq_a, seq_b;
     size_t slot;
@@ -454,16 +469,16 @@ static int rec_read_state(int fd, rec_state *st)
     int err;
 
     st->seq = 0;
-    if (fstat(fd, &fs) < 0)
+    if (fstat(fd, fs) < 0)
         return errno;
-    slot = (size_t)fs.st_size / 2;
-    if (fs.st_size % 2 != 0 || slot < REC_HEADER || slot > 64 * 1024 * 1024)
+    slot = (size_t)fs->st_size / 2;
+    if (fs->st_size % 2 != 0 || slot < REC_HEADER || slot > 64 * 1024 * 1024)
         return REC_NOT_OURS;
-    file = enif_alloc((size_t)fs.st_size);
+    file = enif_alloc((size_t)fs->st_size);
     if (file == NULL)
         return ENOMEM;
-    do { n = pread(fd, file, (size_t)fs.st_size, 0); } while (n < 0 && errno == EINTR);
-    if (n != fs.st_size) {
+    do { n = pread(fd, file, (size_t)fs->st_size, 0); } while (n < 0 && errno == EINTR);
+    if (n != fs->st_size) {
         err = n < 0 ? errno : EIO;
         enif_free(file);
         return err;
@@ -495,13 +510,13 @@ static int rec_write_next(int fd, rec_state *st, const ErlNifBinary *body, int s
     do { n = pwritev(fd, iov, 2, (off_t)target); } while (n < 0 && errno == EINTR);
     if (n < 0)
         return errno;
-    /* The rest of a short write, piece by piece. */
-    if ((size_t)n < REC_HEADER)
+    /* The rest of a short write: the header's, then the body's. */
+    if ((size_t)n < REC_HEADER) {
         err = pwrite_all(fd, header + n, REC_HEADER - (size_t)n, target + (size_t)n);
+        n = REC_HEADER;
+    }
     if (err == 0 && (size_t)n < total)
-        err = n <= REC_HEADER
-            ? pwrite_all(fd, body->data, body->size, target + REC_HEADER)
-            : pwrite_all(fd, body->data + (n - REC_HEADER), total - (size_t)n, target + (size_t)n);
+        err = pwrite_all(fd, body->data + (n - REC_HEADER), total - (size_t)n, target + (size_t)n);
     if (err == 0 && sync && fdatasync(fd) < 0)
         err = errno;
     if (err == 0) {
@@ -511,38 +526,23 @@ static int rec_write_next(int fd, rec_state *st, const ErlNifBinary *body, int s
     return err;
 }
 
-/* The name of the temporary file of a record written whole: "<Path>.tmp-<os pid>-<n>",
- * the name cell_file:cleanup/1 knows. False if it is too long. */
-static int tmp_name(const char *path, char *tmp, size_t size)
-{
-    static unsigned long tmp_count;
-    unsigned long n;
-
-    enif_mutex_lock(flight_lock);
-    n = ++tmp_count;
-    enif_mutex_unlock(flight_lock);
-    return snprintf(tmp, size, "%s.tmp-%ld-%lu", path, (long)getpid(), n) < (int)size;
-}
-
 static ERL_NIF_TERM record_put_in(ErlNifEnv *env, const char *path,
                                   const ErlNifBinary *body, int sync)
 {
-    char tmp[PATH_MAX];
     rec_state st;
+    struct stat fs;
     int fd, err;
 
-    if (!tmp_name(path, tmp, sizeof tmp))
-        return enif_make_badarg(env);
     do { fd = open(path, O_RDWR | O_CLOEXEC); } while (fd < 0 && errno == EINTR);
     if (fd < 0) {
         if (errno == ENOENT)
-            return record_fresh(env, tmp, path, body, 1, sync);
+            return record_fresh(env, path, body, 1, sync);
         return error2(env, "write", errno);
     }
-    err = rec_read_state(fd, &st);
+    err = rec_read_state(fd, &st, &fs);
     if (err == REC_NOT_OURS || (err == 0 && REC_HEADER + body->size > st.slot)) {
         close(fd);
-        return record_fresh(env, tmp, path, body, st.seq + 1, sync);
+        return record_fresh(env, path, body, st.seq + 1, sync);
     }
     if (err == 0)
         err = rec_write_next(fd, &st, body, sync);
@@ -635,9 +635,7 @@ static int handle_adopt(rec_handle *h)
         h->st.seq = 0;
         return errno;
     }
-    err = rec_read_state(h->fd, &h->st);
-    if (err == 0 && fstat(h->fd, &fs) < 0)
-        err = errno;
+    err = rec_read_state(h->fd, &h->st, &fs);
     if (err != 0) {
         close(h->fd);
         h->fd = -1;
@@ -655,7 +653,6 @@ static int handle_adopt(rec_handle *h)
 static ERL_NIF_TERM handle_put_in(ErlNifEnv *env, rec_handle *h, const ErlNifBinary *body,
                                   int sync)
 {
-    char tmp[PATH_MAX];
     struct stat fs;
     int err;
 
@@ -666,18 +663,13 @@ static ERL_NIF_TERM handle_put_in(ErlNifEnv *env, rec_handle *h, const ErlNifBin
         err = handle_adopt(h);
         if (err != 0 && err != ENOENT && err != REC_NOT_OURS)
             return error2(env, "write", err);
-        if (err != 0) {
-            if (!tmp_name(h->path, tmp, sizeof tmp))
-                return enif_make_badarg(env);
-            return record_fresh(env, tmp, h->path, body, h->st.seq + 1, sync);
-        }
+        if (err != 0)
+            return record_fresh(env, h->path, body, h->st.seq + 1, sync);
     }
     if (REC_HEADER + body->size > h->st.slot) {
         /* Outgrown: written whole with bigger slots, opened anew next time. */
         handle_forget(h);
-        if (!tmp_name(h->path, tmp, sizeof tmp))
-            return enif_make_badarg(env);
-        return record_fresh(env, tmp, h->path, body, h->st.seq + 1, sync);
+        return record_fresh(env, h->path, body, h->st.seq + 1, sync);
     }
     err = rec_write_next(h->fd, &h->st, body, sync);
     if (err != 0 || !h->kept)

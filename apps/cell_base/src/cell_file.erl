@@ -63,7 +63,7 @@ write(Path, Data, Opts) ->
     Target = native(Path),
     Tmp = <<Target/binary, ?TMP_MARK, (integer_to_binary(erlang:unique_integer([positive])))/binary>>,
     Sync = maps:get(sync, Opts, true),
-    in_c(Path, Target, fun() -> replace_ram_nif(Tmp, Target, Data, Sync) end,
+    in_c(Path, folder(Target), fun() -> replace_ram_nif(Tmp, Target, Data, Sync) end,
          fun() -> replace_nif(Tmp, Target, Data, Sync) end).
 
 %% @doc Deletes `Path' durably; a missing file is not an error.
@@ -76,21 +76,22 @@ delete(Path) ->
 delete(Path, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
-    in_c(Path, Target, fun() -> remove_ram_nif(Target, Sync) end,
+    in_c(Path, folder(Target), fun() -> remove_ram_nif(Target, Sync) end,
          fun() -> remove_nif(Target, Sync) end).
 
-%% One call into C: on the calling scheduler in a folder held in RAM, on a dirty I/O
-%% scheduler elsewhere. An error names the file, or its folder if flushing that failed.
-in_c(Path, Target, InRam, OnDisk) ->
-    Result = case in_ram(folder(Target)) of
+%% One call into C for a file of Folder: on the calling scheduler in a folder held in
+%% RAM, on a dirty I/O scheduler elsewhere. An error names the file, or its folder if
+%% flushing that failed.
+in_c(Path, Folder, InRam, OnDisk) ->
+    Result = case in_ram(Folder) of
                  true -> InRam();
                  false -> OnDisk()
              end,
-    named(Path, Result).
-
-named(_Path, ok) -> ok;
-named(Path, {error, {dir, Reason}}) -> {error, {parent(Path), Reason}};
-named(Path, {error, {_Where, Reason}}) -> {error, {Path, Reason}}.
+    case Result of
+        ok -> ok;
+        {error, {dir, Reason}} -> {error, {parent(Path), Reason}};
+        {error, {_Where, Reason}} -> {error, {Path, Reason}}
+    end.
 
 %% @doc A handle on the record file `Path' for its one writer: the file is kept open
 %% between writes through it (see {@link put_record/3}), and closed when the handle is
@@ -243,16 +244,13 @@ put_record(Path, Term) ->
 put_record({record_file, Target, Folder, Handle}, Term, Opts) ->
     Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    Result = case in_ram(Folder) of
-                 true -> record_put_handle_ram_nif(Handle, Body, Sync);
-                 false -> record_put_handle_nif(Handle, Body, Sync)
-             end,
-    named(Target, Result);
+    in_c(Target, Folder, fun() -> record_put_handle_ram_nif(Handle, Body, Sync) end,
+         fun() -> record_put_handle_nif(Handle, Body, Sync) end);
 put_record(Path, Term, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    in_c(Path, Target, fun() -> record_put_ram_nif(Target, Body, Sync) end,
+    in_c(Path, folder(Target), fun() -> record_put_ram_nif(Target, Body, Sync) end,
          fun() -> record_put_nif(Target, Body, Sync) end).
 
 %% @doc The record of a file written by {@link put_record/2}. A file written by {@link
@@ -396,9 +394,7 @@ in_ram_test_() ->
 %% The same durable replacement and deletion in a folder held in RAM, which runs on
 %% the calling scheduler.
 ram_folder_test() ->
-    Dir = filename:join("/dev/shm", "cell_file_test-" ++ os:getpid()),
-    _ = file:del_dir_r(Dir),
-    ok = file:make_dir(Dir),
+    Dir = ram_dir(),
     try
         P = filename:join(Dir, "r.product"),
         ok = write_term(P, {r, 1}),
@@ -513,66 +509,57 @@ record_torn_write_test() ->
 %% Through a handle the file stays open: the writes alternate between its slots in
 %% place, and every one is the record at once, for any reader.
 record_handle_test_() ->
-    [{Where, fun() -> record_handle(Dir) end}
-     || {Where, Dir} <- [{"disk", tmp_dir()}, {"RAM", ram_dir()}]].
+    on_disk_and_in_ram(fun record_handle/1).
 
 record_handle(Dir) ->
-    try
-        P = filename:join(Dir, "h.product"),
-        H = record_file(P),
-        ok = put_record(H, {h, 0}),
-        {ok, #file_info{inode = Inode}} = file:read_file_info(P),
-        [begin
-             ok = put_record(H, {h, N}, #{sync => N rem 2 =:= 0}),
-             ?assertEqual({ok, {h, N}}, get_record(P))
-         end || N <- lists:seq(1, 6)],
-        ?assertMatch({ok, #file_info{inode = Inode, size = 8192}}, file:read_file_info(P)),
-        %% Outgrown: written whole, with bigger slots; then in place again.
-        Big = binary:copy(<<"b">>, 10000),
-        ok = put_record(H, Big),
-        ?assertEqual({ok, Big}, get_record(P)),
-        ok = put_record(H, small),
-        ok = put_record(H, undefined),
-        ?assertEqual({ok, undefined}, get_record(P)),
-        ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir))
-    after
-        file:del_dir_r(Dir)
-    end.
+    P = filename:join(Dir, "h.product"),
+    H = record_file(P),
+    ok = put_record(H, {h, 0}),
+    {ok, #file_info{inode = Inode}} = file:read_file_info(P),
+    [begin
+         ok = put_record(H, {h, N}, #{sync => N rem 2 =:= 0}),
+         ?assertEqual({ok, {h, N}}, get_record(P))
+     end || N <- lists:seq(1, 6)],
+    ?assertMatch({ok, #file_info{inode = Inode, size = 8192}}, file:read_file_info(P)),
+    %% Outgrown: written whole, with bigger slots; then in place again.
+    Big = binary:copy(<<"b">>, 10000),
+    ok = put_record(H, Big),
+    ?assertEqual({ok, Big}, get_record(P)),
+    ok = put_record(H, small),
+    ?assertEqual({ok, small}, get_record(P)),
+    ok = put_record(H, undefined),
+    ?assertEqual({ok, undefined}, get_record(P)),
+    ?assertEqual([], filelib:wildcard("*" ++ ?TMP_MARK ++ "*", Dir)).
 
 %% The file at the path changed behind the handle: set aside, deleted, replaced. The
 %% next write goes to the file now at the path, never to the one the handle had open.
 record_handle_file_changed_test_() ->
-    [{Where, fun() -> record_handle_file_changed(Dir) end}
-     || {Where, Dir} <- [{"disk", tmp_dir()}, {"RAM", ram_dir()}]].
+    on_disk_and_in_ram(fun record_handle_file_changed/1).
 
 record_handle_file_changed(Dir) ->
-    try
-        P = filename:join(Dir, "c.product"),
-        Aside = P ++ ".damaged",
-        H = record_file(P),
-        ok = put_record(H, {c, 1}),
-        ok = file:rename(P, Aside),
-        ok = put_record(H, {c, 2}),
-        ?assertEqual({ok, {c, 1}}, get_record(Aside)),
-        ?assertEqual({ok, {c, 2}}, get_record(P)),
-        ok = file:delete(P),
-        ok = put_record(H, {c, 3}),
-        ?assertEqual({ok, {c, 3}}, get_record(P)),
-        ok = write_term(P, {term, 4}),
-        ok = put_record(H, {c, 5}),
-        ?assertEqual({ok, {c, 5}}, get_record(P)),
-        ok = put_record(H, {c, 6}),
-        ?assertEqual({ok, {c, 6}}, get_record(P)),
-        ?assertEqual({ok, {c, 1}}, get_record(Aside)),
-        %% A folder gone: the error names the file, and the handle recovers with it.
-        ok = file:del_dir_r(Dir),
-        ?assertEqual({error, {native(P), enoent}}, put_record(H, {c, 7})),
-        ok = file:make_dir(Dir),
-        ok = put_record(H, {c, 8}),
-        ?assertEqual({ok, {c, 8}}, get_record(P))
-    after
-        file:del_dir_r(Dir)
-    end.
+    P = filename:join(Dir, "c.product"),
+    Aside = P ++ ".damaged",
+    H = record_file(P),
+    ok = put_record(H, {c, 1}),
+    ok = file:rename(P, Aside),
+    ok = put_record(H, {c, 2}),
+    ?assertEqual({ok, {c, 1}}, get_record(Aside)),
+    ?assertEqual({ok, {c, 2}}, get_record(P)),
+    ok = file:delete(P),
+    ok = put_record(H, {c, 3}),
+    ?assertEqual({ok, {c, 3}}, get_record(P)),
+    ok = write_term(P, {term, 4}),
+    ok = put_record(H, {c, 5}),
+    ?assertEqual({ok, {c, 5}}, get_record(P)),
+    ok = put_record(H, {c, 6}),
+    ?assertEqual({ok, {c, 6}}, get_record(P)),
+    ?assertEqual({ok, {c, 1}}, get_record(Aside)),
+    %% A folder gone: the error names the file, and the handle recovers with it.
+    ok = file:del_dir_r(Dir),
+    ?assertEqual({error, {native(P), enoent}}, put_record(H, {c, 7})),
+    ok = file:make_dir(Dir),
+    ok = put_record(H, {c, 8}),
+    ?assertEqual({ok, {c, 8}}, get_record(P)).
 
 %% A handle no longer referenced closes its file.
 record_handle_closes_test() ->
@@ -589,15 +576,28 @@ record_handle_closes_test() ->
                             Hs = [record_file(filename:join(Dir, integer_to_list(N)))
                                   || N <- lists:seq(1, 50)],
                             %% The first write creates a file, the second keeps it open.
-                            [ok = put_record(H, {N, I}) || {N, H} <- lists:enumerate(Hs),
-                                                           I <- [1, 2]],
-                            Self ! {open, Open()}
+                            Write = fun(I) -> [ok = put_record(H, {N, I})
+                                               || {N, H} <- lists:enumerate(Hs)]
+                                    end,
+                            _ = [Write(I) || I <- [1, 2]],
+                            Self ! {open, Open()},
+                            %% Still in use until here: a handle no longer referenced
+                            %% may be collected, and its file closed, at any moment.
+                            _ = Write(3)
                     end),
     receive {open, During} -> ?assertEqual(50, During) end,
     receive {'DOWN', MRef, process, Pid, normal} -> ok end,
     %% The resources go with the process's heap; the files close with them.
     ?assertEqual(0, Open()).
 
+%% A test run in a fresh folder on the disk and in one held in RAM, each removed after.
+on_disk_and_in_ram(Test) ->
+    [{Where, fun() ->
+                     Dir = Make(),
+                     try Test(Dir) after file:del_dir_r(Dir) end
+             end} || {Where, Make} <- [{"disk", fun tmp_dir/0}, {"RAM", fun ram_dir/0}]].
+
+%% As tmp_dir/0, in a folder held in RAM.
 ram_dir() ->
     Dir = filename:join("/dev/shm", "cell_file_test-" ++ os:getpid() ++ "-"
                         ++ integer_to_list(erlang:unique_integer([positive]))),
