@@ -656,8 +656,14 @@ answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Pa
     goto(setup, {arrow, 8}, D#data{load_error = undefined}, [{next_event, internal, run_init}]);
 answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
-        {ok, Product} ->
-            D1 = D#data{task = T#task{product = Product}, load_error = undefined},
+        {ok, Stored} ->
+            %% Mended (or removed) meanwhile: taken as at boot.
+            T1 = case Stored of
+                     undefined -> T#task{product = undefined, gen = 0, marker = undefined};
+                     #{product := P, gen := G, marker := M} ->
+                         dedupe(T#task{product = P, gen = G, marker = M})
+                 end,
+            D1 = D#data{task = T1, load_error = undefined},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, run_init}]);
         {error, Reason} ->
             D1 = D#data{load_error = Reason},

@@ -8,6 +8,7 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
+         damaged_product_file_mended/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
          cell_state_follows_tasks/1, cell_state_settles_under_races/1,
          bad_spec_is_refused/1, settings_snapshot_at_start/1,
@@ -19,6 +20,7 @@
 all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, damaged_product_file,
+     damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
      cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused, settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
@@ -221,6 +223,27 @@ damaged_product_file(Config) ->
     ok = cell_controller:sync(),
     ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),
     ?assertMatch([_], filelib:wildcard(unicode:characters_to_list(Path) ++ ".damaged-*")).
+
+%% The operator mends the damaged file (a copy from a backup, say) and answers Retry:
+%% the task takes the product in it, as it would at boot.
+damaged_product_file_mended(Config) ->
+    ok = application:stop(cell),
+    Path = cell_product:path(<<"work">>, <<"Test">>),
+    ok = file:write_file(Path, <<"half a produc">>),
+    start_cell(?config(root, Config), ?config(specs, Config)),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    [#{id := Id, caption := <<"Product file damaged">>}] = cell_alarms:list(),
+    P = cell_product:new(<<"PANEL-5">>, <<"r">>),
+    ok = cell_product:save(Path, cell_product:stored(P, 3, undefined)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual([], cell_alarms:list()),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
+    ?assertMatch(#{product := P}, cell_task_proc:info(work)),
+    ?assertEqual([{work, 3}], cell_registry:holders(<<"PANEL-5">>)),
+    ?assertMatch([#{id := work, serial := <<"PANEL-5">>}],
+                 [R || #{id := work} = R <- cell_controller:tasks()]).
 
 product_survives_restart(Config) ->
     ok = cell_controller:start(),
