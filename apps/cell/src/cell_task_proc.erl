@@ -323,11 +323,8 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
                  estop = cell_registry:control(estop)},
     D2 = service_flag(cell_registry:control(service_mode), D1),
     D = case cell_product:load(T#task.product_path) of
-            {ok, undefined} ->
-                D2#data{task = cell_handshake:attach_all(D2#data.task)};
-            {ok, #{product := Product, gen := Gen, marker := Marker}} ->
-                T1 = (D2#data.task)#task{product = Product, gen = Gen, marker = Marker},
-                D2#data{task = cell_handshake:attach_all(dedupe(T1))};
+            {ok, Stored} ->
+                D2#data{task = cell_handshake:attach_all(take_loaded(D2#data.task, Stored))};
             {error, Reason} ->
                 cell_log:error(Id, "the product file ~ts cannot be read (~tp); the "
                                "operator is asked when the cell starts",
@@ -658,12 +655,7 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
     case cell_product:load(Path) of
         {ok, Stored} ->
             %% Mended (or removed) meanwhile: taken as at boot.
-            T1 = case Stored of
-                     undefined -> T#task{product = undefined, gen = 0, marker = undefined};
-                     #{product := P, gen := G, marker := M} ->
-                         dedupe(T#task{product = P, gen = G, marker = M})
-                 end,
-            D1 = D#data{task = T1, load_error = undefined},
+            D1 = D#data{task = take_loaded(T, Stored), load_error = undefined},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, run_init}]);
         {error, Reason} ->
             D1 = D#data{load_error = Reason},
@@ -844,6 +836,13 @@ wake_events({handshake, _Link, available, true}, #task{ipc = {ready, idle, starv
     cell_task:unstarved(T);
 wake_events(_, T) ->
     T.
+
+%% What the task's product file holds becomes the task's product (at boot, and at a
+%% Retry after the file was damaged).
+take_loaded(T, undefined) ->
+    T#task{product = undefined, gen = 0, marker = undefined};
+take_loaded(T, #{product := Product, gen := Gen, marker := Marker}) ->
+    dedupe(T#task{product = Product, gen = Gen, marker = Marker}).
 
 %% A product found at boot that another task holds in a newer record is a stale copy
 %% a crash left behind.

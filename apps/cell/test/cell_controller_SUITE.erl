@@ -205,14 +205,7 @@ crash_restores_product(Config) ->
     ?assertMatch(#{product := P}, cell_task_proc:info(work)).
 
 damaged_product_file(Config) ->
-    ok = application:stop(cell),
-    Path = cell_product:path(<<"work">>, <<"Test">>),
-    ok = file:write_file(Path, <<"half a produc">>),
-    start_cell(?config(root, Config), ?config(specs, Config)),
-    ok = cell_controller:start(),
-    ok = cell_controller:sync(),
-    ?assertEqual(down, cell_task_proc:state(work)),
-    [#{id := Id, caption := <<"Product file damaged">>}] = cell_alarms:list(),
+    {Path, Id} = start_with_damaged_file(Config),
     %% Retry reads it again: still damaged, asked again.
     ok = cell_alarms:answer(Id, retry, <<"op">>),
     ok = cell_controller:sync(),
@@ -226,13 +219,7 @@ damaged_product_file(Config) ->
 %% The operator mends the damaged file (a copy from a backup, say) and answers Retry:
 %% the task takes the product in it, as it would at boot.
 damaged_product_file_mended(Config) ->
-    ok = application:stop(cell),
-    Path = cell_product:path(<<"work">>, <<"Test">>),
-    ok = file:write_file(Path, <<"half a produc">>),
-    start_cell(?config(root, Config), ?config(specs, Config)),
-    ok = cell_controller:start(),
-    ok = cell_controller:sync(),
-    [#{id := Id, caption := <<"Product file damaged">>}] = cell_alarms:list(),
+    {Path, Id} = start_with_damaged_file(Config),
     P = cell_product:new(<<"PANEL-5">>, <<"r">>),
     ok = cell_product:save(Path, cell_product:stored(P, 3, undefined)),
     ok = cell_alarms:answer(Id, retry, <<"op">>),
@@ -243,6 +230,19 @@ damaged_product_file_mended(Config) ->
     ?assertEqual([{work, 3}], cell_registry:holders(<<"PANEL-5">>)),
     ?assertMatch([#{id := work, serial := <<"PANEL-5">>}],
                  [R || #{id := work} = R <- cell_controller:tasks()]).
+
+%% The cell started with the work task's product file cut short: the task is DOWN
+%% with the operator asked. The file's path and the error's id.
+start_with_damaged_file(Config) ->
+    ok = application:stop(cell),
+    Path = cell_product:path(<<"work">>, <<"Test">>),
+    ok = file:write_file(Path, <<"half a produc">>),
+    start_cell(?config(root, Config), ?config(specs, Config)),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    [#{id := Id, caption := <<"Product file damaged">>}] = cell_alarms:list(),
+    {Path, Id}.
 
 product_survives_restart(Config) ->
     ok = cell_controller:start(),
