@@ -41,10 +41,10 @@ run() ->
        note => "A transfer through a line of 2 is a new product saved at the first "
                "segment, offer, commit, release with the product saved by its new "
                "owner, completion, the product sent out and forgotten at the last, and "
-               "every IPC-2541 event on the way to the controller: over 40 messages "
-               "between processes (one of them to the benchmark) and five record "
-               "writes. The statistics are detached from the events (the next figure "
-               "has them)."},
+               "the cell state kept (the controller hears of its changes only): about "
+               "20 messages between processes (one of them to the benchmark) and five "
+               "record writes. The statistics are detached from the events (the next "
+               "figure has them)."},
      #{title => "Transfers per second, line of 2, RAM folder, whole cell", unit => "transfers/s",
        ours => Cell2, peer => RoundTrips, peer_name => "raw message round trips/s",
        better => higher,

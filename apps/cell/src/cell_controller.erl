@@ -10,20 +10,24 @@
 %% only once every task of the fan-out has secured its outputs (a barrier the last of
 %% them reports here), so no task waits for a scheduler behind the announcements.
 %%
-%% The cell state is kept from the tasks' `task_state' events: counts per state, so a
-%% change costs the same for 10 tasks or 10,000. Every change is published as a
-%% `cell_state' event.
+%% The cell state is the highest state of a task. The registry counts the tasks per
+%% state as they change (shared counters, no message); a task tells this process only
+%% when the highest state it sees after its change is not the cell state last
+%% published, so a change costs the same for 10 tasks or 10,000, and tasks moving
+%% between states below the cell state cost this process nothing. Every change of the
+%% cell state is published as a `cell_state' event.
 -module(cell_controller).
 -behaviour(gen_server).
 
 -export([start_link/0, start/0, start/1, pause/0, pause/1, stop/0, stop/1, estop/1,
          estop/2, service_mode/1, service_mode/2, state/0, flags/0, tasks/0, sync/0]).
+%% For the tasks and the registry.
+-export([task_state_changed/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(ESTOP_DEADLINE_MS, 1000).
 
--record(state, {counts = #{} :: #{cell_ipc:state() => pos_integer()},
-                cell = off :: cell_ipc:state(),
+-record(state, {cell = off :: cell_ipc:state(),
                 estop_timer :: reference() | undefined,
                 %% the emergency stop's fan-out, until every task secured its outputs
                 barrier :: barrier() | undefined}).
@@ -115,11 +119,11 @@ init([]) ->
     %% A thousand tasks change state at once (an emergency stop): their events wait
     %% outside the heap, so a collection in the middle of the burst copies none of them.
     process_flag(message_queue_data, off_heap),
-    ok = cell_events:subscribe([task_state]),
-    Counts = lists:foldl(fun incr/2, #{}, cell_registry:states()),
-    Cell = top(Counts),
+    %% The cell state as the tasks are now, without an event (as at every boot); a
+    %% task that changes meanwhile finds it published, or is seen in the check after.
+    Cell = cell_registry:top_state(),
     ok = cell_registry:set_control(cell_state, Cell),
-    {ok, #state{counts = Counts, cell = Cell}}.
+    {ok, follow(#state{cell = Cell})}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) ->
           {reply, term(), #state{}} | {noreply, #state{}}.
@@ -179,8 +183,8 @@ handle_cast(Msg, _State) ->
     error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({cell_event, #{type := task_state, from := From, state := New}}, State) ->
-    {noreply, task_state(From, New, State)};
+handle_info({cell_state_seen, Seen}, State) ->
+    {noreply, follow(cell_state(Seen, State))};
 handle_info({estop_secured, Ref}, #state{barrier = {Ref, _, _, _}} = State) ->
     {noreply, settle(State)};
 handle_info({estop_secured, _}, State) ->
@@ -270,40 +274,41 @@ fan_out(Pids, Key, ValueOf) ->
     _ = process_flag(priority, Was),
     ok.
 
-%% A task's move from one state to another: only the counts per state are kept.
-task_state(From, New, #state{counts = Counts0} = State) ->
-    Counts = incr(New, decr(From, Counts0)),
-    Cell = top(Counts),
-    case Cell =:= State#state.cell of
-        true ->
-            ok;
-        false ->
-            ok = cell_registry:set_control(cell_state, Cell),
-            %% Entering or leaving READY is news for the operator; READY's sub-states
-            %% change with every product and are detail.
-            Level = case cell_ipc:is_ready(Cell) andalso cell_ipc:is_ready(State#state.cell) of
-                        true -> verbose;
-                        false -> brief
-                    end,
-            cell_log:log(Level, cell, "cell state ~ts", [cell_ipc:name(Cell)]),
-            ok = publish(cell_state, #{state => Cell, from => State#state.cell})
-    end,
-    State#state{counts = Counts, cell = Cell}.
-
-incr(S, Counts) -> maps:update_with(S, fun(N) -> N + 1 end, 1, Counts).
-
-decr(S, Counts) ->
-    case maps:get(S, Counts, 0) of
-        N when N =< 1 -> maps:remove(S, Counts);
-        N -> maps:put(S, N - 1, Counts)
+%% @private After a task changed its state (in the registry, and its `task_state'
+%% event sent): the controller is told the highest state the task sees if that is not
+%% the cell state published. The counts are changed before the published state is
+%% read, and the controller publishes before it reads the counts (both full barriers),
+%% so of a task's change and a publication racing it one always sees the other.
+-spec task_state_changed() -> ok.
+task_state_changed() ->
+    Top = cell_registry:top_state(),
+    case cell_registry:published_state() =:= Top orelse whereis(?MODULE) of
+        true -> ok;
+        undefined -> ok;
+        Pid -> Pid ! {cell_state_seen, Top}, ok
     end.
 
-%% The highest state with a task in it: at most seven lookups.
-top(Counts) ->
-    case [S || S <- lists:reverse(cell_ipc:states()), maps:is_key(S, Counts)] of
-        [Top | _] -> Top;
-        [] -> off
+%% The state a task saw becomes the cell state (so the cell passes through the states
+%% its tasks showed, in order), then the counts have the last word.
+follow(#state{cell = Cell} = State) ->
+    case cell_registry:top_state() of
+        Cell -> State;
+        Top -> follow(cell_state(Top, State))
     end.
+
+cell_state(Same, #state{cell = Same} = State) ->
+    State;
+cell_state(Cell, #state{cell = Was} = State) ->
+    ok = cell_registry:set_control(cell_state, Cell),
+    %% Entering or leaving READY is news for the operator; READY's sub-states change
+    %% with every product and are detail.
+    Level = case cell_ipc:is_ready(Cell) andalso cell_ipc:is_ready(Was) of
+                true -> verbose;
+                false -> brief
+            end,
+    cell_log:log(Level, cell, "cell state ~ts", [cell_ipc:name(Cell)]),
+    ok = publish(cell_state, #{state => Cell, from => Was}),
+    State#state{cell = Cell}.
 
 publish(Type, Fields) ->
     cell_events:publish(cell_events:new(Type, cell, Fields)).

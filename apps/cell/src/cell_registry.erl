@@ -15,7 +15,8 @@
 -behaviour(gen_server).
 
 -export([start_link/0, register_task/2, unregister_task/1, update/2, set_state/2, task/1,
-         tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, control/1, set_control/2, estop_flag/0, estop_active/0]).
+         tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, published_state/0,
+         control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([previous/0, control_key/0]).
@@ -31,6 +32,9 @@
 %% emergency stop reaches a thousand tasks without a scan of their rows first.
 -define(PIDS, cell_task_pids).
 -define(ESTOP_KEY, {?MODULE, estop}).
+%% Tasks per state, and the cell state last published (see top_state/0).
+-define(COUNTS_KEY, {?MODULE, state_counts}).
+-define(PUBLISHED, 8).
 
 -record(state, {monitors = #{} :: #{reference() => {atom(), pid()}},
                 ended = #{} :: #{atom() => previous()}}).
@@ -60,10 +64,47 @@ update(Id, Fields) ->
 
 %% @doc A task's IPC-2541 state, kept in a table of its own: one insert per change,
 %% the cheapest write there is on the hot path of a thousand tasks.
+%% @doc A task's state. Only the task itself sets it (the registry, once the task is
+%% gone), so the row's old state is the one counted.
 -spec set_state(atom(), cell_ipc:state()) -> ok.
 set_state(Id, State) ->
+    Old = state_of(Id),
     true = ets:insert(?STATES, {Id, State}),
+    count(Old, State).
+
+%% Tasks in OFF are not counted: the cell is OFF when no task is above it.
+count(Same, Same) ->
+    ok;
+count(Old, New) ->
+    Counts = counts(),
+    _ = Old =:= off orelse atomics:sub(Counts, slot(Old), 1),
+    _ = New =:= off orelse atomics:add(Counts, slot(New), 1),
     ok.
+
+%% @doc The highest state a task is in (the cell state the controller publishes), from
+%% the counts per state: at most seven reads, whatever the number of tasks.
+-spec top_state() -> cell_ipc:state().
+top_state() ->
+    top_state(counts(), lists:reverse(cell_ipc:states())).
+
+top_state(_Counts, [off]) ->
+    off;
+top_state(Counts, [S | Lower]) ->
+    case atomics:get(Counts, slot(S)) > 0 of
+        true -> S;
+        false -> top_state(Counts, Lower)
+    end.
+
+%% @doc The cell state the controller last published, as top_state/0 compares it.
+-spec published_state() -> cell_ipc:state().
+published_state() ->
+    lists:nth(atomics:get(counts(), ?PUBLISHED), cell_ipc:states()).
+
+slot(State) ->
+    cell_ipc:priority(State) + 1.
+
+counts() ->
+    persistent_term:get(?COUNTS_KEY).
 
 %% @doc The task holds a product of a serial and generation now (`undefined': none).
 %% Of two tasks naming one serial, the higher generation owns it: a task holding a
@@ -152,6 +193,13 @@ set_control(estop, On) when is_boolean(On) ->
     atomics:put(estop_flag(), 1, case On of true -> 1; false -> 0 end),
     true = ets:insert(?CONTROL, {estop, On}),
     ok;
+set_control(cell_state, Cell) ->
+    true = ets:insert(?CONTROL, {cell_state, Cell}),
+    %% An exchange, a full barrier: whoever reads the counts after this also sees the
+    %% cell state published, and a task that changed the counts before it sees them
+    %% read (see cell_controller:task_state_changed/0).
+    _ = atomics:exchange(counts(), ?PUBLISHED, slot(Cell)),
+    ok;
 set_control(Key, Value) ->
     true = ets:insert(?CONTROL, {Key, Value}),
     ok.
@@ -181,6 +229,13 @@ init([]) ->
         undefined -> persistent_term:put(?ESTOP_KEY, atomics:new(1, []));
         Ref -> atomics:put(Ref, 1, 0)
     end,
+    %% The counts start again with the tables (every task registers anew).
+    case persistent_term:get(?COUNTS_KEY, undefined) of
+        undefined -> persistent_term:put(?COUNTS_KEY, atomics:new(?PUBLISHED, []));
+        _ -> ok
+    end,
+    _ = [atomics:put(counts(), I, 0) || I <- lists:seq(1, ?PUBLISHED - 1)],
+    atomics:put(counts(), ?PUBLISHED, slot(off)),
     {ok, #state{}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
@@ -189,7 +244,7 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     Previous = maps:get(Id, State#state.ended, fresh),
     Ref = monitor(process, Pid),
     true = ets:insert(?TASKS, {Id, maps:remove(state, Info#{pid => Pid})}),
-    true = ets:insert(?STATES, {Id, maps:get(state, Info, off)}),
+    ok = set_state(Id, maps:get(state, Info, off)),
     {reply, Previous, keep_pids(State#state{monitors = maps:put(Ref, {Id, Pid}, State#state.monitors),
                                        ended = maps:remove(Id, State#state.ended)})};
 handle_call({unregister, Id}, {Pid, _}, #state{monitors = Mons} = State) ->
@@ -251,7 +306,8 @@ down(Ref, Reason, #state{monitors = Mons, ended = Ended} = State) ->
                             ok = set_state(Id, off),
                             cell_events:publish(cell_events:new(task_state, Id,
                                                                 #{state => off, from => Old,
-                                                                  cause => exited}))
+                                                                  cause => exited})),
+                            cell_controller:task_state_changed()
                     end;
                 _ ->
                     ok

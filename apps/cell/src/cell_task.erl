@@ -282,6 +282,7 @@ set_state(#task{ipc = From, id = Id} = T, To, Cause) ->
     end,
     ok = cell_registry:set_state(Id, To),
     ok = publish(T, task_state, #{state => To, from => From, cause => Cause}),
+    ok = cell_controller:task_state_changed(),
     case cell_log:enabled(verbose, Id) of
         true -> cell_log:debug(Id, "~ts -> ~ts", [cell_ipc:name(From), cell_ipc:name(To)]);
         false -> ok

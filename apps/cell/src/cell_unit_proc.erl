@@ -794,6 +794,7 @@ report(Old, New, #data{id = Id, ipc = FromIpc, task = T, trigger = Trigger} = D)
             ok = cell_task:publish(T, task_state, #{state => ToIpc, from => FromIpc,
                                                     cause => Cause, unit_state => New,
                                                     unit_from => Old}),
+            ok = cell_controller:task_state_changed(),
             log_change(Old, New, FromIpc, ToIpc, D),
             D#data{ipc = ToIpc}
     end.

@@ -10,7 +10,8 @@
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
          damaged_product_file_mended/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
-         cell_state_follows_tasks/1, bad_spec_is_refused/1, settings_snapshot_at_start/1,
+         cell_state_follows_tasks/1, cell_state_settles_under_races/1,
+         bad_spec_is_refused/1, settings_snapshot_at_start/1,
          recipe_buffer_cleared_at_start/1, estop_secures_all_before_any_announces/1,
          estop_deadline_kills_a_stuck_task/1]).
 
@@ -21,7 +22,7 @@ all() ->
      service_mode_pauses, crash_restores_product, damaged_product_file,
      damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
-     cell_state_follows_tasks, bad_spec_is_refused, settings_snapshot_at_start,
+     cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused, settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
      estop_deadline_kills_a_stuck_task].
 
@@ -323,6 +324,57 @@ cell_state_follows_tasks(Config) ->
     States = [S || #{state := S} <- drain([])],
     ?assertEqual([setup, {ready, idle, starved}, {ready, processing, active},
                   {ready, idle, starved}], States).
+
+%% Many tasks changing state at once, each telling the controller only when it sees
+%% the cell state out of date: the cell state ends as the highest state of them all,
+%% and the cell_state events form one unbroken chain (each from the state before).
+cell_state_settles_under_races(_Config) ->
+    ok = cell_events:subscribe([cell_state]),
+    States = cell_ipc:states(),
+    Writers = [list_to_atom("racer" ++ integer_to_list(I)) || I <- lists:seq(1, 16)],
+    Self = self(),
+    Change = fun(Id, S) ->
+                     ok = cell_registry:set_state(Id, S),
+                     ok = cell_controller:task_state_changed()
+             end,
+    Run = fun(Id, Seed) ->
+                  rand:seed(exsss, {Seed, Seed, Seed}),
+                  [Change(Id, lists:nth(rand:uniform(7), States)) || _ <- lists:seq(1, 400)],
+                  %% Above OFF, so the cell has somewhere to come back from.
+                  Final = lists:nth(rand:uniform(6) + 1, States),
+                  Change(Id, Final),
+                  Self ! {done, Id, Final}
+          end,
+    _ = [spawn_link(fun() -> Run(Id, I) end) || {I, Id} <- lists:zip(lists:seq(1, 16), Writers)],
+    Finals = [receive {done, Id, F} -> F end || Id <- Writers],
+    Top = cell_ipc:cell_state(Finals),
+    ?assertEqual(Top, cell_registry:top_state()),
+    Seen = await_cell_state(Top, []),
+    %% All back in OFF (the suite's own tasks are): the cell is OFF.
+    _ = [Change(Id, off) || Id <- Writers],
+    ?assertEqual(off, cell_registry:top_state()),
+    Events = await_cell_state(off, Seen),
+    Chain = lists:zip(lists:droplast(Events), tl(Events)),
+    ?assertEqual([], [{A, B} || {#{state := A}, #{from := B}} <- Chain, A =/= B]),
+    ?assertEqual(off, maps:get(state, lists:last(Events))).
+
+%% Waits, through the events and never by polling, until the cell state is Want and
+%% its event has come; the events so far, in order.
+await_cell_state(Want, Seen) ->
+    Last = case Seen of
+               [] -> undefined;
+               _ -> maps:get(state, lists:last(Seen))
+           end,
+    case Last =:= Want andalso cell_controller:state() =:= Want of
+        true ->
+            Seen;
+        false ->
+            receive
+                {cell_event, #{type := cell_state} = E} -> await_cell_state(Want, Seen ++ [E])
+            after 5000 ->
+                ct:fail({cell_state, cell_controller:state(), wanted, Want})
+            end
+    end.
 
 bad_spec_is_refused(Config) ->
     Root = filename:join(?config(priv_dir, Config), "bad"),
