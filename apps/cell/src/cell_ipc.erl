@@ -27,7 +27,7 @@
 %% highest priority.
 -module(cell_ipc).
 
--export([states/0, arrow/2, check/3, event_state/2, priority/1, cell_state/1,
+-export([states/0, arrow/2, check/3, event_state/2, priority/1, of_priority/1, cell_state/1,
          is_ready/1, name/1, code/1]).
 
 -export_type([state/0, ready/0, event/0, cause/0]).
@@ -119,6 +119,16 @@ priority(?BLOCKED) -> 3;
 priority(?STARVED) -> 4;
 priority(?ACTIVE) -> 5;
 priority(?EXECUTING) -> 6.
+
+%% @doc The state of a priority (the inverse of {@link priority/1}).
+-spec of_priority(0..6) -> state().
+of_priority(0) -> off;
+of_priority(1) -> down;
+of_priority(2) -> setup;
+of_priority(3) -> ?BLOCKED;
+of_priority(4) -> ?STARVED;
+of_priority(5) -> ?ACTIVE;
+of_priority(6) -> ?EXECUTING.
 
 %% @doc The seed's `IpcState' code of a state (same as its priority).
 -spec code(state()) -> 0..6.

@@ -82,23 +82,24 @@ count(Old, New) ->
     ok.
 
 %% @doc The highest state a task is in (the cell state the controller publishes), from
-%% the counts per state: at most seven reads, whatever the number of tasks.
+%% the counts per state: at most six reads, whatever the number of tasks, and nothing
+%% allocated (a task calls this at every change of state).
 -spec top_state() -> cell_ipc:state().
 top_state() ->
-    top_state(counts(), lists:reverse(cell_ipc:states())).
+    cell_ipc:of_priority(top_slot(counts(), slot({ready, processing, executing})) - 1).
 
-top_state(_Counts, [off]) ->
-    off;
-top_state(Counts, [S | Lower]) ->
-    case atomics:get(Counts, slot(S)) > 0 of
-        true -> S;
-        false -> top_state(Counts, Lower)
+top_slot(_Counts, 1) ->
+    1;
+top_slot(Counts, Slot) ->
+    case atomics:get(Counts, Slot) > 0 of
+        true -> Slot;
+        false -> top_slot(Counts, Slot - 1)
     end.
 
 %% @doc The cell state the controller last published, as top_state/0 compares it.
 -spec published_state() -> cell_ipc:state().
 published_state() ->
-    lists:nth(atomics:get(counts(), ?PUBLISHED), cell_ipc:states()).
+    cell_ipc:of_priority(atomics:get(counts(), ?PUBLISHED) - 1).
 
 slot(State) ->
     cell_ipc:priority(State) + 1.
