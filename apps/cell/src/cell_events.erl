@@ -25,8 +25,9 @@
 -type event() :: #{type := type(), task := atom(), time := integer(), mono := integer(),
                    atom() => term()}.
 
+%% One row per event type, the pids subscribed to it: a publication reads only its
+%% own type's subscribers, already chosen.
 -define(TAB, cell_event_subscribers).
--define(KEY, subscribers).
 
 -record(state, {subs = #{} :: #{pid() => {reference(), all | [type()]}}}).
 
@@ -100,19 +101,20 @@ publish(Type, Task, Fields) ->
     end.
 
 subscribers(Type) ->
-    Subs = try ets:lookup_element(?TAB, ?KEY, 2)
-           catch error:badarg -> []
-           end,
-    [Pid || {Pid, Types} <- Subs, Types =:= all orelse lists:member(Type, Types)].
+    try ets:lookup_element(?TAB, Type, 2)
+    catch error:badarg -> []
+    end.
 
-send(Pids, Msg) ->
-    lists:foreach(fun(Pid) -> Pid ! Msg end, Pids).
+send([], _Msg) ->
+    ok;
+send([Pid | Pids], Msg) ->
+    Pid ! Msg,
+    send(Pids, Msg).
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
     ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    true = ets:insert(?TAB, {?KEY, []}),
-    {ok, #state{}}.
+    {ok, store(#state{})}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, ok, #state{}}.
 handle_call({subscribe, Pid, Types}, _From, #state{subs = Subs} = State) ->
@@ -142,5 +144,7 @@ drop(Pid, #state{subs = Subs} = State) ->
     end.
 
 store(#state{subs = Subs} = State) ->
-    true = ets:insert(?TAB, {?KEY, [{Pid, Types} || {Pid, {_, Types}} <- maps:to_list(Subs)]}),
+    true = ets:insert(?TAB, [{Type, [Pid || {Pid, {_, Types}} <- maps:to_list(Subs),
+                                            Types =:= all orelse lists:member(Type, Types)]}
+                             || Type <- types()]),
     State.
