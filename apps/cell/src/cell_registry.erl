@@ -62,10 +62,9 @@ update(Id, Fields) ->
         [] -> ok
     end.
 
-%% @doc A task's IPC-2541 state, kept in a table of its own: one insert per change,
-%% the cheapest write there is on the hot path of a thousand tasks.
-%% @doc A task's state. Only the task itself sets it (the registry, once the task is
-%% gone), so the row's old state is the one counted.
+%% @doc A task's IPC-2541 state, kept in a table of its own (one insert per change) and
+%% counted per state (see top_state/0). Only the task itself sets it (the registry,
+%% once the task is gone), so the row's old state is the one counted.
 -spec set_state(atom(), cell_ipc:state()) -> ok.
 set_state(Id, State) ->
     Old = state_of(Id),

@@ -8,7 +8,8 @@
 %%
 %% A replacement or a deletion is one call into C on a dirty I/O scheduler; in a folder
 %% held in RAM (tmpfs, ramfs: nothing waits for a device there) it runs on the calling
-%% scheduler, which is several times faster.
+%% scheduler, which is several times faster, and flushes nothing: a flush there does
+%% nothing but cost a system call.
 %%
 %% A writer killed during its call into C is gone before its write has landed; {@link
 %% read_term/1} waits for such a write, so a process restarted after a crash reads what
@@ -63,7 +64,7 @@ write(Path, Data, Opts) ->
     Target = native(Path),
     Tmp = <<Target/binary, ?TMP_MARK, (integer_to_binary(erlang:unique_integer([positive])))/binary>>,
     Sync = maps:get(sync, Opts, true),
-    in_c(Path, folder(Target), fun() -> replace_ram_nif(Tmp, Target, Data, Sync) end,
+    in_c(Path, folder(Target), fun() -> replace_ram_nif(Tmp, Target, Data, false) end,
          fun() -> replace_nif(Tmp, Target, Data, Sync) end).
 
 %% @doc Deletes `Path' durably; a missing file is not an error.
@@ -76,11 +77,11 @@ delete(Path) ->
 delete(Path, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
-    in_c(Path, folder(Target), fun() -> remove_ram_nif(Target, Sync) end,
+    in_c(Path, folder(Target), fun() -> remove_ram_nif(Target, false) end,
          fun() -> remove_nif(Target, Sync) end).
 
-%% One call into C for a file of Folder: on the calling scheduler in a folder held in
-%% RAM, on a dirty I/O scheduler elsewhere. An error names the file, or its folder if
+%% One call into C for a file of Folder: on the calling scheduler, without flushes, in
+%% a folder held in RAM; on a dirty I/O scheduler elsewhere. An error names the file, or its folder if
 %% flushing that failed.
 in_c(Path, Folder, InRam, OnDisk) ->
     Result = case in_ram(Folder) of
@@ -244,13 +245,13 @@ put_record(Path, Term) ->
 put_record({record_file, Target, Folder, Handle}, Term, Opts) ->
     Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    in_c(Target, Folder, fun() -> record_put_handle_ram_nif(Handle, Body, Sync) end,
+    in_c(Target, Folder, fun() -> record_put_handle_ram_nif(Handle, Body, false) end,
          fun() -> record_put_handle_nif(Handle, Body, Sync) end);
 put_record(Path, Term, Opts) ->
     Target = native(Path),
     Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    in_c(Path, folder(Target), fun() -> record_put_ram_nif(Target, Body, Sync) end,
+    in_c(Path, folder(Target), fun() -> record_put_ram_nif(Target, Body, false) end,
          fun() -> record_put_nif(Target, Body, Sync) end).
 
 %% @doc The record of a file written by {@link put_record/2}. A file written by {@link
