@@ -318,15 +318,19 @@ event({samples, PerPoint}, State, D) when State =/= disconnected ->
             {State, D}
     end;
 event({faults, Faults}, State, D) when State =/= disconnected ->
-    Cleared = [K || {K, ok} <- Faults, fault(K, ok, D)],
+    Cleared = [K || {K, ok} <- Faults, fault(K, ok, D),
+                    is_map_key(K, D#data.points)],
     _ = [fault(K, Why, D) || {K, Why} <- Faults, Why =/= ok],
-    %% An output that can be used again shows what the device holds, as after a
-    %% connect.
-    Unread = [K || K <- Cleared, is_map_key(K, D#data.points),
-                   (maps:get(K, D#data.points))#pt.dir =:= out],
-    case State =:= connected andalso Unread =/= [] of
-        true -> {connected, start_readback(forget_values(Unread, D))};
-        false -> {State, D}
+    %% An input that can be used again is news to its subscribers even if its value
+    %% is the one it had: they are told the value it has, or the next one read. An
+    %% output shows what the device holds, as after a connect.
+    {Inputs, Outputs} = lists:partition(
+                          fun(K) -> (maps:get(K, D#data.points))#pt.dir =:= in end, Cleared),
+    Unknown = [K || K <- Inputs, not tell_value(K)],
+    D1 = forget_values(Unknown, D),
+    case State =:= connected andalso Outputs =/= [] of
+        true -> {connected, start_readback(forget_values(Outputs, D1))};
+        false -> {State, D1}
     end;
 event(_, State, D) ->
     %% An answer for an earlier connection.
@@ -498,6 +502,16 @@ fault(K, Why, #data{driver = Driver} = D) ->
             cell_log:error(D#data.source, "~ts cannot be used: ~ts", [point_text(K), Text]),
             true;
         false ->
+            false
+    end.
+
+%% Tells a point's subscribers the value it has, if it has one.
+tell_value(K) ->
+    case cell_hal_store:value(K) of
+        {ok, #hal_value{value = {ok, V}}} ->
+            ok = cell_hal_store:notify(K, V),
+            true;
+        _ ->
             false
     end.
 
