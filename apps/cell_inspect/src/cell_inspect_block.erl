@@ -18,6 +18,10 @@
 %%   PLC holds differently is written again</td><td>`online' when it comes up</td></tr>
 %% </table>
 %%
+%% A tag the PLC does not have (a member missing from its structure, or of another
+%% type) is an alarm of the block naming it; commands wait until the block can read the
+%% PLC whole again, then the alarm is cleared.
+%%
 %% The block never polls: it subscribes to its input points and its connection in the
 %% HAL, whose worker polls the PLC (or receives its notifications). The Heartbeat
 %% toggles every `heartbeat_ms' in every state. A block that stops (or crashes) writes
@@ -43,6 +47,7 @@
 -define(HELLO_MS, 1000).          %% longest wait for the clients at start
 -define(OVERRIDE_MS, 10000).      %% longest override lookup
 -define(RETRY_MS, 1000).
+-define(FAULTS_ALARM, <<"plc_tags">>).
 
 -record(data, {id :: atom(),
                source :: binary(),
@@ -59,6 +64,9 @@
                settings_mon :: reference() | undefined,
                version = 0 :: non_neg_integer(),   %% settings applied so far
                synced = false :: boolean(),        %% the PLC read whole since it came up
+               %% tags the PLC does not have as the block needs them (a member missing
+               %% or of another type), with why: the operator sees them in an alarm
+               faults = #{} :: #{cell_inspect_tags:tag() => binary()},
                last_view :: map() | undefined,
                retry = ?RETRY_MS :: pos_integer()}).
 
@@ -349,19 +357,50 @@ terminate(_Reason, _State, #data{id = Id, jobs = Jobs}) ->
 %%====================================================================
 
 %% The whole block, read at once from the HAL's table (once the HAL has read it all:
-%% a group added while its connection is up is read at the next poll).
+%% a group added while its connection is up is read at the next poll). Tags the PLC
+%% does not have (see faults/2) keep the block from going on until it has them: the
+%% HAL tries them again at every change of the PLC's program, and their values then
+%% bring the block here again.
 plc_up(#data{id = Id, io = Io} = D) ->
-    Read = fun(Tags) ->
-                   maps:from_list([{T, V} || T <- Tags,
-                                             {ok, V} <- [cell_inspect_io:read(Io, Id, T)]])
-           end,
+    Read = fun(Tags) -> [{T, cell_inspect_io:read(Io, Id, T)} || T <- Tags] end,
     In = Read(cell_inspect_tags:inputs()),
     Out = Read(cell_inspect_tags:outputs()),
-    case map_size(In) =:= length(cell_inspect_tags:inputs())
-         andalso map_size(Out) =:= length(cell_inspect_tags:outputs()) of
-        true -> feed({plc_up, #{inputs => In, outputs => Out}}, online, D#data{synced = true});
-        false -> D#data{synced = false}          %% a change or a connection message follows
+    Values = fun(Rs) -> maps:from_list([{T, V} || {T, {ok, V}} <- Rs]) end,
+    case [{T, Why} || {T, {error, {unavailable, Why}}} <- In ++ Out] of
+        [] ->
+            case [T || {T, {error, _}} <- In ++ Out] of
+                [] ->
+                    D1 = faults(#{}, D#data{synced = true}),
+                    feed({plc_up, #{inputs => Values(In), outputs => Values(Out)}}, online, D1);
+                _ ->
+                    %% Not read yet: a change or a connection message follows.
+                    D#data{synced = false}
+            end;
+        Faults ->
+            faults(maps:from_list(Faults), D#data{synced = false})
     end.
+
+%% The tags the PLC does not have as the block needs them, as the operator sees them:
+%% one alarm of the block naming them all, set while there are any.
+faults(Same, #data{faults = Same} = D) ->
+    D;
+faults(Faults, #data{id = Id, io = #{layout := Layout}, conn = Conn, source = Src} = D)
+  when map_size(Faults) =:= 0 ->
+    ok = cell_alarms:clear_alarm(Id, ?FAULTS_ALARM),
+    cell_log:notice(Src, "the PLC on ~s has every tag of the block again (~s)", [Conn, Layout]),
+    D#data{faults = Faults};
+faults(Faults, #data{id = Id, io = #{layout := Layout}, conn = Conn, source = Src} = D) ->
+    Names = lists:join(", ", [[tag_name(Layout, T), " (", Why, ")"]
+                              || {T, Why} <- lists:sort(maps:to_list(Faults))]),
+    Text = io_lib:format("The PLC on connection ~s lacks tags the block needs, or holds "
+                         "them with another type: ~ts. Inspections wait until its program "
+                         "has them.", [Conn, Names]),
+    ok = cell_alarms:alarm(Id, ?FAULTS_ALARM, "Inspection block: PLC tags missing", Text),
+    cell_log:error(Src, "~ts", [Text]),
+    D#data{faults = Faults}.
+
+tag_name(ads, Tag) -> cell_inspect_tags:ab_name(Tag);
+tag_name(s7, Tag) -> cell_inspect_tags:seed_name(Tag).
 
 %% A changed input point. A command bit is taken with the value the change carries
 %% (see cell_inspect_io:change/3), so a pulse over by now still rises. A command's
@@ -372,7 +411,12 @@ input(Point, Value, #data{io = Io} = D) ->
         {command, Tag, true} ->
             D1 = lists:foldl(fun(T, Dx) -> refresh(T, Dx) end, D,
                              cell_inspect_tags:data_inputs()),
-            feed({input, Tag, true}, online, D1);
+            case D1#data.synced of
+                true -> feed({input, Tag, true}, online, D1);
+                %% Its values cannot all be read: the command waits, as the PLC
+                %% holds it, for the block to be read whole again.
+                false -> D1
+            end;
         {command, Tag, false} ->
             feed({input, Tag, false}, online, D);
         {value, Tag} ->
@@ -381,9 +425,10 @@ input(Point, Value, #data{io = Io} = D) ->
             D
     end.
 
-refresh(Tag, #data{id = Id, io = Io} = D) ->
+refresh(Tag, #data{id = Id, io = Io, faults = Faults} = D) ->
     case cell_inspect_io:read(Io, Id, Tag) of
         {ok, V} -> feed({input, Tag, V}, online, D);
+        {error, {unavailable, Why}} -> faults(Faults#{Tag => Why}, D#data{synced = false});
         {error, _} -> D
     end.
 
@@ -411,13 +456,19 @@ feed(Event, State, #data{logic = L} = D) ->
     publish(State, D1).
 
 effect({write, Tag, V}, online, #data{id = Id, io = Io, source = Src} = D) ->
-    _ = [case cell_hal:write(Id, P, HV) of
-             ok -> ok;
-             {error, Why} ->
-                 cell_log:debug(Src, "~s not written: ~0tp", [cell_inspect_tags:seed_name(Tag),
-                                                                Why])
-         end || {P, HV} <- cell_inspect_io:writes(Io, Tag, V)],
-    D;
+    lists:foldl(fun({P, HV}, Dx) ->
+                        case cell_hal:write(Id, P, HV) of
+                            ok ->
+                                Dx;
+                            {error, {unavailable, Why}} ->
+                                %% Read whole again at the next change of the PLC.
+                                faults((Dx#data.faults)#{Tag => Why}, Dx#data{synced = false});
+                            {error, Why} ->
+                                cell_log:debug(Src, "~s not written: ~0tp",
+                                               [cell_inspect_tags:seed_name(Tag), Why]),
+                                Dx
+                        end
+                end, D, cell_inspect_io:writes(Io, Tag, V));
 effect({write, _, _}, _State, D) ->
     D;                                  %% written again when the PLC is back
 effect({request_image, Cs, Req}, _, D) ->

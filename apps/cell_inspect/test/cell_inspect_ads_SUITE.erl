@@ -18,13 +18,14 @@
          trigger_fail_with_string/1, unknown_point/1, override_found/1,
          override_not_found/1, message_yes_no/1, message_text/1,
          pulse_in_one_notification/1, pulse_over_before_the_block_looks/1,
-         connection_dropped/1, polled_without_notifications/1]).
+         connection_dropped/1, polled_without_notifications/1, member_missing/1]).
 
 all() ->
     [symbols_and_notifications, heartbeat_toggles, echoes, trigger_pass,
      trigger_fail_with_string, unknown_point, override_found, override_not_found,
      message_yes_no, message_text, pulse_in_one_notification,
-     pulse_over_before_the_block_looks, connection_dropped, polled_without_notifications].
+     pulse_over_before_the_block_looks, connection_dropped, polled_without_notifications,
+     member_missing].
 
 init_per_suite(Config) ->
     [{apps, ?T:start(Config, ?MODULE, [])} | Config].
@@ -254,3 +255,46 @@ polled_without_notifications(Config) ->
     ?assertEqual(3, maps:get(inspection_status, Seen)),
     _ = ?T:request_seen(?CAM),
     ?assert(maps:get(sums, stats(Plc)) > 0).
+
+%%--------------------------------------------------------------------
+%% The PLC's program
+%%--------------------------------------------------------------------
+
+%% A download takes PARTSERIAL out of the structure. The trigger that follows waits:
+%% the operator is shown an alarm of the block naming the member, until a download
+%% puts it back; the block then reads the PLC whole again, the alarm is cleared, and
+%% the trigger the PLC still holds is taken.
+member_missing(Config) ->
+    Plc = plc(Config),
+    ok = cell_events:subscribe([alarm_raised, alarm_cleared]),
+    ok = cell_log:subscribe(),
+    ok = ?P:values(Plc, [{inspection_point_id, <<"STATION1">>}]),
+    ok = ?P:program_without(Plc, part_serial),
+    %% The HAL has found the member gone before the PLC triggers.
+    {ok, _} = cell_hal_ads_peer:await(
+                fun({cell_log, #{text := T}}) ->
+                        binary:match(T, [<<"MVSCAMERA.PARTSERIAL">>]) =/= nomatch
+                            andalso binary:match(T, <<"cannot be used">>) =/= nomatch
+                            andalso {true, T};
+                   (_) -> false
+                end, ?WAIT),
+    ok = cell_log:unsubscribe(),
+    ok = ?P:set(Plc, trigger_inspection, true),
+    Alarm = await_alarm(alarm_raised),
+    ct:log("the operator sees: ~ts", [maps:get(description, Alarm)]),
+    ?assertMatch(#{kind := alarm, caption := <<"Inspection block: PLC tags missing">>}, Alarm),
+    ?assertNotEqual(nomatch, binary:match(maps:get(description, Alarm),
+                                          <<"MVSCAMERA.PARTSERIAL">>)),
+    ?assertMatch([#{local_id := <<"plc_tags">>}], cell_alarms:list(line1)),
+    ok = ?P:program_with(Plc, part_serial),
+    _ = await_alarm(alarm_cleared),
+    ?assertEqual([], cell_alarms:list(line1)),
+    ok = ?P:await(Plc, trigger_inspection_echo, true).
+
+await_alarm(Type) ->
+    receive
+        {cell_event, #{type := Type, task := line1,
+                       alarm := #{local_id := <<"plc_tags">>} = A}} -> A
+    after ?WAIT ->
+        ct:fail({no_event, Type, cell_alarms:list(line1)})
+    end.

@@ -20,6 +20,7 @@
          await_written/3, tag/2, tags/1, written/2, log/1, forget/1, bytes/1, raw/2, peer/1,
          silent/2, registers/3, set_registers/3]).
 -export([values/2, command/2, trigger/3, send_message/2, before/3]).
+-export([program_without/2, program_with/2]).
 
 -define(WAIT, 20000).
 -define(FILETIME_UNIX_EPOCH, 116444736000000000).
@@ -88,6 +89,13 @@ stop(Plc) ->
     receive {'DOWN', Ref, process, _, _} -> ok after ?WAIT -> ok end.
 
 port(Plc) -> call(Plc, port).
+
+%% @doc ADS: a program change takes a member out of the structure (a download of a
+%% program that lacks it).
+program_without(Plc, Tag) -> call(Plc, {program_without, Tag}).
+
+%% @doc ADS: a program change puts the member back, zeroed.
+program_with(Plc, Tag) -> call(Plc, {program_with, Tag}).
 
 %% @doc The PLC writes a tag.
 set(Plc, Tag, Value) -> call(Plc, {set, Tag, Value}).
@@ -269,6 +277,14 @@ loop(#plc{port = Port, peer = Peer} = S) ->
 
 handle(port, _, #plc{tcp = T} = S) ->
     {T, S};
+handle({program_without, Tag}, _, #plc{peer = Peer} = S) ->
+    {Name, _} = member(Tag),
+    {cell_hal_ads_peer:cmd(Peer, ["remove ", Name]), S};
+handle({program_with, Tag}, _, #plc{peer = Peer, image = I} = S) ->
+    {Name, Decl} = member(Tag),
+    {ok, _, _} = add(Peer, Name, ads_type(Decl), ads_id(Decl), ads_size(Decl), " nested"),
+    ok = cell_hal_ads_peer:cmd(Peer, "bump"),
+    {ok, S#plc{image = I#{Tag := <<0:(ads_size(Decl))/unit:8>>}}};
 handle({set, Tag, Value}, _, #plc{peer = undefined} = S) ->
     {ok, write_tag(Tag, Value, S)};
 handle({set, Tag, Value}, _, #plc{peer = Peer, image = I} = S) ->
