@@ -63,9 +63,9 @@ write(Path, Data) ->
 write(Path, Data, Opts) ->
     Target = native(Path),
     Tmp = <<Target/binary, ?TMP_MARK, (integer_to_binary(erlang:unique_integer([positive])))/binary>>,
-    Sync = maps:get(sync, Opts, true),
-    in_c(Path, folder(Target), fun() -> replace_ram_nif(Tmp, Target, Data, false) end,
-         fun() -> replace_nif(Tmp, Target, Data, Sync) end).
+    in_c(Path, folder(Target), Opts,
+         fun(Sync) -> replace_ram_nif(Tmp, Target, Data, Sync) end,
+         fun(Sync) -> replace_nif(Tmp, Target, Data, Sync) end).
 
 %% @doc Deletes `Path' durably; a missing file is not an error.
 -spec delete(file:filename_all()) -> ok | error().
@@ -76,17 +76,17 @@ delete(Path) ->
 -spec delete(file:filename_all(), options()) -> ok | error().
 delete(Path, Opts) ->
     Target = native(Path),
-    Sync = maps:get(sync, Opts, true),
-    in_c(Path, folder(Target), fun() -> remove_ram_nif(Target, false) end,
-         fun() -> remove_nif(Target, Sync) end).
+    in_c(Path, folder(Target), Opts, fun(Sync) -> remove_ram_nif(Target, Sync) end,
+         fun(Sync) -> remove_nif(Target, Sync) end).
 
-%% One call into C for a file of Folder: on the calling scheduler, without flushes, in
-%% a folder held in RAM; on a dirty I/O scheduler elsewhere. An error names the file, or its folder if
-%% flushing that failed.
-in_c(Path, Folder, InRam, OnDisk) ->
+%% One call into C for a file of Folder, given whether to flush: on the calling
+%% scheduler and never flushing in a folder held in RAM (a flush there only costs a
+%% system call); on a dirty I/O scheduler, flushing unless `sync => false', elsewhere.
+%% An error names the file, or its folder if flushing that failed.
+in_c(Path, Folder, Opts, InRam, OnDisk) ->
     Result = case in_ram(Folder) of
-                 true -> InRam();
-                 false -> OnDisk()
+                 true -> InRam(false);
+                 false -> OnDisk(maps:get(sync, Opts, true))
              end,
     case Result of
         ok -> ok;
@@ -243,16 +243,16 @@ put_record(Path, Term) ->
 %% of {@link record_file/1} the file stays open between writes.
 -spec put_record(file:filename_all() | record_file(), term(), options()) -> ok | error().
 put_record({record_file, Target, Folder, Handle}, Term, Opts) ->
-    Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    in_c(Target, Folder, fun() -> record_put_handle_ram_nif(Handle, Body, false) end,
-         fun() -> record_put_handle_nif(Handle, Body, Sync) end);
+    in_c(Target, Folder, Opts,
+         fun(Sync) -> record_put_handle_ram_nif(Handle, Body, Sync) end,
+         fun(Sync) -> record_put_handle_nif(Handle, Body, Sync) end);
 put_record(Path, Term, Opts) ->
     Target = native(Path),
-    Sync = maps:get(sync, Opts, true),
     Body = term_to_binary(Term),
-    in_c(Path, folder(Target), fun() -> record_put_ram_nif(Target, Body, false) end,
-         fun() -> record_put_nif(Target, Body, Sync) end).
+    in_c(Path, folder(Target), Opts,
+         fun(Sync) -> record_put_ram_nif(Target, Body, Sync) end,
+         fun(Sync) -> record_put_nif(Target, Body, Sync) end).
 
 %% @doc The record of a file written by {@link put_record/2}. A file written by {@link
 %% write_term/2} is read as such. `{error, {corrupt, Why}}' when neither slot holds a
