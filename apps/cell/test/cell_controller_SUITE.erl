@@ -22,7 +22,8 @@ all() ->
      service_mode_pauses, crash_restores_product, damaged_product_file,
      damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
-     cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused, settings_snapshot_at_start,
+     cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused,
+     settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
      estop_deadline_kills_a_stuck_task].
 

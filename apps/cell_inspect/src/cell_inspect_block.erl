@@ -366,19 +366,23 @@ plc_up(#data{id = Id, io = Io} = D) ->
     In = Read(cell_inspect_tags:inputs()),
     Out = Read(cell_inspect_tags:outputs()),
     Values = fun(Rs) -> maps:from_list([{T, V} || {T, {ok, V}} <- Rs]) end,
-    case [{T, Why} || {T, {error, {unavailable, Why}}} <- In ++ Out] of
-        [] ->
-            case [T || {T, {error, _}} <- In ++ Out] of
-                [] ->
-                    D1 = faults(#{}, D#data{synced = true}),
-                    feed({plc_up, #{inputs => Values(In), outputs => Values(Out)}}, online, D1);
-                _ ->
-                    %% Not read yet: a change or a connection message follows.
-                    D#data{synced = false}
-            end;
-        Faults ->
-            faults(maps:from_list(Faults), D#data{synced = false})
+    Faults = [{T, Why} || {T, {error, {unavailable, Why}}} <- In ++ Out],
+    Unread = [T || {T, {error, _}} <- In ++ Out],
+    if
+        Faults =/= [] ->
+            faults(maps:from_list(Faults), D#data{synced = false});
+        Unread =/= [] ->
+            %% Not read yet: a change or a connection message follows.
+            D#data{synced = false};
+        true ->
+            D1 = faults(#{}, D#data{synced = true}),
+            feed({plc_up, #{inputs => Values(In), outputs => Values(Out)}}, online, D1)
     end.
+
+%% A tag found unusable while the block works: the block is read whole again at the
+%% next change of the PLC.
+fault(Tag, Why, #data{faults = Faults} = D) ->
+    faults(Faults#{Tag => Why}, D#data{synced = false}).
 
 %% The tags the PLC does not have as the block needs them, as the operator sees them:
 %% one alarm of the block naming them all, set while there are any.
@@ -425,10 +429,10 @@ input(Point, Value, #data{io = Io} = D) ->
             D
     end.
 
-refresh(Tag, #data{id = Id, io = Io, faults = Faults} = D) ->
+refresh(Tag, #data{id = Id, io = Io} = D) ->
     case cell_inspect_io:read(Io, Id, Tag) of
         {ok, V} -> feed({input, Tag, V}, online, D);
-        {error, {unavailable, Why}} -> faults(Faults#{Tag => Why}, D#data{synced = false});
+        {error, {unavailable, Why}} -> fault(Tag, Why, D);
         {error, _} -> D
     end.
 
@@ -461,8 +465,7 @@ effect({write, Tag, V}, online, #data{id = Id, io = Io, source = Src} = D) ->
                             ok ->
                                 Dx;
                             {error, {unavailable, Why}} ->
-                                %% Read whole again at the next change of the PLC.
-                                faults((Dx#data.faults)#{Tag => Why}, Dx#data{synced = false});
+                                fault(Tag, Why, Dx);
                             {error, Why} ->
                                 cell_log:debug(Src, "~s not written: ~0tp",
                                                [cell_inspect_tags:seed_name(Tag), Why]),

@@ -273,7 +273,7 @@ member_missing(Config) ->
     %% The HAL has found the member gone before the PLC triggers.
     {ok, _} = cell_hal_ads_peer:await(
                 fun({cell_log, #{text := T}}) ->
-                        binary:match(T, [<<"MVSCAMERA.PARTSERIAL">>]) =/= nomatch
+                        binary:match(T, <<"MVSCAMERA.PARTSERIAL">>) =/= nomatch
                             andalso binary:match(T, <<"cannot be used">>) =/= nomatch
                             andalso {true, T};
                    (_) -> false
