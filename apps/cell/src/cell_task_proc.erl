@@ -437,12 +437,12 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
             raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
     end.
 
-after_step({continue, T}, #data{gen = Gen, task = #task{ipc = Ipc}} = D) ->
-    self() ! ?STEP(Gen),
+after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
     D1 = D#data{task = clean(T), pending = {step, undefined}},
+    Next = next_step(D1),
     case T#task.ipc of
-        Ipc -> {keep_state, D1};
-        New -> {next_state, New, D1}
+        Ipc -> {keep_state, D1, Next};
+        New -> {next_state, New, D1, Next}
     end;
 after_step({wait, Wait, T}, D) ->
     Waits = case Wait of
@@ -463,6 +463,15 @@ after_step({error, Spec, T}, D) ->
     raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
 after_step(Other, #data{task = #task{module = Mod}}) ->
     erlang:error({bad_step_result, Mod, Other}).
+
+%% The step after a `continue' comes after whatever reached the task meanwhile (a
+%% Pause, a Stop, a link's message): a message to itself, behind them. With nothing
+%% waiting the step runs at once, which is the same order without the message.
+next_step(#data{gen = Gen}) ->
+    case erlang:process_info(self(), message_queue_len) of
+        {message_queue_len, 0} -> [{next_event, internal, step}];
+        _ -> self() ! ?STEP(Gen), []
+    end.
 
 %% What woke the step, and the operator's answer if that was it. (A step that follows
 %% a continue finds the task as it left it: nothing to change.)
