@@ -58,8 +58,14 @@ unregister_task(Id) ->
 -spec update(atom(), map()) -> ok.
 update(Id, Fields) ->
     case ets:lookup(?TASKS, Id) of
-        [{Id, Row}] -> true = ets:insert(?TASKS, {Id, maps:merge(Row, Fields)}), ok;
-        [] -> ok
+        [{Id, Row}] ->
+            case maps:merge(Row, Fields) of
+                %% Nothing new (a task saving its product again, say): nothing written.
+                Row -> ok;
+                New -> true = ets:insert(?TASKS, {Id, New}), ok
+            end;
+        [] ->
+            ok
     end.
 
 %% @doc A task's IPC-2541 state, kept in a table of its own (one insert per change) and
@@ -115,26 +121,31 @@ hold(Id, Serial, Gen) ->
     %% Beside the rows by serial, one by task names the serial it holds, so the old row
     %% goes without a scan of the table.
     case ets:lookup(?PRODUCTS, {task, Id}) of
-        [{_, Old, OldGen} = Index] ->
-            true = ets:delete_object(?PRODUCTS, {Old, Id, OldGen}),
-            true = ets:delete_object(?PRODUCTS, Index);
-        [] ->
+        [{_, Serial, Gen}] ->
+            %% Held already (a task saving its product again, say): the rows stand.
+            ok;
+        Index ->
+            _ = [begin
+                     true = ets:delete_object(?PRODUCTS, {Old, Id, OldGen}),
+                     true = ets:delete_object(?PRODUCTS, Row)
+                 end || {_, Old, OldGen} = Row <- Index],
+            _ = Serial =:= undefined orelse
+                ets:insert(?PRODUCTS, [{Serial, Id, Gen}, {{task, Id}, Serial, Gen}]),
             ok
     end,
-    case Serial of
-        undefined ->
-            ok;
-        _ ->
-            true = ets:insert(?PRODUCTS, [{Serial, Id, Gen}, {{task, Id}, Serial, Gen}]),
-            lists:foreach(fun({_, Other, G}) when Other =/= Id, G < Gen ->
-                                  case ets:lookup(?TASKS, Other) of
-                                      [{_, #{pid := Pid}}] -> Pid ! {cell_registry, stale, Serial, Gen};
-                                      _ -> ok
-                                  end;
-                             (_) ->
-                                  ok
-                          end, ets:lookup(?PRODUCTS, Serial))
-    end.
+    _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
+    ok.
+
+%% Every other holder of an older generation of the serial drops its copy.
+tell_stale(Id, Serial, Gen) ->
+    lists:foreach(fun({_, Other, G}) when Other =/= Id, G < Gen ->
+                          case ets:lookup(?TASKS, Other) of
+                              [{_, #{pid := Pid}}] -> Pid ! {cell_registry, stale, Serial, Gen};
+                              _ -> ok
+                          end;
+                     (_) ->
+                          ok
+                  end, ets:lookup(?PRODUCTS, Serial)).
 
 %% @doc Who holds a serial, and with which generation.
 -spec holders(binary()) -> [{atom(), non_neg_integer()}].
