@@ -105,7 +105,8 @@ init(#{lanes := Lanes}) ->
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
-           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => []},
+           armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
+           epoch => 0},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -174,10 +175,27 @@ handle_cast(Msg, _S) ->
 -spec handle_info(term(), map()) -> {noreply, map()}.
 handle_info(attach, #{attached := false} = S) ->
     {noreply, attach(S)};
+handle_info(_Msg, #{attached := false} = S) ->
+    %% Waiting for the HAL: what the physics armed before is over.
+    {noreply, S};
 handle_info(Msg, S) ->
     %% The settings as they are now, read once for everything this message causes.
-    {noreply, S1} = info(Msg, rearm(S#{settings => settings()})),
-    {noreply, maps:remove(settings, S1)}.
+    try info(Msg, rearm(S#{settings => settings()})) of
+        {noreply, S1} -> {noreply, maps:remove(settings, S1)}
+    catch
+        throw:{hal_gone, Group} -> {noreply, detach(Group, S)}
+    end.
+
+%% The cell's HAL went away under the physics (the cell stopped, or its monitor took
+%% the HAL down): the world is saved and the physics waits for the HAL as at its
+%% start, then goes on from the world saved. Whatever it had armed is dropped.
+detach(Group, #{lanes := Lanes, epoch := Epoch} = S) ->
+    _ = save(S),
+    cell_log:notice(router, "simulated router: the cell's HAL no longer serves ~ts; the "
+                    "physics waits for it", [Group]),
+    {ok, Fresh, _} = init(#{lanes => Lanes}),
+    _ = erlang:send_after(?ATTACH_MIN, self(), attach),
+    Fresh#{epoch := Epoch + 1}.
 
 info({out, Key, V}, #{outs := Outs, groups := Groups} = S) ->
     {G, P} = Key,
@@ -188,8 +206,11 @@ info({timeout, Ref, {step, Id}}, #{moves := Moves} = S) ->
         {ok, #move{timer = Ref} = M} -> {noreply, kick(run_move(Id, M, S))};
         _ -> {noreply, S}
     end;
-info({timeout, _, {later, Fun}}, S) ->
+info({timeout, _, {later, Epoch, Fun}}, #{epoch := Epoch} = S) ->
     {noreply, kick(Fun(S))};
+info({timeout, _, {later, _, _}}, S) ->
+    %% Armed before the physics last waited for the HAL.
+    {noreply, S};
 info({timeout, TRef, {arrive, Lane}}, #{arrival := Pending} = S) ->
     case maps:get(Lane, Pending, undefined) of
         TRef -> {noreply, kick(arrivals(arrive(Lane, S)))};
@@ -648,6 +669,8 @@ set(S, Kind, L, Point, V) ->
             end,
     case cell_hal_sim:set({Group, Point}, V) of
         ok -> S;
+        {error, Gone} when Gone =:= unknown_point; Gone =:= unknown_group ->
+            throw({hal_gone, Group});
         {error, Why} -> erlang:error({cannot_set, Group, Point, V, Why})
     end.
 
@@ -657,8 +680,8 @@ out(#{outs := Outs}, Kind, L, Point) ->
 input(_S, Kind, L, Point) ->
     cell_hal_sim:get({router_cell:group(Kind, L), Point}) =:= {ok, true}.
 
-later(Ms, Fun, S) ->
-    _ = erlang:start_timer(Ms, self(), {later, Fun}),
+later(Ms, Fun, #{epoch := Epoch} = S) ->
+    _ = erlang:start_timer(Ms, self(), {later, Epoch, Fun}),
     S.
 
 chance(Setting, #{rand := R} = S) ->
