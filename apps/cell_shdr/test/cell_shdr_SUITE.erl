@@ -408,7 +408,7 @@ silent_agent_disconnected(_Config) ->
     {_, _} = read_until(Quiet, fun(L) -> L =:= <<"* PONG 1000">> end, deadline()),
     ok = gen_tcp:close(Quiet).
 
-%% A client that reads nothing is dropped with a log line; the cell and the other
+%% A client that stops reading is dropped with a log line; the cell and the other
 %% client never wait for it, and the other client gets every change.
 slow_client_dropped(_Config) ->
     N = 5000,
@@ -417,11 +417,16 @@ slow_client_dropped(_Config) ->
                         points => [point(<<"flood">>, <<"plc">>, <<"flood">>, event,
                                          <<"MESSAGE">>, <<>>)]}),
     ok = cell_log:subscribe(),
+    %% The slow client reads its snapshot, then nothing more. Its PONG also says the
+    %% adapter has registered it, so both are among the clients monitored below.
     {ok, Slow} = gen_tcp:connect({127, 0, 0, 1}, cell_shdr:port(),
-                                 [binary, {active, false}, {recbuf, 512}]),
+                                 [binary, {active, false}, {packet, line},
+                                  {buffer, 1 bsl 20}, {recbuf, 512}]),
+    _ = snapshot(Slow),
     Fast = connect(),
     _ = snapshot(Fast),
     Refs = [monitor(process, P) || P <- cell_shdr:clients()],
+    ?assertEqual(2, length(Refs)),
     Text = binary:copy(<<"x">>, 300),
     T0 = erlang:monotonic_time(microsecond),
     [ok = cell_shdr_test_hal:set(plc, flood, <<Text/binary, (integer_to_binary(I))/binary>>)
