@@ -29,6 +29,8 @@ run() ->
     RamRoot = filename:join(?RAM, "cellrt-bench-" ++ os:getpid()),
     DiskRoot = filename:join(os:getenv("CELLRT_ROOT", "_build/bench/root"), "handshake"),
     Ram2 = line_rate(RamRoot, 1, 2, {?ROUNDS, 2000}, detached),
+    Floor = protocol_floor(RamRoot, {?ROUNDS, 2000}, true),
+    FloorBare = protocol_floor(RamRoot, {?ROUNDS, 2000}, false),
     Ram10 = line_rate(RamRoot, 1, 10, {?ROUNDS, 500}, detached),
     Lat = latency(RamRoot, 300),
     Cell2 = line_rate(RamRoot, 1, 2, {?ROUNDS, 1000}, attached),
@@ -49,6 +51,20 @@ run() ->
                "record writes. The statistics are detached from the events (the next "
                "figure has them). Each figure on the RAM folder is the median of five "
                "rounds through one running cell."},
+     #{title => "Transfers per second, line of 2, RAM folder, beside the protocol's floor",
+       unit => "transfers/s", ours => Ram2, peer => Floor,
+       peer_name => "the same link and record writes between two bare processes",
+       better => higher,
+       note => "The protocol's floor: the cell's own link process between two bare "
+               "processes that make the four calls, the cast and the five product-file "
+               "writes of a transfer through a line of 2, on the same RAM folder, with "
+               "no task engine (no state machine, no step callback, no events, no "
+               "registry). No task engine on this link and these files passes it; the "
+               "ratio is what the engine costs. The next figure is the floor beside "
+               "the same without the writes: what the five writes cost a transfer."},
+     #{title => "The protocol's floor, line of 2, RAM folder", unit => "transfers/s",
+       ours => Floor, peer => FloorBare,
+       peer_name => "the same without the record writes", better => higher},
      #{title => "Transfers per second, line of 2, RAM folder, whole cell", unit => "transfers/s",
        ours => Cell2, peer => RoundTrips, peer_name => "raw message round trips/s",
        better => higher,
@@ -174,6 +190,86 @@ ping(Echo, N, Until) ->
             Echo ! {self(), N},
             receive N -> ok end,
             ping(Echo, N + 1, Until)
+    end.
+
+%% Transfers per second of the protocol alone: the cell's own link between two bare
+%% processes making what a line of 2 makes per transfer (four calls, the `owned' cast,
+%% five product-file writes, or none), the median of `Rounds' rounds of `Per' products.
+protocol_floor(Root, {Rounds, Per}, Writes) ->
+    Dir = filename:join(Root, "protocol-floor"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    {ok, Link} = cell_handshake_link:start_link(#{id => bench_protocol_floor,
+                                                  from => undefined, to => undefined}),
+    Self = self(),
+    Sides = [spawn_link(fun() -> floor_side(Role, Link, filename:join(Dir, Name), Writes, Self) end)
+             || {Role, Name} <- [{up, "up.product"}, {down, "down.product"}]],
+    [receive {attached, S} -> ok end || S <- Sides],
+    Rates = [begin
+                 T0 = erlang:monotonic_time(microsecond),
+                 [S ! {go, Per} || S <- Sides],
+                 [receive {done, S} -> ok end || S <- Sides],
+                 Per / ((erlang:monotonic_time(microsecond) - T0) / 1000000)
+             end || _ <- lists:seq(1, Rounds)],
+    [begin unlink(P), exit(P, kill) end || P <- [Link | Sides]],
+    maps:get(median, cell_bench:stats(Rates)).
+
+floor_side(Role, Link, Path, Writes, Boss) ->
+    {ok, _} = gen_server:call(Link, {attach, Role, Role, self(), none}),
+    File = case Writes of
+               true -> cell_file:record_file(Path);
+               false -> none
+           end,
+    Boss ! {attached, self()},
+    floor_rounds(Role, Link, File, Boss).
+
+floor_rounds(Role, Link, File, Boss) ->
+    receive
+        {go, N} ->
+            [floor_transfer(Role, Link, File, I) || I <- lists:seq(1, N)],
+            Boss ! {done, self()},
+            floor_rounds(Role, Link, File, Boss)
+    end.
+
+%% Upstream: the new product saved, offered, released once committed, forgotten once
+%% downstream owns it, and the transfer completed.
+floor_transfer(up, Link, File, I) ->
+    P = cell_product:new(<<"F-", (integer_to_binary(I))/binary>>, <<"line">>),
+    ok = save(File, cell_product:stored(P, 1, undefined), #{}),
+    {ok, _} = gen_server:call(Link, {offer, self(), P, 1}),
+    link_message(fun({signals, #{not_busy := true}}) -> true; (_) -> false end),
+    {ok, _} = gen_server:call(Link, {release, self()}),
+    link_message(fun(owned) -> true; (_) -> false end),
+    ok = save(File, undefined, #{sync => false}),
+    link_message(fun({completed, _}) -> true; (_) -> false end);
+%% Downstream: commit on the offer, the product saved in transit once released, owned,
+%% completed with the mark cleared, and sent out.
+floor_transfer(down, Link, File, _I) ->
+    link_message(fun({_, #{available := true}}) -> true; (_) -> false end),
+    {{ok, P, G}, _} = gen_server:call(Link, {commit, self()}),
+    link_message(fun({{released, _, _}, _}) -> true; (_) -> false end),
+    ok = save(File, cell_product:stored(P, G + 1, #{link => bench_protocol_floor,
+                                                  from => upstream, phase => in_transit}),
+              #{}),
+    gen_server:cast(Link, {owned, self()}),
+    {ok, _} = gen_server:call(Link, {complete, self()}),
+    ok = save(File, cell_product:stored(P, G + 1, undefined), #{sync => false}),
+    ok = save(File, undefined, #{}).
+
+save(none, _Stored, _Opts) -> ok;
+save(File, Stored, Opts) -> cell_product:save(File, Stored, Opts).
+
+%% The next message of the link that `Wanted' accepts; the link's other news (the
+%% signals it also sends) is dropped.
+link_message(Wanted) ->
+    receive
+        {cell_handshake, _, Step} -> link_message(Step, Wanted);
+        {cell_handshake, _, Step, Status} -> link_message({Step, Status}, Wanted)
+    end.
+
+link_message(Message, Wanted) ->
+    case Wanted(Message) of
+        true -> ok;
+        false -> link_message(Wanted)
     end.
 
 %% The disk's rate of the write a transfer's commit makes: a small term written to a
