@@ -187,15 +187,14 @@ handle_info(Msg, S) ->
     end.
 
 %% The cell's HAL went away under the physics (the cell stopped, or its monitor took
-%% the HAL down): the world is saved and the physics waits for the HAL as at its
-%% start, then goes on from the world saved. Whatever it had armed is dropped.
+%% the HAL down): the world is saved and the physics attaches again as at its start
+%% (waiting, with its log line, while the HAL is gone), then goes on from the world
+%% saved. Whatever it had armed is dropped.
 detach(Group, #{lanes := Lanes, epoch := Epoch} = S) ->
     _ = save(S),
-    cell_log:notice(router, "simulated router: the cell's HAL no longer serves ~ts; the "
-                    "physics waits for it", [Group]),
+    cell_log:notice(router, "simulated router: the cell's HAL no longer serves ~ts", [Group]),
     {ok, Fresh, _} = init(#{lanes => Lanes}),
-    _ = erlang:send_after(?ATTACH_MIN, self(), attach),
-    Fresh#{epoch := Epoch + 1}.
+    attach(Fresh#{epoch := Epoch + 1}).
 
 info({out, Key, V}, #{outs := Outs, groups := Groups} = S) ->
     {G, P} = Key,
