@@ -419,9 +419,7 @@ slow_client_dropped(_Config) ->
     ok = cell_log:subscribe(),
     %% The slow client reads its snapshot, then nothing more. Its PONG also says the
     %% adapter has registered it, so both are among the clients monitored below.
-    {ok, Slow} = gen_tcp:connect({127, 0, 0, 1}, cell_shdr:port(),
-                                 [binary, {active, false}, {packet, line},
-                                  {buffer, 1 bsl 20}, {recbuf, 512}]),
+    Slow = connect([{recbuf, 512}]),
     _ = snapshot(Slow),
     Fast = connect(),
     _ = snapshot(Fast),
@@ -694,9 +692,14 @@ taken_port_waited_for_and_moved(_Config) ->
     ok = gen_tcp:close(S2).
 
 connect() ->
+    connect([]).
+
+%% A client reading lines, with more socket options (a small receive buffer, say).
+connect(Opts) ->
     Port = cell_shdr:port(),
     {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false},
-                                                      {packet, line}, {buffer, 1 bsl 20}]),
+                                                      {packet, line}, {buffer, 1 bsl 20}
+                                                      | Opts]),
     S.
 
 %% After the adapter restarted (its clients were closed while its supervisor was
