@@ -9,9 +9,12 @@
 %% where `Json' is one or more JSON objects separated by commas, to be framed into an
 %% array. With no page connected the events are taken and dropped unencoded.
 %%
-%% If the event fan-out or the log server restarts, this process stops with them and
-%% its supervisor starts it again; the pages, which monitor it, reconnect and read a
-%% fresh snapshot.
+%% If the event fan-out or the log server restarts, this process stays: it monitors
+%% both, attaches again once they are back (see {@link cell_attach}: a backoff timer,
+%% no polling), and then tells every page to read a fresh snapshot
+%% (`cell_web_feed_resync'), since changes made while it was detached never reached
+%% it. So a burst of restarts of the cell's services neither closes the pages nor
+%% counts against the panel's supervisor.
 -module(cell_web_feed).
 -behaviour(gen_server).
 
@@ -19,8 +22,11 @@
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {pages = #{} :: #{pid() => reference()},
-                events :: reference(),
-                log :: reference()}).
+                watch = #{} :: cell_attach:watch(),
+                retry :: reference() | undefined,
+                backoff = cell_attach:first() :: pos_integer()}).
+
+-define(SERVICES, [cell_events, cell_log_server]).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -35,10 +41,7 @@ join(Page) ->
 init([]) ->
     %% Bursts (a thousand tasks stopping) wait outside the heap.
     process_flag(message_queue_data, off_heap),
-    ok = cell_events:subscribe(),
-    ok = cell_log:subscribe(),
-    {ok, #state{events = monitor(process, cell_events),
-                log = monitor(process, cell_log_server)}}.
+    {ok, attach(#state{})}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, ok, #state{}}.
 handle_call({join, Page}, _From, #state{pages = Pages} = State) ->
@@ -56,21 +59,60 @@ handle_info({cell_event, _} = Msg, State) ->
     {noreply, send(Msg, State)};
 handle_info({cell_log, _} = Msg, State) ->
     {noreply, send(Msg, State)};
-handle_info({'DOWN', Ref, process, _, Reason}, #state{events = Ref} = State) ->
-    {stop, {cell_events_down, Reason}, State};
-handle_info({'DOWN', Ref, process, _, Reason}, #state{log = Ref} = State) ->
-    {stop, {log_server_down, Reason}, State};
+handle_info({'DOWN', Ref, process, _, Reason}, #state{watch = W} = State)
+  when is_map_key(Ref, W) ->
+    cell_log:warning(web, "the panel lost the cell's ~ts (~0tp); the pages are brought up "
+                     "to date when it is back", [service(maps:get(Ref, W)), Reason]),
+    ok = cell_attach:unwatch(W),
+    {noreply, attach(State#state{watch = #{}})};
 handle_info({'DOWN', _Ref, process, Page, _Reason}, #state{pages = Pages} = State) ->
-    {noreply, State#state{pages = maps:remove(Page, Pages)}}.
+    {noreply, State#state{pages = maps:remove(Page, Pages)}};
+handle_info({timeout, TRef, cell_attach}, #state{retry = TRef, backoff = B} = State) ->
+    {noreply, attach(State#state{retry = undefined, backoff = cell_attach:next(B)})}.
+
+%% Subscribes to the events and the log lines; when both are back after a loss, every
+%% page reads a fresh snapshot (at the first attach there is no page yet).
+attach(#state{retry = undefined, backoff = B} = State) ->
+    Subscribe = fun() -> ok = cell_events:subscribe(), cell_log:subscribe() end,
+    case cell_attach:watch(?SERVICES, Subscribe) of
+        {ok, Watch} ->
+            ok = resync(State#state.pages),
+            State#state{watch = Watch, backoff = cell_attach:first()};
+        retry ->
+            State#state{retry = cell_attach:retry_after(B)}
+    end;
+attach(State) ->
+    %% A try is already armed.
+    State.
+
+service(cell_events) -> "events";
+service(cell_log_server) -> "log server".
 
 send(_Msg, #state{pages = Pages} = State) when map_size(Pages) =:= 0 ->
     State;
 send(Msg, #state{pages = Pages} = State) ->
-    case cell_web_ws_h:messages(Msg) of
+    case messages(Msg) of
         [] ->
+            State;
+        resync ->
+            resync(Pages),
             State;
         Messages ->
             Json = iolist_to_binary(lists:join($,, [jsx:encode(M) || M <- Messages])),
             _ = maps:fold(fun(Page, _, ok) -> Page ! {cell_web_feed, Json}, ok end, ok, Pages),
             State
     end.
+
+%% A message is made from the cell's tables as they are now. An event that comes while
+%% the services owning them restart (the tables gone, the owner not there) cannot be
+%% made: the pages read a fresh snapshot instead, once the cell answers again.
+messages(Msg) ->
+    try cell_web_ws_h:messages(Msg)
+    catch
+        error:badarg -> resync;
+        exit:{noproc, _} -> resync
+    end.
+
+resync(Pages) ->
+    _ = maps:fold(fun(Page, _, ok) -> Page ! cell_web_feed_resync, ok end, ok, Pages),
+    ok.

@@ -2,8 +2,8 @@
 %% connects shows them at once, without reading the day's log file.
 %%
 %% Subscribed to `cell_log'; the lines sit in an ETS table that websockets read
-%% directly. If the log server restarts, this process restarts with it and subscribes
-%% again.
+%% directly. If the log server restarts, this process keeps its lines and subscribes
+%% again once the server is back (see {@link cell_attach}).
 -module(cell_web_recent).
 -behaviour(gen_server).
 
@@ -12,6 +12,10 @@
 
 -define(TAB, cell_web_recent_lines).
 -define(KEEP, 200).
+
+-record(state, {watch = #{} :: cell_attach:watch(),
+                retry :: reference() | undefined,
+                backoff = cell_attach:first() :: pos_integer()}).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -22,27 +26,35 @@ start_link() ->
 lines() ->
     [L || {_, L} <- ets:tab2list(?TAB)].
 
--spec init([]) -> {ok, reference()}.
+-spec init([]) -> {ok, #state{}}.
 init([]) ->
     ?TAB = ets:new(?TAB, [named_table, ordered_set, protected, {read_concurrency, true}]),
-    ok = cell_log:subscribe(),
-    {ok, monitor(process, cell_log_server)}.
+    {ok, attach(#state{})}.
 
--spec handle_call(term(), gen_server:from(), reference()) -> no_return().
+-spec handle_call(term(), gen_server:from(), #state{}) -> no_return().
 handle_call(Msg, _From, _State) ->
     erlang:error({unexpected_call, Msg}).
 
--spec handle_cast(term(), reference()) -> no_return().
+-spec handle_cast(term(), #state{}) -> no_return().
 handle_cast(Msg, _State) ->
     erlang:error({unexpected_cast, Msg}).
 
--spec handle_info(term(), reference()) -> {noreply, reference()} | {stop, term(), reference()}.
-handle_info({cell_log, Line}, Ref) ->
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({cell_log, Line}, State) ->
     true = ets:insert(?TAB, {erlang:unique_integer([monotonic]), Line}),
     case ets:info(?TAB, size) > ?KEEP of
         true -> true = ets:delete(?TAB, ets:first(?TAB));
         false -> ok
     end,
-    {noreply, Ref};
-handle_info({'DOWN', Ref, process, _, Reason}, Ref) ->
-    {stop, {log_server_down, Reason}, Ref}.
+    {noreply, State};
+handle_info({'DOWN', Ref, process, _, _}, #state{watch = W} = State) when is_map_key(Ref, W) ->
+    ok = cell_attach:unwatch(W),
+    {noreply, attach(State#state{watch = #{}})};
+handle_info({timeout, TRef, cell_attach}, #state{retry = TRef, backoff = B} = State) ->
+    {noreply, attach(State#state{retry = undefined, backoff = cell_attach:next(B)})}.
+
+attach(#state{retry = undefined, backoff = B} = State) ->
+    case cell_attach:watch([cell_log_server], fun cell_log:subscribe/0) of
+        {ok, Watch} -> State#state{watch = Watch, backoff = cell_attach:first()};
+        retry -> State#state{retry = cell_attach:retry_after(B)}
+    end.

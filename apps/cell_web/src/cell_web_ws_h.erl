@@ -24,8 +24,10 @@
 %% for every page. A slow browser never slows the cell: the feed sends to this process
 %% without waiting, and when more than `?MAX_BACKLOG' messages wait here, they are
 %% dropped and a fresh snapshot (`"resync": true') is sent instead. A browser that stops
-%% reading altogether is dropped by the socket's send timeout. The socket closes with
-%% 4001 when the session ends, 1012 when the cell (or the feed) restarts; the page
+%% reading altogether is dropped by the socket's send timeout. When a service of the
+%% cell restarts, the feed attaches again and the page gets a fresh snapshot
+%% (`"resync": true') without reconnecting. The socket closes with 4001 when the
+%% session ends, 1012 when the feed itself (or the inspection panel) restarts; the page
 %% connects again.
 -module(cell_web_ws_h).
 -behaviour(cowboy_websocket).
@@ -36,6 +38,8 @@
 -define(MAX_BACKLOG, 2000).
 -define(BATCH, 256).
 -define(PING_MS, 30000).
+%% A snapshot asked while the cell's services restart is read again this much later.
+-define(RESYNC_RETRY_MS, 100).
 
 -record(state, {caller :: cell_web_req:caller(),
                 feed :: reference() | undefined,
@@ -98,6 +102,18 @@ websocket_handle(_Frame, State) ->
 -spec websocket_info(term(), #state{}) -> {[cow_ws:frame()], #state{}}.
 websocket_info({cell_web_feed, Json}, State) ->
     batch(Json, State);
+websocket_info(cell_web_feed_resync, State) ->
+    %% The feed was detached from the cell for a moment: what changed meanwhile never
+    %% came, so the page reads everything anew. The cell's services and tables may
+    %% still be coming back: then it tries again a moment later, the page connected.
+    try snapshot(true, State) of
+        Snapshot -> {[Snapshot], State}
+    catch
+        error:badarg ->
+            {[], resync_later(State)};
+        exit:{noproc, _} ->
+            {[], resync_later(State)}
+    end;
 websocket_info({timeout, _, ping}, State) ->
     _ = erlang:start_timer(?PING_MS, self(), ping),
     {[ping], State};
@@ -108,6 +124,10 @@ websocket_info({cell_web_session, ended}, State) ->
 websocket_info({'DOWN', Ref, process, _, _}, #state{feed = F, inspect = I} = State)
   when Ref =:= F; Ref =:= I ->
     {[{close, 1012, <<"the cell restarted">>}], State}.
+
+resync_later(State) ->
+    _ = erlang:send_after(?RESYNC_RETRY_MS, self(), cell_web_feed_resync),
+    State.
 
 %% The first message, and what waits behind it, in one frame; or, when the browser
 %% has fallen too far behind, a fresh snapshot in place of the backlog.
