@@ -1,5 +1,5 @@
 %% @doc The core runtime application: starts the cell's database and the controller
-%% supervisor.
+%% (under {@link cell_sup}).
 -module(cell_app).
 -behaviour(application).
 
@@ -17,7 +17,14 @@ start(_Type, _Args) ->
             %% where the application controller is free to start mnesia; if it cannot
             %% be, the statistics say why and try again (cell_stats).
             _ = cell_db:start(),
-            cell_controller_sup:start_link();
+            case cell_sup:start_link() of
+                {ok, Pid} ->
+                    {ok, Pid};
+                {error, {shutdown, {failed_to_start_child, cell_controller_sup, Why}}} ->
+                    {error, Why};
+                {error, _} = Error ->
+                    Error
+            end;
         {error, Reason} ->
             {error, {cell_root_folder, Reason}}
     end.

@@ -1,5 +1,5 @@
-%% @doc The controller: the top-level supervisor of the cell runtime, built from the
-%% cell spec (see {@link cell_spec}).
+%% @doc The controller: the supervisor of the cell runtime, built from the cell spec
+%% (see {@link cell_spec}), under {@link cell_sup}.
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
 %% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
@@ -7,16 +7,30 @@
 %% spec names and watches the general IO (the tasks read their IO only once started);
 %% the controller drives the tasks; the statistics only listen to all of them. A child
 %% that dies takes down only those started after it. Ten restarts a minute is a
-%% fault that will not go away by itself on an unattended machine: beyond that the node
-%% reports it instead of spinning.
+%% fault that will not go away by restarting one service on an unattended machine:
+%% beyond that the controller gives up and {@link cell_sup} starts its whole tree
+%% again (a fresh registry, the tasks OFF), without stopping the node.
 -module(cell_controller_sup).
 -behaviour(supervisor).
 
--export([start_link/0]).
+-export([start_link/0, start_link/1]).
 -export([init/1]).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
+    start_link(counters:new(1, [])).
+
+%% @doc As {@link start_link/0}; `Starts' counts the starts under {@link cell_sup}: a
+%% start after the first is the controller coming back after it gave up.
+-spec start_link(counters:counters_ref()) -> {ok, pid()} | ignore | {error, term()}.
+start_link(Starts) ->
+    ok = counters:add(Starts, 1, 1),
+    case counters:get(Starts, 1) of
+        1 -> ok;
+        N -> cell_log:error(cell, "the cell's controller was started again after repeated "
+                            "internal faults (~s time since the node started); the tasks "
+                            "are OFF: check the machine and press Start", [ordinal(N - 1)])
+    end,
     case cell_spec:load() of
         {ok, Spec} -> supervisor:start_link({local, ?MODULE}, ?MODULE, Spec);
         {error, Reason} -> {error, {bad_cell_spec, Reason}}
@@ -24,6 +38,7 @@ start_link() ->
 
 -spec init(cell_spec:spec()) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(#{tasks := Tasks, settings := Schemas} = Spec) ->
+    %% Ten restarts a minute restart this part; beyond that cell_sup starts it anew.
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
                 #{id => cell_events, start => {cell_events, start_link, []}},
@@ -41,3 +56,8 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                 %% Last: it only listens, so its restart touches nothing else.
                 cell_stats:child_spec(Spec)],
     {ok, {Flags, Children}}.
+
+ordinal(1) -> "first";
+ordinal(2) -> "second";
+ordinal(3) -> "third";
+ordinal(N) -> integer_to_list(N) ++ "th".
