@@ -16,5 +16,7 @@ start_link(Links) ->
 -spec init([cell_handshake_link:spec()]) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(Links) ->
+    %% One link's crash is its own (its partners attach again); ten a minute is a bug
+    %% that escalates to the controller (see the module doc).
     Flags = #{strategy => one_for_one, intensity => 10, period => 60},
     {ok, {Flags, [cell_handshake_link:child_spec(L) || L <- Links]}}.

@@ -51,6 +51,9 @@ init(Tasks) ->
     _ = [erlang:error({unknown_settings_object, Id, Name})
          || #{id := Id, settings := Name} <- Tasks, is_atom(Name),
             not lists:member(Name, Known)],
+    %% A crashed task comes back DOWN and waits for the operator, so restarts do not run
+    %% away; twenty a minute (a cell of many tasks hit by one fault at once) is spent
+    %% only by tasks crashing as they boot, then the controller's tree restarts.
     Flags = #{strategy => one_for_one, intensity => 20, period => 60},
     {ok, {Flags, [child_spec(T) || T <- Tasks]}}.
 

@@ -19,7 +19,9 @@ start_link(Blocks) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(Blocks) ->
     ok = cell_inspect_block:create_table(),
-    %% Three escalations a minute mean the app cannot run: it stops (temporary app).
+    %% The blocks attach again to the cell's settings when they restart, so only the
+    %% app's own faults count here. Three escalations a minute mean the app cannot run:
+    %% it stops (a temporary app: an inspection fault must never stop the cell).
     Flags = #{strategy => rest_for_one, intensity => 3, period => 60},
     {ok, {Flags, [#{id => pg, start => {pg, start_link, [cell_inspect]}},
                   #{id => cell_inspect_panel, start => {cell_inspect_panel, start_link, []}},

@@ -4,9 +4,11 @@
 %% takes the listener and every client with it: agents reconnect and start from a
 %% fresh snapshot, never from a log that no longer matches.
 %%
-%% Ten restarts a minute is a fault that will not go away by itself; beyond that the
-%% adapter gives up and the cell runs on without it (the application is temporary in
-%% the release).
+%% The cache watches the cell's services and attaches again when one restarts, so a
+%% burst of restarts in the cell never reaches this supervisor. Ten restarts a minute
+%% of the adapter's own processes is a fault that will not go away by itself; beyond
+%% that the adapter gives up and the cell runs on without it (the application is
+%% temporary in the release: an adapter's bug must never stop the machine).
 -module(cell_shdr_sup).
 -behaviour(supervisor).
 
@@ -19,6 +21,8 @@ start_link() ->
 
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
+    %% Only the adapter's own faults count here: a restart of the cell's services is
+    %% met by the cache attaching again, not by a crash (see the module doc).
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_shdr_cache, start => {cell_shdr_cache, start_link, []}},
                 #{id => cell_shdr_sampler, start => {cell_shdr_sampler, start_link, []}},
