@@ -13,6 +13,8 @@ start(_Type, _Args) ->
         ok ->
             cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
             _ = cell_file:cleanup(cell_config:dir(data)),
+            %% Before anything else of the cell: whether the last run ended cleanly.
+            _ = cell_node_run:boot(),
             %% The database in Databases/ (statistics, traceability), started here
             %% where the application controller is free to start mnesia; if it cannot
             %% be, the statistics say why and try again (cell_stats).
@@ -38,12 +40,13 @@ start(_Type, _Args) ->
 %% 0, the default, stops the tree at once: tests that drive the tasks' sequences
 %% themselves stop and start the cell many times).
 -spec prep_stop(term()) -> term().
-prep_stop(State) ->
+prep_stop(_State) ->
     case application:get_env(cell, shutdown_wait_ms, 0) of
         Wait when is_integer(Wait), Wait > 0 -> stop_tasks(Wait);
         _ -> ok
     end,
-    State.
+    %% An orderly stop (only then is prep_stop called): stop/1 records it as clean.
+    stopping.
 
 stop_tasks(Wait) ->
     try
@@ -80,6 +83,11 @@ at_rest(#{kind := unit, unit_state := S}) ->
 at_rest(#{state := State}) ->
     State =:= off orelse State =:= down.
 
+%% @doc After the tree stopped: an orderly stop is recorded as the end of the run (see
+%% {@link cell_node_run}); the application given up by its supervisor is not.
 -spec stop(term()) -> ok.
+stop(stopping) ->
+    ok = cell_node_run:stopped(),
+    cell_log:notice(cell, "cellrt stopped", []);
 stop(_State) ->
-    cell_log:notice(cell, "cellrt stopped", []).
+    cell_log:error(cell, "cellrt stopped after its supervisors gave up", []).

@@ -219,9 +219,11 @@ conn_status(Conn) -> atom_to_list(cell_hal:status(Conn)).
 node_line() ->
     {Up, _} = erlang:statistics(wall_clock),
     {QLen, QName} = longest_queue(),
-    io_lib:format("Node ~ts: up ~ts, memory ~.1f MB, ~b processes, longest queue ~b (~ts)~n",
+    #{clean := Clean, unexpected := Unexpected} = cell_stats:node_restarts(),
+    io_lib:format("Node ~ts: up ~ts, memory ~.1f MB, ~b processes, longest queue ~b (~ts)~n"
+                  "Node restarts: ~b after an unexpected stop, ~b after a clean stop~n",
                   [node(), duration(Up), erlang:memory(total) / 1048576,
-                   erlang:system_info(process_count), QLen, QName]).
+                   erlang:system_info(process_count), QLen, QName, Unexpected, Clean]).
 
 longest_queue() ->
     case recon:proc_count(message_queue_len, 1) of

@@ -54,7 +54,7 @@
 
 -export([start_link/1, child_spec/1, exits/1]).
 -export([flush/0, record/3, summary/0, summary/1, counters/1, time_check/0, periods/0,
-         shift_now/0, product/1, in_cell/0, tables/0]).
+         shift_now/0, product/1, in_cell/0, tables/0, node_restarts/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -298,6 +298,13 @@ meta(Key, Default) ->
         [{?COUNTER, _, V}] -> V;
         [] -> Default
     end.
+
+%% @doc How many times the node started again, after a clean stop and after an
+%% unexpected one (killed, crashed, power cut), as the node's run record counts them
+%% (see {@link cell_node_run}).
+-spec node_restarts() -> #{clean := non_neg_integer(), unexpected := non_neg_integer()}.
+node_restarts() ->
+    cell_node_run:counts().
 
 %% @doc The periods recorded: `total' and the shifts, oldest first.
 -spec periods() -> [period()].
