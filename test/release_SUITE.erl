@@ -1,5 +1,6 @@
 %% System tests of the built release: the start script's commands, the cell root
-%% folder, and a restart after the VM was killed with SIGKILL. The release is the one
+%% folder, a restart after the VM was killed with SIGKILL (by heart, and by a start
+%% by hand as a service manager would), the systemd unit it ships. The release is the one
 %% `make test' builds (`_build/default/rel/cellrt', or `$CELLRT_REL').
 -module(release_SUITE).
 -include_lib("common_test/include/ct.hrl").
@@ -8,11 +9,13 @@
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 -export([daemon_ping_eval_stop/1, root_folder_from_environment/1,
-         restart_after_sigkill/1, sigterm_stops_cleanly/1, bad_root_folder_is_refused/1]).
+         restart_after_sigkill/1, heart_restarts_after_sigkill/1, sigterm_stops_cleanly/1,
+         bad_root_folder_is_refused/1, ships_a_systemd_unit/1]).
 
 all() ->
     [daemon_ping_eval_stop, root_folder_from_environment, restart_after_sigkill,
-     sigterm_stops_cleanly, bad_root_folder_is_refused].
+     heart_restarts_after_sigkill, sigterm_stops_cleanly, bad_root_folder_is_refused,
+     ships_a_systemd_unit].
 
 init_per_suite(Config) ->
     Rel = case os:getenv("CELLRT_REL") of
@@ -35,7 +38,10 @@ init_per_testcase(Case, Config) ->
     %% Unique per run: two checkouts may run this suite on one machine at once.
     Node = "cellrt_ct_" ++ atom_to_list(Case) ++ "_" ++ os:getpid() ++ "@localhost",
     Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", Node}, {"CELLRT_COOKIE", "cellrt_ct"},
-           {"CELLRT_WEB_PORT", "0"}],
+           {"CELLRT_WEB_PORT", "0"}]
+          %% Started again by hand after the kill, as a service manager would: heart,
+          %% which would start it at the same moment, is left out.
+          ++ [{"CELLRT_HEART", "-noheart"} || Case =:= restart_after_sigkill],
     [{env, Env}, {root, Root}, {node, list_to_atom(Node)} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -80,6 +86,28 @@ restart_after_sigkill(Config) ->
     {0, Pid2} = cellrt(Config, ["eval", "os:getpid()."]),
     ?assertNotEqual(Pid, Pid2).
 
+%% Under heart (the release's default), a VM killed with SIGKILL comes back by itself,
+%% says at its start that the node stopped unexpectedly, and counts it; an orderly stop
+%% afterwards is not undone by heart.
+heart_restarts_after_sigkill(Config) ->
+    Root = ?config(root, Config),
+    {0, _} = cellrt(Config, ["daemon"]),
+    ok = await_up(Config),
+    {0, Pid} = cellrt(Config, ["eval", "os:getpid()."]),
+    _ = os:cmd("kill -9 " ++ string:trim(Pid, both, "\"\n ")),
+    %% Each try is a round trip of the start script: the node answering with another
+    %% OS process is heart's restart.
+    ok = await(Config, fun(_) -> other_pid(Config, Pid) end, 200),
+    ok = await_up(Config),
+    {0, Counts} = cellrt(Config, ["eval", "cell_stats:node_restarts()."]),
+    ?assertEqual({ok, #{clean => 0, unexpected => 1}}, parse(Counts)),
+    [Log] = filelib:wildcard(filename:join([Root, "Logs", "log *.log"])),
+    {ok, Bin} = file:read_file(Log),
+    ?assertNotEqual(nomatch,
+                    binary:match(Bin, <<"the cell restarted after an unexpected stop of the node">>)),
+    {0, _} = cellrt(Config, ["stop"]),
+    ok = await_down(Config).
+
 %% SIGTERM (what `make run' turns Ctrl-C into) stops the applications in order.
 sigterm_stops_cleanly(Config) ->
     Root = ?config(root, Config),
@@ -100,7 +128,28 @@ bad_root_folder_is_refused(Config) ->
     {_, Out} = cellrt([{env, Env} | Config], ["foreground"], 60000),
     ?assertNotEqual(nomatch, string:find(Out, "cell_root_folder")).
 
+%% The release carries its systemd unit, which restarts the node whatever the way it
+%% ended and runs it in the foreground (so the VM is the service's process).
+ships_a_systemd_unit(Config) ->
+    Unit = filename:join(filename:dirname(filename:dirname(?config(bin, Config))),
+                         "cellrt.service"),
+    {ok, Bin} = file:read_file(Unit),
+    [?assertNotEqual(nomatch, binary:match(Bin, Line), Line)
+     || Line <- [<<"\nRestart=always\n">>, <<"\nExecStart=/opt/cellrt/bin/cellrt foreground\n">>,
+                 <<"\nWantedBy=multi-user.target\n">>]].
+
 %% Helpers
+
+other_pid(Config, Pid) ->
+    case cellrt(Config, ["eval", "os:getpid()."]) of
+        {0, Pid2} -> string:trim(Pid2) =/= string:trim(Pid) andalso string:trim(Pid2) =/= "";
+        _ -> false
+    end.
+
+parse(Out) ->
+    {ok, Tokens, _} = erl_scan:string(string:trim(Out) ++ "."),
+    {ok, Term} = erl_parse:parse_term(Tokens),
+    {ok, Term}.
 
 cellrt(Config, Args) ->
     cellrt(Config, Args, 30000).
