@@ -330,7 +330,11 @@ common(info, {cell_settings, changed, _}, _State, _D) ->
     keep_state_and_data;
 common(info, {timeout, _, settings}, State, D) ->
     case attach_settings(D) of
-        {ok, D1} -> {keep_state, load_settings(State, D1#data{retry = ?RETRY_MS})};
+        {ok, D1} ->
+            %% The settings restarted with the cell's services before them, the alarms
+            %% among them: the block's alarm, if it has one, is set again.
+            D2 = faults(D1#data.faults, D1#data{faults = #{}}),
+            {keep_state, load_settings(State, D2#data{retry = ?RETRY_MS})};
         {error, _} ->
             R = D#data.retry,
             _ = erlang:start_timer(R, self(), settings),

@@ -286,6 +286,14 @@ member_missing(Config) ->
     ?assertNotEqual(nomatch, binary:match(maps:get(description, Alarm),
                                           <<"MVSCAMERA.PARTSERIAL">>)),
     ?assertMatch([#{local_id := <<"plc_tags">>}], cell_alarms:list(line1)),
+    %% The alarms' owner restarts (and the settings with it): the block sets its alarm
+    %% again once it is attached again.
+    Alarms = whereis(cell_alarms),
+    exit(Alarms, kill),
+    Again = await_alarm(alarm_raised),
+    ?assertEqual(maps:get(description, Alarm), maps:get(description, Again)),
+    ?assertNotEqual(Alarms, whereis(cell_alarms)),
+    ?assertMatch([#{local_id := <<"plc_tags">>}], cell_alarms:list(line1)),
     ok = ?P:program_with(Plc, part_serial),
     _ = await_alarm(alarm_cleared),
     ?assertEqual([], cell_alarms:list(line1)),
