@@ -393,6 +393,7 @@ diagnostics(_Config) ->
     Status = captured(fun cell_diag:status/0),
     ?assertNotEqual(nomatch, string:find(Status, "HAL router_plc: up")),
     ?assertNotEqual(nomatch, string:find(Status, "request start")),
+    ?assertNotEqual(nomatch, string:find(Status, "Node restarts: 0 after an unexpected stop")),
     Tasks = captured(fun cell_diag:tasks/0),
     [?assertNotEqual(nomatch, string:find(Tasks, atom_to_list(T)))
      || T <- [loading_front, work_front, lower, upper, unloading_front]],
