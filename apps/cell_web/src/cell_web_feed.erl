@@ -54,7 +54,7 @@ handle_call({join, Page}, _From, #state{pages = Pages} = State) ->
 handle_cast(Msg, _State) ->
     erlang:error({unexpected_cast, Msg}).
 
--spec handle_info(term(), #state{}) -> {noreply, #state{}} | {stop, term(), #state{}}.
+-spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({cell_event, _} = Msg, State) ->
     {noreply, send(Msg, State)};
 handle_info({cell_log, _} = Msg, State) ->
@@ -95,7 +95,7 @@ send(Msg, #state{pages = Pages} = State) ->
         [] ->
             State;
         resync ->
-            resync(Pages),
+            ok = resync(Pages),
             State;
         Messages ->
             Json = iolist_to_binary(lists:join($,, [jsx:encode(M) || M <- Messages])),
