@@ -69,6 +69,9 @@ init([]) ->
 handle_continue(boot, State) ->
     ok = cell_events:subscribe([request, estop, alarm_raised, alarm_cleared]),
     ok = cell_settings:subscribe(),
+    %% A warning of an earlier incarnation would never be cleared by this one, which
+    %% starts without it: it goes, and comes again if the cell is still stuck.
+    ok = cell_alarms:reset_warning(cell, ?ID),
     %% The serials the tasks read back from their files before this process started.
     Serials = lists:usort([S || {S, _} <- held()]),
     State1 = lists:foldl(fun check_double/2, State, Serials),

@@ -158,12 +158,12 @@ hold(Id, Serial, Gen) ->
 %% same or a newer generation is a double holding.
 tell_stale(Id, Serial, Gen) ->
     Twice = lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
-                                case ets:lookup(?TASKS, Other) of
-                                    [{_, #{pid := Pid}}] ->
-                                        Pid ! {cell_registry, stale, Serial, Gen};
-                                    _ ->
-                                        ok
-                                end,
+                                _ = case ets:lookup(?TASKS, Other) of
+                                        [{_, #{pid := Pid}}] ->
+                                            Pid ! {cell_registry, stale, Serial, Gen};
+                                        _ ->
+                                            ok
+                                    end,
                                 Acc;
                            ({_, Other, _}, _Acc) when Other =/= Id ->
                                 true;
