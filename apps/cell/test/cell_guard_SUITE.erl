@@ -97,6 +97,8 @@ stalled_line_warns_and_progress_clears(Config) ->
     %% cell_diag shows the same.
     Waits = iolist_to_binary(lists:join("\n", cell_guard:waits())),
     ?assertNotEqual(nomatch, string:find(Waits, <<"phase moving_in">>)),
+    ok = cell_diag:waits(),
+    ok = cell_diag:status(),
     await_alarm(alarm_cleared, <<"cell:no_progress">>),
     %% Raised again at the next stall, cleared again: the product goes on to the end.
     receive {line_out, sink, Serial} -> ok
