@@ -9,7 +9,7 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([held_twice_is_an_error_naming_both/1, answer_that_would_hold_twice_is_refused/1,
-         stalled_line_warns_and_progress_clears/1]).
+         held_twice_read_back_at_boot/1, stalled_line_warns_and_progress_clears/1]).
 
 -define(SEGMENTS, [src, a, sink]).
 -define(TIMEOUT, 10000).
@@ -19,7 +19,7 @@
 
 all() ->
     [held_twice_is_an_error_naming_both, answer_that_would_hold_twice_is_refused,
-     stalled_line_warns_and_progress_clears].
+     held_twice_read_back_at_boot, stalled_line_warns_and_progress_clears].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -36,6 +36,8 @@ init_per_testcase(Case, Config) ->
     _ = application:load(cell),
     ok = application:set_env(cell_base, root, Root),
     ok = application:set_env(cell, cell_spec, line_spec(Config1, Delay, Jam)),
+    {ok, _} = application:ensure_all_started(cell_base),
+    ok = before_cell(Case),
     {ok, _} = application:ensure_all_started(cell),
     ok = cell_settings:put(machine, #{no_progress_ms => ?NO_PROGRESS_MS}, <<"suite">>),
     Config1.
@@ -60,6 +62,23 @@ held_twice_is_an_error_naming_both(Config) ->
     receive {line_out, sink, Serial} -> ok
     after ?TIMEOUT -> ct:fail(not_out)
     end.
+
+%% Two product files of one serial, in records of the same generation (a copy restored
+%% by hand, say): read back at boot, each holder gets the error before anyone presses
+%% Start; Reset on one while the cell is stopped settles it.
+held_twice_read_back_at_boot(_Config) ->
+    ok = cell_guard:sync(),
+    Errors = [A || #{id := Id} = A <- cell_alarms:list(),
+                   lists:member(Id, [<<"src:held_twice">>, <<"a:held_twice">>])],
+    ?assertMatch([#{kind := error, solutions := [reset]}, #{kind := error, solutions := [reset]}],
+                 Errors),
+    ?assertEqual([a, src], lists:sort([Id || {Id, _} <- cell_registry:holders(<<"B-1">>)])),
+    ok = cell_alarms:answer(<<"a:held_twice">>, reset, <<"op">>),
+    ok = cell_guard:sync(),
+    ?assertEqual([src], [Id || {Id, _} <- cell_registry:holders(<<"B-1">>)]),
+    ?assertEqual([], [Id || #{id := Id} <- cell_alarms:list()]),
+    ?assertEqual(undefined, maps:get(product, cell_task_proc:info(a))),
+    ?assertMatch(#{product := #{serial := <<"B-1">>}}, cell_task_proc:info(src)).
 
 %% While P is held twice, Retry on sink's own error would let sink go on with it:
 %% refused, naming the other holder, and the error stays; Reset on the double-holding
@@ -106,6 +125,15 @@ stalled_line_warns_and_progress_clears(Config) ->
     end.
 
 %% -------------------------------------------------------------------------------------
+
+before_cell(held_twice_read_back_at_boot) ->
+    Stored = cell_product:stored(cell_product:new(<<"B-1">>, <<"line">>), 3, undefined),
+    ok = filelib:ensure_dir(cell_product:path(<<"src">>, <<"Front">>)),
+    [ok = cell_product:save(cell_product:path(Zone, <<"Front">>), Stored)
+     || Zone <- [<<"src">>, <<"a">>]],
+    ok;
+before_cell(_Case) ->
+    ok.
 
 %% P passes a, sink takes it and sticks; src, free again, reads P again. Answers P and
 %% sink's error.
