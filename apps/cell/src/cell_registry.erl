@@ -183,8 +183,8 @@ product_count() ->
 last_progress() ->
     atomics:get(progress_ref(), ?LAST).
 
-%% @doc The guard asks to be told of the next progress: `{cell_registry, progress}'
-%% goes to `cell_guard' then, once. Set before the guard reads {@link last_progress/0},
+%% @doc The guard asks to be told of the next progress: {@link cell_guard:progress/0}
+%% is called then, once. Set before the guard reads {@link last_progress/0},
 %% so a change in between is either seen there or told.
 -spec wake_on_progress() -> ok.
 wake_on_progress() ->
