@@ -72,9 +72,14 @@ raise_error(Task, Spec, Owner) ->
 withdraw(Id) ->
     gen_server:call(?MODULE, {withdraw, Id}).
 
-%% @doc An operator's answer to an error: only one of its solutions is accepted.
+%% @doc An operator's answer to an error: only one of its solutions is accepted. An
+%% answer other than Reset (or Close) lets the error's task go on with the product it
+%% holds; while another task holds the same serial that would be a product held twice,
+%% and it is refused with `{double_holding, Serial, OtherTasks}' (see cell_guard): the
+%% error stays.
 -spec answer(binary(), solution(), binary()) ->
-          ok | {error, not_found | {not_allowed, [solution()]}}.
+          ok | {error, not_found | {not_allowed, [solution()]}
+                | {double_holding, binary(), [atom()]}}.
 answer(Id, Solution, Who) ->
     gen_server:call(?MODULE, {answer, Id, Solution, Who}).
 
@@ -186,6 +191,20 @@ check_options(Opts) ->
 
 public(A) -> maps:without([owner, monitor], A).
 
+%% Whether answering lets the error's task go on with a product another task holds.
+held_twice(_A, Solution) when Solution =:= reset; Solution =:= close ->
+    none;
+held_twice(#{task := Task}, _Solution) ->
+    case cell_registry:task(Task) of
+        {ok, #{serial := Serial}} when is_binary(Serial) ->
+            case [O || {O, _} <- cell_registry:holders(Serial), O =/= Task] of
+                [] -> none;
+                Others -> {Serial, lists:usort(Others)}
+            end;
+        _ ->
+            none
+    end.
+
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
     ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
@@ -213,8 +232,15 @@ handle_call({withdraw, Id}, _From, State) ->
 handle_call({answer, Id, Solution, Who}, _From, State) ->
     case ets:lookup(?TAB, Id) of
         [{Id, #{kind := error, solutions := Sols, owner := Owner} = A}] ->
-            case lists:member(Solution, Sols) of
-                true ->
+            case lists:member(Solution, Sols) andalso held_twice(A, Solution) of
+                {Serial, Others} ->
+                    cell_log:warning(maps:get(task, A),
+                                     "~ts answered \"~ts\" with ~ts: refused, product ~ts is "
+                                     "held by ~ts too; settle that first",
+                                     [Who, maps:get(caption, A), solution_name(Solution), Serial,
+                                      lists:join(", ", [atom_to_list(O) || O <- Others])]),
+                    {reply, {error, {double_holding, Serial, Others}}, State};
+                none ->
                     Owner ! {cell_alarm, answer, Id, Solution, Who},
                     cell_log:notice(maps:get(task, A), "~ts answered \"~ts\" with ~ts",
                                     [Who, maps:get(caption, A), solution_name(Solution)]),

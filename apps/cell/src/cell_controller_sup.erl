@@ -5,7 +5,10 @@
 %% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
 %% peers and the handshake links connect the tasks; the monitor connects the HAL the
 %% spec names and watches the general IO (the tasks read their IO only once started);
-%% the controller drives the tasks; the statistics only listen to all of them. A child
+%% the controller drives the tasks; the statistics only listen to all of them, and the
+%% guard (a product held twice, a cell that makes no progress) only listens and asks
+%% the operator; it reads every table before it, and a restart of it touches
+%% nothing else (it looks at what the tasks hold again when it starts). A child
 %% that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by restarting one service on an unattended machine:
 %% beyond that the controller gives up and {@link cell_sup} starts its whole tree
@@ -53,8 +56,9 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                   type => supervisor, shutdown => infinity},
                 cell_monitor:child_spec(Spec),
                 #{id => cell_controller, start => {cell_controller, start_link, []}},
-                %% Last: it only listens, so its restart touches nothing else.
-                cell_stats:child_spec(Spec)],
+                %% It only listens, so its restart touches nothing but the guard.
+                cell_stats:child_spec(Spec),
+                #{id => cell_guard, start => {cell_guard, start_link, []}}],
     {ok, {Flags, Children}}.
 
 ordinal(1) -> "first";

@@ -6,6 +6,7 @@
 %% cell_diag:tasks().             % every task: state, product, why it is DOWN, queue
 %% cell_diag:io(loading_front_io). % the points of an IO group with their values
 %% cell_diag:alarms().            % active errors and warnings, and how to answer them
+%% cell_diag:waits().             % what each task waits for: state, phase, IO, handshake
 %% cell_diag:product(<<"P1">>).   % where a product is, and its history
 %% cell_diag:stats().             % this shift: time per state, items, cycle times
 %% cell_diag:trace(work_front).   % one task's log at Verbose for a minute
@@ -18,7 +19,7 @@
 %% would stop the cell.
 -module(cell_diag).
 
--export([help/0, status/0, tasks/0, io/1, alarms/0, product/1, stats/0, stats/1,
+-export([help/0, status/0, tasks/0, waits/0, io/1, alarms/0, product/1, stats/0, stats/1,
          trace/1, trace/2, top/0]).
 
 -define(TRACE_MS, 60000).
@@ -28,6 +29,7 @@
 help() ->
     print(["cell_diag:status()          the cell, errors, products, shift, HAL, node\n",
            "cell_diag:tasks()           every task: state, product, why DOWN, queue\n",
+           "cell_diag:waits()           what each task waits for: state, phase, IO, handshake\n",
            "cell_diag:io(Group)         an IO group's points and values\n",
            "cell_diag:alarms()          active errors and warnings, how to answer them\n",
            "cell_diag:product(Serial)   where a product is and its history\n",
@@ -66,7 +68,26 @@ status() ->
            [io_lib:format("HAL ~ts: ~ts (~ts)~ts~n",
                           [C, S, E, case R of <<>> -> ""; _ -> [": ", R] end])
             || {C, S, E, R} <- connections()],
+           held_twice_lines(Tasks),
+           case cell_alarms:get(<<"cell:no_progress">>) of
+               {ok, _} -> "No progress and no error: see cell_diag:waits()\n";
+               {error, not_found} -> ""
+           end,
            node_line()]).
+
+%% @doc What each task waits for: its state, phase and product, the IO point and
+%% condition or the handshake signal of its waits, and the phase of each link it is in
+%% (what the no-progress warning names).
+-spec waits() -> ok.
+waits() ->
+    print([[L, "\n"] || L <- cell_guard:waits()]).
+
+%% A serial two tasks hold at once.
+held_twice_lines(Tasks) ->
+    Serials = [S || #{serial := S} <- Tasks, is_binary(S)],
+    [io_lib:format("Product ~ts is held by two tasks: ~ts~n",
+                   [S, join([atom_to_list(Id) || {Id, _} <- cell_registry:holders(S)])])
+     || S <- lists:usort(Serials -- lists:usort(Serials))].
 
 %% @doc Every task with its state, product and queue.
 -spec tasks() -> ok.

@@ -450,11 +450,16 @@ after_interruption(up, released, #task{product = undefined, id = Id} = T, Link) 
         false ->
             case cell_product:load(T#task.product_path) of
                 {ok, #{product := #{serial := S} = P, gen := G}} ->
-                    Newer = [O || {O, G2} <- cell_registry:holders(S), O =/= Id, G2 > G],
-                    case Newer of
-                        [] -> store(T, P, G, #{link => Link, from => downstream,
-                                               phase => in_transit}, #{});
-                        _ -> store(T, undefined, 0, undefined, #{sync => false})
+                    %% Held first, looked at after: downstream holds its newer record
+                    %% first and looks after too, so of two tasks doing this at once
+                    %% one sees the other. (Looked at first, downstream's record could
+                    %% come in between, see no older holder, and leave this copy held
+                    %% beside it.)
+                    T1 = store(T, P, G, #{link => Link, from => downstream,
+                                          phase => in_transit}, #{}),
+                    case [O || {O, G2} <- cell_registry:holders(S), O =/= Id, G2 > G] of
+                        [] -> T1;
+                        _ -> store(T1, undefined, 0, undefined, #{sync => false})
                     end;
                 _ ->
                     T

@@ -31,6 +31,12 @@ fields() ->
                 "messages only), brief, verbose.">>},
      #{name => speed_override, type => {integer, 1, 100}, default => 50, unit => <<"%">>,
        doc => <<"Speed of every axis as a share of its taught speed.">>},
+     #{name => no_progress_ms, type => {integer, 100, 3600000}, default => 60000,
+       unit => <<"ms">>,
+       doc => <<"A started cell holding products that makes no progress (no product "
+                "moved, no work started or ended) for this long while no error waits "
+                "raises a warning naming what each task waits for; longer than the "
+                "longest work cycle.">>},
      #{name => ads_ams_net_id, type => {string, 23}, default => <<>>,
        doc => <<"AMS Net ID of the Beckhoff PLC (six numbers 0-255 joined by dots, "
                 "as 5.18.40.112.1.1); empty when the cell has none.">>}].

@@ -17,6 +17,7 @@
 -export([start_link/0, register_task/2, unregister_task/1, update/2, set_state/2, task/1,
          tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, published_state/0,
          control/1, set_control/2, estop_flag/0, estop_active/0]).
+-export([product_count/0, last_progress/0, wake_on_progress/0, stay_asleep/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([previous/0, control_key/0]).
@@ -35,6 +36,12 @@
 %% Tasks per state, and the cell state last published (see top_state/0).
 -define(COUNTS_KEY, {?MODULE, state_counts}).
 -define(PUBLISHED, 8).
+%% When a product last moved or work last started or ended (monotonic ms), and
+%% whether the cell's guard asked to be told of the next such change (1): what the
+%% guard against a silent deadlock reads, with no message on the way of a transfer.
+-define(PROGRESS_KEY, {?MODULE, progress}).
+-define(LAST, 1).
+-define(WAKE, 2).
 
 -record(state, {monitors = #{} :: #{reference() => {atom(), pid()}},
                 ended = #{} :: #{atom() => previous()}}).
@@ -75,7 +82,15 @@ update(Id, Fields) ->
 set_state(Id, State) ->
     Old = state_of(Id),
     true = ets:insert(?STATES, {Id, State}),
+    ok = worked(Old, State),
     count(Old, State).
+
+%% Work starting, pausing, resuming or ending is progress; the other changes of state
+%% (starved, blocked, down ...) are not: a cell stuck in them moves nothing.
+worked(Same, Same) -> ok;
+worked({ready, processing, executing}, _) -> progress();
+worked(_, {ready, processing, executing}) -> progress();
+worked(_, _) -> ok.
 
 %% Tasks in OFF are not counted: the cell is OFF when no task is above it.
 count(Same, Same) ->
@@ -114,8 +129,10 @@ counts() ->
 
 %% @doc The task holds a product of a serial and generation now (`undefined': none).
 %% Of two tasks naming one serial, the higher generation owns it: a task holding a
-%% lower one is told `{cell_registry, stale, Serial, Gen}' and drops its copy.
-%% Answers the other holders of the serial.
+%% lower one is told `{cell_registry, stale, Serial, Gen}' and drops its copy. A task
+%% that takes a serial another task holds in a record as new as its own or newer (a
+%% serial read again at a station while the records put it elsewhere) holds it twice:
+%% the cell's guard is told ({@link cell_guard:held_twice/1}), which asks the operator.
 -spec hold(atom(), binary() | undefined, non_neg_integer()) -> ok.
 hold(Id, Serial, Gen) ->
     %% Beside the rows by serial, one by task names the serial it holds, so the old row
@@ -125,6 +142,7 @@ hold(Id, Serial, Gen) ->
             %% Held already (a task saving its product again, say): the rows stand.
             ok;
         Index ->
+            progress(),
             _ = [begin
                      true = ets:delete_object(?PRODUCTS, {Old, Id, OldGen}),
                      true = ets:delete_object(?PRODUCTS, Row)
@@ -136,16 +154,57 @@ hold(Id, Serial, Gen) ->
     _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
     ok.
 
-%% Every other holder of an older generation of the serial drops its copy.
+%% Every other holder of an older generation of the serial drops its copy; one of the
+%% same or a newer generation is a double holding.
 tell_stale(Id, Serial, Gen) ->
-    lists:foreach(fun({_, Other, G}) when Other =/= Id, G < Gen ->
-                          case ets:lookup(?TASKS, Other) of
-                              [{_, #{pid := Pid}}] -> Pid ! {cell_registry, stale, Serial, Gen};
-                              _ -> ok
-                          end;
-                     (_) ->
-                          ok
-                  end, ets:lookup(?PRODUCTS, Serial)).
+    Twice = lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
+                                _ = case ets:lookup(?TASKS, Other) of
+                                        [{_, #{pid := Pid}}] ->
+                                            Pid ! {cell_registry, stale, Serial, Gen};
+                                        _ ->
+                                            ok
+                                    end,
+                                Acc;
+                           ({_, Other, _}, _Acc) when Other =/= Id ->
+                                true;
+                           (_, Acc) ->
+                                Acc
+                        end, false, ets:lookup(?PRODUCTS, Serial)),
+    _ = Twice andalso cell_guard:held_twice(Serial),
+    ok.
+
+%% @doc How many rows the product holders take: 0 when no task holds a product.
+-spec product_count() -> non_neg_integer().
+product_count() ->
+    ets:info(?PRODUCTS, size).
+
+%% @doc When a product last moved or work last started or ended (monotonic ms).
+-spec last_progress() -> integer().
+last_progress() ->
+    atomics:get(progress_ref(), ?LAST).
+
+%% @doc The guard asks to be told of the next progress: {@link cell_guard:progress/0}
+%% is called then, once. Set before the guard reads {@link last_progress/0},
+%% so a change in between is either seen there or told.
+-spec wake_on_progress() -> ok.
+wake_on_progress() ->
+    atomics:put(progress_ref(), ?WAKE, 1).
+
+%% @doc The guard no longer needs to be told (it has armed its timer).
+-spec stay_asleep() -> ok.
+stay_asleep() ->
+    atomics:put(progress_ref(), ?WAKE, 0).
+
+progress() ->
+    Ref = progress_ref(),
+    atomics:put(Ref, ?LAST, erlang:monotonic_time(millisecond)),
+    case atomics:get(Ref, ?WAKE) =:= 1 andalso atomics:compare_exchange(Ref, ?WAKE, 1, 0) of
+        ok -> cell_guard:progress();
+        _ -> ok
+    end.
+
+progress_ref() ->
+    persistent_term:get(?PROGRESS_KEY).
 
 %% @doc Who holds a serial, and with which generation.
 -spec holders(binary()) -> [{atom(), non_neg_integer()}].
@@ -246,6 +305,12 @@ init([]) ->
         _ -> ok
     end,
     _ = [atomics:put(counts(), I, 0) || I <- lists:seq(1, ?PUBLISHED - 1)],
+    case persistent_term:get(?PROGRESS_KEY, undefined) of
+        undefined -> persistent_term:put(?PROGRESS_KEY, atomics:new(?WAKE, [{signed, true}]));
+        _ -> ok
+    end,
+    atomics:put(progress_ref(), ?LAST, erlang:monotonic_time(millisecond)),
+    atomics:put(progress_ref(), ?WAKE, 0),
     atomics:put(counts(), ?PUBLISHED, slot(off)),
     {ok, #state{}}.
 

@@ -32,7 +32,8 @@
 
 -include("cell_task.hrl").
 
--export([start_link/1, child_spec/1, control/3, estop_secured/1, whereis/1, state/1, info/1, sync/1]).
+-export([start_link/1, child_spec/1, control/3, estop_secured/1, whereis/1, state/1, info/1,
+         info/2, sync/1]).
 -export([callback_mode/0, init/1, handle_event/4, terminate/3]).
 
 -export_type([estop_barrier/0]).
@@ -120,10 +121,16 @@ whereis(Id) ->
 state(Task) ->
     gen_statem:call(pid(Task), state).
 
-%% @doc State, request, why it is DOWN, what it waits for, its product serial.
+%% @doc State, request, why it is DOWN, what it waits for (`waits', the waits of its
+%% last step while it waits), its phase (if its module keeps one), its product.
 -spec info(pid() | atom()) -> map().
 info(Task) ->
     gen_statem:call(pid(Task), info).
+
+%% @doc As {@link info/1}, waiting at most `Timeout' milliseconds.
+-spec info(pid() | atom(), timeout()) -> map().
+info(Task, Timeout) ->
+    gen_statem:call(pid(Task), info, Timeout).
 
 %% @doc Returns once the task has handled every message sent to it before.
 -spec sync(pid() | atom()) -> ok.
@@ -289,6 +296,8 @@ handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {cell_registry, stale, Serial, Gen}, _State, D) ->
     {keep_state, D#data{task = drop_stale(D#data.task, Serial, Gen)}};
+handle_event(info, {cell_registry, forget, Serial, Who}, State, D) ->
+    forget(State, Serial, Who, D);
 handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
     {stop, Reason};
 handle_event(info, Msg, _State, D) ->
@@ -870,6 +879,29 @@ drop_stale(#task{product = #{serial := S}, gen = G} = T, S, Newer) when G < Newe
 drop_stale(T, _Serial, _Gen) ->
     T.
 
+%% The operator said the product this task holds, which another task holds too, is
+%% not here (see cell_guard): as a Reset that forgets it, the task secures its outputs,
+%% forgets the product and initialises again; an error it waited on is withdrawn.
+forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D0) ->
+    cell_log:notice(Id, "~ts said product ~ts is not at this task: it is forgotten", [Who, S]),
+    case State of
+        off ->
+            {keep_state, D0#data{task = cell_task:clear_product(D0#data.task)}};
+        _ ->
+            _ = case D0#data.down of
+                    {error, AlarmId, _} -> cell_alarms:withdraw(AlarmId);
+                    _ -> ok
+                end,
+            D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
+                                   deferred = undefined, reoffer = []},
+            D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
+            Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
+            goto(setup, {arrow, Arrow}, D#data{task = cell_task:clear_product(D#data.task)},
+                 [{next_event, internal, run_init}])
+    end;
+forget(_State, _Serial, _Who, _D) ->
+    keep_state_and_data.
+
 drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
     cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),
     cell_task:store(T, undefined, 0, undefined, #{sync => false}).
@@ -993,6 +1025,8 @@ describe(State, #data{task = T} = D) ->
     #{id => T#task.id, state => State, request => D#data.request, estop => D#data.estop,
       service_mode => T#task.service_mode, down => D#data.down,
       pending => D#data.pending, product => T#task.product,
+      waits => case D#data.pending of {waits, Ws} when State =/= off -> Ws; _ -> [] end,
+      phase => maps:get(phase, T#task.data, undefined),
       initialized => D#data.initialized, settings => T#task.settings,
       gen => T#task.gen, marker => T#task.marker,
       links => maps:map(fun(_, V) -> maps:without([last_product, mref], V) end,

@@ -1,7 +1,9 @@
 %% @doc `/api/alarms' — the active errors, alarms and warnings (seed 000 §2.3.8);
 %% `/api/alarms/history' — recent answers, closes and clears; `POST
 %% /api/alarms/:id/answer' with `{"solution": "retry"}' — an operator's answer, only
-%% one of the error's own solutions (a warning's only solution is `close').
+%% one of the error's own solutions (a warning's only solution is `close'). An answer
+%% that would let a task go on with a product another task holds too is refused with
+%% 409 `double_holding', naming the serial and the other tasks; the error stays.
 -module(cell_web_alarms_h).
 -behaviour(cowboy_handler).
 
@@ -44,6 +46,14 @@ handle(answer, Req0, Caller0) ->
              Detail};
         {error, not_found} ->
             cell_web_req:fail(404, not_found, ["the error ", Id, " was answered already"]);
+        {error, {double_holding, Serial, Others}} ->
+            Names = [atom_to_binary(O, utf8) || O <- Others],
+            cell_web_req:fail(409, double_holding,
+                              [Id, " not answered with ", atom_to_binary(Solution, utf8),
+                               ": product ", Serial, " is held by ", lists:join(", ", Names),
+                               " too. Check where it is and select RESET on the error of the "
+                               "task where it is not"],
+                              #{serial => Serial, held_by => Names, detail => Detail});
         {error, {not_allowed, Allowed}} ->
             cell_web_req:fail(422, solution_not_allowed,
                               [Id, " does not offer ", atom_to_binary(Solution, utf8)],

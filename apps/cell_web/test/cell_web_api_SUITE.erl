@@ -13,6 +13,8 @@ all() ->
     [pages_and_unknown_routes, session_login_logout, roles_are_enforced,
      csrf_and_origin_are_checked, commands_change_the_cell, bad_requests_change_nothing,
      errors_are_answered, warnings_are_closed, tasks_and_products, log_is_queried,
+     %% After log_is_queried: its errors are in the log that case reads.
+     answer_refused_for_a_product_held_twice,
      settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
      statistics_and_history, audit_trail_is_kept, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
@@ -258,6 +260,35 @@ errors_are_answered(Config) ->
     assert_error(404, <<"not_found">>, req(Op, post, Path, #{solution => <<"retry">>})),
     {200, [#{<<"id">> := Id, <<"what">> := <<"retry">>, <<"who">> := <<"operator">>} | _], _} =
         req(Op, get, "/api/alarms/history").
+
+%% Two tasks hold one serial: an answer that would let one go on with it is refused
+%% (409, naming the serial and the other holder) and the error stays; Reset on the
+%% double-holding error of the task where it is not settles it.
+answer_refused_for_a_product_held_twice(Config) ->
+    Op = started(Config),
+    ok = cell_events:subscribe([alarm_raised, alarm_cleared]),
+    Raised = fun(Id) -> fun({cell_event, #{type := alarm_raised, alarm := #{id := I}}}) -> I =:= Id;
+                           (_) -> false
+                        end
+             end,
+    cmd(Config, router, {product, <<"TWICE-1">>}),
+    cmd(Config, loader, {product, <<"TWICE-1">>}),
+    _ = await(Raised(<<"loader:held_twice">>), 10000),
+    cmd(Config, loader, {error, [retry, reset]}),
+    _ = await(Raised(<<"loader:jam">>), 10000),
+    {409, #{<<"error">> := <<"double_holding">>, <<"serial">> := <<"TWICE-1">>,
+            <<"held_by">> := [<<"router">>], <<"message">> := Message}, _} =
+        req(Op, post, "/api/alarms/loader%3Ajam/answer", #{solution => <<"retry">>}),
+    ?assertNotEqual(nomatch, string:find(Message, <<"held by router">>)),
+    ?assertMatch({ok, _}, cell_alarms:get(<<"loader:jam">>)),
+    {200, _, _} = req(Op, post, "/api/alarms/loader%3Aheld_twice/answer", #{solution => <<"reset">>}),
+    _ = await(fun({cell_event, #{type := alarm_cleared, alarm := #{id := <<"router:held_twice">>}}}) -> true;
+                 (_) -> false
+              end, 10000),
+    %% The loader forgot the product, and with it the error it waited on.
+    ?assertEqual({error, not_found}, cell_alarms:get(<<"loader:jam">>)),
+    cmd(Config, router, {product, undefined}),
+    ok = cell_events:unsubscribe().
 
 warnings_are_closed(Config) ->
     Op = started(Config),
