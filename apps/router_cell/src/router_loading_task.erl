@@ -23,17 +23,56 @@
 -module(router_loading_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
     T = router_task:after_reset(T0),
     %% The warning follows the magazine input from the first step on.
-    T2 = cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined),
-    case cell_task:product(T2) of
-        undefined -> {ok, phase(cell_task:out(T2, belt_run, false), idle)};
-        %% A panel waits at the stopper, as its product file says.
-        _ -> {ok, phase(T2, full)}
+    {ok, cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined)}.
+
+%% The record against the stopper's sensor: a panel held and seen goes on (full); held
+%% but not seen, the operator says where it is.
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
+reconcile(_Held, T) ->
+    case {cell_task:product(T), cell_task:answer(T)} of
+        {undefined, _} ->
+            {ok, phase(cell_task:out(T, belt_run, false), idle)};
+        {#{serial := S}, Look} when Look =:= undefined; Look =:= retry ->
+            case cell_task:in(T, panel_at_stop) of
+                %% A panel waits at the stopper, as its product file says.
+                true -> {ok, phase(cell_task:out(here(T), belt_run, false), full)};
+                false -> where(T, S)
+            end;
+        {#{serial := S}, ignore} ->
+            cell_task:log(T, brief, "panel ~ts on its way to the work segment (operator)", [S]),
+            {ok, phase(cell_task:out(here(T), belt_run, false), full)};
+        {#{serial := S}, _Reset} ->
+            cell_task:log(T, brief, "panel ~ts taken out of the machine (operator): forgotten",
+                          [S]),
+            T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
+            {ok, phase(cell_task:out(T1, belt_run, false), idle)}
+    end.
+
+where(T, S) ->
+    {error, cell_task:error_spec(
+              <<"where">>, "Panel not at the stopper",
+              io_lib:format("Records say panel ~ts is at the stopper of the loading conveyor; "
+                            "the stopper sensor sees no panel. Where is it?~n"
+                            "Select RETRY once it is back at the stopper: the sensor is read "
+                            "again.~n"
+                            "Select IGNORE if it is between the stopper and the work segment: "
+                            "it is handed over as it is.~n"
+                            "Select RESET if it was taken out of the machine: the product is "
+                            "forgotten.", [S]),
+              [retry, ignore, reset]),
+     T}.
+
+here(T) ->
+    case cell_handshake:in_transit(T) of
+        true -> cell_handshake:confirm_here(T);
+        false -> T
     end.
 
 %% Stop the belt and tell the previous machine to hold; the panel stays where it is.
