@@ -13,7 +13,8 @@
 %% <li>`reconcile(Held, Task)' — right after every successful init, before the first
 %%     step: the restart reconciliation. `Held' (see `held()') is what the task's
 %%     predecessor left: why the task starts (`start' from OFF, `crash' after its
-%%     process died, `reset'), its product as its file has it, the in-transit mark of
+%%     process died, `reset', `dropped' when the product it ran with turned out to be
+%%     an old copy), its product as its file has it, the in-transit mark of
 %%     a transfer cut off (see {@link cell_handshake}), the phase of each of its links,
 %%     and its outputs as last commanded, read from the HAL before anything secured
 %%     them ({@link commanded/3}). The task checks that record against its inputs
@@ -101,8 +102,10 @@
                   links => #{atom() => #{role := up | down}}}.
 
 %% Why a task starts: from OFF on Start (after a Stop, or with the node's boot), after
-%% its process crashed (the cell running), or after a Reset.
--type cause() :: start | crash | reset.
+%% its process crashed (the cell running), after a Reset, or, running, because the
+%% product it held was found to be an old copy another task holds in a newer record
+%% (it was dropped: the task reconciles again without it).
+-type cause() :: start | crash | reset | dropped.
 %% What the task's predecessor left, for `reconcile'.
 -type held() :: #{cause := cause(),
                   product := cell_product:product() | undefined,

@@ -298,8 +298,21 @@ handle_event(info, {cell_hal_conn, Conn, Status}, _State, D) ->
 handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     %% A watch of a wait the task has since left.
     keep_state_and_data;
-handle_event(info, {cell_registry, stale, Serial, Gen}, _State, D) ->
-    {keep_state, D#data{task = drop_stale(D#data.task, Serial, Gen)}};
+handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} = D) ->
+    T = drop_stale(T0, Serial, Gen),
+    case State of
+        {ready, _, _} when T#task.product =:= undefined, T0#task.product =/= undefined ->
+            %% Running on a copy found old (another task took the product on in a
+            %% newer record after this one restarted): what it does rests on a
+            %% product it does not hold. Its transfers end, and it reconciles again.
+            D1 = (disarm(D))#data{task = cell_handshake:interrupt_all(T), cause = dropped,
+                                  predecessor = undefined, pending = undefined,
+                                  deferred = undefined, reoffer = []},
+            goto(setup, {arrow, 2}, D1#data{predecessor = predecessor(D1)},
+                 [{next_event, internal, {reconcile, undefined}}]);
+        _ ->
+            {keep_state, D#data{task = T}}
+    end;
 handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
     {stop, Reason};
 handle_event(info, Msg, _State, D) ->
