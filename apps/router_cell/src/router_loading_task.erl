@@ -11,7 +11,8 @@
 %%  full        -                                           offer it to the work segment (phase 1,
 %%                                                          BLOCKED) → offered
 %%  offered     the work segment's NotBusy                  belt on (phase 2) → leaving
-%%  leaving     the panel past the stopper, or the watchdog release (phase 3) → released
+%%  leaving     the panel past the stopper, or the watchdog release (phase 3) → released;
+%%              (or the work segment gone: NotBusy off)     belt off → full, offered again
 %%  released    the work segment's NotBusy off (phase 4)    belt off; ItemTransferOut → idle
 %%  in_transit  the operator, after a transfer was cut off  Ignore: it is here → full;
 %%              while the panel moved                        Reset: it is not → idle
@@ -110,18 +111,22 @@ step(intake, _Woken, T) ->
 step(full, _Woken, T) ->
     {wait, {handshake, next(T), not_busy, true}, phase(cell_handshake:offer(T, next(T)), offered)};
 step(offered, {handshake, _Next, not_busy, true}, T) ->
-    watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true));
+    leave(cell_task:out(T, belt_run, true));
 step(offered, _Woken, T) ->
     router_task:offered(T, next(T), full);
 step(leaving, {timer, _}, T) ->
     jam(T, "did not leave the stopper");
 step(leaving, _Woken, T) ->
-    case cell_task:in(T, panel_at_stop) of
-        false ->
+    case {cell_handshake:phase(T, next(T)), cell_task:in(T, panel_at_stop)} of
+        {committed, false} ->
             T1 = cell_handshake:release(T, next(T)),
             {wait, {handshake, next(T), not_busy, false}, phase(T1, released)};
-        true ->
-            watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true))
+        {committed, true} ->
+            leave(cell_task:out(T, belt_run, true));
+        {_, _} ->
+            %% The work segment stopped taking it (it restarted): the panel stays
+            %% with this task, wherever the belts left it, and is offered again.
+            {continue, phase(cell_task:out(T, belt_run, false), full)}
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(cell_task:out(T, belt_run, false), full, idle);
@@ -161,6 +166,11 @@ jam(T, What) ->
                             "belt again.", [Serial, What, Ms / 1000]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
+
+%% Phase 2: the belt runs the panel out, as long as the work segment takes it.
+leave(T) ->
+    {wait, [{io, panel_at_stop, {eq, false}}, {handshake, next(T), not_busy, false},
+            router_task:watchdog(T, transfer_timeout_ms, 10000)], phase(T, leaving)}.
 
 watch(Phase, Point, Value, T) ->
     router_task:watch(T, Phase, Point, Value, transfer_timeout_ms).
