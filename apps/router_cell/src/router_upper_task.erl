@@ -54,13 +54,17 @@ init(T0) ->
             cell_task:log(T1, brief, "product ~ts to be forgotten; its modules go to the "
                           "scrap bin", [S]),
             {ok, to_scrap(cell_task:set_product(T1, P#{scrap => true}))};
+        {taken_out, T1} ->
+            %% Asked after a restart (where): the modules were taken out.
+            {ok, T2} = answered_where(reset, T1),
+            {ok, T2};
         {_, T1} ->
             {ok, T1}
     end.
 
 -spec reconcile(cell_task:held(), cell_task:task()) ->
           {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
-reconcile(_Held, T) ->
+reconcile(Held, T) ->
     case {cell_task:product(T), router_task:phase(T), cell_task:answer(T)} of
         {undefined, _, _} ->
             {ok, phase(cell_task:out(T, gripper_close, false), idle)};
@@ -70,12 +74,15 @@ reconcile(_Held, T) ->
         {#{scrap := true}, _, _} ->
             {ok, to_scrap(T)};
         {_, _, undefined} ->
-            case cell_task:in(T, product_present) of
+            Commanded = cell_task:commanded(Held, T, gripper_close),
+            case is_boolean(Commanded) andalso cell_task:in(T, gripper_closed) =/= Commanded of
                 true ->
-                    %% Modules in the gripper: hold them and carry them on.
-                    {ok, phase(cell_task:out(here(T), gripper_close, true), to_unloading)};
+                    %% The gripper was opening or closing when the robot stopped: its
+                    %% sensors say something only once it has done so.
+                    {ok, phase(cell_task:put(cell_task:out(T, gripper_close, Commanded),
+                                             settle_to, Commanded), settling)};
                 false ->
-                    where(T)
+                    gripper_check(T)
             end;
         {_, _, Answer} ->
             answered_where(Answer, T)
@@ -150,6 +157,20 @@ step(emptying, _Woken, T) ->
             {continue, phase(T1, idle)};
         true -> wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
     end;
+%% -- after a restart: the gripper's last command done before its sensors are read -------
+step(settling, {timer, _}, T) ->
+    fault(T, "finish moving the gripper");
+step(settling, {io, _Group, gripper_closed, _}, T) ->
+    case gripper_check(T) of
+        {ok, T1} -> {continue, T1};
+        Asked -> Asked
+    end;
+step(settling, _Woken, T) ->
+    Want = cell_task:get(T, settle_to, cell_task:in(T, gripper_closed)),
+    wait_io(T, settling, gripper_closed, Want);
+step(where, {answer, Answer}, T) ->
+    {ok, T1} = answered_where(Answer, T),
+    {continue, T1};
 step(regrip, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(regrip, _Woken, T) ->
@@ -224,10 +245,18 @@ present(T) ->
               [retry, ignore, reset], scrap)
     end.
 
+gripper_check(T) ->
+    case cell_task:in(T, product_present) of
+        true ->
+            %% Modules in the gripper: hold them and carry them on.
+            {ok, phase(cell_task:out(here(T), gripper_close, true), to_unloading)};
+        false ->
+            where(T)
+    end.
+
 %% The record holds a product, the gripper sensor sees none.
 where(T) ->
-    {error, cell_task:error_spec(
-              <<"where">>, "Modules not in the gripper",
+    router_task:error(phase(T, where), <<"where">>, "Modules not in the gripper",
               io_lib:format("Records say the modules of panel ~ts are in the upper robot's "
                             "gripper; the gripper sensor ~ts (~ts) says it is empty. Where "
                             "are they?~n"
@@ -238,8 +267,7 @@ where(T) ->
                             "Select RESET if they were taken out of the machine: the product "
                             "is scrapped.",
                             [serial(T), address(product_present), caption(product_present)]),
-              [retry, ignore, reset]),
-     phase(T, where)}.
+                      [retry, ignore, reset], taken_out).
 
 answered_where(retry, T) ->
     cell_task:log(T, brief, "modules of panel ~ts in the module nest (operator): gripped "
@@ -249,7 +277,9 @@ answered_where(ignore, T) ->
     cell_task:log(T, brief, "modules of panel ~ts on the unloading conveyor (operator): "
                   "handed on as put down", [serial(T)]),
     {ok, phase(cell_task:out(here(T), gripper_close, false), full)};
-answered_where(_Reset, T) ->
+answered_where(_Reset, T0) ->
+    %% Answered here, not by a re-initialisation.
+    T = cell_task:put(T0, on_reset, undefined),
     #{serial := S} = cell_task:product(T),
     cell_task:log(T, brief, "modules of panel ~ts taken out of the machine (operator): "
                   "the product is scrapped", [S]),
