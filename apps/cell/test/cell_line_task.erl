@@ -17,6 +17,12 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
+    {ok, T}.
+
+%% A line of simulated segments has no sensors to hold the record against: the product
+%% file is where the product is, and the segment goes on from there.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
     Phase = case cell_task:product(T) of
                 undefined -> idle;
                 #{serial := S} ->
@@ -25,12 +31,6 @@ init(T) ->
                     full
             end,
     {ok, phase(T, Phase)}.
-
-%% A line of simulated segments has no sensors to hold the record against: the product
-%% file is where the product is.
--spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
-reconcile(_Held, T) ->
-    {ok, T}.
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
