@@ -13,7 +13,8 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([loading_killed_in_every_phase/1, work_killed_in_every_phase/1,
          lower_killed_in_every_phase/1, upper_killed_in_every_phase/1,
-         unloading_killed_in_every_phase/1, every_task_killed_at_once/1]).
+         unloading_killed_in_every_phase/1, every_task_killed_at_once/1,
+         task_tree_restarted/1]).
 
 -define(DEADLINE_MS, 60000).
 -define(EVENTS, [item_transfer_out, alarm_raised, cell_state, task_crashed]).
@@ -21,7 +22,7 @@
 all() ->
     [unloading_killed_in_every_phase, upper_killed_in_every_phase,
      loading_killed_in_every_phase, work_killed_in_every_phase,
-     lower_killed_in_every_phase, every_task_killed_at_once].
+     lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -97,6 +98,39 @@ every_task_killed_at_once(_Config) ->
                 end, rand:seed_s(exsss, {3, 5, 7}), lists:seq(1, 3)),
     ok = stop_cell(),
     assert_books_agree().
+
+%% The supervisor of the tasks killed while panels move: the tasks, the HAL and the
+%% controller restart, and the cell waits for Start (by design: an internal fault is
+%% the operator's to see). Start pressed, every task reconciles from its product file
+%% against the machine, and the line goes on.
+task_tree_restarted(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_log:subscribe(),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(2),
+    ok = skip_events(17, deadline()),
+    ct:log("the task tree killed; the machine: ~tp", [router_sim:world()]),
+    exit(whereis(cell_task_sup), kill),
+    ok = await_log(<<"the cell's tasks were restarted">>, deadline()),
+    ok = cell_log:unsubscribe(),
+    %% Its supervisor answers once it has restarted everything after it.
+    _ = supervisor:which_children(cell_controller_sup),
+    {ok, up} = await_connection(),
+    ok = router_sim:ready(?DEADLINE_MS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(3),
+    ok = stop_cell(),
+    assert_books_agree().
+
+await_log(Prefix, Deadline) ->
+    receive
+        {cell_log, #{text := <<Prefix:(byte_size(Prefix))/binary, _/binary>>}} -> ok;
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_log(Prefix, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_log_line, Prefix})
+    end.
 
 skip_events(0, _Deadline) ->
     ok;
