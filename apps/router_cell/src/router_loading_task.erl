@@ -18,6 +18,11 @@
 %%              while the panel moved                        Reset: it is not → idle
 %% </pre>
 %%
+%% Restarted (reconcile), the product file is held against the stopper sensor: a panel
+%% held and seen is offered again (full); held but not seen, the operator says where it
+%% is: back at the stopper (RETRY, the sensor read again), between the stopper and the
+%% work segment (IGNORE: offered, handed over as it is), taken out (RESET: forgotten).
+%%
 %% A watchdog that runs out is a "Conveyor jam" error: the belt stops until the
 %% operator has freed the panel and chosen Retry. The previous machine's magazine
 %% running low is a warning, set and reset as its input changes (the seed's feeder).

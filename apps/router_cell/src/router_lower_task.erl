@@ -22,6 +22,10 @@
 %% A move takes the time its path needs at its feed (the robot's controller
 %% interpolates); the task writes the target, the path length and the feed, then a new
 %% command number, and waits for the controller to report that number done.
+%%
+%% Restarted (reconcile), the product says how far routing got: all cuts done, routed
+%% (spindle off); otherwise routing goes on at the next cut after the bit is lifted,
+%% whatever the robot's outputs were; no product, spindle and bit off, idle.
 -module(router_lower_task).
 -behaviour(cell_task).
 

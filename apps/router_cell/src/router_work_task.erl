@@ -22,6 +22,11 @@
 %%  ejecting   the frame out of position, or the watchdog   belt off → idle
 %%  in_transit the operator, after a transfer was cut off   Ignore: here → clamping; Reset → idle
 %% </pre>
+%%
+%% Restarted (reconcile), the fixture's sensor decides: with a product, arriving (the
+%% panel seen in position is completed and clamped; not yet there, the belt brings it);
+%% without one, a panel in position is the routing robot's or its frame (emptying),
+%% none is idle.
 -module(router_work_task).
 -behaviour(cell_task).
 
