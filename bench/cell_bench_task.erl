@@ -5,10 +5,15 @@
 -module(cell_bench_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
+    {ok, T}.
+
+%% No machine behind it: nothing to hold the record against.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
     {ok, T}.
 
 -spec step(cell_task:task()) -> cell_task:step_result().

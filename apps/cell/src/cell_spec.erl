@@ -14,7 +14,9 @@
 %% A link runs on the node of its downstream end (or of its upstream end when the
 %% downstream connects at run time), so two nodes naming one link start it once.
 %%
-%% A task's module is a device task ({@link cell_task}: init, step, uninit) or a unit
+%% A task's module is a device task ({@link cell_task}: init, reconcile, step, uninit;
+%% one without `reconcile/2' is refused by name, since after a restart nothing else
+%% checks its record against the machine) or a unit
 %% ({@link cell_unit}: the Zeugwerk lifecycle, told apart by its `unit/1'); a unit's
 %% declaration is checked here too. Units take no part in handshakes: a link naming one
 %% is refused.
@@ -208,11 +210,22 @@ is_schema(Mod) when is_atom(Mod) ->
 is_schema(_) ->
     false.
 
-%% A unit's declaration is checked with its args and IO groups.
+%% A unit's declaration is checked with its args and IO groups; a device task's module
+%% must write its restart reconciliation.
 check_unit(#{module := Mod} = T) ->
-    case cell_unit:is_unit_module(Mod) andalso cell_unit:check(T) of
-        {error, _} = Error -> Error;
-        _ -> {ok, T}
+    case cell_unit:is_unit_module(Mod) of
+        true ->
+            case cell_unit:check(T) of
+                {error, _} = Error -> Error;
+                _ -> {ok, T}
+            end;
+        false ->
+            case erlang:function_exported(Mod, reconcile, 2) of
+                true -> {ok, T};
+                false -> {error, {missing_callback, Mod, {reconcile, 2},
+                                  "a device task checks what it held against its IO "
+                                  "after a restart (see cell_task)"}}
+            end
     end.
 
 is_task_module(Mod) when is_atom(Mod) ->
@@ -239,6 +252,9 @@ validate_test_() ->
      ?_assertEqual({error, {bad_task, a, duplicate_id}}, validate(#{tasks => [Good, Good]})),
      ?_assertEqual({error, {bad_task, a, {bad_option, module}}},
                    validate(#{tasks => [Good#{module => lists}]})),
+     ?_assertMatch({error, {bad_task, a, {missing_callback, cell_unreconciled_task,
+                                          {reconcile, 2}, _}}},
+                   validate(#{tasks => [Good#{module => cell_unreconciled_task}]})),
      ?_assertEqual({error, {bad_task, a, {bad_option, zone}}},
                    validate(#{tasks => [Good#{zone => "Z"}]})),
      ?_assertEqual({error, {bad_task, a, {bad_option, io}}},

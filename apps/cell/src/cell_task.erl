@@ -2,14 +2,31 @@
 %% on the task it is given.
 %%
 %% A device task covers a part of the machine small enough to need no parallelism
-%% inside (a conveyor segment, a robot). Its module implements three callbacks, run by
+%% inside (a conveyor segment, a robot). Its module implements four callbacks, run by
 %% the engine {@link cell_task_proc}:
 %%
 %% <ul>
 %% <li>`init(Task)' — once when the task leaves OFF on Start, and again after a Reset:
-%%     validate settings and hardware, check product presence. The engine has already
-%%     loaded the task's product from its file. Returns `{ok, Task}' or
-%%     `{error, ErrorSpec, Task}' for the operator (the task waits in DOWN).</li>
+%%     validate settings and hardware, leave the outputs as the task starts from. The
+%%     engine has already loaded the task's product from its file. Returns `{ok, Task}'
+%%     or `{error, ErrorSpec, Task}' for the operator (the task waits in DOWN).</li>
+%% <li>`reconcile(Held, Task)' — right after every successful init, before the first
+%%     step: the restart reconciliation. `Held' (see `held()') is what the task's
+%%     predecessor left: why the task starts (`start' from OFF, `crash' after its
+%%     process died, `reset', `dropped' when the product it ran with turned out to be
+%%     an old copy), its product as its file has it, the in-transit mark of
+%%     a transfer cut off (see {@link cell_handshake}), the phase of each of its links,
+%%     and its outputs as last commanded, read from the HAL before anything secured
+%%     them ({@link commanded/3}). The task checks that record against its inputs
+%%     before it acts, and decides where it goes on: it sets its own phase and
+%%     re-asserts the outputs that phase needs (`{ok, Task}'), or, when record and
+%%     sensors disagree, asks the operator a specific question (`{error, ErrorSpec,
+%%     Task}': "records say panel P is in the gripper, the gripper sensor says empty:
+%%     where is it?", each solution's meaning said in the text). The answer, Reset
+%%     included, comes back to `reconcile' ({@link answer/1}) with the same `Held'; it
+%%     runs until it returns `{ok, Task}'. Every task writes it: the cell spec refuses
+%%     a module without it, as nothing else knows what the task's record means on the
+%%     machine.</li>
 %% <li>`step(Task)' — one step of the seed's DoStep body. It never blocks: it returns
 %%     what it waits for next, and the engine calls it again when that has happened.
 %%     `{continue, Task}' — step again at once; `{wait, Waits, Task}' — step again when
@@ -22,6 +39,17 @@
 %%     release what init took. It must not fail; errors in it are logged and ignored.
 %%     The engine saves the product.</li>
 %% </ul>
+%%
+%% Product persistence (seed 000 §2.3.5): the product is a task's own data, kept in a
+%% file per zone and lane (`Data/Zone@Lane.product') so the task goes on where it was
+%% after a stop, a crash or a power cut instead of asking for an empty machine. The
+%% engine loads it before `init' (a file it cannot read is set aside only on the
+%% operator's Reset) and every {@link set_product/2} and {@link clear_product/1} is on
+%% disk when it returns, not only at uninit: after any crash the file says what the task
+%% held at its last change. A task saves with its product whatever it must know to go on
+%% (how far it got: cuts done, handed out); `reconcile' reads it back and holds it
+%% against the machine. Ownership across a transfer follows the files' generations and
+%% the in-transit mark ({@link cell_handshake}).
 %%
 %% Waiting is waiting for a message: a waiting task costs no CPU. Between steps the
 %% engine honours the controller's requests (Pause holds the task in DOWN and Start
@@ -39,7 +67,7 @@
 
 -export([id/1, zone/1, lane/1, module/1, args/1, arg/3, settings/1, setting/3,
          get/2, get/3, put/3, product/1, set_product/2, clear_product/1, state/1,
-         answer/1, woken_by/1, service_mode/1, io_groups/1]).
+         answer/1, woken_by/1, service_mode/1, io_groups/1, commanded/3, commanded/4]).
 -export([starved/1, unstarved/1, blocked/1, unblocked/1, identifier_read/3,
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
          work_abort/2, transfer_out/2]).
@@ -48,7 +76,7 @@
 %% For the engine and the handshake.
 -export([new/1, set_state/3, publish/3, store/5]).
 
--export_type([task/0, wait/0, step_result/0, spec/0]).
+-export_type([task/0, wait/0, step_result/0, spec/0, held/0, cause/0]).
 
 %% Opaque to task modules: use the functions of this module on it.
 -type task() :: #task{}.
@@ -73,7 +101,20 @@
                   io => [atom()], settings => map() | atom(), args => map(),
                   links => #{atom() => #{role := up | down}}}.
 
+%% Why a task starts: from OFF on Start (after a Stop, or with the node's boot), after
+%% its process crashed (the cell running), after a Reset, or, running, because the
+%% product it held was found to be an old copy another task holds in a newer record
+%% (it was dropped: the task reconciles again without it).
+-type cause() :: start | crash | reset | dropped.
+%% What the task's predecessor left, for `reconcile'.
+-type held() :: #{cause := cause(),
+                  product := cell_product:product() | undefined,
+                  marker := cell_product:marker(),
+                  links := #{atom() => cell_handshake_link:phase()},
+                  outputs := #{atom() => #{atom() => cell_hal_type:value()}}}.
+
 -callback init(task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
+-callback reconcile(held(), task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
 -callback step(task()) -> step_result().
 -callback uninit(task()) -> task().
 %% Messages the engine does not know (an unsolicited message of a hardware object).
@@ -194,6 +235,16 @@ answer(#task{answer = A}) -> A.
 %% `{answer, Solution}', or `undefined' (the first step, or after `continue').
 -spec woken_by(task()) -> term().
 woken_by(#task{woken_by = W}) -> W.
+
+%% @doc In `reconcile': an output of the task's default IO group as the predecessor
+%% last commanded it, or `undefined' if it was not readable.
+-spec commanded(held(), task(), atom()) -> cell_hal_type:value() | undefined.
+commanded(Held, T, Point) ->
+    commanded(Held, T, default_group(T), Point).
+
+-spec commanded(held(), task(), atom(), atom()) -> cell_hal_type:value() | undefined.
+commanded(#{outputs := Outs}, _T, Group, Point) ->
+    maps:get(Point, maps:get(Group, Outs, #{}), undefined).
 
 %% @doc True in service mode: movements must be limited to harmless speeds.
 -spec service_mode(task()) -> boolean().

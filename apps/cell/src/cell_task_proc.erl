@@ -4,7 +4,9 @@
 %% <pre>
 %%  state                      what the engine does there
 %%  off                        nothing runs; Start (no emergency stop) → setup (arrow 0)
-%%  setup                      runs init: ok → READY (1), error → down (7)
+%%  setup                      runs init, then reconcile: ok → READY (1), an error
+%%                             of either → down (7); an answer to reconcile's runs
+%%                             reconcile again (8)
 %%  {ready, _, _}              runs steps; a step waits for a message (IO, timer,
 %%                             reply), never sleeps. Pause, Stop and service mode are
 %%                             honoured between steps → down (6); Reset → setup (2)
@@ -25,8 +27,12 @@
 %% task runs no step; any other message ends the hold first.
 %%
 %% After a crash the supervisor restarts the task; it restores its product from its
-%% file, secures its outputs (uninit) and, if the cell was running, comes back in DOWN
-%% with an error naming the crash: nothing moves until an operator answers.
+%% file, reads its outputs as the crashed incarnation left them, secures them (uninit)
+%% and, if the cell was running, comes back in DOWN with an error naming the crash:
+%% nothing moves until an operator answers. Whatever the way into setup, init is
+%% followed by the task's `reconcile' with what its predecessor held (see
+%% {@link cell_task}): the task checks its record against its inputs before its first
+%% step.
 -module(cell_task_proc).
 -behaviour(gen_statem).
 
@@ -44,7 +50,7 @@
 -type estop_barrier() :: {atomics:atomics_ref(), pos_integer(), pos_integer(), pid()}.
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | step | crash | product_file | transit | io.
+-type origin() :: init | reconcile | step | crash | product_file | transit | io.
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
 -type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
                | {reply, reference()}
@@ -64,6 +70,9 @@
     armed = [] :: [armed()],
     load_error :: term(),                 %% the product file could not be read
     crash :: term(),                      %% how the previous incarnation ended
+    cause = start :: cell_task:cause(),   %% why the next init runs, for reconcile
+    crash_outputs :: #{atom() => map()} | undefined, %% as the crashed incarnation left them
+    predecessor :: cell_task:held() | undefined, %% what reconcile checks, until it agrees
     settings = #{} :: map(),              %% the snapshot for the next start
     deferred :: pause | service | undefined, %% a pause a transfer holds back
     conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
@@ -187,6 +196,8 @@ handle_event(info, {control, request, start}, off, D) ->
 %% --------------------------------------------------------------------------------------
 handle_event(internal, run_init, setup, D) ->
     run_init(D);
+handle_event(internal, {reconcile, Woken}, setup, D) ->
+    run_reconcile(Woken, undefined, D);
 handle_event(internal, {crashed, Reason}, setup, D) ->
     raise(setup, crash_error(Reason, D), crash, D);
 handle_event(internal, product_damaged, setup, D) ->
@@ -294,8 +305,21 @@ handle_event(info, {cell_hal_conn, Conn, Status}, _State, D) ->
 handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     %% A watch of a wait the task has since left.
     keep_state_and_data;
-handle_event(info, {cell_registry, stale, Serial, Gen}, _State, D) ->
-    {keep_state, D#data{task = drop_stale(D#data.task, Serial, Gen)}};
+handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} = D) ->
+    T = drop_stale(T0, Serial, Gen),
+    case State of
+        {ready, _, _} when T#task.product =:= undefined, T0#task.product =/= undefined ->
+            %% Running on a copy found old (another task took the product on in a
+            %% newer record after this one restarted): what it does rests on a
+            %% product it does not hold. Its transfers end, and it reconciles again.
+            D1 = (disarm(D))#data{task = cell_handshake:interrupt_all(T), cause = dropped,
+                                  predecessor = undefined, pending = undefined,
+                                  deferred = undefined, reoffer = []},
+            goto(setup, {arrow, 2}, D1#data{predecessor = predecessor(D1)},
+                 [{next_event, internal, {reconcile, undefined}}]);
+        _ ->
+            {keep_state, D#data{task = T}}
+    end;
 handle_event(info, {cell_registry, forget, Serial, Who}, State, D) ->
     forget(State, Serial, Who, D);
 handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
@@ -344,8 +368,10 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
         {crashed, Why} ->
             cell_log:error(Id, "task restarted after a crash: ~ts", [crash_text(Why)]),
             ok = cell_task:publish(T, task_crashed, #{reason => crash_text(Why)}),
-            %% The outputs of the crashed incarnation may still be set.
-            D3 = uninit(D#data{initialized = true, crash = Why}),
+            %% The outputs of the crashed incarnation may still be set: read as it
+            %% left them (for reconcile), then secured.
+            D3 = uninit(D#data{initialized = true, crash = Why, cause = crash,
+                               crash_outputs = outputs(D#data.task)}),
             start_from_off(D3);
         _ ->
             start_from_off(D)
@@ -382,19 +408,68 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                     raise(setup, Spec, io, D#data{resume = undefined});
                 {ok, D} ->
                     T = T0#task{answer = undefined, woken_by = undefined},
+                    %% Taken before init writes an output.
+                    D1 = D#data{predecessor = predecessor(D)},
                     try Mod:init(T) of
                         {ok, T1} ->
-                            ready_after_init(undefined, D#data{task = T1, initialized = true});
+                            run_reconcile(undefined, undefined,
+                                          D1#data{task = T1, initialized = true});
                         {error, Spec, T1} ->
-                            raise(setup, Spec, init, D#data{task = T1, initialized = true})
+                            raise(setup, Spec, init, D1#data{task = T1, initialized = true})
                     catch
                         throw:{cell_io_lost, Group, _Point} ->
                             raise(setup, io_error(group_conn(Group)), io,
-                                  D#data{initialized = true, resume = undefined});
+                                  D1#data{initialized = true, resume = undefined});
                         throw:{cell_io_unavailable, Group, Point, Why} ->
                             raise(setup, point_error(Group, Point, Why), io,
-                                  D#data{initialized = true, resume = undefined})
+                                  D1#data{initialized = true, resume = undefined})
                     end
+            end
+    end.
+
+%% What the task's predecessor left (cell_task:held()): taken once per way into setup,
+%% kept while reconcile asks the operator.
+predecessor(#data{predecessor = #{} = Held}) ->
+    Held;
+predecessor(#data{cause = Cause, crash_outputs = Crashed, task = T}) ->
+    #{cause => Cause, product => T#task.product, marker => T#task.marker,
+      links => maps:map(fun(_, View) -> maps:get(phase, View, idle) end, T#task.links),
+      outputs => case Crashed of
+                     undefined -> outputs(T);
+                     _ -> Crashed
+                 end}.
+
+%% The outputs of the task's IO groups as last commanded (the HAL keeps them); those
+%% it cannot read are left out.
+outputs(#task{io = Groups}) ->
+    maps:from_list(
+      [{G, maps:from_list([{P, V} || #{name := P, dir := out} <- Points,
+                                     {ok, V} <- [cell_hal:read(G, P)]])}
+       || G <- Groups, {ok, Points} <- [cell_hal:points(G)]]).
+
+%% The task's reconcile, after init and after each answer to the question it asked;
+%% `Then' is what the first step is told woke it.
+run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = Held} = D) ->
+    case estop_raised(D) of
+        true ->
+            estop(setup, D#data{estop = true});
+        false ->
+            T = woken_by(Woken, T0),
+            try Mod:reconcile(Held, T) of
+                {ok, T1} ->
+                    %% Agreed: what the predecessor left is settled.
+                    ready_after_init(Then, D#data{task = clean(T1), predecessor = undefined,
+                                                       cause = start,
+                                                       crash_outputs = undefined});
+                {error, Spec, T1} ->
+                    raise(setup, Spec, reconcile, D#data{task = clean(T1)});
+                Other ->
+                    erlang:error({bad_reconcile_result, Mod, Other})
+            catch
+                throw:{cell_io_lost, Group, _Point} ->
+                    raise(setup, io_error(group_conn(Group)), io, D#data{resume = undefined});
+                throw:{cell_io_unavailable, Group, Point, Why} ->
+                    raise(setup, point_error(Group, Point, Why), io, D#data{resume = undefined})
             end
     end.
 
@@ -466,7 +541,7 @@ after_step({wait, Wait, T}, D) ->
     end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
-    goto(setup, {arrow, 2}, uninit(D#data{task = clean(T)}),
+    goto(setup, {arrow, 2}, uninit(D#data{task = clean(T), cause = reset}),
          [{next_event, internal, run_init}]);
 after_step({error, Spec, T}, D) ->
     raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
@@ -639,8 +714,11 @@ answered(init, retry, _Who, D) ->
 answered(init, reset, _Who, D) ->
     reinit(D);
 answered(init, Solution, _Who, D) ->
-    %% Ignore (or Close): go on as if init had succeeded.
-    ready_after_init({answer, Solution}, D);
+    %% Ignore (or Close): go on as if init had succeeded, reconciled first.
+    run_reconcile(undefined, {answer, Solution}, D);
+answered(reconcile, Solution, _Who, D) ->
+    %% Every answer, Reset too, is the task's to act on: the question was its own.
+    goto(setup, {arrow, 8}, D, [{next_event, internal, {reconcile, {answer, Solution}}}]);
 answered(crash, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
                     [Who, serial_text(P)]),
@@ -682,7 +760,8 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
 
 %% Reset: uninit, then arrow 8 (from DOWN) to init again.
 reinit(D) ->
-    goto(setup, {arrow, 8}, uninit(D), [{next_event, internal, run_init}]).
+    goto(setup, {arrow, 8}, uninit(D#data{cause = reset, predecessor = undefined}),
+         [{next_event, internal, run_init}]).
 
 stop_to_off(#data{down = Down} = D0) ->
     case Down of
@@ -893,7 +972,8 @@ forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D
                     _ -> ok
                 end,
             D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
-                                   deferred = undefined, reoffer = []},
+                                   deferred = undefined, reoffer = [], cause = reset,
+                                   predecessor = undefined},
             D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
             Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
             goto(setup, {arrow, Arrow}, D#data{task = cell_task:clear_product(D#data.task)},
@@ -1028,6 +1108,6 @@ describe(State, #data{task = T} = D) ->
       waits => case D#data.pending of {waits, Ws} when State =/= off -> Ws; _ -> [] end,
       phase => maps:get(phase, T#task.data, undefined),
       initialized => D#data.initialized, settings => T#task.settings,
-      gen => T#task.gen, marker => T#task.marker,
+      gen => T#task.gen, marker => T#task.marker, data => T#task.data,
       links => maps:map(fun(_, V) -> maps:without([last_product, mref], V) end,
                         T#task.links)}.

@@ -8,6 +8,7 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
+         reconcile_gets_what_was_held/1,
          damaged_product_file_mended/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
          cell_state_follows_tasks/1, cell_state_settles_under_races/1,
@@ -20,6 +21,7 @@
 all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, damaged_product_file,
+     reconcile_gets_what_was_held,
      damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
      cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused,
@@ -205,6 +207,46 @@ crash_restores_product(Config) ->
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch(#{product := P}, cell_task_proc:info(work)).
+
+%% Every way into READY passes the task's reconcile with what its predecessor held: a
+%% Start from OFF, a restart after a crash (its product as saved), a Reset; a question
+%% it asks is answered to it, Reset included, and the task goes on only once it agrees.
+reconcile_gets_what_was_held(Config) ->
+    Tab = ?config(tab, Config),
+    ok = cell_events:subscribe([task_crashed]),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertMatch([#{cause := start, product := undefined, marker := undefined,
+                    links := #{}, outputs := #{}}],
+                 cell_test_task:recorded(Tab, work, held)),
+    P = cell_product:new(<<"PANEL-8">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    cmd(Config, work, crash),
+    receive {cell_event, #{type := task_crashed, task := work}} -> ok
+    after 5000 -> ct:fail(no_restart)
+    end,
+    ok = cell_controller:sync(),
+    [#{id := Crashed}] = cell_alarms:list(),
+    %% The question it will ask once the crash is answered.
+    true = ets:insert(Tab, {{reconcile_result, work}, {error, [retry, ignore, reset]}}),
+    ok = cell_alarms:answer(Crashed, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    ?assertMatch([_, #{cause := crash, product := P}], cell_test_task:recorded(Tab, work, held)),
+    [#{id := Where, caption := <<"Where is it">>, solutions := [retry, ignore, reset]}] =
+        cell_alarms:list(),
+    ok = cell_alarms:answer(Where, reset, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertMatch([{reset, #{cause := crash, product := P}}],
+                 cell_test_task:recorded(Tab, work, reconciled)),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
+    %% A Reset of a step's error: init again, reconciled as a reset.
+    true = ets:delete(Tab, {reconcile_result, work}),
+    cmd(Config, work, reset),
+    ok = cell_task_proc:sync(work),
+    ok = cell_controller:sync(),
+    ?assertMatch([_, _, #{cause := reset, product := P}], cell_test_task:recorded(Tab, work, held)),
+    ?assertMatch(#{init := 3}, counts(Config, work)).
 
 damaged_product_file(Config) ->
     {Path, Id} = start_with_damaged_file(Config),

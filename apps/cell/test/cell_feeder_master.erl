@@ -4,11 +4,16 @@
 -module(cell_feeder_master).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
     {ok, cell_task:put(T, turn, 0)}.
+
+%% No sensors: what the product file says is where the product is.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
+    {ok, T}.
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->

@@ -4,11 +4,16 @@
 -module(cell_io_test_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
     {ok, cell_task:put(cell_task:out(T, motor, false), n, 0)}.
+
+%% The belt starts off whatever it was; each step looks at the sensor itself.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
+    {ok, T}.
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->

@@ -13,10 +13,16 @@
 -module(cell_line_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
+    {ok, T}.
+
+%% A line of simulated segments has no sensors to hold the record against: the product
+%% file is where the product is, and the segment goes on from there.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
     Phase = case cell_task:product(T) of
                 undefined -> idle;
                 #{serial := S} ->

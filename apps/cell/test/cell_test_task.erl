@@ -6,11 +6,14 @@
 %% Commands: {event, Fun} (a cell_task event function of arity 1), {error, Solutions},
 %% reset, crash, {continue, N} (N steps that do not wait), {product, Map | undefined},
 %% {timer, Ms}, {stuck, Ms} (a step that does not return for Ms: a task whose code
-%% blocks). uninit also notes when it ran (`uninit_at/2').
+%% blocks). uninit also notes when it ran (`uninit_at/2'). reconcile records what it
+%% was given (`recorded(Tab, Id, held)') and the answers to its question
+%% (`recorded(Tab, Id, reconciled)'); `{reconcile_result, Id}' in the table set to
+%% `{error, Solutions}' makes it ask until it is answered.
 -module(cell_test_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 -export([spec/3, command/3, counts/2, recorded/3, uninit_at/2]).
 
 %% A spec for a task of this module.
@@ -40,6 +43,22 @@ init(T) ->
         [{_, {error, Solutions}}] ->
             {error, cell_task:error_spec(<<"init">>, "Init failed", "scripted", Solutions), T};
         _ ->
+            {ok, T}
+    end.
+
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, map(), cell_task:task()}.
+reconcile(Held, T) ->
+    Tab = cell_task:arg(T, tab, undefined),
+    case {cell_task:answer(T), ets:lookup(Tab, {reconcile_result, cell_task:id(T)})} of
+        {undefined, [{_, {error, Solutions}}]} ->
+            record(T, held, Held),
+            {error, cell_task:error_spec(<<"where">>, "Where is it", "scripted", Solutions), T};
+        {undefined, _} ->
+            record(T, held, Held),
+            {ok, T};
+        {Answer, _} ->
+            record(T, reconciled, {Answer, Held}),
             {ok, T}
     end.
 

@@ -11,11 +11,17 @@
 %%  full        -                                           offer it to the work segment (phase 1,
 %%                                                          BLOCKED) → offered
 %%  offered     the work segment's NotBusy                  belt on (phase 2) → leaving
-%%  leaving     the panel past the stopper, or the watchdog release (phase 3) → released
+%%  leaving     the panel past the stopper, or the watchdog release (phase 3) → released;
+%%              (or the work segment gone: NotBusy off)     belt off → full, offered again
 %%  released    the work segment's NotBusy off (phase 4)    belt off; ItemTransferOut → idle
 %%  in_transit  the operator, after a transfer was cut off  Ignore: it is here → full;
 %%              while the panel moved                        Reset: it is not → idle
 %% </pre>
+%%
+%% Restarted (reconcile), the product file is held against the stopper sensor: a panel
+%% held and seen is offered again (full); held but not seen, the operator says where it
+%% is: back at the stopper (RETRY, the sensor read again), between the stopper and the
+%% work segment (IGNORE: offered, handed over as it is), taken out (RESET: forgotten).
 %%
 %% A watchdog that runs out is a "Conveyor jam" error: the belt stops until the
 %% operator has freed the panel and chosen Retry. The previous machine's magazine
@@ -23,17 +29,56 @@
 -module(router_loading_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
     T = router_task:after_reset(T0),
     %% The warning follows the magazine input from the first step on.
-    T2 = cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined),
-    case cell_task:product(T2) of
-        undefined -> {ok, phase(cell_task:out(T2, belt_run, false), idle)};
-        %% A panel waits at the stopper, as its product file says.
-        _ -> {ok, phase(T2, full)}
+    {ok, cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined)}.
+
+%% The record against the stopper's sensor: a panel held and seen goes on (full); held
+%% but not seen, the operator says where it is.
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
+reconcile(_Held, T) ->
+    case {cell_task:product(T), cell_task:answer(T)} of
+        {undefined, _} ->
+            {ok, phase(cell_task:out(T, belt_run, false), idle)};
+        {#{serial := S}, Look} when Look =:= undefined; Look =:= retry ->
+            case cell_task:in(T, panel_at_stop) of
+                %% A panel waits at the stopper, as its product file says.
+                true -> {ok, phase(cell_task:out(here(T), belt_run, false), full)};
+                false -> where(T, S)
+            end;
+        {#{serial := S}, ignore} ->
+            cell_task:log(T, brief, "panel ~ts on its way to the work segment (operator)", [S]),
+            {ok, phase(cell_task:out(here(T), belt_run, false), full)};
+        {#{serial := S}, _Reset} ->
+            cell_task:log(T, brief, "panel ~ts taken out of the machine (operator): forgotten",
+                          [S]),
+            T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
+            {ok, phase(cell_task:out(T1, belt_run, false), idle)}
+    end.
+
+where(T, S) ->
+    {error, cell_task:error_spec(
+              <<"where">>, "Panel not at the stopper",
+              io_lib:format("Records say panel ~ts is at the stopper of the loading conveyor; "
+                            "the stopper sensor sees no panel. Where is it?~n"
+                            "Select RETRY once it is back at the stopper: the sensor is read "
+                            "again.~n"
+                            "Select IGNORE if it is between the stopper and the work segment: "
+                            "it is handed over as it is.~n"
+                            "Select RESET if it was taken out of the machine: the product is "
+                            "forgotten.", [S]),
+              [retry, ignore, reset]),
+     T}.
+
+here(T) ->
+    case cell_handshake:in_transit(T) of
+        true -> cell_handshake:confirm_here(T);
+        false -> T
     end.
 
 %% Stop the belt and tell the previous machine to hold; the panel stays where it is.
@@ -71,18 +116,22 @@ step(intake, _Woken, T) ->
 step(full, _Woken, T) ->
     {wait, {handshake, next(T), not_busy, true}, phase(cell_handshake:offer(T, next(T)), offered)};
 step(offered, {handshake, _Next, not_busy, true}, T) ->
-    watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true));
+    leave(cell_task:out(T, belt_run, true));
 step(offered, _Woken, T) ->
     router_task:offered(T, next(T), full);
 step(leaving, {timer, _}, T) ->
     jam(T, "did not leave the stopper");
 step(leaving, _Woken, T) ->
-    case cell_task:in(T, panel_at_stop) of
-        false ->
+    case {cell_handshake:phase(T, next(T)), cell_task:in(T, panel_at_stop)} of
+        {committed, false} ->
             T1 = cell_handshake:release(T, next(T)),
             {wait, {handshake, next(T), not_busy, false}, phase(T1, released)};
-        true ->
-            watch(leaving, panel_at_stop, false, cell_task:out(T, belt_run, true))
+        {committed, true} ->
+            leave(cell_task:out(T, belt_run, true));
+        {_, _} ->
+            %% The work segment stopped taking it (it restarted): the panel stays
+            %% with this task, wherever the belts left it, and is offered again.
+            {continue, phase(cell_task:out(T, belt_run, false), full)}
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
     router_task:interrupted(cell_task:out(T, belt_run, false), full, idle);
@@ -122,6 +171,11 @@ jam(T, What) ->
                             "belt again.", [Serial, What, Ms / 1000]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
+
+%% Phase 2: the belt runs the panel out, as long as the work segment takes it.
+leave(T) ->
+    {wait, [{io, panel_at_stop, {eq, false}}, {handshake, next(T), not_busy, false},
+            router_task:watchdog(T, transfer_timeout_ms, 10000)], phase(T, leaving)}.
 
 watch(Phase, Point, Value, T) ->
     router_task:watch(T, Phase, Point, Value, transfer_timeout_ms).

@@ -22,25 +22,34 @@
 %% A move takes the time its path needs at its feed (the robot's controller
 %% interpolates); the task writes the target, the path length and the feed, then a new
 %% command number, and waits for the controller to report that number done.
+%%
+%% Restarted (reconcile), the product says how far routing got: all cuts done, routed
+%% (spindle off); otherwise routing goes on at the next cut after the bit is lifted,
+%% whatever the robot's outputs were; no product, spindle and bit off, idle.
 -module(router_lower_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
     {_, T} = router_task:reset_chosen(T0),
     %% Go on counting commands from the controller's last answer.
     %% The cut list is made again from the recipe: a stage cut short is done again.
-    T1 = cell_task:put(cell_task:put(T, command, cell_task:in(T, done)), cuts, undefined),
-    case cell_task:product(T1) of
+    {ok, cell_task:put(cell_task:put(T, command, cell_task:in(T, done)), cuts, undefined)}.
+
+%% How far routing got is saved with the product (cuts done); the robot's own state
+%% (bit down, spindle running) is not trusted: routing goes on by lifting the bit first.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
+    case cell_task:product(T) of
         undefined ->
-            {ok, phase(cell_task:out(T1, spindle_run, false), idle)};
+            {ok, phase(cell_task:out(cell_task:out(T, spindle_run, false), plunge, false), idle)};
         #{cuts_total := N, cuts_done := N} ->
-            {ok, phase(T1, routed)};
+            {ok, phase(cell_task:out(T, spindle_run, false), routed)};
         _ ->
             %% Routing was cut short: lift the bit, then on from the next cut.
-            {ok, phase(T1, routing)}
+            {ok, phase(cell_handshake:confirm_here(T), routing)}
     end.
 
 %% The spindle stops and the bit is lifted; the panel stays clamped.

@@ -16,20 +16,36 @@
 %%  leaving    the modules gone from the exit, or the watchdog belt off, board available off;
 %%                                                             ItemTransferOut → idle
 %% </pre>
+%%
+%% Restarted (reconcile), the record is held against the exit sensor: modules handed
+%% out and gone from the exit have left (ItemTransferOut → idle); still there, the
+%% hand-out goes on with both signals it needs, belt and board available (leaving);
+%% modules not yet handed out at the exit wait for the next machine again (waiting);
+%% elsewhere they are conveyed (landing).
 -module(router_unloading_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
-init(T0) ->
-    T = router_task:after_reset(T0),
-    T2 = cell_task:out(cell_task:out(T, belt_run, false), board_available, false),
-    case cell_task:product(T2) of
-        undefined -> {ok, phase(T2, idle)};
-        %% Handed to the next machine when it stopped: they may have gone meanwhile.
-        #{handing_out := true} -> {ok, phase(T2, leaving)};
-        _ -> {ok, phase(T2, landing)}
+init(T) ->
+    {ok, router_task:after_reset(T)}.
+
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T) ->
+    case {cell_task:product(T), cell_task:in(T, panel_at_exit)} of
+        {undefined, _} ->
+            {ok, phase(outputs(T, false, false), idle)};
+        %% Handed to the next machine when it stopped: gone meanwhile, they left.
+        {#{handing_out := true}, false} ->
+            {ok, phase(handed_out(outputs(T, false, false)), idle)};
+        %% Still at the exit: the hand-out goes on, the next machine told again.
+        {#{handing_out := true}, true} ->
+            {ok, phase(outputs(T, true, true), leaving)};
+        {_, true} ->
+            {ok, phase(outputs(T, false, true), waiting)};
+        {_, false} ->
+            {ok, phase(outputs(T, false, false), landing)}
     end.
 
 -spec uninit(cell_task:task()) -> cell_task:task().
@@ -97,16 +113,23 @@ step(leaving, {timer, _}, T) ->
 step(leaving, _Woken, T) ->
     case cell_task:in(T, panel_at_exit) of
         false ->
-            T1 = cell_task:out(cell_task:out(T, belt_run, false), board_available, false),
-            #{serial := S} = cell_task:product(T1),
-            T2 = cell_task:clear_product(cell_task:transfer_out(T1, S)),
-            cell_task:log(T2, brief, "modules of panel ~ts handed to the next machine", [S]),
-            {continue, phase(T2, idle)};
+            {continue, phase(handed_out(outputs(T, false, false)), idle)};
         true ->
-            watch(cell_task:out(T, belt_run, true), leaving, panel_at_exit, false)
+            %% The hand-out needs both: the belt, and the next machine told a board is
+            %% there (after a Retry or a restart it may have been taken away).
+            watch(outputs(T, true, true), leaving, panel_at_exit, false)
     end;
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), landing)}.
+
+handed_out(T) ->
+    #{serial := S} = cell_task:product(T),
+    T1 = cell_task:clear_product(cell_task:transfer_out(T, S)),
+    cell_task:log(T1, brief, "modules of panel ~ts handed to the next machine", [S]),
+    T1.
+
+outputs(T, Belt, Available) ->
+    cell_task:out(cell_task:out(T, belt_run, Belt), board_available, Available).
 
 fault(T, What) ->
     #{serial := S} = cell_task:product(T),

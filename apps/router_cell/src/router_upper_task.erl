@@ -25,11 +25,21 @@
 %%            `scrap'): at home, or the watchdog              → emptying
 %%  emptying  the gripper open, or the watchdog               the product forgotten (ItemWorkAbort)
 %%                                                            → idle
+%%  where     the operator, after a restart found the gripper  RETRY: in the nest → regrip;
+%%            empty though the record holds a product          IGNORE: on the unloading segment
+%%                                                            → full (offered, put down as it is);
+%%                                                            RESET: taken out → forgotten, idle
+%%  regrip    the gripper open, or the watchdog               move to the lane's nest → to_nest
 %% </pre>
+%%
+%% Restarted (reconcile), the robot believes its gripper, not its record: a product
+%% held with the modules seen in the gripper goes on (gripper closed again,
+%% to_unloading), one whose modules are not there is a question for the operator
+%% (where), never a carry of an empty gripper.
 -module(router_upper_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
@@ -44,16 +54,38 @@ init(T0) ->
             cell_task:log(T1, brief, "product ~ts to be forgotten; its modules go to the "
                           "scrap bin", [S]),
             {ok, to_scrap(cell_task:set_product(T1, P#{scrap => true}))};
+        {taken_out, T1} ->
+            %% Asked after a restart (where): the modules were taken out.
+            {ok, T2} = answered_where(reset, T1),
+            {ok, T2};
         {_, T1} ->
-            case cell_task:product(T1) of
-                undefined ->
-                    {ok, phase(cell_task:out(T1, gripper_close, false), idle)};
-                #{scrap := true} ->
-                    {ok, to_scrap(T1)};
-                _ ->
-                    %% Modules in the gripper: hold them and carry them on.
-                    {ok, phase(cell_task:out(T1, gripper_close, true), to_unloading)}
-            end
+            {ok, T1}
+    end.
+
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
+reconcile(Held, T) ->
+    case {cell_task:product(T), router_task:phase(T), cell_task:answer(T)} of
+        {undefined, _, _} ->
+            {ok, phase(cell_task:out(T, gripper_close, false), idle)};
+        %% Reset by the operator (init): on the way to the scrap bin.
+        {_, to_scrap, _} ->
+            {ok, T};
+        {#{scrap := true}, _, _} ->
+            {ok, to_scrap(T)};
+        {_, _, undefined} ->
+            Commanded = cell_task:commanded(Held, T, gripper_close),
+            case is_boolean(Commanded) andalso cell_task:in(T, gripper_closed) =/= Commanded of
+                true ->
+                    %% The gripper was opening or closing when the robot stopped: its
+                    %% sensors say something only once it has done so.
+                    {ok, phase(cell_task:put(cell_task:out(T, gripper_close, Commanded),
+                                             settle_to, Commanded), settling)};
+                false ->
+                    gripper_check(T)
+            end;
+        {_, _, Answer} ->
+            answered_where(Answer, T)
     end.
 
 %% The robot stops where it is; the gripper keeps hold of what it has.
@@ -125,6 +157,27 @@ step(emptying, _Woken, T) ->
             {continue, phase(T1, idle)};
         true -> wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
     end;
+%% -- after a restart: the gripper's last command done before its sensors are read -------
+step(settling, {timer, _}, T) ->
+    fault(T, "finish moving the gripper");
+step(settling, {io, _Group, gripper_closed, _}, T) ->
+    case gripper_check(T) of
+        {ok, T1} -> {continue, T1};
+        Asked -> Asked
+    end;
+step(settling, _Woken, T) ->
+    Want = cell_task:get(T, settle_to, cell_task:in(T, gripper_closed)),
+    wait_io(T, settling, gripper_closed, Want);
+step(where, {answer, Answer}, T) ->
+    {ok, T1} = answered_where(Answer, T),
+    {continue, T1};
+step(regrip, {timer, _}, T) ->
+    fault(T, "open the gripper");
+step(regrip, _Woken, T) ->
+    case cell_task:in(T, gripper_closed) of
+        false -> move(T, nest, to_nest);
+        true -> wait_io(cell_task:out(T, gripper_close, false), regrip, gripper_closed, false)
+    end;
 step(to_unloading, _Woken, T) ->
     %% After a restart with modules in the gripper.
     move(T, unloading, carrying);
@@ -190,6 +243,55 @@ present(T) ->
                             "Select RESET to delete product data and continue with empty "
                             "gripper.", [address(product_present), caption(product_present)]),
               [retry, ignore, reset], scrap)
+    end.
+
+gripper_check(T) ->
+    case cell_task:in(T, product_present) of
+        true ->
+            %% Modules in the gripper: hold them and carry them on.
+            {ok, phase(cell_task:out(here(T), gripper_close, true), to_unloading)};
+        false ->
+            where(T)
+    end.
+
+%% The record holds a product, the gripper sensor sees none.
+where(T) ->
+    router_task:error(phase(T, where), <<"where">>, "Modules not in the gripper",
+              io_lib:format("Records say the modules of panel ~ts are in the upper robot's "
+                            "gripper; the gripper sensor ~ts (~ts) says it is empty. Where "
+                            "are they?~n"
+                            "Select RETRY if they are back in the module nest of the "
+                            "fixture: the robot grips them there again.~n"
+                            "Select IGNORE if they are on the unloading conveyor: they have "
+                            "been put down and go on from there.~n"
+                            "Select RESET if they were taken out of the machine: the product "
+                            "is scrapped.",
+                            [serial(T), address(product_present), caption(product_present)]),
+                      [retry, ignore, reset], taken_out).
+
+answered_where(retry, T) ->
+    cell_task:log(T, brief, "modules of panel ~ts in the module nest (operator): gripped "
+                  "there again", [serial(T)]),
+    {ok, phase(cell_task:out(here(T), gripper_close, false), regrip)};
+answered_where(ignore, T) ->
+    cell_task:log(T, brief, "modules of panel ~ts on the unloading conveyor (operator): "
+                  "handed on as put down", [serial(T)]),
+    {ok, phase(cell_task:out(here(T), gripper_close, false), full)};
+answered_where(_Reset, T0) ->
+    %% Answered here, not by a re-initialisation.
+    T = cell_task:put(T0, on_reset, undefined),
+    #{serial := S} = cell_task:product(T),
+    cell_task:log(T, brief, "modules of panel ~ts taken out of the machine (operator): "
+                  "the product is scrapped", [S]),
+    T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
+    {ok, phase(cell_task:out(T1, gripper_close, false), idle)}.
+
+%% The product is this robot's, whatever transfer brought it (the operator or the
+%% gripper said so).
+here(T) ->
+    case cell_handshake:in_transit(T) of
+        true -> cell_handshake:confirm_here(T);
+        false -> T
     end.
 
 %% On the way to the scrap bin, the gripper holding on to the modules.

@@ -22,15 +22,24 @@
 %%  ejecting   the frame out of position, or the watchdog   belt off → idle
 %%  in_transit the operator, after a transfer was cut off   Ignore: here → clamping; Reset → idle
 %% </pre>
+%%
+%% Restarted (reconcile), the fixture's sensor decides: with a product, arriving (the
+%% panel seen in position is completed and clamped; not yet there, the belt brings it);
+%% without one, a panel in position is the routing robot's or its frame (emptying),
+%% none is idle.
 -module(router_work_task).
 -behaviour(cell_task).
 
--export([init/1, step/1, uninit/1]).
+-export([init/1, reconcile/2, step/1, uninit/1]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    T = router_task:after_reset(T0),
-    T2 = cell_task:out(T, belt_run, false),
+    {ok, cell_task:out(router_task:after_reset(T0), belt_run, false)}.
+
+%% The fixture's sensor decides: a panel in position with no record is the routing
+%% robot's (or its frame), to be emptied; with one, it is clamped and offered again.
+-spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+reconcile(_Held, T2) ->
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
             %% A panel the routing robot has, or its frame: the clamps hold it until the

@@ -1,0 +1,320 @@
+%% Restart reconciliation of the router's tasks against the simulated machine: each
+%% task is killed in each phase of its table while the line runs, restarts, and is
+%% answered as an operator standing at the machine would (the simulated world says
+%% where each panel physically is); the line must go on, and once stopped every serial
+%% a task holds is one the machine physically has, and the other way round.
+%%
+%% A phase is reached by tracing the task's calls of router_task:phase/2 (a message
+%% per phase entered): no waiting on time anywhere, every wait has a deadline.
+-module(router_reconcile_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([loading_killed_in_every_phase/1, work_killed_in_every_phase/1,
+         lower_killed_in_every_phase/1, upper_killed_in_every_phase/1,
+         unloading_killed_in_every_phase/1, every_task_killed_at_once/1,
+         task_tree_restarted/1]).
+
+-define(DEADLINE_MS, 60000).
+-define(EVENTS, [item_transfer_out, alarm_raised, cell_state, task_crashed]).
+
+all() ->
+    [unloading_killed_in_every_phase, upper_killed_in_every_phase,
+     loading_killed_in_every_phase, work_killed_in_every_phase,
+     lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted].
+
+init_per_testcase(Case, Config) ->
+    ok = application:set_env(cell, shutdown_wait_ms, 10000),
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    ok = router_test_settings:write(
+           Root, #{machine => #{dual_lane => false},
+                   router_sim => #{time_scale => 0.02, arrival_ms => 0,
+                                   product_lost_rate => 0.0, jam_rate => 0.0,
+                                   magazine_low_s => 0},
+                   router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
+                               motion_timeout_ms => 3000}}),
+    _ = [application:load(A) || A <- [cell_base, cell_hal, cell, router_cell]],
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:unset_env(cell, cell_spec),
+    ok = application:set_env(cell, cell_module, router_cell),
+    {ok, _} = application:ensure_all_started(router_cell),
+    {ok, up} = await_connection(),
+    ok = router_sim:ready(?DEADLINE_MS),
+    {module, router_task} = code:ensure_loaded(router_task),
+    1 = erlang:trace_pattern({router_task, phase, 2}, true, [local]),
+    Config.
+
+end_per_testcase(_Case, _Config) ->
+    _ = erlang:trace_pattern({router_task, phase, 2}, false, [local]),
+    _ = application:unset_env(cell, shutdown_wait_ms),
+    _ = application:stop(router_cell),
+    _ = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = cell_hal_sim_sup:stop_device(router_plc),
+    ok.
+
+%% -------------------------------------------------------------------------------------
+
+loading_killed_in_every_phase(_Config) ->
+    killed_in_phases(loading_front, [idle, intake, full, offered, leaving, released]).
+
+work_killed_in_every_phase(_Config) ->
+    killed_in_phases(work_front, [idle, take, moving_in, arriving, clamping, offered,
+                                  released, emptying, unclamping, ejecting]).
+
+lower_killed_in_every_phase(_Config) ->
+    killed_in_phases(lower, [idle, taking, routing, routed, offered, released]).
+
+upper_killed_in_every_phase(_Config) ->
+    killed_in_phases(upper, [idle, taking, to_nest, gripping, carrying, full, offered,
+                             placing, released]).
+
+unloading_killed_in_every_phase(_Config) ->
+    killed_in_phases(unloading_front, [idle, receiving, landing, conveying, waiting, leaving]).
+
+%% Every task of the line killed in the same instant, at moments that differ from round
+%% to round (after a number of the cell's events): each restarts and reconciles with
+%% the others mid-transfer; answered, the line goes on and the books agree with the
+%% machine.
+every_task_killed_at_once(_Config) ->
+    Tasks = [loading_front, work_front, lower, upper, unloading_front],
+    ok = cell_events:subscribe(?EVENTS ++ [task_state, product_saved]),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(1),
+    lists:foldl(fun(Round, R0) ->
+                        {Skip, R1} = rand:uniform_s(60, R0),
+                        ok = skip_events(Skip, deadline()),
+                        Pids = [cell_task_proc:whereis(T) || T <- Tasks],
+                        ct:log("round ~b: every task killed after ~b events; the machine: ~tp",
+                               [Round, Skip, router_sim:world()]),
+                        _ = [exit(P, kill) || P <- Pids],
+                        ok = await_restart(Tasks, deadline()),
+                        ok = line_goes_on(2),
+                        R1
+                %% Three rounds: fifteen restarts, within the task supervisor's
+                %% intensity (beyond it the whole task tree restarts, and the cell
+                %% waits for Start, by design).
+                end, rand:seed_s(exsss, {3, 5, 7}), lists:seq(1, 3)),
+    ok = stop_cell(),
+    assert_books_agree().
+
+%% The supervisor of the tasks killed while panels move: the tasks, the HAL and the
+%% controller restart, and the cell waits for Start (by design: an internal fault is
+%% the operator's to see). Start pressed, every task reconciles from its product file
+%% against the machine, and the line goes on.
+task_tree_restarted(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_log:subscribe(),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(2),
+    ok = skip_events(17, deadline()),
+    ct:log("the task tree killed; the machine: ~tp", [router_sim:world()]),
+    exit(whereis(cell_task_sup), kill),
+    ok = await_log(<<"the cell's tasks were restarted">>, deadline()),
+    ok = cell_log:unsubscribe(),
+    %% Its supervisor answers once it has restarted everything after it.
+    _ = supervisor:which_children(cell_controller_sup),
+    {ok, up} = await_connection(),
+    ok = router_sim:ready(?DEADLINE_MS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(3),
+    ok = stop_cell(),
+    assert_books_agree().
+
+await_log(Prefix, Deadline) ->
+    receive
+        {cell_log, #{text := <<Prefix:(byte_size(Prefix))/binary, _/binary>>}} -> ok;
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_log(Prefix, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_log_line, Prefix})
+    end.
+
+skip_events(0, _Deadline) ->
+    ok;
+skip_events(N, Deadline) ->
+    receive
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            skip_events(N - 1, Deadline);
+        {cell_event, _} ->
+            skip_events(N - 1, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_event, cell_controller:tasks()})
+    end.
+
+%% -------------------------------------------------------------------------------------
+
+killed_in_phases(Task, Phases) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(1),
+    lists:foreach(fun(Phase) -> kill_in(Task, Phase) end, Phases),
+    ok = stop_cell(),
+    assert_books_agree().
+
+%% Waits for the task to enter the phase, kills it there, and waits for the line to go
+%% on (two more products out), answering what the cell asks.
+kill_in(Task, Phase) ->
+    Pid = cell_task_proc:whereis(Task),
+    1 = erlang:trace(Pid, true, [call, {tracer, self()}]),
+    ok = await_phase(Pid, Phase, deadline()),
+    exit(Pid, kill),
+    ct:log("~ts killed in ~ts; the machine: ~tp", [Task, Phase, router_sim:world()]),
+    ok = await_restart([Task], deadline()),
+    flush_trace(Pid),
+    ok = line_goes_on(2).
+
+await_phase(Pid, Phase, Deadline) ->
+    receive
+        {trace, Pid, call, {router_task, phase, [_, Phase]}} -> ok;
+        {trace, Pid, call, _} -> await_phase(Pid, Phase, Deadline);
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_phase(Pid, Phase, Deadline);
+        {cell_event, _} -> await_phase(Pid, Phase, Deadline)
+    after left(Deadline) ->
+        ct:fail({phase_never_entered, Phase, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% Every task of the list restarted.
+await_restart([], _Deadline) ->
+    ok;
+await_restart(Tasks, Deadline) ->
+    receive
+        {cell_event, #{type := task_crashed, task := Task}} ->
+            await_restart(Tasks -- [Task], Deadline);
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_restart(Tasks, Deadline);
+        {cell_event, _} -> await_restart(Tasks, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_restart, Tasks})
+    end.
+
+flush_trace(Pid) ->
+    receive {trace, Pid, _, _} -> flush_trace(Pid)
+    after 0 -> ok
+    end.
+
+%% N products handed to the next machine, the cell's questions answered meanwhile.
+line_goes_on(N) ->
+    line_goes_on(N, deadline()).
+
+line_goes_on(0, _Deadline) ->
+    ok;
+line_goes_on(N, Deadline) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := unloading_front}} ->
+            line_goes_on(N - 1, Deadline);
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            line_goes_on(N, Deadline);
+        {cell_event, _} ->
+            line_goes_on(N, Deadline)
+    after left(Deadline) ->
+        ct:fail({line_stuck, cell_controller:tasks(), cell_alarms:list(), router_sim:world(),
+                 [catch cell_task_proc:info(T) || T <- [loading_front, work_front, lower,
+                                                        upper, unloading_front]]})
+    end.
+
+%% The operator at the machine: looks where the record says the panel is and answers.
+answer(#{kind := warning}) ->
+    ok;
+answer(#{id := Id, local_id := Local, task := Task} = A) ->
+    Solution = solution(Local, Task, A),
+    ct:log("~ts: ~ts -> ~ts", [Id, maps:get(description, A), Solution]),
+    cell_alarms:answer(Id, Solution, <<"suite">>).
+
+solution(<<"crashed">>, _Task, _A) ->
+    retry;
+solution(Where, upper, _A) when Where =:= <<"where">>; Where =:= <<"lost">> ->
+    S = serial(upper),
+    W = router_sim:world(),
+    case {maps:get(gripper, W), slot(W, work, S), slot(W, unloading, S)} of
+        {S, _, _} -> retry;               %% in the gripper after all: look again
+        {_, {S, full}, _} when Where =:= <<"where">> -> retry;  %% back in the module nest
+        {_, _, {S, _}} -> ignore;         %% on the unloading conveyor
+        _ -> reset                        %% not in the machine
+    end;
+solution(<<"where">>, Task, _A) ->
+    S = serial(Task),
+    case slot(router_sim:world(), loading, S) of
+        {S, _} -> ignore;                 %% between the stopper and the fixture
+        _ -> reset
+    end;
+solution(Transit, Task, _A) when Transit =:= <<"in_transit">>; Transit =:= <<"transfer">> ->
+    %% Confirmed here when the machine has it; forgotten when it does not.
+    case lists:member(serial(Task), in_machine(router_sim:world())) of
+        true -> ignore;
+        false -> reset
+    end;
+solution(_Other, _Task, #{solutions := Solutions}) ->
+    case lists:member(retry, Solutions) of
+        true -> retry;
+        false -> hd(Solutions)
+    end.
+
+serial(Task) ->
+    case cell_task_proc:info(Task) of
+        #{product := #{serial := S}} -> S;
+        _ -> undefined
+    end.
+
+slot(W, Where, S) ->
+    case [Slot || {S1, _} = Slot <- maps:values(maps:get(Where, W)), S1 =:= S] of
+        [Slot | _] -> Slot;
+        [] -> empty
+    end.
+
+%% Every serial the simulated machine physically has on a station (not the frames
+%% left after the modules were lifted, nor a panel still entering from the previous
+%% machine: no task has read its code yet).
+in_machine(W) ->
+    [S || Where <- [loading, work, unloading], {S, At} <- maps:values(maps:get(Where, W)),
+          At =/= frame, At =/= entering]
+        ++ [G || G <- [maps:get(gripper, W)], G =/= empty].
+
+%% Stopped: what the tasks hold is what the machine has, each serial once.
+assert_books_agree() ->
+    Held = [S || #{serial := S} <- cell_controller:tasks(), is_binary(S)],
+    World = router_sim:world(),
+    ?assertEqual(length(Held), length(lists:usort(Held))),
+    ?assertEqual({held, lists:sort(in_machine(World))}, {held, lists:sort(Held)}),
+    ?assertEqual([], cell_alarms:list()).
+
+stop_cell() ->
+    ok = cell_controller:stop(<<"suite">>),
+    ok = cell_controller:sync(),
+    case cell_controller:state() of
+        off -> ok;
+        _ -> await_off(deadline())
+    end.
+
+await_off(Deadline) ->
+    receive
+        {cell_event, #{type := cell_state, state := off}} -> ok;
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_off(Deadline);
+        {cell_event, _} -> await_off(Deadline)
+    after left(Deadline) ->
+        ct:fail({not_off, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+await_connection() ->
+    case cell_hal:subscribe_connection(router_plc) of
+        {ok, up} -> {ok, up};
+        {ok, down} ->
+            receive {cell_hal_conn, router_plc, up} -> {ok, up}
+            after ?DEADLINE_MS -> ct:fail(router_plc_not_up)
+            end
+    end.
+
+deadline() ->
+    erlang:monotonic_time(millisecond) + ?DEADLINE_MS.
+
+left(Deadline) ->
+    max(0, Deadline - erlang:monotonic_time(millisecond)).
