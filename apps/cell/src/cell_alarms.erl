@@ -188,8 +188,21 @@ public(A) -> maps:without([owner, monitor], A).
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
-    ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    {ok, #state{}}.
+    case cell_service_tables:claim(?TAB, [protected, {read_concurrency, true}]) of
+        new -> {ok, #state{}};
+        kept -> {ok, rewatch(ets:tab2list(?TAB))}
+    end.
+
+%% Restarted after a fault: the active errors, alarms and warnings are still in the
+%% table (see cell_service_tables), and each error's owner, still waiting for its
+%% answer, is watched again; one that died meanwhile withdraws its error at its 'DOWN'.
+rewatch(Rows) ->
+    Owners = [begin
+                  Ref = monitor(process, Owner),
+                  true = ets:insert(?TAB, {Id, A#{monitor => Ref}}),
+                  {Ref, Id}
+              end || {Id, #{owner := Owner} = A} <- Rows],
+    #state{owners = maps:from_list(Owners)}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call({raise_error, Task, Spec, Owner}, _From, State) ->

@@ -92,7 +92,9 @@ loaded() ->
 %% @private
 -spec init(options()) -> {ok, #state{}}.
 init(Opts) ->
-    _ = ets:new(?TAB, [named_table, protected, set, {read_concurrency, true}]),
+    %% Restarted after a fault, the buffer keeps the recipes it had (see
+    %% cell_service_tables); loads under way then are asked for again.
+    _ = cell_service_tables:claim(?TAB, [protected, set, {read_concurrency, true}]),
     {ok, #state{recipe_opts = maps:get(recipe, Opts, #{})}}.
 
 %% @private

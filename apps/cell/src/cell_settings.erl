@@ -231,9 +231,20 @@ unsubscribe() ->
 %% @private
 -spec init(map()) -> {ok, #state{}, {continue, {register, [module()]}}}.
 init(#{dir := Dir, history := History, sync := Sync, schemas := Schemas}) ->
-    _ = ets:new(?TAB, [named_table, protected, set, {read_concurrency, true}]),
-    {ok, #state{dir = Dir, history = History, sync = Sync},
-     {continue, {register, Schemas}}}.
+    State = #state{dir = Dir, history = History, sync = Sync},
+    case cell_service_tables:claim(?TAB, [protected, set, {read_concurrency, true}]) of
+        new ->
+            {ok, State, {continue, {register, Schemas}}};
+        kept ->
+            %% Restarted after a fault (see cell_service_tables): the objects stay in
+            %% force meanwhile; those registered since the start are registered again
+            %% (their files read anew) and the subscribers watched again.
+            Registered = [Mod || [Mod] <- ets:match(?TAB, {{registered, '_'}, '$1'})],
+            Subs = maps:from_list([{Pid, erlang:monitor(process, Pid)}
+                                   || [Pid] <- ets:match(?TAB, {{subscriber, '$1'}})]),
+            {ok, State#state{subs = Subs},
+             {continue, {register, lists:usort(Schemas ++ Registered)}}}
+    end.
 
 %% @private
 -spec handle_continue({register, [module()]}, #state{}) -> {noreply, #state{}}.
@@ -322,12 +333,15 @@ handle_call({restore, Name, Rev, Who}, _From, State) ->
 handle_call({subscribe, Pid}, _From, #state{subs = Subs} = State) ->
     case Subs of
         #{Pid := _} -> {reply, ok, State};
-        _ -> {reply, ok, State#state{subs = Subs#{Pid => erlang:monitor(process, Pid)}}}
+        _ ->
+            true = ets:insert(?TAB, {{subscriber, Pid}}),
+            {reply, ok, State#state{subs = Subs#{Pid => erlang:monitor(process, Pid)}}}
     end;
 handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = State) ->
     case maps:take(Pid, Subs) of
         {Ref, Rest} ->
             true = erlang:demonitor(Ref, [flush]),
+            true = ets:delete(?TAB, {subscriber, Pid}),
             {reply, ok, State#state{subs = Rest}};
         error ->
             {reply, ok, State}
@@ -341,6 +355,7 @@ handle_cast(Msg, _State) ->
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({'DOWN', _Ref, process, Pid, _}, #state{subs = Subs} = State) ->
+    true = ets:delete(?TAB, {subscriber, Pid}),
     {noreply, State#state{subs = maps:remove(Pid, Subs)}}.
 
 %%====================================================================
@@ -357,6 +372,7 @@ do_register(Mod, #state{objs = Objs} = State) ->
                 #{Name := #obj{mod = Other}} ->
                     {error, {name_taken, Name, Other}};
                 _ ->
+                    true = ets:insert(?TAB, {{registered, Name}, Mod}),
                     S1 = State#state{objs = Objs#{Name => #obj{mod = Mod}}},
                     case load(Name, S1) of
                         {ok, S2} -> {ok, S2};
