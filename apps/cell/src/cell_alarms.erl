@@ -63,14 +63,14 @@ solutions() -> [retry, ignore, reset, close].
 -spec raise_error(atom(), spec(), pid()) -> {ok, binary()} | {error, {bad_spec, term()}}.
 raise_error(Task, Spec, Owner) ->
     case check_spec(Spec) of
-        ok -> gen_server:call(?MODULE, {raise_error, Task, Spec, Owner});
+        ok -> call({raise_error, Task, Spec, Owner});
         Error -> Error
     end.
 
 %% @doc The owner takes an unanswered error back (it stopped waiting for an answer).
 -spec withdraw(binary()) -> ok.
 withdraw(Id) ->
-    gen_server:call(?MODULE, {withdraw, Id}).
+    call({withdraw, Id}).
 
 %% @doc An operator's answer to an error: only one of its solutions is accepted.
 -spec answer(binary(), solution(), binary()) ->
@@ -92,7 +92,7 @@ warning(Task, LocalId, Caption, Description, Opts) ->
 %% @doc Resets a warning from code; nothing happens if it is not set.
 -spec reset_warning(atom(), binary()) -> ok.
 reset_warning(Task, LocalId) ->
-    gen_server:cast(?MODULE, {reset, warning, Task, LocalId}).
+    cell_service_tables:cast(?MODULE, {reset, warning, Task, LocalId}).
 
 %% @doc Raises a dangerous condition; cleared by code only.
 -spec alarm(atom(), binary(), iodata(), iodata()) -> ok.
@@ -106,13 +106,13 @@ alarm(Task, LocalId, Caption, Description, Opts) ->
 
 set(Kind, Task, LocalId, Caption, Description, Opts) ->
     case check_options(Opts) of
-        ok -> gen_server:cast(?MODULE, {set, Kind, Task, LocalId, Caption, Description, Opts});
+        ok -> cell_service_tables:cast(?MODULE, {set, Kind, Task, LocalId, Caption, Description, Opts});
         {error, Why} -> erlang:error({bad_options, Why}, [Task, LocalId, Caption, Description, Opts])
     end.
 
 -spec clear_alarm(atom(), binary()) -> ok.
 clear_alarm(Task, LocalId) ->
-    gen_server:cast(?MODULE, {reset, alarm, Task, LocalId}).
+    cell_service_tables:cast(?MODULE, {reset, alarm, Task, LocalId}).
 
 %% @doc An operator closes a warning (seed: warnings have only a Close button).
 -spec close(binary(), binary()) -> ok | {error, not_found | {not_allowed, [solution()]}}.
@@ -123,7 +123,7 @@ close(Id, Who) ->
 %% (warnings and alarms are set without waiting).
 -spec sync() -> ok.
 sync() ->
-    gen_server:call(?MODULE, sync).
+    call(sync).
 
 %% @doc Every active error, alarm and warning, oldest first.
 -spec list() -> [alarm()].
@@ -185,6 +185,11 @@ check_options(Opts) ->
     {error, {bad_options, Opts}}.
 
 public(A) -> maps:without([owner, monitor], A).
+
+%% What the tasks, the monitor and the controller ask wait through a restart of this
+%% process instead of failing (see cell_service_tables).
+call(Request) ->
+    cell_service_tables:call(?MODULE, Request, 5000).
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->

@@ -15,13 +15,22 @@
 %% the keeper goes with it, and the services start from empty tables as at boot. Started
 %% alone (in a unit test, a tool), a service makes its table itself: {@link claim/2}
 %% says `new'.
+%%
+%% Between a service's death and its successor's start its name is not registered: a
+%% call then exits with `noproc' and a cast is lost. Its callers that must not fail
+%% for that (a task raising an error, the controller setting the emergency stop's
+%% alarm) go through {@link call/3} and {@link cast/2}: they wait until the service
+%% has claimed its table again (it is registered by then), told by the keeper, not
+%% found by polling.
 -module(cell_service_tables).
 -behaviour(gen_server).
 
--export([start_link/0, claim/2]).
+-export([start_link/0, claim/2, await/2, call/3, cast/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
--record(state, {waiting = #{} :: #{atom() => {pid(), gen_server:from()}}}).
+-record(state, {waiting = #{} :: #{atom() => {pid(), gen_server:from()}},
+                %% callers waiting for a service by its registered name
+                awaiting = #{} :: #{atom() => [gen_server:from()]}}).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -42,14 +51,51 @@ claim(Name, Opts) when is_atom(Name), is_list(Opts) ->
             receive {'ETS-TRANSFER', Name, Keeper, Name} -> Result end
     end.
 
+%% @doc Returns once a process is registered as `Name', at most `Timeout'
+%% milliseconds: at once if it is, or when a service of that name claims its table.
+%% `timeout' if it did not come back in time or there is no keeper to tell.
+-spec await(atom(), timeout()) -> ok | timeout.
+await(Name, Timeout) when is_atom(Name) ->
+    case {whereis(Name), whereis(?MODULE)} of
+        {Pid, _} when is_pid(Pid) -> ok;
+        {undefined, undefined} -> timeout;
+        {undefined, Keeper} ->
+            try gen_server:call(Keeper, {await, Name}, Timeout)
+            catch exit:{_, {gen_server, call, _}} -> timeout
+            end
+    end.
+
+%% @doc `gen_server:call(Name, Request, Timeout)', through a restart of the service:
+%% a request that found no process (so was never handled) is sent again once the
+%% service is back. Any other exit is the caller's, as for gen_server:call/3.
+-spec call(atom(), term(), timeout()) -> term().
+call(Name, Request, Timeout) ->
+    try gen_server:call(Name, Request, Timeout)
+    catch
+        exit:{noproc, _} ->
+            _ = await(Name, Timeout),
+            gen_server:call(Name, Request, Timeout)
+    end.
+
+%% @doc `gen_server:cast(Name, Msg)', waiting first for a service that is restarting
+%% (at most five seconds; then the message is lost, as a cast to no process is).
+-spec cast(atom(), term()) -> ok.
+cast(Name, Msg) ->
+    _ = case whereis(Name) of
+            undefined -> await(Name, 5000);
+            _ -> ok
+        end,
+    gen_server:cast(Name, Msg).
+
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
     {ok, #state{}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) ->
-          {reply, new | kept, #state{}} | {noreply, #state{}}.
-handle_call({claim, Name, Opts, Pid}, From, #state{waiting = W} = State) ->
+          {reply, new | kept | ok, #state{}} | {noreply, #state{}}.
+handle_call({claim, Name, Opts, Pid}, From, #state{waiting = W} = State0) ->
     Self = self(),
+    State = back(Pid, State0),
     case ets:info(Name, owner) of
         undefined ->
             Name = ets:new(Name, [named_table, {heir, Self, Name} | Opts]),
@@ -59,6 +105,23 @@ handle_call({claim, Name, Opts, Pid}, From, #state{waiting = W} = State) ->
         _Dying ->
             %% Its previous owner has not finished exiting: answered when it is back.
             {noreply, State#state{waiting = W#{Name => {Pid, From}}}}
+    end;
+handle_call({await, Name}, From, #state{awaiting = A} = State) ->
+    case whereis(Name) of
+        undefined -> {noreply, State#state{awaiting = A#{Name => [From | maps:get(Name, A, [])]}}};
+        _ -> {reply, ok, State}
+    end.
+
+%% A service claims its table from its init: it is registered already (gen_server
+%% registers before init), and those waiting for it can call it now.
+back(Pid, #state{awaiting = A} = State) ->
+    case process_info(Pid, registered_name) of
+        {registered_name, Name} when is_map_key(Name, A) ->
+            {Waiting, A1} = maps:take(Name, A),
+            _ = [gen_server:reply(From, ok) || From <- Waiting],
+            State#state{awaiting = A1};
+        _ ->
+            State
     end.
 
 -spec handle_cast(term(), #state{}) -> no_return().

@@ -10,7 +10,8 @@
 tables_test_() ->
     {foreach, fun start_keeper/0, fun stop/1,
      [fun made_once_then_kept/0, fun claim_waits_for_the_dying_owner/0,
-      fun subscribers_kept/0, fun waiting_error_kept/0]}.
+      fun subscribers_kept/0, fun waiting_error_kept/0, fun await_until_claimed/0,
+      fun call_waits_for_the_service/0]}.
 
 %% Without a keeper (a service started alone) the service makes its own table.
 alone_test() ->
@@ -83,6 +84,37 @@ waiting_error_kept() ->
     after 5000 -> error(no_answer)
     end,
     ?assertEqual({error, not_found}, cell_alarms:get(Id)),
+    ok = stop(A2).
+
+%% Waiting for a service by name ends when a process of that name claims its table;
+%% one registered already is not waited for.
+await_until_claimed() ->
+    Keeper = whereis(cell_service_tables),
+    Req = gen_server:send_request(Keeper, {await, cell_service_tables_test_service}),
+    _ = sys:get_state(Keeper),
+    ?assertEqual(no_reply, gen_server:check_response({no_reply_yet, Req}, Req)),
+    Self = self(),
+    Service = spawn(fun() ->
+                            true = register(cell_service_tables_test_service, self()),
+                            Self ! {claimed, self(), cell_service_tables:claim(?TAB, [])},
+                            receive stop -> ok end
+                    end),
+    ?assertEqual({reply, ok}, gen_server:wait_response(Req, 5000)),
+    ?assertEqual({claimed, new}, receive_claim(Service)),
+    ?assertEqual(ok, cell_service_tables:await(cell_service_tables_test_service, 0)),
+    ok = stop(Service),
+    ?assertEqual(timeout, cell_service_tables:await(cell_service_tables_test_service, 0)).
+
+%% A call made while the alarms are away is answered once they are back, not an exit.
+call_waits_for_the_service() ->
+    {ok, A1} = cell_alarms:start_link(),
+    ok = stop(A1),
+    Self = self(),
+    Caller = spawn(fun() -> Self ! {synced, self(), catch cell_alarms:sync()} end),
+    {ok, A2} = cell_alarms:start_link(),
+    receive {synced, Caller, R} -> ?assertEqual(ok, R)
+    after 10000 -> error(no_reply)
+    end,
     ok = stop(A2).
 
 %% -------------------------------------------------------------------------------------
