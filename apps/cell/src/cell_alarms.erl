@@ -63,14 +63,14 @@ solutions() -> [retry, ignore, reset, close].
 -spec raise_error(atom(), spec(), pid()) -> {ok, binary()} | {error, {bad_spec, term()}}.
 raise_error(Task, Spec, Owner) ->
     case check_spec(Spec) of
-        ok -> gen_server:call(?MODULE, {raise_error, Task, Spec, Owner});
+        ok -> call({raise_error, Task, Spec, Owner});
         Error -> Error
     end.
 
 %% @doc The owner takes an unanswered error back (it stopped waiting for an answer).
 -spec withdraw(binary()) -> ok.
 withdraw(Id) ->
-    gen_server:call(?MODULE, {withdraw, Id}).
+    call({withdraw, Id}).
 
 %% @doc An operator's answer to an error: only one of its solutions is accepted. An
 %% answer other than Reset (or Close) lets the error's task go on with the product it
@@ -97,7 +97,7 @@ warning(Task, LocalId, Caption, Description, Opts) ->
 %% @doc Resets a warning from code; nothing happens if it is not set.
 -spec reset_warning(atom(), binary()) -> ok.
 reset_warning(Task, LocalId) ->
-    gen_server:cast(?MODULE, {reset, warning, Task, LocalId}).
+    cell_service_tables:cast(?MODULE, {reset, warning, Task, LocalId}).
 
 %% @doc Raises a dangerous condition; cleared by code only.
 -spec alarm(atom(), binary(), iodata(), iodata()) -> ok.
@@ -111,13 +111,13 @@ alarm(Task, LocalId, Caption, Description, Opts) ->
 
 set(Kind, Task, LocalId, Caption, Description, Opts) ->
     case check_options(Opts) of
-        ok -> gen_server:cast(?MODULE, {set, Kind, Task, LocalId, Caption, Description, Opts});
+        ok -> cell_service_tables:cast(?MODULE, {set, Kind, Task, LocalId, Caption, Description, Opts});
         {error, Why} -> erlang:error({bad_options, Why}, [Task, LocalId, Caption, Description, Opts])
     end.
 
 -spec clear_alarm(atom(), binary()) -> ok.
 clear_alarm(Task, LocalId) ->
-    gen_server:cast(?MODULE, {reset, alarm, Task, LocalId}).
+    cell_service_tables:cast(?MODULE, {reset, alarm, Task, LocalId}).
 
 %% @doc An operator closes a warning (seed: warnings have only a Close button).
 -spec close(binary(), binary()) -> ok | {error, not_found | {not_allowed, [solution()]}}.
@@ -128,7 +128,7 @@ close(Id, Who) ->
 %% (warnings and alarms are set without waiting).
 -spec sync() -> ok.
 sync() ->
-    gen_server:call(?MODULE, sync).
+    call(sync).
 
 %% @doc Every active error, alarm and warning, oldest first.
 -spec list() -> [alarm()].
@@ -205,10 +205,28 @@ held_twice(#{task := Task}, _Solution) ->
             none
     end.
 
+%% What the tasks, the monitor and the controller ask wait through a restart of this
+%% process instead of failing (see cell_service_tables).
+call(Request) ->
+    cell_service_tables:call(?MODULE, Request, 5000).
+
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
-    ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    {ok, #state{}}.
+    case cell_service_tables:claim(?TAB, [protected, {read_concurrency, true}]) of
+        new -> {ok, #state{}};
+        kept -> {ok, rewatch(ets:tab2list(?TAB))}
+    end.
+
+%% Restarted after a fault: the active errors, alarms and warnings are still in the
+%% table (see cell_service_tables), and each error's owner, still waiting for its
+%% answer, is watched again; one that died meanwhile withdraws its error at its 'DOWN'.
+rewatch(Rows) ->
+    Owners = [begin
+                  Ref = monitor(process, Owner),
+                  true = ets:insert(?TAB, {Id, A#{monitor => Ref}}),
+                  {Ref, Id}
+              end || {Id, #{owner := Owner} = A} <- Rows],
+    #state{owners = maps:from_list(Owners)}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call({raise_error, Task, Spec, Owner}, _From, State) ->

@@ -2,8 +2,10 @@
 %% (see {@link cell_spec}), under {@link cell_sup}.
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
-%% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
-%% peers and the handshake links connect the tasks; the monitor connects the HAL the
+%% uses; the service tables keep what the services must not lose; the services
+%% (events, alarms, settings, the recipe buffer, the peers, under {@link
+%% cell_service_sup}) are used by the tasks and restart alone, without the children
+%% after them; the handshake links connect the tasks; the monitor connects the HAL the
 %% spec names and watches the general IO (the tasks read their IO only once started);
 %% the controller drives the tasks; the statistics only listen to all of them, and the
 %% guard (a product held twice, a cell that makes no progress) only listens and asks
@@ -43,12 +45,15 @@ start_link(Starts) ->
 init(#{tasks := Tasks, settings := Schemas} = Spec) ->
     %% Ten restarts a minute restart this part; beyond that cell_sup starts it anew.
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
-    Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
-                #{id => cell_events, start => {cell_events, start_link, []}},
+    Services = [#{id => cell_events, start => {cell_events, start_link, []}},
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
                 cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
                 cell_recipe_buffer:child_spec(#{}),
-                cell_peers:child_spec(Spec),
+                cell_peers:child_spec(Spec)],
+    Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
+                #{id => cell_service_tables, start => {cell_service_tables, start_link, []}},
+                #{id => cell_service_sup, start => {cell_service_sup, start_link, [Services]},
+                  type => supervisor, shutdown => infinity},
                 #{id => cell_handshake_sup,
                   start => {cell_handshake_sup, start_link, [cell_spec:hosted_links(Spec)]},
                   type => supervisor, shutdown => infinity},

@@ -26,7 +26,10 @@
                    atom() => term()}.
 
 %% One row per event type, the pids subscribed to it: a publication reads only its
-%% own type's subscribers, already chosen.
+%% own type's subscribers, already chosen. One row per subscriber too, `{{subscriber,
+%% Pid}, Types}': the table outlives a restart of this process (see {@link
+%% cell_service_tables}), and the process started again re-monitors every subscriber
+%% found there, who never notices it went.
 -define(TAB, cell_event_subscribers).
 
 -record(state, {subs = #{} :: #{pid() => {reference(), all | [type()]}}}).
@@ -113,8 +116,16 @@ send([Pid | Pids], Msg) ->
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
-    ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    {ok, store(#state{})}.
+    case cell_service_tables:claim(?TAB, [protected, {read_concurrency, true}]) of
+        new -> {ok, store(#state{})};
+        kept -> {ok, store(resubscribe(ets:match_object(?TAB, {{subscriber, '_'}, '_'})))}
+    end.
+
+%% The subscribers a predecessor left, monitored again: one that died meanwhile is
+%% dropped at its 'DOWN', as always.
+resubscribe(Rows) ->
+    #state{subs = maps:from_list([{Pid, {monitor(process, Pid), Types}}
+                                  || {{subscriber, Pid}, Types} <- Rows])}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, ok, #state{}}.
 handle_call({subscribe, Pid, Types}, _From, #state{subs = Subs} = State) ->
@@ -122,6 +133,7 @@ handle_call({subscribe, Pid, Types}, _From, #state{subs = Subs} = State) ->
               {ok, {R, _}} -> R;
               error -> monitor(process, Pid)
           end,
+    true = ets:insert(?TAB, {{subscriber, Pid}, Types}),
     {reply, ok, store(State#state{subs = maps:put(Pid, {Ref, Types}, Subs)})};
 handle_call({unsubscribe, Pid}, _From, State) ->
     {reply, ok, drop(Pid, State)}.
@@ -138,6 +150,7 @@ drop(Pid, #state{subs = Subs} = State) ->
     case maps:take(Pid, Subs) of
         {{Ref, _}, Subs1} ->
             demonitor(Ref, [flush]),
+            true = ets:delete(?TAB, {subscriber, Pid}),
             store(State#state{subs = Subs1});
         error ->
             State

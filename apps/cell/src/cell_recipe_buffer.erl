@@ -70,7 +70,7 @@ get(Name, Timeout) ->
             {ok, Recipe};
         [] ->
             %% A late reply after a timeout is dropped (calls use process aliases).
-            try gen_server:call(?MODULE, {get, Name}, Timeout)
+            try cell_service_tables:call(?MODULE, {get, Name}, Timeout)
             catch exit:{timeout, _} -> {error, timeout}
             end
     end.
@@ -78,7 +78,7 @@ get(Name, Timeout) ->
 %% @doc Empties the buffer (the controller calls it at every Start).
 -spec clear() -> ok.
 clear() ->
-    gen_server:call(?MODULE, clear).
+    cell_service_tables:call(?MODULE, clear, 5000).
 
 %% @doc The names of the recipes in the buffer.
 -spec loaded() -> [cell_recipe:name()].
@@ -92,7 +92,9 @@ loaded() ->
 %% @private
 -spec init(options()) -> {ok, #state{}}.
 init(Opts) ->
-    _ = ets:new(?TAB, [named_table, protected, set, {read_concurrency, true}]),
+    %% Restarted after a fault, the buffer keeps the recipes it had (see
+    %% cell_service_tables); loads under way then are asked for again.
+    _ = cell_service_tables:claim(?TAB, [protected, set, {read_concurrency, true}]),
     {ok, #state{recipe_opts = maps:get(recipe, Opts, #{})}}.
 
 %% @private

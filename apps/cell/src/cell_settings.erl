@@ -97,17 +97,17 @@ child_spec(Opts) ->
 -spec register(module()) -> ok | {error, {bad_schema, module(), term()}
                                   | {name_taken, name(), module()}}.
 register(Mod) when is_atom(Mod) ->
-    gen_server:call(?MODULE, {register, Mod}, ?CALL_TIMEOUT).
+    call({register, Mod}, ?CALL_TIMEOUT).
 
 %% @doc The registered object names.
 -spec names() -> [name()].
 names() ->
-    gen_server:call(?MODULE, names).
+    call(names).
 
 %% @doc The schema module of an object.
 -spec schema(name()) -> {ok, module()} | {error, {unknown_settings, name()}}.
 schema(Name) ->
-    gen_server:call(?MODULE, {schema, Name}).
+    call({schema, Name}).
 
 %% @doc The registered name spelled by a binary (from a URL or a form), without making
 %% an atom of it.
@@ -128,7 +128,7 @@ get(Name) ->
         [] ->
             %% Not (yet) in the table: ask the owner, which answers after any
             %% registration still under way.
-            case gen_server:call(?MODULE, {get, Name}) of
+            case call({get, Name}) of
                 {ok, Obj} -> Obj;
                 {error, Why} -> erlang:error(Why, [Name])
             end
@@ -151,12 +151,12 @@ get(Name, Path) when is_list(Path) ->
 %% change becomes a new revision by `Who'; saving what is already there is a no-op.
 -spec put(name(), map(), binary()) -> ok | {error, error()}.
 put(Name, Changes, Who) ->
-    gen_server:call(?MODULE, {put, Name, Changes, Who}, ?CALL_TIMEOUT).
+    call({put, Name, Changes, Who}, ?CALL_TIMEOUT).
 
 %% @doc Reads an object's file again (after someone edited it by hand).
 -spec reload(name()) -> ok | {error, error()}.
 reload(Name) ->
-    gen_server:call(?MODULE, {reload, Name}, ?CALL_TIMEOUT).
+    call({reload, Name}, ?CALL_TIMEOUT).
 
 %% @doc The object with every field at its default.
 -spec defaults(name()) -> {ok, map()} | {error, {unknown_settings, name()}}.
@@ -170,7 +170,7 @@ defaults(Name) ->
 %% object as it is now. Kept as {@link last_snapshot/0}.
 -spec snapshot() -> #{name() => map()}.
 snapshot() ->
-    gen_server:call(?MODULE, snapshot).
+    call(snapshot).
 
 %% @doc The snapshot taken at the last Start, or `undefined' before the first.
 -spec last_snapshot() -> #{name() => map()} | undefined.
@@ -192,37 +192,45 @@ pending() ->
 %% @doc An object's revisions on disk, newest first.
 -spec revisions(name()) -> {ok, [revision_info()]} | {error, {unknown_settings, name()}}.
 revisions(Name) ->
-    gen_server:call(?MODULE, {revisions, Name}).
+    call({revisions, Name}).
 
 %% @doc One revision: who, when, and the object as it was then.
 -spec revision(name(), pos_integer()) ->
           {ok, #{rev := pos_integer(), who := binary(), time := integer(), settings := map()}}
               | {error, error()}.
 revision(Name, Rev) ->
-    gen_server:call(?MODULE, {revision, Name, Rev}, ?CALL_TIMEOUT).
+    call({revision, Name, Rev}, ?CALL_TIMEOUT).
 
 %% @doc The fields that differ from revision `A' to revision `B'.
 %% `cell_settings_schema:format_change/1' prints one as `speed_override: 50 -> 80'.
 -spec diff(name(), pos_integer(), pos_integer()) ->
           {ok, [cell_settings_schema:change()]} | {error, error()}.
 diff(Name, A, B) ->
-    gen_server:call(?MODULE, {diff, Name, A, B}, ?CALL_TIMEOUT).
+    call({diff, Name, A, B}, ?CALL_TIMEOUT).
 
 %% @doc Makes revision `Rev' current again, as a new revision by `Who'.
 -spec restore(name(), pos_integer(), binary()) -> ok | {error, error()}.
 restore(Name, Rev, Who) ->
-    gen_server:call(?MODULE, {restore, Name, Rev, Who}, ?CALL_TIMEOUT).
+    call({restore, Name, Rev, Who}, ?CALL_TIMEOUT).
 
 %% @doc The caller receives `{cell_settings, changed, Name}' after every change, until
 %% it unsubscribes or exits.
 -spec subscribe() -> ok.
 subscribe() ->
-    gen_server:call(?MODULE, {subscribe, self()}).
+    call({subscribe, self()}).
 
 %% @doc Ends a {@link subscribe/0}.
 -spec unsubscribe() -> ok.
 unsubscribe() ->
-    gen_server:call(?MODULE, {unsubscribe, self()}).
+    call({unsubscribe, self()}).
+
+%% A call waits through a restart of this process instead of failing (see
+%% cell_service_tables).
+call(Request) ->
+    call(Request, 5000).
+
+call(Request, Timeout) ->
+    cell_service_tables:call(?MODULE, Request, Timeout).
 
 %%====================================================================
 %% gen_server
@@ -231,9 +239,20 @@ unsubscribe() ->
 %% @private
 -spec init(map()) -> {ok, #state{}, {continue, {register, [module()]}}}.
 init(#{dir := Dir, history := History, sync := Sync, schemas := Schemas}) ->
-    _ = ets:new(?TAB, [named_table, protected, set, {read_concurrency, true}]),
-    {ok, #state{dir = Dir, history = History, sync = Sync},
-     {continue, {register, Schemas}}}.
+    State = #state{dir = Dir, history = History, sync = Sync},
+    case cell_service_tables:claim(?TAB, [protected, set, {read_concurrency, true}]) of
+        new ->
+            {ok, State, {continue, {register, Schemas}}};
+        kept ->
+            %% Restarted after a fault (see cell_service_tables): the objects stay in
+            %% force meanwhile; those registered since the start are registered again
+            %% (their files read anew) and the subscribers watched again.
+            Registered = [Mod || [Mod] <- ets:match(?TAB, {{registered, '_'}, '$1'})],
+            Subs = maps:from_list([{Pid, erlang:monitor(process, Pid)}
+                                   || [Pid] <- ets:match(?TAB, {{subscriber, '$1'}})]),
+            {ok, State#state{subs = Subs},
+             {continue, {register, lists:usort(Schemas ++ Registered)}}}
+    end.
 
 %% @private
 -spec handle_continue({register, [module()]}, #state{}) -> {noreply, #state{}}.
@@ -322,12 +341,15 @@ handle_call({restore, Name, Rev, Who}, _From, State) ->
 handle_call({subscribe, Pid}, _From, #state{subs = Subs} = State) ->
     case Subs of
         #{Pid := _} -> {reply, ok, State};
-        _ -> {reply, ok, State#state{subs = Subs#{Pid => erlang:monitor(process, Pid)}}}
+        _ ->
+            true = ets:insert(?TAB, {{subscriber, Pid}}),
+            {reply, ok, State#state{subs = Subs#{Pid => erlang:monitor(process, Pid)}}}
     end;
 handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = State) ->
     case maps:take(Pid, Subs) of
         {Ref, Rest} ->
             true = erlang:demonitor(Ref, [flush]),
+            true = ets:delete(?TAB, {subscriber, Pid}),
             {reply, ok, State#state{subs = Rest}};
         error ->
             {reply, ok, State}
@@ -341,6 +363,7 @@ handle_cast(Msg, _State) ->
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({'DOWN', _Ref, process, Pid, _}, #state{subs = Subs} = State) ->
+    true = ets:delete(?TAB, {subscriber, Pid}),
     {noreply, State#state{subs = maps:remove(Pid, Subs)}}.
 
 %%====================================================================
@@ -357,6 +380,7 @@ do_register(Mod, #state{objs = Objs} = State) ->
                 #{Name := #obj{mod = Other}} ->
                     {error, {name_taken, Name, Other}};
                 _ ->
+                    true = ets:insert(?TAB, {{registered, Name}, Mod}),
                     S1 = State#state{objs = Objs#{Name => #obj{mod = Mod}}},
                     case load(Name, S1) of
                         {ok, S2} -> {ok, S2};

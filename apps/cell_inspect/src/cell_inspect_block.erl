@@ -331,8 +331,9 @@ common(info, {cell_settings, changed, _}, _State, _D) ->
 common(info, {timeout, _, settings}, State, D) ->
     case attach_settings(D) of
         {ok, D1} ->
-            %% The settings restarted with the cell's services before them, the alarms
-            %% among them: the block's alarm, if it has one, is set again.
+            %% The settings restarted: if the controller's tree restarted with them, the
+            %% alarms are empty, so the block's alarm, if it has one, is set again (kept
+            %% alarms see the same alarm and announce nothing).
             D2 = faults(D1#data.faults, D1#data{faults = #{}}),
             {keep_state, load_settings(State, D2#data{retry = ?RETRY_MS})};
         {error, _} ->

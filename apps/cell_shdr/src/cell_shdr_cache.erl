@@ -230,7 +230,10 @@ attach(State0) ->
             catch
                 exit:{noproc, _} -> retry(State#state{watched = Watched});
                 exit:{normal, _} -> retry(State#state{watched = Watched});
-                exit:{shutdown, _} -> retry(State#state{watched = Watched})
+                exit:{shutdown, _} -> retry(State#state{watched = Watched});
+                %% The registry went (its tables with it) while they were read: its
+                %% 'DOWN' is on its way, and the next try finds it back.
+                error:badarg -> retry(State#state{watched = Watched})
             end;
         _Missing ->
             retry(State)

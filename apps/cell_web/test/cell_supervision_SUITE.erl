@@ -40,11 +40,12 @@ end_per_suite(_Config) ->
     _ = [application:unset_env(A, port) || A <- [cell_web, cell_shdr]],
     ok.
 
-%% Twenty kills of the event fan-out in a row (past the controller's own intensity, so
-%% its tree is restarted whole once): the apps run on, the panel's feed, its recent
-%% lines, the SHDR cache and the inspection app are the same processes, the feed
-%% attached again after every kill, a page stays connected and gets events again, and
-%% the controller answers.
+%% Twenty kills of the event fan-out in a row restart it alone: the tasks and the
+%% controller are the same processes. Then eleven kills of the registry (past the
+%% controller's own intensity, so its tree is restarted whole once): the apps run on,
+%% the panel's feed, its recent lines, the SHDR cache and the inspection app are the
+%% same processes, the feed attached again after every kill, a page stays connected
+%% and gets events again, and the controller answers.
 burst_of_event_restarts(Config) ->
     Same = [cell_web_sup, cell_web_feed, cell_web_recent, cell_shdr_sup, cell_shdr_cache,
             cell_inspect_sup],
@@ -52,7 +53,10 @@ burst_of_event_restarts(Config) ->
     {ok, Ws0} = cell_web_client:ws_connect(cell_web_client:new(?config(port, Config)), none),
     {[#{<<"type">> := <<"snapshot">>} | _], Ws} = cell_web_client:ws_next(Ws0, ?WAIT_MS),
     ok = cell_web_feed:join(self()),
+    Cell = [whereis(cell_controller_sup), whereis(cell_controller) | task_pids()],
     _ = [restart(cell_events) || _ <- lists:seq(1, 20)],
+    ?assertEqual(Cell, [whereis(cell_controller_sup), whereis(cell_controller) | task_pids()]),
+    _ = [restart(cell_registry) || _ <- lists:seq(1, 11)],
     ?assertEqual(Before, [{N, whereis(N)} || N <- Same]),
     ok = apps_running(),
     ?assertMatch(#{request := _}, cell_controller:flags()),
@@ -121,8 +125,14 @@ restart(Name) ->
 
 %% The controller's supervisor handles the exit (it reached it before this call) before
 %% it answers: it has restarted the service, or it gave up and is gone, and then its own
-%% exit reached cell_sup before this next call, which starts the tree anew first.
+%% exit reached cell_sup before this next call, which starts the tree anew first. The
+%% services' supervisor, under the controller's, is asked first in the same way.
 supervisors_done() ->
+    try supervisor:which_children(cell_service_sup) of
+        _ -> ok
+    catch
+        exit:{Gone, _} when Gone =:= shutdown; Gone =:= noproc -> ok
+    end,
     try supervisor:which_children(cell_controller_sup) of
         _ -> ok
     catch
@@ -148,6 +158,9 @@ subscribers() ->
     try ets:lookup_element(cell_event_subscribers, item_identifier_read, 2)
     catch error:badarg -> []
     end.
+
+task_pids() ->
+    [cell_task_proc:whereis(T) || T <- [t1, t2]].
 
 apps_running() ->
     Running = [A || {A, _, _} <- application:which_applications()],
