@@ -213,8 +213,10 @@ handle_call({withdraw, Id}, _From, State) ->
 handle_call({answer, Id, Solution, Who}, _From, State) ->
     case ets:lookup(?TAB, Id) of
         [{Id, #{kind := error, solutions := Sols, owner := Owner} = A}] ->
-            case lists:member(Solution, Sols) of
-                true ->
+            case lists:member(Solution, Sols) andalso journal_answer(A, Solution, Who) of
+                {error, Why} ->
+                    {reply, {error, {not_recorded, Why}}, State};
+                ok ->
                     Owner ! {cell_alarm, answer, Id, Solution, Who},
                     cell_log:notice(maps:get(task, A), "~ts answered \"~ts\" with ~ts",
                                     [Who, maps:get(caption, A), solution_name(Solution)]),
@@ -322,6 +324,21 @@ text(IoData) ->
     case unicode:characters_to_binary(IoData) of
         B when is_binary(B) -> B;
         _ -> iolist_to_binary(io_lib:format("~tp", [IoData]))
+    end.
+
+%% An answer is in the trace journal before its owner hears it: what an operator
+%% decided about a product stays in its history after a crash (see cell_stats).
+journal_answer(#{id := Id, task := Task, caption := Caption}, Solution, Who) ->
+    Item = case cell_registry:task(Task) of
+               {ok, #{serial := S}} when is_binary(S) -> #{item => S};
+               _ -> #{}
+           end,
+    case cell_trace_journal:append(Item#{type => alarm_answered, task => Task, alarm => Id,
+                                         caption => Caption, solution => Solution,
+                                         who => Who}) of
+        {ok, _} -> ok;
+        {error, not_running} -> ok;
+        {error, _} = E -> E
     end.
 
 solution_name(retry) -> "Retry";

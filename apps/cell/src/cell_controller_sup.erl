@@ -2,10 +2,11 @@
 %% cell spec (see {@link cell_spec}).
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
-%% uses; events, alarms, settings and the recipe buffer are used by the tasks; the
-%% peers and the handshake links connect the tasks; the monitor connects the HAL the
-%% spec names and watches the general IO (the tasks read their IO only once started);
-%% the controller drives the tasks; the statistics only listen to all of them. A child
+%% uses; events, the trace journal, alarms, settings and the recipe buffer are used by
+%% the tasks; the peers and the handshake links connect the tasks; the monitor connects
+%% the HAL the spec names and watches the general IO (the tasks read their IO only once
+%% started); the controller drives the tasks; the statistics only listen to all of them
+%% (and read the trace journal). A child
 %% that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by itself on an unattended machine: beyond that the node
 %% reports it instead of spinning.
@@ -27,6 +28,10 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
                 #{id => cell_events, start => {cell_events, start_link, []}},
+                %% Before every writer of the product's way (answers, tasks) and its
+                %% reader (the statistics): a restart of it restarts them all, so the
+                %% statistics read it again whole.
+                cell_trace_journal:child_spec(),
                 #{id => cell_alarms, start => {cell_alarms, start_link, []}},
                 cell_settings:child_spec(#{schemas => [cell_machine_settings | Schemas]}),
                 cell_recipe_buffer:child_spec(#{}),

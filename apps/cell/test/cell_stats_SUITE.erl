@@ -13,7 +13,8 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
-         shifts_split_the_time/1, a_product_in_the_cell_and_after/1]).
+         shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
+         a_product_left_across_a_crash/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -21,11 +22,13 @@ all() ->
     [database_unusable_then_back, database_lost_then_back, writer_crash,
      time_in_a_state_across_a_crash,
      shifts_split_the_time,
-     a_product_in_the_cell_and_after].
+     a_product_in_the_cell_and_after,
+     a_product_left_across_a_crash].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
-                                     Case =:= a_product_in_the_cell_and_after ->
+                                     Case =:= a_product_in_the_cell_and_after;
+                                     Case =:= a_product_left_across_a_crash ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -233,6 +236,83 @@ a_product_in_the_cell_and_after(Config) ->
     {ok, #{status := scrapped, failed := true, events := Events}} = cell_stats:product(Serial),
     ?assertEqual(scrapped, maps:get(event, lists:last(Events))),
     ?assertMatch(#{in_cell := 0, cell := #{in := 1, scrapped := 1}}, cell_stats:summary(total)).
+
+%% A product that entered and left while the statistics took nothing (they are
+%% suspended, then killed: what they were told dies with them, as in a crash of the
+%% node) is recorded after their restart as left, once, with its whole history, from
+%% the trace journal; it is never taken for scrapped. Killed again right after their
+%% restart, before or after they wrote (whichever comes first), they still count each
+%% product once and write each history entry once.
+a_product_left_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    ok = cell_stats:flush(),
+    %% The suite's database keeps what its other cases counted.
+    Before = cell_counts(),
+    Journal = cell_trace_journal:path(),
+    Serial = <<"S-77">>,
+    in_and_out(Ref, Serial, <<"r7">>),
+    ok = kill_stats(),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r7">>, entry_task := waits_a,
+                        exit_task := waits_a}}, cell_stats:product(Serial)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertEqual(#{in => 1, out => 1, good => 1, scrapped => 0}, counted_since(Before)),
+    ?assertEqual(0, cell_stats:in_cell()),
+    %% Written to the database: the journal lets its records go (told before the
+    %% flush returned; a call to it comes after that).
+    _ = sys:get_state(cell_trace_journal),
+    {ok, Trimmed} = file:read_file(Journal),
+    ?assertMatch({[], _, 0, 0}, cell_trace_journal:decode(Trimmed)),
+    %% Twice in a row.
+    Serial2 = <<"S-78">>,
+    in_and_out(Ref, Serial2, <<"r8">>),
+    ok = kill_stats(),
+    ok = kill_stats(),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual([entered, item_transfer_out, left], history(Serial2)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertEqual(#{in => 2, out => 2, good => 2, scrapped => 0}, counted_since(Before)),
+    ?assertEqual(0, cell_stats:in_cell()).
+
+cell_counts() ->
+    #{cell := Cell} = cell_stats:summary(total),
+    maps:with([in, out, good, scrapped], Cell).
+
+counted_since(Before) ->
+    maps:map(fun(K, V) -> V - maps:get(K, Before) end, cell_counts()).
+
+%% With the statistics suspended: the product enters at waits_a, leaves the cell from
+%% it, and the task forgets it.
+in_and_out(Ref, Serial, Recipe) ->
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, Recipe)}),
+    await_event(product_saved, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined).
+
+await_event(Type, Serial) ->
+    receive {cell_event, #{type := Type, task := waits_a, item := Serial}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail({no_event, Type, Serial})
+    end.
+
+%% Kills the statistics and returns once their supervisor has started them again.
+kill_stats() ->
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    _ = supervisor:which_children(cell_controller_sup),
+    ok.
+
+history(Serial) ->
+    {ok, #{events := Events}} = cell_stats:product(Serial),
+    [E || #{event := E} <- Events].
 
 %% The task saves the product; returns once the statistics have written what it did.
 save(Ref, Product) ->
