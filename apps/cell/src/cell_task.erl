@@ -169,10 +169,11 @@ store(#task{id = Id, product_file = File} = T, Product, Gen, Marker, Opts) ->
     Serial = cell_product:serial(Product),
     Fields = #{item => Serial, product => Product, in_transit => Marker =/= undefined},
     %% Taking a product is in the trace journal before the task holds it: after a
-    %% crash the statistics know who took it even if the event never reached them.
+    %% crash the statistics know it entered, and with what, even if the event never
+    %% reached them. Taken in a hand-over (in transit), its transfer in is the record.
     Journal = case Serial of
                   undefined -> #{};
-                  _ when Serial =:= T#task.traced -> #{};
+                  _ when Serial =:= T#task.traced; Marker =/= undefined -> #{};
                   _ -> journal(T, product_saved, Fields)
               end,
     case cell_product:save(File, Stored, Opts) of

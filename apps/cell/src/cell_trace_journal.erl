@@ -48,8 +48,7 @@
 -define(NAME, "cell_trace.journal").
 
 -record(st, {path :: binary() | undefined,
-             fd :: file:io_device() | undefined,
-             sync = true :: boolean(),                   %% false in a folder in RAM
+             file :: cell_file:append_file() | undefined,
              inc = 0 :: integer(),
              n = 0 :: non_neg_integer(),
              kept = [] :: [record()],                    %% not trimmed, newest first
@@ -163,11 +162,10 @@ handle_continue(open, St) ->
         cell_log:warning(cell, "trace journal ~ts: the last record was cut short by a "
                          "crash or power cut while it was written (~b bytes); it was "
                          "never confirmed to its task and is dropped", [Path, Torn]),
-    Sync = not cell_file:in_ram(filename:dirname(Path)),
-    _ = (Unreadable > 0 orelse Torn > 0) andalso rewrite(Path, Records, Sync),
+    _ = (Unreadable > 0 orelse Torn > 0) andalso rewrite(Path, Records),
     LastInc = lists:max([0 | [I || #{id := {I, _}} <- Records]]),
     Inc = max(erlang:system_time(microsecond), LastInc + 1),
-    {noreply, St#st{path = Path, fd = open_append(Path), sync = Sync, inc = Inc,
+    {noreply, St#st{path = Path, file = open_append(Path), inc = Inc,
                     kept = lists:reverse(Records)}}.
 
 -spec handle_call(term(), gen_server:from(), #st{}) ->
@@ -191,18 +189,15 @@ handle_cast({trim, Upto}, #st{kept = Kept} = St) ->
         {_, []} ->
             {noreply, St};
         {After, _Done} ->
-            ok = file:close(St#st.fd),
-            ok = rewrite(St#st.path, lists:reverse(After), St#st.sync),
-            {noreply, St#st{fd = open_append(St#st.path), kept = After}}
+            ok = cell_file:close_append(St#st.file),
+            ok = rewrite(St#st.path, lists:reverse(After)),
+            {noreply, St#st{file = open_append(St#st.path), kept = After}}
     end.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
 handle_info(commit, #st{batch = Batch} = St) ->
     Records = [R || {_, R} <- lists:reverse(Batch)],
-    Result = case file:write(St#st.fd, [encode(R) || R <- Records]) of
-                 ok when St#st.sync -> file:datasync(St#st.fd);
-                 Other -> Other
-             end,
+    Result = cell_file:append(St#st.file, [encode(R) || R <- Records], #{}),
     St1 = St#st{batch = [], commit = false},
     case Result of
         ok ->
@@ -212,36 +207,38 @@ handle_info(commit, #st{batch = Batch} = St) ->
                 end,
             _ = [gen_server:reply(From, {ok, Id}) || {From, #{id := Id}} <- Batch],
             {noreply, St1#st{kept = lists:reverse(Records, St#st.kept)}};
-        {error, Why} ->
+        {error, {_, Why}} ->
             cell_log:error(cell, "trace journal ~ts: ~b records could not be written "
                            "(~ts); their tasks stop", [St#st.path, length(Records),
                                                         file:format_error(Why)]),
             _ = [gen_server:reply(From, {error, Why}) || {From, _} <- Batch],
-            %% What was written of the batch is cut off by opening the file anew.
-            ok = file:close(St#st.fd),
-            ok = rewrite(St#st.path, lists:reverse(St#st.kept), St#st.sync),
-            {noreply, St1#st{fd = open_append(St#st.path)}}
+            %% What was written of the batch is cut off by writing the file anew.
+            ok = cell_file:close_append(St#st.file),
+            ok = rewrite(St#st.path, lists:reverse(St#st.kept)),
+            {noreply, St1#st{file = open_append(St#st.path)}}
     end;
 handle_info({'DOWN', Ref, process, _, _}, #st{reader = {_, Ref}} = St) ->
     {noreply, St#st{reader = undefined}}.
 
 -spec terminate(term(), #st{}) -> ok.
-terminate(_Reason, #st{fd = undefined}) ->
+terminate(_Reason, #st{file = undefined}) ->
     ok;
-terminate(_Reason, #st{fd = Fd}) ->
-    _ = file:close(Fd),
-    ok.
+terminate(_Reason, #st{file = File}) ->
+    cell_file:close_append(File).
 
 %%====================================================================
 %% The file
 %%====================================================================
 
 open_append(Path) ->
-    {ok, Fd} = file:open(Path, [append, raw, binary]),
-    Fd.
+    case cell_file:append_file(Path) of
+        {ok, File} -> File;
+        {error, {_, Why}} -> erlang:error({journal_not_opened, Path, Why})
+    end.
 
-rewrite(Path, Records, Sync) ->
-    case cell_file:write(Path, [encode(R) || R <- Records], #{sync => Sync}) of
+%% Replaced whole, durably (a crash leaves the old file or the new).
+rewrite(Path, Records) ->
+    case cell_file:write(Path, [encode(R) || R <- Records]) of
         ok -> ok;
         {error, {_, Why}} -> erlang:error({journal_not_written, Path, Why})
     end.
