@@ -1215,8 +1215,10 @@ now_us() ->
     erlang:system_time(microsecond).
 
 %% An event's moment on this node's clock (its monotonic stamp, made comparable).
+%% A record of the trace journal, or the event of one, is at the record's time: the
+%% same either way, so its history entries are the same.
+event_us(#{at := At}) when is_integer(At) -> At;
 event_us(#{mono := Mono}) -> Mono + erlang:time_offset(microsecond);
-event_us(#{at := At}) when is_integer(At) -> At;        %% a record of the journal
 event_us(_) -> now_us().
 
 %% The shift a moment falls in: the one last used if it still does.

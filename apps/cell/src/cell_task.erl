@@ -270,8 +270,12 @@ journaled(T, Type, Fields) ->
     maps:merge(Fields, journal(T, Type, Fields)).
 
 journal(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
-    case cell_trace_journal:append(Fields#{type => Type, task => Id, zone => Z, lane => L}) of
-        {ok, JournalId} -> #{journal => JournalId};
+    %% The event carries its record's id and time: the statistics take it the same
+    %% whether from the event or from the record (see cell_stats).
+    At = erlang:system_time(microsecond),
+    case cell_trace_journal:append(Fields#{type => Type, task => Id, zone => Z, lane => L,
+                                           at => At}) of
+        {ok, JournalId} -> #{journal => JournalId, at => At};
         %% A task outside a cell's supervisor (a test of its module alone).
         {error, not_running} -> #{};
         %% Nothing may go on as if the record were kept: as for a product not saved.

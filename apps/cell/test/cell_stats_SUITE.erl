@@ -14,7 +14,7 @@
 -export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
-         a_product_left_across_a_crash/1]).
+         a_product_left_across_a_crash/1, an_answer_across_a_crash/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -23,12 +23,14 @@ all() ->
      time_in_a_state_across_a_crash,
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
-     a_product_left_across_a_crash].
+     a_product_left_across_a_crash,
+     an_answer_across_a_crash].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
                                      Case =:= a_product_in_the_cell_and_after;
-                                     Case =:= a_product_left_across_a_crash ->
+                                     Case =:= a_product_left_across_a_crash;
+                                     Case =:= an_answer_across_a_crash ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -284,6 +286,35 @@ cell_counts() ->
 
 counted_since(Before) ->
     maps:map(fun(K, V) -> V - maps:get(K, Before) end, cell_counts()).
+
+%% An operator's answer to an error of a task holding a product, given while the
+%% statistics took nothing and lost with them, is in the product's history after their
+%% restart, from the trace journal: who answered, and with what.
+an_answer_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, alarm_raised, alarm_cleared]),
+    Serial = <<"S-79">>,
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, <<"r9">>)}),
+    await_event(product_saved, Serial),
+    ok = cell_stats:flush(),
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {error, [retry, reset]}),
+    Id = receive {cell_event, #{type := alarm_raised, task := waits_a, alarm := #{id := I}}} -> I
+         after ?RETRY_WAIT_MS -> ct:fail(no_error_raised)
+         end,
+    ok = cell_alarms:answer(Id, retry, <<"operator 7">>),
+    receive {cell_event, #{type := alarm_cleared, task := waits_a}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(error_not_cleared)
+    end,
+    ok = kill_stats(),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(Serial),
+    ?assertMatch([#{event := alarm_answered, id := Id, solution := retry,
+                    who := <<"operator 7">>, task := waits_a}],
+                 [E || #{event := alarm_answered} = E <- Events]).
 
 %% With the statistics suspended: the product enters at waits_a, leaves the cell from
 %% it, and the task forgets it.
