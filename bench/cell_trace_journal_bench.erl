@@ -16,6 +16,9 @@
 
 -define(RAM, "/dev/shm").
 -define(WRITERS, 16).
+-define(DISK_PEER, "the same frame appended + fdatasync, one writer, same folder, "
+                   "no journal process").
+-define(RAM_PEER, "the same frame appended, one writer, same folder, no journal process").
 
 -spec run() -> [cell_bench:result()].
 run() ->
@@ -31,27 +34,27 @@ run() ->
     _ = os:cmd("rm -rf '" ++ RamRoot ++ "'"),
     [#{title => "Trace journal, one writer, disk", unit => "records/s",
        ours => Disk1, peer => DiskRaw,
-       peer_name => "the same frame appended + fdatasync, one writer, same folder, no journal process",
+       peer_name => ?DISK_PEER,
        better => higher,
        note => "A task's record of a product's way (taken, transferred in or out, an "
                "answer) is on the disk before the task goes on. One writer alone pays "
                "one flush per record, as the raw appends do."},
      #{title => io_lib:format("Trace journal, ~b writers at once, disk", [?WRITERS]),
        unit => "records/s", ours => DiskN, peer => DiskRaw,
-       peer_name => "the same frame appended + fdatasync, one writer, same folder, no journal process",
+       peer_name => ?DISK_PEER,
        better => higher,
        note => "Group commit: the records that come while a flush is under way are "
                "written and flushed together, each writer answered when its own record "
                "is on the disk; the ratio is how many records share a flush."},
      #{title => "Trace journal, one writer, RAM folder", unit => "records/s",
        ours => Ram1, peer => RamRaw,
-       peer_name => "the same frame appended, one writer, same folder, no journal process",
+       peer_name => ?RAM_PEER,
        better => higher,
        note => "A folder in RAM is never flushed; what the ratio shows is the cost of "
                "the call to the journal process."},
      #{title => io_lib:format("Trace journal, ~b writers at once, RAM folder", [?WRITERS]),
        unit => "records/s", ours => RamN, peer => RamRaw,
-       peer_name => "the same frame appended, one writer, same folder, no journal process",
+       peer_name => ?RAM_PEER,
        better => higher}].
 
 %% Records per second through the journal from `Writers' processes, `Per' each.

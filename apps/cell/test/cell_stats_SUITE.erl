@@ -14,7 +14,8 @@
 -export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
-         a_product_left_across_a_crash/1, an_answer_across_a_crash/1]).
+         a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
+         a_journal_cut_short_at_boot/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -24,13 +25,15 @@ all() ->
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
      a_product_left_across_a_crash,
-     an_answer_across_a_crash].
+     an_answer_across_a_crash,
+     a_journal_cut_short_at_boot].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
                                      Case =:= a_product_in_the_cell_and_after;
                                      Case =:= a_product_left_across_a_crash;
-                                     Case =:= an_answer_across_a_crash ->
+                                     Case =:= an_answer_across_a_crash;
+                                     Case =:= a_journal_cut_short_at_boot ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -315,6 +318,37 @@ an_answer_across_a_crash(Config) ->
     ?assertMatch([#{event := alarm_answered, id := Id, solution := retry,
                     who := <<"operator 7">>, task := waits_a}],
                  [E || #{event := alarm_answered} = E <- Events]).
+
+%% A node that died after its journal took a product's entry and exit, and in the
+%% middle of writing a third record, before the statistics wrote anything: at boot the
+%% torn record is dropped and the log says so in words, and the product is recorded as
+%% entered and left, once.
+a_journal_cut_short_at_boot(Config) ->
+    %% A database and products of this case alone (mnesia is stopped): its totals are
+    %% this case's.
+    Databases = filename:join(?config(root, Config), "Databases"),
+    _ = file:del_dir_r(Databases),
+    _ = file:del_dir_r(filename:join(?config(root, Config), "Data")),
+    ok = filelib:ensure_dir(filename:join(Databases, "x")),
+    Serial = <<"S-80">>,
+    At = erlang:system_time(microsecond) - 5000000,
+    Fields = #{task => waits_a, zone => <<"waits_a">>, lane => <<"Test">>, item => Serial},
+    Records = [Fields#{id => {1, 1}, at => At, type => product_saved, in_transit => false,
+                       product => cell_product:new(Serial, <<"r10">>)},
+               Fields#{id => {1, 2}, at => At + 1000, type => item_transfer_out}],
+    Third = cell_trace_journal:encode(Fields#{id => {1, 3}, at => At + 2000,
+                                              type => item_transfer_in}),
+    ok = file:write_file(filename:join(Databases, "cell_trace.journal"),
+                         [[cell_trace_journal:encode(R) || R <- Records],
+                          binary:part(Third, 0, byte_size(Third) - 3)]),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"trace journal ">>),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r10">>, entry_task := waits_a}},
+                 cell_stats:product(Serial)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}}, cell_stats:summary(total)).
 
 %% With the statistics suspended: the product enters at waits_a, leaves the cell from
 %% it, and the task forgets it.
