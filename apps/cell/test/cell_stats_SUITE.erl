@@ -15,7 +15,7 @@
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
-         a_journal_cut_short_at_boot/1]).
+         a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -26,14 +26,16 @@ all() ->
      a_product_in_the_cell_and_after,
      a_product_left_across_a_crash,
      an_answer_across_a_crash,
-     a_journal_cut_short_at_boot].
+     a_journal_cut_short_at_boot,
+     a_product_held_but_never_recorded].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
                                      Case =:= a_product_in_the_cell_and_after;
                                      Case =:= a_product_left_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
-                                     Case =:= a_journal_cut_short_at_boot ->
+                                     Case =:= a_journal_cut_short_at_boot;
+                                     Case =:= a_product_held_but_never_recorded ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -349,6 +351,27 @@ a_journal_cut_short_at_boot(Config) ->
                  cell_stats:product(Serial)),
     ?assertEqual([entered, item_transfer_out, left], history(Serial)),
     ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}}, cell_stats:summary(total)).
+
+%% A task holds a product (its file says so) that no record of the database or the
+%% journal knows (its entry was lost before the journal kept such things): it enters
+%% with the recipe of its product file, never a blank one, and the log says so.
+a_product_held_but_never_recorded(Config) ->
+    Root = ?config(root, Config),
+    _ = file:del_dir_r(filename:join(Root, "Databases")),
+    _ = file:del_dir_r(filename:join(Root, "Data")),
+    Serial = <<"S-81">>,
+    Path = cell_product:path(<<"waits_a">>, <<"Test">>),
+    ok = filelib:ensure_dir(Path),
+    ok = cell_product:save(Path, cell_product:stored(cell_product:new(Serial, <<"r11">>), 1,
+                                                     undefined)),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    Line = await_log(<<"statistics: product S-81 is held by waits_a">>),
+    ?assertNotEqual(nomatch, binary:match(Line, <<"with the recipe of its product file">>)),
+    ok = cell_stats:flush(),
+    ?assertMatch({ok, #{status := in_cell, recipe := <<"r11">>, entry_task := waits_a,
+                        events := [#{event := entered, recipe := <<"r11">>}]}},
+                 cell_stats:product(Serial)).
 
 %% With the statistics suspended: the product enters at waits_a, leaves the cell from
 %% it, and the task forgets it.
