@@ -128,6 +128,7 @@
              applied :: cell_trace_journal:id() | undefined,
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
+             unsynced = false :: boolean(),     %% histories written since the last flush
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer(),
              shift_end = 0 :: integer()}).                      %% wall µs
@@ -823,18 +824,28 @@ merge(first, Old, _V) -> Old.
 %% what those records wrote to the histories is made durable: every write handed over
 %% done, the history tables flushed to the disk (a table on disc only keeps writes in
 %% memory for seconds). Answers the id to write, if any.
-durable_history(#st{db = open, attached = true, applied = A, saved = S} = St)
-  when A =/= S, A =/= undefined ->
-    St1 = history_written(St),
-    case St1#st.db of
-        open ->
-            case {sync_table(?EVENT), sync_table(?PRODUCT)} of
-                {ok, ok} -> {A, St1};
-                {{error, Why}, _} -> {undefined, closed(Why, St1)};
-                {_, {error, Why}} -> {undefined, closed(Why, St1)}
+%% Histories written since the last flush (a product scrapped, say) are made durable
+%% the same way before the counters that count them.
+durable_history(#st{db = open, attached = Attached, applied = A, saved = S} = St) ->
+    Mark = case Attached andalso A =/= S andalso A =/= undefined of
+               true -> A;
+               false -> undefined
+           end,
+    case Mark =/= undefined orelse St#st.unsynced of
+        true ->
+            St1 = history_written(St),
+            case St1#st.db of
+                open ->
+                    case {sync_table(?EVENT), sync_table(?PRODUCT)} of
+                        {ok, ok} -> {Mark, St1#st{unsynced = false}};
+                        {{error, Why}, _} -> {undefined, closed(Why, St1)};
+                        {_, {error, Why}} -> {undefined, closed(Why, St1)}
+                    end;
+                closed ->
+                    {undefined, St1}
             end;
-        closed ->
-            {undefined, St1}
+        false ->
+            {undefined, St}
     end;
 durable_history(St) ->
     {undefined, St}.
@@ -1066,9 +1077,9 @@ ets_list(Tab) ->
 %% if it is idle, else with what else comes until it is; when it is not, kept (up to
 %% a limit) until it is.
 db(Fun, #st{db = open, writing = false} = St) ->
-    hand_over([Fun], St);
+    hand_over([Fun], St#st{unsynced = true});
 db(Fun, #st{db = open, queued = Q} = St) ->
-    St#st{queued = [Fun | Q]};
+    St#st{queued = [Fun | Q], unsynced = true};
 db(Fun, St) ->
     keep(Fun, St).
 
