@@ -11,8 +11,9 @@
 %% (takes it, transfers it in or out) and an operator's answers are first made durable
 %% by their writer in the trace journal ({@link cell_trace_journal}); the statistics
 %% take those from the journal, in its order, and skip the events that follow them.
-%% Once a second, when records were applied, the histories handed over are written
-%% and their tables flushed to the disk, then the counters are written together with
+%% Once a second, when records were applied or histories written, the histories
+%% handed over are written and their tables flushed to the disk, then the counters
+%% are written together with
 %% the id of the last record applied, and the journal is trimmed up to it. When the
 %% database opens (at every start of the process) the records after that id are
 %% applied again, before any event: each gives the same history entries (a record's
