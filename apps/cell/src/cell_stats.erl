@@ -1114,13 +1114,15 @@ keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
 
 trace(undefined, _At, _Task, _Entry, St) ->
     St;
+%% An entry's sequence orders the entries of one millisecond by their microsecond and
+%% then as they were taken (journal records and events come by different ways).
 trace(Serial, At, Task, Entry, #st{applying = {Id, K}} = St) ->
     %% Of a journal record: the same entry each time it is applied, which the bag
     %% keeps once.
-    Rec = {?EVENT, Serial, At div 1000, {Id, K}, Entry#{task => Task}},
+    Rec = {?EVENT, Serial, At div 1000, {At, {Id, K}}, Entry#{task => Task}},
     db(fun() -> mnesia:dirty_write(Rec) end, St#st{applying = {Id, K + 1}});
 trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
-    Rec = {?EVENT, Serial, At div 1000, Seq, Entry#{task => Task}},
+    Rec = {?EVENT, Serial, At div 1000, {At, Seq}, Entry#{task => Task}},
     db(fun() -> mnesia:dirty_write(Rec) end, St#st{seq = Seq + 1}).
 
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
