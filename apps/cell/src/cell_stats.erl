@@ -130,6 +130,11 @@
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
              unsynced = false :: boolean(),     %% histories written since the last flush
+             %% The products that left while the journal was read at start, and by which
+             %% task; and those a task still holds in its file though they left through it
+             %% (a crash between its record and its file): its copy until it lets go.
+             gone = #{} :: #{binary() => atom()},
+             stale = #{} :: #{binary() => atom()},
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer(),
              shift_end = 0 :: integer()}).                      %% wall µs
@@ -549,9 +554,10 @@ saved(T, Serial, Product, At, #st{holding = Holding} = St) ->
             St1#st{holding = maps:remove(T, Holding)};
         _ ->
             St2 = St1#st{holding = maps:put(T, Serial, Holding)},
-            case maps:find(Serial, St2#st.products) of
-                error -> enter(Serial, T, product_map(Product), At, St2);
-                {ok, P} -> claim(Serial, T, P, product_map(Product), At, St2)
+            case {maps:find(Serial, St2#st.products), St2#st.stale} of
+                {error, #{Serial := T}} -> St2;           %% its stale copy: not again
+                {error, _} -> enter(Serial, T, product_map(Product), At, St2);
+                {{ok, P}, _} -> claim(Serial, T, P, product_map(Product), At, St2)
             end
     end.
 
@@ -559,7 +565,11 @@ product_map(P) when is_map(P) -> P;
 product_map(_) -> #{}.
 
 %% The task no longer holds the serial: handed over, sent out, or forgotten.
-let_go(Serial, T, #st{products = Ps} = St) ->
+let_go(Serial, T, #st{products = Ps, stale = Stale} = St0) ->
+    St = case Stale of
+             #{Serial := T} -> St0#st{stale = maps:remove(Serial, Stale)};
+             _ -> St0
+         end,
     case maps:find(Serial, Ps) of
         {ok, #prod{holder = T} = P} ->
             St#st{products = Ps#{Serial := P#prod{holder = undefined, unheld = 0}}};
@@ -602,11 +612,14 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
 %% The product left the cell through an exit task. One the statistics no longer
 %% hold was counted before: taken for scrapped (its hand-out took longer than a
 %% hand-over may), it is counted as left instead; already out, it is not counted again.
-leave(Serial, T, At, #st{products = Ps} = St) ->
-    case maps:find(Serial, Ps) of
-        {ok, P} ->
+leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
+    case {maps:find(Serial, Ps), Stale} of
+        {{ok, P}, _} ->
             left(Serial, T, At, P, St);
-        error ->
+        {error, #{Serial := T}} ->
+            %% Its stale copy sent out again: it left once.
+            St#st{stale = maps:remove(Serial, Stale)};
+        {error, _} ->
             Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
                           [{?PRODUCT, _, Info}] -> Info;
                           [] -> undefined
@@ -635,7 +648,12 @@ summary_prod(#{entered := E} = S, At, T) ->
           recipe = maps:get(recipe, S, <<>>), failed = maps:get(failed, S, false),
           entry = maps:get(entry_task, S, T)}.
 
-left(Serial, T, At, P, #st{products = Ps} = St) ->
+left(Serial, T, At, P, #st{products = Ps, gone = Gone} = St0) ->
+    %% Kept only while the journal is read at start (see holders_now/2).
+    St = case St0 of
+             #st{attached = false, db = open} -> St0#st{gone = Gone#{Serial => T}};
+             _ -> St0
+         end,
     Quality = case P#prod.failed of true -> failed; false -> good end,
     St1 = count_cell([out, Quality], At, St),
     St2 = timing({cell, lead}, P#prod.entered, At, St1),
@@ -1037,12 +1055,23 @@ holders_now(St, Started) ->
                                 end
                         end, St#st.products),
     Places = maps:from_list([{Id, Row} || #{id := Id} = Row <- Rows]),
-    maps:fold(fun(T, Serial, Acc) ->
-                      case maps:is_key(Serial, Acc#st.products) of
-                          true -> Acc;
-                          false -> unrecorded(Serial, T, maps:get(T, Places), Started, Acc)
-                      end
-              end, St#st{holding = Holding, products = Products}, Holding).
+    St1 = maps:fold(fun(T, Serial, Acc) ->
+                            case {maps:is_key(Serial, Acc#st.products), Acc#st.gone} of
+                                {true, _} -> Acc;
+                                {false, #{Serial := T}} -> stale(Serial, T, Acc);
+                                {false, _} -> unrecorded(Serial, T, maps:get(T, Places),
+                                                         Started, Acc)
+                            end
+                    end, St#st{holding = Holding, products = Products}, Holding),
+    St1#st{gone = #{}}.
+
+%% The task's file still holds a product whose exit through it is recorded: it left
+%% once; the task's copy is not counted again, whatever the task does with it.
+stale(Serial, T, #st{stale = Stale} = St) ->
+    cell_log:notice(cell, "statistics: product ~ts left the cell through ~ts before the "
+                    "restart, and ~ts still holds it in its file; it is not counted again",
+                    [Serial, T, T]),
+    St#st{stale = Stale#{Serial => T}}.
 
 unrecorded(Serial, T, Row, Started, St) ->
     Product = case Row of

@@ -15,7 +15,8 @@
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
-         a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1]).
+         a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
+         a_product_left_but_still_in_its_file/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -27,7 +28,8 @@ all() ->
      a_product_left_across_a_crash,
      an_answer_across_a_crash,
      a_journal_cut_short_at_boot,
-     a_product_held_but_never_recorded].
+     a_product_held_but_never_recorded,
+     a_product_left_but_still_in_its_file].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -35,7 +37,8 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= a_product_left_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
-                                     Case =:= a_product_held_but_never_recorded ->
+                                     Case =:= a_product_held_but_never_recorded;
+                                     Case =:= a_product_left_but_still_in_its_file ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -372,6 +375,49 @@ a_product_held_but_never_recorded(Config) ->
     ?assertMatch({ok, #{status := in_cell, recipe := <<"r11">>, entry_task := waits_a,
                         events := [#{event := entered, recipe := <<"r11">>}]}},
                  cell_stats:product(Serial)).
+
+%% A node killed after a task's exit record was durable and before the task cleared
+%% its file: after the restart the product is recorded as left, once; the task's copy
+%% is not counted again, whether the task saves it, sends it out again or lets it go,
+%% and never scrapped.
+a_product_left_but_still_in_its_file(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    Root = ?config(root, Config),
+    _ = file:del_dir_r(filename:join(Root, "Databases")),
+    _ = file:del_dir_r(filename:join(Root, "Data")),
+    Serial = <<"S-82">>,
+    Product = cell_product:new(Serial, <<"r12">>),
+    Path = cell_product:path(<<"waits_a">>, <<"Test">>),
+    ok = filelib:ensure_dir(Path),
+    ok = cell_product:save(Path, cell_product:stored(Product, 1, undefined)),
+    At = erlang:system_time(microsecond) - 5000000,
+    Fields = #{task => waits_a, zone => <<"waits_a">>, lane => <<"Test">>, item => Serial},
+    Records = [Fields#{id => {1, 1}, at => At, type => product_saved, in_transit => false,
+                       product => Product},
+               Fields#{id => {1, 2}, at => At + 1000, type => item_transfer_out}],
+    Databases = filename:join(Root, "Databases"),
+    ok = filelib:ensure_dir(filename:join(Databases, "x")),
+    ok = file:write_file(filename:join(Databases, "cell_trace.journal"),
+                         [cell_trace_journal:encode(R) || R <- Records]),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"statistics: product S-82 left the cell through waits_a">>),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The task saves its copy, sends it out again, and lets it go.
+    ok = cell_test_task:command(waits_a, Ref, {product, Product#{failed => true}}),
+    await_event(product_saved, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r12">>}}, cell_stats:product(Serial)),
+    %% What the task did is in the history; the product left once.
+    ?assertEqual([entered, item_transfer_out, left, item_transfer_out], history(Serial)),
+    ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
+                 cell_stats:summary(total)).
 
 %% With the statistics suspended: the product enters at waits_a, leaves the cell from
 %% it, and the task forgets it.
