@@ -23,15 +23,17 @@
 %% trim the journal up to an id ({@link trim/1}): the file is rewritten with the
 %% records after it (usually none).
 %%
-%% At start the file is read whole. A last frame cut short or damaged (a crash in the
-%% middle of a write) is dropped, and a frame that reads whole but holds a term this
-%% node cannot read (an atom of a task no longer in the cell) is skipped; both are said
-%% in the log and the file is rewritten with what was read.
+%% At start the file is read whole and its frames checked; a last frame cut short or
+%% damaged (a crash in the middle of a write) is dropped, the log says so and the file
+%% is rewritten with the whole frames. A frame's term is read only when the statistics
+%% attach, once the tasks' modules are loaded (the atoms of a product's fields are
+%% known then, and no atom is made from the file); one that still cannot be read (an
+%% atom of a task no longer in the cell) is left out, and the log says so.
 -module(cell_trace_journal).
 -behaviour(gen_server).
 
 -export([start_link/0, child_spec/0, append/1, attach/0, trim/1, path/0]).
--export([encode/1, decode/1]).
+-export([encode/1, decode/1, read/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -51,7 +53,7 @@
              file :: cell_file:append_file() | undefined,
              inc = 0 :: integer(),
              n = 0 :: non_neg_integer(),
-             kept = [] :: [record()],                    %% not trimmed, newest first
+             kept = [] :: [{id(), binary()}],            %% frames not trimmed, newest first
              batch = [] :: [{gen_server:from(), record()}],  %% newest first
              commit = false :: boolean(),                %% a commit message is queued
              reader :: {pid(), reference()} | undefined}).
@@ -99,43 +101,46 @@ path() ->
 %% Frames (pure)
 %%====================================================================
 
-%% @doc A record as a frame of the file.
+%% @doc A record as a frame of the file: a mark, its id, the length and CRC-32 of its
+%% id and term, the term.
 -spec encode(record()) -> binary().
-encode(Record) ->
+encode(#{id := {Inc, N}} = Record) ->
     Body = term_to_binary(Record),
-    <<?MARK:16, (byte_size(Body)):32, (erlang:crc32(Body)):32, Body/binary>>.
+    Crc = erlang:crc32([<<Inc:64/signed, N:64>>, Body]),
+    <<?MARK:16, Inc:64/signed, N:64, (byte_size(Body)):32, Crc:32, Body/binary>>.
 
-%% @doc The records of a file's content, oldest first; how many bytes of it hold whole
-%% frames; how many whole frames could not be read; how many bytes after the last
-%% whole frame were cut short or damaged.
--spec decode(binary()) -> {[record()], Good :: non_neg_integer(),
-                           Unreadable :: non_neg_integer(), Torn :: non_neg_integer()}.
+%% @doc The whole frames of a file's content with their ids, oldest first; how many
+%% bytes of it they hold; how many bytes after the last whole frame were cut short or
+%% damaged.
+-spec decode(binary()) -> {[{id(), binary()}], Good :: non_neg_integer(),
+                           Torn :: non_neg_integer()}.
 decode(Bin) ->
-    decode(Bin, 0, [], 0).
+    decode(Bin, 0, []).
 
-decode(<<?MARK:16, Len:32, Crc:32, Body:Len/binary, Rest/binary>> = Bin, Good, Acc, Bad) ->
-    case erlang:crc32(Body) of
+decode(<<?MARK:16, Inc:64/signed, N:64, Len:32, Crc:32, Body:Len/binary, Rest/binary>> = Bin,
+       Good, Acc) when N > 0 ->
+    case erlang:crc32([<<Inc:64/signed, N:64>>, Body]) of
         Crc ->
-            Next = Good + byte_size(Bin) - byte_size(Rest),
-            case record(Body) of
-                {ok, R} -> decode(Rest, Next, [R | Acc], Bad);
-                error -> decode(Rest, Next, Acc, Bad + 1)
-            end;
+            Size = byte_size(Bin) - byte_size(Rest),
+            decode(Rest, Good + Size, [{{Inc, N}, binary:part(Bin, 0, Size)} | Acc]);
         _ ->
-            {lists:reverse(Acc), Good, Bad, byte_size(Bin)}
+            {lists:reverse(Acc), Good, byte_size(Bin)}
     end;
-decode(Bin, Good, Acc, Bad) ->
-    {lists:reverse(Acc), Good, Bad, byte_size(Bin)}.
+decode(Bin, Good, Acc) ->
+    {lists:reverse(Acc), Good, byte_size(Bin)}.
 
-%% A term of an atom this node does not know is not read (no atom from a file).
-record(Body) ->
+%% @doc The record of a whole frame; `error' when its term names an atom this node does
+%% not know (no atom is made from a file) or is not a record of this id.
+-spec read(binary()) -> {ok, record()} | error.
+read(<<?MARK:16, Inc:64/signed, N:64, Len:32, _Crc:32, Body:Len/binary>>) ->
     try binary_to_term(Body, [safe]) of
         #{id := {Inc, N}, type := T, task := K, at := At} = R
-          when is_integer(Inc), is_integer(N), N > 0, is_atom(T), is_atom(K),
-               is_integer(At) -> {ok, R};
+          when is_atom(T), is_atom(K), is_integer(At) -> {ok, R};
         _ -> error
     catch error:badarg -> error
-    end.
+    end;
+read(_) ->
+    error.
 
 %%====================================================================
 %% gen_server
@@ -154,19 +159,16 @@ handle_continue(open, St) ->
                   {error, enoent} -> <<>>;
                   {error, Why} -> erlang:error({journal_unreadable, Path, Why})
               end,
-    {Records, _Good, Unreadable, Torn} = decode(Content),
-    _ = Unreadable =:= 0 orelse
-        cell_log:warning(cell, "trace journal ~ts: ~b records could not be read (a task "
-                         "no longer in the cell?) and were left out", [Path, Unreadable]),
+    {Frames, _Good, Torn} = decode(Content),
     _ = Torn =:= 0 orelse
         cell_log:warning(cell, "trace journal ~ts: the last record was cut short by a "
                          "crash or power cut while it was written (~b bytes); it was "
                          "never confirmed to its task and is dropped", [Path, Torn]),
-    _ = (Unreadable > 0 orelse Torn > 0) andalso rewrite(Path, Records),
-    LastInc = lists:max([0 | [I || #{id := {I, _}} <- Records]]),
+    _ = Torn > 0 andalso rewrite(Path, Frames),
+    LastInc = lists:max([0 | [I || {{I, _}, _} <- Frames]]),
     Inc = max(erlang:system_time(microsecond), LastInc + 1),
     {noreply, St#st{path = Path, file = open_append(Path), inc = Inc,
-                    kept = lists:reverse(Records)}}.
+                    kept = lists:reverse(Frames)}}.
 
 -spec handle_call(term(), gen_server:from(), #st{}) ->
           {reply, term(), #st{}} | {noreply, #st{}}.
@@ -181,11 +183,18 @@ handle_call(attach, {Pid, _}, #st{reader = Old} = St) ->
             {_, Ref} -> demonitor(Ref, [flush]);
             undefined -> true
         end,
-    {reply, lists:reverse(St#st.kept), St#st{reader = {Pid, monitor(process, Pid)}}}.
+    Read = [{Id, read(F)} || {Id, F} <- lists:reverse(St#st.kept)],
+    case [Id || {Id, error} <- Read] of
+        [] -> ok;
+        Unreadable -> cell_log:warning(cell, "trace journal ~ts: ~b records could not be "
+                                       "read (of a task no longer in the cell?) and are "
+                                       "left out", [St#st.path, length(Unreadable)])
+    end,
+    {reply, [R || {_, {ok, R}} <- Read], St#st{reader = {Pid, monitor(process, Pid)}}}.
 
 -spec handle_cast({trim, id()}, #st{}) -> {noreply, #st{}}.
 handle_cast({trim, Upto}, #st{kept = Kept} = St) ->
-    case lists:partition(fun(#{id := Id}) -> Id > Upto end, Kept) of
+    case lists:partition(fun({Id, _}) -> Id > Upto end, Kept) of
         {_, []} ->
             {noreply, St};
         {After, _Done} ->
@@ -197,7 +206,8 @@ handle_cast({trim, Upto}, #st{kept = Kept} = St) ->
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
 handle_info(commit, #st{batch = Batch} = St) ->
     Records = [R || {_, R} <- lists:reverse(Batch)],
-    Result = cell_file:append(St#st.file, [encode(R) || R <- Records], #{}),
+    Frames = [{Id, encode(R)} || #{id := Id} = R <- Records],
+    Result = cell_file:append(St#st.file, [F || {_, F} <- Frames], #{}),
     St1 = St#st{batch = [], commit = false},
     case Result of
         ok ->
@@ -206,7 +216,7 @@ handle_info(commit, #st{batch = Batch} = St) ->
                     undefined -> ok
                 end,
             _ = [gen_server:reply(From, {ok, Id}) || {From, #{id := Id}} <- Batch],
-            {noreply, St1#st{kept = lists:reverse(Records, St#st.kept)}};
+            {noreply, St1#st{kept = lists:reverse(Frames, St#st.kept)}};
         {error, {_, Why}} ->
             cell_log:error(cell, "trace journal ~ts: ~b records could not be written "
                            "(~ts); their tasks stop", [St#st.path, length(Records),
@@ -236,9 +246,9 @@ open_append(Path) ->
         {error, {_, Why}} -> erlang:error({journal_not_opened, Path, Why})
     end.
 
-%% Replaced whole, durably (a crash leaves the old file or the new).
-rewrite(Path, Records) ->
-    case cell_file:write(Path, [encode(R) || R <- Records]) of
+%% Replaced whole with the frames, durably (a crash leaves the old file or the new).
+rewrite(Path, Frames) ->
+    case cell_file:write(Path, [F || {_, F} <- Frames]) of
         ok -> ok;
         {error, {_, Why}} -> erlang:error({journal_not_written, Path, Why})
     end.
@@ -253,40 +263,48 @@ rewrite(Path, Records) ->
 rec(N) ->
     #{id => {1, N}, type => item_transfer_out, task => t, at => N, item => <<"S">>}.
 
+frames(Rs) ->
+    [{Id, encode(R)} || #{id := Id} = R <- Rs].
+
 roundtrip_test() ->
     Rs = [rec(N) || N <- lists:seq(1, 5)],
     Bin = iolist_to_binary([encode(R) || R <- Rs]),
-    ?assertEqual({Rs, byte_size(Bin), 0, 0}, decode(Bin)),
-    ?assertEqual({[], 0, 0, 0}, decode(<<>>)).
+    ?assertEqual({frames(Rs), byte_size(Bin), 0}, decode(Bin)),
+    ?assertEqual([{ok, R} || R <- Rs], [read(F) || {_, F} <- frames(Rs)]),
+    ?assertEqual({[], 0, 0}, decode(<<>>)).
 
 torn_tail_test_() ->
     Rs = [rec(N) || N <- lists:seq(1, 3)],
     Whole = iolist_to_binary([encode(R) || R <- Rs]),
     Last = encode(rec(4)),
-    [?_assertEqual({Rs, byte_size(Whole), 0, Cut}, decode(<<Whole/binary,
-                                                            (binary:part(Last, 0, Cut))/binary>>))
-     || Cut <- [1, 2, 9, 10, byte_size(Last) - 1]].
+    [?_assertEqual({frames(Rs), byte_size(Whole), Cut},
+                   decode(<<Whole/binary, (binary:part(Last, 0, Cut))/binary>>))
+     || Cut <- [1, 2, 9, 10, 29, byte_size(Last) - 1]].
 
-damaged_tail_test() ->
+damaged_tail_test_() ->
     Rs = [rec(1), rec(2)],
     Whole = iolist_to_binary([encode(R) || R <- Rs]),
-    <<Head:20/binary, B, Tail/binary>> = encode(rec(3)),
-    Damaged = <<Head/binary, (B bxor 1), Tail/binary>>,
-    ?assertEqual({Rs, byte_size(Whole), 0, byte_size(Damaged)},
-                 decode(<<Whole/binary, Damaged/binary>>)).
+    Frame = encode(rec(3)),
+    %% A bit flipped in the id, in the length's field or in the term.
+    [?_assertEqual({frames(Rs), byte_size(Whole), byte_size(Frame)},
+                   decode(<<Whole/binary, (flip(Frame, At))/binary>>))
+     || At <- [5, 12, byte_size(Frame) - 4]].
 
-unreadable_frame_is_skipped_test() ->
-    %% A whole frame of a term that is not a record, or names an atom this node does
-    %% not know: skipped, the records after it read.
+flip(Bin, At) ->
+    <<Head:At/binary, B, Tail/binary>> = Bin,
+    <<Head/binary, (B bxor 1), Tail/binary>>.
+
+unreadable_frame_test() ->
+    %% A whole frame of a term that is not a record of its id, or names an atom this
+    %% node does not know: read as such, never an atom made.
     Unknown = <<131, 119, 20, "cell_never_an_atom_x">>,    %% SMALL_ATOM_UTF8_EXT
-    Frame = <<?MARK:16, (byte_size(Unknown)):32, (erlang:crc32(Unknown)):32,
-              Unknown/binary>>,
-    NotRecord = encode_raw(foo),
-    Bin = iolist_to_binary([encode(rec(1)), Frame, NotRecord, encode(rec(2))]),
-    ?assertEqual({[rec(1), rec(2)], byte_size(Bin), 2, 0}, decode(Bin)).
+    ?assertEqual(error, read(frame({1, 1}, Unknown))),
+    ?assertEqual(error, read(frame({1, 2}, term_to_binary(foo)))),
+    ?assertEqual(error, read(frame({1, 3}, term_to_binary(rec(4))))),
+    ?assertEqual(error, read(<<"not a frame">>)).
 
-encode_raw(Term) ->
-    Body = term_to_binary(Term),
-    <<?MARK:16, (byte_size(Body)):32, (erlang:crc32(Body)):32, Body/binary>>.
+frame({Inc, N}, Body) ->
+    Crc = erlang:crc32([<<Inc:64/signed, N:64>>, Body]),
+    <<?MARK:16, Inc:64/signed, N:64, (byte_size(Body)):32, Crc:32, Body/binary>>.
 
 -endif.

@@ -18,18 +18,19 @@ prop_a_cut_file_keeps_the_whole_records() ->
                 Frames = [cell_trace_journal:encode(R) || R <- Records],
                 Bin = iolist_to_binary(Frames),
                 At = Cut rem (byte_size(Bin) + 1),
-                Part = binary:part(Bin, 0, At),
-                Whole = whole(Frames, At, 0, []),
-                Good = lists:sum([byte_size(F) || F <- lists:sublist(Frames, length(Whole))]),
-                cell_trace_journal:decode(Part) =:= {Whole, Good, 0, At - Good}
+                {Read, Good, Torn} = cell_trace_journal:decode(binary:part(Bin, 0, At)),
+                Whole = whole(Frames, At, 0, 0),
+                Good =:= lists:sum([byte_size(F) || F <- lists:sublist(Frames, Whole)])
+                    andalso Torn =:= At - Good
+                    andalso [cell_trace_journal:read(F) || {_, F} <- Read]
+                            =:= [{ok, R} || R <- lists:sublist(Records, Whole)]
             end).
 
-whole([F | Fs], At, Used, Acc) when Used + byte_size(F) =< At ->
-    whole(Fs, At, Used + byte_size(F), [binary_to_term(frame_body(F)) | Acc]);
-whole(_, _At, _Used, Acc) ->
-    lists:reverse(Acc).
-
-frame_body(<<_:16, Len:32, _:32, Body:Len/binary>>) -> Body.
+%% How many frames lie whole before the cut.
+whole([F | Fs], At, Used, N) when Used + byte_size(F) =< At ->
+    whole(Fs, At, Used + byte_size(F), N + 1);
+whole(_, _At, _Used, N) ->
+    N.
 
 record() ->
     ?LET({I, N, Type, Task, At, Item},
