@@ -16,7 +16,7 @@
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
-         a_product_left_but_still_in_its_file/1]).
+         a_product_left_but_still_in_its_file/1, the_journal_alone/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -29,7 +29,8 @@ all() ->
      an_answer_across_a_crash,
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
-     a_product_left_but_still_in_its_file].
+     a_product_left_but_still_in_its_file,
+     the_journal_alone].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -418,6 +419,56 @@ a_product_left_but_still_in_its_file(Config) ->
     ?assertEqual([entered, item_transfer_out, left, item_transfer_out], history(Serial)),
     ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
                  cell_stats:summary(total)).
+
+%% The trace journal by itself: writers at once each get their own id; its reader gets
+%% every record once, in the order of the ids, before the writers are answered; the
+%% file holds them; a trim keeps only the later ones; started again, it reads them
+%% back and its new ids come after them.
+the_journal_alone(_Config) ->
+    _ = file:delete(cell_trace_journal:path()),
+    {ok, J} = cell_trace_journal:start_link(),
+    [] = cell_trace_journal:attach(),
+    Me = self(),
+    Writers = [spawn_link(fun() ->
+                                  Ids = [begin
+                                             {ok, Id} = cell_trace_journal:append(
+                                                          #{type => test, task => waits_a,
+                                                            item => <<"W">>, n => N}),
+                                             Id
+                                         end || N <- lists:seq(1, 50)],
+                                  Me ! {ids, self(), Ids}
+                          end) || _ <- lists:seq(1, 20)],
+    Answered = lists:append([receive {ids, W, Ids} -> Ids end || W <- Writers]),
+    ?assertEqual(1000, length(lists:usort(Answered))),
+    Forwarded = forwarded(1000, []),
+    ?assertEqual(lists:sort(Answered), [Id || #{id := Id} <- Forwarded]),
+    {ok, Bin} = file:read_file(cell_trace_journal:path()),
+    {Frames, _, 0} = cell_trace_journal:decode(Bin),
+    ?assertEqual([Id || #{id := Id} <- Forwarded], [Id || {Id, _} <- Frames]),
+    Upto = lists:nth(990, lists:sort(Answered)),
+    ok = cell_trace_journal:trim(Upto),
+    Kept = lists:nthtail(990, Forwarded),
+    ?assertEqual(Kept, cell_trace_journal:attach()),
+    unlink(J),
+    ok = gen_server:stop(J),
+    {ok, J2} = cell_trace_journal:start_link(),
+    ?assertEqual(Kept, cell_trace_journal:attach()),
+    {ok, Next} = cell_trace_journal:append(#{type => test, task => waits_a}),
+    ?assert(Next > lists:max(Answered)),
+    %% Its reader had it before its writer was answered (both are this process: the
+    %% journal's messages to it arrive in the order sent).
+    receive {cell_trace_journal, [#{id := Next}]} -> ok
+    after 0 -> ct:fail(record_not_before_answer)
+    end,
+    unlink(J2),
+    ok = gen_server:stop(J2).
+
+forwarded(0, Acc) ->
+    lists:append(lists:reverse(Acc));
+forwarded(N, Acc) ->
+    receive {cell_trace_journal, Records} -> forwarded(N - length(Records), [Records | Acc])
+    after ?RETRY_WAIT_MS -> ct:fail({records_missing, N})
+    end.
 
 %% With the statistics suspended: the product enters at waits_a, leaves the cell from
 %% it, and the task forgets it.
