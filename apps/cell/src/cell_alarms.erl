@@ -76,10 +76,11 @@ withdraw(Id) ->
 %% answer other than Reset (or Close) lets the error's task go on with the product it
 %% holds; while another task holds the same serial that would be a product held twice,
 %% and it is refused with `{double_holding, Serial, OtherTasks}' (see cell_guard): the
-%% error stays.
+%% error stays. An answer is in the trace journal before the task hears it; one that
+%% cannot be recorded is refused with `{not_recorded, Why}'.
 -spec answer(binary(), solution(), binary()) ->
           ok | {error, not_found | {not_allowed, [solution()]}
-                | {double_holding, binary(), [atom()]}}.
+                | {double_holding, binary(), [atom()]} | {not_recorded, term()}}.
 answer(Id, Solution, Who) ->
     gen_server:call(?MODULE, {answer, Id, Solution, Who}).
 
@@ -249,7 +250,7 @@ handle_call({withdraw, Id}, _From, State) ->
     {reply, ok, remove(Id, withdrawn, <<"cell">>, State)};
 handle_call({answer, Id, Solution, Who}, _From, State) ->
     case ets:lookup(?TAB, Id) of
-        [{Id, #{kind := error, solutions := Sols, owner := Owner} = A}] ->
+        [{Id, #{kind := error, solutions := Sols, owner := _} = A}] ->
             case lists:member(Solution, Sols) andalso held_twice(A, Solution) of
                 {Serial, Others} ->
                     cell_log:warning(maps:get(task, A),
@@ -259,10 +260,7 @@ handle_call({answer, Id, Solution, Who}, _From, State) ->
                                       lists:join(", ", [atom_to_list(O) || O <- Others])]),
                     {reply, {error, {double_holding, Serial, Others}}, State};
                 none ->
-                    Owner ! {cell_alarm, answer, Id, Solution, Who},
-                    cell_log:notice(maps:get(task, A), "~ts answered \"~ts\" with ~ts",
-                                    [Who, maps:get(caption, A), solution_name(Solution)]),
-                    {reply, ok, remove(Id, Solution, Who, State)};
+                    answer(A, Solution, Who, State);
                 false ->
                     {reply, {error, {not_allowed, Sols}}, State}
             end;
@@ -286,6 +284,18 @@ handle_call(history, _From, State) ->
     {reply, State#state.history, State};
 handle_call(sync, _From, State) ->
     {reply, ok, State}.
+
+%% An answer allowed: recorded in the trace journal before the task hears it.
+answer(#{id := Id, owner := Owner} = A, Solution, Who, State) ->
+    case journal_answer(A, Solution, Who) of
+        {error, Why} ->
+            {reply, {error, {not_recorded, Why}}, State};
+        ok ->
+            Owner ! {cell_alarm, answer, Id, Solution, Who},
+            cell_log:notice(maps:get(task, A), "~ts answered \"~ts\" with ~ts",
+                            [Who, maps:get(caption, A), solution_name(Solution)]),
+            {reply, ok, remove(Id, Solution, Who, State)}
+    end.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
 handle_cast({set, Kind, Task, Local, Caption, Description, Opts}, State) ->
@@ -366,6 +376,21 @@ text(IoData) ->
     case unicode:characters_to_binary(IoData) of
         B when is_binary(B) -> B;
         _ -> iolist_to_binary(io_lib:format("~tp", [IoData]))
+    end.
+
+%% An answer is in the trace journal before its owner hears it: what an operator
+%% decided about a product stays in its history after a crash (see cell_stats).
+journal_answer(#{id := Id, task := Task, caption := Caption}, Solution, Who) ->
+    Item = case cell_registry:task(Task) of
+               {ok, #{serial := S}} when is_binary(S) -> #{item => S};
+               _ -> #{}
+           end,
+    case cell_trace_journal:append(Item#{type => alarm_answered, task => Task, alarm => Id,
+                                         caption => Caption, solution => Solution,
+                                         who => Who}) of
+        {ok, _} -> ok;
+        {error, not_running} -> ok;
+        {error, _} = E -> E
     end.
 
 solution_name(retry) -> "Retry";

@@ -2,15 +2,17 @@
 %% (see {@link cell_spec}), under {@link cell_sup}.
 %%
 %% rest_for_one, in dependency order: the registry owns the tables every later child
-%% uses; the service tables keep what the services must not lose; the services
-%% (events, alarms, settings, the recipe buffer, the peers, under {@link
-%% cell_service_sup}) are used by the tasks and restart alone, without the children
-%% after them; the handshake links connect the tasks; the monitor connects the HAL the
-%% spec names and watches the general IO (the tasks read their IO only once started);
-%% the controller drives the tasks; the statistics only listen to all of them, and the
-%% guard (a product held twice, a cell that makes no progress) only listens and asks
-%% the operator; it reads every table before it, and a restart of it touches
-%% nothing else (it looks at what the tasks hold again when it starts). A child
+%% uses; the service tables keep what the services must not lose; the trace journal
+%% is written by every writer of the product's way (the answers, the tasks) and read by
+%% the statistics, so a restart of it restarts them all and the statistics read it
+%% again whole; the services (events, alarms, settings, the recipe buffer, the peers,
+%% under {@link cell_service_sup}) are used by the tasks and restart alone, without the
+%% children after them; the handshake links connect the tasks; the monitor connects the
+%% HAL the spec names and watches the general IO (the tasks read their IO only once
+%% started); the controller drives the tasks; the statistics only listen to all of
+%% them, and the guard (a product held twice, a cell that makes no progress) only
+%% listens and asks the operator; it reads every table before it, and a restart of it
+%% touches nothing else (it looks at what the tasks hold again when it starts). A child
 %% that dies takes down only those started after it. Ten restarts a minute is a
 %% fault that will not go away by restarting one service on an unattended machine:
 %% beyond that the controller gives up and {@link cell_sup} starts its whole tree
@@ -52,6 +54,8 @@ init(#{tasks := Tasks, settings := Schemas} = Spec) ->
                 cell_peers:child_spec(Spec)],
     Children = [#{id => cell_registry, start => {cell_registry, start_link, []}},
                 #{id => cell_service_tables, start => {cell_service_tables, start_link, []}},
+                %% Before every writer of the product's way and its reader: see above.
+                cell_trace_journal:child_spec(),
                 #{id => cell_service_sup, start => {cell_service_sup, start_link, [Services]},
                   type => supervisor, shutdown => infinity},
                 #{id => cell_handshake_sup,

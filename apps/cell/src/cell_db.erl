@@ -23,7 +23,7 @@
 %% {@link start/0} starts an empty database.
 -module(cell_db).
 
--export([start/0, ensure_tables/2, dir/0, sync_transaction/1, format_error/1]).
+-export([start/0, ensure_tables/2, dir/0, sync_transaction/1, format_error/1, unclosed/1]).
 
 -export_type([table/0, error/0]).
 
@@ -68,6 +68,7 @@ check_running(Dir) ->
 start_stopped(Dir) ->
     case usable(Dir) of
         ok ->
+            report_unclosed(Dir),
             _ = application:load(mnesia),
             ok = application:set_env(mnesia, dir, Dir),
             case mnesia:create_schema([node()]) of
@@ -110,6 +111,33 @@ check_schema() ->
                 {aborted, Why} -> {error, {schema, Why}}
             end;
         false -> {error, {other_node, node(), Disc}}
+    end.
+
+%% mnesia repairs a table file on disc only that was not closed (the node stopped
+%% without shutting down) as it loads it, and says so on the console only: the log
+%% says it here, before.
+report_unclosed(Dir) ->
+    lists:foreach(fun(File) ->
+                          cell_log:warning(cell, "database: the table file ~ts was not "
+                                           "closed properly (the node stopped without "
+                                           "shutting down); it is repaired as it loads, "
+                                           "and what it may have lost of the product "
+                                           "histories is taken again from the trace "
+                                           "journal", [File])
+                  end, unclosed(Dir)).
+
+%% @doc The table files of the folder that were not closed properly.
+-spec unclosed(file:filename()) -> [file:filename()].
+unclosed(Dir) ->
+    [F || F <- lists:sort(filelib:wildcard(filename:join(Dir, "*.DAT"))), needs_repair(F)].
+
+needs_repair(File) ->
+    Name = {?MODULE, File},
+    case dets:open_file(Name, [{file, File}, {repair, false}, {access, read}]) of
+        {ok, _} -> ok = dets:close(Name), false;
+        {error, {needs_repair, _}} -> true;
+        %% Anything else is for mnesia to say as it loads the table.
+        {error, _} -> false
     end.
 
 usable(Dir) ->
@@ -208,3 +236,32 @@ format_error(Other) ->
 
 posix(Why) when is_atom(Why) -> file:format_error(Why);
 posix(Why) -> io_lib:format("~0tp", [Why]).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% A table file whose owner was killed is found; one closed properly is not.
+unclosed_test() ->
+    Dir = filename:join(["/tmp", "cell_db_unclosed_" ++ os:getpid()]),
+    _ = file:del_dir_r(Dir),
+    ok = filelib:ensure_dir(filename:join(Dir, ".")),
+    Clean = filename:join(Dir, "clean.DAT"),
+    Killed = filename:join(Dir, "killed.DAT"),
+    {ok, clean} = dets:open_file(clean, [{file, Clean}]),
+    ok = dets:insert(clean, {a, 1}),
+    ok = dets:close(clean),
+    {ok, killed} = dets:open_file(killed, [{file, Killed}]),
+    ok = dets:insert(killed, {a, 1}),
+    ok = dets:sync(killed),
+    %% Written to since its last flush, as a table in use always is.
+    ok = dets:insert(killed, {b, 2}),
+    Owner = dets:info(killed, pid),
+    Ref = monitor(process, Owner),
+    exit(Owner, kill),
+    receive {'DOWN', Ref, process, Owner, _} -> ok end,
+    ?assertEqual([Killed], unclosed(Dir)),
+    %% Looking does not repair: the file is still found.
+    ?assertEqual([Killed], unclosed(Dir)),
+    ok = file:del_dir_r(Dir).
+
+-endif.

@@ -108,7 +108,8 @@ release(#task{id = Id} = T0, Link) ->
             ok = cell_registry:update(Id, #{serial => undefined}),
             ok = cell_task:publish(T, product_saved, #{item => undefined, product => undefined,
                                                        in_transit => false}),
-            view(T#task{product = undefined, gen = 0, marker = undefined}, Link,
+            view(T#task{product = undefined, gen = 0, marker = undefined, traced = undefined},
+                 Link,
                  #{phase => released, available => false, owned => false});
         {error, _} ->
             %% Downstream stopped while the product was being moved out: it stays with

@@ -7,6 +7,23 @@
 %% one transaction a second (a crash loses at most that second); a product's history is
 %% handed as it happens to {@link cell_stats_writer}, which writes it in batches.
 %%
+%% <b>The product's way survives any crash.</b> What a task does with a product
+%% (takes it, transfers it in or out) and an operator's answers are first made durable
+%% by their writer in the trace journal ({@link cell_trace_journal}); the statistics
+%% take those from the journal, in its order, and skip the events that follow them.
+%% Once a second, when records were applied or histories written, the histories
+%% handed over are written and their tables flushed to the disk, then the counters
+%% are written together with
+%% the id of the last record applied, and the journal is trimmed up to it. When the
+%% database opens (at every start of the process) the records after that id are
+%% applied again, before any event: each gives the same history entries (a record's
+%% entries are keyed by its id, and the history keeps one copy of an entry) and is
+%% counted once, so after any crash a product that left is recorded as left, once,
+%% with its whole history. Who holds a product is then taken from the registry; a
+%% product a task holds whose entry was never recorded enters with what its product
+%% file says, and the log says so. A product counted as scrapped that then leaves
+%% (see {@link cell_stats_trace:left_after_scrap/1}) is counted as left instead.
+%%
 %% <b>Time per IPC-2541 state</b>, per task: each `task_state' event closes the time
 %% spent in the state before. The time is split at shift boundaries and added to the
 %% shift and to the total, in microseconds. A new shift plan (the `statistics'
@@ -103,6 +120,21 @@
              writing = false :: boolean(),                      %% ... and not done yet
              queued = [] :: [fun(() -> term())],                %% for the next, newest first
              seq = 0 :: non_neg_integer(),
+             %% The trace journal (see cell_trace_journal): read once the database is
+             %% open; the last record applied, the last whose effects are durable, and
+             %% the record being applied now with a count of its history entries (so a
+             %% record applied again writes the very same entries).
+             attached = false :: boolean(),
+             seen = #{} :: #{cell_trace_journal:id() => true},  %% applied before attach
+             applied :: cell_trace_journal:id() | undefined,
+             saved :: cell_trace_journal:id() | undefined,
+             applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
+             unsynced = false :: boolean(),     %% histories written since the last flush
+             %% The products that left while the journal was read at start, and by which
+             %% task; and those a task still holds in its file though they left through it
+             %% (a crash between its record and its file): its copy until it lets go.
+             gone = #{} :: #{binary() => atom()},
+             stale = #{} :: #{binary() => atom()},
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer(),
              shift_end = 0 :: integer()}).                      %% wall µs
@@ -422,8 +454,15 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}} | {stop, term(), #st{}}.
+handle_info({cell_event, #{journal := _}}, #st{attached = true} = St) ->
+    %% Its record came from the journal before it (see cell_trace_journal).
+    {noreply, St};
+handle_info({cell_event, #{journal := Id} = Event}, #st{seen = Seen} = St) ->
+    {noreply, apply_record(Id, Event, St#st{seen = Seen#{Id => true}})};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
+handle_info({cell_trace_journal, Records}, St) ->
+    {noreply, lists:foldl(fun journal_record/2, St, Records)};
 handle_info(flush, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
     {noreply, flush(St)};
@@ -479,6 +518,14 @@ event(#{type := item_work_complete, item := S, task := T} = E, St) ->
 event(#{type := item_work_abort, task := T, item := _} = E, St) ->
     At = event_us(E),
     trace_event(E, At, count([{T, aborted}], At, St));
+event(#{type := alarm_answered, task := T} = E, St) ->
+    Entry = #{event => alarm_answered, id => maps:get(alarm, E, <<>>),
+              caption => maps:get(caption, E, <<>>), solution => maps:get(solution, E),
+              who => maps:get(who, E, <<>>)},
+    case E of
+        #{item := S} when is_binary(S) -> trace(S, event_us(E), T, Entry, St);
+        _ -> held_trace(T, event_us(E), Entry, St)
+    end;
 event(#{item := S} = E, St) when is_binary(S) ->
     %% identifier read, work pause and resume: history only.
     trace_event(E, event_us(E), St);
@@ -514,9 +561,10 @@ saved(T, Serial, Product, At, #st{holding = Holding} = St) ->
             St1#st{holding = maps:remove(T, Holding)};
         _ ->
             St2 = St1#st{holding = maps:put(T, Serial, Holding)},
-            case maps:find(Serial, St2#st.products) of
-                error -> enter(Serial, T, product_map(Product), At, St2);
-                {ok, P} -> claim(Serial, T, P, product_map(Product), At, St2)
+            case {maps:find(Serial, St2#st.products), St2#st.stale} of
+                {error, #{Serial := T}} -> St2;           %% its stale copy: not again
+                {error, _} -> enter(Serial, T, product_map(Product), At, St2);
+                {{ok, P}, _} -> claim(Serial, T, P, product_map(Product), At, St2)
             end
     end.
 
@@ -524,7 +572,11 @@ product_map(P) when is_map(P) -> P;
 product_map(_) -> #{}.
 
 %% The task no longer holds the serial: handed over, sent out, or forgotten.
-let_go(Serial, T, #st{products = Ps} = St) ->
+let_go(Serial, T, #st{products = Ps, stale = Stale} = St0) ->
+    St = case Stale of
+             #{Serial := T} -> St0#st{stale = maps:remove(Serial, Stale)};
+             _ -> St0
+         end,
     case maps:find(Serial, Ps) of
         {ok, #prod{holder = T} = P} ->
             St#st{products = Ps#{Serial := P#prod{holder = undefined, unheld = 0}}};
@@ -564,12 +616,51 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
             trace(Serial, At, T, #{event => changed, changes => Changes}, St2)
     end.
 
-%% The product left the cell through an exit task.
-leave(Serial, T, At, #st{products = Ps} = St) ->
-    P = case maps:find(Serial, Ps) of
-            {ok, Found} -> Found;
-            error -> #prod{entered = At, entry = T}
-        end,
+%% The product left the cell through an exit task. One the statistics no longer
+%% hold was counted before: taken for scrapped (its hand-out took longer than a
+%% hand-over may), it is counted as left instead; already out, it is not counted again.
+leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
+    case {maps:find(Serial, Ps), Stale} of
+        {{ok, P}, _} ->
+            left(Serial, T, At, P, St);
+        {error, #{Serial := T}} ->
+            %% Its stale copy sent out again: it left once.
+            St#st{stale = maps:remove(Serial, Stale)};
+        {error, _} ->
+            Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                          [{?PRODUCT, _, Info}] -> Info;
+                          [] -> undefined
+                      end,
+            case cell_stats_trace:left_after_scrap(Summary) of
+                count ->
+                    left(Serial, T, At, #prod{entered = At, entry = T}, St);
+                already_out ->
+                    St;
+                {uncount_scrap, By} ->
+                    cell_log:warning(cell, "statistics: product ~ts was counted as scrapped "
+                                     "but has left through ~ts; it is counted as left",
+                                     [Serial, T]),
+                    St1 = count_cell_by([scrapped], -1, At,
+                                        case By of
+                                            undefined -> St;
+                                            _ -> count_by([{By, scrapped}], -1, At, St)
+                                        end),
+                    left(Serial, T, At, summary_prod(Summary, At, T), St1)
+            end
+    end.
+
+%% A product as the summary of one that left has it.
+summary_prod(#{entered := E} = S, At, T) ->
+    #prod{entered = case E of undefined -> At; _ -> E * 1000 end,
+          recipe = maps:get(recipe, S, <<>>), failed = maps:get(failed, S, false),
+          entry = maps:get(entry_task, S, T)}.
+
+left(Serial, T, At, P, #st{products = Ps, gone = Gone} = St0) ->
+    %% Kept only while the journal is read at start (see holders_now/2).
+    St = case St0 of
+             #st{attached = false, db = open} -> St0#st{gone = Gone#{Serial => T}};
+             _ -> St0
+         end,
     Quality = case P#prod.failed of true -> failed; false -> good end,
     St1 = count_cell([out, Quality], At, St),
     St2 = timing({cell, lead}, P#prod.entered, At, St1),
@@ -585,14 +676,14 @@ leave(Serial, T, At, #st{products = Ps} = St) ->
 %% on its way is not taken for lost.
 reconcile(Now, #st{products = Ps} = St) ->
     maps:fold(fun(Serial, #prod{holder = undefined, unheld = N} = P, Acc) ->
-                      case holders(Serial) of
-                          [_ | _] ->
+                      case cell_stats_trace:unheld(N, holders(Serial)) of
+                          held ->
                               Acc#st{products = maps:put(Serial, P#prod{unheld = 0},
                                                          Acc#st.products)};
-                          [] when N >= 1 ->
+                          scrap ->
                               scrap(Serial, P, Now, Acc);
-                          [] ->
-                              Acc#st{products = maps:put(Serial, P#prod{unheld = N + 1},
+                          {wait, N1} ->
+                              Acc#st{products = maps:put(Serial, P#prod{unheld = N1},
                                                          Acc#st.products)}
                       end;
                  (_, _, Acc) ->
@@ -698,7 +789,8 @@ flush(St0) ->
               closed when Now >= St2#st.retry_at -> open(St2);
               _ -> St2
           end,
-    St4 = write_pending(Now, St3),
+    {Mark, St3a} = durable_history(St3),
+    St4 = journal_trimmed(Mark, write_pending(Now, Mark, St3a)),
     case St4#st.db =:= open andalso Now >= St4#st.purge_at of
         true -> trim(purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000}));
         false -> trim(St4)
@@ -709,11 +801,17 @@ flush(St0) ->
 %%====================================================================
 
 count(Keys, At, St) ->
+    count_by(Keys, 1, At, St).
+
+count_by(Keys, N, At, St) ->
     {Id, _, _, St1} = shift_of(At, St),
-    add(lists:append([[{Id, Scope, M}, {total, Scope, M}] || {Scope, M} <- Keys]), 1, St1).
+    add(lists:append([[{Id, Scope, M}, {total, Scope, M}] || {Scope, M} <- Keys]), N, St1).
 
 count_cell(Metrics, At, St) ->
     count([{cell, M} || M <- Metrics], At, St).
+
+count_cell_by(Metrics, N, At, St) ->
+    count_by([{cell, M} || M <- Metrics], N, At, St).
 
 %% A duration ending at `At' since `From' (nothing when there is no start).
 timing(_Key, undefined, _At, St) ->
@@ -748,8 +846,55 @@ merge(max, Old, V) -> max(Old, V);
 merge(set, _Old, V) -> V;
 merge(first, Old, _V) -> Old.
 
-%% One transaction a second: every counter and the time they cover, together.
-write_pending(Now, #st{db = open, pending = Pending} = St) ->
+%% Before the counters are written with the id of the last journal record applied,
+%% what those records wrote to the histories is made durable: every write handed over
+%% done, the history tables flushed to the disk (a table on disc only keeps writes in
+%% memory for seconds). Answers the id to write, if any.
+%% Histories written since the last flush (a product scrapped, say) are made durable
+%% the same way before the counters that count them.
+durable_history(#st{db = open, attached = Attached, applied = A, saved = S} = St) ->
+    Mark = case Attached andalso A =/= S andalso A =/= undefined of
+               true -> A;
+               false -> undefined
+           end,
+    case Mark =/= undefined orelse St#st.unsynced of
+        true ->
+            St1 = history_written(St),
+            case St1#st.db of
+                open ->
+                    case {sync_table(?EVENT), sync_table(?PRODUCT)} of
+                        {ok, ok} -> {Mark, St1#st{unsynced = false}};
+                        {{error, Why}, _} -> {undefined, closed(Why, St1)};
+                        {_, {error, Why}} -> {undefined, closed(Why, St1)}
+                    end;
+                closed ->
+                    {undefined, St1}
+            end;
+        false ->
+            {undefined, St}
+    end;
+durable_history(St) ->
+    {undefined, St}.
+
+%% mnesia keeps a table on disc only in a dets file of the table's name.
+sync_table(Tab) ->
+    try dets:sync(Tab)
+    catch error:badarg -> {error, {no_table, Tab}}
+    end.
+
+%% The counters and the histories hold what the journal's records up to `Mark'
+%% changed: the journal lets them go.
+journal_trimmed(undefined, St) ->
+    St;
+journal_trimmed(Mark, #st{db = open} = St) ->
+    ok = cell_trace_journal:trim(Mark),
+    St#st{saved = Mark};
+journal_trimmed(_Mark, St) ->
+    St.
+
+%% One transaction a second: every counter and the time they cover, together, with the
+%% id of the last journal record whose effects they hold.
+write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
     F = fun() ->
                 %% One lock for all: a thousand tasks starting change thousands of
                 %% counters, and a lock request each would cost more than the writes.
@@ -763,6 +908,8 @@ write_pending(Now, #st{db = open, pending = Pending} = St) ->
                                         end,
                                   mnesia:write({?COUNTER, K, New})
                           end, ok, Pending),
+                _ = Mark =:= undefined orelse
+                    mnesia:write({?COUNTER, {meta, journal}, Mark}),
                 mnesia:write({?COUNTER, {meta, flushed}, Now})
         end,
     case mnesia:transaction(F) of
@@ -773,7 +920,7 @@ write_pending(Now, #st{db = open, pending = Pending} = St) ->
         {aborted, Why} ->
             closed(Why, St)
     end;
-write_pending(_Now, St) ->
+write_pending(_Now, _Mark, St) ->
     %% Not before the database is open: the time of the last write tells how long
     %% the runtime was down.
     St.
@@ -852,20 +999,105 @@ opened(#st{started = Started} = St0) ->
                               Acc#{Serial => from_open(Info, Started)}
                       end
               end, St1#st.products, Open),
-    %% The holders now, as the registry knows them.
-    St2 = maps:fold(fun(T, Serial, Acc) ->
-                            case maps:find(Serial, Acc#st.products) of
-                                {ok, P} -> Acc#st{products = maps:put(Serial, P#prod{holder = T, by = T},
-                                                                      Acc#st.products)};
-                                error -> enter(Serial, T, #{}, Started, Acc)
-                            end
-                    end, St1#st{products = Known}, St1#st.holding),
+    %% What the journal holds that the database may not, then the holders now, as the
+    %% registry knows them.
+    St2 = holders_now(attach(St1#st{products = Known}), Started),
     Backlog = lists:reverse(St2#st.backlog),
     _ = Backlog =:= [] orelse
         cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
                         "memory meanwhile are written", [length(Backlog)]),
     St3 = St2#st{backlog = [], backlog_len = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
+
+%% The records of the trace journal not yet durable in the database are applied (the
+%% others are skipped by their ids, so none is counted twice), in the order of the
+%% journal; from now on each new record comes from the journal as soon as it is
+%% durable, and its event is skipped.
+attach(#st{attached = true} = St) ->
+    St;
+attach(St) ->
+    case {whereis(cell_trace_journal),
+          mnesia:transaction(fun() -> meta(journal, undefined) end)} of
+        {undefined, _} ->
+            %% No journal (the statistics started alone): the events are all there is.
+            St;
+        {_, {aborted, _}} ->
+            St;
+        {_, {atomic, Saved}} ->
+            Records = cell_trace_journal:attach(),
+            St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
+            Fresh = [R || #{id := Id} = R <- Records,
+                          cell_stats_trace:fresh(Id, Saved, St#st.seen)],
+            _ = Fresh =:= [] orelse
+                cell_log:notice(cell, "statistics: ~b records of the products' way through "
+                                "the cell were not yet in the database after a restart; "
+                                "they are taken from the trace journal", [length(Fresh)]),
+            St2 = lists:foldl(fun journal_record/2, St1, Fresh),
+            St2#st{attached = true, seen = #{}}
+    end.
+
+%% A record of the journal, or an event carrying the id of its record, applied once.
+journal_record(#{id := Id} = R, #st{saved = Saved, seen = Seen} = St) ->
+    case cell_stats_trace:fresh(Id, Saved, Seen) of
+        true -> apply_record(Id, R, St);
+        false -> St
+    end.
+
+apply_record(Id, Event, #st{applied = Applied} = St) ->
+    St1 = event(Event, St#st{applying = {Id, 0}}),
+    St1#st{applying = undefined, applied = cell_stats_trace:latest(Id, Applied)}.
+
+%% Who holds what is the registry's to say: after the records are applied, each
+%% product is held by the task the registry has holding it, or by none. A product a
+%% task holds that the records never saw enter (its entry lost before the journal kept
+%% such things) enters now with what its product file says, and the log says so.
+holders_now(St, Started) ->
+    Rows = try cell_registry:tasks() catch error:badarg -> [] end,
+    Holding = maps:from_list([{Id, S} || #{id := Id, serial := S} <- Rows, is_binary(S)]),
+    ByTask = maps:from_list([{S, Id} || {Id, S} <- maps:to_list(Holding)]),
+    Products = maps:map(fun(Serial, #prod{} = P) ->
+                                case maps:find(Serial, ByTask) of
+                                    {ok, T} -> P#prod{holder = T, by = T, unheld = 0};
+                                    error -> P#prod{holder = undefined}
+                                end
+                        end, St#st.products),
+    Places = maps:from_list([{Id, Row} || #{id := Id} = Row <- Rows]),
+    St1 = maps:fold(fun(T, Serial, Acc) ->
+                            case {maps:is_key(Serial, Acc#st.products), Acc#st.gone} of
+                                {true, _} -> Acc;
+                                {false, #{Serial := T}} -> stale(Serial, T, Acc);
+                                {false, _} -> unrecorded(Serial, T, maps:get(T, Places),
+                                                         Started, Acc)
+                            end
+                    end, St#st{holding = Holding, products = Products}, Holding),
+    St1#st{gone = #{}}.
+
+%% The task's file still holds a product whose exit through it is recorded: it left
+%% once; the task's copy is not counted again, whatever the task does with it.
+stale(Serial, T, #st{stale = Stale} = St) ->
+    cell_log:notice(cell, "statistics: product ~ts left the cell through ~ts before the "
+                    "restart, and ~ts still holds it in its file; it is not counted again",
+                    [Serial, T, T]),
+    St#st{stale = Stale#{Serial => T}}.
+
+unrecorded(Serial, T, Row, Started, St) ->
+    Product = case Row of
+                  #{zone := Z, lane := L} ->
+                      case cell_product:load(cell_product:path(Z, L)) of
+                          {ok, #{product := #{serial := Serial} = P}} -> P;
+                          _ -> #{}
+                      end;
+                  _ -> #{}
+              end,
+    cell_log:warning(cell, "statistics: product ~ts is held by ~ts but its entry into the "
+                     "cell was never recorded; it is counted as entered now~ts",
+                     [Serial, T, case Product of
+                                     #{} when map_size(Product) =:= 0 ->
+                                         ", its recipe unknown (its product file could not "
+                                         "be read)";
+                                     _ -> ", with the recipe of its product file"
+                                 end]),
+    enter(Serial, T, Product, Started, St).
 
 %% The time from where a task was last counted to the runtime's last write, in the
 %% state it was in then.
@@ -882,9 +1114,9 @@ ets_list(Tab) ->
 %% if it is idle, else with what else comes until it is; when it is not, kept (up to
 %% a limit) until it is.
 db(Fun, #st{db = open, writing = false} = St) ->
-    hand_over([Fun], St);
+    hand_over([Fun], St#st{unsynced = true});
 db(Fun, #st{db = open, queued = Q} = St) ->
-    St#st{queued = [Fun | Q]};
+    St#st{queued = [Fun | Q], unsynced = true};
 db(Fun, St) ->
     keep(Fun, St).
 
@@ -918,8 +1150,15 @@ keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
 
 trace(undefined, _At, _Task, _Entry, St) ->
     St;
+%% An entry's sequence orders the entries of one millisecond by their microsecond and
+%% then as they were taken (journal records and events come by different ways).
+trace(Serial, At, Task, Entry, #st{applying = {Id, K}} = St) ->
+    %% Of a journal record: the same entry each time it is applied, which the bag
+    %% keeps once.
+    Rec = {?EVENT, Serial, At div 1000, {At, {Id, K}}, Entry#{task => Task}},
+    db(fun() -> mnesia:dirty_write(Rec) end, St#st{applying = {Id, K + 1}});
 trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
-    Rec = {?EVENT, Serial, At div 1000, Seq, Entry#{task => Task}},
+    Rec = {?EVENT, Serial, At div 1000, {At, Seq}, Entry#{task => Task}},
     db(fun() -> mnesia:dirty_write(Rec) end, St#st{seq = Seq + 1}).
 
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
@@ -1026,6 +1265,9 @@ now_us() ->
     erlang:system_time(microsecond).
 
 %% An event's moment on this node's clock (its monotonic stamp, made comparable).
+%% A record of the trace journal, or the event of one, is at the record's time: the
+%% same either way, so its history entries are the same.
+event_us(#{at := At}) when is_integer(At) -> At;
 event_us(#{mono := Mono}) -> Mono + erlang:time_offset(microsecond);
 event_us(_) -> now_us().
 

@@ -207,15 +207,23 @@ store(#task{id = Id, product_file = File} = T, Product, Gen, Marker, Opts) ->
                  undefined -> undefined;
                  _ -> cell_product:stored(Product, Gen, Marker)
              end,
+    Serial = cell_product:serial(Product),
+    Fields = #{item => Serial, product => Product, in_transit => Marker =/= undefined},
+    %% Taking a product is in the trace journal before the task holds it: after a
+    %% crash the statistics know it entered, and with what, even if the event never
+    %% reached them. Taken in a hand-over (in transit), its transfer in is the record.
+    Journal = case Serial of
+                  undefined -> #{};
+                  _ when Serial =:= T#task.traced; Marker =/= undefined -> #{};
+                  _ -> journal(T, product_saved, Fields)
+              end,
     case cell_product:save(File, Stored, Opts) of
         ok ->
-            Serial = cell_product:serial(Product),
             ok = cell_registry:hold(Id, Serial, Gen),
             ok = cell_registry:update(Id, #{serial => Serial}),
             %% Watchers (panel, SHDR) see the task's product change at once.
-            ok = publish(T, product_saved, #{item => Serial, product => Product,
-                                             in_transit => Marker =/= undefined}),
-            T#task{product = Product, gen = Gen, marker = Marker};
+            ok = publish(T, product_saved, maps:merge(Fields, Journal)),
+            T#task{product = Product, gen = Gen, marker = Marker, traced = Serial};
         {error, Reason} ->
             %% Nothing may go on as if the product were saved: the task crashes and
             %% comes back DOWN with this reason for the operator.
@@ -279,7 +287,8 @@ identifier_read(T, Serial, Scanner) ->
 
 %% @doc The task received a product. No state change.
 -spec transfer_in(task(), binary()) -> task().
-transfer_in(T, Serial) -> event(T, item_transfer_in, #{item => Serial}).
+transfer_in(T, Serial) ->
+    event(T, item_transfer_in, journaled(T, item_transfer_in, #{item => Serial})).
 
 %% @doc Processing of the product starts: READY-PROCESSING-EXECUTING.
 -spec work_start(task()) -> task().
@@ -303,7 +312,26 @@ work_abort(T, AbortId) -> event(T, item_work_abort, (item(T))#{abort_id => Abort
 
 %% @doc The product has left the task's zone. No state change.
 -spec transfer_out(task(), binary()) -> task().
-transfer_out(T, Serial) -> event(T, item_transfer_out, #{item => Serial}).
+transfer_out(T, Serial) ->
+    event(T, item_transfer_out, journaled(T, item_transfer_out, #{item => Serial})).
+
+%% The fields of an event of the product's way, with the id of its record in the trace
+%% journal: the record is durable when this returns (see cell_trace_journal).
+journaled(T, Type, Fields) ->
+    maps:merge(Fields, journal(T, Type, Fields)).
+
+journal(#task{id = Id, zone = Z, lane = L}, Type, Fields) ->
+    %% The event carries its record's id and time: the statistics take it the same
+    %% whether from the event or from the record (see cell_stats).
+    At = erlang:system_time(microsecond),
+    case cell_trace_journal:append(Fields#{type => Type, task => Id, zone => Z, lane => L,
+                                           at => At}) of
+        {ok, JournalId} -> #{journal => JournalId, at => At};
+        %% A task outside a cell's supervisor (a test of its module alone).
+        {error, not_running} -> #{};
+        %% Nothing may go on as if the record were kept: as for a product not saved.
+        {error, Reason} -> erlang:error({trace_not_saved, Reason})
+    end.
 
 item(#task{product = undefined}) -> #{};
 item(#task{product = #{serial := S}}) -> #{item => S}.

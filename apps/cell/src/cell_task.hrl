@@ -12,6 +12,8 @@
     product :: cell_product:product() | undefined,
     gen = 0 :: non_neg_integer(),              %% the product's generation (see cell_product)
     marker :: cell_product:marker(),           %% set while the product is in transit
+    %% The serial whose taking by this task is in the trace journal (cell_trace_journal).
+    traced :: binary() | undefined,
     product_path :: binary(),
     %% The product file kept open for the task's writes (cell_file:record_file/1).
     product_file :: cell_file:record_file(),

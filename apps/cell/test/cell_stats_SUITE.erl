@@ -13,7 +13,10 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
-         shifts_split_the_time/1, a_product_in_the_cell_and_after/1]).
+         shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
+         a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
+         a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
+         a_product_left_but_still_in_its_file/1, the_journal_alone/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -21,11 +24,22 @@ all() ->
     [database_unusable_then_back, database_lost_then_back, writer_crash,
      time_in_a_state_across_a_crash,
      shifts_split_the_time,
-     a_product_in_the_cell_and_after].
+     a_product_in_the_cell_and_after,
+     a_product_left_across_a_crash,
+     an_answer_across_a_crash,
+     a_journal_cut_short_at_boot,
+     a_product_held_but_never_recorded,
+     a_product_left_but_still_in_its_file,
+     the_journal_alone].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
-                                     Case =:= a_product_in_the_cell_and_after ->
+                                     Case =:= a_product_in_the_cell_and_after;
+                                     Case =:= a_product_left_across_a_crash;
+                                     Case =:= an_answer_across_a_crash;
+                                     Case =:= a_journal_cut_short_at_boot;
+                                     Case =:= a_product_held_but_never_recorded;
+                                     Case =:= a_product_left_but_still_in_its_file ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -233,6 +247,257 @@ a_product_in_the_cell_and_after(Config) ->
     {ok, #{status := scrapped, failed := true, events := Events}} = cell_stats:product(Serial),
     ?assertEqual(scrapped, maps:get(event, lists:last(Events))),
     ?assertMatch(#{in_cell := 0, cell := #{in := 1, scrapped := 1}}, cell_stats:summary(total)).
+
+%% A product that entered and left while the statistics took nothing (they are
+%% suspended, then killed: what they were told dies with them, as in a crash of the
+%% node) is recorded after their restart as left, once, with its whole history, from
+%% the trace journal; it is never taken for scrapped. Killed again right after their
+%% restart, before or after they wrote (whichever comes first), they still count each
+%% product once and write each history entry once.
+a_product_left_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    ok = cell_stats:flush(),
+    %% The suite's database keeps what its other cases counted.
+    Before = cell_counts(),
+    Journal = cell_trace_journal:path(),
+    Serial = <<"S-77">>,
+    in_and_out(Ref, Serial, <<"r7">>),
+    ok = kill_stats(),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r7">>, entry_task := waits_a,
+                        exit_task := waits_a}}, cell_stats:product(Serial)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertEqual(#{in => 1, out => 1, good => 1, scrapped => 0}, counted_since(Before)),
+    ?assertEqual(0, cell_stats:in_cell()),
+    %% Written to the database: the journal lets its records go (told before the
+    %% flush returned; a call to it comes after that).
+    _ = sys:get_state(cell_trace_journal),
+    {ok, Trimmed} = file:read_file(Journal),
+    ?assertMatch({[], 0, 0}, cell_trace_journal:decode(Trimmed)),
+    %% Twice in a row.
+    Serial2 = <<"S-78">>,
+    in_and_out(Ref, Serial2, <<"r8">>),
+    ok = kill_stats(),
+    ok = kill_stats(),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual([entered, item_transfer_out, left], history(Serial2)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertEqual(#{in => 2, out => 2, good => 2, scrapped => 0}, counted_since(Before)),
+    ?assertEqual(0, cell_stats:in_cell()).
+
+cell_counts() ->
+    #{cell := Cell} = cell_stats:summary(total),
+    maps:with([in, out, good, scrapped], Cell).
+
+counted_since(Before) ->
+    maps:map(fun(K, V) -> V - maps:get(K, Before) end, cell_counts()).
+
+%% An operator's answer to an error of a task holding a product, given while the
+%% statistics took nothing and lost with them, is in the product's history after their
+%% restart, from the trace journal: who answered, and with what.
+an_answer_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, alarm_raised, alarm_cleared]),
+    Serial = <<"S-79">>,
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, <<"r9">>)}),
+    await_event(product_saved, Serial),
+    ok = cell_stats:flush(),
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {error, [retry, reset]}),
+    Id = receive {cell_event, #{type := alarm_raised, task := waits_a, alarm := #{id := I}}} -> I
+         after ?RETRY_WAIT_MS -> ct:fail(no_error_raised)
+         end,
+    ok = cell_alarms:answer(Id, retry, <<"operator 7">>),
+    receive {cell_event, #{type := alarm_cleared, task := waits_a}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(error_not_cleared)
+    end,
+    ok = kill_stats(),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(Serial),
+    ?assertMatch([#{event := alarm_answered, id := Id, solution := retry,
+                    who := <<"operator 7">>, task := waits_a}],
+                 [E || #{event := alarm_answered} = E <- Events]).
+
+%% A node that died after its journal took a product's entry and exit, and in the
+%% middle of writing a third record, before the statistics wrote anything: at boot the
+%% torn record is dropped and the log says so in words, and the product is recorded as
+%% entered and left, once.
+a_journal_cut_short_at_boot(Config) ->
+    %% A database and products of this case alone (mnesia is stopped): its totals are
+    %% this case's.
+    Databases = filename:join(?config(root, Config), "Databases"),
+    _ = file:del_dir_r(Databases),
+    _ = file:del_dir_r(filename:join(?config(root, Config), "Data")),
+    ok = filelib:ensure_dir(filename:join(Databases, "x")),
+    Serial = <<"S-80">>,
+    At = erlang:system_time(microsecond) - 5000000,
+    Fields = #{task => waits_a, zone => <<"waits_a">>, lane => <<"Test">>, item => Serial},
+    Records = [Fields#{id => {1, 1}, at => At, type => product_saved, in_transit => false,
+                       product => cell_product:new(Serial, <<"r10">>)},
+               Fields#{id => {1, 2}, at => At + 1000, type => item_transfer_out}],
+    Third = cell_trace_journal:encode(Fields#{id => {1, 3}, at => At + 2000,
+                                              type => item_transfer_in}),
+    ok = file:write_file(filename:join(Databases, "cell_trace.journal"),
+                         [[cell_trace_journal:encode(R) || R <- Records],
+                          binary:part(Third, 0, byte_size(Third) - 3)]),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"trace journal ">>),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r10">>, entry_task := waits_a}},
+                 cell_stats:product(Serial)),
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}}, cell_stats:summary(total)).
+
+%% A task holds a product (its file says so) that no record of the database or the
+%% journal knows (its entry was lost before the journal kept such things): it enters
+%% with the recipe of its product file, never a blank one, and the log says so.
+a_product_held_but_never_recorded(Config) ->
+    Root = ?config(root, Config),
+    _ = file:del_dir_r(filename:join(Root, "Databases")),
+    _ = file:del_dir_r(filename:join(Root, "Data")),
+    Serial = <<"S-81">>,
+    Path = cell_product:path(<<"waits_a">>, <<"Test">>),
+    ok = filelib:ensure_dir(Path),
+    ok = cell_product:save(Path, cell_product:stored(cell_product:new(Serial, <<"r11">>), 1,
+                                                     undefined)),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    Line = await_log(<<"statistics: product S-81 is held by waits_a">>),
+    ?assertNotEqual(nomatch, binary:match(Line, <<"with the recipe of its product file">>)),
+    ok = cell_stats:flush(),
+    ?assertMatch({ok, #{status := in_cell, recipe := <<"r11">>, entry_task := waits_a,
+                        events := [#{event := entered, recipe := <<"r11">>}]}},
+                 cell_stats:product(Serial)).
+
+%% A node killed after a task's exit record was durable and before the task cleared
+%% its file: after the restart the product is recorded as left, once; the task's copy
+%% is not counted again, whether the task saves it, sends it out again or lets it go,
+%% and never scrapped.
+a_product_left_but_still_in_its_file(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    Root = ?config(root, Config),
+    _ = file:del_dir_r(filename:join(Root, "Databases")),
+    _ = file:del_dir_r(filename:join(Root, "Data")),
+    Serial = <<"S-82">>,
+    Product = cell_product:new(Serial, <<"r12">>),
+    Path = cell_product:path(<<"waits_a">>, <<"Test">>),
+    ok = filelib:ensure_dir(Path),
+    ok = cell_product:save(Path, cell_product:stored(Product, 1, undefined)),
+    At = erlang:system_time(microsecond) - 5000000,
+    Fields = #{task => waits_a, zone => <<"waits_a">>, lane => <<"Test">>, item => Serial},
+    Records = [Fields#{id => {1, 1}, at => At, type => product_saved, in_transit => false,
+                       product => Product},
+               Fields#{id => {1, 2}, at => At + 1000, type => item_transfer_out}],
+    Databases = filename:join(Root, "Databases"),
+    ok = filelib:ensure_dir(filename:join(Databases, "x")),
+    ok = file:write_file(filename:join(Databases, "cell_trace.journal"),
+                         [cell_trace_journal:encode(R) || R <- Records]),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"statistics: product S-82 left the cell through waits_a">>),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The task saves its copy, sends it out again, and lets it go.
+    ok = cell_test_task:command(waits_a, Ref, {product, Product#{failed => true}}),
+    await_event(product_saved, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertMatch({ok, #{status := out, recipe := <<"r12">>}}, cell_stats:product(Serial)),
+    %% What the task did is in the history; the product left once.
+    ?assertEqual([entered, item_transfer_out, left, item_transfer_out], history(Serial)),
+    ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
+                 cell_stats:summary(total)).
+
+%% The trace journal by itself: writers at once each get their own id; its reader gets
+%% every record once, in the order of the ids, before the writers are answered; the
+%% file holds them; a trim keeps only the later ones; started again, it reads them
+%% back and its new ids come after them.
+the_journal_alone(_Config) ->
+    _ = file:delete(cell_trace_journal:path()),
+    {ok, J} = cell_trace_journal:start_link(),
+    [] = cell_trace_journal:attach(),
+    Me = self(),
+    Writers = [spawn_link(fun() ->
+                                  Ids = [begin
+                                             {ok, Id} = cell_trace_journal:append(
+                                                          #{type => test, task => waits_a,
+                                                            item => <<"W">>, n => N}),
+                                             Id
+                                         end || N <- lists:seq(1, 50)],
+                                  Me ! {ids, self(), Ids}
+                          end) || _ <- lists:seq(1, 20)],
+    Answered = lists:append([receive {ids, W, Ids} -> Ids end || W <- Writers]),
+    ?assertEqual(1000, length(lists:usort(Answered))),
+    Forwarded = forwarded(1000, []),
+    ?assertEqual(lists:sort(Answered), [Id || #{id := Id} <- Forwarded]),
+    {ok, Bin} = file:read_file(cell_trace_journal:path()),
+    {Frames, _, 0} = cell_trace_journal:decode(Bin),
+    ?assertEqual([Id || #{id := Id} <- Forwarded], [Id || {Id, _} <- Frames]),
+    Upto = lists:nth(990, lists:sort(Answered)),
+    ok = cell_trace_journal:trim(Upto),
+    Kept = lists:nthtail(990, Forwarded),
+    ?assertEqual(Kept, cell_trace_journal:attach()),
+    unlink(J),
+    ok = gen_server:stop(J),
+    {ok, J2} = cell_trace_journal:start_link(),
+    ?assertEqual(Kept, cell_trace_journal:attach()),
+    {ok, Next} = cell_trace_journal:append(#{type => test, task => waits_a}),
+    ?assert(Next > lists:max(Answered)),
+    %% Its reader had it before its writer was answered (both are this process: the
+    %% journal's messages to it arrive in the order sent).
+    receive {cell_trace_journal, [#{id := Next}]} -> ok
+    after 0 -> ct:fail(record_not_before_answer)
+    end,
+    unlink(J2),
+    ok = gen_server:stop(J2).
+
+forwarded(0, Acc) ->
+    lists:append(lists:reverse(Acc));
+forwarded(N, Acc) ->
+    receive {cell_trace_journal, Records} -> forwarded(N - length(Records), [Records | Acc])
+    after ?RETRY_WAIT_MS -> ct:fail({records_missing, N})
+    end.
+
+%% With the statistics suspended: the product enters at waits_a, leaves the cell from
+%% it, and the task forgets it.
+in_and_out(Ref, Serial, Recipe) ->
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, Recipe)}),
+    await_event(product_saved, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined).
+
+await_event(Type, Serial) ->
+    receive {cell_event, #{type := Type, task := waits_a, item := Serial}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail({no_event, Type, Serial})
+    end.
+
+%% Kills the statistics and returns once their supervisor has started them again.
+kill_stats() ->
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    _ = supervisor:which_children(cell_controller_sup),
+    ok.
+
+history(Serial) ->
+    {ok, #{events := Events}} = cell_stats:product(Serial),
+    [E || #{event := E} <- Events].
 
 %% The task saves the product; returns once the statistics have written what it did.
 save(Ref, Product) ->

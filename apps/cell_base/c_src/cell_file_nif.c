@@ -729,6 +729,90 @@ static ERL_NIF_TERM record_put_handle(ErlNifEnv *env, int argc, const ERL_NIF_TE
     return result;
 }
 
+/* -- Append files ---------------------------------------------------------------------
+ *
+ * A journal: data appended at the end of one file by its one writer, through a handle
+ * that keeps it open, each append one write (and one fdatasync when asked). In a folder
+ * held in RAM the append runs on the calling scheduler, as the other writes do. */
+
+typedef struct {
+    int fd;
+} app_handle;
+
+static ErlNifResourceType *app_handle_type;
+
+static void app_dtor(ErlNifEnv *env, void *obj)
+{
+    app_handle *h = obj;
+
+    (void)env;
+    if (h->fd >= 0)
+        close(h->fd);
+}
+
+/* append_open(Path): {ok, Handle} or {error, {open, Errno}}; the file is created if it
+ * does not exist. */
+static ERL_NIF_TERM append_open(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    char path[PATH_MAX];
+    app_handle *h;
+    ERL_NIF_TERM term;
+    int fd;
+
+    (void)argc;
+    if (!get_path(env, argv[0], path, sizeof path))
+        return enif_make_badarg(env);
+    do { fd = open(path, O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644); }
+    while (fd < 0 && errno == EINTR);
+    if (fd < 0)
+        return error2(env, "open", errno);
+    h = enif_alloc_resource(app_handle_type, sizeof *h);
+    if (h == NULL) {
+        close(fd);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    h->fd = fd;
+    term = enif_make_resource(env, h);
+    enif_release_resource(h);
+    return enif_make_tuple2(env, enif_make_atom(env, "ok"), term);
+}
+
+/* append(Handle, Data, Sync): ok, or {error, {write | sync, Errno}}. */
+static ERL_NIF_TERM append(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    app_handle *h;
+    ErlNifBinary data;
+    int sync, err;
+
+    (void)argc;
+    if (!enif_get_resource(env, argv[0], app_handle_type, (void **)&h) ||
+        !enif_inspect_iolist_as_binary(env, argv[1], &data) || !get_bool(env, argv[2], &sync))
+        return enif_make_badarg(env);
+    if (h->fd < 0)
+        return error2(env, "write", EBADF);
+    err = write_all(h->fd, data.data, data.size);
+    if (err != 0)
+        return error2(env, "write", err);
+    if (sync && fdatasync(h->fd) < 0)
+        return error2(env, "sync", errno);
+    return enif_make_atom(env, "ok");
+}
+
+/* append_close(Handle): closes the file now (the handle is unusable after). */
+static ERL_NIF_TERM append_close(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    app_handle *h;
+
+    (void)argc;
+    if (!enif_get_resource(env, argv[0], app_handle_type, (void **)&h))
+        return enif_make_badarg(env);
+    if (h->fd >= 0) {
+        close(h->fd);
+        h->fd = -1;
+    }
+    return enif_make_atom(env, "ok");
+}
+
 /* writing(Path): whether a replacement or deletion of Path is under way. */
 static ERL_NIF_TERM writing(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -793,6 +877,10 @@ static ErlNifFunc funcs[] = {
     {"record_open_nif", 1, record_open, 0},
     {"record_put_handle_nif", 3, record_put_handle, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"record_put_handle_ram_nif", 3, record_put_handle, 0},
+    {"append_open_nif", 1, append_open, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"append_nif", 3, append, ERL_NIF_DIRTY_JOB_IO_BOUND},
+    {"append_ram_nif", 3, append, 0},
+    {"append_close_nif", 1, append_close, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"writing_nif", 1, writing, 0},
     {"settle_nif", 1, settle, ERL_NIF_DIRTY_JOB_IO_BOUND}
 };
@@ -810,9 +898,12 @@ static int load(ErlNifEnv *env, void **priv_data, ERL_NIF_TERM load_info)
     if (getrlimit(RLIMIT_NOFILE, &lim) == 0)
         kept_max = lim.rlim_cur == RLIM_INFINITY || lim.rlim_cur / 4 > 4096
             ? 4096 : (int)(lim.rlim_cur / 4);
+    app_handle_type = enif_open_resource_type(env, NULL, "cell_file_append", app_dtor,
+                                              ERL_NIF_RT_CREATE, NULL);
     flight_lock = enif_mutex_create("cell_file_in_flight");
     flight_change = enif_cond_create("cell_file_in_flight");
-    return rec_handle_type == NULL || flight_lock == NULL || flight_change == NULL;
+    return rec_handle_type == NULL || app_handle_type == NULL || flight_lock == NULL ||
+        flight_change == NULL;
 }
 
 ERL_NIF_INIT(cell_file, funcs, load, NULL, NULL, NULL)

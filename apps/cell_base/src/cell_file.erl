@@ -27,9 +27,10 @@
 -export([write/2, write/3, delete/1, delete/2, fsync_dir/1]).
 -export([write_term/2, write_term/3, read_term/1, encode_term/1, decode_term/1]).
 -export([put_record/2, put_record/3, get_record/1, record_file/1]).
+-export([append_file/1, append/3, close_append/1]).
 -export([cleanup/1, in_ram/1]).
 
--export_type([options/0, error/0, record_file/0]).
+-export_type([options/0, error/0, record_file/0, append_file/0]).
 
 -on_load(load_nif/0).
 
@@ -38,6 +39,8 @@
 -type error() :: {error, {file:filename_all(), term()}}.
 -opaque record_file() :: {record_file, Path :: binary(), Folder :: binary(), reference()}.
 %% A record file kept open by its writer (see {@link record_file/1}).
+-opaque append_file() :: {append_file, Path :: binary(), Folder :: binary(), reference()}.
+%% A file appended to by its one writer (see {@link append_file/1}).
 
 -define(MAGIC, "cellrt-term 1\n").
 -define(TMP_MARK, ".tmp-").
@@ -102,6 +105,42 @@ in_c(Path, Folder, Opts, InRam, OnDisk) ->
 record_file(Path) ->
     Target = native(Path),
     {record_file, Target, folder(Target), record_open_nif(Target)}.
+
+%% @doc Opens `Path' (created if missing) for its one writer to append to it with
+%% {@link append/3}; closed by {@link close_append/1} or when no longer referenced. A
+%% crash during an append may leave its data cut short at the end of the file: the
+%% reader must recognise a torn tail.
+-spec append_file(file:filename_all()) -> {ok, append_file()} | error().
+append_file(Path) ->
+    Target = native(Path),
+    case append_open_nif(Target) of
+        {ok, Handle} -> {ok, {append_file, Target, folder(Target), Handle}};
+        {error, {_, Reason}} -> {error, {Path, Reason}}
+    end.
+
+%% @doc Appends `Data' in one write and flushes it to the disk (not in a folder held in
+%% RAM, nor with `sync => false'); returns once it is there.
+-spec append(append_file(), iodata(), options()) -> ok | error().
+append({append_file, Target, Folder, Handle}, Data, Opts) ->
+    in_c(Target, Folder, Opts, fun(Sync) -> append_ram_nif(Handle, Data, Sync) end,
+         fun(Sync) -> append_nif(Handle, Data, Sync) end).
+
+%% @doc Closes an append file now.
+-spec close_append(append_file()) -> ok.
+close_append({append_file, _, _, Handle}) ->
+    append_close_nif(Handle).
+
+append_open_nif(_Path) ->
+    erlang:nif_error(nif_not_loaded).
+
+append_nif(_Handle, _Data, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
+append_ram_nif(_Handle, _Data, _Sync) ->
+    erlang:nif_error(nif_not_loaded).
+
+append_close_nif(_Handle) ->
+    erlang:nif_error(nif_not_loaded).
 
 %% @doc Flushes a folder's entries (renames, creations, deletions) to the disk.
 -spec fsync_dir(file:filename_all()) -> ok | {error, file:posix()}.
@@ -604,6 +643,24 @@ ram_dir() ->
                         ++ integer_to_list(erlang:unique_integer([positive]))),
     ok = file:make_dir(Dir),
     Dir.
+
+append_test_() ->
+    on_disk_and_in_ram(fun append_in/1).
+
+append_in(Dir) ->
+    Path = filename:join(Dir, "a.journal"),
+    {ok, A} = append_file(Path),
+    ok = append(A, <<"one ">>, #{}),
+    ok = append(A, [<<"two">>, " "], #{sync => false}),
+    %% Opened again: appended after what is there.
+    {ok, B} = append_file(Path),
+    ok = append(B, <<"three">>, #{}),
+    ?assertEqual({ok, <<"one two three">>}, file:read_file(Path)),
+    ok = close_append(A),
+    ?assertMatch({error, {_, ebadf}}, append(A, <<"x">>, #{})),
+    ok = close_append(B),
+    Missing = filename:join([Dir, "no_such_folder", "a.journal"]),
+    ?assertEqual({error, {Missing, enoent}}, append_file(Missing)).
 
 errors_name_the_file_test() ->
     Dir = tmp_dir(),

@@ -3,7 +3,8 @@
 %% /api/alarms/:id/answer' with `{"solution": "retry"}' — an operator's answer, only
 %% one of the error's own solutions (a warning's only solution is `close'). An answer
 %% that would let a task go on with a product another task holds too is refused with
-%% 409 `double_holding', naming the serial and the other tasks; the error stays.
+%% 409 `double_holding', naming the serial and the other tasks; the error stays. One
+%% that cannot be recorded in the product trace is refused with 503 `not_recorded'.
 -module(cell_web_alarms_h).
 -behaviour(cowboy_handler).
 
@@ -54,6 +55,12 @@ handle(answer, Req0, Caller0) ->
                                " too. Check where it is and select RESET on the error of the "
                                "task where it is not"],
                               #{serial => Serial, held_by => Names, detail => Detail});
+        {error, {not_recorded, Why}} ->
+            cell_web_req:fail(503, not_recorded,
+                              [Id, " not answered: the answer could not be recorded in the "
+                               "product trace (", io_lib:format("~0p", [Why]), "). Check the "
+                               "disc of the cell PC, then answer again"],
+                              #{detail => Detail});
         {error, {not_allowed, Allowed}} ->
             cell_web_req:fail(422, solution_not_allowed,
                               [Id, " does not offer ", atom_to_binary(Solution, utf8)],

@@ -72,8 +72,8 @@ line(L) ->
 product(undefined) -> null;
 product(P) -> term(P).
 
-%% @doc Any event of `cell_events'; states by their names, the monotonic stamp left
-%% out (it means nothing outside this node).
+%% @doc Any event of `cell_events'; states by their names, the monotonic stamp and the
+%% trace journal's id and time left out (they mean nothing outside this node).
 -spec event(map()) -> map().
 event(E) ->
     maps:fold(fun(K, V, Acc) when K =:= state; K =:= from ->
@@ -81,6 +81,10 @@ event(E) ->
                  (alarm, V, Acc) ->
                       Acc#{<<"alarm">> => alarm(V)};
                  (mono, _, Acc) ->
+                      Acc;
+                 %% The id and time of the event's record in the trace journal: the
+                 %% runtime's own.
+                 (K, _, Acc) when K =:= journal; K =:= at ->
                       Acc;
                  (K, V, Acc) ->
                       Acc#{key(K) => term(V)}

@@ -1,0 +1,78 @@
+%% @doc The decisions of {@link cell_stats} about a product's way, without processes:
+%% which record of the trace journal is still to apply, and when a product no task
+%% holds is taken for scrapped.
+%%
+%% A record of the journal ({@link cell_trace_journal}) is applied once: the
+%% statistics write, with their counters, the id of the last record applied, once
+%% what the records wrote to the histories is durable; a record at or before that id
+%% is never applied again. Ids grow in the order of the journal, across restarts.
+-module(cell_stats_trace).
+
+-export([fresh/3, latest/2, unheld/2, left_after_scrap/1]).
+
+-export_type([unheld/0]).
+
+-type unheld() :: held | {wait, pos_integer()} | scrap.
+
+%% @doc Whether the record `Id' is still to apply: after the last durable one, and not
+%% applied already from its event (`Seen').
+-spec fresh(cell_trace_journal:id(), cell_trace_journal:id() | undefined,
+            #{cell_trace_journal:id() => true}) -> boolean().
+fresh(Id, Saved, Seen) ->
+    (Saved =:= undefined orelse Id > Saved) andalso not maps:is_key(Id, Seen).
+
+%% @doc The later of two ids (either may be none yet).
+-spec latest(cell_trace_journal:id() | undefined, cell_trace_journal:id() | undefined) ->
+          cell_trace_journal:id() | undefined.
+latest(undefined, B) -> B;
+latest(A, undefined) -> A;
+latest(A, B) -> max(A, B).
+
+%% @doc A product no task of the statistics' records holds, seen so `N' writes in a row
+%% before, with the tasks the registry has holding it now: `held' when one does (its
+%% event is on its way), `{wait, N + 1}' the first time, `scrap' the second (about two
+%% seconds with no holder: a hand-over takes far less).
+-spec unheld(non_neg_integer(), [term()]) -> unheld().
+unheld(_N, [_ | _]) -> held;
+unheld(0, []) -> {wait, 1};
+unheld(_N, []) -> scrap.
+
+%% @doc What to do when a product leaves the cell that the statistics do not hold any
+%% more, by its summary as written: one taken for scrapped is corrected (its exit is
+%% durable, so it left); one already out is counted once only.
+-spec left_after_scrap(map() | undefined) -> count | {uncount_scrap, atom()} | already_out.
+left_after_scrap(#{status := scrapped, exit_task := By}) -> {uncount_scrap, By};
+left_after_scrap(#{status := out}) -> already_out;
+left_after_scrap(_) -> count.
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+fresh_test_() ->
+    [?_assert(fresh({1, 1}, undefined, #{})),
+     ?_assertNot(fresh({1, 1}, {1, 1}, #{})),
+     ?_assertNot(fresh({1, 1}, {1, 2}, #{})),
+     ?_assert(fresh({1, 3}, {1, 2}, #{})),
+     %% A later incarnation's ids come after every id of an earlier one.
+     ?_assert(fresh({2, 1}, {1, 900}, #{})),
+     ?_assertNot(fresh({1, 3}, {1, 2}, #{{1, 3} => true}))].
+
+latest_test_() ->
+    [?_assertEqual(undefined, latest(undefined, undefined)),
+     ?_assertEqual({1, 2}, latest(undefined, {1, 2})),
+     ?_assertEqual({1, 2}, latest({1, 2}, undefined)),
+     ?_assertEqual({2, 1}, latest({1, 9}, {2, 1}))].
+
+unheld_test_() ->
+    [?_assertEqual(held, unheld(0, [{t, 1}])),
+     ?_assertEqual(held, unheld(1, [{t, 1}])),
+     ?_assertEqual({wait, 1}, unheld(0, [])),
+     ?_assertEqual(scrap, unheld(1, []))].
+
+left_after_scrap_test_() ->
+    [?_assertEqual(count, left_after_scrap(undefined)),
+     ?_assertEqual({uncount_scrap, t}, left_after_scrap(#{status => scrapped,
+                                                          exit_task => t})),
+     ?_assertEqual(already_out, left_after_scrap(#{status => out, exit_task => t}))].
+
+-endif.
