@@ -106,7 +106,7 @@ run(#{node_kills := NK, proc_kills := PK, seed := Seed, root := Root} = Opts) ->
            node_kills => 0, deaths => 0, proc_kills => 0, by_kind => #{},
            answers => #{}, refused => 0, candidates => #{}, double => #{},
            wedged => [], stalled => [], agent => undefined, drained => false,
-           restarts => 0},
+           restarts => 0, silent_stops => []},
     log(H0, "seed ~b: ~b node kills, ~b process kills; root ~ts; node ~s",
         [Seed, NK, PK, Root, Node]),
     Shares = shares(PK, NK + 1),
@@ -144,7 +144,11 @@ cycle(I, Share, #{opts := #{node_kills := NK}} = H) ->
             true ->
                 H2;
             false ->
-                {Ms, H3} = uniform(3000, await_progress(H2)),
+                %% (A life the line stood still in is not waited for twice.)
+                {Ms, H3} = uniform(3000, case maps:get(life_quiet, H2, false) of
+                                             true -> H2;
+                                             false -> await_progress(H2)
+                                         end),
                 H4 = pause(Ms, H3),
                 sigkill(H4)
         end
@@ -185,7 +189,7 @@ up(#{port := undefined, node := Node, opts := Opts, boots := B} = H) ->
     Started = call(H1, cell_controller, start, [?WHO]),
     log(H1, "node up (boot ~b, OS pid ~s) in ~.1f s; Start: ~p",
         [B + 1, OsPid, (erlang:monotonic_time(millisecond) - T0) / 1000, Started]),
-    H1#{ospid => OsPid, agent := Agent};
+    H1#{ospid => OsPid, agent := Agent, life_quiet => false};
 up(H) ->
     H.
 
@@ -287,11 +291,13 @@ held_safe(H) ->
 %% Waits for a product to move, or the operator in the node to say none moved for
 %% the window.
 await_progress(#{opts := #{wedge_ms := WedgeMs}} = H) ->
-    Deadline = erlang:monotonic_time(millisecond) + WedgeMs + 30000,
+    %% The operator reports at the end of a window; the window may have begun just
+    %% before this wait.
+    Deadline = erlang:monotonic_time(millisecond) + 2 * WedgeMs + 30000,
     await_progress(Deadline, H).
 
 await_progress(Deadline, #{port := Port} = H) ->
-    Wedges = length(maps:get(wedged, H)) + length(maps:get(stalled, H)),
+    Wedges = quiet_reports(H),
     Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
     receive
         {Port, {data, _}} ->
@@ -304,9 +310,9 @@ await_progress(Deadline, #{port := Port} = H) ->
             await_progress(Deadline, respawn_agent(Why, H));
         {chaos, Report} ->
             H1 = note(Report, H),
-            case length(maps:get(wedged, H1)) + length(maps:get(stalled, H1)) of
+            case quiet_reports(H1) of
                 Wedges -> await_progress(Deadline, H1);
-                _ -> H1
+                _ -> H1#{life_quiet => true}
             end
     after Left ->
         log(H, "no product moved and the operator in the node reported nothing: cell ~p, "
@@ -314,6 +320,9 @@ await_progress(Deadline, #{port := Port} = H) ->
                            catch call(H, cell_registry, control, [request])]),
         H
     end.
+
+quiet_reports(H) ->
+    lists:sum([length(maps:get(K, H)) || K <- [wedged, stalled, silent_stops]]).
 
 %% Waits `Ms', taking what the operator in the node reports meanwhile.
 pause(Ms, H) ->
@@ -367,6 +376,10 @@ note({restarted, Ms, Result}, #{restarts := R} = H) ->
 note({operator_fault, C, R}, H) ->
     log(H, "the operator in the node could not read the cell for a moment: ~p:~0p", [C, R]),
     H;
+note({silent_stop, What}, #{silent_stops := S} = H) ->
+    log(H, "the cell stood stopped for the window, panels in it, and no event told the "
+        "operator: ~ts", [tasks_text(What)]),
+    H#{silent_stops := [What | S]};
 note({progress, _}, H) ->
     H;
 note({state, _}, H) ->
@@ -400,7 +413,7 @@ drain(Deadline, H) ->
             log(H, "drained", []),
             H#{drained := true};
         #{panels := Panels, upstream := Up} ->
-            Wedged = length(maps:get(wedged, H)) + length(maps:get(stalled, H)),
+            Wedged = quiet_reports(H),
             Left = Deadline - erlang:monotonic_time(millisecond),
             case Left > 0 of
                 false ->
@@ -409,7 +422,7 @@ drain(Deadline, H) ->
                     H;
                 true ->
                     H1 = next_report(Deadline, H),
-                    case length(maps:get(wedged, H1)) + length(maps:get(stalled, H1)) of
+                    case quiet_reports(H1) of
                         Wedged -> drain(Deadline, H1);
                         _ ->
                             log(H1, "the line stopped draining: ~ts in the machine",
@@ -591,14 +604,16 @@ report(#{view := View, opts := Opts} = H, Secs) ->
                "panels made ~b, in ~b, out ~b (delivered ~b), scrapped ~b (in the bin ~b), "
                "in the machine ~b, waiting ~b; node kills ~b, node deaths on their own ~b, "
                "boots ~b; process kills ~b (~ts); answers ~ts, refused ~b; Start pressed "
-               "again after the tasks restarted ~b; stalls with errors ~b; drained: ~s",
+               "again after the tasks restarted ~b; stalls with errors ~b; silent stops ~b; "
+               "drained: ~s",
                [maps:get(made, Phys), maps:get(in, Cell, 0), maps:get(out, Cell, 0),
                 maps:get(delivered, Phys), maps:get(scrapped, Cell, 0), maps:get(scrapped, Phys),
                 maps:get(in_machine, Phys), maps:get(waiting, Phys),
                 maps:get(node_kills, H), maps:get(deaths, H), maps:get(boots, H),
                 maps:get(proc_kills, H), kinds_text(maps:get(by_kind, H)),
                 kinds_text(maps:get(answers, H)), maps:get(refused, H),
-                maps:get(restarts, H), length(maps:get(stalled, H)), maps:get(drained, H)]),
+                maps:get(restarts, H), length(maps:get(stalled, H)),
+                length(maps:get(silent_stops, H)), maps:get(drained, H)]),
     Counts = [io_lib:format("~s ~b", [C, N]) || {C, N} <- Cols],
     log(H, "~ts", [lists:join(", ", Counts)]),
     log(H, "~ts", [Totals]),
@@ -610,7 +625,10 @@ report(#{view := View, opts := Opts} = H, Secs) ->
               table("Left but recorded scrapped", maps:get(left_scrapped, Books)),
               table("Stalled with errors answered (not a column)",
                     [{serials_text(maps:get(serials, W)), tasks_text(W)}
-                     || W <- lists:reverse(maps:get(stalled, H))])],
+                     || W <- lists:reverse(maps:get(stalled, H))]),
+              table("Stopped under the operator's feet, no event said so (not a column)",
+                    [{serials_text(maps:get(serials, W)), tasks_text(W)}
+                     || W <- lists:reverse(maps:get(silent_stops, H))])],
     {{Y, Mo, D}, {Hh, Mi, _}} = calendar:universal_time(),
     Doc = ["# Chaos test\n\n",
            io_lib:format("Written by `~ts` on ~4..0w-~2..0w-~2..0w ~2..0w:~2..0w UTC, OTP ~s, "
@@ -852,14 +870,21 @@ quiet_check(#{harness := H, errors := Errors} = A) ->
     Held = held(),
     #{panels := Panels, upstream := Up} = machine(),
     Errors1 = Errors + length([x || #{kind := error} <- cell_alarms:list()]),
-    case cell_registry:control(request) =:= start andalso (Held =/= [] orelse Panels =/= []
-                                                          orelse Up =/= []) of
-        true ->
-            What = #{serials => lists:usort([S || {S, _} <- Held] ++ Panels),
-                     tasks => [{Id, St, maps:get(serial, T, undefined)}
-                               || #{id := Id, state := St} = T <- cell_controller:tasks()]},
-            H ! {chaos, case Errors1 of 0 -> {wedged, What}; _ -> {stalled, What} end};
-        false ->
+    What = fun() -> #{serials => lists:usort([S || {S, _} <- Held] ++ Panels),
+                      tasks => [{Id, St, maps:get(serial, T, undefined)}
+                                || #{id := Id, state := St} = T <- cell_controller:tasks()]}
+           end,
+    Work = Held =/= [] orelse Panels =/= [] orelse Up =/= [],
+    case {cell_registry:control(request), Work, Errors1} of
+        {start, true, 0} ->
+            H ! {chaos, {wedged, What()}};
+        {start, true, _} ->
+            H ! {chaos, {stalled, What()}};
+        {_, true, _} when map_get(producing, A) ->
+            %% Stopped under the operator's feet for a whole window, and no event of
+            %% the cell said so: the operator presses Start now (restart_cell/2).
+            H ! {chaos, {silent_stop, What()}};
+        _ ->
             ok
     end,
     restart_cell(off, A#{errors := 0}).
