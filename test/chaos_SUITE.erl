@@ -5,7 +5,8 @@
 %% simulated machine's own ledger. Nothing lost, duplicated, double-held, wedged, or
 %% left but recorded scrapped.
 %%
-%% CHAOS_SEED chooses the seed (a fixed one otherwise, so a failure can be repeated).
+%% CHAOS_SEED chooses the seed (a fixed one otherwise, so a failure can be repeated),
+%% CHAOS_NODE the node's short name.
 -module(chaos_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -46,7 +47,10 @@ kills_lose_nothing(Config) ->
     Opts = (cellrt_chaos:default_opts())#{
              node_kills => 5, proc_kills => 30, seed => Seed,
              root => filename:join(Priv, "chaos_SUITE.root"),
-             node => "cellrt_ct_chaos_" ++ os:getpid(),
+             node => case os:getenv("CHAOS_NODE") of
+                         false -> "cellrt_ct_chaos_" ++ os:getpid();
+                         Name -> Name
+                     end,
              web_port => "0", shdr_port => "0",
              out => filename:join(Priv, "chaos_SUITE.out"),
              command => io_lib:format("chaos_SUITE, CHAOS_SEED=~b", [Seed]),
