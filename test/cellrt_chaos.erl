@@ -592,7 +592,9 @@ report(#{view := View, opts := Opts} = H, Secs) ->
                         maps:from_list([{S, lists:usort([T || {S1, T} <- EndHeld, S1 =:= S])}
                                         || {S, _} <- EndHeld,
                                            length([x || {S1, _} <- EndHeld, S1 =:= S]) > 1])),
-    Wedged = lists:reverse(maps:get(wedged, H)),
+    %% A wedge the node's restarts did not clear is reported at each life: counted once,
+    %% by the panels it holds, with how often it was seen.
+    Wedged = distinct(lists:reverse(maps:get(wedged, H))),
     Cols = [{"lost", length(maps:get(lost, Books))},
             {"duplicated", length(maps:get(duplicated, Books))},
             {"double-held", maps:size(Double)},
@@ -621,11 +623,14 @@ report(#{view := View, opts := Opts} = H, Secs) ->
               table("Duplicated", maps:get(duplicated, Books)),
               table("Double-held", [{S, "held by " ++ lists:join(" and ", [atom_to_list(T) || T <- Ts])}
                                     || {S, Ts} <- maps:to_list(Double)]),
-              table("Wedged", [{serials_text(maps:get(serials, W)), tasks_text(W)} || W <- Wedged]),
+              table("Wedged", [{serials_text(maps:get(serials, W)),
+                                [io_lib:format("seen ~b time(s), first: ", [N]), tasks_text(W)]}
+                               || {W, N} <- Wedged]),
               table("Left but recorded scrapped", maps:get(left_scrapped, Books)),
               table("Stalled with errors answered (not a column)",
-                    [{serials_text(maps:get(serials, W)), tasks_text(W)}
-                     || W <- lists:reverse(maps:get(stalled, H))]),
+                    [{serials_text(maps:get(serials, W)),
+                      [io_lib:format("seen ~b time(s), first: ", [N]), tasks_text(W)]}
+                     || {W, N} <- distinct(lists:reverse(maps:get(stalled, H)))]),
               table("Stopped under the operator's feet, no event said so (not a column)",
                     [{serials_text(maps:get(serials, W)), tasks_text(W)}
                      || W <- lists:reverse(maps:get(silent_stops, H))])],
@@ -653,8 +658,19 @@ report(#{view := View, opts := Opts} = H, Secs) ->
     end,
     #{counts => maps:from_list(Cols), clean => lists:all(fun({_, N}) -> N =:= 0 end, Cols),
       lost => maps:get(lost, Books), duplicated => maps:get(duplicated, Books),
-      double_held => Double, wedged => Wedged, left_scrapped => maps:get(left_scrapped, Books),
+      double_held => Double, wedged => [W || {W, _} <- Wedged], left_scrapped => maps:get(left_scrapped, Books),
       totals => iolist_to_binary(Totals), report => iolist_to_binary(Doc)}.
+
+%% Reports of one stand-still, once each (the first), with how often each was seen.
+distinct(Reports) ->
+    Keys = lists:foldl(fun(#{serials := S}, Acc) ->
+                               case lists:keymember(S, 1, Acc) of
+                                   true -> Acc;
+                                   false -> Acc ++ [{S, length([x || #{serials := S1} <- Reports,
+                                                                     S1 =:= S])}]
+                               end
+                       end, [], Reports),
+    [{hd([R || #{serials := S1} = R <- Reports, S1 =:= S]), N} || {S, N} <- Keys].
 
 table(Title, []) ->
     ["\n## ", Title, "\n\nNone.\n"];
