@@ -6,7 +6,7 @@ REBAR ?= rebar3
 export ERL_LIBS := $(CURDIR)/_debdeps
 export CELLRT_TOP := $(CURDIR)
 
-.PHONY: all setup setup-test compile release run test bench soak dist clean
+.PHONY: all setup setup-test compile release run test bench soak chaos dist clean
 
 all: compile
 
@@ -38,6 +38,13 @@ bench: setup-test
 ## queues over time; not part of `make test`. A run of 30 minutes rewrites docs/soak.md.
 soak: setup
 	@scripts/bench soak
+
+## The chaos test: the release killed CHAOS_NODE_KILLS times (default 200) and
+## CHAOS_PROC_KILLS processes in it (default 1000), CHAOS_SEED; every serial reconciled
+## with the simulated machine. Not part of `make test` (its bounded form is). A run at
+## full size rewrites docs/chaos.md.
+chaos: setup
+	@scripts/chaos
 
 ## A self-contained tarball of the release with ERTS.
 dist: setup

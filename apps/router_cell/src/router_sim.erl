@@ -9,7 +9,20 @@
 %% modules in the upper robot's gripper and on each unloading segment, the robots'
 %% positions, and what was delivered to the next machine or dropped into the scrap bin.
 %% The world is saved in `Data/router_sim.world' whenever a panel moves, so a
-%% restarted machine finds its panels where they were, as a real one would.
+%% restarted machine finds its panels where they were, as a real one would. It is saved
+%% before the sensors show the move: whatever the tasks saw of the machine is in the
+%% file, so a kill of the node at any moment leaves the file telling where every panel
+%% physically is (the write is not flushed: a power cut may lose the last moves).
+%%
+%% The world keeps the machine's own ledger of what left it, `ledger' (newest first):
+%% `{Serial, delivered}' for modules the next machine took, `{Serial, scrapped}' for
+%% modules that fell into the scrap bin. Modules fall into the bin when the gripper
+%% opens anywhere but over a free unloading segment or their own nest: that is where
+%% the modules of a product the operator gave up on ("Product lost", Reset) go, the
+%% upper robot opening its gripper at home. A frame left in a fixture is not the
+%% product (its modules are in the gripper or beyond); frames leave by the fixture's
+%% eject and are only counted. The simulated machine has no operator's hand taking a
+%% panel out: a panel the cell forgets stays where it is.
 %%
 %% <ul>
 %% <li>Panels arrive at the previous machine's output at the `router_sim' settings'
@@ -65,8 +78,9 @@
 start_link(#{lanes := Lanes} = Opts) when is_list(Lanes) ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, Opts, []).
 
-%% @doc The world as it is now: where every panel is, and the counters `arrived',
-%% `delivered', `scrapped' and `frames'.
+%% @doc The world as it is now: where every panel is, the counters `arrived',
+%% `delivered', `scrapped' and `frames', and the machine's `ledger' of what left it
+%% (see the module doc).
 -spec world() -> map().
 world() ->
     gen_server:call(?MODULE, world).
@@ -306,23 +320,27 @@ gripper(false, #{world := #{gripper := empty}} = S) ->
 %% Modules let go of anywhere but on a free unloading segment or back in their nest
 %% fall into the scrap bin.
 gripper(false, #{world := #{gripper := Serial, upper_at := At} = W} = S) ->
-    S1 = set(set(S#{lost := undefined}, upper, none, gripper_closed, false),
-             upper, none, product_present, false),
-    S2 = S1#{world := (maps:get(world, S1))#{gripper := empty}},
-    save(case At of
-             {unloading, L} ->
-                 case maps:get(L, maps:get(unloading, W)) of
-                     empty -> set(world(S2, unloading, L, {Serial, entry}), unloading, L,
-                                  panel_at_entry, true);
-                     _ -> scrap(S2)
-                 end;
-             {nest, L} ->
-                 case maps:get(L, maps:get(work, W)) of
-                     {Serial, full} -> S2;             %% put back in the nest
-                     _ -> scrap(S2)
-                 end;
-             _ ->
-                 scrap(S2)
+    %% Where the modules went is in the world (and saved) before the sensors show the
+    %% gripper open.
+    S1 = S#{lost := undefined, world := W#{gripper := empty}},
+    {S2, Placed} = case At of
+                       {unloading, L} ->
+                           case maps:get(L, maps:get(unloading, W)) of
+                               empty -> {world(S1, unloading, L, {Serial, entry}), L};
+                               _ -> {scrap(Serial, S1), none}
+                           end;
+                       {nest, L} ->
+                           case maps:get(L, maps:get(work, W)) of
+                               {Serial, full} -> {S1, none};      %% put back in the nest
+                               _ -> {scrap(Serial, S1), none}
+                           end;
+                       _ ->
+                           {scrap(Serial, S1), none}
+                   end,
+    S3 = set(set(S2, upper, none, gripper_closed, false), upper, none, product_present, false),
+    save(case Placed of
+             none -> S3;
+             _ -> set(S3, unloading, Placed, panel_at_entry, true)
          end).
 
 %%====================================================================
@@ -406,12 +424,12 @@ try_start(unload, L, #{world := W} = S) ->
 try_start(handout, L, #{world := W, busy := Busy} = S) ->
     case {slot(W, unloading, L), out(S, unloading, L, belt_run)
           andalso out(S, unloading, L, board_available), maps:get(L, Busy, false)} of
-        {{_Serial, exit}, true, false} ->
+        {{Serial, exit}, true, false} ->
             conveyor({handout, L}, handout_ms,
                      [{1.0, fun(X) ->
-                                    X1 = set(world(X, unloading, L, empty), unloading, L,
-                                             panel_at_exit, false),
-                                    X2 = count(delivered, X1),
+                                    X0 = ledger(Serial, delivered,
+                                                count(delivered, world(X, unloading, L, empty))),
+                                    X2 = set(X0, unloading, L, panel_at_exit, false),
                                     %% The next machine is busy with them for a while.
                                     X3 = set(X2#{busy := (maps:get(busy, X2))#{L => true}},
                                              unloading, L, downstream_ready, false),
@@ -548,7 +566,8 @@ empty_world(Lanes) ->
     Empty = maps:from_list([{L, empty} || L <- Lanes]),
     #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
       unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
-      next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0}}.
+      next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0},
+      ledger => []}.
 
 %% A world read back: a panel that was entering the loading segment is back at the
 %% previous machine (the belt stopped under it); lanes the machine no longer has are
@@ -626,13 +645,24 @@ queued(W) ->
 count(Key, #{world := #{counters := C} = W} = S) ->
     S#{world := W#{counters := C#{Key => maps:get(Key, C, 0) + 1}}}.
 
-scrap(S) ->
-    cell_log:info(router, "simulated router: modules dropped into the scrap bin", []),
-    count(scrapped, S).
+scrap(Serial, S) ->
+    cell_log:info(router, "simulated router: modules of ~ts dropped into the scrap bin",
+                  [Serial]),
+    ledger(Serial, scrapped, count(scrapped, S)).
+
+%% What left the machine, and how.
+ledger(Serial, How, #{world := W} = S) ->
+    S#{world := W#{ledger := [{Serial, How} | maps:get(ledger, W, [])]}}.
+
+%% The world saved if it changed since it was last saved: the sensors never show the
+%% tasks a world the file does not have.
+durable(#{world := W, saved := W} = S) -> S;
+durable(#{world := _} = S) -> save(S);
+durable(S) -> S.
 
 save(#{world := W} = S) ->
     case cell_file:write_term(path(), W, #{sync => false}) of
-        ok -> S;
+        ok -> S#{saved => W};
         {error, Why} ->
             cell_log:error(router, "the simulated world could not be saved to ~ts: ~tp",
                            [path(), Why]),
@@ -659,8 +689,10 @@ position(_) -> home.
 %% The PLC and the settings
 %%====================================================================
 
-%% Sets an input of a segment's (or a robot's) group in the simulated PLC.
-set(S, Kind, L, Point, V) ->
+%% Sets an input of a segment's (or a robot's) group in the simulated PLC, the world
+%% saved first.
+set(S0, Kind, L, Point, V) ->
+    S = durable(S0),
     Group = case Kind of
                 lower -> lower_io;
                 upper -> upper_io;
