@@ -263,15 +263,23 @@ step(placing, _Woken, T) ->
             wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false)
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(T, full, idle);
+    router_task:interrupted(T, full, idle, fun put_down/1);
 step(released, _Woken, T) ->
     %% Given back: the modules are gripped again, to be offered again.
     router_task:finish(T, next(T), idle, full,
                        fun(aborted, T1) -> cell_task:out(T1, gripper_close, true);
                           (_, T1) -> T1
-                       end);
-step(in_transit, _Woken, T) ->
-    {continue, phase(cell_handshake:confirm_here(T), to_unloading)}.
+                       end, fun put_down/1);
+step(in_transit, _Woken, T0) ->
+    %% The operator said the modules are at this robot: the gripper says whether in
+    %% it; if not, they are where the cut-off transfer had them, in the nest (from the
+    %% routing robot) or put down on the unloading conveyor (to it).
+    T = cell_handshake:confirm_here(T0),
+    case {cell_task:in(T, product_present), cell_task:get(T, transit_have, undefined)} of
+        {true, _} -> {continue, phase(cell_task:out(T, gripper_close, true), to_unloading)};
+        {false, full} -> {continue, phase(T, full)};
+        {false, _} -> {continue, phase(cell_task:out(T, gripper_close, false), regrip)}
+    end.
 
 %% Over the unloading segment: are the modules still in the gripper? If not, whether
 %% the module nest still holds them is noted now: until it is empty the fixture keeps
@@ -361,6 +369,11 @@ answered_where(_Reset, T0) ->
                   "the product is scrapped", [S]),
     T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
     {ok, phase(cell_task:out(T1, gripper_close, false), idle)}.
+
+%% Let go of over the unloading conveyor it was offered to: the gripper open and empty.
+%% The modules lie there, to be offered again as they lie.
+put_down(T) ->
+    not cell_task:in(T, gripper_closed) andalso not cell_task:in(T, product_present).
 
 %% The product is this robot's, whatever transfer brought it (the operator or the
 %% gripper said so).
