@@ -12,7 +12,8 @@
 %%                                                            (phase 4, ItemTransferIn); move to the
 %%                                                            lane's unloading segment → carrying
 %%  carrying  there, or the watchdog                          modules still in the gripper → full;
-%%                                                            not: "Product lost" → lost
+%%                                                            not: "Product lost" → lost (noted
+%%                                                            whether the nest still holds them)
 %%  lost      the operator                                    RETRY: the sensor again; IGNORE: go on,
 %%                                                            the product marked failed; RESET:
 %%                                                            (init) → to_scrap
@@ -20,11 +21,23 @@
 %%                                                            (phase 1, BLOCKED) → offered
 %%  offered   the unloading segment's NotBusy                 open the gripper → placing
 %%  placing   the gripper open, or the watchdog               release (phase 3) → released
-%%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle
+%%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle; cut off after
+%%                                                            the modules were let go of (gripper
+%%                                                            open and empty): → full, offered
+%%                                                            again as they lie, no question
 %%  to_scrap  after a Reset (the product kept, marked         open the gripper over the scrap bin
 %%            `scrap'): at home, or the watchdog              → emptying
-%%  emptying  the gripper open, or the watchdog               the product forgotten (ItemWorkAbort)
-%%                                                            → idle
+%%  emptying  the gripper open, or the watchdog               modules were in the nest when found
+%%                                                            missing and it still holds them
+%%                                                            → nest_scrap; else the product
+%%                                                            forgotten (ItemWorkAbort) → idle
+%%  nest_scrap  at the nest, or the watchdog                  close the gripper → nest_gripping
+%%  nest_gripping the gripper closed, or the watchdog         modules in it → to_scrap; none: an
+%%                                                            error, RETRY (taken out by hand, or
+%%                                                            the gripper checked) → emptying
+%%  in_transit the operator said the modules of a cut-off     in the gripper → to_unloading; else
+%%            transfer are here (IGNORE)                      put down on the unloading conveyor
+%%                                                            → full, in the nest → regrip
 %%  where     the operator, after a restart found the gripper  RETRY: in the nest → regrip;
 %%            empty though the record holds a product          IGNORE: on the unloading segment
 %%                                                            → full (offered, put down as it is);
@@ -36,6 +49,16 @@
 %% held with the modules seen in the gripper goes on (gripper closed again,
 %% to_unloading), one whose modules are not there is a question for the operator
 %% (where), never a carry of an empty gripper.
+%%
+%% RESET to "Product lost" deletes the product's data and goes on with an empty
+%% gripper, as the seed says, and leaves nothing in the machine that no record knows
+%% of: the gripper is emptied over the scrap bin, and if the module nest still held the
+%% modules when they were found missing (they never left it) and still does, the robot
+%% takes them from there to the scrap bin too, so the work segment, which keeps the
+%% panel clamped until its nest is empty, goes on. The product is forgotten only then.
+%% It reads each lane's module nest sensor for this (the work groups are among its IO
+%% groups); the nest is judged when the modules are found missing, not later, when it
+%% may hold the next panel.
 -module(router_upper_task).
 -behaviour(cell_task).
 
