@@ -42,7 +42,9 @@ cell_spec(Machine, Router) ->
                 lane => <<"Shared">>, io => [lower_io], settings => router,
                 args => #{prevs => [link(work_route, L) || L <- Lanes], next => route_pick}},
               #{id => upper, module => router_upper_task, zone => <<"Upper robot">>,
-                lane => <<"Shared">>, io => [upper_io], settings => router,
+                %% The module nests' sensors read too: after a Reset it empties them.
+                lane => <<"Shared">>, io => [upper_io | [group(work, L) || L <- Lanes]],
+                settings => router,
                 args => #{prev => route_pick,
                           nexts => maps:from_list([{L, link(pick_unload, L)} || L <- Lanes])}}],
     Links = lists:append([[#{id => link(load_work, L), from => task(loading, L),

@@ -34,7 +34,9 @@
 %%   robot's a fixed time; spindle, bit, clamps and gripper their own times.</li>
 %% <li>Faults: a conveyor move may stick (`jam_rate'; free again after `jam_ms'); the
 %%   modules may slip in the gripper on a move (`product_lost_rate'; the gripper's
-%%   sensor loses them until the operator has seated them again, `reseat_ms'); the
+%%   sensor loses them until the operator has seated them again, `reseat_ms'), or stay
+%%   stuck in the module nest as the robot lifts, the gripper coming away empty
+%%   (`nest_stick_rate'); the
 %%   previous machine's magazine runs low now and then (`magazine_low_s',
 %%   `magazine_refill_s').</li>
 %% </ul>
@@ -273,13 +275,19 @@ output(_Where, _Point, _V, _Old, S) ->
 %% The upper robot leaves where it is: modules it holds over a nest leave the nest,
 %% and may slip in the gripper on the way.
 lift(#{world := #{gripper := Serial, upper_at := {nest, L}} = W} = S) when Serial =/= empty ->
-    S1 = case maps:get(L, maps:get(work, W)) of
-             {Serial, full} ->
-                 set(world(S, work, L, {Serial, frame}), work, L, nest_empty, true);
-             _ ->
-                 S
-         end,
-    slip(S1);
+    case maps:get(L, maps:get(work, W)) of
+        {Serial, full} ->
+            case chance(nest_stick_rate, S) of
+                {true, S1} ->
+                    %% Stuck in the nest: the gripper comes away empty.
+                    S2 = S1#{world := (maps:get(world, S1))#{gripper := empty}},
+                    save(set(S2, upper, none, product_present, false));
+                {false, S1} ->
+                    slip(set(world(S1, work, L, {Serial, frame}), work, L, nest_empty, true))
+            end;
+        _ ->
+            slip(S)
+    end;
 lift(#{world := #{gripper := Serial}} = S) when Serial =/= empty ->
     slip(S);
 lift(S) ->

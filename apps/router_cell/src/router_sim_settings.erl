@@ -51,6 +51,10 @@ fields() ->
      #{name => reseat_ms, type => {integer, 0, 3600000}, default => 4000, unit => <<"ms">>,
        doc => <<"How long slipped modules take to be seated again (the operator's hand): "
                 "Retry before that finds them still missing.">>},
+     #{name => nest_stick_rate, type => {float, 0.0, 1.0}, default => 0.0,
+       doc => <<"Chance that the modules stay stuck in the module nest as the upper robot "
+                "lifts them: the gripper comes away empty (the \"Product lost\" error with "
+                "the modules still in the machine).">>},
      #{name => jam_rate, type => {float, 0.0, 1.0}, default => 0.01,
        doc => <<"Chance that a panel sticks on a conveyor move (the \"Conveyor jam\" "
                 "error).">>},

@@ -12,8 +12,15 @@
 -module(router_task).
 
 -export([phase/2, phase/1, starved/1, unstarved/1, blocked/1, unblocked/1]).
--export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3, lane/1]).
--export([take/3, take/4, offered/3, finish/4, finish/5]).
+-export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3,
+         interrupted/4, lane/1]).
+-export([take/3, take/4, offered/3, finish/4, finish/5, finish/6]).
+
+-export_type([located/0]).
+
+%% Whether the task's own sensors show the product of an interrupted transfer at its
+%% station (see interrupted/4).
+-type located() :: fun((cell_task:task()) -> boolean()).
 
 %% @doc Sets the task's phase (its own state within its IPC-2541 state).
 -spec phase(cell_task:task(), atom()) -> cell_task:task().
@@ -145,10 +152,19 @@ finish(T, Next, Done, Again) ->
              fun((completed | aborted | interrupted, cell_task:task()) -> cell_task:task())) ->
           cell_task:step_result().
 finish(T, Next, Done, Again, Settle) ->
+    finish(T, Next, Done, Again, Settle, fun(_) -> false end).
+
+%% @doc As {@link finish/5}; an interruption is settled by {@link interrupted/4} with
+%% `Here'.
+-spec finish(cell_task:task(), atom(), atom(), atom(),
+             fun((completed | aborted | interrupted, cell_task:task()) -> cell_task:task()),
+             located()) ->
+          cell_task:step_result().
+finish(T, Next, Done, Again, Settle, Here) ->
     case cell_handshake:finish(T, Next) of
         {completed, T1} -> {continue, phase(Settle(completed, T1), Done)};
         {aborted, T1} -> {continue, phase(Settle(aborted, T1), Again)};
-        {interrupted, T1} -> interrupted(Settle(interrupted, T1), Again, Done);
+        {interrupted, T1} -> interrupted(Settle(interrupted, T1), Again, Done, Here);
         {pending, T1} -> {wait, {handshake, Next, not_busy, false}, T1}
     end.
 
@@ -157,18 +173,38 @@ finish(T, Next, Done, Again, Settle) ->
 %% Ignore, it is here (`Have'); Reset, it is not (forgotten: `init' takes `forget').
 -spec interrupted(cell_task:task(), atom(), atom()) -> cell_task:step_result().
 interrupted(T, Have, Empty) ->
+    interrupted(T, Have, Empty, fun(_) -> false end).
+
+%% @doc As {@link interrupted/3}, but a product that was moving and that the task's own
+%% sensors show at its station (`Here') is confirmed here without a question. `Have'
+%% is kept for the task's `in_transit' step (`transit_have'), where an operator's
+%% Ignore goes on.
+-spec interrupted(cell_task:task(), atom(), atom(), located()) -> cell_task:step_result().
+interrupted(T0, Have, Empty, Here) ->
+    T = cell_task:put(T0, transit_have, Have),
     case {cell_task:product(T), cell_handshake:in_transit(T)} of
         {undefined, _} ->
             {continue, phase(T, Empty)};
         {_, false} ->
             {continue, phase(T, Have)};
         {#{serial := S}, true} ->
-            error(phase(T, in_transit), <<"transfer">>, "Transfer interrupted",
-                  io_lib:format("Product ~ts was moving when its transfer was interrupted.~n"
-                                "Check where it is. Select IGNORE if it is at this station, "
-                                "RESET if it is not (the station forgets it).", [S]),
-                  [ignore, reset], forget)
+            case Here(T) of
+                true ->
+                    cell_task:log(T, brief, "the transfer of product ~ts was interrupted; "
+                                  "this station's sensors show where it is: it goes on from here",
+                                  [S]),
+                    {continue, phase(cell_handshake:confirm_here(T), Have)};
+                false ->
+                    transfer_question(T, S)
+            end
     end.
+
+transfer_question(T, S) ->
+    error(phase(T, in_transit), <<"transfer">>, "Transfer interrupted",
+          io_lib:format("Product ~ts was moving when its transfer was interrupted.~n"
+                        "Check where it is. Select IGNORE if it is at this station, "
+                        "RESET if it is not (the station forgets it).", [S]),
+          [ignore, reset], forget).
 
 %% @doc The task's lane: `front' or `rear'.
 -spec lane(cell_task:task()) -> front | rear.

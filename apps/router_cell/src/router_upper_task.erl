@@ -12,7 +12,8 @@
 %%                                                            (phase 4, ItemTransferIn); move to the
 %%                                                            lane's unloading segment → carrying
 %%  carrying  there, or the watchdog                          modules still in the gripper → full;
-%%                                                            not: "Product lost" → lost
+%%                                                            not: "Product lost" → lost (noted
+%%                                                            whether the nest still holds them)
 %%  lost      the operator                                    RETRY: the sensor again; IGNORE: go on,
 %%                                                            the product marked failed; RESET:
 %%                                                            (init) → to_scrap
@@ -20,11 +21,23 @@
 %%                                                            (phase 1, BLOCKED) → offered
 %%  offered   the unloading segment's NotBusy                 open the gripper → placing
 %%  placing   the gripper open, or the watchdog               release (phase 3) → released
-%%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle
+%%  released  the unloading segment's NotBusy off (phase 4)   ItemTransferOut → idle; cut off after
+%%                                                            the modules were let go of (gripper
+%%                                                            open and empty): → full, offered
+%%                                                            again as they lie, no question
 %%  to_scrap  after a Reset (the product kept, marked         open the gripper over the scrap bin
 %%            `scrap'): at home, or the watchdog              → emptying
-%%  emptying  the gripper open, or the watchdog               the product forgotten (ItemWorkAbort)
-%%                                                            → idle
+%%  emptying  the gripper open, or the watchdog               modules were in the nest when found
+%%                                                            missing and it still holds them
+%%                                                            → nest_scrap; else the product
+%%                                                            forgotten (ItemWorkAbort) → idle
+%%  nest_scrap  at the nest, or the watchdog                  close the gripper → nest_gripping
+%%  nest_gripping the gripper closed, or the watchdog         modules in it → to_scrap; none: an
+%%                                                            error, RETRY (taken out by hand, or
+%%                                                            the gripper checked) → emptying
+%%  in_transit the operator said the modules of a cut-off     in the gripper → to_unloading; else
+%%            transfer are here (IGNORE)                      put down on the unloading conveyor
+%%                                                            → full, in the nest → regrip
 %%  where     the operator, after a restart found the gripper  RETRY: in the nest → regrip;
 %%            empty though the record holds a product          IGNORE: on the unloading segment
 %%                                                            → full (offered, put down as it is);
@@ -36,6 +49,16 @@
 %% held with the modules seen in the gripper goes on (gripper closed again,
 %% to_unloading), one whose modules are not there is a question for the operator
 %% (where), never a carry of an empty gripper.
+%%
+%% RESET to "Product lost" deletes the product's data and goes on with an empty
+%% gripper, as the seed says, and leaves nothing in the machine that no record knows
+%% of: the gripper is emptied over the scrap bin, and if the module nest still held the
+%% modules when they were found missing (they never left it) and still does, the robot
+%% takes them from there to the scrap bin too, so the work segment, which keeps the
+%% panel clamped until its nest is empty, goes on. The product is forgotten only then.
+%% It reads each lane's module nest sensor for this (the work groups are among its IO
+%% groups); the nest is judged when the modules are found missing, not later, when it
+%% may hold the next panel.
 -module(router_upper_task).
 -behaviour(cell_task).
 
@@ -53,7 +76,12 @@ init(T0) ->
             #{serial := S} = P = cell_task:product(T1),
             cell_task:log(T1, brief, "product ~ts to be forgotten; its modules go to the "
                           "scrap bin", [S]),
-            {ok, to_scrap(cell_task:set_product(T1, P#{scrap => true}))};
+            %% Modules the nest still held when they were found missing are this
+            %% product's (the fixture holds its panel until its nest is empty): they go
+            %% too, so nothing is left in the machine that no record knows of.
+            InNest = cell_task:get(T1, in_nest, false),
+            P1 = P#{scrap => true, from_nest => InNest},
+            {ok, to_scrap(cell_task:set_product(cell_task:put(T1, in_nest, false), P1))};
         {taken_out, T1} ->
             %% Asked after a restart (where): the modules were taken out.
             {ok, T2} = answered_where(reset, T1),
@@ -148,14 +176,54 @@ step(to_scrap, _Woken, T) ->
 step(emptying, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(emptying, _Woken, T) ->
-    case cell_task:in(T, gripper_closed) of
-        false ->
-            #{serial := S} = cell_task:product(T),
-            cell_task:log(T, brief, "product ~ts forgotten: its modules are in the scrap bin",
-                          [S]),
-            T1 = cell_task:clear_product(cell_task:work_abort(T, <<"product lost">>)),
-            {continue, phase(T1, idle)};
-        true -> wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
+    case {cell_task:in(T, gripper_closed), cell_task:product(T)} of
+        {false, #{serial := S, from_nest := true}} ->
+            case nest_holds(T) of
+                true ->
+                    cell_task:log(T, brief, "modules of panel ~ts still in the module nest: "
+                                  "taken from there to the scrap bin", [S]),
+                    move(T, nest, nest_scrap);
+                false ->
+                    %% Taken out by hand meanwhile.
+                    forget_scrapped(T)
+            end;
+        {false, _} ->
+            forget_scrapped(T);
+        {true, _} ->
+            wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
+    end;
+%% -- after a Reset: modules left in the nest go to the scrap bin as well ----------------
+step(nest_scrap, {timer, _}, T) ->
+    fault(T, "reach the module nest");
+step(nest_scrap, {io, _Group, done, _}, T) ->
+    wait_io(cell_task:out(T, gripper_close, true), nest_gripping, gripper_closed, true);
+step(nest_scrap, _Woken, T) ->
+    move(T, nest, nest_scrap);
+step(nest_gripping, {timer, _}, T) ->
+    fault(T, "close the gripper");
+step(nest_gripping, {answer, retry}, T) ->
+    %% Looked at again from the start: the gripper opened over the nest, the nest's
+    %% sensor asked again.
+    wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false);
+step(nest_gripping, _Woken, T) ->
+    case {cell_task:in(T, gripper_closed), cell_task:in(T, product_present)} of
+        {true, true} ->
+            %% In the gripper now: to the scrap bin with the rest.
+            P = cell_task:product(T),
+            {continue, to_scrap(cell_task:set_product(T, P#{from_nest => false}))};
+        {true, false} ->
+            {error, cell_task:error_spec(
+                      <<"nest_not_gripped">>, "Modules not gripped",
+                      io_lib:format("The module nest still holds the modules of panel ~ts "
+                                    "(sensor ~ts, ~ts), but the gripper closed on it does not "
+                                    "hold them (~ts, ~ts).~nTake them out of the nest by "
+                                    "hand, or check the gripper, then select RETRY.",
+                                    [serial(T), nest_address(T), nest_caption(T),
+                                     address(product_present), caption(product_present)]),
+                      [retry]),
+             T};
+        {false, _} ->
+            wait_io(cell_task:out(T, gripper_close, true), nest_gripping, gripper_closed, true)
     end;
 %% -- after a restart: the gripper's last command done before its sensors are read -------
 step(settling, {timer, _}, T) ->
@@ -218,32 +286,71 @@ step(placing, _Woken, T) ->
             wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false)
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(T, full, idle);
+    router_task:interrupted(T, full, idle, fun put_down/1);
 step(released, _Woken, T) ->
     %% Given back: the modules are gripped again, to be offered again.
     router_task:finish(T, next(T), idle, full,
                        fun(aborted, T1) -> cell_task:out(T1, gripper_close, true);
                           (_, T1) -> T1
-                       end);
-step(in_transit, _Woken, T) ->
-    {continue, phase(cell_handshake:confirm_here(T), to_unloading)}.
+                       end, fun put_down/1);
+step(in_transit, _Woken, T0) ->
+    %% The operator said the modules are at this robot: the gripper says whether in
+    %% it; if not, they are where the cut-off transfer had them, in the nest (from the
+    %% routing robot) or put down on the unloading conveyor (to it).
+    T = cell_handshake:confirm_here(T0),
+    case {cell_task:in(T, product_present), cell_task:get(T, transit_have, undefined)} of
+        {true, _} -> {continue, phase(cell_task:out(T, gripper_close, true), to_unloading)};
+        {false, full} -> {continue, phase(T, full)};
+        {false, _} -> {continue, phase(cell_task:out(T, gripper_close, false), regrip)}
+    end.
 
-%% Over the unloading segment: are the modules still in the gripper?
+%% Over the unloading segment: are the modules still in the gripper? If not, whether
+%% the module nest still holds them is noted now: until it is empty the fixture keeps
+%% this product's panel, so what the nest holds then is this product's modules (later,
+%% once emptied, it may be the next panel's).
 present(T) ->
     case cell_task:in(T, product_present) of
         true ->
-            {continue, phase(T, full)};
+            {continue, phase(cell_task:put(T, in_nest, false), full)};
         false ->
+            InNest = nest_holds(T),
+            Nest = case InNest of
+                       true ->
+                           io_lib:format("The module nest sensor ~ts (~ts) says the modules "
+                                         "are still in the module nest of the fixture.~n",
+                                         [nest_address(T), nest_caption(T)]);
+                       false ->
+                           ""
+                   end,
             router_task:error(
-              phase(T, lost), <<"lost">>, "Product lost",
+              phase(cell_task:put(T, in_nest, InNest), lost), <<"lost">>, "Product lost",
               io_lib:format("Product was lost from gripper during move.~n"
-                            "Please check gripper sensor:~n\t~ts (~ts)~n"
+                            "Please check gripper sensor:~n\t~ts (~ts)~n~ts"
                             "Select RETRY to check sensor again.~n"
                             "Select IGNORE to ignore sensors state and continue.~n"
                             "Select RESET to delete product data and continue with empty "
-                            "gripper.", [address(product_present), caption(product_present)]),
+                            "gripper: the gripper is emptied over the scrap bin, and modules "
+                            "still in the module nest are taken from there to the scrap bin "
+                            "too.", [address(product_present), caption(product_present), Nest]),
               [retry, ignore, reset], scrap)
     end.
+
+%% The product's data goes once its modules are in the scrap bin.
+forget_scrapped(T) ->
+    #{serial := S} = cell_task:product(T),
+    cell_task:log(T, brief, "product ~ts forgotten: its modules are in the scrap bin", [S]),
+    T1 = cell_task:clear_product(cell_task:work_abort(T, <<"product lost">>)),
+    {continue, phase(T1, idle)}.
+
+%% Whether the module nest of the product's lane holds modules.
+nest_holds(T) ->
+    not cell_task:in(T, nest_group(T), nest_empty).
+
+nest_group(T) ->
+    router_cell:group(work, lane(T)).
+
+nest_address(T) -> point_field(nest_group(T), nest_empty, address).
+nest_caption(T) -> point_field(nest_group(T), nest_empty, caption).
 
 gripper_check(T) ->
     case cell_task:in(T, product_present) of
@@ -286,6 +393,11 @@ answered_where(_Reset, T0) ->
     T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
     {ok, phase(cell_task:out(T1, gripper_close, false), idle)}.
 
+%% Let go of over the unloading conveyor it was offered to: the gripper open and empty.
+%% The modules lie there, to be offered again as they lie.
+put_down(T) ->
+    not cell_task:in(T, gripper_closed) andalso not cell_task:in(T, product_present).
+
 %% The product is this robot's, whatever transfer brought it (the operator or the
 %% gripper said so).
 here(T) ->
@@ -300,10 +412,7 @@ to_scrap(T) ->
 
 %% A move to a taught position of the product's lane.
 move(T, Where, Phase) ->
-    Lane = case cell_task:product(T) of
-               #{lane := L} -> L;
-               _ -> front
-           end,
+    Lane = lane(T),
     Command = cell_task:get(T, command) + 1,
     T1 = cell_task:out(T, target, router_upper_io:position(Where, Lane)),
     T2 = cell_task:out(T1, command, Command),
@@ -322,11 +431,11 @@ fault(T, What) ->
               [retry]),
      T}.
 
-address(Point) -> point_field(Point, address).
-caption(Point) -> point_field(Point, caption).
+address(Point) -> point_field(upper_io, Point, address).
+caption(Point) -> point_field(upper_io, Point, caption).
 
-point_field(Point, Field) ->
-    case cell_hal:describe(upper_io, Point) of
+point_field(Group, Point, Field) ->
+    case cell_hal:describe(Group, Point) of
         {ok, Info} -> maps:get(Field, Info);
         {error, _} -> atom_to_binary(Point, utf8)
     end.
@@ -338,6 +447,13 @@ serial(T) ->
     end.
 
 prev(T) -> cell_task:arg(T, prev, route_pick).
+
+%% The product's lane.
+lane(T) ->
+    case cell_task:product(T) of
+        #{lane := L} -> L;
+        _ -> front
+    end.
 
 %% The link to the unloading segment of the product's lane.
 lane_link(T) ->

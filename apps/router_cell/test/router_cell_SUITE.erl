@@ -10,6 +10,7 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([panels_pass_the_line/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
+         reset_clears_the_nest/1,
          jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
          stop_at_any_moment/1,
@@ -22,6 +23,7 @@
 
 all() ->
     [panels_pass_the_line, product_lost_answers, reset_scrap_survives_a_stop,
+     reset_clears_the_nest,
      jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
      physics_waits_for_the_hal,
@@ -56,6 +58,10 @@ sim_settings(reset_scrap_survives_a_stop) ->
     %% Every carry slips; moves long enough for a Stop to fall inside the one to the
     %% scrap bin.
     #{product_lost_rate => 1.0, reseat_ms => 100000, time_scale => 0.1};
+sim_settings(reset_clears_the_nest) ->
+    %% The first lift leaves the modules stuck in the nest (the case lowers the rate
+    %% once it has happened).
+    #{nest_stick_rate => 1.0};
 sim_settings(jams_and_magazine_warning) ->
     %% The tasks' watchdogs are not scaled (3 s here), the physics is (0.02): a jam of
     %% 200 s of machine time is 4 s, enough for the watchdog to see it.
@@ -189,6 +195,37 @@ reset_scrap_survives_a_stop(_Config) ->
     ?assertEqual(In, Out + 1 + InCell),
     ?assertNot(lists:member(Serial, held())),
     ?assertEqual([Serial], scrapped()).
+
+%% "Product lost" with the modules still in the module nest (they stuck there as the
+%% robot lifted: its gripper came away empty). Reset deletes the product's data and the
+%% robot goes on with an empty gripper, the nest cleared: it takes the modules out of
+%% the nest to the scrap bin, so the fixture is free for the next panel and nothing the
+%% books do not know of stays in the machine.
+reset_clears_the_nest(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = await_event(fun(#{type := alarm_raised, alarm := #{id := <<"upper:lost">>}}) -> true;
+                        (#{type := alarm_raised, alarm := #{kind := error} = A}) ->
+                             ct:fail({unexpected_error, A});
+                        (_) -> false
+                     end),
+    Serial = upper_serial(),
+    %% The machine as the operator finds it: the gripper empty, the modules in the nest.
+    #{gripper := empty, work := #{front := {Serial, full}}} = router_sim:world(),
+    #{description := Text} = hd([A || #{id := <<"upper:lost">>} = A <- cell_alarms:list()]),
+    ok = cell_settings:put(router_sim, #{nest_stick_rate => 0.0}, <<"suite">>),
+    ok = cell_alarms:answer(<<"upper:lost">>, reset, <<"suite">>),
+    %% The line goes on: the next panels pass the fixture the modules were stuck in.
+    Out = collect_out(2, fun never_answer/1),
+    ok = stop_cell(),
+    ?assertNot(lists:member(Serial, Out)),
+    #{counters := #{scrapped := 1, delivered := Delivered}} = W = router_sim:world(),
+    ?assertNotEqual({Serial, full}, maps:get(front, maps:get(work, W))),
+    #{cell := #{scrapped := 1, out := Delivered}} = settle(),
+    ?assertNot(lists:member(Serial, held())),
+    ?assertEqual([Serial], scrapped()),
+    %% The error said what Reset would do with modules left in the nest.
+    ?assertNotEqual(nomatch, string:find(Text, <<"module nest">>)).
 
 %% Conveyor jams stop a belt until the operator answers Retry (after freeing the
 %% panel: here, once the simulation has it free); the magazine warning comes and goes
