@@ -280,7 +280,9 @@ reply(Alias, Answer) ->
 %% @doc Reads resolved variables without a call to the client's process, when that
 %% can be done in one request: `{ok, Results}' as {@link cell_hal_ads_client:read_vars/3}
 %% answers, `{error, timeout | disconnected}', `{down, Reason}' when the client exited
-%% meanwhile, or `{slow, Timeout}': go through the client's process, with the time left.
+%% meanwhile (the reason its monitor gives, as to a call: `noproc' when the client was
+%% already exiting as it took the monitor), or `{slow, Timeout}': go through the
+%% client's process, with the time left.
 -spec read_vars(cell_hal_ads_client:client(), [cell_hal_ads_client:var()], timeout()) ->
           {ok, results()} | {error, term()} | {down, term()} | {slow, timeout()}.
 read_vars(_Client, _Vars, 0) ->

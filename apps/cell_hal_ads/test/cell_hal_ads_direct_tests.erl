@@ -287,12 +287,18 @@ closed_socket_goes_the_slow_way(E) ->
     ?assertMatch({{slow, _}, []}, read_result(reader(E, [?X], ?WAIT))),
     ?assertEqual(0, in_flight(E)).
 
-%% The client exits with a read in flight: its monitor says so.
+%% The client exits with a read in flight: its monitor says so, at once, leaving
+%% nothing behind. The reason is the monitor's: the client's exit reason if the client
+%% took the monitor before it began to exit, `noproc' if after. Which comes first is
+%% not ordered: the monitor is the reader's signal to the client, the exit the test's,
+%% and signals from two senders keep no order (the PLC having the frame orders nothing
+%% between them), just as with a call to a process that exits at that moment.
 connection_exits(E) ->
     R = reader(E, [?X], ?WAIT),
     {2, _, _} = request(E),
     exit(E#env.conn, stopped),
-    ?assertEqual({{down, stopped}, []}, read_result(R)).
+    {{down, Reason}, []} = read_result(R),
+    ?assert(lists:member(Reason, [stopped, noproc])).
 
 %% What the tables cannot answer at once goes the slow way, untouched: a variable not
 %% published, a bad argument, a group beyond one sum command, no time, a client that
