@@ -71,8 +71,11 @@ subscribers_kept() ->
     ok = stop(E2).
 
 %% An error raised before the alarms restarted is still listed and its answer still
-%% reaches its owner.
+%% reaches its owner. The registry runs, as it does before the services in the cell:
+%% the alarms look up the product of the error's task before they pass an answer on.
 waiting_error_kept() ->
+    {ok, Registry} = cell_registry:start_link(),
+    unlink(Registry),
     {ok, A1} = cell_alarms:start_link(),
     {ok, Id} = cell_alarms:raise_error(t1, #{id => <<"e">>, caption => "Jam",
                                              solutions => [retry]}, self()),
@@ -84,7 +87,8 @@ waiting_error_kept() ->
     after 5000 -> error(no_answer)
     end,
     ?assertEqual({error, not_found}, cell_alarms:get(Id)),
-    ok = stop(A2).
+    ok = stop(A2),
+    ok = stop(Registry).
 
 %% Waiting for a service by name ends when a process of that name claims its table;
 %% one registered already is not waited for.
