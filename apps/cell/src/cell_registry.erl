@@ -2,7 +2,7 @@
 %%
 %% <ul>
 %% <li>`cell_tasks' — one row per device task: its pid and what the controller, the
-%%     panel and SHDR read without a process hop (state, flags, product serial);</li>
+%%     panel and SHDR read without a process hop (state, flags, product serial and the product);</li>
 %% <li>`cell_control' — the controller's commands to the tasks: the pending request,
 %%     the emergency stop, service mode, read by a task when it (re)starts;</li>
 %% <li>the emergency-stop flag, an atomic every task checks before each step, so no

@@ -947,7 +947,7 @@ dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
     ok = cell_registry:hold(Id, S, G),
     case [{Other, G2} || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
         [] ->
-            ok = cell_registry:update(Id, #{serial => S}),
+            ok = cell_registry:update(Id, #{serial => S, product => T#task.product}),
             T;
         [{Other, _} | _] ->
             drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
