@@ -1055,8 +1055,16 @@ hand_out(Task, World, Held) ->
     case maps:get(Lane, maps:get(work, World)) of
         {S, full} ->
             case lists:keymember(S, 1, Held) of
-                true -> ok;
-                false -> {ok, S} = router_sim:take_out(work, Lane), ok
+                true ->
+                    ok;
+                false ->
+                    %% Out, and Retry once the sensor is read empty (a moment).
+                    Group = router_cell:group(work, Lane),
+                    {ok, Ref} = cell_hal:watch(Group, panel_in_position, {eq, false}),
+                    {ok, S} = router_sim:take_out(work, Lane),
+                    receive {cell_hal_watch, Ref, _} -> ok
+                    after 5000 -> _ = cell_hal:cancel_watch(Ref), ok
+                    end
             end;
         _ ->
             ok

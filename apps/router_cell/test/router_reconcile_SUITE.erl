@@ -133,8 +133,15 @@ panel_forgotten_in_the_fixture(_Config) ->
     ?assertMatch({match, _}, re:run(Text, "work fixture of lane front and no record holds it")),
     ?assertMatch({Serial, full}, maps:get(front, maps:get(work, router_sim:world()))),
     ?assertEqual({ok, Serial}, router_sim:take_out(work, front)),
+    %% The operator selects Retry once the fixture's sensor (as the HAL reads it) shows
+    %% the fixture empty: asked nothing more about the fixture after that.
+    {ok, Ref} = cell_hal:watch(router_cell:group(work, front), panel_in_position, {eq, false}),
+    receive {cell_hal_watch, Ref, false} -> ok
+    after ?DEADLINE_MS -> ct:fail(fixture_still_seen_full)
+    end,
     ok = cell_alarms:answer(Id, retry, <<"suite">>),
-    ok = line_goes_on(2),
+    {Asked, _Out} = collect(2, [], [], deadline()),
+    ?assertEqual([], [A || A <- Asked, A =:= <<"unheld">>]),
     ok = stop_cell(),
     W = router_sim:world(),
     ?assertEqual([removed], [How || {S, How} <- maps:get(ledger, W), S =:= Serial]),
