@@ -38,7 +38,6 @@
 -behaviour(cell_task).
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
--export([unheld/3]).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
@@ -158,30 +157,21 @@ step(in_transit, _Woken, T) ->
 
 %% -- a panel in the fixture that no record holds ------------------------------------------
 
-%% @doc Whether a panel in the fixture is one no record holds: the module nest full (a
-%% whole panel, not a frame) while the task holds no product and no robot (`lower',
-%% `upper') holds one of this lane. `Others' is what the other tasks hold.
--spec unheld(boolean(), front | rear, [{atom(), cell_product:product()}]) -> boolean().
-unheld(NestEmpty, Lane, Others) ->
-    not NestEmpty andalso
-        [x || {Robot, P} <- Others, Robot =:= lower orelse Robot =:= upper,
-              maps:get(lane, P, Lane) =:= Lane] =:= [].
-
+%% A whole panel in the fixture (its module nest full) while the task holds no product
+%% and no robot holds one of this lane.
 unheld_here(T) ->
     cell_task:product(T) =:= undefined andalso cell_task:in(T, panel_in_position)
-        andalso unheld(cell_task:in(T, nest_empty), router_task:lane(T),
-                       cell_task:others_products(T)).
+        andalso not cell_task:in(T, nest_empty)
+        andalso router_task:unheld(router_task:lane(T), [lower, upper],
+                                   cell_task:others_products(T)).
 
 %% The operator takes it out; the clamps open for the hand, the belt stays off. RETRY
 %% looks again (reconcile, or the idle step).
 unheld_error(T) ->
-    {error, cell_task:error_spec(
-              <<"unheld">>, "Panel in the fixture unknown",
-              io_lib:format("A panel lies in the work fixture of lane ~ts and no record holds "
-                            "it: take it out of the machine, then select RETRY.",
-                            [router_task:lane(T)]),
-              [retry]),
-     phase(cell_task:out(cell_task:out(T, belt_run, false), clamp, false), idle)}.
+    router_task:unheld_error(
+      phase(cell_task:out(cell_task:out(T, belt_run, false), clamp, false), idle),
+      "Panel in the fixture unknown", "A panel lies in the work fixture of lane ~ts",
+      [router_task:lane(T)]).
 
 %% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
 fault(T, What, Check) ->
