@@ -920,15 +920,17 @@ quiet_check(#{harness := H, errors := Errors} = A) ->
     end,
     restart_cell(off, A#{errors := 0}).
 
-%% The operator answers a moment after the error appears.
+%% The operator answers a moment after the error appears; an error raised again (the
+%% same id, raised anew: a Retry that found the machine as it was) is answered again.
 schedule(#{id := Id} = Alarm, #{answered := Done} = A) ->
-    case maps:is_key(Id, Done) of
+    Key = {Id, maps:get(raised, Alarm, 0)},
+    case maps:is_key(Key, Done) of
         true ->
             A;
         false ->
             {Ms, A1} = agent_rand(<<"delay">>, 400, A),
             _ = erlang:send_after(100 + Ms, self(), {answer, Alarm}),
-            A1#{answered := Done#{Id => true}}
+            A1#{answered := Done#{Key => true}}
     end.
 
 answer(#{id := Id, caption := Caption, solutions := Offered} = Alarm, A) ->
@@ -999,8 +1001,9 @@ try_answer(Id, Caption, Offered, #{harness := H} = A) ->
 %%   unloading conveyor, else Reset.</li>
 %% <li>Another task's `where': Ignore when the panel lies on the loading segment, else
 %%   Reset.</li>
-%% <li>A panel in the fixture no record holds (`unheld'): taken out by hand, then Retry.
-%%   </li>
+%% <li>A product at a station that no record holds (`unheld': a panel in a work
+%%   fixture, modules on an unloading conveyor or in the gripper): taken out by hand,
+%%   then Retry.</li>
 %% </ul>
 -spec at_the_machine(map(), map(), [{binary(), atom()}]) -> [cell_alarms:solution()] | any.
 at_the_machine(#{local_id := Local, task := Task}, World, Held) ->
@@ -1048,26 +1051,50 @@ on_unloading(In) ->
         false -> reset
     end.
 
-%% The operator takes a whole panel out of the task's fixture when no task holds it
-%% (the error may have been raised just before a task read its product again).
+%% The operator takes out by hand what lies at the task's station when no task holds
+%% it (the error may have been raised just before a task read its product again): a
+%% whole panel in a work fixture, modules on an unloading conveyor, or in the upper
+%% robot's gripper; then waits a moment for the station's sensor to be read empty.
 hand_out(Task, World, Held) ->
-    Lane = maps:get(Task, #{work_front => front, work_rear => rear}),
-    case maps:get(Lane, maps:get(work, World)) of
-        {S, full} ->
-            case lists:keymember(S, 1, Held) of
-                true ->
-                    ok;
-                false ->
-                    %% Out, and Retry once the sensor is read empty (a moment).
-                    Group = router_cell:group(work, Lane),
-                    {ok, Ref} = cell_hal:watch(Group, panel_in_position, {eq, false}),
-                    {ok, S} = router_sim:take_out(work, Lane),
-                    receive {cell_hal_watch, Ref, _} -> ok
-                    after 5000 -> _ = cell_hal:cancel_watch(Ref), ok
-                    end
-            end;
-        _ ->
-            ok
+    {Where, Lane, Point} = maps:get(Task, #{work_front => {work, front, panel_in_position},
+                                            work_rear => {work, rear, panel_in_position},
+                                            unloading_front => {unloading, front, panel_at_exit},
+                                            unloading_rear => {unloading, rear, panel_at_exit},
+                                            upper => {gripper, none, product_present}}),
+    Found = case Where of
+                gripper -> maps:get(gripper, World);
+                _ -> maps:get(Lane, maps:get(Where, World))
+            end,
+    case Found of
+        {S, Pos} when Pos =/= frame -> take_out(S, Where, Lane, Point, Held);
+        S when is_binary(S) -> take_out(S, Where, Lane, Point, Held);
+        _ -> ok
+    end.
+
+take_out(S, Where, Lane, Point, Held) ->
+    case lists:keymember(S, 1, Held) of
+        true ->
+            ok;
+        false ->
+            Group = case Where of
+                        gripper -> upper_io;
+                        _ -> router_cell:group(Where, Lane)
+                    end,
+            {ok, Ref} = cell_hal:watch(Group, Point, {eq, false}),
+            _ = router_sim:take_out(Where, Lane),
+            receive {cell_hal_watch, Ref, _} -> ok
+            after 5000 -> _ = cell_hal:cancel_watch(Ref), ok
+            end,
+            case Where of
+                unloading ->
+                    %% Both sensors of the conveyor.
+                    {ok, Ref2} = cell_hal:watch(Group, panel_at_entry, {eq, false}),
+                    receive {cell_hal_watch, Ref2, _} -> ok
+                    after 5000 -> _ = cell_hal:cancel_watch(Ref2), ok
+                    end;
+                _ ->
+                    ok
+            end
     end.
 
 %% A seeded random per kind of error (and per boot of the node).
