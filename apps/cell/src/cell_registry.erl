@@ -319,7 +319,14 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     State = collect_dead(Id, State0),
     Previous = maps:get(Id, State#state.ended, fresh),
     Ref = monitor(process, Pid),
-    true = ets:insert(?TASKS, {Id, maps:remove(state, Info#{pid => Pid})}),
+    %% The product its previous incarnation held stays in the row until the restarted
+    %% task has read its own file: others looking for who may hold a product see it
+    %% meanwhile.
+    Kept = case ets:lookup(?TASKS, Id) of
+               [{Id, OldRow}] -> maps:with([product], OldRow);
+               [] -> #{}
+           end,
+    true = ets:insert(?TASKS, {Id, maps:merge(Kept, maps:remove(state, Info#{pid => Pid}))}),
     ok = set_state(Id, maps:get(state, Info, off)),
     {reply, Previous, keep_pids(State#state{monitors = maps:put(Ref, {Id, Pid}, State#state.monitors),
                                        ended = maps:remove(Id, State#state.ended)})};

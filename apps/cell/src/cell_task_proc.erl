@@ -936,7 +936,8 @@ wake_events(_, T) ->
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
-take_loaded(T, undefined) ->
+take_loaded(#task{id = Id} = T, undefined) ->
+    ok = cell_registry:update(Id, #{product => undefined}),
     T#task{product = undefined, gen = 0, marker = undefined};
 take_loaded(T, #{product := Product, gen := Gen, marker := Marker}) ->
     dedupe(T#task{product = Product, gen = Gen, marker = Marker}).
