@@ -933,22 +933,29 @@ schedule(#{id := Id} = Alarm, #{answered := Done} = A) ->
             A1#{answered := Done#{Key => true}}
     end.
 
-answer(#{id := Id, caption := Caption, solutions := Offered} = Alarm, A) ->
+answer(#{solutions := Offered} = Alarm, A) ->
     %% The operator looks at the machine first (and takes out by hand a panel that no
     %% record holds), then answers among the answers true for it.
     True = try at_the_machine(Alarm, router_sim:world(), held())
            catch _:_ -> any                    %% the physics restarting: as before
            end,
     case True =/= any andalso [S || S <- Offered, lists:member(S, True)] of
-        false -> try_answer(Id, Caption, Offered, A);
-        [] -> try_answer(Id, Caption, Offered, A);
-        Choices -> try_true(Alarm, Choices, A)
+        false -> try_answer(Alarm, Offered, give_up, A);
+        [] -> try_answer(Alarm, Offered, give_up, A);
+        Choices -> try_answer(Alarm, Choices, again, A)
     end.
 
-%% Answers of those true for the machine, at random; one refused (the runtime sees a
-%% double holding the answer would make), another true one; all refused, the same
-%% question again a moment later, when a record may have changed.
-try_true(#{id := Id, caption := Caption} = Alarm, Choices, #{harness := H} = A) ->
+%% One of the answers, at random; one refused (the runtime sees a double holding the
+%% answer would make), another of them. All refused: answers true for the machine
+%% (`again') are given again a moment later, when a record may have changed; any
+%% answer (`give_up') is not.
+try_answer(_Alarm, [], give_up, A) ->
+    A;
+try_answer(Alarm, [], again, A) ->
+    {Ms, A1} = agent_rand(<<"again">>, 1000, A),
+    _ = erlang:send_after(200 + Ms, self(), {answer, Alarm}),
+    A1;
+try_answer(#{id := Id, caption := Caption} = Alarm, Choices, Then, #{harness := H} = A) ->
     {I, A1} = agent_rand(Caption, length(Choices), A),
     Solution = lists:nth(I, Choices),
     case catch cell_alarms:answer(Id, Solution, ?WHO) of
@@ -959,31 +966,7 @@ try_true(#{id := Id, caption := Caption} = Alarm, Choices, #{harness := H} = A) 
             A1;
         Refused ->
             H ! {chaos, {answer, Caption, Solution, {error, Refused}}},
-            case Choices -- [Solution] of
-                [] ->
-                    {Ms, A2} = agent_rand(<<"again">>, 1000, A1),
-                    _ = erlang:send_after(200 + Ms, self(), {answer, Alarm}),
-                    A2;
-                Others ->
-                    try_true(Alarm, Others, A1)
-            end
-    end.
-
-%% Any of the answers offered, at random; one refused, another.
-try_answer(_Id, _Caption, [], A) ->
-    A;
-try_answer(Id, Caption, Offered, #{harness := H} = A) ->
-    {I, A1} = agent_rand(Caption, length(Offered), A),
-    Solution = lists:nth(I, Offered),
-    case catch cell_alarms:answer(Id, Solution, ?WHO) of
-        ok ->
-            H ! {chaos, {answer, Caption, Solution, ok}},
-            A1;
-        {error, not_found} ->
-            A1;
-        Refused ->
-            H ! {chaos, {answer, Caption, Solution, {error, Refused}}},
-            try_answer(Id, Caption, Offered -- [Solution], A1)
+            try_answer(Alarm, Choices -- [Solution], Then, A1)
     end.
 
 %% The answers true for the machine as the operator finds it (`World', router_sim's
