@@ -5,19 +5,26 @@
 %% the same root folder (Start pressed again, as the operator would), and single
 %% processes inside it are killed (tasks, handshake links, HAL workers, the statistics
 %% and their writer, the physics, the web feed, the events, other services). An
-%% operator inside the node answers every error, choosing Retry, Ignore or Reset by a
-%% seeded random per kind of error (another where the runtime refuses one).
+%% operator inside the node answers every error as an operator at the machine would:
+%% where the right answer depends on where the product physically is ("Product
+%% transfer interrupted", a restart after a crash, the router's reconcile questions,
+%% "Product lost"), it looks at the simulated machine (router_sim's world) and picks
+%% among the answers true for it; for the others (a jam, say) it chooses among those
+%% offered. Either way by a seeded random per kind of error (another true one where the
+%% runtime refuses one). A panel the fixture holds that no record knows of it takes out
+%% of the machine by hand (router_sim:take_out/2) before it answers Retry.
 %%
 %% At the end no new panel arrives, the line drains, the cell is stopped, and every
 %% serial is reconciled against the simulated machine's own record of where each
-%% panel physically is (router_sim's world and its ledger of what it delivered and
-%% what fell into the scrap bin, saved before the sensors show a move) with the cell's
+%% panel physically is (router_sim's world and its ledger of what it delivered, what
+%% fell into the scrap bin and what the operator's hand took out, saved before the
+%% sensors show a move) with the cell's
 %% record (cell_stats' histories and summaries, the tasks' products):
 %%
 %% <ul>
 %% <li>lost: physically delivered, in the machine or in the scrap bin but not recorded
 %%   so by the cell (unknown, still in the cell, held by no task, or left when it is
-%%   in the bin), or gone from the machine without a trace;</li>
+%%   in the bin or taken out by hand), or gone from the machine without a trace;</li>
 %% <li>duplicated: left the machine twice, in two places at once, or recorded as
 %%   leaving the cell twice (or both leaving and scrapped, or in the cell and out);</li>
 %% <li>double-held: held by two tasks at once for two seconds or more, or after the
@@ -512,6 +519,7 @@ reconcile(#{world := W, products := Products, held := Held}) ->
       ok => length([x || {_, ok, _} <- Rows]),
       phys => #{delivered => length([x || {_, delivered} <- Ledger]),
                 scrapped => length([x || {_, scrapped} <- Ledger]),
+                removed => length([x || {_, removed} <- Ledger]),
                 in_machine => length([x || {_, {machine, _}} <- Places]),
                 waiting => length([x || {_, {upstream, _}} <- Places]),
                 made => Next - 1}}.
@@ -552,6 +560,12 @@ classify(S, Phys, #{status := Status, lefts := Lefts, scraps := Scraps} = C, Hel
             {S, ok, ""};
         {[], [{left, scrapped}], _} ->
             {S, lost, "in the scrap bin; cell: " ++ status_text(Status, Held)};
+        %% Taken out of the machine by the operator's hand: gone like the scrap bin's.
+        {[], [{left, removed}], scrapped} ->
+            {S, ok, ""};
+        {[], [{left, removed}], _} ->
+            {S, lost, "taken out of the machine by the operator; cell: "
+             ++ status_text(Status, Held)};
         {[], [{machine, _}], in_cell} when Held =/= [] ->
             {S, ok, ""};
         {[], [{machine, Where}], _} ->
@@ -603,14 +617,15 @@ report(#{view := View, opts := Opts} = H, Secs) ->
     #{cell := Cell} = maps:get(total, View),
     Phys = maps:get(phys, Books),
     Totals = io_lib:format(
-               "panels made ~b, in ~b, out ~b (delivered ~b), scrapped ~b (in the bin ~b), "
+               "panels made ~b, in ~b, out ~b (delivered ~b), scrapped ~b (in the bin ~b, taken "
+               "out by hand ~b), "
                "in the machine ~b, waiting ~b; node kills ~b, node deaths on their own ~b, "
                "boots ~b; process kills ~b (~ts); answers ~ts, refused ~b; Start pressed "
                "again after the tasks restarted ~b; stalls with errors ~b; silent stops ~b; "
                "drained: ~s",
                [maps:get(made, Phys), maps:get(in, Cell, 0), maps:get(out, Cell, 0),
                 maps:get(delivered, Phys), maps:get(scrapped, Cell, 0), maps:get(scrapped, Phys),
-                maps:get(in_machine, Phys), maps:get(waiting, Phys),
+                maps:get(removed, Phys), maps:get(in_machine, Phys), maps:get(waiting, Phys),
                 maps:get(node_kills, H), maps:get(deaths, H), maps:get(boots, H),
                 maps:get(proc_kills, H), kinds_text(maps:get(by_kind, H)),
                 kinds_text(maps:get(answers, H)), maps:get(refused, H),
@@ -905,25 +920,44 @@ quiet_check(#{harness := H, errors := Errors} = A) ->
     end,
     restart_cell(off, A#{errors := 0}).
 
-%% The operator answers a moment after the error appears.
+%% The operator answers a moment after the error appears; an error raised again (the
+%% same id, raised anew: a Retry that found the machine as it was) is answered again.
 schedule(#{id := Id} = Alarm, #{answered := Done} = A) ->
-    case maps:is_key(Id, Done) of
+    Key = {Id, maps:get(raised, Alarm, 0)},
+    case maps:is_key(Key, Done) of
         true ->
             A;
         false ->
             {Ms, A1} = agent_rand(<<"delay">>, 400, A),
             _ = erlang:send_after(100 + Ms, self(), {answer, Alarm}),
-            A1#{answered := Done#{Id => true}}
+            A1#{answered := Done#{Key => true}}
     end.
 
-answer(#{id := Id, caption := Caption, solutions := Offered}, A) ->
-    try_answer(Id, Caption, Offered, A).
+answer(#{solutions := Offered} = Alarm, A) ->
+    %% The operator looks at the machine first (and takes out by hand a panel that no
+    %% record holds), then answers among the answers true for it.
+    True = try at_the_machine(Alarm, router_sim:world(), held())
+           catch _:_ -> any                    %% the physics restarting: as before
+           end,
+    case True =/= any andalso [S || S <- Offered, lists:member(S, True)] of
+        false -> try_answer(Alarm, Offered, give_up, A);
+        [] -> try_answer(Alarm, Offered, give_up, A);
+        Choices -> try_answer(Alarm, Choices, again, A)
+    end.
 
-try_answer(_Id, _Caption, [], A) ->
+%% One of the answers, at random; one refused (the runtime sees a double holding the
+%% answer would make), another of them. All refused: answers true for the machine
+%% (`again') are given again a moment later, when a record may have changed; any
+%% answer (`give_up') is not.
+try_answer(_Alarm, [], give_up, A) ->
     A;
-try_answer(Id, Caption, Offered, #{harness := H} = A) ->
-    {I, A1} = agent_rand(Caption, length(Offered), A),
-    Solution = lists:nth(I, Offered),
+try_answer(Alarm, [], again, A) ->
+    {Ms, A1} = agent_rand(<<"again">>, 1000, A),
+    _ = erlang:send_after(200 + Ms, self(), {answer, Alarm}),
+    A1;
+try_answer(#{id := Id, caption := Caption} = Alarm, Choices, Then, #{harness := H} = A) ->
+    {I, A1} = agent_rand(Caption, length(Choices), A),
+    Solution = lists:nth(I, Choices),
     case catch cell_alarms:answer(Id, Solution, ?WHO) of
         ok ->
             H ! {chaos, {answer, Caption, Solution, ok}},
@@ -932,7 +966,118 @@ try_answer(Id, Caption, Offered, #{harness := H} = A) ->
             A1;
         Refused ->
             H ! {chaos, {answer, Caption, Solution, {error, Refused}}},
-            try_answer(Id, Caption, Offered -- [Solution], A1)
+            try_answer(Alarm, Choices -- [Solution], Then, A1)
+    end.
+
+%% The answers true for the machine as the operator finds it (`World', router_sim's
+%% world; `Held', what the tasks hold), for the questions whose right answer depends on
+%% where the product physically is; `any' for the others (a jam: Retry, whatever).
+%% A panel in the work fixture that no record holds is taken out by hand first.
+%% <ul>
+%% <li>"Product transfer interrupted" (`in_transit', `transfer'): Ignore says it is
+%%   here, Reset that it is not: Ignore when the machine has it, else Reset.</li>
+%% <li>A restart after a crash (`crashed'): Retry goes on with the product as saved,
+%%   Reset forgets it: Retry when the machine has it, Reset when it does not, either
+%%   when the task holds none.</li>
+%% <li>The upper robot's `where' and "Product lost" (`lost'): Retry when the modules are
+%%   in the gripper (or, asked where, back in the nest), Ignore when they lie on the
+%%   unloading conveyor, else Reset.</li>
+%% <li>Another task's `where': Ignore when the panel lies on the loading segment, else
+%%   Reset.</li>
+%% <li>A product at a station that no record holds (`unheld': a panel in a work
+%%   fixture, modules on an unloading conveyor or in the gripper): taken out by hand,
+%%   then Retry.</li>
+%% </ul>
+-spec at_the_machine(map(), map(), [{binary(), atom()}]) -> [cell_alarms:solution()] | any.
+at_the_machine(#{local_id := Local, task := Task}, World, Held) ->
+    Serial = case [S || {S, T} <- Held, T =:= Task] of
+                 [S | _] -> S;
+                 [] -> undefined
+             end,
+    InMachine = [S || {S, {machine, _}} <- places(World)],
+    Has = lists:member(Serial, InMachine),
+    case Local of
+        _ when Local =:= <<"in_transit">>; Local =:= <<"transfer">> ->
+            [case Has of true -> ignore; false -> reset end];
+        <<"crashed">> when Serial =:= undefined -> [retry, reset];
+        <<"crashed">> when Has -> [retry];
+        <<"crashed">> -> [reset];
+        _ when Task =:= upper, Local =:= <<"where">> orelse Local =:= <<"lost">> ->
+            [upper_truth(Local, Serial, World)];
+        <<"where">> ->
+            [case [x || {S, _} <- maps:values(maps:get(loading, World)), S =:= Serial] of
+                 [] -> reset;
+                 _ -> ignore
+             end];
+        <<"unheld">> ->
+            ok = hand_out(Task, World, Held),
+            [retry];
+        _ ->
+            any
+    end.
+
+upper_truth(Local, S, #{gripper := G} = W) ->
+    In = fun(Where, Pos) -> [x || {S1, P} <- maps:values(maps:get(Where, W)), S1 =:= S,
+                                  Pos =:= any orelse P =:= Pos] =/= [] end,
+    if
+        G =:= S, S =/= undefined -> retry;                %% in the gripper after all
+        Local =:= <<"where">>, S =/= undefined -> case In(work, full) of
+                                                     true -> retry;     %% back in the nest
+                                                     false -> on_unloading(In)
+                                                 end;
+        true -> on_unloading(In)
+    end.
+
+on_unloading(In) ->
+    case In(unloading, any) of
+        true -> ignore;
+        false -> reset
+    end.
+
+%% The operator takes out by hand what lies at the task's station when no task holds
+%% it (the error may have been raised just before a task read its product again): a
+%% whole panel in a work fixture, modules on an unloading conveyor, or in the upper
+%% robot's gripper; then waits a moment for the station's sensor to be read empty.
+hand_out(Task, World, Held) ->
+    {Where, Lane, Point} = maps:get(Task, #{work_front => {work, front, panel_in_position},
+                                            work_rear => {work, rear, panel_in_position},
+                                            unloading_front => {unloading, front, panel_at_exit},
+                                            unloading_rear => {unloading, rear, panel_at_exit},
+                                            upper => {gripper, none, product_present}}),
+    Found = case Where of
+                gripper -> maps:get(gripper, World);
+                _ -> maps:get(Lane, maps:get(Where, World))
+            end,
+    case Found of
+        {S, Pos} when Pos =/= frame -> take_out(S, Where, Lane, Point, Held);
+        S when is_binary(S) -> take_out(S, Where, Lane, Point, Held);
+        _ -> ok
+    end.
+
+take_out(S, Where, Lane, Point, Held) ->
+    case lists:keymember(S, 1, Held) of
+        true ->
+            ok;
+        false ->
+            Group = case Where of
+                        gripper -> upper_io;
+                        _ -> router_cell:group(Where, Lane)
+                    end,
+            {ok, Ref} = cell_hal:watch(Group, Point, {eq, false}),
+            _ = router_sim:take_out(Where, Lane),
+            receive {cell_hal_watch, Ref, _} -> ok
+            after 5000 -> _ = cell_hal:cancel_watch(Ref), ok
+            end,
+            case Where of
+                unloading ->
+                    %% Both sensors of the conveyor.
+                    {ok, Ref2} = cell_hal:watch(Group, panel_at_entry, {eq, false}),
+                    receive {cell_hal_watch, Ref2, _} -> ok
+                    after 5000 -> _ = cell_hal:cancel_watch(Ref2), ok
+                    end;
+                _ ->
+                    ok
+            end
     end.
 
 %% A seeded random per kind of error (and per boot of the node).

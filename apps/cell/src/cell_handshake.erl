@@ -105,7 +105,7 @@ release(#task{id = Id} = T0, Link) ->
     case Reply of
         ok ->
             %% The file stays until downstream owns the product on disk.
-            ok = cell_registry:update(Id, #{serial => undefined}),
+            ok = cell_registry:update(Id, #{serial => undefined, product => undefined}),
             ok = cell_task:publish(T, product_saved, #{item => undefined, product => undefined,
                                                        in_transit => false}),
             view(T#task{product = undefined, gen = 0, marker = undefined, traced = undefined},

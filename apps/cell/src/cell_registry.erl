@@ -2,7 +2,7 @@
 %%
 %% <ul>
 %% <li>`cell_tasks' — one row per device task: its pid and what the controller, the
-%%     panel and SHDR read without a process hop (state, flags, product serial);</li>
+%%     panel and SHDR read without a process hop (state, flags, product serial and the product);</li>
 %% <li>`cell_control' — the controller's commands to the tasks: the pending request,
 %%     the emergency stop, service mode, read by a task when it (re)starts;</li>
 %% <li>the emergency-stop flag, an atomic every task checks before each step, so no
@@ -319,7 +319,14 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     State = collect_dead(Id, State0),
     Previous = maps:get(Id, State#state.ended, fresh),
     Ref = monitor(process, Pid),
-    true = ets:insert(?TASKS, {Id, maps:remove(state, Info#{pid => Pid})}),
+    %% The product its previous incarnation held stays in the row until the restarted
+    %% task has read its own file: others looking for who may hold a product see it
+    %% meanwhile.
+    Kept = case ets:lookup(?TASKS, Id) of
+               [{Id, OldRow}] -> maps:with([product], OldRow);
+               [] -> #{}
+           end,
+    true = ets:insert(?TASKS, {Id, maps:merge(Kept, maps:remove(state, Info#{pid => Pid}))}),
     ok = set_state(Id, maps:get(state, Info, off)),
     {reply, Previous, keep_pids(State#state{monitors = maps:put(Ref, {Id, Pid}, State#state.monitors),
                                        ended = maps:remove(Id, State#state.ended)})};

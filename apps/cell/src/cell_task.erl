@@ -66,8 +66,8 @@
 -include("cell_task.hrl").
 
 -export([id/1, zone/1, lane/1, module/1, args/1, arg/3, settings/1, setting/3,
-         get/2, get/3, put/3, product/1, set_product/2, clear_product/1, state/1,
-         answer/1, woken_by/1, service_mode/1, io_groups/1, commanded/3, commanded/4]).
+         get/2, get/3, put/3, product/1, set_product/2, clear_product/1, others_products/1,
+         state/1, answer/1, woken_by/1, service_mode/1, io_groups/1, commanded/3, commanded/4]).
 -export([starved/1, unstarved/1, blocked/1, unblocked/1, identifier_read/3,
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
          work_abort/2, transfer_out/2]).
@@ -193,6 +193,13 @@ set_product(#task{product = Old, gen = Gen, marker = Marker} = T, Product) ->
             erlang:error(Reason)
     end.
 
+%% @doc The products the cell's other tasks hold now, by task (as each last saved it):
+%% what a task reads to tell whether a product its sensors see is in some record.
+-spec others_products(task()) -> [{atom(), cell_product:product()}].
+others_products(#task{id = Id}) ->
+    [{Other, P} || #{id := Other, product := P} <- cell_registry:tasks(), Other =/= Id,
+                   is_map(P)].
+
 %% @doc The task holds no product any more; its file is removed.
 -spec clear_product(task()) -> task().
 clear_product(T) ->
@@ -220,7 +227,7 @@ store(#task{id = Id, product_file = File} = T, Product, Gen, Marker, Opts) ->
     case cell_product:save(File, Stored, Opts) of
         ok ->
             ok = cell_registry:hold(Id, Serial, Gen),
-            ok = cell_registry:update(Id, #{serial => Serial}),
+            ok = cell_registry:update(Id, #{serial => Serial, product => Product}),
             %% Watchers (panel, SHDR) see the task's product change at once.
             ok = publish(T, product_saved, maps:merge(Fields, Journal)),
             T#task{product = Product, gen = Gen, marker = Marker, traced = Serial};

@@ -936,7 +936,8 @@ wake_events(_, T) ->
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
-take_loaded(T, undefined) ->
+take_loaded(#task{id = Id} = T, undefined) ->
+    ok = cell_registry:update(Id, #{product => undefined}),
     T#task{product = undefined, gen = 0, marker = undefined};
 take_loaded(T, #{product := Product, gen := Gen, marker := Marker}) ->
     dedupe(T#task{product = Product, gen = Gen, marker = Marker}).
@@ -947,7 +948,7 @@ dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
     ok = cell_registry:hold(Id, S, G),
     case [{Other, G2} || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
         [] ->
-            ok = cell_registry:update(Id, #{serial => S}),
+            ok = cell_registry:update(Id, #{serial => S, product => T#task.product}),
             T;
         [{Other, _} | _] ->
             drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))

@@ -4,8 +4,8 @@
 %%
 %% <pre>
 %%  phase       waits for                                   then
-%%  idle        a panel at the previous machine             belt on, ready to receive → intake
-%%              (STARVED)
+%%  idle        a panel at the previous machine, or one     belt on, ready to receive → intake
+%%              at the stopper already (STARVED)
 %%  intake      the panel at the stopper, or the watchdog   belt off; the code read: the product
 %%                                                          (ItemIdentifierRead, ItemTransferIn) → full
 %%  full        -                                           offer it to the work segment (phase 1,
@@ -22,6 +22,8 @@
 %% held and seen is offered again (full); held but not seen, the operator says where it
 %% is: back at the stopper (RETRY, the sensor read again), between the stopper and the
 %% work segment (IGNORE: offered, handed over as it is), taken out (RESET: forgotten).
+%% Holding none, a panel at the stopper is in no record: its code is read and it is
+%% taken as it would be after an intake (the stopper is where a panel is identified).
 %%
 %% A watchdog that runs out is a "Conveyor jam" error: the belt stops until the
 %% operator has freed the panel and chosen Retry. The previous machine's magazine
@@ -93,7 +95,9 @@ step(T) ->
 
 %% -- empty: a panel from the previous machine ---------------------------------------
 step(idle, _Woken, T) ->
-    case cell_task:in(T, upstream_available) of
+    %% A panel already at the stopper (one no record holds any more) is read like one
+    %% that just arrived, even when the previous machine offers none.
+    case cell_task:in(T, upstream_available) orelse cell_task:in(T, panel_at_stop) of
         true ->
             T1 = cell_task:out(cell_task:out(T, belt_run, true), upstream_ready, true),
             watch(intake, panel_at_stop, true, router_task:unstarved(T1));

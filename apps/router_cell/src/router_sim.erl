@@ -21,8 +21,9 @@
 %% the modules of a product the operator gave up on ("Product lost", Reset) go, the
 %% upper robot opening its gripper at home. A frame left in a fixture is not the
 %% product (its modules are in the gripper or beyond); frames leave by the fixture's
-%% eject and are only counted. The simulated machine has no operator's hand taking a
-%% panel out: a panel the cell forgets stays where it is.
+%% eject and are only counted. A panel the cell forgets stays where it is until the
+%% operator's hand takes it out ({@link take_out/2}): `{Serial, removed}' in the ledger,
+%% counted in `removed' (a frame taken out is counted in `frames').
 %%
 %% <ul>
 %% <li>Panels arrive at the previous machine's output at the `router_sim' settings'
@@ -52,7 +53,7 @@
 -module(router_sim).
 -behaviour(gen_server).
 
--export([start_link/1, world/0, ready/1]).
+-export([start_link/1, world/0, ready/1, take_out/2]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -81,11 +82,22 @@ start_link(#{lanes := Lanes} = Opts) when is_list(Lanes) ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, Opts, []).
 
 %% @doc The world as it is now: where every panel is, the counters `arrived',
-%% `delivered', `scrapped' and `frames', and the machine's `ledger' of what left it
+%% `delivered', `scrapped', `frames' and `removed', and the machine's `ledger' of what left it
 %% (see the module doc).
 -spec world() -> map().
 world() ->
     gen_server:call(?MODULE, world).
+
+%% @doc The operator's hand takes what lies at a station out of the machine: a panel
+%% (or a frame) in a lane's `loading', `work' or `unloading' segment, or the modules in
+%% the upper robot's `gripper' (lane `none'). The panel goes in the ledger as
+%% `{Serial, removed}' before the sensors show the station empty. Returns what was
+%% taken: its serial, `frame', or `{error, empty}' when nothing lies there.
+-spec take_out(loading | work | unloading | gripper, lane() | none) ->
+          {ok, binary() | frame} | {error, empty}.
+take_out(Where, Lane) when Where =:= loading; Where =:= work; Where =:= unloading;
+                           Where =:= gripper ->
+    gen_server:call(?MODULE, {take_out, Where, Lane}).
 
 %% @doc Returns once the physics runs and the HAL has read every input of the
 %% simulated PLC as the physics set it, so a Start from now on finds the machine as it
@@ -174,10 +186,18 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
                     "at the previous machine", [length(panels(World)), queued(World)]),
     maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
 
--spec handle_call(world | groups, gen_server:from(), map()) ->
-          {reply, map(), map()} | {noreply, map()}.
+-spec handle_call(world | groups | {take_out, atom(), atom()}, gen_server:from(), map()) ->
+          {reply, term(), map()} | {noreply, map()}.
 handle_call(world, _From, #{world := W} = S) ->
     {reply, W, S};
+handle_call({take_out, Where, L}, _From, #{attached := true} = S) ->
+    try hand(Where, L, S#{settings => settings()}) of
+        {Reply, S1} -> {reply, Reply, kick(maps:remove(settings, S1))}
+    catch
+        throw:{hal_gone, Group} -> {reply, {error, empty}, detach(Group, S)}
+    end;
+handle_call({take_out, _Where, _L}, _From, S) ->
+    {reply, {error, empty}, S};
 handle_call(groups, _From, #{groups := Groups, attached := true} = S) ->
     {reply, #{groups => maps:keys(Groups)}, S};
 handle_call(groups, From, #{attached := false} = S) ->
@@ -350,6 +370,53 @@ gripper(false, #{world := #{gripper := Serial, upper_at := At} = W} = S) ->
              none -> S3;
              _ -> set(S3, unloading, Placed, panel_at_entry, true)
          end).
+
+%%====================================================================
+%% The operator's hand
+%%====================================================================
+
+%% A panel taken out of a station: in the ledger first, then the sensors. A move the
+%% station had under way stops (its panel is gone).
+hand(gripper, _L, #{world := #{gripper := empty}} = S) ->
+    {{error, empty}, S};
+hand(gripper, _L, #{world := #{gripper := Serial} = W} = S) ->
+    S1 = removed(Serial, S#{lost := undefined, world := W#{gripper := empty}}),
+    {{ok, Serial}, set(S1, upper, none, product_present, false)};
+hand(Where, L, #{world := W} = S) ->
+    case maps:get(L, maps:get(Where, W), empty) of
+        empty ->
+            {{error, empty}, S};
+        {_, frame} ->
+            S1 = count(frames, world(stop_moves(Where, L, S), Where, L, empty)),
+            {{ok, frame}, sensors(Where, L, S1)};
+        {Serial, _} ->
+            S1 = removed(Serial, world(stop_moves(Where, L, S), Where, L, empty)),
+            {{ok, Serial}, sensors(Where, L, S1)}
+    end.
+
+removed(Serial, S) ->
+    cell_log:info(router, "simulated router: ~ts taken out of the machine by the operator",
+                  [Serial]),
+    ledger(Serial, removed, count(removed, S)).
+
+stop_moves(Where, L, #{moves := Moves} = S) ->
+    Ids = case Where of
+              loading -> [{intake, L}, {transfer, L}];
+              work -> [{eject, L}];
+              unloading -> [{unload, L}, {handout, L}]
+          end,
+    _ = [erlang:cancel_timer(R) || Id <- Ids, #move{timer = R} <- [maps:get(Id, Moves, #move{steps = []})],
+                                   R =/= undefined],
+    S#{moves := maps:without(Ids, Moves)}.
+
+%% The sensors of a station emptied by hand.
+sensors(loading, L, S) ->
+    S1 = set(set(S, loading, L, panel_at_entry, false), loading, L, panel_at_stop, false),
+    set(S1, loading, L, code, <<>>);
+sensors(work, L, S) ->
+    set(set(S, work, L, nest_empty, true), work, L, panel_in_position, false);
+sensors(unloading, L, S) ->
+    set(set(S, unloading, L, panel_at_entry, false), unloading, L, panel_at_exit, false).
 
 %%====================================================================
 %% Conveyor moves
@@ -574,7 +641,8 @@ empty_world(Lanes) ->
     Empty = maps:from_list([{L, empty} || L <- Lanes]),
     #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
       unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
-      next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0},
+      next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0,
+                             removed => 0},
       ledger => []}.
 
 %% A world read back: a panel that was entering the loading segment is back at the

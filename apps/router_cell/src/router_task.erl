@@ -15,6 +15,7 @@
 -export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3,
          interrupted/4, lane/1]).
 -export([take/3, take/4, offered/3, finish/4, finish/5, finish/6]).
+-export([unheld/3, unheld_error/4]).
 
 -export_type([located/0]).
 
@@ -206,7 +207,53 @@ transfer_question(T, S) ->
                         "RESET if it is not (the station forgets it).", [S]),
           [ignore, reset], forget).
 
+%%--------------------------------------------------------------------
+%% A product a station's sensor sees that no record holds
+%%--------------------------------------------------------------------
+
+%% @doc Whether what a station's sensor sees (its own task holding no product) is in no
+%% record: none of the tasks `Takers' (those that may hold it there, a robot that took
+%% charge of it in place, say) holds a product of `Lane' (a product without a lane
+%% counts as of every lane). `Others' is what the other tasks hold
+%% ({@link cell_task:others_products/1}).
+-spec unheld(front | rear, [atom()], [{atom(), cell_product:product()}]) -> boolean().
+unheld(Lane, Takers, Others) ->
+    [x || {Task, P} <- Others, lists:member(Task, Takers),
+          maps:get(lane, P, Lane) =:= Lane] =:= [].
+
+%% @doc The operator's error for it: `Where' says what lies where ("a panel lies in the
+%% work fixture of lane front"); the operator takes it out of the machine and selects
+%% RETRY, and the task looks again.
+-spec unheld_error(cell_task:task(), iodata(), iodata(), [term()]) ->
+          {error, cell_alarms:spec(), cell_task:task()}.
+unheld_error(T, Caption, Where, Args) ->
+    {error, cell_task:error_spec(
+              <<"unheld">>, Caption,
+              [io_lib:format(Where, Args),
+               " and no record holds it: take it out of the machine, then select RETRY."],
+              [retry]),
+     T}.
+
 %% @doc The task's lane: `front' or `rear'.
 -spec lane(cell_task:task()) -> front | rear.
 lane(T) ->
     cell_task:arg(T, lane, front).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+unheld_test_() ->
+    P = fun(Lane) -> #{serial => <<"P1">>, recipe => <<"r">>, failed => false, lane => Lane} end,
+    [%% Nobody holds anything: in no record.
+     ?_assert(unheld(front, [lower, upper], [])),
+     %% A robot holds a product of this lane: it may be the one seen.
+     ?_assertNot(unheld(front, [lower, upper], [{lower, P(front)}])),
+     ?_assertNot(unheld(front, [lower, upper], [{upper, P(front)}])),
+     %% Of the other lane, or held by a task that is not a taker (the loading segment
+     %% before the fixture): in no record.
+     ?_assert(unheld(front, [lower, upper], [{lower, P(rear)}])),
+     ?_assert(unheld(front, [lower, upper], [{loading_front, P(front)}])),
+     %% A product without a lane may be of any lane.
+     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}]))].
+
+-endif.

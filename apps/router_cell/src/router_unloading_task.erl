@@ -22,6 +22,12 @@
 %% hand-out goes on with both signals it needs, belt and board available (leaving);
 %% modules not yet handed out at the exit wait for the next machine again (waiting);
 %% elsewhere they are conveyed (landing).
+%%
+%% Modules at the entry or the exit that no record holds (this task holds no product,
+%% nor does the upper robot one of this lane, as after a hand-out cut off once it let
+%% go) would be handed out as the next product, or have the next ones dropped on them:
+%% restarted, or idle, the task asks the operator to take them out of the machine
+%% (`unheld') and looks again at RETRY.
 -module(router_unloading_task).
 -behaviour(cell_task).
 
@@ -31,11 +37,16 @@
 init(T) ->
     {ok, router_task:after_reset(T)}.
 
--spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
 reconcile(_Held, T) ->
     case {cell_task:product(T), cell_task:in(T, panel_at_exit)} of
         {undefined, _} ->
-            {ok, phase(outputs(T, false, false), idle)};
+            T1 = phase(outputs(T, false, false), idle),
+            case unheld_here(T1) of
+                true -> unheld_error(T1);
+                false -> {ok, T1}
+            end;
         %% Handed to the next machine when it stopped: gone meanwhile, they left.
         {#{handing_out := true}, false} ->
             {ok, phase(handed_out(outputs(T, false, false)), idle)};
@@ -58,7 +69,10 @@ step(T) ->
 
 %% -- empty: modules from the upper robot -------------------------------------------------
 step(idle, _Woken, T) ->
-    router_task:take(T, prev(T), receiving);
+    case unheld_here(T) of
+        true -> unheld_error(outputs(T, false, false));
+        false -> router_task:take(T, prev(T), receiving)
+    end;
 step(receiving, {handshake, _Prev, interrupted}, T) ->
     router_task:interrupted(T, landing, idle);
 step(receiving, {handshake, _Prev, available, false}, T) ->
@@ -144,5 +158,17 @@ watch(T, Phase, Point, Value) ->
     router_task:watch(T, Phase, Point, Value, transfer_timeout_ms).
 
 prev(T) -> cell_task:arg(T, prev, undefined).
+
+%% Modules seen at the entry or the exit while the task holds no product and the upper
+%% robot holds none of this lane.
+unheld_here(T) ->
+    cell_task:product(T) =:= undefined
+        andalso (cell_task:in(T, panel_at_entry) orelse cell_task:in(T, panel_at_exit))
+        andalso router_task:unheld(router_task:lane(T), [upper], cell_task:others_products(T)).
+
+unheld_error(T) ->
+    router_task:unheld_error(T, "Modules on the unloading conveyor unknown",
+                             "Modules lie on the unloading conveyor of lane ~ts",
+                             [router_task:lane(T)]).
 
 phase(T, Phase) -> router_task:phase(T, Phase).

@@ -48,7 +48,9 @@
 %% Restarted (reconcile), the robot believes its gripper, not its record: a product
 %% held with the modules seen in the gripper goes on (gripper closed again,
 %% to_unloading), one whose modules are not there is a question for the operator
-%% (where), never a carry of an empty gripper.
+%% (where), never a carry of an empty gripper. Holding no product, it opens the gripper,
+%% unless the gripper sensor sees modules that no record holds (`unheld'): the operator
+%% takes them out of the gripper, then RETRY.
 %%
 %% RESET to "Product lost" deletes the product's data and goes on with an empty
 %% gripper, as the seed says, and leaves nothing in the machine that no record knows
@@ -95,7 +97,13 @@ init(T0) ->
 reconcile(Held, T) ->
     case {cell_task:product(T), router_task:phase(T), cell_task:answer(T)} of
         {undefined, _, _} ->
-            {ok, phase(cell_task:out(T, gripper_close, false), idle)};
+            case unheld_here(T) of
+                %% Kept closed: opened, they would fall wherever the robot stands.
+                true -> router_task:unheld_error(
+                          phase(T, idle), "Modules in the gripper unknown",
+                          "Modules are in the upper robot's gripper", []);
+                false -> {ok, phase(cell_task:out(T, gripper_close, false), idle)}
+            end;
         %% Reset by the operator (init): on the way to the scrap bin.
         {_, to_scrap, _} ->
             {ok, T};
@@ -124,6 +132,14 @@ uninit(T) ->
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
     step(router_task:phase(T), cell_task:woken_by(T), T).
+
+%% Modules in the gripper while the task holds no product and no unloading segment holds
+%% one (one it took in from the gripper, its transfer cut off before the gripper opened).
+unheld_here(T) ->
+    Others = cell_task:others_products(T),
+    Unloading = [Id || {Id, _} <- Others, lists:member(Id, [unloading_front, unloading_rear])],
+    cell_task:product(T) =:= undefined andalso cell_task:in(T, product_present)
+        andalso Unloading =:= [].
 
 %% -- empty: take the routed modules ------------------------------------------------------
 step(idle, _Woken, T) ->

@@ -27,6 +27,13 @@
 %% panel seen in position is completed and clamped; not yet there, the belt brings it);
 %% without one, a panel in position is the routing robot's or its frame (emptying),
 %% none is idle.
+%%
+%% A whole panel in the fixture (its module nest full) that no record holds (this task
+%% holds no product, and neither robot holds one of this lane) would keep the fixture
+%% for ever: nobody routes it, and the segment waits for its nest to empty. Restarted,
+%% or idle with a panel in position, the task asks the operator to take it out of the
+%% machine instead (the clamps open), and looks again at RETRY (`unheld'). A panel
+%% the operator's Reset made the cell forget while it lay in the fixture ends so.
 -module(router_work_task).
 -behaviour(cell_task).
 
@@ -38,13 +45,19 @@ init(T0) ->
 
 %% The fixture's sensor decides: a panel in position with no record is the routing
 %% robot's (or its frame), to be emptied; with one, it is clamped and offered again.
--spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
+-spec reconcile(cell_task:held(), cell_task:task()) ->
+          {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
 reconcile(_Held, T2) ->
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
-            %% A panel the routing robot has, or its frame: the clamps hold it until the
-            %% modules are out.
-            {ok, phase(cell_task:out(T2, clamp, true), emptying)};
+            case unheld_here(T2) of
+                true ->
+                    unheld_error(T2);
+                false ->
+                    %% A panel the routing robot has, or its frame: the clamps hold it
+                    %% until the modules are out.
+                    {ok, phase(cell_task:out(T2, clamp, true), emptying)}
+            end;
         {undefined, false} ->
             {ok, phase(T2, idle)};
         {_, _} ->
@@ -63,9 +76,10 @@ step(T) ->
 
 %% -- empty: take a panel from the loading segment ------------------------------------
 step(idle, _Woken, T) ->
-    case cell_task:in(T, panel_in_position) of
-        false -> {continue, phase(T, take)};
-        true -> {continue, phase(T, emptying)}
+    case {cell_task:in(T, panel_in_position), unheld_here(T)} of
+        {false, _} -> {continue, phase(T, take)};
+        {true, true} -> unheld_error(T);
+        {true, false} -> {continue, phase(T, emptying)}
     end;
 step(take, _Woken, T) ->
     %% Phase 2: both belts run.
@@ -140,6 +154,24 @@ step(ejecting, _Woken, T) ->
 %% -- the operator said the panel of an interrupted transfer is here --------------------
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), arriving)}.
+
+%% -- a panel in the fixture that no record holds ------------------------------------------
+
+%% A whole panel in the fixture (its module nest full) while the task holds no product
+%% and no robot holds one of this lane.
+unheld_here(T) ->
+    cell_task:product(T) =:= undefined andalso cell_task:in(T, panel_in_position)
+        andalso not cell_task:in(T, nest_empty)
+        andalso router_task:unheld(router_task:lane(T), [lower, upper],
+                                   cell_task:others_products(T)).
+
+%% The operator takes it out; the clamps open for the hand, the belt stays off. RETRY
+%% looks again (reconcile, or the idle step).
+unheld_error(T) ->
+    router_task:unheld_error(
+      phase(cell_task:out(cell_task:out(T, belt_run, false), clamp, false), idle),
+      "Panel in the fixture unknown", "A panel lies in the work fixture of lane ~ts",
+      [router_task:lane(T)]).
 
 %% A watchdog ran out: the belt stops, the operator looks, Retry goes on where it was.
 fault(T, What, Check) ->

@@ -14,7 +14,8 @@
 -export([loading_killed_in_every_phase/1, work_killed_in_every_phase/1,
          lower_killed_in_every_phase/1, upper_killed_in_every_phase/1,
          unloading_killed_in_every_phase/1, every_task_killed_at_once/1,
-         task_tree_restarted/1, unloading_killed_while_the_upper_puts_down/1]).
+         task_tree_restarted/1, unloading_killed_while_the_upper_puts_down/1,
+         panel_forgotten_in_the_fixture/1]).
 
 -define(DEADLINE_MS, 60000).
 -define(EVENTS, [item_transfer_out, alarm_raised, cell_state, task_crashed, product_saved]).
@@ -23,7 +24,7 @@ all() ->
     [unloading_killed_in_every_phase, upper_killed_in_every_phase,
      loading_killed_in_every_phase, work_killed_in_every_phase,
      lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted,
-     unloading_killed_while_the_upper_puts_down].
+     unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -105,6 +106,65 @@ unloading_killed_while_the_upper_puts_down(_Config) ->
     ok = cell_stats:flush(),
     {ok, #{status := out, failed := false}} = cell_stats:product(Serial),
     assert_books_agree().
+
+%% The work segment killed once the panel lies clamped in its fixture, and its crash
+%% answered with Reset, as an operator who did not look at the machine would: the
+%% record of the panel is gone, the panel is not. The restarted segment does not wait
+%% for ever for a nest nobody empties: it asks for the panel to be taken out of the
+%% machine; the operator's hand takes it out, Retry, and the line goes on. The machine's
+%% ledger has the panel as removed by the operator.
+panel_forgotten_in_the_fixture(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(1),
+    Work = cell_task_proc:whereis(work_front),
+    1 = erlang:trace(Work, true, [call, {tracer, self()}]),
+    ok = await_phase(Work, clamping, deadline()),
+    Serial = serial(work_front),
+    exit(Work, kill),
+    ct:log("work_front killed with ~ts in its fixture; the machine: ~tp",
+           [Serial, router_sim:world()]),
+    flush_trace(Work),
+    %% The restart's question (a crash, or the transfer if it was still marked) answered
+    %% with Reset: the panel is forgotten.
+    #{id := Crash} = await_alarm([<<"crashed">>, <<"in_transit">>], work_front, deadline()),
+    ok = cell_alarms:answer(Crash, reset, <<"suite">>),
+    #{id := Id, description := Text} = await_alarm([<<"unheld">>], work_front, deadline()),
+    ?assertMatch({match, _}, re:run(Text, "work fixture of lane front and no record holds it")),
+    ?assertMatch({Serial, full}, maps:get(front, maps:get(work, router_sim:world()))),
+    ?assertEqual({ok, Serial}, router_sim:take_out(work, front)),
+    %% The operator selects Retry once the fixture's sensor (as the HAL reads it) shows
+    %% the fixture empty: asked nothing more about the fixture after that.
+    {ok, Ref} = cell_hal:watch(router_cell:group(work, front), panel_in_position, {eq, false}),
+    receive {cell_hal_watch, Ref, false} -> ok
+    after ?DEADLINE_MS -> ct:fail(fixture_still_seen_full)
+    end,
+    ok = cell_alarms:answer(Id, retry, <<"suite">>),
+    {Asked, _Out} = collect(2, [], [], deadline()),
+    ?assertEqual([], [A || A <- Asked, A =:= <<"unheld">>]),
+    ok = stop_cell(),
+    W = router_sim:world(),
+    ?assertEqual([removed], [How || {S, How} <- maps:get(ledger, W), S =:= Serial]),
+    ?assertEqual(1, maps:get(removed, maps:get(counters, W))),
+    assert_books_agree().
+
+%% An error of one of these local ids raised by the task, the others answered meanwhile.
+await_alarm(Locals, Task, Deadline) ->
+    receive
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error, local_id := L,
+                                                         task := Task} = A}} ->
+            case lists:member(L, Locals) of
+                true -> A;
+                false -> ok = answer(A), await_alarm(Locals, Task, Deadline)
+            end;
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_alarm(Locals, Task, Deadline);
+        {cell_event, _} ->
+            await_alarm(Locals, Task, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_error, Locals, cell_controller:tasks(), cell_alarms:list()})
+    end.
 
 %% The local ids of the errors asked (and answered) until N products left, and what left.
 collect(0, Asked, Out, _Deadline) ->
