@@ -272,9 +272,14 @@ proc_kill(#{proc_kills := K, by_kind := By} = H) ->
 
 %% A serial two tasks hold: a candidate when first seen, double-held when still held
 %% by both ?DOUBLE_MS later (a handover holds both for far less).
-check_double(#{candidates := C, double := D} = H) ->
+check_double(H) ->
+    case held_safe(H) of
+        unavailable -> H;
+        Held -> check_double(Held, H)
+    end.
+
+check_double(Held, #{candidates := C, double := D} = H) ->
     Now = erlang:monotonic_time(millisecond),
-    Held = held_safe(H),
     Twice = maps:from_list(
               [{S, lists:usort([T || {S1, T} <- Held, S1 =:= S])}
                || S <- lists:usort([S || {S, _} <- Held]),
@@ -290,9 +295,13 @@ check_double(#{candidates := C, double := D} = H) ->
      || {S, Tasks} <- Confirmed, not maps:is_key(S, D)],
     H#{candidates := C1, double := maps:merge(D, maps:from_list(Confirmed))}.
 
+%% What the tasks hold, or `unavailable' while the controller's tree starts anew (its
+%% registry's tables are made again): that sample is skipped.
 held_safe(H) ->
     try call(H, ?MODULE, held, [])
-    catch throw:{node_down, _, _} = Down -> throw(Down)
+    catch
+        throw:{node_down, _, _} = Down -> throw(Down);
+        error:{exception, badarg, [{ets, _, _, _} | _]} -> unavailable
     end.
 
 %% Waits for a product to move, or the operator in the node to say none moved for
