@@ -69,12 +69,16 @@ init([]) ->
 handle_continue(boot, State) ->
     ok = cell_events:subscribe([request, estop, alarm_raised, alarm_cleared]),
     ok = cell_settings:subscribe(),
+    %% The no-progress time read again now that a change of it is told: one saved
+    %% between init/1 and the subscription would be missed otherwise.
+    Limit = limit_ms(),
+    State0 = core(fun(C) -> cell_guard_core:limit(Limit, now_ms(), C) end, State),
     %% A warning of an earlier incarnation would never be cleared by this one, which
     %% starts without it: it goes, and comes again if the cell is still stuck.
     ok = cell_alarms:reset_warning(cell, ?ID),
     %% The serials the tasks read back from their files before this process started.
     Serials = lists:usort([S || {S, _} <- held()]),
-    State1 = lists:foldl(fun check_double/2, State, Serials),
+    State1 = lists:foldl(fun check_double/2, State0, Serials),
     {noreply, conditions(State1)}.
 
 -spec handle_call(sync, gen_server:from(), #state{}) -> {reply, ok, #state{}}.
