@@ -1030,8 +1030,10 @@ attach(St) ->
                           cell_stats_trace:fresh(Id, Saved, St#st.seen)],
             _ = Fresh =:= [] orelse
                 cell_log:notice(cell, "statistics: ~b records of the products' way through "
-                                "the cell were not yet in the database after a restart; "
-                                "they are taken from the trace journal", [length(Fresh)]),
+                                "the cell were in the trace journal but not yet in the "
+                                "database (made before the statistics started, or cut off "
+                                "from it by a crash); they are taken from the journal",
+                                [length(Fresh)]),
             St2 = lists:foldl(fun journal_record/2, St1, Fresh),
             St2#st{attached = true, seen = #{}}
     end.
