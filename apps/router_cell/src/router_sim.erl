@@ -267,13 +267,21 @@ terminate(_Reason, S) ->
 %% Conveyors: a belt or SMEMA output only changes which moves can run (kick/1).
 output(_Where, _Point, Same, Same, S) ->
     S;
-output({work, L}, clamp, V, _Old, S) ->
-    later(delay(clamp_ms, S), fun(S1) -> set(S1, work, L, clamped, V) end, S);
+output({work, L}, clamp, _V, _Old, S) ->
+    %% The clamps end where their valve is when the move ends: a command taken back
+    %% meanwhile (a close, then an open at once) leaves them open, whichever of the
+    %% two moves' ends comes first.
+    later(delay(clamp_ms, S), fun(S1) -> set(S1, work, L, clamped, out(S1, work, L, clamp)) end,
+          S);
 output({lower, _}, spindle_run, V, _Old, S) ->
     Ms = case V of true -> delay(spindle_ramp_ms, S); false -> delay(spindle_ramp_ms, S) div 2 end,
     later(Ms, fun(S1) -> set(S1, lower, none, spindle_at_speed, V) end, S);
-output({lower, _}, plunge, V, _Old, S) ->
-    later(delay(plunge_ms, S), fun(S1) -> set(S1, lower, none, plunged, V) end, S);
+output({lower, _}, plunge, _V, _Old, S) ->
+    %% As the clamps: the bit ends where its valve is.
+    later(delay(plunge_ms, S),
+          fun(#{outs := Outs} = S1) ->
+                  set(S1, lower, none, plunged, maps:get({lower_io, plunge}, Outs, false))
+          end, S);
 output({lower, _}, command, Command, _Old, #{outs := Outs} = S) ->
     X = maps:get({lower_io, target_x}, Outs, 0.0),
     Y = maps:get({lower_io, target_y}, Outs, 0.0),
