@@ -192,18 +192,22 @@ check_options(Opts) ->
 
 public(A) -> maps:without([owner, monitor], A).
 
-%% Whether answering lets the error's task go on with a product another task holds.
-held_twice(_A, Solution) when Solution =:= reset; Solution =:= close ->
-    none;
-held_twice(#{task := Task}, _Solution) ->
+%% The serial of the product the error's task holds, or `undefined'.
+serial_of(Task) ->
     case cell_registry:task(Task) of
-        {ok, #{serial := Serial}} when is_binary(Serial) ->
-            case [O || {O, _} <- cell_registry:holders(Serial), O =/= Task] of
-                [] -> none;
-                Others -> {Serial, lists:usort(Others)}
-            end;
-        _ ->
-            none
+        {ok, #{serial := Serial}} when is_binary(Serial) -> Serial;
+        _ -> undefined
+    end.
+
+%% Whether answering lets the error's task go on with a product another task holds.
+held_twice(_Task, undefined, _Solution) ->
+    none;
+held_twice(_Task, _Serial, Solution) when Solution =:= reset; Solution =:= close ->
+    none;
+held_twice(Task, Serial, _Solution) ->
+    case [O || {O, _} <- cell_registry:holders(Serial), O =/= Task] of
+        [] -> none;
+        Others -> {Serial, lists:usort(Others)}
     end.
 
 %% What the tasks, the monitor and the controller ask wait through a restart of this
@@ -250,17 +254,18 @@ handle_call({withdraw, Id}, _From, State) ->
     {reply, ok, remove(Id, withdrawn, <<"cell">>, State)};
 handle_call({answer, Id, Solution, Who}, _From, State) ->
     case ets:lookup(?TAB, Id) of
-        [{Id, #{kind := error, solutions := Sols, owner := _} = A}] ->
-            case lists:member(Solution, Sols) andalso held_twice(A, Solution) of
+        [{Id, #{kind := error, task := Task, solutions := Sols} = A}] ->
+            Serial = serial_of(Task),
+            case lists:member(Solution, Sols) andalso held_twice(Task, Serial, Solution) of
                 {Serial, Others} ->
-                    cell_log:warning(maps:get(task, A),
+                    cell_log:warning(Task,
                                      "~ts answered \"~ts\" with ~ts: refused, product ~ts is "
                                      "held by ~ts too; settle that first",
                                      [Who, maps:get(caption, A), solution_name(Solution), Serial,
                                       lists:join(", ", [atom_to_list(O) || O <- Others])]),
                     {reply, {error, {double_holding, Serial, Others}}, State};
                 none ->
-                    answer(A, Solution, Who, State);
+                    answer(A, Serial, Solution, Who, State);
                 false ->
                     {reply, {error, {not_allowed, Sols}}, State}
             end;
@@ -286,8 +291,8 @@ handle_call(sync, _From, State) ->
     {reply, ok, State}.
 
 %% An answer allowed: recorded in the trace journal before the task hears it.
-answer(#{id := Id, owner := Owner} = A, Solution, Who, State) ->
-    case journal_answer(A, Solution, Who) of
+answer(#{id := Id, owner := Owner} = A, Serial, Solution, Who, State) ->
+    case journal_answer(A, Serial, Solution, Who) of
         {error, Why} ->
             {reply, {error, {not_recorded, Why}}, State};
         ok ->
@@ -380,10 +385,10 @@ text(IoData) ->
 
 %% An answer is in the trace journal before its owner hears it: what an operator
 %% decided about a product stays in its history after a crash (see cell_stats).
-journal_answer(#{id := Id, task := Task, caption := Caption}, Solution, Who) ->
-    Item = case cell_registry:task(Task) of
-               {ok, #{serial := S}} when is_binary(S) -> #{item => S};
-               _ -> #{}
+journal_answer(#{id := Id, task := Task, caption := Caption}, Serial, Solution, Who) ->
+    Item = case Serial of
+               undefined -> #{};
+               _ -> #{item => Serial}
            end,
     case cell_trace_journal:append(Item#{type => alarm_answered, task => Task, alarm => Id,
                                          caption => Caption, solution => Solution,
