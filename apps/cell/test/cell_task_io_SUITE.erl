@@ -12,14 +12,14 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
          lost_while_paused/1, point_unavailable/1, worker_killed_mid_step/1,
-         server_killed_mid_step/1, worker_stuck_mid_step/1]).
+         server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1]).
 
 -define(TIMEOUT, 10000).
 
 all() ->
     [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
      point_unavailable, worker_killed_mid_step, server_killed_mid_step,
-     worker_stuck_mid_step].
+     worker_stuck_mid_step, hal_restarts_while_waiting].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -200,6 +200,19 @@ worker_stuck_mid_step(_Config) ->
     await_woke({io, conv, sensor, false}),
     still_holding(Task).
 
+%% The HAL's server killed while the task waits for its sensor (the workers restart
+%% with it): the connection goes down, the task DOWN with the error. Once it is back,
+%% Retry places the wait again with the new server and the sensor wakes the task.
+hal_restarts_while_waiting(_Config) ->
+    Task = started(),
+    kill(whereis(cell_hal_server)),
+    Id = await_io_error(),
+    await_conn_restart(plc1),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    still_holding(Task).
+
 %% -------------------------------------------------------------------------------------
 
 %% What a case gives its task: a product to hold, and what happens to the HAL in the
@@ -221,6 +234,8 @@ case_args(server_killed_mid_step, Tab) ->
 case_args(worker_stuck_mid_step, Tab) ->
     #{serial => <<"P1">>,
       mid_step => once(Tab, fun() -> ok = sys:suspend(worker(plc1)) end)};
+case_args(hal_restarts_while_waiting, _Tab) ->
+    #{serial => <<"P1">>};
 case_args(_Case, _Tab) ->
     #{}.
 
