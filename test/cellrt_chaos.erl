@@ -945,13 +945,41 @@ schedule(#{id := Id} = Alarm, #{answered := Done} = A) ->
 answer(#{solutions := Offered} = Alarm, A) ->
     %% The operator looks at the machine first (and takes out by hand a panel that no
     %% record holds), then answers among the answers true for it.
-    True = try at_the_machine(Alarm, router_sim:world(), held())
-           catch _:_ -> any                    %% the physics restarting: as before
-           end,
-    case True =/= any andalso [S || S <- Offered, lists:member(S, True)] of
-        false -> try_answer(Alarm, Offered, give_up, A);
-        [] -> try_answer(Alarm, Offered, give_up, A);
-        Choices -> try_answer(Alarm, Choices, again, A)
+    try at_the_machine(Alarm, router_sim:world(), held()) of
+        True ->
+            case True =/= any andalso [S || S <- Offered, lists:member(S, True)] of
+                false -> try_answer(Alarm, Offered, give_up, A);
+                [] -> try_answer(Alarm, Offered, give_up, A);
+                Choices -> try_answer(Alarm, Choices, again, A)
+            end
+    catch
+        _:_ ->
+            %% The machine cannot be seen (its physics restarting with the HAL, or
+            %% what the tasks hold not readable a moment): a guess may forget a
+            %% product that is there. The operator looks again a moment later, as
+            %% long as the error waits.
+            look_again(Alarm, A)
+    end.
+
+look_again(Alarm, A) ->
+    case still_waiting(Alarm) of
+        true ->
+            {Ms, A1} = agent_rand(<<"look">>, 1000, A),
+            _ = erlang:send_after(200 + Ms, self(), {answer, Alarm}),
+            A1;
+        false ->
+            A
+    end.
+
+%% The error as it was raised is still listed: not answered, not withdrawn, not raised
+%% anew (a new raise is scheduled on its own). Its table between two owners (the
+%% controller's tree starting anew): still waiting, looked at again.
+still_waiting(#{id := Id} = Alarm) ->
+    Raised = maps:get(raised, Alarm, 0),
+    try cell_alarms:list() of
+        Listed -> [x || #{id := I, raised := R} <- Listed, I =:= Id, R =:= Raised] =/= []
+    catch
+        error:badarg -> true
     end.
 
 %% One of the answers, at random; one refused (the runtime sees a double holding the

@@ -514,8 +514,7 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         %% The step read or wrote a point whose connection is down: the step's work is
         %% dropped and runs again, as it was woken, after Retry.
         throw:{cell_io_lost, Group, _Point} ->
-            Conn = group_conn(Group),
-            raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State});
+            io_lost(State, Group, D);
         %% A point its device cannot serve: the same, the connection itself being up.
         throw:{cell_io_unavailable, Group, Point, Why} ->
             raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
@@ -533,11 +532,16 @@ after_step({wait, Wait, T}, D) ->
                 L when is_list(L) -> L;
                 W -> [W]
             end,
-    D1 = arm(Waits, D#data{task = clean(T), pending = {waits, Waits}}),
-    State = (D1#data.task)#task.ipc,
-    case try_pause(State, D1) of
-        {paused, Result} -> Result;
-        {hold, D2} -> {next_state, State, D2}
+    case arm(Waits, D#data{task = clean(T), pending = {waits, Waits}}) of
+        {ok, D1} ->
+            State = (D1#data.task)#task.ipc,
+            case try_pause(State, D1) of
+                {paused, Result} -> Result;
+                {hold, D2} -> {next_state, State, D2}
+            end;
+        {io_lost, Group, D1} ->
+            %% The step's work stands; its wait is armed again after Retry.
+            io_lost((D1#data.task)#task.ipc, Group, D1)
     end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
@@ -568,9 +572,18 @@ clean(#task{answer = undefined, woken_by = undefined} = T) ->
 clean(T) ->
     T#task{answer = undefined, woken_by = undefined}.
 
-arm(Waits, #data{gen = Gen, task = T0} = D) ->
-    {Armed, T} = lists:mapfoldl(fun(W, T) -> arm_one(W, Gen, T) end, T0, Waits),
-    D#data{armed = Armed, task = T}.
+%% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
+%% connections): what was armed before it is in `D', for the disarm that follows.
+arm(Waits, #data{gen = Gen} = D) ->
+    arm(Waits, Gen, [], D).
+
+arm([], _Gen, Armed, D) ->
+    {ok, D#data{armed = lists:reverse(Armed)}};
+arm([W | Waits], Gen, Armed, #data{task = T} = D) ->
+    case arm_one(W, Gen, T) of
+        {io_lost, Group} -> {io_lost, Group, D#data{armed = lists:reverse(Armed)}};
+        {One, T1} -> arm(Waits, Gen, [One | Armed], D#data{task = T1})
+    end.
 
 arm_one({timer, Ms}, Gen, T) when is_integer(Ms), Ms >= 0 ->
     {{timer, erlang:start_timer(Ms, self(), ?WAIT(Gen)), Ms}, T};
@@ -593,6 +606,7 @@ arm_one({io, Point, Cond}, Gen, #task{io = [Group | _]} = T) ->
 arm_one({io, Group, Point, Cond}, _Gen, T) ->
     case cell_hal:watch(Group, Point, Cond) of
         {ok, Ref} -> {{io, Ref, Group, Point}, T};
+        {error, disconnected} -> {io_lost, Group};
         {error, Reason} -> erlang:error({bad_wait, {io, Group, Point, Cond}, Reason})
     end;
 arm_one(Other, _Gen, _T) ->
@@ -671,11 +685,16 @@ pause(State, Why, #data{request = Request} = D0) ->
 
 %% Arrow 5: back to the READY sub-state the task left, doing what it was doing, its
 %% withdrawn offers made again.
-resume(#data{conns = Conns} = D) ->
-    case [C || {C, down} <- maps:to_list(Conns)] of
-        [] ->
+resume(#data{conns = Conns} = D0) ->
+    case lists:foldl(fun(C, {Down, Dx}) ->
+                             case conn_up(C, Dx) of
+                                 {up, Dx1} -> {Down, Dx1};
+                                 {down, Dx1} -> {[C | Down], Dx1}
+                             end
+                     end, {[], D0}, maps:keys(Conns)) of
+        {[], D} ->
             do_resume(D);
-        [Conn | _] ->
+        {[Conn | _], D} ->
             %% Still DOWN: the IO it would resume with is gone.
             {ok, AlarmId} = cell_alarms:raise_error((D#data.task)#task.id, io_error(Conn), self()),
             {keep_state, D#data{down = {error, AlarmId, io}}}
@@ -687,11 +706,20 @@ do_resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} 
     D = D0#data{down = undefined, resume = undefined, reoffer = [], task = T},
     case Pending of
         {waits, Waits} ->
-            D1 = arm(Waits, D),
-            {next_state, (D1#data.task)#task.ipc, D1};
+            case arm(Waits, D) of
+                {ok, D1} -> {next_state, (D1#data.task)#task.ipc, D1};
+                {io_lost, Group, D1} -> io_lost(Ready, Group, D1)
+            end;
         {step, _} ->
             {next_state, T#task.ipc, D, [{next_event, internal, step}]}
     end.
+
+%% A request of the task's IO found its connection lost (down, or its HAL process
+%% restarting): DOWN with the error naming the connection; Retry takes the task on
+%% where it was once the connection is back.
+io_lost(State, Group, D) ->
+    Conn = group_conn(Group),
+    raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State}).
 
 raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
@@ -998,26 +1026,35 @@ io_check(#data{task = #task{io = Groups}} = D0) ->
                    (G, {ok, D}) ->
                         case cell_hal:connection_of(G) of
                             {ok, Conn} ->
-                                D1 = subscribe_conn(Conn, D),
-                                case maps:get(Conn, D1#data.conns) of
-                                    up -> {ok, D1};
-                                    down -> {error, io_error(Conn), D1}
+                                case conn_up(Conn, D) of
+                                    {up, D1} -> {ok, D1};
+                                    {down, D1} -> {error, io_error(Conn), D1}
                                 end;
                             {error, unknown_group} ->
                                 {error, io_config_error(G), D}
                         end
                 end, {ok, D0}, Groups).
 
-subscribe_conn(Conn, #data{conns = Conns} = D) ->
-    case maps:is_key(Conn, Conns) of
-        true ->
-            D;
-        false ->
-            Status = case cell_hal:subscribe_connection(Conn) of
-                         {ok, S} -> S;
-                         {error, _} -> down
+%% Whether a connection of the task's IO is up, subscribed to first. One the task took
+%% for down is read again from the HAL: a request that found the HAL's process
+%% restarting takes it for down, and the `up' that ends the restart (or no change at
+%% all) may not have reached the task yet. A subscription the HAL's server could not
+%% take (restarting) is not recorded, so it is asked for again next time.
+conn_up(Conn, #data{conns = Conns} = D) ->
+    case Conns of
+        #{Conn := up} ->
+            {up, D};
+        #{Conn := down} ->
+            Status = case cell_hal:status(Conn) of
+                         up -> up;
+                         _ -> down
                      end,
-            D#data{conns = maps:put(Conn, Status, Conns)}
+            {Status, conn_status(Conn, Status, D)};
+        #{} ->
+            case cell_hal:subscribe_connection(Conn) of
+                {ok, Status} -> {Status, conn_status(Conn, Status, D)};
+                {error, _} -> {down, D}
+            end
     end.
 
 conn_status(Conn, Status, #data{conns = Conns} = D) ->

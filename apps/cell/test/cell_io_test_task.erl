@@ -1,6 +1,9 @@
 %% A conveyor task for the device-task IO suite: it runs its belt until the sensor sees
 %% a panel, stops it, waits for the panel to go, and counts. Each wake-up is recorded
-%% in the `tab' argument as {woke, Id, N, Woken}.
+%% in the `tab' argument as {woke, Id, N, Woken}. With a `serial' argument the task
+%% holds that product from its first init; a `mid_step' argument (a fun) runs inside
+%% the step that sees a panel, before it touches its IO: what happens to the HAL
+%% under a task in the middle of a step.
 -module(cell_io_test_task).
 -behaviour(cell_task).
 
@@ -8,7 +11,14 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
-    {ok, cell_task:put(cell_task:out(T, motor, false), n, 0)}.
+    T1 = case {cell_task:arg(T, serial, undefined), cell_task:product(T)} of
+             {undefined, _} -> T;
+             {Serial, undefined} ->
+                 cell_task:set_product(T, #{serial => Serial, recipe => <<"R">>,
+                                            failed => false});
+             {_, _} -> T
+         end,
+    {ok, cell_task:put(cell_task:out(T1, motor, false), n, 0)}.
 
 %% The belt starts off whatever it was; each step looks at the sensor itself.
 -spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
@@ -30,6 +40,7 @@ step(T) ->
         {io, _, sensor, true} ->
             %% A panel: stop the belt, read the counter (a lost connection here is the
             %% engine's to report), wait until the panel is taken away.
+            _ = (cell_task:arg(T, mid_step, fun() -> ok end))(),
             Count = cell_task:in(T, count),
             T1 = cell_task:put(cell_task:out(T, motor, false), count, Count),
             {wait, {io, sensor, {eq, false}}, T1};

@@ -2,20 +2,24 @@
 %% and writes outputs by name; a lost connection takes it DOWN with an error naming the
 %% connection, and Retry takes it on once the connection is back; a point its device
 %% cannot serve does the same naming the point; a group the HAL does not know stops it
-%% at Start with a clear error.
+%% at Start with a clear error. The HAL's processes killed or stuck under a task in the
+%% middle of a step are a lost connection to it, never a crash: the same error, and
+%% Retry takes it on with its product once the connection is back.
 -module(cell_task_io_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
-         lost_while_paused/1, point_unavailable/1]).
+         lost_while_paused/1, point_unavailable/1, worker_killed_mid_step/1,
+         server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1]).
 
 -define(TIMEOUT, 10000).
 
 all() ->
     [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
-     point_unavailable].
+     point_unavailable, worker_killed_mid_step, server_killed_mid_step,
+     worker_stuck_mid_step, hal_restarts_while_waiting].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -25,7 +29,8 @@ init_per_testcase(Case, Config) ->
     Group = case Case of unknown_group -> nowhere; _ -> conv end,
     Spec = #{tasks => [#{id => belt, module => cell_io_test_task, zone => <<"Belt">>,
                          lane => <<"1">>, io => [Group],
-                         args => #{tab => Tab, notify => self()}}]},
+                         args => maps:merge(#{tab => Tab, notify => self()},
+                                            case_args(Case, Tab))}]},
     ok = application:set_env(cell, cell_spec, Spec),
     {ok, _} = application:ensure_all_started(cell),
     ok = cell_hal:add_connection(#{id => plc1, driver => cell_hal_sim,
@@ -37,6 +42,8 @@ init_per_testcase(Case, Config) ->
     [{tab, Tab} | Config].
 
 end_per_testcase(_Case, _Config) ->
+    %% A case that failed half-way may have left the HAL held.
+    _ = [catch sys:resume(P) || P <- [cell_hal_sup, cell_hal_conn_sup]],
     _ = application:stop(cell),
     %% The statistics started the database in this root: it goes with the cell.
     _ = application:stop(mnesia),
@@ -145,7 +152,147 @@ lost_while_paused(_Config) ->
     ok = cell_controller:sync(),
     ?assertEqual({ready, idle, starved}, cell_task_proc:state(belt)).
 
+%% The connection's worker killed while the task is in the middle of a step (its
+%% supervisor held, so it is not started again yet): the step's write finds no worker.
+%% The task goes DOWN with "IO connection lost", not a crash; Retry once the worker is
+%% back runs the step again as it was woken, and the task goes on with its product.
+worker_killed_mid_step(_Config) ->
+    Task = started(),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    Id = await_io_error(),
+    ok = sys:resume(cell_hal_conn_sup),
+    await_conn_restart(plc1),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_hal_sim:set({conv, sensor}, false),
+    await_woke({io, conv, sensor, false}),
+    still_holding(Task).
+
+%% The HAL's server killed in the middle of a step (its supervisor held, so neither it
+%% nor the workers it restarts with have come back yet): the wait the step returns
+%% cannot be placed. The same error, not a crash; Retry once the HAL is back places the
+%% wait with the new server, and the task goes on with its product.
+server_killed_mid_step(_Config) ->
+    Task = started(),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    Id = await_io_error(),
+    ok = sys:resume(cell_hal_sup),
+    await_conn_restart(plc1),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_hal_sim:set({conv, sensor}, false),
+    await_woke({io, conv, sensor, false}),
+    still_holding(Task).
+
+%% The worker stuck (suspended) in the middle of a step: the write is not taken in
+%% time. The same error; the connection itself never went down, so no `up' will come:
+%% Retry once the worker answers again finds the connection up and goes on.
+worker_stuck_mid_step(_Config) ->
+    Task = started(),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    Id = await_io_error(),
+    ok = sys:resume(worker(plc1)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_hal_sim:set({conv, sensor}, false),
+    await_woke({io, conv, sensor, false}),
+    still_holding(Task).
+
+%% The HAL's server killed while the task waits for its sensor (the workers restart
+%% with it): the connection goes down, the task DOWN with the error. Once it is back,
+%% Retry places the wait again with the new server and the sensor wakes the task.
+hal_restarts_while_waiting(_Config) ->
+    Task = started(),
+    kill(whereis(cell_hal_server)),
+    Id = await_io_error(),
+    await_conn_restart(plc1),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    still_holding(Task).
+
 %% -------------------------------------------------------------------------------------
+
+%% What a case gives its task: a product to hold, and what happens to the HAL in the
+%% middle of the step that sees a panel (the first time only; Retry runs it again).
+case_args(worker_killed_mid_step, Tab) ->
+    #{serial => <<"P1">>,
+      mid_step => once(Tab, fun() ->
+                                    Worker = worker(plc1),
+                                    ok = sys:suspend(cell_hal_conn_sup),
+                                    kill(Worker)
+                            end)};
+case_args(server_killed_mid_step, Tab) ->
+    #{serial => <<"P1">>,
+      mid_step => once(Tab, fun() ->
+                                    Server = whereis(cell_hal_server),
+                                    ok = sys:suspend(cell_hal_sup),
+                                    kill(Server)
+                            end)};
+case_args(worker_stuck_mid_step, Tab) ->
+    #{serial => <<"P1">>,
+      mid_step => once(Tab, fun() -> ok = sys:suspend(worker(plc1)) end)};
+case_args(hal_restarts_while_waiting, _Tab) ->
+    #{serial => <<"P1">>};
+case_args(_Case, _Tab) ->
+    #{}.
+
+once(Tab, Fun) ->
+    fun() ->
+            case ets:insert_new(Tab, {mid_step_done}) of
+                true -> Fun();
+                false -> ok
+            end
+    end.
+
+worker(Conn) ->
+    [Worker] = [P || {Id, P, _, _} <- supervisor:which_children(cell_hal_conn_sup), Id =:= Conn],
+    Worker.
+
+kill(Pid) ->
+    MRef = erlang:monitor(process, Pid),
+    exit(Pid, kill),
+    receive
+        {'DOWN', MRef, process, Pid, _} -> ok
+    after ?TIMEOUT ->
+        erlang:error({still_alive, Pid})
+    end.
+
+%% Started, the task running and holding its product; its pid.
+started() ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    [#{id := belt, pid := Task, serial := <<"P1">>}] = cell_controller:tasks(),
+    ok = cell_events:subscribe([task_state]),
+    flush_conn(plc1),
+    Task.
+
+%% DOWN with the lost connection's error, offering Retry.
+await_io_error() ->
+    await_state(belt, down),
+    [#{id := Id, caption := <<"IO connection lost">>, solutions := [retry],
+       description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"plc1">>)),
+    Id.
+
+%% The same process (no crash), holding its product.
+still_holding(Task) ->
+    ?assertMatch([#{id := belt, pid := Task, serial := <<"P1">>}], cell_controller:tasks()),
+    ?assertEqual([], cell_alarms:list()).
+
+%% A restarted worker: the connection down, then up again.
+await_conn_restart(Conn) ->
+    [receive
+         {cell_hal_conn, Conn, Status} -> ok
+     after ?TIMEOUT ->
+         ct:fail({connection_not, Status})
+     end || Status <- [down, up]],
+    ok.
+
+flush_conn(Conn) ->
+    receive {cell_hal_conn, Conn, _} -> flush_conn(Conn) after 0 -> ok end.
 
 await_motor(V) ->
     receive

@@ -29,6 +29,14 @@
 %% </ul>
 %% Subscriptions and watches end when their process exits.
 %%
+%% <b>While the HAL's processes restart.</b> A connection's worker may be killed and
+%% started again by its supervisor, and the server with every worker (`rest_for_one');
+%% what was subscribed and watched lives in tables that outlive them. A request of the
+%% IO API that finds the process serving it gone, sees it die, or waits for it in vain
+%% gets what a lost connection gives: `{error, disconnected}' (a task raises "IO
+%% connection lost" and goes on after Retry), never an exit. Cancelling a watch and
+%% unsubscribing touch only the caller's own rows, without the server.
+%%
 %% <b>Time-stamped samples</b> (seed 000 §2.3.7). A driver with device-side
 %% notifications (ADS) stamps each sample with the PLC's time, the time of the PLC
 %% cycle that took it. The HAL keeps the newest samples of each such point, so a task
@@ -73,6 +81,9 @@
 %% How long `write/3' may take to hand a write to the worker (it is never blocked on
 %% the device, so this only bounds a worker that is itself stuck).
 -define(QUEUE_TIMEOUT, 5000).
+
+%% The behaviours of the processes serving the IO API: the server, the workers.
+-define(HAL_PROCESS(B), (B =:= gen_server orelse B =:= gen_statem)).
 
 %%====================================================================
 %% Configuration
@@ -161,10 +172,12 @@ read(Group, Point) ->
 
 %% @doc Commands an output. The value is checked against the point's type at once and
 %% queued to the connection's worker, which writes in order; this returns without
-%% waiting for the device (a write the device then refuses is logged).
+%% waiting for the device (a write the device then refuses is logged). A worker that
+%% is restarting, or does not take the write within 5 s, is a lost connection:
+%% `disconnected'.
 -spec write(atom(), atom(), cell_hal_type:value()) ->
           ok | error(unknown_point | not_an_output | {bad_value, term()} | disconnected
-                     | {unavailable, binary()} | timeout).
+                     | {unavailable, binary()}).
 write(Group, Point, Value) ->
     command({Group, Point}, Value, {async, ?QUEUE_TIMEOUT}).
 
@@ -184,8 +197,15 @@ command(Key, Value, Mode) ->
             case cell_hal_type:check(T, Value) of
                 {ok, V} ->
                     case up_worker(C) of
-                        {ok, Pid} -> cell_hal_worker:write(Pid, Key, V, Mode);
-                        error -> {error, disconnected}
+                        {ok, Pid} ->
+                            Lapse = case Mode of
+                                        {async, _} -> disconnected;
+                                        {sync, _} -> timeout
+                                    end,
+                            served(fun() -> cell_hal_worker:write(Pid, Key, V, Mode) end,
+                                   Lapse);
+                        error ->
+                            {error, disconnected}
                     end;
                 error ->
                     {error, {bad_value, Value}}
@@ -199,14 +219,16 @@ command(Key, Value, Mode) ->
 %% @doc Sends `{cell_hal_watch, Ref, Value}' once, when the point's value satisfies
 %% `Cond' — at once if it already does. An input satisfies nothing while its
 %% connection is down. A condition that cannot hold for the point's type is refused.
+%% While the server restarts (with the connections' workers) a watch cannot be placed:
+%% `{error, disconnected}'.
 -spec watch(atom(), atom(), cell_hal_type:condition()) ->
-          {ok, reference()} | error(unknown_point | {bad_condition, term()}).
+          {ok, reference()} | error(unknown_point | {bad_condition, term()} | disconnected).
 watch(Group, Point, Cond) ->
     Key = {Group, Point},
     case cell_hal_store:value(Key) of
         {ok, #hal_value{type = T}} ->
             case cell_hal_type:check_cond(T, Cond) of
-                {ok, C} -> cell_hal_server:call({watch, Key, C, self()});
+                {ok, C} -> server({watch, Key, C, self()});
                 error -> {error, {bad_condition, Cond}}
             end;
         error ->
@@ -214,19 +236,22 @@ watch(Group, Point, Cond) ->
     end.
 
 %% @doc Cancels a watch: `true' if it had not fired (no message will come), `false'
-%% if it had (its message is in the mailbox or on its way).
+%% if it had (its message is in the mailbox or on its way). It takes the watch's claim
+%% as the worker firing it would, so it needs no process and works while the server
+%% restarts.
 -spec cancel_watch(reference()) -> boolean().
 cancel_watch(Ref) ->
-    cell_hal_server:call({cancel_watch, Ref}).
+    cell_hal_store:cancel_watch(Ref).
 
 %% @doc Sends `{cell_hal, {Group, Point}, Value}' to the caller on every change.
--spec subscribe(atom(), atom()) -> ok | error(unknown_point).
+%% `{error, disconnected}' while the server restarts.
+-spec subscribe(atom(), atom()) -> ok | error(unknown_point | disconnected).
 subscribe(Group, Point) ->
-    cell_hal_server:call({subscribe, {Group, Point}, self()}).
+    server({subscribe, {Group, Point}, self()}).
 
 -spec unsubscribe(atom(), atom()) -> ok.
 unsubscribe(Group, Point) ->
-    cell_hal_server:call({unsubscribe, {Group, Point}, self()}).
+    cell_hal_store:delete_sub({Group, Point}, self()).
 
 %%====================================================================
 %% Connectivity
@@ -234,13 +259,14 @@ unsubscribe(Group, Point) ->
 
 %% @doc Sends `{cell_hal_conn, ConnId, up | down}' to the caller on every change from
 %% now on, and returns the status now. A message right after may repeat it.
--spec subscribe_connection(atom()) -> {ok, up | down} | error(unknown_connection).
+%% `{error, disconnected}' while the server restarts: nothing was subscribed.
+-spec subscribe_connection(atom()) -> {ok, up | down} | error(unknown_connection | disconnected).
 subscribe_connection(Conn) ->
-    cell_hal_server:call({subscribe_connection, Conn, self()}).
+    server({subscribe_connection, Conn, self()}).
 
 -spec unsubscribe_connection(atom()) -> ok.
 unsubscribe_connection(Conn) ->
-    cell_hal_server:call({unsubscribe_connection, Conn, self()}).
+    cell_hal_store:delete_conn_sub(Conn, self()).
 
 %% @doc Whether a connection is up (its inputs are fresh).
 -spec status(atom()) -> up | down | error(unknown_connection).
@@ -276,8 +302,11 @@ info(Conn) ->
 -spec request(atom(), term(), pos_integer()) -> {ok, term()} | error(term()).
 request(Conn, Request, Timeout) when is_integer(Timeout), Timeout > 0 ->
     case up_worker(Conn) of
-        {ok, Pid} -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000);
-        error -> {error, disconnected}
+        {ok, Pid} ->
+            served(fun() -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000) end,
+                   timeout);
+        error ->
+            {error, disconnected}
     end.
 
 %% @doc The time-stamped samples of a point fed by device notifications, from `Since'
@@ -302,6 +331,26 @@ samples(Group, Point, Since) when is_integer(Since) ->
             end;
         error ->
             {error, unknown_point}
+    end.
+
+%% A request of the IO API to the server. It restarts with the connections' workers
+%% (rest_for_one), so its absence is theirs: a lost connection to the caller.
+server(Request) ->
+    served(fun() -> cell_hal_server:call(Request) end, disconnected).
+
+%% The one place where a HAL process that is not there to answer becomes what a lost
+%% connection gives: gone before the call (noproc), dying during it (killed, shutdown,
+%% normal, a crash), or not answering in time. `Lapse' is what no answer in time means:
+%% `disconnected' where the process only queues (a stuck or restarting process),
+%% `timeout' where the device's confirmation is awaited.
+served(Call, Lapse) ->
+    try
+        Call()
+    catch
+        exit:{timeout, {Behaviour, call, _}} when ?HAL_PROCESS(Behaviour) ->
+            {error, Lapse};
+        exit:{_Gone, {Behaviour, call, _}} when ?HAL_PROCESS(Behaviour) ->
+            {error, disconnected}
     end.
 
 up_worker(Conn) ->

@@ -57,8 +57,6 @@ handle_call({subscribe, Key, Pid}, _From, S) ->
         error ->
             {reply, {error, unknown_point}, S}
     end;
-handle_call({unsubscribe, Key, Pid}, _From, S) ->
-    {reply, cell_hal_store:delete_sub(Key, Pid), S};
 handle_call({watch, Key, Cond, Pid}, _From, S) ->
     case cell_hal_store:point(Key) of
         {ok, _} ->
@@ -69,8 +67,6 @@ handle_call({watch, Key, Cond, Pid}, _From, S) ->
         error ->
             {reply, {error, unknown_point}, S}
     end;
-handle_call({cancel_watch, Ref}, _From, S) ->
-    {reply, cell_hal_store:cancel_watch(Ref), S};
 handle_call({subscribe_connection, Conn, Pid}, _From, S) ->
     case cell_hal_store:conn(Conn) of
         {ok, _} ->
@@ -81,9 +77,7 @@ handle_call({subscribe_connection, Conn, Pid}, _From, S) ->
             {reply, {ok, Status}, monitor_pid(Pid, S)};
         error ->
             {reply, {error, unknown_connection}, S}
-    end;
-handle_call({unsubscribe_connection, Conn, Pid}, _From, S) ->
-    {reply, cell_hal_store:delete_conn_sub(Conn, Pid), S}.
+    end.
 
 %% @private
 -spec handle_cast(term(), #state{}) -> no_return().

@@ -93,24 +93,17 @@ reconfigure(Pid) ->
     gen_statem:cast(Pid, reconfigure).
 
 %% @doc Queues an output write. `async' returns once the write is queued; `sync'
-%% returns when the device confirmed it.
+%% returns when the device confirmed it. A worker gone or not answering in time exits
+%% the caller as any call does; {@link cell_hal} says what that is to a task.
 -spec write(pid(), key(), cell_hal_type:value(), {async | sync, timeout()}) ->
           ok | {error, term()}.
 write(Pid, Key, V, {Mode, Timeout}) ->
-    call(Pid, {write, Key, V, Mode}, Timeout).
+    gen_statem:call(Pid, {write, Key, V, Mode}, Timeout).
 
 %% @doc A raw request of the driver's protocol.
 -spec request(pid(), term(), pos_integer(), timeout()) -> {ok, term()} | {error, term()}.
 request(Pid, Req, DeviceTimeout, Timeout) ->
-    call(Pid, {request, Req, DeviceTimeout}, Timeout).
-
-call(Pid, Msg, Timeout) ->
-    try
-        gen_statem:call(Pid, Msg, Timeout)
-    catch
-        exit:{timeout, _} -> {error, timeout};
-        exit:{_, {gen_statem, call, _}} -> {error, disconnected}
-    end.
+    gen_statem:call(Pid, {request, Req, DeviceTimeout}, Timeout).
 
 %%====================================================================
 %% gen_statem

@@ -18,7 +18,8 @@
          group_added_while_up/1, groups_added_back_to_back/1,
          group_added_during_the_first_read/1, remove_group_and_connection/1,
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
-         server_crash_keeps_configuration/1, logs_speak_to_operators/1,
+         server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
+         io_while_a_worker_restarts/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1]).
 
 -define(WAIT, 5000).
@@ -34,7 +35,7 @@ all() ->
      groups_added_back_to_back, group_added_during_the_first_read,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
-     logs_speak_to_operators, backoff_grows_then_resets, connection_info].
+     io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators, backoff_grows_then_resets, connection_info].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -50,6 +51,8 @@ init_per_testcase(_Case, Config) ->
     Config.
 
 end_per_testcase(_Case, _Config) ->
+    %% A case that failed half-way may have left the HAL held.
+    _ = [catch sys:resume(P) || P <- [cell_hal_sup, cell_hal_conn_sup]],
     [ok = cell_hal:remove_group(G) || G <- cell_hal:groups()],
     [begin ok = cell_hal:remove_connection(C), ok = cell_hal_sim_sup:stop_device(C) end
      || C <- cell_hal:connections()],
@@ -544,6 +547,87 @@ server_crash_keeps_configuration(_Config) ->
     receive {cell_hal_watch, Ref, 31} -> ok after ?WAIT -> ct:fail(watch_lost) end,
     %% The new server watches subscribers again.
     ?assertEqual({ok, up}, cell_hal:subscribe_connection(s18)).
+
+%% The server killed, its supervisor held so that neither it nor the workers restarted
+%% with it have come back: a watch or a subscription cannot be placed and says
+%% `disconnected', as a lost connection does, never an exit; cancelling a watch and
+%% unsubscribing need no server. Once the HAL is back, what was subscribed and
+%% watched before works on, and what was cancelled stays cancelled.
+io_while_the_server_restarts(_Config) ->
+    ok = sim(s24),
+    ok = cell_hal:subscribe(io, int16_in),
+    ok = cell_hal:subscribe(io, uint16_in),
+    {ok, Kept} = cell_hal:watch(io, int16_in, {eq, 41}),
+    {ok, Cancelled} = cell_hal:watch(io, int16_in, {eq, 42}),
+    Self = self(),
+    Other = spawn_link(fun() ->
+                               {ok, _} = cell_hal:subscribe_connection(s24),
+                               Self ! {subscribed, self()},
+                               receive unsubscribe -> ok end,
+                               Self ! {self(), cell_hal:unsubscribe_connection(s24)},
+                               receive stop -> ok end
+                       end),
+    receive {subscribed, Other} -> ok after ?WAIT -> ct:fail(no_subscriber) end,
+    Server = whereis(cell_hal_server),
+    ok = sys:suspend(cell_hal_sup),
+    kill(Server),
+    ?assertEqual({error, disconnected}, cell_hal:watch(io, int16_in, {eq, 1})),
+    ?assertEqual({error, disconnected}, cell_hal:subscribe(io, int32_in)),
+    ?assertEqual({error, disconnected}, cell_hal:subscribe_connection(s24)),
+    ?assert(cell_hal:cancel_watch(Cancelled)),
+    ?assertNot(cell_hal:cancel_watch(Cancelled)),
+    ok = cell_hal:unsubscribe(io, uint16_in),
+    Other ! unsubscribe,
+    receive {Other, ok} -> ok after ?WAIT -> ct:fail(not_unsubscribed) end,
+    ?assertNot(lists:member(Other, cell_hal_store:conn_subs(s24))),
+    Other ! stop,
+    ok = sys:resume(cell_hal_sup),
+    ok = await_restart(s24),
+    ok = cell_hal_sim:set({io, int16_in}, 41),
+    receive {cell_hal_watch, Kept, 41} -> ok after ?WAIT -> ct:fail(watch_lost) end,
+    receive {cell_hal, {io, int16_in}, 41} -> ok after ?WAIT -> ct:fail(sub_lost) end,
+    ok = cell_hal_sim:set({io, int16_in}, 42),
+    ok = cell_hal_sim:set({io, uint16_in}, 7),
+    receive {cell_hal, {io, int16_in}, 42} -> ok after ?WAIT -> ct:fail(sub_lost) end,
+    7 = await_value(uint16_in, 7),
+    receive {cell_hal_watch, Cancelled, _} = M1 -> ct:fail({cancelled_fired, M1}) after 0 -> ok end,
+    receive {cell_hal, {io, uint16_in}, _} = M2 -> ct:fail({unsubscribed, M2}) after 0 -> ok end.
+
+%% A worker killed, its supervisor held so that it has not come back: its connection
+%% still reads as up, and a write finds no worker: `disconnected', as a lost
+%% connection does, never an exit; a raw request the same. A worker that does not take
+%% a write in time (suspended) is the same to `write/3'; `write_sync/4' says
+%% `timeout', the device's confirmation being what did not come.
+io_while_a_worker_restarts(_Config) ->
+    ok = sim(s25),
+    Worker = worker(s25),
+    ok = sys:suspend(Worker),
+    ?assertEqual({error, timeout}, cell_hal:write_sync(io, int16_out, 1, 100)),
+    ?assertEqual({error, disconnected}, cell_hal:write(io, int16_out, 2)),
+    ok = sys:resume(Worker),
+    ok = sys:suspend(cell_hal_conn_sup),
+    kill(Worker),
+    ?assertEqual({error, disconnected}, cell_hal:write(io, int16_out, 3)),
+    ?assertEqual({error, disconnected}, cell_hal:write_sync(io, int16_out, 3, 1000)),
+    ?assertEqual({error, disconnected}, cell_hal:request(s25, {read_holding_registers, 0, 1}, 100)),
+    ok = sys:resume(cell_hal_conn_sup),
+    ok = await_restart(s25),
+    ok = cell_hal:write_sync(io, int16_out, 4, ?WAIT).
+
+worker(Conn) ->
+    [Worker] = [P || {Id, P, _, _} <- supervisor:which_children(cell_hal_conn_sup), Id =:= Conn],
+    Worker.
+
+kill(Pid) ->
+    MRef = erlang:monitor(process, Pid),
+    exit(Pid, kill),
+    receive {'DOWN', MRef, process, Pid, _} -> ok after ?WAIT -> ct:fail({alive, Pid}) end.
+
+%% A connection's worker started again: down, then up (the test subscribed to it).
+await_restart(Conn) ->
+    receive {cell_hal_conn, Conn, down} -> ok after ?WAIT -> ct:fail({no_down, Conn}) end,
+    receive {cell_hal_conn, Conn, up} -> ok after ?WAIT -> ct:fail({no_up, Conn}) end,
+    ok.
 
 logs_speak_to_operators(_Config) ->
     ok = sim(s19),
