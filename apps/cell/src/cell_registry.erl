@@ -135,6 +135,9 @@ counts() ->
 %% the cell's guard is told ({@link cell_guard:held_twice/1}), which asks the operator.
 -spec hold(atom(), binary() | undefined, non_neg_integer()) -> ok.
 hold(Id, Serial, Gen) ->
+    %% Older copies leave the holders before this one is in: no one reading the
+    %% holders sees the serial held twice for the instant in between.
+    _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
     %% Beside the rows by serial, one by task names the serial it holds, so the old row
     %% goes without a scan of the table.
     case ets:lookup(?PRODUCTS, {task, Id}) of
@@ -151,27 +154,32 @@ hold(Id, Serial, Gen) ->
                 ets:insert(?PRODUCTS, [{Serial, Id, Gen}, {{task, Id}, Serial, Gen}]),
             ok
     end,
-    _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
+    %% Again after: an older copy held meanwhile goes too; one as new or newer is a
+    %% double holding.
+    _ = Serial =:= undefined orelse
+        (tell_stale(Id, Serial, Gen) andalso cell_guard:held_twice(Serial)),
     ok.
 
-%% Every other holder of an older generation of the serial drops its copy; one of the
-%% same or a newer generation is a double holding.
+%% Every other holder of an older generation of the serial drops its copy: it leaves
+%% the holders at once (it holds nothing the cell counts any more; an operator's answer
+%% to it is not taken for a double holding) and is told. Whether one of the same or a
+%% newer generation holds it: a double holding.
 tell_stale(Id, Serial, Gen) ->
-    Twice = lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
-                                _ = case ets:lookup(?TASKS, Other) of
-                                        [{_, #{pid := Pid}}] ->
-                                            Pid ! {cell_registry, stale, Serial, Gen};
-                                        _ ->
-                                            ok
-                                    end,
-                                Acc;
-                           ({_, Other, _}, _Acc) when Other =/= Id ->
-                                true;
-                           (_, Acc) ->
-                                Acc
-                        end, false, ets:lookup(?PRODUCTS, Serial)),
-    _ = Twice andalso cell_guard:held_twice(Serial),
-    ok.
+    lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
+                        true = ets:delete_object(?PRODUCTS, {Serial, Other, G}),
+                        true = ets:delete_object(?PRODUCTS, {{task, Other}, Serial, G}),
+                        _ = case ets:lookup(?TASKS, Other) of
+                                [{_, #{pid := Pid}}] ->
+                                    Pid ! {cell_registry, stale, Serial, Gen};
+                                _ ->
+                                    ok
+                            end,
+                        Acc;
+                   ({_, Other, _}, _Acc) when Other =/= Id ->
+                        true;
+                   (_, Acc) ->
+                        Acc
+                end, false, ets:lookup(?PRODUCTS, Serial)).
 
 %% @doc How many rows the product holders take: 0 when no task holds a product.
 -spec product_count() -> non_neg_integer().
@@ -321,9 +329,12 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     Ref = monitor(process, Pid),
     %% The product its previous incarnation held stays in the row until the restarted
     %% task has read its own file: others looking for who may hold a product see it
-    %% meanwhile.
+    %% meanwhile. Where a crashed incarnation died, and whether it had gone on by itself
+    %% after a crash of its own (`resumed'), are for the restarted task to read.
     Kept = case ets:lookup(?TASKS, Id) of
-               [{Id, OldRow}] -> maps:with([product], OldRow);
+               [{Id, OldRow}] when Previous =:= clean; Previous =:= fresh ->
+                   maps:with([product, resumed], OldRow);
+               [{Id, OldRow}] -> maps:with([product, resumed, crashed_in], OldRow);
                [] -> #{}
            end,
     true = ets:insert(?TASKS, {Id, maps:merge(Kept, maps:remove(state, Info#{pid => Pid}))}),
@@ -381,7 +392,12 @@ down(Ref, Reason, #state{monitors = Mons, ended = Ended} = State) ->
                        end,
             case ets:lookup(?TASKS, Id) of
                 [{Id, #{pid := Pid} = Row}] ->
-                    true = ets:insert(?TASKS, {Id, maps:remove(pid, Row)}),
+                    %% Where it died tells its restart whether it may go on by itself.
+                    Died = case Previous of
+                               {crashed, _} -> #{crashed_in => state_of(Id)};
+                               _ -> #{}
+                           end,
+                    true = ets:insert(?TASKS, {Id, maps:merge(maps:remove(pid, Row), Died)}),
                     %% The task's state went with its process: tell the cell.
                     case state_of(Id) of
                         off -> ok;
