@@ -44,8 +44,9 @@ init(Tasks) ->
         _ ->
             %% The tasks' subtree is restarting while the cell was running (an internal
             %% fault below the controller). The tasks come back OFF and wait for the
-            %% operator's Start rather than move on their own.
-            ok = cell_registry:set_control(request, stop),
+            %% operator's Start rather than move on their own; the controller tells the
+            %% operator why with an alarm until then.
+            ok = cell_registry:stopped_by_fault(services),
             cell_log:error(cell, "the cell's tasks were restarted after an internal fault; "
                            "check the machine and press Start", [])
     end,
