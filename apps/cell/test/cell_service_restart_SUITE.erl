@@ -108,15 +108,8 @@ registry_killed_is_told(Config) ->
     stopped_and_told(cell_registry, <<"task registry">>, Config).
 
 stopped_and_told(Name, Cause, Config) ->
-    Old = whereis(Name),
-    Ref = monitor(process, Old),
-    exit(Old, kill),
-    receive {'DOWN', Ref, process, Old, _} -> ok
-    after ?TIMEOUT -> ct:fail({not_stopped, Name})
-    end,
-    %% The controller's supervisor handles the exit (it reached it before this call)
-    %% before it answers: its tree has been started again by then, the controller too.
-    _ = supervisor:which_children(cell_controller_sup),
+    %% The controller's tree has been started again by then, the controller too.
+    _ = kill_under(Name, cell_controller_sup),
     ?assertMatch(#{request := stop, has_alarm := true}, cell_controller:flags()),
     ?assert(lists:all(fun(S) -> S =:= off end, task_states()), task_states()),
     {ok, #{kind := alarm, task := cell, caption := <<"Cell stopped after an internal fault">>,
@@ -140,13 +133,7 @@ stopped_and_told(Name, Cause, Config) ->
     ok = flowing(Config).
 
 restart_controller() ->
-    Old = whereis(cell_controller),
-    Ref = monitor(process, Old),
-    exit(Old, kill),
-    receive {'DOWN', Ref, process, Old, _} -> ok
-    after ?TIMEOUT -> ct:fail({not_stopped, cell_controller})
-    end,
-    _ = supervisor:which_children(cell_controller_sup),
+    _ = kill_under(cell_controller, cell_controller_sup),
     ?assert(is_pid(whereis(cell_controller))),
     ?assertMatch(#{request := stop}, cell_controller:flags()).
 
@@ -221,9 +208,17 @@ await_alarm(Id) ->
         ct:fail({no_alarm, Id, cell_alarms:list()})
     end.
 
-%% Kills a service and waits until its supervisor has started it again: the
-%% supervisor handles the exit (it reached it before this call) before it answers.
+%% Kills a service and waits until its supervisor has started it again.
 restart(Name) ->
+    Old = kill_under(Name, cell_service_sup),
+    New = whereis(Name),
+    ?assert(is_pid(New) andalso New =/= Old, {not_restarted, Name}),
+    ok.
+
+%% Kills a process and returns once `Sup' has handled its exit: the exit reached the
+%% supervisor before this call, so the supervisor answers after it restarted what it
+%% restarts.
+kill_under(Name, Sup) ->
     Old = whereis(Name),
     true = is_pid(Old),
     Ref = monitor(process, Old),
@@ -231,7 +226,5 @@ restart(Name) ->
     receive {'DOWN', Ref, process, Old, _} -> ok
     after ?TIMEOUT -> ct:fail({not_stopped, Name})
     end,
-    _ = supervisor:which_children(cell_service_sup),
-    New = whereis(Name),
-    ?assert(is_pid(New) andalso New =/= Old, {not_restarted, Name}),
-    ok.
+    _ = supervisor:which_children(Sup),
+    Old.
