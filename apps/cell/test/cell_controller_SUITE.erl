@@ -8,7 +8,8 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1,
-         crash_asked_where_reconcile_cannot_decide/1, damaged_product_file/1,
+         crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
+         damaged_product_file/1,
          reconcile_gets_what_was_held/1,
          damaged_product_file_mended/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
@@ -22,7 +23,7 @@
 all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, crash_asked_where_reconcile_cannot_decide,
-     damaged_product_file,
+     older_copy_answer_not_refused, damaged_product_file,
      reconcile_gets_what_was_held,
      damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
@@ -248,6 +249,31 @@ crash_asked_where_reconcile_cannot_decide(Config) ->
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch(#{product := P}, cell_task_proc:info(work)).
+
+%% A task waits on an error holding P when another task takes P in a newer record: the
+%% registry tells it to drop its old copy. Before it has handled that word (it is
+%% held back here), its copy is no holding any more: the operator's answer is not
+%% refused as a double holding, and the task drops the copy before it acts on it.
+older_copy_answer_not_refused(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    P = cell_product:new(<<"PANEL-4">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    cmd(Config, work, {error, [retry]}),
+    ok = cell_controller:sync(),
+    [#{id := Id}] = [A || #{kind := error} = A <- cell_alarms:list()],
+    [{work, Gen}] = cell_registry:holders(<<"PANEL-4">>),
+    Work = cell_task_proc:whereis(work),
+    ok = sys:suspend(Work),
+    %% Another task's newer record (as a hand-over would write it).
+    ok = cell_registry:hold(load, <<"PANEL-4">>, Gen + 1),
+    ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-4">>)),
+    ?assertEqual(ok, cell_alarms:answer(Id, retry, <<"op">>)),
+    ok = sys:resume(Work),
+    ok = cell_task_proc:sync(work),
+    ?assertMatch(#{product := undefined}, cell_task_proc:info(work)),
+    ?assertEqual([retry], cell_test_task:recorded(?config(tab, Config), work, answers)),
+    ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-4">>)).
 
 kill_and_await(Task) ->
     exit(cell_task_proc:whereis(Task), kill),
