@@ -50,6 +50,8 @@
 -define(WEDGE_MS, 60000).
 -define(DOUBLE_MS, 2000).
 -define(WHO, <<"chaos operator">>).
+%% The alarm of a cell that stopped by itself after an internal fault.
+-define(STOPPED, <<"cell:stopped">>).
 -define(PROC_LOG_EVERY, 10).
 -define(PROGRESS, [item_identifier_read, item_transfer_in, item_transfer_out,
                    item_work_start, item_work_complete, item_work_abort, product_saved]).
@@ -844,6 +846,9 @@ agent(#{harness := H} = A) ->
 
 handle({cell_event, #{type := alarm_raised, alarm := #{kind := error} = Alarm}}, A) ->
     schedule(Alarm, A#{errors := maps:get(errors, A) + 1});
+handle({cell_event, #{type := alarm_raised, alarm := #{id := ?STOPPED}}}, A) ->
+    %% The cell stopped by itself after an internal fault, and says so.
+    restart_cell(off, A);
 handle({cell_event, #{type := alarm_raised}}, A) ->
     A;
 handle({cell_event, #{type := cell_state, state := State}}, #{harness := H} = A) ->
@@ -921,9 +926,13 @@ quiet_check(#{harness := H, errors := Errors} = A) ->
         {start, true, _} ->
             H ! {chaos, {stalled, What()}};
         {_, true, _} when map_get(producing, A) ->
-            %% Stopped under the operator's feet for a whole window, and no event of
-            %% the cell said so: the operator presses Start now (restart_cell/2).
-            H ! {chaos, {silent_stop, What()}};
+            %% Stopped under the operator's feet for a whole window: silent unless the
+            %% cell's alarm says it stopped by itself. The operator presses Start now
+            %% (restart_cell/2).
+            case cell_alarms:get(?STOPPED) of
+                {ok, _} -> ok;
+                {error, not_found} -> H ! {chaos, {silent_stop, What()}}
+            end;
         _ ->
             ok
     end,

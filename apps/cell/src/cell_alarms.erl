@@ -205,9 +205,13 @@ held_twice(_Task, undefined, _Solution) ->
 held_twice(_Task, _Serial, Solution) when Solution =:= reset; Solution =:= close ->
     none;
 held_twice(Task, Serial, _Solution) ->
-    case [O || {O, _} <- cell_registry:holders(Serial), O =/= Task] of
-        [] -> none;
-        Others -> {Serial, lists:usort(Others)}
+    Holders = [O || {O, _} <- cell_registry:holders(Serial)],
+    case {lists:member(Task, Holders), [O || O <- Holders, O =/= Task]} of
+        %% Its copy was found older than another task's record: it is no holder any
+        %% more, and it drops the copy before it acts on the answer (cell_task_proc).
+        {false, _} -> none;
+        {true, []} -> none;
+        {true, Others} -> {Serial, lists:usort(Others)}
     end.
 
 %% What the tasks, the monitor and the controller ask wait through a restart of this

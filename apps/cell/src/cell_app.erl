@@ -19,6 +19,9 @@ start(_Type, _Args) ->
             %% where the application controller is free to start mnesia; if it cannot
             %% be, the statistics say why and try again (cell_stats).
             _ = cell_db:start(),
+            %% Nothing of an earlier run of the application (a request, a stop after a
+            %% fault) is taken for a restart inside this one.
+            ok = cell_registry:new_run(),
             case cell_sup:start_link() of
                 {ok, Pid} ->
                     {ok, Pid};

@@ -16,6 +16,12 @@
 %% published, so a change costs the same for 10 tasks or 10,000, and tasks moving
 %% between states below the cell state cost this process nothing. Every change of the
 %% cell state is published as a `cell_state' event.
+%%
+%% A cell that stopped by itself (its tasks came back OFF after an internal fault, see
+%% {@link cell_registry:stopped_by_fault/1}) is told when the controller starts: a
+%% `request' event (Stop, by the cell, with the cause) and the alarm `cell:stopped',
+%% which says why and what to do, and stays (raised again by every start of the
+%% controller) until the operator's next Start clears it.
 -module(cell_controller).
 -behaviour(gen_server).
 
@@ -26,6 +32,7 @@
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(ESTOP_DEADLINE_MS, 1000).
+-define(STOPPED, <<"stopped">>).
 
 -record(state, {cell = off :: cell_ipc:state(),
                 estop_timer :: reference() | undefined,
@@ -123,7 +130,33 @@ init([]) ->
     %% task that changes meanwhile finds it published, or is seen in the check after.
     Cell = cell_registry:top_state(),
     ok = cell_registry:set_control(cell_state, Cell),
+    ok = tell_stopped(cell_registry:stopped()),
     {ok, follow(#state{cell = Cell})}.
+
+%% The cell stopped by itself: the operator is told why, and what to do.
+tell_stopped(undefined) ->
+    ok;
+tell_stopped({Fault, At}) ->
+    Caption = <<"Cell stopped after an internal fault">>,
+    ok = cell_alarms:alarm(cell, ?STOPPED, Caption, stopped_text(Fault, At)),
+    ok = cell_alarms:sync(),
+    publish(request, #{request => stop, who => <<"cell">>, cause => Caption}).
+
+stopped_text(Fault, At) ->
+    Why = case Fault of
+              services -> "a part of the cell's controller the tasks depend on (its services, "
+                          "the product journal or the handshake links) failed and was started "
+                          "again, and the tasks with it";
+              registry -> "the cell's controller was started anew (its task registry among "
+                          "what restarted)"
+          end,
+    io_lib:format("At ~ts ~ts. The tasks came back OFF and nothing has moved since.~nCheck "
+                  "the machine: products part-way through a station, a robot or a belt "
+                  "stopped mid-move. Then press Start: each task holds its record against "
+                  "its sensors and goes on where they agree, or asks where they do not. The "
+                  "log says more about the fault.",
+                  [calendar:system_time_to_rfc3339(At, [{unit, millisecond}, {offset, "Z"}]),
+                   Why]).
 
 -spec handle_call(term(), gen_server:from(), #state{}) ->
           {reply, term(), #state{}} | {noreply, #state{}}.
@@ -134,6 +167,7 @@ handle_call({request, start, Who}, _From, State) ->
         false ->
             ok = snapshot(),
             ok = request(start, Who),
+            ok = started_again(cell_registry:stopped()),
             {reply, ok, State}
     end;
 handle_call(sync, From, State) ->
@@ -226,6 +260,14 @@ request(Request, Who) ->
     broadcast(request, Request),
     cell_log:notice(cell, "~ts requested (~ts)", [request_name(Request), Who]),
     publish(request, #{request => Request, who => Who}).
+
+%% The operator started the cell that had stopped by itself: the alarm goes.
+started_again(undefined) ->
+    ok;
+started_again(_) ->
+    ok = cell_registry:clear_stopped(),
+    ok = cell_alarms:clear_alarm(cell, ?STOPPED),
+    cell_alarms:sync().
 
 %% The emergency stop to every task, each with its slot of the barrier.
 estop_fanout() ->

@@ -10,7 +10,14 @@
 %% </ul>
 %%
 %% It also tells a restarted task how its previous incarnation ended: it monitors
-%% every registered task and remembers a crash reason until the task registers again.
+%% every registered task and remembers a crash reason until the task registers again,
+%% and the state it died in (`crashed_in' in its row).
+%%
+%% The request and a stop the cell made by itself outlive the registry (an atomics
+%% array made once per node): when the registry, or the whole controller's tree, starts
+%% anew while the cell ran, the tasks come back OFF, and the cell remembers that it
+%% stopped after an internal fault and why until the operator's next Start (see
+%% {@link stopped_by_fault/1}).
 -module(cell_registry).
 -behaviour(gen_server).
 
@@ -18,11 +25,16 @@
          tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, published_state/0,
          control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([product_count/0, last_progress/0, wake_on_progress/0, stay_asleep/0]).
+-export([new_run/0, stopped_by_fault/1, stopped/0, clear_stopped/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
--export_type([previous/0, control_key/0]).
+-export_type([previous/0, control_key/0, fault/0]).
 
 -type previous() :: fresh | clean | {crashed, term()}.
+%% What stopped the cell by itself: a part of the controller the tasks depend on (its
+%% services, the product journal, the handshake links) restarted them with it, or the
+%% registry itself (alone, or with the whole controller's tree) started anew.
+-type fault() :: services | registry.
 -type control_key() :: request | estop | service_mode | cell_state.
 
 -define(TASKS, cell_tasks).
@@ -42,6 +54,12 @@
 -define(PROGRESS_KEY, {?MODULE, progress}).
 -define(LAST, 1).
 -define(WAKE, 2).
+%% The request as the controller last set it, and a stop the cell made by itself (its
+%% cause and when, system time in ms): kept across a restart of the registry.
+-define(RUN_KEY, {?MODULE, run}).
+-define(REQUEST, 1).
+-define(FAULT, 2).
+-define(FAULT_AT, 3).
 
 -record(state, {monitors = #{} :: #{reference() => {atom(), pid()}},
                 ended = #{} :: #{atom() => previous()}}).
@@ -135,6 +153,9 @@ counts() ->
 %% the cell's guard is told ({@link cell_guard:held_twice/1}), which asks the operator.
 -spec hold(atom(), binary() | undefined, non_neg_integer()) -> ok.
 hold(Id, Serial, Gen) ->
+    %% Older copies leave the holders before this one is in: no one reading the
+    %% holders sees the serial held twice for the instant in between.
+    _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
     %% Beside the rows by serial, one by task names the serial it holds, so the old row
     %% goes without a scan of the table.
     case ets:lookup(?PRODUCTS, {task, Id}) of
@@ -151,27 +172,32 @@ hold(Id, Serial, Gen) ->
                 ets:insert(?PRODUCTS, [{Serial, Id, Gen}, {{task, Id}, Serial, Gen}]),
             ok
     end,
-    _ = Serial =:= undefined orelse tell_stale(Id, Serial, Gen),
+    %% Again after: an older copy held meanwhile goes too; one as new or newer is a
+    %% double holding.
+    _ = Serial =:= undefined orelse
+        (tell_stale(Id, Serial, Gen) andalso cell_guard:held_twice(Serial)),
     ok.
 
-%% Every other holder of an older generation of the serial drops its copy; one of the
-%% same or a newer generation is a double holding.
+%% Every other holder of an older generation of the serial drops its copy: it leaves
+%% the holders at once (it holds nothing the cell counts any more; an operator's answer
+%% to it is not taken for a double holding) and is told. Whether one of the same or a
+%% newer generation holds it: a double holding.
 tell_stale(Id, Serial, Gen) ->
-    Twice = lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
-                                _ = case ets:lookup(?TASKS, Other) of
-                                        [{_, #{pid := Pid}}] ->
-                                            Pid ! {cell_registry, stale, Serial, Gen};
-                                        _ ->
-                                            ok
-                                    end,
-                                Acc;
-                           ({_, Other, _}, _Acc) when Other =/= Id ->
-                                true;
-                           (_, Acc) ->
-                                Acc
-                        end, false, ets:lookup(?PRODUCTS, Serial)),
-    _ = Twice andalso cell_guard:held_twice(Serial),
-    ok.
+    lists:foldl(fun({_, Other, G}, Acc) when Other =/= Id, G < Gen ->
+                        true = ets:delete_object(?PRODUCTS, {Serial, Other, G}),
+                        true = ets:delete_object(?PRODUCTS, {{task, Other}, Serial, G}),
+                        _ = case ets:lookup(?TASKS, Other) of
+                                [{_, #{pid := Pid}}] ->
+                                    Pid ! {cell_registry, stale, Serial, Gen};
+                                _ ->
+                                    ok
+                            end,
+                        Acc;
+                   ({_, Other, _}, _Acc) when Other =/= Id ->
+                        true;
+                   (_, Acc) ->
+                        Acc
+                end, false, ets:lookup(?PRODUCTS, Serial)).
 
 %% @doc How many rows the product holders take: 0 when no task holds a product.
 -spec product_count() -> non_neg_integer().
@@ -263,6 +289,10 @@ set_control(estop, On) when is_boolean(On) ->
     atomics:put(estop_flag(), 1, case On of true -> 1; false -> 0 end),
     true = ets:insert(?CONTROL, {estop, On}),
     ok;
+set_control(request, Request) ->
+    true = ets:insert(?CONTROL, {request, Request}),
+    atomics:put(run_ref(), ?REQUEST, request_code(Request)),
+    ok;
 set_control(cell_state, Cell) ->
     true = ets:insert(?CONTROL, {cell_state, Cell}),
     %% An exchange, a full barrier: whoever reads the counts after this also sees the
@@ -273,6 +303,51 @@ set_control(cell_state, Cell) ->
 set_control(Key, Value) ->
     true = ets:insert(?CONTROL, {Key, Value}),
     ok.
+
+%% @doc The `cell' application starts: no request and no stop of an earlier run of it
+%% are carried over (only restarts inside one run are).
+-spec new_run() -> ok.
+new_run() ->
+    case persistent_term:get(?RUN_KEY, undefined) of
+        undefined -> persistent_term:put(?RUN_KEY, atomics:new(?FAULT_AT, [{signed, true}]));
+        Ref -> _ = [atomics:put(Ref, I, 0) || I <- lists:seq(1, ?FAULT_AT)], ok
+    end.
+
+%% @doc The tasks came back OFF while the cell ran, because of an internal fault: the
+%% request becomes Stop, and the cell remembers why (see {@link stopped/0}) until the
+%% operator's next Start ({@link clear_stopped/0}), across restarts of the registry.
+-spec stopped_by_fault(fault()) -> ok.
+stopped_by_fault(Fault) ->
+    ok = set_control(request, stop),
+    atomics:put(run_ref(), ?FAULT_AT, os:system_time(millisecond)),
+    atomics:put(run_ref(), ?FAULT, fault_code(Fault)),
+    ok.
+
+%% @doc Why the cell stopped by itself and when (system time, ms), or `undefined'.
+-spec stopped() -> {fault(), integer()} | undefined.
+stopped() ->
+    case atomics:get(run_ref(), ?FAULT) of
+        0 -> undefined;
+        Code -> {fault_of(Code), atomics:get(run_ref(), ?FAULT_AT)}
+    end.
+
+%% @doc The operator started the cell again.
+-spec clear_stopped() -> ok.
+clear_stopped() ->
+    atomics:put(run_ref(), ?FAULT, 0).
+
+fault_code(services) -> 1;
+fault_code(registry) -> 2.
+
+fault_of(1) -> services;
+fault_of(2) -> registry.
+
+request_code(stop) -> 0;
+request_code(start) -> 1;
+request_code(pause) -> 2.
+
+run_ref() ->
+    persistent_term:get(?RUN_KEY).
 
 %% @doc The emergency-stop atomic (1 while the emergency stop is active).
 -spec estop_flag() -> atomics:atomics_ref().
@@ -312,6 +387,19 @@ init([]) ->
     atomics:put(progress_ref(), ?LAST, erlang:monotonic_time(millisecond)),
     atomics:put(progress_ref(), ?WAKE, 0),
     atomics:put(counts(), ?PUBLISHED, slot(off)),
+    _ = persistent_term:get(?RUN_KEY, undefined) =:= undefined andalso new_run(),
+    %% Started anew while the cell ran (this process, or the whole controller's tree,
+    %% after a fault): the tasks, started after it, come back OFF.
+    case atomics:get(run_ref(), ?REQUEST) of
+        0 ->
+            ok;
+        _ ->
+            ok = stopped_by_fault(registry),
+            cell_log:error(cell, "the cell's controller was started anew after an internal "
+                           "fault while the cell ran (its task registry among what "
+                           "restarted); the tasks are OFF: check the machine and press "
+                           "Start", [])
+    end,
     {ok, #state{}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
@@ -321,9 +409,12 @@ handle_call({register, Id, Pid, Info}, _From, State0) ->
     Ref = monitor(process, Pid),
     %% The product its previous incarnation held stays in the row until the restarted
     %% task has read its own file: others looking for who may hold a product see it
-    %% meanwhile.
+    %% meanwhile. Where a crashed incarnation died, and whether it had gone on by itself
+    %% after a crash of its own (`resumed'), are for the restarted task to read.
     Kept = case ets:lookup(?TASKS, Id) of
-               [{Id, OldRow}] -> maps:with([product], OldRow);
+               [{Id, OldRow}] when Previous =:= clean; Previous =:= fresh ->
+                   maps:with([product, resumed], OldRow);
+               [{Id, OldRow}] -> maps:with([product, resumed, crashed_in], OldRow);
                [] -> #{}
            end,
     true = ets:insert(?TASKS, {Id, maps:merge(Kept, maps:remove(state, Info#{pid => Pid}))}),
@@ -381,7 +472,12 @@ down(Ref, Reason, #state{monitors = Mons, ended = Ended} = State) ->
                        end,
             case ets:lookup(?TASKS, Id) of
                 [{Id, #{pid := Pid} = Row}] ->
-                    true = ets:insert(?TASKS, {Id, maps:remove(pid, Row)}),
+                    %% Where it died tells its restart whether it may go on by itself.
+                    Died = case Previous of
+                               {crashed, _} -> #{crashed_in => state_of(Id)};
+                               _ -> #{}
+                           end,
+                    true = ets:insert(?TASKS, {Id, maps:merge(maps:remove(pid, Row), Died)}),
                     %% The task's state went with its process: tell the cell.
                     case state_of(Id) of
                         off -> ok;

@@ -27,9 +27,14 @@
 %% task runs no step; any other message ends the hold first.
 %%
 %% After a crash the supervisor restarts the task; it restores its product from its
-%% file, reads its outputs as the crashed incarnation left them, secures them (uninit)
-%% and, if the cell was running, comes back in DOWN with an error naming the crash:
-%% nothing moves until an operator answers. Whatever the way into setup, init is
+%% file, reads its outputs as the crashed incarnation left them and secures them
+%% (uninit). If the cell runs, the task then initialises and reconciles as after any
+%% start: its `reconcile' holds what its predecessor held against its inputs and either
+%% agrees (the task goes on by itself: the crash is in the log and a warning) or asks
+%% the operator where they disagree. The engine asks itself ("Task restarted after a
+%% crash", Retry or Reset) only where reconcile cannot decide: the task died in init or
+%% reconcile, or died again after going on by itself before it first waited, so a
+%% crash that restarting does not cure never loops. Whatever the way into setup, init is
 %% followed by the task's `reconcile' with what its predecessor held (see
 %% {@link cell_task}): the task checks its record against its inputs before its first
 %% step.
@@ -70,6 +75,8 @@
     armed = [] :: [armed()],
     load_error :: term(),                 %% the product file could not be read
     crash :: term(),                      %% how the previous incarnation ended
+    crash_ask = false :: boolean(),       %% the crash is the operator's to answer
+    resumed = false :: boolean(),         %% went on by itself after a crash, not yet waited
     cause = start :: cell_task:cause(),   %% why the next init runs, for reconcile
     crash_outputs :: #{atom() => map()} | undefined, %% as the crashed incarnation left them
     predecessor :: cell_task:held() | undefined, %% what reconcile checks, until it agrees
@@ -255,8 +262,11 @@ handle_event(info, {control, request, stop}, down, D) ->
 handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
     resume(D#data{request = start});
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
-             #data{down = {error, Id, Origin}} = D) ->
-    answered(Origin, Solution, Who, D#data{down = undefined});
+             #data{down = {error, Id, Origin}, task = T} = D) ->
+    %% A copy found older than another task's record (the registry's word may still be
+    %% on its way) is dropped before the answer is acted on, as if that word had come
+    %% first: the answer was accepted because this task no longer holds the product.
+    answered(Origin, Solution, Who, D#data{down = undefined, task = drop_if_older(T)});
 handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
     %% An answer the task will wait for when it resumes: keep it for then.
     case D#data.pending of
@@ -312,9 +322,7 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
             %% Running on a copy found old (another task took the product on in a
             %% newer record after this one restarted): what it does rests on a
             %% product it does not hold. Its transfers end, and it reconciles again.
-            D1 = (disarm(D))#data{task = cell_handshake:interrupt_all(T), cause = dropped,
-                                  predecessor = undefined, pending = undefined,
-                                  deferred = undefined, reoffer = []},
+            D1 = leave_for_setup(dropped, D#data{task = T}),
             goto(setup, {arrow, 2}, D1#data{predecessor = predecessor(D1)},
                  [{next_event, internal, {reconcile, undefined}}]);
         _ ->
@@ -368,14 +376,39 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
         {crashed, Why} ->
             cell_log:error(Id, "task restarted after a crash: ~ts", [crash_text(Why)]),
             ok = cell_task:publish(T, task_crashed, #{reason => crash_text(Why)}),
+            Ask = ask_after_crash(Id),
+            _ = Ask orelse crash_warning(Why, D),
             %% The outputs of the crashed incarnation may still be set: read as it
             %% left them (for reconcile), then secured.
-            D3 = uninit(D#data{initialized = true, crash = Why, cause = crash,
+            D3 = uninit(D#data{initialized = true, crash = Why, cause = crash, crash_ask = Ask,
                                crash_outputs = outputs(D#data.task)}),
             start_from_off(D3);
         _ ->
             start_from_off(D)
     end.
+
+%% Whether the operator is asked about the crash rather than the task's reconcile: the
+%% task died where reconcile cannot decide (in init or reconcile itself), or it died
+%% again after it had gone on by itself from a crash, before its first wait (a fault
+%% that restarting does not cure: it would loop).
+ask_after_crash(Id) ->
+    case cell_registry:task(Id) of
+        {ok, #{crashed_in := setup}} -> true;
+        {ok, #{resumed := true}} -> true;
+        _ -> false
+    end.
+
+%% A crash the task goes on from by itself is never silent: a warning says so until an
+%% operator closes it (and the alarms' history keeps who did).
+crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
+    cell_alarms:warning(
+      Id, <<"crash_resumed">>, "Task restarted after a crash",
+      io_lib:format("The task stopped unexpectedly and was restarted: ~ts.~nIts outputs "
+                    "were secured. Before it moves again it holds its record (product ~ts) "
+                    "against its sensors: where they agree it goes on by itself, where "
+                    "they do not it asks you with an error of its own.~nNothing else is "
+                    "needed. If this warning comes back, report it to maintenance with the "
+                    "log. Close it once read.", [crash_text(Why), serial_text(P)])).
 
 start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) ->
     cell_log:warning(Id, "not started: the emergency stop is active", []),
@@ -387,16 +420,32 @@ start_from_off(#data{request = start} = D0) ->
                             task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
                       #data{crash = undefined, load_error = undefined} -> {run_init, D};
                       #data{crash = undefined} -> {product_damaged, D};
-                      #data{crash = Why} -> {{crashed, Why}, D#data{crash = undefined}}
+                      #data{crash = Why, crash_ask = true} ->
+                          {{crashed, Why}, D#data{crash = undefined, crash_ask = false}};
+                      #data{crash = _, load_error = undefined} ->
+                          %% The task's reconcile decides (an interrupted transfer's
+                          %% mark included), as after the operator's Retry.
+                          {run_init, go_on_after_crash(D)};
+                      #data{crash = _} ->
+                          {product_damaged, go_on_after_crash(D)}
                   end,
     goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]);
 start_from_off(#data{request = pause, estop = false, crash = Why} = D)
   when Why =/= undefined ->
-    %% Restarted while the cell is paused: the cell runs, so the operator is asked.
-    goto(setup, {arrow, 0}, D#data{crash = undefined}, [{next_event, internal, {crashed, Why}}]);
+    %% Restarted while the cell is paused: the cell runs, so the crash is settled as
+    %% when it runs; the task holds at its first step boundary.
+    case start_from_off(D#data{request = start}) of
+        {next_state, S, D1, Actions} -> {next_state, S, D1#data{request = pause}, Actions}
+    end;
 start_from_off(D) ->
     %% A task restarted while the cell is stopped stays OFF; its product is on disk.
-    {keep_state, D#data{crash = undefined}}.
+    {keep_state, D#data{crash = undefined, crash_ask = false}}.
+
+%% Going on by itself after a crash: the registry remembers it until the task first
+%% waits, so that a crash before that is the operator's to answer.
+go_on_after_crash(#data{task = #task{id = Id}} = D) ->
+    ok = cell_registry:update(Id, #{resumed => true}),
+    D#data{crash = undefined, resumed = true}.
 
 run_init(#data{task = #task{module = Mod} = T0} = D0) ->
     case estop_raised(D0) of
@@ -458,6 +507,10 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
             try Mod:reconcile(Held, T) of
                 {ok, T1} ->
                     %% Agreed: what the predecessor left is settled.
+                    _ = maps:get(cause, Held) =:= crash andalso
+                        cell_log:notice(T#task.id, "after the crash its record and its "
+                                        "sensors agree: it goes on (product ~ts)",
+                                        [serial_text(T1#task.product)]),
                     ready_after_init(Then, D#data{task = clean(T1), predecessor = undefined,
                                                        cause = start,
                                                        crash_outputs = undefined});
@@ -532,7 +585,7 @@ after_step({wait, Wait, T}, D) ->
                 L when is_list(L) -> L;
                 W -> [W]
             end,
-    case arm(Waits, D#data{task = clean(T), pending = {waits, Waits}}) of
+    case arm(Waits, waited(D#data{task = clean(T), pending = {waits, Waits}})) of
         {ok, D1} ->
             State = (D1#data.task)#task.ipc,
             case try_pause(State, D1) of
@@ -551,6 +604,14 @@ after_step({error, Spec, T}, D) ->
     raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
 after_step(Other, #data{task = #task{module = Mod}}) ->
     erlang:error({bad_step_result, Mod, Other}).
+
+%% The first wait after going on by itself from a crash: a crash from here on is the
+%% task's reconcile's to decide again.
+waited(#data{resumed = false} = D) ->
+    D;
+waited(#data{resumed = true, task = #task{id = Id}} = D) ->
+    ok = cell_registry:update(Id, #{resumed => false}),
+    D#data{resumed = false}.
 
 %% The step after a `continue' comes after whatever reached the task meanwhile (a
 %% Pause, a Stop, a link's message): a message to itself, behind them. With nothing
@@ -965,6 +1026,9 @@ wake_events(_, T) ->
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
 take_loaded(#task{id = Id} = T, undefined) ->
+    %% What the crashed incarnation held in the registry and no longer in its file (it
+    %% died between the two) is not held by anyone.
+    ok = cell_registry:hold(Id, undefined, 0),
     ok = cell_registry:update(Id, #{product => undefined}),
     T#task{product = undefined, gen = 0, marker = undefined};
 take_loaded(T, #{product := Product, gen := Gen, marker := Marker}) ->
@@ -974,13 +1038,22 @@ take_loaded(T, #{product := Product, gen := Gen, marker := Marker}) ->
 %% a crash left behind.
 dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
     ok = cell_registry:hold(Id, S, G),
-    case [{Other, G2} || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
-        [] ->
+    case drop_if_older(T) of
+        T ->
             ok = cell_registry:update(Id, #{serial => S, product => T#task.product}),
             T;
-        [{Other, _} | _] ->
-            drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
+        Dropped ->
+            Dropped
     end.
+
+%% The product's copy is dropped if another task holds it in a newer record.
+drop_if_older(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
+    case [Other || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
+        [] -> T;
+        [Other | _] -> drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
+    end;
+drop_if_older(T) ->
+    T.
 
 drop_stale(#task{product = #{serial := S}, gen = G} = T, S, Newer) when G < Newer ->
     drop(T, "another task holds it in a newer record");
@@ -1000,16 +1073,23 @@ forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D
                     {error, AlarmId, _} -> cell_alarms:withdraw(AlarmId);
                     _ -> ok
                 end,
-            D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
-                                   deferred = undefined, reoffer = [], cause = reset,
-                                   predecessor = undefined},
-            D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
+            D = uninit(leave_for_setup(reset, D0)),
             Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
             goto(setup, {arrow, Arrow}, D#data{task = cell_task:clear_product(D#data.task)},
                  [{next_event, internal, run_init}])
     end;
 forget(_State, _Serial, _Who, _D) ->
     keep_state_and_data.
+
+%% Back to setup from where the task was, for a product it no longer has (an old copy
+%% dropped, or forgotten on the operator's word): its waits, a pause held back and the
+%% offers to make again are cancelled, its transfers end, and its reconcile starts
+%% again from what it holds now (with `Cause').
+leave_for_setup(Cause, D0) ->
+    D = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
+                          deferred = undefined, reoffer = [], cause = Cause,
+                          predecessor = undefined},
+    D#data{task = cell_handshake:interrupt_all(D#data.task)}.
 
 drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
     cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),

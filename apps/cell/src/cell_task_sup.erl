@@ -1,8 +1,10 @@
 %% @doc Supervises the device tasks of the cell: one gen_statem each (cell_task_proc, or
 %% cell_unit_proc for a unit), one_for_one, so one task's crash never disturbs another.
-%% A restarted task comes back DOWN with an error naming the crash (a unit: in Init,
-%% with such an error), so restarts cannot run away on their own; the intensity below
-%% only stops a task that crashes while booting, over and over.
+%% A restarted task goes on by itself only where its reconcile agrees with what it
+%% finds, and comes back DOWN with an error naming the crash where reconcile cannot
+%% decide (a crash in init or reconcile, or again before its first wait after going on
+%% by itself; a unit: in Init, with such an error), so restarts cannot run away on
+%% their own; the intensity below stops a task that crashes over and over anyway.
 -module(cell_task_sup).
 -behaviour(supervisor).
 
@@ -42,8 +44,9 @@ init(Tasks) ->
         _ ->
             %% The tasks' subtree is restarting while the cell was running (an internal
             %% fault below the controller). The tasks come back OFF and wait for the
-            %% operator's Start rather than move on their own.
-            ok = cell_registry:set_control(request, stop),
+            %% operator's Start rather than move on their own; the controller tells the
+            %% operator why with an alarm until then.
+            ok = cell_registry:stopped_by_fault(services),
             cell_log:error(cell, "the cell's tasks were restarted after an internal fault; "
                            "check the machine and press Start", [])
     end,
@@ -51,8 +54,9 @@ init(Tasks) ->
     _ = [erlang:error({unknown_settings_object, Id, Name})
          || #{id := Id, settings := Name} <- Tasks, is_atom(Name),
             not lists:member(Name, Known)],
-    %% A crashed task comes back DOWN and waits for the operator, so restarts do not run
-    %% away; twenty a minute (a cell of many tasks hit by one fault at once) is spent
+    %% A task that keeps crashing comes back DOWN and waits for the operator, so
+    %% restarts do not run away; twenty a minute (a cell of many tasks hit by one fault
+    %% at once) is spent
     %% only by tasks crashing as they boot, then the controller's tree restarts.
     Flags = #{strategy => one_for_one, intensity => 20, period => 60},
     {ok, {Flags, [child_spec(T) || T <- Tasks]}}.

@@ -7,7 +7,9 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
-         service_mode_pauses/1, crash_restores_product/1, damaged_product_file/1,
+         service_mode_pauses/1, crash_restores_product/1,
+         crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
+         damaged_product_file/1,
          reconcile_gets_what_was_held/1,
          damaged_product_file_mended/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
@@ -20,7 +22,8 @@
 
 all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
-     service_mode_pauses, crash_restores_product, damaged_product_file,
+     service_mode_pauses, crash_restores_product, crash_asked_where_reconcile_cannot_decide,
+     older_copy_answer_not_refused, damaged_product_file,
      reconcile_gets_what_was_held,
      damaged_product_file_mended,
      product_survives_restart, warnings, events_have_their_fields,
@@ -193,20 +196,91 @@ crash_restores_product(Config) ->
     after 5000 -> ct:fail(no_restart)
     end,
     ok = cell_controller:sync(),
-    %% Back in DOWN, product restored, outputs secured, the operator asked.
-    ?assertEqual(down, cell_task_proc:state(work)),
+    %% Product restored, outputs secured; its reconcile agrees, so it goes on by
+    %% itself, and a warning (not a question) says it crashed.
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch(#{product := P}, cell_task_proc:info(work)),
-    [#{id := Id, caption := <<"Task restarted after a crash">>, solutions := [retry, reset],
-       description := Text}] = cell_alarms:list(),
+    [#{id := Warned, kind := warning, caption := <<"Task restarted after a crash">>,
+       solutions := [close], description := Text}] = cell_alarms:list(),
     ?assertNotEqual(nomatch, binary:match(Text, <<"PANEL-7">>)),
     ?assertNotEqual(nomatch, binary:match(Text, <<"scripted_crash">>)),
+    ?assertMatch(#{uninit := N} when N >= 1, counts(Config, work)),
     %% The other tasks never noticed.
     ?assertEqual([{ready, idle, starved}, {ready, idle, starved}, {ready, idle, starved}],
                  [cell_task_proc:state(T) || T <- [load, unload, robot]]),
+    %% Closed by the operator: in the alarms' history.
+    ok = cell_alarms:close(Warned, <<"op">>),
+    ?assertMatch([#{id := Warned, what := close, who := <<"op">>} | _], cell_alarms:history()),
+    %% It waited since (its first step), so a crash now is settled the same way.
+    cmd(Config, work, crash),
+    receive {cell_event, #{type := task_crashed, task := work}} -> ok
+    after 5000 -> ct:fail(no_restart)
+    end,
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
+    ?assertMatch([#{kind := warning}], cell_alarms:list()).
+
+%% Where reconcile cannot decide, the operator is asked about the crash: here a task
+%% that crashes again after going on by itself, before it first waited (its init
+%% failed). Retry goes on with the product as saved.
+crash_asked_where_reconcile_cannot_decide(Config) ->
+    Tab = ?config(tab, Config),
+    ok = cell_events:subscribe([task_crashed]),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    P = cell_product:new(<<"PANEL-9">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    ok = cell_task_proc:sync(work),
+    true = ets:insert(Tab, {{init_result, work}, {error, [retry]}}),
+    kill_and_await(work),
+    %% It goes on by itself: its init fails and asks.
+    [#{id := InitErr, caption := <<"Init failed">>}] =
+        [A || #{kind := error} = A <- cell_alarms:list()],
+    ?assertEqual(down, cell_task_proc:state(work)),
+    %% Killed again before it ever waited: the crash is the operator's.
+    kill_and_await(work),
+    ?assertEqual({error, not_found}, cell_alarms:get(InitErr)),
+    [#{id := Id, caption := <<"Task restarted after a crash">>, solutions := [retry, reset],
+       description := Text}] = [A || #{kind := error} = A <- cell_alarms:list()],
+    ?assertNotEqual(nomatch, binary:match(Text, <<"PANEL-9">>)),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    true = ets:delete(Tab, {init_result, work}),
     ok = cell_alarms:answer(Id, retry, <<"op">>),
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch(#{product := P}, cell_task_proc:info(work)).
+
+%% A task waits on an error holding P when another task takes P in a newer record: the
+%% registry tells it to drop its old copy. Before it has handled that word (it is
+%% held back here), its copy is no holding any more: the operator's answer is not
+%% refused as a double holding, and the task drops the copy before it acts on it.
+older_copy_answer_not_refused(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    P = cell_product:new(<<"PANEL-4">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    cmd(Config, work, {error, [retry]}),
+    ok = cell_controller:sync(),
+    [#{id := Id}] = [A || #{kind := error} = A <- cell_alarms:list()],
+    [{work, Gen}] = cell_registry:holders(<<"PANEL-4">>),
+    Work = cell_task_proc:whereis(work),
+    ok = sys:suspend(Work),
+    %% Another task's newer record (as a hand-over would write it).
+    ok = cell_registry:hold(load, <<"PANEL-4">>, Gen + 1),
+    ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-4">>)),
+    ?assertEqual(ok, cell_alarms:answer(Id, retry, <<"op">>)),
+    ok = sys:resume(Work),
+    ok = cell_task_proc:sync(work),
+    ?assertMatch(#{product := undefined}, cell_task_proc:info(work)),
+    ?assertEqual([retry], cell_test_task:recorded(?config(tab, Config), work, answers)),
+    ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-4">>)).
+
+kill_and_await(Task) ->
+    exit(cell_task_proc:whereis(Task), kill),
+    receive {cell_event, #{type := task_crashed, task := Task}} -> ok
+    after 5000 -> ct:fail(no_restart)
+    end,
+    ok = cell_controller:sync().
 
 %% Every way into READY passes the task's reconcile with what its predecessor held: a
 %% Start from OFF, a restart after a crash (its product as saved), a Reset; a question
@@ -221,20 +295,17 @@ reconcile_gets_what_was_held(Config) ->
                  cell_test_task:recorded(Tab, work, held)),
     P = cell_product:new(<<"PANEL-8">>, <<"recipe-a">>),
     cmd(Config, work, {product, P}),
+    %% The question it will ask after the crash: its reconcile asks, not the engine.
+    true = ets:insert(Tab, {{reconcile_result, work}, {error, [retry, ignore, reset]}}),
     cmd(Config, work, crash),
     receive {cell_event, #{type := task_crashed, task := work}} -> ok
     after 5000 -> ct:fail(no_restart)
     end,
     ok = cell_controller:sync(),
-    [#{id := Crashed}] = cell_alarms:list(),
-    %% The question it will ask once the crash is answered.
-    true = ets:insert(Tab, {{reconcile_result, work}, {error, [retry, ignore, reset]}}),
-    ok = cell_alarms:answer(Crashed, retry, <<"op">>),
-    ok = cell_controller:sync(),
     ?assertEqual(down, cell_task_proc:state(work)),
     ?assertMatch([_, #{cause := crash, product := P}], cell_test_task:recorded(Tab, work, held)),
     [#{id := Where, caption := <<"Where is it">>, solutions := [retry, ignore, reset]}] =
-        cell_alarms:list(),
+        [A || #{kind := error} = A <- cell_alarms:list()],
     ok = cell_alarms:answer(Where, reset, <<"op">>),
     ok = cell_controller:sync(),
     ?assertMatch([{reset, #{cause := crash, product := P}}],

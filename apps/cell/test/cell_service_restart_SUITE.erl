@@ -5,20 +5,29 @@
 %% processes, the cell is still Started, products keep leaving, the subscribers still
 %% get events, the error is still listed and the operator's answer still reaches its
 %% task.
+%%
+%% A fault below the controller that restarts the tasks with it (the keeper of the
+%% services' tables, the product journal, the registry) stops the cell: it says so, with
+%% a request event and the alarm `cell:stopped' naming the cause and what to do, until
+%% the operator's Start clears it and the line goes on.
 -module(cell_service_restart_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([events_restart/1, alarms_restart/1, settings_restart/1, all_services_restart/1]).
+-export([events_restart/1, alarms_restart/1, settings_restart/1, all_services_restart/1,
+         tables_keeper_killed_is_told/1, journal_killed_is_told/1,
+         registry_killed_is_told/1]).
 
 -define(TASKS, [src, a, b, sink, jsrc, jam]).
 -define(LINKS, [l1, l2, l3, lj]).
 -define(JAM, <<"jam:jam">>).
 -define(TIMEOUT, 20000).
+-define(STOPPED, <<"cell:stopped">>).
 
 all() ->
-    [events_restart, alarms_restart, settings_restart, all_services_restart].
+    [events_restart, alarms_restart, settings_restart, all_services_restart,
+     tables_keeper_killed_is_told, journal_killed_is_told, registry_killed_is_told].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -76,6 +85,57 @@ settings_restart(Config) ->
 all_services_restart(Config) ->
     survives([cell_events, cell_alarms, cell_settings, cell_recipe_buffer, cell_peers], 0,
              Config).
+
+%% The keeper of the services' tables dies with the cell Started and products in it:
+%% the services start from empty tables, and the tasks again, OFF.
+tables_keeper_killed_is_told(Config) ->
+    stopped_and_told(cell_service_tables, <<"services">>, Config).
+
+%% The product journal dies: the services restart with their tables (a subscriber
+%% keeps its subscription), so the request event reaches it too.
+journal_killed_is_told(Config) ->
+    ok = cell_events:subscribe([item_transfer_out, alarm_raised, alarm_cleared, request]),
+    stopped_and_told(cell_trace_journal, <<"services">>, Config),
+    %% The event was sent as the controller came back, before the checks above.
+    receive
+        {cell_event, #{type := request, request := stop, who := <<"cell">>, cause := _}} -> ok
+    after 0 -> ct:fail(no_request_event)
+    end.
+
+%% The registry dies: the whole controller's tree starts anew from a fresh registry,
+%% which still knows the cell ran.
+registry_killed_is_told(Config) ->
+    stopped_and_told(cell_registry, <<"task registry">>, Config).
+
+stopped_and_told(Name, Cause, Config) ->
+    %% The controller's tree has been started again by then, the controller too.
+    _ = kill_under(Name, cell_controller_sup),
+    ?assertMatch(#{request := stop, has_alarm := true}, cell_controller:flags()),
+    ?assert(lists:all(fun(S) -> S =:= off end, task_states()), task_states()),
+    {ok, #{kind := alarm, task := cell, caption := <<"Cell stopped after an internal fault">>,
+           description := Text}} = cell_alarms:get(?STOPPED),
+    [?assertNotEqual(nomatch, binary:match(Text, Words), {Words, Text})
+     || Words <- [Cause, <<"press Start">>, <<"Check the machine">>]],
+    %% The products are where their files say: the jammed one still at its task.
+    ?assertMatch(#{product := #{serial := <<"J-1">>}}, cell_task_proc:info(jam)),
+    %% A second restart of the controller (not of the tasks) before Start: still told.
+    restart_controller(),
+    ?assertMatch({ok, #{kind := alarm}}, cell_alarms:get(?STOPPED)),
+    %% Start clears it, and the line goes on.
+    ok = cell_events:subscribe([item_transfer_out, alarm_raised, alarm_cleared, request]),
+    ok = cell_controller:start(<<"suite">>),
+    receive
+        {cell_event, #{type := alarm_cleared, alarm := #{id := ?STOPPED}}} -> ok
+    after ?TIMEOUT -> ct:fail({not_cleared, cell_alarms:list()})
+    end,
+    ?assertEqual({error, not_found}, cell_alarms:get(?STOPPED)),
+    ?assertEqual(undefined, cell_registry:stopped()),
+    ok = flowing(Config).
+
+restart_controller() ->
+    _ = kill_under(cell_controller, cell_controller_sup),
+    ?assert(is_pid(whereis(cell_controller))),
+    ?assertMatch(#{request := stop}, cell_controller:flags()).
 
 %% -------------------------------------------------------------------------------------
 
@@ -148,9 +208,17 @@ await_alarm(Id) ->
         ct:fail({no_alarm, Id, cell_alarms:list()})
     end.
 
-%% Kills a service and waits until its supervisor has started it again: the
-%% supervisor handles the exit (it reached it before this call) before it answers.
+%% Kills a service and waits until its supervisor has started it again.
 restart(Name) ->
+    Old = kill_under(Name, cell_service_sup),
+    New = whereis(Name),
+    ?assert(is_pid(New) andalso New =/= Old, {not_restarted, Name}),
+    ok.
+
+%% Kills a process and returns once `Sup' has handled its exit: the exit reached the
+%% supervisor before this call, so the supervisor answers after it restarted what it
+%% restarts.
+kill_under(Name, Sup) ->
     Old = whereis(Name),
     true = is_pid(Old),
     Ref = monitor(process, Old),
@@ -158,7 +226,5 @@ restart(Name) ->
     receive {'DOWN', Ref, process, Old, _} -> ok
     after ?TIMEOUT -> ct:fail({not_stopped, Name})
     end,
-    _ = supervisor:which_children(cell_service_sup),
-    New = whereis(Name),
-    ?assert(is_pid(New) andalso New =/= Old, {not_restarted, Name}),
-    ok.
+    _ = supervisor:which_children(Sup),
+    Old.

@@ -30,6 +30,7 @@
             product = false,       %% the task holds a product
             initialized = false,   %% init ran, uninit has not
             init_result = ok,      %% what the next init returns
+            auto = false,          %% went on by itself after a crash, no step since
             inits = 0, steps = 0, uninits = 0}).
 
 -record(m, {tasks = #{} :: #{atom() => #t{}},
@@ -223,19 +224,23 @@ answered(crash, reset, T, M) ->
 answered(crash, _Retry, T, M) ->
     init(T, M).                                            %% arrow 8
 
-%% A restarted task: outputs secured; back in DOWN with an error if the cell runs.
-restart(T0, #m{request = Request, estop = Estop}) ->
+%% A restarted task: outputs secured. If the cell runs, it initialises and reconciles
+%% (the test task's reconcile agrees) and goes on by itself, as after a Retry; the
+%% operator is asked (DOWN, an error) only when it crashes again after going on by
+%% itself before its first step waited.
+restart(T0, #m{request = Request, estop = Estop} = M) ->
     T = (uninit(T0#t{initialized = true}))#t{err = none, resume = undefined,
                                              resume_step = false},
     case Request =/= stop andalso not Estop of
-        true -> T#t{st = down, err = {crash, [retry, reset]}};
+        true when T0#t.auto -> T#t{st = down, err = {crash, [retry, reset]}};
+        true -> init(T#t{auto = true}, M);
         false -> T#t{st = off}
     end.
 
 uninit(#t{initialized = true, uninits = N} = T) -> T#t{uninits = N + 1, initialized = false};
 uninit(T) -> T.
 
-step(#t{steps = N} = T) -> T#t{steps = N + 1}.
+step(#t{steps = N} = T) -> T#t{steps = N + 1, auto = false}.
 
 %% Seed 000 §2.3.4.
 event_state(starved, _) -> ?STARVED;

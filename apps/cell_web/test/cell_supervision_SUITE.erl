@@ -7,14 +7,16 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1]).
--export([burst_of_event_restarts/1, other_services_restart/1, unclean_stop_is_told/1]).
+-export([burst_of_event_restarts/1, other_services_restart/1, stop_after_fault_on_the_panel/1,
+         unclean_stop_is_told/1]).
 
 -define(APPS, [cell, cell_web, cell_shdr, cell_inspect]).
 -define(WAIT_MS, 20000).
 
 all() ->
     %% The last stops and starts the cell application itself.
-    [burst_of_event_restarts, other_services_restart, unclean_stop_is_told].
+    [burst_of_event_restarts, other_services_restart, stop_after_fault_on_the_panel,
+     unclean_stop_is_told].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -81,6 +83,22 @@ other_services_restart(_Config) ->
     Serial = <<"SUP-2">>,
     ok = cell_events:publish(cell_events:new(item_identifier_read, t1, #{item => Serial})),
     ok = await_feed(Serial).
+
+%% The cell Started, the keeper of the services' tables killed: the controller's tree
+%% starts anew and the tasks come back OFF. A page, which stays connected, is shown the
+%% alarm saying the cell stopped by itself and why; the operator's Start clears it.
+stop_after_fault_on_the_panel(Config) ->
+    {ok, Ws0} = cell_web_client:ws_connect(cell_web_client:new(?config(port, Config)), none),
+    {[#{<<"type">> := <<"snapshot">>} | _], Ws} = cell_web_client:ws_next(Ws0, ?WAIT_MS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = cell_web_feed:join(self()),
+    ok = restart(cell_service_tables),
+    ?assertMatch(#{request := stop, has_alarm := true}, cell_controller:flags()),
+    ok = await_ws_text(<<"Cell stopped after an internal fault">>, Ws),
+    ok = cell_controller:start(<<"suite">>),
+    ?assertEqual({error, not_found}, cell_alarms:get(<<"cell:stopped">>)),
+    ok = cell_controller:stop(<<"suite">>),
+    ok = cell_web_client:ws_close(Ws).
 
 %% A record left saying the node runs (as a kill leaves it) is told in the log at the
 %% next start and counted as an unexpected restart; an orderly stop and start counts a
@@ -186,6 +204,18 @@ await_ws(Serial, Ws) ->
                            <- Messages, I =:= Serial] of
                 [] -> await_ws(Serial, Ws1);
                 [_ | _] -> ok
+            end;
+        {Other, _} ->
+            ct:fail({websocket, Other})
+    end.
+
+%% Frames until one shows the text (an alarm, or a snapshot listing it).
+await_ws_text(Text, Ws) ->
+    case cell_web_client:ws_next(Ws, ?WAIT_MS) of
+        {Messages, Ws1} when is_list(Messages) ->
+            case binary:match(jsx:encode(Messages), Text) of
+                nomatch -> await_ws_text(Text, Ws1);
+                _ -> ok
             end;
         {Other, _} ->
             ct:fail({websocket, Other})
