@@ -13,8 +13,10 @@
 %% take those from the journal, in its order, and skip the events that follow them.
 %% Once a second, when records were applied or histories written, the histories
 %% handed over are written and their tables flushed to the disk, then the counters
-%% are written together with
-%% the id of the last record applied, and the journal is trimmed up to it. When the
+%% are written together with the books (which products are in the cell, how each one
+%% that left did) and the id of the last record applied, in one transaction, and the
+%% journal is trimmed up to it. The books are never written ahead of the counters: a
+%% crash leaves both as they were at the same record. When the
 %% database opens (at every start of the process) the records after that id are
 %% applied again, before any event: each gives the same history entries (a record's
 %% entries are keyed by its id, and the history keeps one copy of an entry) and is
@@ -58,7 +60,7 @@
 %% `{Period, Scope, Metric}', Period `total' or a shift id, Scope a task or `cell');
 %% `cell_trace_open' (disc_copies: the products in the cell, the summary of each);
 %% `cell_trace_product' (disc_only_copies: the summary of each product that left,
-%% written once, when it leaves) and `cell_trace_event' (disc_only_copies,
+%% written once, with the counters that count it leaving) and `cell_trace_event' (disc_only_copies,
 %% bag: the history by serial). The traceability tables live on disc only, so memory
 %% does not grow with the number of products; they are purged after the `statistics'
 %% settings' `trace_days' (or sooner, past `trace_max_records'), shift counters after
@@ -113,6 +115,10 @@
              products = #{} :: #{binary() => #prod{}},
              holding = #{} :: #{atom() => binary()},            %% task -> serial
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
+             %% The books not yet written: rows of the products in the cell to write
+             %% (or to delete), summaries of products that left (see write_open/3).
+             book_open = #{} :: #{binary() => map() | delete},
+             book_left = #{} :: #{binary() => map()},
              backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
              writer :: pid() | undefined,                       %% see cell_stats_writer
@@ -191,8 +197,10 @@ summary() ->
 %% throughput per hour. Read from the database (what was written up to a second ago).
 -spec summary(period()) -> map().
 summary(Period) ->
-    {{From, To}, Counters} = view(fun() -> counted(Period) end,
-                                  {{now_us(), now_us()}, #{}}),
+    %% The products in the cell read with the counters: the books add up in any read.
+    {{{From, To}, Counters}, InCell} =
+        view(fun() -> {counted(Period), length(mnesia:all_keys(?OPEN))} end,
+             {{{now_us(), now_us()}, #{}}, 0}),
     Hours = max(To - From, 0) / 3600.0e6,
     Cell = maps:get(cell, Counters, #{}),
     Out = maps:get(out, Cell, 0),
@@ -206,7 +214,7 @@ summary(Period) ->
                                            true -> round1(Out / Hours);
                                            false -> 0.0
                                        end},
-      in_cell => in_cell(),
+      in_cell => InCell,
       tasks => maps:map(fun(_, C) -> task_summary(C) end, Tasks)}.
 
 task_summary(C) ->
@@ -350,12 +358,13 @@ shift_now() ->
     #{id := Id} = cell_stats_shift:at(local(now_us()), shift_starts()),
     Id.
 
-%% @doc A product's history: where it is or how it left, and every record, oldest
-%% first (times in milliseconds since the epoch).
+%% @doc A product's history: where it is or how it left (as written with the counters,
+%% up to a second ago), and every record, oldest first (times in milliseconds since
+%% the epoch).
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
-    %% The row in the cell first: a product leaving has its summary written before
-    %% that row goes, so one of the two is found.
+    %% The row in the cell first: a product leaving has its summary written in the
+    %% transaction that deletes that row, so one of the two is found.
     Summary = case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
                   [{?OPEN, _, Row}] ->
                       summary(Serial, from_open(Row, 0), in_cell, undefined);
@@ -627,10 +636,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
             %% Its stale copy sent out again: it left once.
             St#st{stale = maps:remove(Serial, Stale)};
         {error, _} ->
-            Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
-                          [{?PRODUCT, _, Info}] -> Info;
-                          [] -> undefined
-                      end,
+            Summary = left_summary(Serial, St),
             case cell_stats_trace:left_after_scrap(Summary) of
                 count ->
                     left(Serial, T, At, #prod{entered = At, entry = T}, St);
@@ -667,9 +673,8 @@ left(Serial, T, At, P, #st{products = Ps, gone = Gone} = St0) ->
     St3 = timing({cell, cycle}, maps:get(cell, St2#st.last_out, undefined), At, St2),
     St4 = St3#st{last_out = maps:put(cell, At, St3#st.last_out),
                  products = maps:remove(Serial, Ps)},
-    St5 = write_product(Serial, P, out, {T, At}, St4),
-    St6 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St5),
-    trace(Serial, At, T, #{event => left, quality => Quality}, St6).
+    St5 = write_left(Serial, P, out, {T, At}, St4),
+    trace(Serial, At, T, #{event => left, quality => Quality}, St5).
 
 %% No task has held the product for two writes in a row: it was forgotten inside the
 %% cell. The registry is asked too, so a product whose new holder's event is still
@@ -701,12 +706,11 @@ scrap(Serial, #prod{by = Task} = P, At, St) ->
                                          _ -> count([{Task, scrapped}], At, St)
                                      end),
     St2 = St1#st{products = maps:remove(Serial, St1#st.products)},
-    St3 = write_product(Serial, P, scrapped, {Task, At}, St2),
-    St4 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St3),
+    St3 = write_left(Serial, P, scrapped, {Task, At}, St2),
     trace(Serial, At, Task, #{event => scrapped, failed => P#prod.failed,
                               text => <<"no task holds it any more: it was forgotten in "
                                         "the cell (an operator's Reset) or taken out by hand">>},
-          St4).
+          St3).
 
 held_trace(T, At, Entry, #st{holding = Holding} = St) ->
     case maps:find(T, Holding) of
@@ -908,6 +912,7 @@ write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
                                         end,
                                   mnesia:write({?COUNTER, K, New})
                           end, ok, Pending),
+                ok = books(St),
                 _ = Mark =:= undefined orelse
                     mnesia:write({?COUNTER, {meta, journal}, Mark}),
                 mnesia:write({?COUNTER, {meta, flushed}, Now})
@@ -916,7 +921,7 @@ write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
         {atomic, ok} ->
             _ = mnesia:sync_log(),
             true = ets:delete_all_objects(Pending),
-            St;
+            St#st{book_open = #{}, book_left = #{}};
         {aborted, Why} ->
             closed(Why, St)
     end;
@@ -924,6 +929,14 @@ write_pending(_Now, _Mark, St) ->
     %% Not before the database is open: the time of the last write tells how long
     %% the runtime was down.
     St.
+
+%% In the counters' transaction: the books as the counters count them.
+books(#st{book_open = Open, book_left = Gone}) ->
+    ok = maps:fold(fun(Serial, Info, ok) -> mnesia:write({?PRODUCT, Serial, Info}) end,
+                   ok, Gone),
+    maps:fold(fun(Serial, delete, ok) -> mnesia:delete({?OPEN, Serial});
+                 (Serial, Row, ok) -> mnesia:write({?OPEN, Serial, Row})
+              end, ok, Open).
 
 %%====================================================================
 %% The database
@@ -991,9 +1004,12 @@ opened(#st{started = Started} = St0) ->
                             end
                     end, Closed, Closed#st.tasks),
     Open = safe(fun() -> ets_list(?OPEN) end, []),
+    %% A product the books are still to write (one that left while the database was
+    %% away, say) is as the statistics have it, not as its row was.
     Known = lists:foldl(
               fun({?OPEN, Serial, Info}, Acc) ->
-                      case maps:is_key(Serial, Acc) of
+                      case maps:is_key(Serial, Acc) orelse
+                          maps:is_key(Serial, St1#st.book_open) of
                           true -> Acc;
                           false ->
                               Acc#{Serial => from_open(Info, Started)}
@@ -1165,20 +1181,37 @@ trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
 
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
 %% table with a log, cheap to write); the summary on disc only is written when it leaves.
-write_open(Serial, #prod{} = P, St) ->
+%% Both are the books: which products are in the cell and how each one left go with the
+%% counters that count them, in their transaction (see write_pending/3), never ahead of
+%% them; a record applied again after a crash then finds the books as they were when
+%% the counters were, and counts what they do not hold, once.
+write_open(Serial, #prod{} = P, #st{book_open = Open} = St) ->
     Row = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
             entry => P#prod.entry},
-    db(fun() -> mnesia:dirty_write({?OPEN, Serial, Row}) end, St).
+    St#st{book_open = Open#{Serial => Row}}.
 
 %% A product as its row in the cell has it (`Entered' when the row lacks the time).
 from_open(Row, Entered) ->
     #prod{entered = maps:get(entered, Row, Entered), recipe = maps:get(recipe, Row, <<>>),
           failed = maps:get(failed, Row, false), entry = maps:get(entry, Row, undefined)}.
 
-%% The summary of a product that left: `out' or `scrapped', by which task and when.
-write_product(Serial, #prod{} = P, Status, Left, St) ->
+%% The summary of a product that left (`out' or `scrapped', by which task and when)
+%% replaces its row in the cell, in the books.
+write_left(Serial, #prod{} = P, Status, Left, #st{book_open = Open, book_left = Gone} = St) ->
     Info = summary(Serial, P, Status, Left),
-    db(fun() -> mnesia:dirty_write({?PRODUCT, Serial, Info}) end, St).
+    St#st{book_open = Open#{Serial => delete}, book_left = Gone#{Serial => Info}}.
+
+%% How a product that left did, as the books have it: what is still to write first.
+left_summary(Serial, #st{book_left = Gone}) ->
+    case maps:find(Serial, Gone) of
+        {ok, Info} ->
+            Info;
+        error ->
+            case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                [{?PRODUCT, _, Info}] -> Info;
+                [] -> undefined
+            end
+    end.
 
 %% A product's summary (times in ms): where it is, or how it left (`{Task, At}').
 summary(Serial, #prod{} = P, Status, Left) ->
