@@ -9,6 +9,7 @@
 -module(cell_stats_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include_lib("proper/include/proper.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
@@ -16,7 +17,8 @@
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
-         a_product_left_but_still_in_its_file/1, the_journal_alone/1]).
+         a_product_left_but_still_in_its_file/1, the_journal_alone/1,
+         books_across_crashes/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -30,7 +32,8 @@ all() ->
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
      a_product_left_but_still_in_its_file,
-     the_journal_alone].
+     the_journal_alone,
+     books_across_crashes].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -39,7 +42,8 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
-                                     Case =:= a_product_left_but_still_in_its_file ->
+                                     Case =:= a_product_left_but_still_in_its_file;
+                                     Case =:= books_across_crashes ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -419,6 +423,118 @@ a_product_left_but_still_in_its_file(Config) ->
     ?assertEqual([entered, item_transfer_out, left, item_transfer_out], history(Serial)),
     ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
                  cell_stats:summary(total)).
+
+%% The books after crashes of the statistics at any point of products' way: each
+%% product enters and leaves, and the statistics are killed (once, or twice in a row,
+%% replaying the journal again before they wrote) right after they took a record and
+%% before their periodic write, or after a write. Whatever the crash points, the
+%% counters in, out and scrapped and the products in the cell are what the histories
+%% say, and `in = out + scrapped + in_cell'.
+books_across_crashes(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The statistics run under an owner of the case's own that starts them again at
+    %% once: killed as often as here under the controller, they would spend its
+    %% restart intensity, and their restart would restart the tasks after them.
+    ok = supervisor:terminate_child(cell_controller_sup, cell_stats),
+    Owner = spawn(fun() -> process_flag(trap_exit, true), stats_owner() end),
+    ok = start_own_stats(Owner),
+    Serials = counters:new(1, []),
+    Prop = ?FORALL(Plan, list({crash(), crash(), crash()}),
+                   books_hold(Ref, Owner, Serials, Plan)),
+    ?assert(proper:quickcheck(Prop, [{to_file, user}, {numtests, 12}, {max_size, 6}])),
+    Stats = whereis(cell_stats),
+    MRef = monitor(process, Stats),
+    Owner ! stop,
+    receive {'DOWN', MRef, process, Stats, _} -> ok end,
+    {ok, _} = supervisor:restart_child(cell_controller_sup, cell_stats),
+    ok.
+
+stats_owner() ->
+    receive
+        {start, From} ->
+            {ok, Pid} = cell_stats:start_link(#{exits => [waits_a, waits_b]}),
+            From ! {stats_started, Pid},
+            stats_owner();
+        {'EXIT', _, _} ->
+            stats_owner();
+        stop ->
+            exit(shutdown)
+    end.
+
+start_own_stats(Owner) ->
+    Owner ! {start, self()},
+    receive {stats_started, _} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(statistics_not_started)
+    end.
+
+%% Kills the statistics brutally and starts them again.
+kill_own_stats(Owner) ->
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    start_own_stats(Owner).
+
+%% What happens after a step: nothing, a write, a crash, two crashes in a row.
+crash() ->
+    oneof([none, flush, kill, kill_twice]).
+
+books_hold(Ref, Owner, Serials, Plan) ->
+    ok = cell_stats:flush(),
+    Before = cell_counts(),
+    #{in_cell := InCellBefore} = cell_stats:summary(total),
+    Mine = [begin
+                ok = counters:add(Serials, 1, 1),
+                Serial = iolist_to_binary(io_lib:format("B-~b", [counters:get(Serials, 1)])),
+                ok = cell_test_task:command(waits_a, Ref,
+                                            {product, cell_product:new(Serial, <<"rb">>)}),
+                await_event(product_saved, Serial),
+                ok = after_step(AfterIn, Owner),
+                ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+                await_event(item_transfer_out, Serial),
+                ok = after_step(AfterOut, Owner),
+                ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+                await_event(product_saved, undefined),
+                ok = after_step(AfterClear, Owner),
+                Serial
+            end || {AfterIn, AfterOut, AfterClear} <- Plan],
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    #{in_cell := InCell} = cell_stats:summary(total),
+    Counted = counted_since(Before),
+    Histories = [history(S) || S <- Mine],
+    FromHistories = #{in => count_of(entered, Histories), out => count_of(left, Histories),
+                      good => count_of(left, Histories),
+                      scrapped => count_of(scrapped, Histories)},
+    Expected = #{in => length(Plan), out => length(Plan), good => length(Plan),
+                 scrapped => 0},
+    ?WHENFAIL(ct:pal("plan ~p~ncounted ~p~nfrom the histories ~p~nhistories ~p~n"
+                     "in the cell ~b, before ~b", [Plan, Counted, FromHistories, Histories,
+                                                  InCell, InCellBefore]),
+              Counted =:= FromHistories andalso Counted =:= Expected
+              andalso InCell =:= InCellBefore
+              andalso lists:all(fun(H) -> H =:= [entered, item_transfer_out, left] end,
+                                Histories)).
+
+%% The statistics have taken what came before (their journal's records come before the
+%% events awaited), then crash, write, or go on.
+after_step(none, _Owner) ->
+    ok;
+after_step(flush, _Owner) ->
+    cell_stats:flush();
+after_step(kill, Owner) ->
+    _ = sys:get_state(cell_stats),
+    kill_own_stats(Owner);
+after_step(kill_twice, Owner) ->
+    _ = sys:get_state(cell_stats),
+    ok = kill_own_stats(Owner),
+    kill_own_stats(Owner).
+
+count_of(Event, Histories) ->
+    length([H || H <- Histories, lists:member(Event, H)]).
 
 %% The trace journal by itself: writers at once each get their own id; its reader gets
 %% every record once, in the order of the ids, before the writers are answered; the
