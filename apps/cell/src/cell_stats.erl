@@ -91,6 +91,7 @@
 -define(LOAD_MS, 60000).
 -define(PURGE_MS, 3600000).
 -define(BACKLOG_MAX, 10000).
+-define(JOURNAL_WARNING, <<"trace_journal">>).
 -define(EVENTS, [task_state, item_identifier_read, item_transfer_in, item_work_start,
                  item_work_pause, item_work_resume, item_work_complete, item_work_abort,
                  item_transfer_out, alarm_raised, alarm_cleared, product_saved,
@@ -136,6 +137,8 @@
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
              unsynced = false :: boolean(),     %% histories written since the last flush
+             %% The journal's warning is up (unknown at start: set or reset at once).
+             journal_warned = unknown :: boolean() | unknown,
              %% The products that left while the journal was read at start, and by which
              %% task; and those a task still holds in its file though they left through it
              %% (a crash between its record and its file): its copy until it lets go.
@@ -794,7 +797,7 @@ flush(St0) ->
               _ -> St2
           end,
     {Mark, St3a} = durable_history(St3),
-    St4 = journal_trimmed(Mark, write_pending(Now, Mark, St3a)),
+    St4 = journal_bound(journal_trimmed(Mark, write_pending(Now, Mark, St3a))),
     case St4#st.db =:= open andalso Now >= St4#st.purge_at of
         true -> trim(purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000}));
         false -> trim(St4)
@@ -895,6 +898,40 @@ journal_trimmed(Mark, #st{db = open} = St) ->
     St#st{saved = Mark};
 journal_trimmed(_Mark, St) ->
     St.
+
+%% The journal is told its bound (the settings may have changed) and answers how much it
+%% holds: near the bound, a warning the operator sees, and a line in the log.
+journal_bound(#st{journal_warned = Warned} = St) ->
+    case whereis(cell_trace_journal) of
+        undefined ->
+            St;
+        _ ->
+            #{journal_max_mb := Mb} = settings(),
+            Max = Mb * 1024 * 1024,
+            Bytes = cell_trace_journal:bound(Max),
+            Pct = Bytes * 100 div Max,
+            case cell_stats_trace:journal_level(Bytes, Max, Warned) of
+                warn ->
+                    Text = io_lib:format("The trace journal holds ~b % of its ~b MB of "
+                                         "records the database has not taken. At 100 % "
+                                         "no new record is kept and the tasks that must "
+                                         "record a product's way stop. Make the database "
+                                         "work again (see the log) or raise journal_max_mb "
+                                         "in the statistics settings.", [Pct, Mb]),
+                    cell_log:warning(cell, "statistics: ~ts", [Text]),
+                    ok = cell_alarms:warning(cell, ?JOURNAL_WARNING,
+                                             <<"Trace journal nearly full">>, Text),
+                    St#st{journal_warned = true};
+                clear ->
+                    _ = Warned =:= true andalso
+                        cell_log:notice(cell, "statistics: the trace journal holds ~b % of "
+                                        "its ~b MB again; the warning is reset", [Pct, Mb]),
+                    ok = cell_alarms:reset_warning(cell, ?JOURNAL_WARNING),
+                    St#st{journal_warned = false};
+                same ->
+                    St
+            end
+    end.
 
 %% One transaction a second: every counter and the time they cover, together, with the
 %% id of the last journal record whose effects they hold.

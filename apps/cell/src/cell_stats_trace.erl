@@ -8,7 +8,7 @@
 %% is never applied again. Ids grow in the order of the journal, across restarts.
 -module(cell_stats_trace).
 
--export([fresh/3, latest/2, unheld/2, left_after_scrap/1]).
+-export([fresh/3, latest/2, unheld/2, left_after_scrap/1, journal_level/3]).
 
 -export_type([unheld/0]).
 
@@ -45,6 +45,18 @@ left_after_scrap(#{status := scrapped, exit_task := By}) -> {uncount_scrap, By};
 left_after_scrap(#{status := out}) -> already_out;
 left_after_scrap(_) -> count.
 
+%% @doc The trace journal holds `Bytes' of its bound `Max' (see {@link
+%% cell_trace_journal:bound/1}); `Warned' tells whether the warning is up (`unknown'
+%% at a start of the statistics): `warn' from 80 % of the bound, `clear' once below
+%% 70 % again (the gap keeps a journal near 80 % from warning at every write), `same'
+%% otherwise.
+-spec journal_level(non_neg_integer(), pos_integer(), boolean() | unknown) ->
+          warn | clear | same.
+journal_level(Bytes, Max, Warned) when Warned =/= true, Bytes * 10 >= Max * 8 -> warn;
+journal_level(Bytes, Max, Warned) when Warned =/= false, Bytes * 10 < Max * 7 -> clear;
+journal_level(_Bytes, _Max, unknown) -> clear;
+journal_level(_Bytes, _Max, _Warned) -> same.
+
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
@@ -68,6 +80,21 @@ unheld_test_() ->
      ?_assertEqual(held, unheld(1, [{t, 1}])),
      ?_assertEqual({wait, 1}, unheld(0, [])),
      ?_assertEqual(scrap, unheld(1, []))].
+
+journal_level_test_() ->
+    [?_assertEqual(same, journal_level(0, 1000, false)),
+     ?_assertEqual(same, journal_level(799, 1000, false)),
+     ?_assertEqual(warn, journal_level(800, 1000, false)),
+     ?_assertEqual(warn, journal_level(1000, 1000, false)),
+     ?_assertEqual(same, journal_level(800, 1000, true)),
+     ?_assertEqual(same, journal_level(700, 1000, true)),
+     ?_assertEqual(clear, journal_level(699, 1000, true)),
+     ?_assertEqual(clear, journal_level(0, 1000, true)),
+     ?_assertEqual(same, journal_level(699, 1000, false)),
+     %% At a start: up or down at once.
+     ?_assertEqual(warn, journal_level(800, 1000, unknown)),
+     ?_assertEqual(clear, journal_level(799, 1000, unknown)),
+     ?_assertEqual(clear, journal_level(0, 1000, unknown))].
 
 left_after_scrap_test_() ->
     [?_assertEqual(count, left_after_scrap(undefined)),
