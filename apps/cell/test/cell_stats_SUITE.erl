@@ -18,7 +18,7 @@
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
-         books_across_crashes/1]).
+         books_across_crashes/1, a_journal_at_its_bound/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -33,7 +33,8 @@ all() ->
      a_product_held_but_never_recorded,
      a_product_left_but_still_in_its_file,
      the_journal_alone,
-     books_across_crashes].
+     books_across_crashes,
+     a_journal_at_its_bound].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -535,6 +536,58 @@ after_step(kill_twice, Owner) ->
 
 count_of(Event, Histories) ->
     length([H || H <- Histories, lists:member(Event, H)]).
+
+%% The trace journal while the database cannot be opened: it only grows. Near its bound
+%% (the statistics settings' journal_max_mb) a warning is raised and the log says so;
+%% at the bound a record is refused, never written, and every record kept before stays
+%% in the file; with the bound raised, records are taken again and the warning goes.
+a_journal_at_its_bound(Config) ->
+    Databases = filename:join(?config(root, Config), "Databases"),
+    _ = file:del_dir_r(Databases),
+    _ = cell_test_db:foreign(Databases),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"statistics: the database cannot be opened">>),
+    ok = cell_settings:put(statistics, #{journal_max_mb => 1}, <<"test">>),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    %% Records of some 100 kB: eight are below 80 % of 1 MB, nine above.
+    Pad = binary:copy(<<"x">>, 100 * 1024),
+    Append = fun(N) -> cell_trace_journal:append(#{type => test, task => waits_a,
+                                                    n => N, pad => Pad})
+             end,
+    Eight = [Id || N <- lists:seq(1, 8), {ok, Id} <- [Append(N)]],
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    ok = cell_alarms:sync(),
+    ?assertNot(cell_alarms:has_warning(cell)),
+    {ok, Ninth} = Append(9),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Line = await_log(<<"statistics: The trace journal holds 8">>),
+    ?assertNotEqual(nomatch, binary:match(Line, <<"of its 1 MB">>)),
+    ok = cell_alarms:sync(),
+    ?assertMatch([#{kind := warning, local_id := <<"trace_journal">>}], cell_alarms:list(cell)),
+    %% The tenth fits, the eleventh does not: refused, and the log says why once.
+    {ok, Tenth} = Append(10),
+    ?assertEqual({error, journal_full}, Append(11)),
+    Full = await_log(<<"trace journal ">>),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"is full">>)),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"nothing recorded is lost">>)),
+    ?assertEqual({error, journal_full}, Append(12)),
+    {ok, Bin} = file:read_file(cell_trace_journal:path()),
+    {Frames, _, 0} = cell_trace_journal:decode(Bin),
+    ?assertEqual(Eight ++ [Ninth, Tenth], [Id || {Id, _} <- Frames]),
+    ?assert(byte_size(Bin) =< 1024 * 1024),
+    %% A larger bound: taken again, and the warning goes (1 MB of 2 is below 70 %).
+    ok = cell_settings:put(statistics, #{journal_max_mb => 2}, <<"test">>),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Again = await_log(<<"trace journal ">>),
+    ?assertNotEqual(nomatch, binary:match(Again, <<"new records are taken again">>)),
+    {ok, Thirteenth} = Append(13),
+    ?assert(Thirteenth > Tenth),
+    ok = cell_alarms:sync(),
+    ?assertEqual([], cell_alarms:list(cell)),
+    ok = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = file:del_dir_r(Databases).
 
 %% The trace journal by itself: writers at once each get their own id; its reader gets
 %% every record once, in the order of the ids, before the writers are answered; the
