@@ -122,6 +122,7 @@
              book_left = #{} :: #{binary() => map()},
              backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
+             backlog_dropped = 0 :: non_neg_integer(),   %% the oldest, past the limit
              writer :: pid() | undefined,                       %% see cell_stats_writer
              batch = 0 :: non_neg_integer(),                    %% the last batch handed over
              writing = false :: boolean(),                      %% ... and not done yet
@@ -1058,8 +1059,13 @@ opened(#st{started = Started} = St0) ->
     Backlog = lists:reverse(St2#st.backlog),
     _ = Backlog =:= [] orelse
         cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
-                        "memory meanwhile are written", [length(Backlog)]),
-    St3 = St2#st{backlog = [], backlog_len = 0},
+                        "memory meanwhile are written~ts",
+                        [length(Backlog), case St2#st.backlog_dropped of
+                                              0 -> "";
+                                              D -> io_lib:format(" (the ~b oldest were "
+                                                                 "dropped)", [D])
+                                          end]),
+    St3 = St2#st{backlog = [], backlog_len = 0, backlog_dropped = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
 
 %% The records of the trace journal not yet durable in the database are applied (the
@@ -1198,8 +1204,14 @@ history_written(#st{writer = Writer, queued = Q} = St) ->
     batch_done(cell_stats_writer:write_now(Writer, lists:reverse(Q)),
                St#st{queued = [], writing = false}).
 
-keep(Fun, #st{backlog_len = N} = St) when N >= ?BACKLOG_MAX ->
-    St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)]};
+keep(Fun, #st{backlog_len = N, backlog_dropped = D} = St) when N >= ?BACKLOG_MAX ->
+    _ = D > 0 orelse
+        cell_log:warning(cell, "statistics: the database has been away so long that ~b "
+                         "history records wait in memory for it; from now on the oldest "
+                         "are dropped to make room (the counters are kept whole)",
+                         [?BACKLOG_MAX]),
+    St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)],
+          backlog_dropped = D + 1};
 keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
     St#st{backlog = [Fun | B], backlog_len = N + 1}.
 
