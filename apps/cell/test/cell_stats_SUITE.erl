@@ -12,7 +12,8 @@
 -include_lib("proper/include/proper.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
+-export([database_unusable_then_back/1, database_lost_then_back/1,
+         a_long_outage_of_the_database/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
@@ -23,7 +24,8 @@
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, database_lost_then_back, writer_crash,
+    [database_unusable_then_back, database_lost_then_back, a_long_outage_of_the_database,
+     writer_crash,
      time_in_a_state_across_a_crash,
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
@@ -109,6 +111,26 @@ database_lost_then_back(_Config) ->
     ok = cell_stats:flush(),
     {ok, #{events := Events}} = cell_stats:product(<<"S-2">>),
     ?assertEqual(lists:seq(1, 200), [W || #{detail := #{width := W}} <- Events]).
+
+%% The database away so long that the history records waiting for it reach their
+%% limit: the log says so when the oldest begin to be dropped, and how many were when
+%% the database is back; the newest are written.
+a_long_outage_of_the_database(_Config) ->
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:record(<<"S-4">>, measured, #{width => 0}),
+    ok = cell_stats:flush(),
+    stopped = mnesia:stop(),
+    [ok = cell_stats:record(<<"S-4">>, measured, #{width => W}) || W <- lists:seq(1, 10005)],
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Full = await_log(<<"statistics: the database has been away so long">>),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"the oldest are dropped">>)),
+    Back = await_log(<<"statistics: the database is open; the">>),
+    ?assertNotEqual(nomatch, binary:match(Back, <<" 10000 records ">>)),
+    ?assertNotEqual(nomatch, binary:match(Back, <<"the 5 oldest were dropped">>)),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(<<"S-4">>),
+    ?assertEqual([0 | lists:seq(6, 10005)], [W || #{detail := #{width := W}} <- Events]).
 
 %% The writer of the histories dies: the statistics stop with it, saying so, and their
 %% supervisor starts both again; what was written stays, and writing goes on.
