@@ -363,8 +363,8 @@ shift_now() ->
     Id.
 
 %% @doc A product's history: where it is or how it left (as written with the counters,
-%% up to a second ago), and every record, oldest first (times in milliseconds since
-%% the epoch).
+%% or, for up to a second until it is, as its history says), and every record, oldest
+%% first (times in milliseconds since the epoch).
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
     %% The row in the cell first: a product leaving has its summary written in the
@@ -383,12 +383,15 @@ product(Serial) when is_binary(Serial) ->
         {undefined, []} ->
             {error, not_found};
         _ ->
+            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
+            History = [E#{time => T} || {T, _, E} <- Sorted],
+            %% Its summary is written with the counters, up to a second after its
+            %% history: until then it is read from the history.
             Info = case Summary of
-                       undefined -> #{serial => Serial, status => unknown};
+                       undefined -> cell_stats_trace:from_history(Serial, History);
                        I -> I
                    end,
-            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
-            {ok, Info#{events => [E#{time => T} || {T, _, E} <- Sorted]}}
+            {ok, Info#{events => History}}
     end.
 
 %% @doc How many products are in the cell.
