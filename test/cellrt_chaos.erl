@@ -31,7 +31,10 @@
 %%   cell stopped;</li>
 %% <li>wedged: the cell Started, panels in it or waiting, and no product moved for
 %%   60 s while no error was raised;</li>
-%% <li>left but recorded scrapped: the next machine has it, the cell says scrapped.</li>
+%% <li>left but recorded scrapped: the next machine has it, the cell says scrapped;</li>
+%% <li>books: the statistics' totals (in, out, scrapped, in the cell) against the
+%%   machine's ledger (panels that entered it, delivered, in the scrap bin or taken out
+%%   by hand, still in it), every panel of difference counted.</li>
 %% </ul>
 %%
 %% The harness waits on conditions with deadlines: the node's exit (its start script
@@ -40,7 +43,7 @@
 %% between kills are the chaos itself, never a wait for something to happen.
 -module(cellrt_chaos).
 
--export([main/1, run/1, default_opts/0, reconcile/1]).
+-export([main/1, run/1, default_opts/0, reconcile/1, books/2]).
 %% Run inside the cell's node.
 -export([agent_start/4, targets/0, view/0, held/0, machine/0]).
 
@@ -591,6 +594,20 @@ classify(S, Phys, #{status := Status, lefts := Lefts, scraps := Scraps} = C, Hel
              ++ status_text(Status, Held)}
     end.
 
+%% @doc The statistics' totals (`cell_stats:summary(total)') against the machine's
+%% ledger (`phys' of reconcile/1): each count that differs, with the cell's figure and
+%% the machine's. A panel entered the cell when it left the previous machine: it was
+%% delivered, went into the scrap bin, was taken out by hand, or is in the machine.
+-spec books(map(), map()) -> [{string(), integer(), integer()}].
+books(#{cell := Cell, in_cell := InCell}, #{delivered := Delivered, scrapped := Bin,
+                                            removed := Removed, in_machine := InMachine}) ->
+    [{What, C, M} || {What, C, M} <- [{"in", maps:get(in, Cell, 0),
+                                       Delivered + Bin + Removed + InMachine},
+                                      {"out", maps:get(out, Cell, 0), Delivered},
+                                      {"scrapped", maps:get(scrapped, Cell, 0), Bin + Removed},
+                                      {"in the cell", InCell, InMachine}],
+                     C =/= M].
+
 status_text(in_cell, []) -> "in the cell, held by no task";
 status_text(in_cell, Held) -> "in the cell, held by " ++ lists:join(", ", [atom_to_list(T) || T <- Held]);
 status_text(unknown, _) -> "unknown";
@@ -620,13 +637,15 @@ report(#{view := View, opts := Opts} = H, Secs) ->
     %% A wedge the node's restarts did not clear is reported at each life: counted once,
     %% by the panels it holds, with how often it was seen.
     Wedged = distinct(lists:reverse(maps:get(wedged, H))),
+    Phys = maps:get(phys, Books),
+    Differ = books(maps:get(total, View), Phys),
     Cols = [{"lost", length(maps:get(lost, Books))},
             {"duplicated", length(maps:get(duplicated, Books))},
             {"double-held", maps:size(Double)},
             {"wedged", length(Wedged)},
-            {"left-but-recorded-scrapped", length(maps:get(left_scrapped, Books))}],
+            {"left-but-recorded-scrapped", length(maps:get(left_scrapped, Books))},
+            {"books", lists:sum([abs(C - M) || {_, C, M} <- Differ])}],
     #{cell := Cell} = maps:get(total, View),
-    Phys = maps:get(phys, Books),
     Totals = io_lib:format(
                "panels made ~b, in ~b, out ~b (delivered ~b), scrapped ~b (in the bin ~b, taken "
                "out by hand ~b), "
@@ -653,6 +672,7 @@ report(#{view := View, opts := Opts} = H, Secs) ->
                                 [io_lib:format("seen ~b time(s), first: ", [N]), tasks_text(W)]}
                                || {W, N} <- Wedged]),
               table("Left but recorded scrapped", maps:get(left_scrapped, Books)),
+              books_table(Differ),
               table("Stalled with errors answered (not a column)",
                     [{serials_text(maps:get(serials, W)),
                       [io_lib:format("seen ~b time(s), first: ", [N]), tasks_text(W)]}
@@ -685,6 +705,7 @@ report(#{view := View, opts := Opts} = H, Secs) ->
     #{counts => maps:from_list(Cols), clean => lists:all(fun({_, N}) -> N =:= 0 end, Cols),
       lost => maps:get(lost, Books), duplicated => maps:get(duplicated, Books),
       double_held => Double, wedged => [W || {W, _} <- Wedged], left_scrapped => maps:get(left_scrapped, Books),
+      books => Differ,
       totals => iolist_to_binary(Totals), report => iolist_to_binary(Doc)}.
 
 %% Reports of one stand-still, once each (the first), with how often each was seen.
@@ -703,6 +724,12 @@ table(Title, []) ->
 table(Title, Rows) ->
     ["\n## ", Title, "\n\n| serial | what |\n|---|---|\n",
      [io_lib:format("| ~ts | ~ts |\n", [S, Why]) || {S, Why} <- Rows]].
+
+books_table([]) ->
+    ["\n## Books\n\nThe statistics' totals agree with the machine's ledger.\n"];
+books_table(Rows) ->
+    ["\n## Books\n\n| count | the statistics | the machine |\n|---|---|---|\n",
+     [io_lib:format("| ~ts | ~b | ~b |\n", [W, C, M]) || {W, C, M} <- Rows]].
 
 tasks_text(#{serials := Serials, tasks := Tasks}) ->
     io_lib:format("products ~ts; tasks: ~ts",

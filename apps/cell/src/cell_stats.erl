@@ -13,8 +13,10 @@
 %% take those from the journal, in its order, and skip the events that follow them.
 %% Once a second, when records were applied or histories written, the histories
 %% handed over are written and their tables flushed to the disk, then the counters
-%% are written together with
-%% the id of the last record applied, and the journal is trimmed up to it. When the
+%% are written together with the books (which products are in the cell, how each one
+%% that left did) and the id of the last record applied, in one transaction, and the
+%% journal is trimmed up to it. The books are never written ahead of the counters: a
+%% crash leaves both as they were at the same record. When the
 %% database opens (at every start of the process) the records after that id are
 %% applied again, before any event: each gives the same history entries (a record's
 %% entries are keyed by its id, and the history keeps one copy of an entry) and is
@@ -58,7 +60,7 @@
 %% `{Period, Scope, Metric}', Period `total' or a shift id, Scope a task or `cell');
 %% `cell_trace_open' (disc_copies: the products in the cell, the summary of each);
 %% `cell_trace_product' (disc_only_copies: the summary of each product that left,
-%% written once, when it leaves) and `cell_trace_event' (disc_only_copies,
+%% written once, with the counters that count it leaving) and `cell_trace_event' (disc_only_copies,
 %% bag: the history by serial). The traceability tables live on disc only, so memory
 %% does not grow with the number of products; they are purged after the `statistics'
 %% settings' `trace_days' (or sooner, past `trace_max_records'), shift counters after
@@ -89,6 +91,7 @@
 -define(LOAD_MS, 60000).
 -define(PURGE_MS, 3600000).
 -define(BACKLOG_MAX, 10000).
+-define(JOURNAL_WARNING, <<"trace_journal">>).
 -define(EVENTS, [task_state, item_identifier_read, item_transfer_in, item_work_start,
                  item_work_pause, item_work_resume, item_work_complete, item_work_abort,
                  item_transfer_out, alarm_raised, alarm_cleared, product_saved,
@@ -113,8 +116,13 @@
              products = #{} :: #{binary() => #prod{}},
              holding = #{} :: #{atom() => binary()},            %% task -> serial
              last_out = #{} :: #{atom() => integer()},          %% task | cell -> wall µs
+             %% The books not yet written: rows of the products in the cell to write
+             %% (or to delete), summaries of products that left (see write_open/3).
+             book_open = #{} :: #{binary() => map() | delete},
+             book_left = #{} :: #{binary() => map()},
              backlog = [] :: [fun(() -> term())],
              backlog_len = 0 :: non_neg_integer(),
+             backlog_dropped = 0 :: non_neg_integer(),   %% the oldest, past the limit
              writer :: pid() | undefined,                       %% see cell_stats_writer
              batch = 0 :: non_neg_integer(),                    %% the last batch handed over
              writing = false :: boolean(),                      %% ... and not done yet
@@ -130,6 +138,8 @@
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
              unsynced = false :: boolean(),     %% histories written since the last flush
+             %% The journal's warning is up (unknown at start: set or reset at once).
+             journal_warned = unknown :: boolean() | unknown,
              %% The products that left while the journal was read at start, and by which
              %% task; and those a task still holds in its file though they left through it
              %% (a crash between its record and its file): its copy until it lets go.
@@ -191,8 +201,10 @@ summary() ->
 %% throughput per hour. Read from the database (what was written up to a second ago).
 -spec summary(period()) -> map().
 summary(Period) ->
-    {{From, To}, Counters} = view(fun() -> counted(Period) end,
-                                  {{now_us(), now_us()}, #{}}),
+    %% The products in the cell read with the counters: the books add up in any read.
+    {{{From, To}, Counters}, InCell} =
+        view(fun() -> {counted(Period), length(mnesia:all_keys(?OPEN))} end,
+             {{{now_us(), now_us()}, #{}}, 0}),
     Hours = max(To - From, 0) / 3600.0e6,
     Cell = maps:get(cell, Counters, #{}),
     Out = maps:get(out, Cell, 0),
@@ -206,7 +218,7 @@ summary(Period) ->
                                            true -> round1(Out / Hours);
                                            false -> 0.0
                                        end},
-      in_cell => in_cell(),
+      in_cell => InCell,
       tasks => maps:map(fun(_, C) -> task_summary(C) end, Tasks)}.
 
 task_summary(C) ->
@@ -350,12 +362,13 @@ shift_now() ->
     #{id := Id} = cell_stats_shift:at(local(now_us()), shift_starts()),
     Id.
 
-%% @doc A product's history: where it is or how it left, and every record, oldest
+%% @doc A product's history: where it is or how it left (as written with the counters,
+%% or, for up to a second until it is, as its history says), and every record, oldest
 %% first (times in milliseconds since the epoch).
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
-    %% The row in the cell first: a product leaving has its summary written before
-    %% that row goes, so one of the two is found.
+    %% The row in the cell first: a product leaving has its summary written in the
+    %% transaction that deletes that row, so one of the two is found.
     Summary = case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
                   [{?OPEN, _, Row}] ->
                       summary(Serial, from_open(Row, 0), in_cell, undefined);
@@ -370,12 +383,15 @@ product(Serial) when is_binary(Serial) ->
         {undefined, []} ->
             {error, not_found};
         _ ->
+            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
+            History = [E#{time => T} || {T, _, E} <- Sorted],
+            %% Its summary is written with the counters, up to a second after its
+            %% history: until then it is read from the history.
             Info = case Summary of
-                       undefined -> #{serial => Serial, status => unknown};
+                       undefined -> cell_stats_trace:from_history(Serial, History);
                        I -> I
                    end,
-            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
-            {ok, Info#{events => [E#{time => T} || {T, _, E} <- Sorted]}}
+            {ok, Info#{events => History}}
     end.
 
 %% @doc How many products are in the cell.
@@ -627,10 +643,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
             %% Its stale copy sent out again: it left once.
             St#st{stale = maps:remove(Serial, Stale)};
         {error, _} ->
-            Summary = case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
-                          [{?PRODUCT, _, Info}] -> Info;
-                          [] -> undefined
-                      end,
+            Summary = left_summary(Serial, St),
             case cell_stats_trace:left_after_scrap(Summary) of
                 count ->
                     left(Serial, T, At, #prod{entered = At, entry = T}, St);
@@ -667,9 +680,8 @@ left(Serial, T, At, P, #st{products = Ps, gone = Gone} = St0) ->
     St3 = timing({cell, cycle}, maps:get(cell, St2#st.last_out, undefined), At, St2),
     St4 = St3#st{last_out = maps:put(cell, At, St3#st.last_out),
                  products = maps:remove(Serial, Ps)},
-    St5 = write_product(Serial, P, out, {T, At}, St4),
-    St6 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St5),
-    trace(Serial, At, T, #{event => left, quality => Quality}, St6).
+    St5 = write_left(Serial, P, out, {T, At}, St4),
+    trace(Serial, At, T, #{event => left, quality => Quality}, St5).
 
 %% No task has held the product for two writes in a row: it was forgotten inside the
 %% cell. The registry is asked too, so a product whose new holder's event is still
@@ -701,12 +713,11 @@ scrap(Serial, #prod{by = Task} = P, At, St) ->
                                          _ -> count([{Task, scrapped}], At, St)
                                      end),
     St2 = St1#st{products = maps:remove(Serial, St1#st.products)},
-    St3 = write_product(Serial, P, scrapped, {Task, At}, St2),
-    St4 = db(fun() -> mnesia:dirty_delete(?OPEN, Serial) end, St3),
+    St3 = write_left(Serial, P, scrapped, {Task, At}, St2),
     trace(Serial, At, Task, #{event => scrapped, failed => P#prod.failed,
                               text => <<"no task holds it any more: it was forgotten in "
                                         "the cell (an operator's Reset) or taken out by hand">>},
-          St4).
+          St3).
 
 held_trace(T, At, Entry, #st{holding = Holding} = St) ->
     case maps:find(T, Holding) of
@@ -790,7 +801,7 @@ flush(St0) ->
               _ -> St2
           end,
     {Mark, St3a} = durable_history(St3),
-    St4 = journal_trimmed(Mark, write_pending(Now, Mark, St3a)),
+    St4 = journal_bound(journal_trimmed(Mark, write_pending(Now, Mark, St3a))),
     case St4#st.db =:= open andalso Now >= St4#st.purge_at of
         true -> trim(purge(Now, St4#st{purge_at = Now + ?PURGE_MS * 1000}));
         false -> trim(St4)
@@ -892,6 +903,40 @@ journal_trimmed(Mark, #st{db = open} = St) ->
 journal_trimmed(_Mark, St) ->
     St.
 
+%% The journal is told its bound (the settings may have changed) and answers how much it
+%% holds: near the bound, a warning the operator sees, and a line in the log.
+journal_bound(#st{journal_warned = Warned} = St) ->
+    case whereis(cell_trace_journal) of
+        undefined ->
+            St;
+        _ ->
+            #{journal_max_mb := Mb} = settings(),
+            Max = Mb * 1024 * 1024,
+            Bytes = cell_trace_journal:bound(Max),
+            Pct = Bytes * 100 div Max,
+            case cell_stats_trace:journal_level(Bytes, Max, Warned) of
+                warn ->
+                    Text = io_lib:format("The trace journal holds ~b % of its ~b MB of "
+                                         "records the database has not taken. At 100 % "
+                                         "no new record is kept and the tasks that must "
+                                         "record a product's way stop. Make the database "
+                                         "work again (see the log) or raise journal_max_mb "
+                                         "in the statistics settings.", [Pct, Mb]),
+                    cell_log:warning(cell, "statistics: ~ts", [Text]),
+                    ok = cell_alarms:warning(cell, ?JOURNAL_WARNING,
+                                             <<"Trace journal nearly full">>, Text),
+                    St#st{journal_warned = true};
+                clear ->
+                    _ = Warned =:= true andalso
+                        cell_log:notice(cell, "statistics: the trace journal holds ~b % of "
+                                        "its ~b MB again; the warning is reset", [Pct, Mb]),
+                    ok = cell_alarms:reset_warning(cell, ?JOURNAL_WARNING),
+                    St#st{journal_warned = false};
+                same ->
+                    St
+            end
+    end.
+
 %% One transaction a second: every counter and the time they cover, together, with the
 %% id of the last journal record whose effects they hold.
 write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
@@ -908,6 +953,7 @@ write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
                                         end,
                                   mnesia:write({?COUNTER, K, New})
                           end, ok, Pending),
+                ok = books(St),
                 _ = Mark =:= undefined orelse
                     mnesia:write({?COUNTER, {meta, journal}, Mark}),
                 mnesia:write({?COUNTER, {meta, flushed}, Now})
@@ -916,7 +962,7 @@ write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
         {atomic, ok} ->
             _ = mnesia:sync_log(),
             true = ets:delete_all_objects(Pending),
-            St;
+            St#st{book_open = #{}, book_left = #{}};
         {aborted, Why} ->
             closed(Why, St)
     end;
@@ -924,6 +970,14 @@ write_pending(_Now, _Mark, St) ->
     %% Not before the database is open: the time of the last write tells how long
     %% the runtime was down.
     St.
+
+%% In the counters' transaction: the books as the counters count them.
+books(#st{book_open = Open, book_left = Gone}) ->
+    ok = maps:fold(fun(Serial, Info, ok) -> mnesia:write({?PRODUCT, Serial, Info}) end,
+                   ok, Gone),
+    maps:fold(fun(Serial, delete, ok) -> mnesia:delete({?OPEN, Serial});
+                 (Serial, Row, ok) -> mnesia:write({?OPEN, Serial, Row})
+              end, ok, Open).
 
 %%====================================================================
 %% The database
@@ -991,9 +1045,12 @@ opened(#st{started = Started} = St0) ->
                             end
                     end, Closed, Closed#st.tasks),
     Open = safe(fun() -> ets_list(?OPEN) end, []),
+    %% A product the books are still to write (one that left while the database was
+    %% away, say) is as the statistics have it, not as its row was.
     Known = lists:foldl(
               fun({?OPEN, Serial, Info}, Acc) ->
-                      case maps:is_key(Serial, Acc) of
+                      case maps:is_key(Serial, Acc) orelse
+                          maps:is_key(Serial, St1#st.book_open) of
                           true -> Acc;
                           false ->
                               Acc#{Serial => from_open(Info, Started)}
@@ -1005,8 +1062,13 @@ opened(#st{started = Started} = St0) ->
     Backlog = lists:reverse(St2#st.backlog),
     _ = Backlog =:= [] orelse
         cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
-                        "memory meanwhile are written", [length(Backlog)]),
-    St3 = St2#st{backlog = [], backlog_len = 0},
+                        "memory meanwhile are written~ts",
+                        [length(Backlog), case St2#st.backlog_dropped of
+                                              0 -> "";
+                                              D -> io_lib:format(" (the ~b oldest were "
+                                                                 "dropped)", [D])
+                                          end]),
+    St3 = St2#st{backlog = [], backlog_len = 0, backlog_dropped = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
 
 %% The records of the trace journal not yet durable in the database are applied (the
@@ -1145,8 +1207,14 @@ history_written(#st{writer = Writer, queued = Q} = St) ->
     batch_done(cell_stats_writer:write_now(Writer, lists:reverse(Q)),
                St#st{queued = [], writing = false}).
 
-keep(Fun, #st{backlog_len = N} = St) when N >= ?BACKLOG_MAX ->
-    St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)]};
+keep(Fun, #st{backlog_len = N, backlog_dropped = D} = St) when N >= ?BACKLOG_MAX ->
+    _ = D > 0 orelse
+        cell_log:warning(cell, "statistics: the database has been away so long that ~b "
+                         "history records wait in memory for it; from now on the oldest "
+                         "are dropped to make room (the counters are kept whole)",
+                         [?BACKLOG_MAX]),
+    St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)],
+          backlog_dropped = D + 1};
 keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
     St#st{backlog = [Fun | B], backlog_len = N + 1}.
 
@@ -1165,20 +1233,37 @@ trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
 
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
 %% table with a log, cheap to write); the summary on disc only is written when it leaves.
-write_open(Serial, #prod{} = P, St) ->
+%% Both are the books: which products are in the cell and how each one left go with the
+%% counters that count them, in their transaction (see write_pending/3), never ahead of
+%% them; a record applied again after a crash then finds the books as they were when
+%% the counters were, and counts what they do not hold, once.
+write_open(Serial, #prod{} = P, #st{book_open = Open} = St) ->
     Row = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
             entry => P#prod.entry},
-    db(fun() -> mnesia:dirty_write({?OPEN, Serial, Row}) end, St).
+    St#st{book_open = Open#{Serial => Row}}.
 
 %% A product as its row in the cell has it (`Entered' when the row lacks the time).
 from_open(Row, Entered) ->
     #prod{entered = maps:get(entered, Row, Entered), recipe = maps:get(recipe, Row, <<>>),
           failed = maps:get(failed, Row, false), entry = maps:get(entry, Row, undefined)}.
 
-%% The summary of a product that left: `out' or `scrapped', by which task and when.
-write_product(Serial, #prod{} = P, Status, Left, St) ->
+%% The summary of a product that left (`out' or `scrapped', by which task and when)
+%% replaces its row in the cell, in the books.
+write_left(Serial, #prod{} = P, Status, Left, #st{book_open = Open, book_left = Gone} = St) ->
     Info = summary(Serial, P, Status, Left),
-    db(fun() -> mnesia:dirty_write({?PRODUCT, Serial, Info}) end, St).
+    St#st{book_open = Open#{Serial => delete}, book_left = Gone#{Serial => Info}}.
+
+%% How a product that left did, as the books have it: what is still to write first.
+left_summary(Serial, #st{book_left = Gone}) ->
+    case maps:find(Serial, Gone) of
+        {ok, Info} ->
+            Info;
+        error ->
+            case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
+                [{?PRODUCT, _, Info}] -> Info;
+                [] -> undefined
+            end
+    end.
 
 %% A product's summary (times in ms): where it is, or how it left (`{Task, At}').
 summary(Serial, #prod{} = P, Status, Left) ->

@@ -21,6 +21,13 @@ fields() ->
        doc => <<"Most records of product histories kept (about 170 bytes each on disc, "
                 "some 40 a product; the file cannot pass 2 GB): past it the histories of "
                 "the products that left longest ago are removed first.">>},
+     #{name => journal_max_mb, type => {integer, 1, 4096}, default => 128, unit => <<"MB">>,
+       doc => <<"Most the trace journal (Databases/cell_trace.journal) may hold of the "
+                "records of products' ways the database has not yet taken; while the "
+                "database works it is emptied every second, while it cannot be opened it "
+                "grows (some 10 kB a product). From 80 % a warning is raised; at the bound "
+                "no new record is taken: a task that must record a product's way stops "
+                "with an error, as when the disk is full, and nothing recorded is lost.">>},
      #{name => shift_days, type => {integer, 1, 3650}, default => 400, unit => <<"days">>,
        doc => <<"How long the statistics of each shift are kept (the totals are kept "
                 "for ever).">>}].

@@ -8,7 +8,8 @@
 %% is never applied again. Ids grow in the order of the journal, across restarts.
 -module(cell_stats_trace).
 
--export([fresh/3, latest/2, unheld/2, left_after_scrap/1]).
+-export([fresh/3, latest/2, unheld/2, left_after_scrap/1, journal_level/3,
+         from_history/2]).
 
 -export_type([unheld/0]).
 
@@ -45,6 +46,50 @@ left_after_scrap(#{status := scrapped, exit_task := By}) -> {uncount_scrap, By};
 left_after_scrap(#{status := out}) -> already_out;
 left_after_scrap(_) -> count.
 
+%% @doc The trace journal holds `Bytes' of its bound `Max' (see {@link
+%% cell_trace_journal:bound/1}); `Warned' tells whether the warning is up (`unknown'
+%% at a start of the statistics): `warn' from 80 % of the bound, `clear' once below
+%% 70 % again (the gap keeps a journal near 80 % from warning at every write), `same'
+%% otherwise.
+-spec journal_level(non_neg_integer(), pos_integer(), boolean() | unknown) ->
+          warn | clear | same.
+journal_level(Bytes, Max, Warned) when Warned =/= true, Bytes * 10 >= Max * 8 -> warn;
+journal_level(Bytes, Max, Warned) when Warned =/= false, Bytes * 10 < Max * 7 -> clear;
+journal_level(_Bytes, _Max, unknown) -> clear;
+journal_level(_Bytes, _Max, _Warned) -> same.
+
+%% @doc A product's summary as its history (oldest first, each entry with its `time'
+%% in ms and its `task') tells it, for a product whose summary is not written yet: it
+%% entered with its first `entered', and left as its last `left' or `scrapped' says;
+%% `unknown' without an entry.
+-spec from_history(binary(), [map()]) -> map().
+from_history(Serial, History) ->
+    case [E || #{event := entered} = E <- History] of
+        [] ->
+            #{serial => Serial, status => unknown};
+        [#{time := At, task := Entry} = In | _] ->
+            Product = maps:get(product, In, #{}),
+            Failed = is_map(Product) andalso maps:get(failed, Product, false) =:= true,
+            Base = #{serial => Serial, recipe => maps:get(recipe, In, <<>>),
+                     entered => At, entry_task => Entry},
+            case [E || #{event := Ev} = E <- History, Ev =:= left orelse Ev =:= scrapped] of
+                [] ->
+                    Base#{status => in_cell, failed => Failed, left => undefined,
+                          exit_task => undefined};
+                Ends ->
+                    #{time := Left, task := By} = End = lists:last(Ends),
+                    Base#{status => case End of
+                                        #{event := left} -> out;
+                                        #{event := scrapped} -> scrapped
+                                    end,
+                          failed => case End of
+                                        #{quality := Q} -> Q =:= failed;
+                                        _ -> maps:get(failed, End, Failed) =:= true
+                                    end,
+                          left => Left, exit_task => By}
+            end
+    end.
+
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
@@ -68,6 +113,42 @@ unheld_test_() ->
      ?_assertEqual(held, unheld(1, [{t, 1}])),
      ?_assertEqual({wait, 1}, unheld(0, [])),
      ?_assertEqual(scrap, unheld(1, []))].
+
+journal_level_test_() ->
+    [?_assertEqual(same, journal_level(0, 1000, false)),
+     ?_assertEqual(same, journal_level(799, 1000, false)),
+     ?_assertEqual(warn, journal_level(800, 1000, false)),
+     ?_assertEqual(warn, journal_level(1000, 1000, false)),
+     ?_assertEqual(same, journal_level(800, 1000, true)),
+     ?_assertEqual(same, journal_level(700, 1000, true)),
+     ?_assertEqual(clear, journal_level(699, 1000, true)),
+     ?_assertEqual(clear, journal_level(0, 1000, true)),
+     ?_assertEqual(same, journal_level(699, 1000, false)),
+     %% At a start: up or down at once.
+     ?_assertEqual(warn, journal_level(800, 1000, unknown)),
+     ?_assertEqual(clear, journal_level(799, 1000, unknown)),
+     ?_assertEqual(clear, journal_level(0, 1000, unknown))].
+
+from_history_test_() ->
+    In = #{event => entered, time => 10, task => load, recipe => <<"r">>,
+           product => #{failed => false}},
+    Out = #{event => left, time => 30, task => unload, quality => failed},
+    Work = #{event => item_work_start, time => 20, task => work},
+    Scrap = #{event => scrapped, time => 40, task => work, failed => true},
+    [?_assertEqual(#{serial => <<"S">>, status => unknown}, from_history(<<"S">>, [])),
+     ?_assertEqual(#{serial => <<"S">>, status => unknown}, from_history(<<"S">>, [Work])),
+     ?_assertEqual(#{serial => <<"S">>, status => in_cell, recipe => <<"r">>, entered => 10,
+                     entry_task => load, failed => false, left => undefined,
+                     exit_task => undefined},
+                   from_history(<<"S">>, [In, Work])),
+     ?_assertEqual(#{serial => <<"S">>, status => out, recipe => <<"r">>, entered => 10,
+                     entry_task => load, failed => true, left => 30, exit_task => unload},
+                   from_history(<<"S">>, [In, Work, Out])),
+     ?_assertMatch(#{status := scrapped, failed := true, left := 40, exit_task := work},
+                   from_history(<<"S">>, [In, Work, Scrap])),
+     %% Marked failed at its entry, still in the cell.
+     ?_assertMatch(#{status := in_cell, failed := true},
+                   from_history(<<"S">>, [In#{product => #{failed => true}}]))].
 
 left_after_scrap_test_() ->
     [?_assertEqual(count, left_after_scrap(undefined)),

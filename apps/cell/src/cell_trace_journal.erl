@@ -23,6 +23,15 @@
 %% trim the journal up to an id ({@link trim/1}): the file is rewritten with the
 %% records after it (usually none).
 %%
+%% <b>Its bound.</b> The journal holds what the database has not taken yet; while the
+%% database cannot be opened it only grows. It is bounded (the `statistics' settings'
+%% `journal_max_mb', told by the statistics with {@link bound/1}; its default until
+%% they do): a record that would take it past the bound is refused, `{error,
+%% journal_full}', and never written, so its task stops as for a disk that refuses a
+%% write and nothing kept is ever dropped. The log says so once, when the bound is
+%% reached and when records are taken again. The statistics warn from 80 % of it (see
+%% {@link cell_stats_trace:journal_level/3}).
+%%
 %% At start the file is read whole and its frames checked; a last frame cut short or
 %% damaged (a crash in the middle of a write) is dropped, the log says so and the file
 %% is rewritten with the whole frames. A frame's term is read only when the statistics
@@ -32,7 +41,8 @@
 -module(cell_trace_journal).
 -behaviour(gen_server).
 
--export([start_link/0, child_spec/0, append/1, attach/0, trim/1, path/0]).
+-export([start_link/0, child_spec/0, append/1, attach/0, trim/1, bound/1, path/0,
+         default_bound/0]).
 -export([encode/1, decode/1, read/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
@@ -54,7 +64,11 @@
              inc = 0 :: integer(),
              n = 0 :: non_neg_integer(),
              kept = [] :: [{id(), binary()}],            %% frames not trimmed, newest first
-             batch = [] :: [{gen_server:from(), record()}],  %% newest first
+             bytes = 0 :: non_neg_integer(),             %% ... their size: the file's
+             batch = [] :: [{gen_server:from(), record(), binary()}],  %% newest first
+             batch_bytes = 0 :: non_neg_integer(),
+             max :: pos_integer(),                       %% the bound, in bytes
+             full = false :: boolean(),                  %% a record was refused
              commit = false :: boolean(),                %% a commit message is queued
              reader :: {pid(), reference()} | undefined}).
 
@@ -72,7 +86,8 @@ child_spec() ->
 
 %% @doc Appends a record (its id and time are added) and returns when it is durable.
 %% `{error, not_running}' when no journal runs (a task outside a cell's supervisor);
-%% `{error, Why}' when the disk refused the write.
+%% `{error, journal_full}' when it would take the journal past its bound (nothing is
+%% written); `{error, Why}' when the disk refused the write.
 -spec append(#{type := atom(), task := atom(), atom() => term()}) ->
           {ok, id()} | {error, term()}.
 append(Record) when is_map(Record) ->
@@ -91,6 +106,17 @@ attach() ->
 -spec trim(id()) -> ok.
 trim(Id) ->
     gen_server:cast(?MODULE, {trim, Id}).
+
+%% @doc Sets the most bytes the journal may hold; answers how many it holds now.
+-spec bound(pos_integer()) -> non_neg_integer().
+bound(Max) when is_integer(Max), Max > 0 ->
+    gen_server:call(?MODULE, {bound, Max}, infinity).
+
+%% @doc The bound until the statistics tell one: the settings' default.
+-spec default_bound() -> pos_integer().
+default_bound() ->
+    #{journal_max_mb := Mb} = cell_settings_schema:defaults(cell_stats_settings),
+    Mb * 1024 * 1024.
 
 %% @doc The journal's file.
 -spec path() -> file:filename().
@@ -148,7 +174,7 @@ read(_) ->
 
 -spec init([]) -> {ok, #st{}, {continue, open}}.
 init([]) ->
-    {ok, #st{}, {continue, open}}.
+    {ok, #st{max = default_bound()}, {continue, open}}.
 
 -spec handle_continue(open, #st{}) -> {noreply, #st{}}.
 handle_continue(open, St) ->
@@ -168,16 +194,35 @@ handle_continue(open, St) ->
     LastInc = lists:max([0 | [I || {{I, _}, _} <- Frames]]),
     Inc = max(erlang:system_time(microsecond), LastInc + 1),
     {noreply, St#st{path = Path, file = open_append(Path), inc = Inc,
-                    kept = lists:reverse(Frames)}}.
+                    kept = lists:reverse(Frames), bytes = frames_size(Frames)}}.
 
 -spec handle_call(term(), gen_server:from(), #st{}) ->
           {reply, term(), #st{}} | {noreply, #st{}}.
-handle_call({append, Record}, From, #st{inc = Inc, n = N, batch = B} = St) ->
+handle_call({append, Record}, From, #st{inc = Inc, n = N, batch = B, bytes = Bytes,
+                                        batch_bytes = BB, max = Max} = St) ->
     R = Record#{id => {Inc, N + 1}, at => maps:get(at, Record,
                                                    erlang:system_time(microsecond))},
-    %% The commit runs once every append already in the mailbox has joined the batch.
-    _ = St#st.commit orelse (self() ! commit),
-    {noreply, St#st{n = N + 1, batch = [{From, R} | B], commit = true}};
+    Frame = encode(R),
+    case Bytes + BB + byte_size(Frame) =< Max of
+        true ->
+            %% The commit runs once every append already in the mailbox has joined the
+            %% batch.
+            _ = St#st.commit orelse (self() ! commit),
+            {noreply, St#st{n = N + 1, batch = [{From, R, Frame} | B],
+                            batch_bytes = BB + byte_size(Frame), commit = true}};
+        false ->
+            _ = St#st.full orelse
+                cell_log:error(cell, "trace journal ~ts is full (~ts of ~ts): the database "
+                               "has not taken its records; no new record is kept, so the "
+                               "tasks that must record a product's way stop, and nothing "
+                               "recorded is lost. Make the database work again (see the "
+                               "statistics' lines in the log) or raise journal_max_mb in "
+                               "the statistics settings", [St#st.path, mb(Bytes + BB),
+                                                           mb(Max)]),
+            {reply, {error, journal_full}, St#st{full = true}}
+    end;
+handle_call({bound, Max}, _From, #st{bytes = Bytes} = St) ->
+    {reply, Bytes, taking_again(St#st{max = Max})};
 handle_call(attach, {Pid, _}, #st{reader = Old} = St) ->
     _ = case Old of
             {_, Ref} -> demonitor(Ref, [flush]);
@@ -200,28 +245,30 @@ handle_cast({trim, Upto}, #st{kept = Kept} = St) ->
         {After, _Done} ->
             ok = cell_file:close_append(St#st.file),
             ok = rewrite(St#st.path, lists:reverse(After)),
-            {noreply, St#st{file = open_append(St#st.path), kept = After}}
+            {noreply, taking_again(St#st{file = open_append(St#st.path), kept = After,
+                                         bytes = frames_size(After)})}
     end.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
 handle_info(commit, #st{batch = Batch} = St) ->
-    Records = [R || {_, R} <- lists:reverse(Batch)],
-    Frames = [{Id, encode(R)} || #{id := Id} = R <- Records],
+    Records = [R || {_, R, _} <- lists:reverse(Batch)],
+    Frames = [{Id, F} || {_, #{id := Id}, F} <- lists:reverse(Batch)],
     Result = cell_file:append(St#st.file, [F || {_, F} <- Frames], #{}),
-    St1 = St#st{batch = [], commit = false},
+    St1 = St#st{batch = [], batch_bytes = 0, commit = false},
     case Result of
         ok ->
             _ = case St#st.reader of
                     {Reader, _} -> Reader ! {?MODULE, Records};
                     undefined -> ok
                 end,
-            _ = [gen_server:reply(From, {ok, Id}) || {From, #{id := Id}} <- Batch],
-            {noreply, St1#st{kept = lists:reverse(Frames, St#st.kept)}};
+            _ = [gen_server:reply(From, {ok, Id}) || {From, #{id := Id}, _} <- Batch],
+            {noreply, St1#st{kept = lists:reverse(Frames, St#st.kept),
+                             bytes = St#st.bytes + St#st.batch_bytes}};
         {error, {_, Why}} ->
             cell_log:error(cell, "trace journal ~ts: ~b records could not be written "
                            "(~ts); their tasks stop", [St#st.path, length(Records),
                                                         file:format_error(Why)]),
-            _ = [gen_server:reply(From, {error, Why}) || {From, _} <- Batch],
+            _ = [gen_server:reply(From, {error, Why}) || {From, _, _} <- Batch],
             %% What was written of the batch is cut off by writing the file anew.
             ok = cell_file:close_append(St#st.file),
             ok = rewrite(St#st.path, lists:reverse(St#st.kept)),
@@ -245,6 +292,21 @@ open_append(Path) ->
         {ok, File} -> File;
         {error, {_, Why}} -> erlang:error({journal_not_opened, Path, Why})
     end.
+
+frames_size(Frames) ->
+    lists:sum([byte_size(F) || {_, F} <- Frames]).
+
+%% Below the bound again after it refused a record (the database took the records, or
+%% the bound was raised): the log says so.
+taking_again(#st{full = true, bytes = Bytes, max = Max} = St) when Bytes < Max ->
+    cell_log:notice(cell, "trace journal ~ts: ~ts of ~ts kept, new records are taken "
+                    "again", [St#st.path, mb(Bytes), mb(Max)]),
+    St#st{full = false};
+taking_again(St) ->
+    St.
+
+mb(Bytes) ->
+    io_lib:format("~.1f MB", [Bytes / (1024 * 1024)]).
 
 %% Replaced whole with the frames, durably (a crash leaves the old file or the new).
 rewrite(Path, Frames) ->

@@ -9,19 +9,23 @@
 -module(cell_stats_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include_lib("proper/include/proper.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([database_unusable_then_back/1, database_lost_then_back/1, writer_crash/1,
+-export([database_unusable_then_back/1, database_lost_then_back/1,
+         a_long_outage_of_the_database/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
-         a_product_left_but_still_in_its_file/1, the_journal_alone/1]).
+         a_product_left_but_still_in_its_file/1, the_journal_alone/1,
+         books_across_crashes/1, a_journal_at_its_bound/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
 all() ->
-    [database_unusable_then_back, database_lost_then_back, writer_crash,
+    [database_unusable_then_back, database_lost_then_back, a_long_outage_of_the_database,
+     writer_crash,
      time_in_a_state_across_a_crash,
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
@@ -30,7 +34,9 @@ all() ->
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
      a_product_left_but_still_in_its_file,
-     the_journal_alone].
+     the_journal_alone,
+     books_across_crashes,
+     a_journal_at_its_bound].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -39,7 +45,8 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
-                                     Case =:= a_product_left_but_still_in_its_file ->
+                                     Case =:= a_product_left_but_still_in_its_file;
+                                     Case =:= books_across_crashes ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -104,6 +111,26 @@ database_lost_then_back(_Config) ->
     ok = cell_stats:flush(),
     {ok, #{events := Events}} = cell_stats:product(<<"S-2">>),
     ?assertEqual(lists:seq(1, 200), [W || #{detail := #{width := W}} <- Events]).
+
+%% The database away so long that the history records waiting for it reach their
+%% limit: the log says so when the oldest begin to be dropped, and how many were when
+%% the database is back; the newest are written.
+a_long_outage_of_the_database(_Config) ->
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:record(<<"S-4">>, measured, #{width => 0}),
+    ok = cell_stats:flush(),
+    stopped = mnesia:stop(),
+    [ok = cell_stats:record(<<"S-4">>, measured, #{width => W}) || W <- lists:seq(1, 10005)],
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Full = await_log(<<"statistics: the database has been away so long">>),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"the oldest are dropped">>)),
+    Back = await_log(<<"statistics: the database is open; the">>),
+    ?assertNotEqual(nomatch, binary:match(Back, <<" 10000 records ">>)),
+    ?assertNotEqual(nomatch, binary:match(Back, <<"the 5 oldest were dropped">>)),
+    ok = cell_stats:flush(),
+    {ok, #{events := Events}} = cell_stats:product(<<"S-4">>),
+    ?assertEqual([0 | lists:seq(6, 10005)], [W || #{detail := #{width := W}} <- Events]).
 
 %% The writer of the histories dies: the statistics stop with it, saying so, and their
 %% supervisor starts both again; what was written stays, and writing goes on.
@@ -419,6 +446,170 @@ a_product_left_but_still_in_its_file(Config) ->
     ?assertEqual([entered, item_transfer_out, left, item_transfer_out], history(Serial)),
     ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
                  cell_stats:summary(total)).
+
+%% The books after crashes of the statistics at any point of products' way: each
+%% product enters and leaves, and the statistics are killed (once, or twice in a row,
+%% replaying the journal again before they wrote) right after they took a record and
+%% before their periodic write, or after a write. Whatever the crash points, the
+%% counters in, out and scrapped and the products in the cell are what the histories
+%% say, and `in = out + scrapped + in_cell'.
+books_across_crashes(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The statistics run under an owner of the case's own that starts them again at
+    %% once: killed as often as here under the controller, they would spend its
+    %% restart intensity, and their restart would restart the tasks after them.
+    ok = supervisor:terminate_child(cell_controller_sup, cell_stats),
+    Owner = spawn(fun() -> process_flag(trap_exit, true), stats_owner() end),
+    ok = start_own_stats(Owner),
+    Serials = counters:new(1, []),
+    Prop = ?FORALL(Plan, list({crash(), crash(), crash()}),
+                   books_hold(Ref, Owner, Serials, Plan)),
+    ?assert(proper:quickcheck(Prop, [{to_file, user}, {numtests, 12}, {max_size, 6}])),
+    Stats = whereis(cell_stats),
+    MRef = monitor(process, Stats),
+    Owner ! stop,
+    receive {'DOWN', MRef, process, Stats, _} -> ok end,
+    {ok, _} = supervisor:restart_child(cell_controller_sup, cell_stats),
+    ok.
+
+stats_owner() ->
+    receive
+        {start, From} ->
+            {ok, Pid} = cell_stats:start_link(#{exits => [waits_a, waits_b]}),
+            From ! {stats_started, Pid},
+            stats_owner();
+        {'EXIT', _, _} ->
+            stats_owner();
+        stop ->
+            exit(shutdown)
+    end.
+
+start_own_stats(Owner) ->
+    Owner ! {start, self()},
+    receive {stats_started, _} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(statistics_not_started)
+    end.
+
+%% Kills the statistics brutally and starts them again.
+kill_own_stats(Owner) ->
+    Old = whereis(cell_stats),
+    MRef = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', MRef, process, Old, killed} -> ok end,
+    start_own_stats(Owner).
+
+%% What happens after a step: nothing, a write, a crash, two crashes in a row.
+crash() ->
+    oneof([none, flush, kill, kill_twice]).
+
+books_hold(Ref, Owner, Serials, Plan) ->
+    ok = cell_stats:flush(),
+    Before = cell_counts(),
+    #{in_cell := InCellBefore} = cell_stats:summary(total),
+    Mine = [begin
+                ok = counters:add(Serials, 1, 1),
+                Serial = iolist_to_binary(io_lib:format("B-~b", [counters:get(Serials, 1)])),
+                ok = cell_test_task:command(waits_a, Ref,
+                                            {product, cell_product:new(Serial, <<"rb">>)}),
+                await_event(product_saved, Serial),
+                ok = after_step(AfterIn, Owner),
+                ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+                await_event(item_transfer_out, Serial),
+                ok = after_step(AfterOut, Owner),
+                ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+                await_event(product_saved, undefined),
+                ok = after_step(AfterClear, Owner),
+                Serial
+            end || {AfterIn, AfterOut, AfterClear} <- Plan],
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    #{in_cell := InCell} = cell_stats:summary(total),
+    Counted = counted_since(Before),
+    Histories = [history(S) || S <- Mine],
+    FromHistories = #{in => count_of(entered, Histories), out => count_of(left, Histories),
+                      good => count_of(left, Histories),
+                      scrapped => count_of(scrapped, Histories)},
+    Expected = #{in => length(Plan), out => length(Plan), good => length(Plan),
+                 scrapped => 0},
+    ?WHENFAIL(ct:pal("plan ~p~ncounted ~p~nfrom the histories ~p~nhistories ~p~n"
+                     "in the cell ~b, before ~b", [Plan, Counted, FromHistories, Histories,
+                                                  InCell, InCellBefore]),
+              Counted =:= FromHistories andalso Counted =:= Expected
+              andalso InCell =:= InCellBefore
+              andalso lists:all(fun(H) -> H =:= [entered, item_transfer_out, left] end,
+                                Histories)).
+
+%% The statistics have taken what came before (their journal's records come before the
+%% events awaited), then crash, write, or go on.
+after_step(none, _Owner) ->
+    ok;
+after_step(flush, _Owner) ->
+    cell_stats:flush();
+after_step(kill, Owner) ->
+    _ = sys:get_state(cell_stats),
+    kill_own_stats(Owner);
+after_step(kill_twice, Owner) ->
+    _ = sys:get_state(cell_stats),
+    ok = kill_own_stats(Owner),
+    kill_own_stats(Owner).
+
+count_of(Event, Histories) ->
+    length([H || H <- Histories, lists:member(Event, H)]).
+
+%% The trace journal while the database cannot be opened: it only grows. Near its bound
+%% (the statistics settings' journal_max_mb) a warning is raised and the log says so;
+%% at the bound a record is refused, never written, and every record kept before stays
+%% in the file; with the bound raised, records are taken again and the warning goes.
+a_journal_at_its_bound(Config) ->
+    Databases = filename:join(?config(root, Config), "Databases"),
+    _ = file:del_dir_r(Databases),
+    _ = cell_test_db:foreign(Databases),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"statistics: the database cannot be opened">>),
+    ok = cell_settings:put(statistics, #{journal_max_mb => 1}, <<"test">>),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    %% Records of some 100 kB: eight are below 80 % of 1 MB, nine above.
+    Pad = binary:copy(<<"x">>, 100 * 1024),
+    Append = fun(N) -> cell_trace_journal:append(#{type => test, task => waits_a,
+                                                    n => N, pad => Pad})
+             end,
+    Eight = [Id || N <- lists:seq(1, 8), {ok, Id} <- [Append(N)]],
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    ok = cell_alarms:sync(),
+    ?assertNot(cell_alarms:has_warning(cell)),
+    {ok, Ninth} = Append(9),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Line = await_log(<<"statistics: The trace journal holds 8">>),
+    ?assertNotEqual(nomatch, binary:match(Line, <<"of its 1 MB">>)),
+    ok = cell_alarms:sync(),
+    ?assertMatch([#{kind := warning, local_id := <<"trace_journal">>}], cell_alarms:list(cell)),
+    %% The tenth fits, the eleventh does not: refused, and the log says why once.
+    {ok, Tenth} = Append(10),
+    ?assertEqual({error, journal_full}, Append(11)),
+    Full = await_log(<<"trace journal ">>),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"is full">>)),
+    ?assertNotEqual(nomatch, binary:match(Full, <<"nothing recorded is lost">>)),
+    ?assertEqual({error, journal_full}, Append(12)),
+    {ok, Bin} = file:read_file(cell_trace_journal:path()),
+    {Frames, _, 0} = cell_trace_journal:decode(Bin),
+    ?assertEqual(Eight ++ [Ninth, Tenth], [Id || {Id, _} <- Frames]),
+    ?assert(byte_size(Bin) =< 1024 * 1024),
+    %% A larger bound: taken again, and the warning goes (1 MB of 2 is below 70 %).
+    ok = cell_settings:put(statistics, #{journal_max_mb => 2}, <<"test">>),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    Again = await_log(<<"trace journal ">>),
+    ?assertNotEqual(nomatch, binary:match(Again, <<"new records are taken again">>)),
+    {ok, Thirteenth} = Append(13),
+    ?assert(Thirteenth > Tenth),
+    ok = cell_alarms:sync(),
+    ?assertEqual([], cell_alarms:list(cell)),
+    ok = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = file:del_dir_r(Databases).
 
 %% The trace journal by itself: writers at once each get their own id; its reader gets
 %% every record once, in the order of the ids, before the writers are answered; the
