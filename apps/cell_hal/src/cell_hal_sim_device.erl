@@ -17,8 +17,8 @@
 %% written ({@link replay/2}). A rule is therefore a function of the value (a sensor
 %% follows its output), not of how often it was written; the simulated router's
 %% physics, told an output it already acts on, does nothing more. Meanwhile its
-%% clients lost their connection (the HAL reconnects), and {@link stop_device/1}
-%% of the simulation API is the only way to make it forget.
+%% clients lost their connection (the HAL reconnects), and {@link
+%% cell_hal_sim:stop_device/1} is the only way to make it forget.
 -module(cell_hal_sim_device).
 -behaviour(gen_server).
 
@@ -26,7 +26,8 @@
 
 -export([start_link/2, whereis/1, forget/1]).
 -export([recall/2, replay/2]).
--export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
+-export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
+         terminate/2]).
 
 -export_type([rule/0, memory/0]).
 
@@ -108,24 +109,28 @@ replay(Image, Rules) ->
                        {ok, V} <- [maps:find(Key, Image)], Rule <- Rs].
 
 %% @private
--spec init({atom(), map()}) -> {ok, #state{}}.
+%% The memory it had, if any; its rules run again on it before the first request.
+-spec init({atom(), map()}) -> {ok, #state{}, {continue, replay}}.
 init({Name, Opts}) ->
     true = ets:insert(?TAB, {Name, self()}),
     {Image, Rules, Link} = recall(Name, ets:match_object(?TAB, {{'_', Name, '_'}, '_'})
                                         ++ ets:match_object(?TAB, {{'_', Name}, '_'})),
-    S = #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0), image = Image,
-               rules = Rules, link = Link},
-    case map_size(Image) + map_size(Rules) of
-        0 ->
-            {ok, S};
-        _ ->
-            Replay = replay(Image, Rules),
-            cell_log:notice(Name, "simulated PLC ~s started again with its memory "
-                            "(~b point(s), link ~s); its ~b rule(s) act on the values "
-                            "it holds", [Name, map_size(Image), Link, length(Replay)]),
-            {ok, lists:foldl(fun({Key, {_, Fun}, V}, Si) -> schedule(Key, Fun, V, Si) end,
-                             S, Replay)}
-    end.
+    {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0), image = Image,
+                rules = Rules, link = Link},
+     {continue, replay}}.
+
+%% @private
+-spec handle_continue(replay, #state{}) -> {noreply, #state{}}.
+handle_continue(replay, #state{image = Image, rules = Rules} = S)
+  when map_size(Image) =:= 0, map_size(Rules) =:= 0 ->
+    {noreply, S};
+handle_continue(replay, #state{name = Name, image = Image, rules = Rules, link = Link} = S) ->
+    Replay = replay(Image, Rules),
+    cell_log:notice(Name, "simulated PLC ~s started again with its memory (~b point(s), "
+                    "link ~s); its ~b rule(s) act on the values it holds",
+                    [Name, map_size(Image), Link, length(Replay)]),
+    {noreply, lists:foldl(fun({Key, {_, Fun}, V}, Si) -> schedule(Key, Fun, V, Si) end,
+                          S, Replay)}.
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
