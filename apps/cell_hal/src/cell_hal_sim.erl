@@ -119,7 +119,7 @@ drop(Conn) ->
 clients(Conn) ->
     with_conn_device(Conn, fun(Pid) -> gen_server:call(Pid, clients) end).
 
-%% @doc Stops a connection's simulated PLC; its image is forgotten.
+%% @doc Stops a connection's simulated PLC; its image and its rules are forgotten.
 -spec stop_device(atom()) -> ok | {error, not_simulated}.
 stop_device(Conn) ->
     case device_of(Conn) of
@@ -137,8 +137,17 @@ with_device(Key, Fun) ->
 
 with_conn_device(Conn, Fun) ->
     case device_of(Conn) of
-        {ok, Name, Opts} -> Fun(cell_hal_sim_sup:ensure_device(Name, Opts));
-        Error -> Error
+        {ok, Name, Opts} ->
+            try Fun(cell_hal_sim_sup:ensure_device(Name, Opts))
+            catch
+                exit:{Gone, {gen_server, call, _}} when Gone =:= noproc; Gone =:= killed;
+                                                        Gone =:= shutdown ->
+                    %% The device died before it answered (its memory is kept): asked
+                    %% again of the device its supervisor starts in its place.
+                    Fun(cell_hal_sim_sup:ensure_device(Name, Opts))
+            end;
+        Error ->
+            Error
     end.
 
 device_of(Conn) ->

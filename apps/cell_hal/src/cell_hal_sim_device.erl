@@ -6,15 +6,30 @@
 %% The link has three states: `up' (answers), `down' (every client is dropped and new
 %% ones are refused, as when a cable is pulled), `silent' (accepts connections but
 %% answers nothing, as a PLC stuck in a long cycle; requests time out).
+%%
+%% The PLC's memory (its image, its rules and its link) is kept in the HAL's table of
+%% simulated PLCs, which the HAL's top supervisor owns, as well as in the process: a
+%% device that crashes or is killed is started again by its supervisor with the image
+%% and the rules it had, as a real PLC comes back from a reboot with its retained
+%% memory and its program. What it had scheduled (a sensor due to follow its actuator,
+%% an answer delayed by the latency) died with it: at its start again every rule is run
+%% once on its point's value as the memory holds it, as if that value had just been
+%% written ({@link replay/2}). A rule is therefore a function of the value (a sensor
+%% follows its output), not of how often it was written; the simulated router's
+%% physics, told an output it already acts on, does nothing more. Meanwhile its
+%% clients lost their connection (the HAL reconnects), and {@link
+%% cell_hal_sim:stop_device/1} is the only way to make it forget.
 -module(cell_hal_sim_device).
 -behaviour(gen_server).
 
 -include("cell_hal.hrl").
 
--export([start_link/2, whereis/1]).
--export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
+-export([start_link/2, whereis/1, forget/1]).
+-export([recall/2, replay/2]).
+-export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
+         terminate/2]).
 
--export_type([rule/0]).
+-export_type([rule/0, memory/0]).
 
 -define(TAB, cell_hal_sim_devices).
 
@@ -36,6 +51,9 @@
                 timer :: {reference(), integer()} | undefined}).
 
 -type task() :: {set, key(), cell_hal_type:value()} | {answer, reference(), term()}.
+%% What a device keeps across its restarts: its image, its rules by point, its link.
+-type memory() :: {#{key() => cell_hal_type:value()}, #{key() => [rule()]},
+                   up | down | silent}.
 
 %% @doc Starts the simulated PLC `Name'.
 -spec start_link(atom(), map()) -> {ok, pid()}.
@@ -56,30 +74,85 @@ whereis(Name) ->
             undefined
     end.
 
+%% @doc Forgets the memory of the simulated PLC `Name' (once it is stopped: its
+%% next start begins from an empty image, with no rules).
+-spec forget(atom()) -> ok.
+forget(Name) ->
+    true = ets:match_delete(?TAB, {{image, Name, '_'}, '_'}),
+    true = ets:delete(?TAB, {rules, Name}),
+    true = ets:delete(?TAB, {link, Name}),
+    ok.
+
+%% @doc The memory of the simulated PLC `Name' from the rows of the table that keeps
+%% it (rows of other devices and the devices' processes are skipped): an empty image,
+%% no rules and the link up when it has never run.
+-spec recall(atom(), [tuple()]) -> memory().
+recall(Name, Rows) ->
+    lists:foldl(fun({{image, N, Key}, V}, {Img, Rules, Link}) when N =:= Name ->
+                        {Img#{Key => V}, Rules, Link};
+                   ({{rules, N}, Rules}, {Img, _, Link}) when N =:= Name ->
+                        {Img, Rules, Link};
+                   ({{link, N}, Link}, {Img, Rules, _}) when N =:= Name ->
+                        {Img, Rules, Link};
+                   (_, Acc) ->
+                        Acc
+                end, {#{}, #{}, up}, Rows).
+
+%% @doc What a device started again with its memory runs: each rule whose point holds
+%% a value, with that value, points in order and each point's rules in the order they
+%% were added. A rule on a point never written (or preset) is not run: nothing was
+%% written to it.
+-spec replay(#{key() => cell_hal_type:value()}, #{key() => [rule()]}) ->
+          [{key(), rule(), cell_hal_type:value()}].
+replay(Image, Rules) ->
+    [{Key, Rule, V} || {Key, Rs} <- lists:sort(maps:to_list(Rules)),
+                       {ok, V} <- [maps:find(Key, Image)], Rule <- Rs].
+
 %% @private
--spec init({atom(), map()}) -> {ok, #state{}}.
+%% The memory it had, if any; its rules run again on it before the first request.
+-spec init({atom(), map()}) -> {ok, #state{}, {continue, replay}}.
 init({Name, Opts}) ->
     true = ets:insert(?TAB, {Name, self()}),
-    {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0)}}.
+    {Image, Rules, Link} = recall(Name, ets:match_object(?TAB, {{'_', Name, '_'}, '_'})
+                                        ++ ets:match_object(?TAB, {{'_', Name}, '_'})),
+    {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0), image = Image,
+                rules = Rules, link = Link},
+     {continue, replay}}.
+
+%% @private
+-spec handle_continue(replay, #state{}) -> {noreply, #state{}}.
+handle_continue(replay, #state{image = Image, rules = Rules} = S)
+  when map_size(Image) =:= 0, map_size(Rules) =:= 0 ->
+    {noreply, S};
+handle_continue(replay, #state{name = Name, image = Image, rules = Rules, link = Link} = S) ->
+    Replay = replay(Image, Rules),
+    cell_log:notice(Name, "simulated PLC ~s started again with its memory (~b point(s), "
+                    "link ~s); its ~b rule(s) act on the values it holds",
+                    [Name, map_size(Image), Link, length(Replay)]),
+    {noreply, lists:foldl(fun({Key, {_, Fun}, V}, Si) -> schedule(Key, Fun, V, Si) end,
+                          S, Replay)}.
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call({set, Key, V}, _From, S) ->
     {reply, ok, change(Key, V, S)};
-handle_call({preset, Image}, _From, #state{image = Img} = S) ->
+handle_call({preset, Image}, _From, #state{name = Name, image = Img} = S) ->
+    true = ets:insert(?TAB, [{{image, Name, K}, V} || {K, V} <- maps:to_list(Image)]),
     {reply, ok, S#state{image = maps:merge(Img, Image)}};
 handle_call({get, Key}, _From, #state{image = Img} = S) ->
     {reply, maps:find(Key, Img), S};
 handle_call({rule, Key, Fun}, _From, #state{rules = Rules} = S) ->
     Rule = {Key, Fun},
-    {reply, ok, S#state{rules = maps:update_with(Key, fun(Rs) -> Rs ++ [Rule] end, [Rule], Rules)}};
+    {reply, ok, keep_rules(maps:update_with(Key, fun(Rs) -> Rs ++ [Rule] end, [Rule], Rules), S)};
 handle_call(clear_rules, _From, S) ->
-    {reply, ok, S#state{rules = #{}}};
-handle_call({link, Link}, _From, S) when Link =:= up; Link =:= down; Link =:= silent ->
+    {reply, ok, keep_rules(#{}, S)};
+handle_call({link, Link}, _From, #state{name = Name} = S)
+  when Link =:= up; Link =:= down; Link =:= silent ->
     S1 = case Link of
              down -> drop_all(S);
              _ -> S
          end,
+    true = ets:insert(?TAB, {{link, Name}, Link}),
     {reply, ok, S1#state{link = Link}};
 handle_call(drop, _From, S) ->
     {reply, ok, drop_all(S)};
@@ -191,8 +264,14 @@ drop_all(#state{clients = Cs} = S) ->
                  end, Cs),
     S#state{clients = #{}}.
 
-%% A point changes: store it and run the rules that watch it.
-change(Key, V, #state{image = Img, rules = Rules} = S) ->
+keep_rules(Rules, #state{name = Name} = S) ->
+    true = ets:insert(?TAB, {{rules, Name}, Rules}),
+    S#state{rules = Rules}.
+
+%% A point changes: store it (in the memory first: a device killed before its rules
+%% ran runs them at its start again) and run the rules that watch it.
+change(Key, V, #state{name = Name, image = Img, rules = Rules} = S) ->
+    true = ets:insert(?TAB, {{image, Name, Key}, V}),
     lists:foldl(fun({_, Fun}, Si) -> schedule(Key, Fun, V, Si) end,
                 S#state{image = Img#{Key => V}}, maps:get(Key, Rules, [])).
 

@@ -1,6 +1,8 @@
 %% @doc Supervises the simulated PLCs, one child per device name. A simulated PLC
 %% starts the first time a connection or a simulation needs it and keeps its image
-%% across the HAL's reconnects, as a real PLC keeps its memory.
+%% across the HAL's reconnects, as a real PLC keeps its memory; restarted here after a
+%% crash or a kill, it comes back at once with its image and its rules (kept in the
+%% HAL's tables, see {@link cell_hal_sim_device}), as a real PLC after a reboot.
 -module(cell_hal_sim_sup).
 -behaviour(supervisor).
 
@@ -28,12 +30,12 @@ ensure_device(Name, Opts) ->
             end
     end.
 
-%% @doc Stops a simulated PLC; its image is forgotten.
+%% @doc Stops a simulated PLC; its image and its rules are forgotten.
 -spec stop_device(atom()) -> ok.
 stop_device(Name) ->
     _ = supervisor:terminate_child(?MODULE, Name),
     _ = supervisor:delete_child(?MODULE, Name),
-    ok.
+    cell_hal_sim_device:forget(Name).
 
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->

@@ -10,6 +10,8 @@
 %% <li>a connection's worker writes its connection's status, its points' values and
 %%   faults and the time-stamped samples of points fed by device notifications, and
 %%   sends every notification;</li>
+%% <li>a simulated PLC writes its process and its memory (image, rules, link) in the
+%%   table of simulated PLCs, so a restarted one finds them;</li>
 %% <li>readers (tasks) only read.</li>
 %% </ul>
 %% A watch fires exactly once: whoever takes its claim row first (the worker that saw

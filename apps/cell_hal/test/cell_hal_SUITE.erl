@@ -20,7 +20,8 @@
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
          io_while_a_worker_restarts/1, logs_speak_to_operators/1,
-         backoff_grows_then_resets/1, connection_info/1]).
+         backoff_grows_then_resets/1, connection_info/1,
+         device_killed_comes_back_with_its_memory/1]).
 
 -define(WAIT, 5000).
 
@@ -35,7 +36,8 @@ all() ->
      groups_added_back_to_back, group_added_during_the_first_read,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
-     io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators, backoff_grows_then_resets, connection_info].
+     io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators,
+     backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -520,6 +522,40 @@ subscribers_are_cleaned_up(_Config) ->
     _ = cell_hal:subscribe_connection(s16),
     ?assertNot(lists:member(Pid, cell_hal_store:subscribers())),
     ?assertEqual(0, ets:info(cell_hal_watch_claims, size)).
+
+%% The simulated PLC killed: its supervisor starts it again at once with its image and
+%% its rules, as a PLC comes back from a reboot; the HAL's connection goes down, then
+%% up by itself, and reads back the outputs as they were written. At its start the
+%% device runs every rule again on the values it holds (a rule killed before it ran,
+%% or a sensor due to follow its output, is not lost), and its rules act on what is
+%% written after. Stopped, it forgets.
+device_killed_comes_back_with_its_memory(_Config) ->
+    ok = sim(s30),
+    Self = self(),
+    ok = cell_hal_sim:follow({io, int16_in}, {io, int16_out}, 0, fun(V) -> -V end),
+    ok = cell_hal_sim:on_change({io, bool_out}, fun(V) -> Self ! {written, V}, [] end),
+    ok = cell_hal_sim:set({io, uint16_in}, 7),
+    7 = await_value(uint16_in, 7),
+    ok = cell_hal:write(io, bool_out, true),
+    receive {written, true} -> ok after ?WAIT -> ct:fail(not_written) end,
+    Old = cell_hal_sim_device:whereis(s30),
+    exit(Old, kill),
+    receive {cell_hal_conn, s30, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    %% The rule runs again at the device's start, on the value the memory holds.
+    receive {written, true} -> ok after ?WAIT -> ct:fail(rule_not_run_again) end,
+    receive {cell_hal_conn, s30, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    New = cell_hal_sim_device:whereis(s30),
+    ?assert(is_pid(New) andalso New =/= Old),
+    ?assertEqual({ok, true}, cell_hal:read(io, bool_out)),
+    ?assertEqual({ok, 7}, cell_hal:read(io, uint16_in)),
+    ?assertEqual({ok, true}, cell_hal_sim:get({io, bool_out})),
+    ok = cell_hal:write(io, int16_out, 42),
+    -42 = await_value(int16_in, -42),
+    ok = cell_hal_sim:stop_device(s30),
+    ?assertEqual({error, not_set}, cell_hal_sim:get({io, bool_out})),
+    ok = cell_hal_sim:set({io, int16_out}, 3),
+    ?assertEqual({ok, 3}, cell_hal_sim:get({io, int16_out})),
+    ?assertEqual({error, not_set}, cell_hal_sim:get({io, int16_in})).
 
 worker_crash_goes_down_and_recovers(_Config) ->
     ok = sim(s17),

@@ -46,7 +46,11 @@
 %% settings owner lets change while the cell runs.
 %%
 %% The simulated PLC and its points are the cell's HAL, which the cell's monitor
-%% connects. The physics starts after it; should the HAL be taken down under it (the
+%% connects. A simulated PLC that dies is started again at once with its image and the
+%% physics' rules (see `cell_hal_sim_device'), and runs those rules on the outputs as it
+%% holds them: the physics, told an output it already acts on, does nothing more, and
+%% one it had not heard of yet (the PLC killed between storing it and telling) it acts
+%% on then, so it never has to attach again for that. The physics starts after it; should the HAL be taken down under it (the
 %% cell's supervisor restarting the monitor), a write fails, the physics crashes and,
 %% restarted, waits for the HAL to be back (retried 100 ms, then up to 5 s apart),
 %% then goes on from the world it saved.

@@ -15,16 +15,21 @@
          lower_killed_in_every_phase/1, upper_killed_in_every_phase/1,
          unloading_killed_in_every_phase/1, every_task_killed_at_once/1,
          task_tree_restarted/1, unloading_killed_while_the_upper_puts_down/1,
-         panel_forgotten_in_the_fixture/1]).
+         panel_forgotten_in_the_fixture/1, plc_killed_during_a_routing_move/1,
+         plc_killed_during_a_clamp_move/1]).
 
 -define(DEADLINE_MS, 60000).
+%% How long the line may take to go on after its PLC was killed: a restart of the PLC,
+%% a reconnect, one Retry, a panel routed and two products out.
+-define(PLC_BACK_MS, 30000).
 -define(EVENTS, [item_transfer_out, alarm_raised, cell_state, task_crashed, product_saved]).
 
 all() ->
     [unloading_killed_in_every_phase, upper_killed_in_every_phase,
      loading_killed_in_every_phase, work_killed_in_every_phase,
      lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted,
-     unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture].
+     unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture,
+     plc_killed_during_a_routing_move, plc_killed_during_a_clamp_move].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -149,6 +154,104 @@ panel_forgotten_in_the_fixture(_Config) ->
     ?assertEqual([removed], [How || {S, How} <- maps:get(ledger, W), S =:= Serial]),
     ?assertEqual(1, maps:get(removed, maps:get(counters, W))),
     assert_books_agree().
+
+%% The simulated PLC killed the moment the routing robot's move command reaches it:
+%% the PLC comes back at once with its memory and the machine's physics still attached,
+%% every task is told its IO connection was lost (one Retry each, given once the
+%% connection is back, as an operator who sees the PLC up again; the cell's own error
+%% for the lost connection the same), the robot finishes
+%% the panel's routing and the line goes on; nothing else is asked (no "did not finish
+%% in time").
+plc_killed_during_a_routing_move(_Config) ->
+    plc_killed_during({lower_io, command}, fun(_) -> true end, lower, routed).
+
+%% The same the moment the work segment's clamps are commanded closed on a panel.
+plc_killed_during_a_clamp_move(_Config) ->
+    plc_killed_during({router_cell:group(work, front), clamp}, fun(V) -> V =:= true end,
+                      work_front, offered).
+
+%% Kills the simulated PLC from within (a rule of its own, after the physics' rule on
+%% the same output) the first time `Key' is written a value `Moving' holds for, so the
+%% kill falls between the command and the sensors' answer; then waits (at most
+%% ?PLC_BACK_MS) for `Task' to enter `Done' and for two more products to leave.
+plc_killed_during(Key, Moving, Task, Done) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(1),
+    {ok, up} = await_connection(),
+    Self = self(),
+    Once = atomics:new(1, []),
+    ok = cell_hal_sim:on_change(
+           Key, fun(V) ->
+                        case Moving(V) andalso atomics:compare_exchange(Once, 1, 0, 1) =:= ok of
+                            true -> Self ! {plc_killed, self(), V}, exit(self(), kill);
+                            false -> ok
+                        end,
+                        []
+                end),
+    Pid = cell_task_proc:whereis(Task),
+    Old = receive {plc_killed, P, V} -> ct:log("the PLC killed as ~p took ~p", [Key, V]), P
+          after ?DEADLINE_MS -> ct:fail({never_written, Key})
+          end,
+    1 = erlang:trace(Pid, true, [call, {tracer, self()}]),
+    Deadline = erlang:monotonic_time(millisecond) + ?PLC_BACK_MS,
+    Asked = after_plc_kill(Pid, Done, #{conn => up, done => false, asked => [], due => [],
+                                        out => 0}, Deadline),
+    1 = erlang:trace(Pid, false, [call]),
+    flush_trace(Pid),
+    New = cell_hal_sim_device:whereis(router_plc),
+    ?assert(is_pid(New) andalso New =/= Old),
+    %% One Retry at most per task, for the lost connection only.
+    ct:log("asked after the kill: ~tp", [Asked]),
+    ?assertEqual([], [A || {_, L} = A <- Asked, L =/= <<"io">>,
+                           L =/= <<"connection.router_plc">>]),
+    Tasks = [T || {T, _} <- Asked],
+    ?assertEqual(lists:usort(Tasks), lists:sort(Tasks)),
+    ok = stop_cell(),
+    assert_books_agree().
+
+%% Until the task entered `Done' after the kill and two products left: the connection
+%% seen down and up again, each error noted (a task's lost IO and the cell's lost
+%% connection answered Retry once the connection is back; any other question fails
+%% the test at the end, answered as an operator would meanwhile).
+after_plc_kill(_Pid, _Done, #{conn := up, done := true, out := Out, due := [],
+                               asked := Asked}, _Deadline) when Out >= 2 ->
+    lists:reverse(Asked);
+after_plc_kill(Pid, Done, #{asked := Asked, due := Due} = S, Deadline) ->
+    receive
+        {cell_hal_conn, router_plc, down} ->
+            after_plc_kill(Pid, Done, S#{conn := down}, Deadline);
+        {cell_hal_conn, router_plc, up} ->
+            %% Those the cell withdrew by itself meanwhile are no longer there to answer.
+            _ = [cell_alarms:answer(Id, retry, <<"suite">>) || Id <- Due],
+            after_plc_kill(Pid, Done, S#{conn := up, due := []}, Deadline);
+        {trace, Pid, call, {router_task, phase, [_, Done]}} ->
+            after_plc_kill(Pid, Done, S#{done := true}, Deadline);
+        {trace, Pid, call, _} ->
+            after_plc_kill(Pid, Done, S, Deadline);
+        {cell_event, #{type := item_transfer_out, task := unloading_front}} ->
+            after_plc_kill(Pid, Done, S#{out := maps:get(out, S) + 1}, Deadline);
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error, id := Id,
+                                                         local_id := L, task := T}}}
+          when L =:= <<"io">>; L =:= <<"connection.router_plc">> ->
+            S1 = S#{asked := [{T, L} | Asked]},
+            case S of
+                #{conn := up} ->
+                    _ = cell_alarms:answer(Id, retry, <<"suite">>),
+                    after_plc_kill(Pid, Done, S1, Deadline);
+                #{conn := down} ->
+                    after_plc_kill(Pid, Done, S1#{due := [Id | Due]}, Deadline)
+            end;
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error, local_id := L,
+                                                         task := T} = A}} ->
+            ok = answer(A),
+            after_plc_kill(Pid, Done, S#{asked := [{T, L} | Asked]}, Deadline);
+        {cell_event, _} ->
+            after_plc_kill(Pid, Done, S, Deadline)
+    after left(Deadline) ->
+        ct:fail({no_recovery_in_time, S, cell_controller:tasks(), cell_alarms:list(),
+                 router_sim:world()})
+    end.
 
 %% An error of one of these local ids raised by the task, the others answered meanwhile.
 await_alarm(Locals, Task, Deadline) ->
