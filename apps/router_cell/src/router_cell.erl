@@ -23,7 +23,7 @@
 %% the next boot of the cell.
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, machine_settings/0,
+-export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, machine_settings/0,
          router_settings/0, is_configured/0]).
 
 -define(CONN, router_plc).
@@ -65,7 +65,9 @@ lane_tasks(L) ->
        lane => Lane, io => [group(loading, L)], settings => router,
        args => #{lane => L, next => link(load_work, L)}},
      #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
-       io => [group(work, L)], settings => router,
+       %% The loading stopper's and the gripper's sensors read too: they tell whose a
+       %% panel in the fixture that the segment holds no record of is.
+       io => [group(work, L), group(loading, L), upper_io], settings => router,
        args => #{lane => L, prev => link(load_work, L), next => link(work_route, L)}},
      #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
        lane => Lane, io => [group(unloading, L)], settings => router,
@@ -116,6 +118,8 @@ module(loading) -> router_loading_io;
 module(work) -> router_work_io;
 module(unloading) -> router_unloading_io.
 
+%% @doc The device task of a lane's segment.
+-spec task(loading | work | unloading, front | rear) -> atom().
 task(loading, front) -> loading_front;
 task(loading, rear) -> loading_rear;
 task(work, front) -> work_front;

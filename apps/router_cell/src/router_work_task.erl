@@ -50,13 +50,15 @@ init(T0) ->
 reconcile(_Held, T2) ->
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
-            case unheld_here(T2) of
-                true ->
-                    unheld_error(T2);
-                false ->
-                    %% A panel the routing robot has, or its frame: the clamps hold it
-                    %% until the modules are out.
-                    {ok, phase(cell_task:out(T2, clamp, true), emptying)}
+            case in_fixture(T2) of
+                Robot when Robot =:= frame; element(1, Robot) =:= robot ->
+                    %% A panel a robot has, or its frame: the clamps hold it until the
+                    %% modules are out.
+                    {ok, phase(cell_task:out(T2, clamp, true), emptying)};
+                {arrived, S} ->
+                    {ok, arrived(T2, S)};
+                Other ->
+                    not_known(Other, T2)
             end;
         {undefined, false} ->
             {ok, phase(T2, idle)};
@@ -76,10 +78,12 @@ step(T) ->
 
 %% -- empty: take a panel from the loading segment ------------------------------------
 step(idle, _Woken, T) ->
-    case {cell_task:in(T, panel_in_position), unheld_here(T)} of
-        {false, _} -> {continue, phase(T, take)};
-        {true, true} -> unheld_error(T);
-        {true, false} -> {continue, phase(T, emptying)}
+    case cell_task:in(T, panel_in_position) andalso in_fixture(T) of
+        false -> {continue, phase(T, take)};
+        {arrived, S} -> {continue, arrived(T, S)};
+        Robot when Robot =:= frame; element(1, Robot) =:= robot ->
+            {continue, phase(T, emptying)};
+        Other -> not_known(Other, T)
     end;
 step(take, _Woken, T) ->
     %% Phase 2: both belts run.
@@ -157,13 +161,51 @@ step(in_transit, _Woken, T) ->
 
 %% -- a panel in the fixture that no record holds ------------------------------------------
 
-%% A whole panel in the fixture (its module nest full) while the task holds no product
-%% and no robot holds one of this lane.
-unheld_here(T) ->
-    cell_task:product(T) =:= undefined andalso cell_task:in(T, panel_in_position)
-        andalso not cell_task:in(T, nest_empty)
-        andalso router_task:unheld(router_task:lane(T), [lower, upper],
-                                   cell_task:others_products(T)).
+%% A panel in position while the task holds no product: a frame (the nest empty), or
+%% whose the whole panel is by the records that can explain it there and the sensors
+%% that rule them out (router_task:fixture/1).
+in_fixture(T) ->
+    case cell_task:in(T, nest_empty) of
+        true -> frame;
+        false -> router_task:fixture(fixture_facts(T))
+    end.
+
+fixture_facts(T) ->
+    Lane = router_task:lane(T),
+    Offered = case cell_handshake:peek(T, prev(T)) of
+                  {ok, #{serial := S}} -> S;
+                  none -> none
+              end,
+    #{lane => Lane, others => cell_task:others_products(T),
+      loading => router_cell:task(loading, Lane),
+      stopper => cell_task:in(T, router_cell:group(loading, Lane), panel_at_stop),
+      offered => Offered,
+      gripper => cell_task:in(T, upper_io, product_present)}.
+
+%% The panel the loading segment offers lies here already (a restart cut its
+%% hand-over off after it arrived): taken in through the hand-over as it lies; the
+%% loading segment, its stopper empty, lets go of it at once.
+arrived(T, S) ->
+    cell_task:log(T, brief, "panel ~ts, offered by the loading conveyor, lies in the fixture "
+                  "already: taken in as it lies", [S]),
+    phase(T, take).
+
+not_known(unheld, T) ->
+    unheld_error(T);
+not_known({loading, S}, T) ->
+    %% The loading segment's record of it is still being settled (its question to the
+    %% operator): RETRY looks again once it is.
+    {error, cell_task:error_spec(
+              <<"fixture_unsettled">>, "Panel in the fixture not offered",
+              io_lib:format("A panel lies in the work fixture of lane ~ts. Records say panel "
+                            "~ts is on the loading conveyor, whose stopper sensor sees no "
+                            "panel, and it is not offered to this segment.~nAnswer the "
+                            "loading conveyor's question first: IGNORE there if this panel "
+                            "is ~ts (it is handed over as it lies); if it is not, take it "
+                            "out of the machine. Then select RETRY.",
+                            [router_task:lane(T), S, S]),
+              [retry]),
+     phase(cell_task:out(T, belt_run, false), idle)}.
 
 %% The operator takes it out; the clamps open for the hand, the belt stays off. RETRY
 %% looks again (reconcile, or the idle step).
