@@ -42,8 +42,11 @@ cell_spec(Machine, Router) ->
                 lane => <<"Shared">>, io => [lower_io], settings => router,
                 args => #{prevs => [link(work_route, L) || L <- Lanes], next => route_pick}},
               #{id => upper, module => router_upper_task, zone => <<"Upper robot">>,
-                %% The module nests' sensors read too: after a Reset it empties them.
-                lane => <<"Shared">>, io => [upper_io | [group(work, L) || L <- Lanes]],
+                %% The module nests' sensors read too: after a Reset it empties them;
+                %% and the unloading conveyors', to tell whose modules in its gripper
+                %% that it holds no record of are.
+                lane => <<"Shared">>,
+                io => [upper_io | [group(K, L) || K <- [work, unloading], L <- Lanes]],
                 settings => router,
                 args => #{prev => route_pick,
                           nexts => maps:from_list([{L, link(pick_unload, L)} || L <- Lanes])}}],
@@ -70,7 +73,8 @@ lane_tasks(L) ->
        io => [group(work, L), group(loading, L), upper_io], settings => router,
        args => #{lane => L, prev => link(load_work, L), next => link(work_route, L)}},
      #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
-       lane => Lane, io => [group(unloading, L)], settings => router,
+       %% The gripper's sensor read too: modules in it are not on this conveyor.
+       lane => Lane, io => [group(unloading, L), upper_io], settings => router,
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus

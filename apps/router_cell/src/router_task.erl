@@ -15,7 +15,7 @@
 -export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3,
          interrupted/4, lane/1]).
 -export([take/3, take/4, offered/3, finish/4, finish/5, finish/6]).
--export([unheld/3, unheld_error/4, fixture/1]).
+-export([unheld/3, unheld_anywhere/2, unheld_error/4, fixture/1]).
 
 -export_type([located/0, fixture_facts/0, fixture/0]).
 
@@ -274,6 +274,12 @@ fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper
         {[], [], []} -> unheld
     end.
 
+%% @doc As {@link unheld/3}, for a station any lane's products may reach (the upper
+%% robot's gripper): none of the tasks `Takers' holds a product.
+-spec unheld_anywhere([atom()], [{atom(), cell_product:product()}]) -> boolean().
+unheld_anywhere(Takers, Others) ->
+    [x || {Task, _P} <- Others, lists:member(Task, Takers)] =:= [].
+
 %% @doc The operator's error for it: `Where' says what lies where ("a panel lies in the
 %% work fixture of lane front"); the operator takes it out of the machine and selects
 %% RETRY, and the task looks again.
@@ -307,7 +313,14 @@ unheld_test_() ->
      ?_assert(unheld(front, [lower, upper], [{lower, P(rear)}])),
      ?_assert(unheld(front, [lower, upper], [{loading_front, P(front)}])),
      %% A product without a lane may be of any lane.
-     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}]))].
+     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}])),
+     %% A taker whose sensor sees its product elsewhere is left out by the caller: its
+     %% record explains nothing here.
+     ?_assert(unheld(front, [], [{upper, P(front)}])),
+     %% Anywhere: any lane's product of a taker.
+     ?_assertNot(unheld_anywhere([unloading_rear], [{unloading_rear, P(rear)}])),
+     ?_assert(unheld_anywhere([unloading_rear], [{unloading_front, P(front)}])),
+     ?_assert(unheld_anywhere([], [{unloading_front, P(front)}]))].
 
 fixture_test_() ->
     P = fun(S, Lane) -> #{serial => S, recipe => <<"r">>, failed => false, lane => Lane} end,

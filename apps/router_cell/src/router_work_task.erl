@@ -5,7 +5,8 @@
 %%
 %% <pre>
 %%  phase      waits for                                    then
-%%  idle       the fixture free (no panel in position)     → take
+%%  idle       the fixture free (no panel in position)     → take; a panel in position: see
+%%                                                          below
 %%  take       the loading segment's offer (STARVED)        commit (phase 2), belt on → moving_in
 %%  moving_in  the panel off the loading segment            → arriving
 %%             (Available off, phase 3)
@@ -25,15 +26,26 @@
 %%
 %% Restarted (reconcile), the fixture's sensor decides: with a product, arriving (the
 %% panel seen in position is completed and clamped; not yet there, the belt brings it);
-%% without one, a panel in position is the routing robot's or its frame (emptying),
-%% none is idle.
+%% without one, a panel in position is decided as below; none is idle.
 %%
-%% A whole panel in the fixture (its module nest full) that no record holds (this task
-%% holds no product, and neither robot holds one of this lane) would keep the fixture
-%% for ever: nobody routes it, and the segment waits for its nest to empty. Restarted,
-%% or idle with a panel in position, the task asks the operator to take it out of the
-%% machine instead (the clamps open), and looks again at RETRY (`unheld'). A panel
-%% the operator's Reset made the cell forget while it lay in the fixture ends so.
+%% A panel in position while the task holds no product (restarted, or idle): its frame
+%% (the nest empty) or a robot's panel is emptied (emptying). Whose a whole panel is
+%% ({@link router_task:fixture/1}) follows only the records whose product can lie there,
+%% each checked against the sensor that would see it elsewhere: the routing robot's
+%% product of this lane; the upper robot's while its gripper sensor sees no modules;
+%% the loading segment's once its stopper sensor sees no panel. A product the loading
+%% segment offers on the link to this fixture is then the panel lying here, arrived
+%% before a restart cut its hand-over off: the task takes it in through the hand-over
+%% as it lies (take; the loading segment, its stopper empty, lets go of it at once).
+%% Held by the loading segment but not offered, its record is still being settled (its
+%% question to the operator): the operator answers that first, then RETRY here
+%% (`fixture_unsettled').
+%%
+%% A whole panel in the fixture that no record holds would keep the fixture for ever:
+%% nobody routes it, and the segment waits for its nest to empty. The task asks the
+%% operator to take it out of the machine instead (the clamps open), and looks again at
+%% RETRY (`unheld'). A panel the operator's Reset made the cell forget while it lay in
+%% the fixture ends so, whatever the robots carry elsewhere meanwhile.
 -module(router_work_task).
 -behaviour(cell_task).
 
