@@ -1188,3 +1188,37 @@ env_str(Name, Default) ->
         "" -> Default;
         Text -> Text
     end.
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% The double holding answered from the machine: the holder whose station has the panel
+%% keeps it, the other is reset; neither station: both reset.
+held_twice_test_() ->
+    World = fun(Work, Loading, Gripper) ->
+                    #{upstream => #{front => []}, loading => #{front => Loading},
+                      work => #{front => Work}, unloading => #{front => empty},
+                      gripper => Gripper}
+            end,
+    Ask = fun(Task, W, Held) -> at_the_machine(#{local_id => <<"held_twice">>, task => Task},
+                                               W, Held) end,
+    P = <<"P1">>,
+    Both = [{P, loading_front}, {P, work_front}],
+    InFixture = World({P, full}, empty, empty),
+    AtStop = World(empty, {P, stop}, empty),
+    [?_assertEqual(keep, Ask(work_front, InFixture, Both)),
+     ?_assertEqual([reset], Ask(loading_front, InFixture, Both)),
+     ?_assertEqual(keep, Ask(loading_front, AtStop, Both)),
+     ?_assertEqual([reset], Ask(work_front, AtStop, Both)),
+     %% Only its frame in the fixture, the modules in the gripper: the upper robot's.
+     ?_assertEqual(keep, Ask(upper, World({P, frame}, empty, P), [{P, work_front}, {P, upper}])),
+     ?_assertEqual([reset], Ask(work_front, World({P, frame}, empty, P),
+                                [{P, work_front}, {P, upper}])),
+     %% In the fixture held by the work segment and the routing robot: downstream keeps.
+     ?_assertEqual(keep, Ask(lower, InFixture, [{P, work_front}, {P, lower}])),
+     ?_assertEqual([reset], Ask(work_front, InFixture, [{P, work_front}, {P, lower}])),
+     %% Not in the machine: Reset on each.
+     ?_assertEqual([reset], Ask(work_front, World(empty, empty, empty), Both)),
+     ?_assertEqual([reset], Ask(loading_front, World(empty, empty, empty), Both))].
+
+-endif.
