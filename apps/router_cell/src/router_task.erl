@@ -226,13 +226,15 @@ unheld(Lane, Takers, Others) ->
 %% ({@link cell_task:others_products/1}); which task is the lane's loading segment;
 %% whether that segment's stopper sensor sees a panel; the serial the loading segment
 %% offers on the link to the fixture now (`none'); whether the upper robot's gripper
-%% sensor sees modules.
+%% sensor sees modules, and whether it is away from this lane's module nest (its last
+%% move, to another place, done).
 -type fixture_facts() :: #{lane := front | rear,
                            others := [{atom(), cell_product:product()}],
                            loading := atom(),
                            stopper := boolean(),
                            offered := binary() | none,
-                           gripper := boolean()}.
+                           gripper := boolean(),
+                           upper_away := boolean()}.
 %% Whose that panel is: a robot's that took charge of it where it lies; the one the
 %% loading segment offers, arrived ahead of its hand-over (`arrived'); the one the
 %% loading segment holds away from its stopper without offering it (its question to
@@ -246,9 +248,10 @@ unheld(Lane, Takers, Others) ->
 %%
 %% <ul>
 %% <li>the routing robot's product of this lane: it routes panels where they lie;</li>
-%% <li>the upper robot's product of this lane while its gripper sensor sees no modules:
-%%     it took charge of them in the nest and has not lifted them (or they stuck
-%%     there). With modules in its gripper, its product is in the gripper;</li>
+%% <li>the upper robot's product of this lane, unless its gripper sensor sees modules
+%%     and the robot is away from this nest (they left the nest as it left): it takes
+%%     charge of them in the nest and grips them there, and they may have stuck
+%%     there. While it moves, they may not have left yet;</li>
 %% <li>the loading segment's product of this lane, only once its stopper sensor sees no
 %%     panel: at the stopper it is on the loading segment, not here. Offered on the
 %%     link to the fixture, it is that panel, arrived before the hand-over ended (a
@@ -261,12 +264,13 @@ unheld(Lane, Takers, Others) ->
 %% this is not asked.
 -spec fixture(fixture_facts()) -> fixture().
 fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper,
-          offered := Offered, gripper := Gripper}) ->
+          offered := Offered, gripper := Gripper, upper_away := Away}) ->
     Of = fun(Task) -> [S || {T, #{serial := S} = P} <- Others, T =:= Task,
                             maps:get(lane, P, Lane) =:= Lane] end,
     %% A sensor that sees the product elsewhere rules its record out.
     Elsewhere = fun(true, _Task) -> []; (false, Task) -> Of(Task) end,
-    case {Of(lower), Elsewhere(Gripper, upper), Elsewhere(Stopper, Loading)} of
+    case {Of(lower), Elsewhere(Gripper andalso Away, upper),
+          Elsewhere(Stopper, Loading)} of
         {[_ | _], _, _} -> {robot, lower};
         {[], [_ | _], _} -> {robot, upper};
         {[], [], [S | _]} when S =:= Offered -> {arrived, S};
@@ -326,7 +330,8 @@ fixture_test_() ->
     P = fun(S, Lane) -> #{serial => S, recipe => <<"r">>, failed => false, lane => Lane} end,
     F = fun(Others, More) ->
                 fixture(maps:merge(#{lane => front, others => Others, loading => loading_front,
-                                     stopper => false, offered => none, gripper => false},
+                                     stopper => false, offered => none, gripper => false,
+                                     upper_away => false},
                                    More))
         end,
     [%% Nobody holds anything: in no record.
@@ -336,10 +341,14 @@ fixture_test_() ->
      ?_assertEqual({robot, lower}, F([{lower, P(<<"P1">>, front)}], #{})),
      ?_assertEqual(unheld, F([{lower, P(<<"P1">>, rear)}], #{})),
      ?_assertEqual({robot, lower}, F([{lower, maps:remove(lane, P(<<"P1">>, rear))}], #{})),
-     %% The upper robot: its product is in the nest while its gripper sees nothing, in
-     %% the gripper when it sees modules.
+     %% The upper robot: its product is in the nest while its gripper sees nothing, or
+     %% gripped there, or on its way out; in the gripper once the robot is away with
+     %% modules in it.
      ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{})),
-     ?_assertEqual(unheld, F([{upper, P(<<"P1">>, front)}], #{gripper => true})),
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{upper_away => true})),
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{gripper => true})),
+     ?_assertEqual(unheld, F([{upper, P(<<"P1">>, front)}],
+                             #{gripper => true, upper_away => true})),
      ?_assertEqual(unheld, F([{upper, P(<<"P1">>, rear)}], #{})),
      %% The wedge: the loading segment holds and offers the panel, its stopper sees
      %% it: the panel in the fixture is another one, in no record, whatever the upper
@@ -348,13 +357,15 @@ fixture_test_() ->
                              #{stopper => true, offered => <<"P2">>})),
      ?_assertEqual(unheld, F([{loading_front, P(<<"P2">>, front)},
                               {upper, P(<<"P1">>, front)}],
-                             #{stopper => true, offered => <<"P2">>, gripper => true})),
+                             #{stopper => true, offered => <<"P2">>, gripper => true,
+                               upper_away => true})),
      %% Past its stopper and offered: it is the panel in the fixture, taken in.
      ?_assertEqual({arrived, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}],
                                           #{offered => <<"P2">>})),
      ?_assertEqual({arrived, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)},
                                            {upper, P(<<"P1">>, front)}],
-                                          #{offered => <<"P2">>, gripper => true})),
+                                          #{offered => <<"P2">>, gripper => true,
+                                            upper_away => true})),
      %% Past its stopper, not offered (or another serial offered): still being settled.
      ?_assertEqual({loading, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}], #{})),
      ?_assertEqual({loading, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}],

@@ -32,14 +32,16 @@
 %% (the nest empty) or a robot's panel is emptied (emptying). Whose a whole panel is
 %% ({@link router_task:fixture/1}) follows only the records whose product can lie there,
 %% each checked against the sensor that would see it elsewhere: the routing robot's
-%% product of this lane; the upper robot's while its gripper sensor sees no modules;
+%% product of this lane; the upper robot's unless its gripper sensor sees modules and
+%% it is away from this nest (its move elsewhere done);
 %% the loading segment's once its stopper sensor sees no panel. A product the loading
 %% segment offers on the link to this fixture is then the panel lying here, arrived
 %% before a restart cut its hand-over off: the task takes it in through the hand-over
 %% as it lies (take; the loading segment, its stopper empty, lets go of it at once).
-%% Held by the loading segment but not offered, its record is still being settled (its
-%% question to the operator): the operator answers that first, then RETRY here
-%% (`fixture_unsettled').
+%% Held by the loading segment but not offered, its record is still being settled (a
+%% restart, its question to the operator): the task waits a transfer time for the
+%% offer (idle), then asks the operator to answer the loading segment's question
+%% first, then RETRY here (`fixture_unsettled').
 %%
 %% A whole panel in the fixture that no record holds would keep the fixture for ever:
 %% nobody routes it, and the segment waits for its nest to empty. The task asks the
@@ -69,8 +71,11 @@ reconcile(_Held, T2) ->
                     {ok, phase(cell_task:out(T2, clamp, true), emptying)};
                 {arrived, S} ->
                     {ok, arrived(T2, S)};
-                Other ->
-                    not_known(Other, T2)
+                {loading, _S} ->
+                    %% The idle step gives the loading segment a moment to offer it.
+                    {ok, phase(T2, idle)};
+                unheld ->
+                    unheld_error(T2)
             end;
         {undefined, false} ->
             {ok, phase(T2, idle)};
@@ -89,13 +94,14 @@ step(T) ->
     step(router_task:phase(T), cell_task:woken_by(T), T).
 
 %% -- empty: take a panel from the loading segment ------------------------------------
-step(idle, _Woken, T) ->
+step(idle, Woken, T) ->
     case cell_task:in(T, panel_in_position) andalso in_fixture(T) of
         false -> {continue, phase(T, take)};
         {arrived, S} -> {continue, arrived(T, S)};
         Robot when Robot =:= frame; element(1, Robot) =:= robot ->
             {continue, phase(T, emptying)};
-        Other -> not_known(Other, T)
+        {loading, S} -> loading_holds(Woken, S, T);
+        unheld -> unheld_error(T)
     end;
 step(take, _Woken, T) ->
     %% Phase 2: both belts run.
@@ -177,9 +183,12 @@ step(in_transit, _Woken, T) ->
 %% whose the whole panel is by the records that can explain it there and the sensors
 %% that rule them out (router_task:fixture/1).
 in_fixture(T) ->
+    %% The robots' sensors read before the nest's: modules that left the nest with a
+    %% move now done show in the nest sensor by then.
+    Facts = fixture_facts(T),
     case cell_task:in(T, nest_empty) of
         true -> frame;
-        false -> router_task:fixture(fixture_facts(T))
+        false -> router_task:fixture(Facts)
     end.
 
 fixture_facts(T) ->
@@ -192,7 +201,9 @@ fixture_facts(T) ->
       loading => router_cell:task(loading, Lane),
       stopper => cell_task:in(T, router_cell:group(loading, Lane), panel_at_stop),
       offered => Offered,
-      gripper => cell_task:in(T, upper_io, product_present)}.
+      gripper => cell_task:in(T, upper_io, product_present),
+      upper_away => cell_task:in(T, upper_io, target) =/= router_upper_io:position(nest, Lane)
+          andalso cell_task:in(T, upper_io, done) =:= cell_task:in(T, upper_io, command)}.
 
 %% The panel the loading segment offers lies here already (a restart cut its
 %% hand-over off after it arrived): taken in through the hand-over as it lies; the
@@ -202,11 +213,19 @@ arrived(T, S) ->
                   "already: taken in as it lies", [S]),
     phase(T, take).
 
-not_known(unheld, T) ->
-    unheld_error(T);
-not_known({loading, S}, T) ->
-    %% The loading segment's record of it is still being settled (its question to the
-    %% operator): RETRY looks again once it is.
+%% The loading segment holds it past its stopper without offering it: its record is
+%% being settled (a restart, its question to the operator). It has a transfer time to
+%% offer it; then the operator is asked, and RETRY waits for the offer again.
+loading_holds({timer, _}, S, T) ->
+    not_offered(S, T);
+loading_holds({handshake, _Prev, available, true}, S, T) ->
+    %% Offered, but not that product.
+    not_offered(S, T);
+loading_holds(_Woken, _S, T) ->
+    {wait, [{handshake, prev(T), available, true},
+            router_task:watchdog(T, transfer_timeout_ms, 10000)], T}.
+
+not_offered(S, T) ->
     {error, cell_task:error_spec(
               <<"fixture_unsettled">>, "Panel in the fixture not offered",
               io_lib:format("A panel lies in the work fixture of lane ~ts. Records say panel "
