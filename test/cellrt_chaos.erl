@@ -978,6 +978,18 @@ schedule(#{id := Id} = Alarm, #{answered := Done} = A) ->
             A1#{answered := Done#{Key => true}}
     end.
 
+answer(#{local_id := <<"held_twice">>, id := Id} = Alarm, A) ->
+    %% Reset where the machine does not have it; where it does, this error goes with
+    %% the other holder's Reset, and is looked at again meanwhile (the physics
+    %% restarting, or the panel moving on, may change the answer).
+    case try at_the_machine(Alarm, router_sim:world(), held()) catch exit:_ -> keep end of
+        keep ->
+            _ = [erlang:send_after(500, self(), {answer, Alarm})
+                 || #{id := I} <- cell_alarms:list(), I =:= Id],
+            A;
+        Choices ->
+            try_answer(Alarm, Choices, again, A)
+    end;
 answer(#{solutions := Offered} = Alarm, A) ->
     %% The operator looks at the machine first (and takes out by hand a panel that no
     %% record holds), then answers among the answers true for it.
@@ -1060,8 +1072,31 @@ try_answer(#{id := Id, caption := Caption} = Alarm, Choices, Then, #{harness := 
 %% <li>A product at a station that no record holds (`unheld': a panel in a work
 %%   fixture, modules on an unloading conveyor or in the gripper): taken out by hand,
 %%   then Retry.</li>
+%% <li>A product held by two tasks (`held_twice', Reset the only answer: that task
+%%   forgets it, the other keeps it): `keep' (no answer) on the holder whose station
+%%   physically has it, Reset on the others; where two holders' stations have it (a
+%%   panel in a work fixture the routing robot holds too, say), the one furthest down
+%%   the line keeps it, as a hand-over writes the newer record downstream. In no
+%%   holder's station, Reset on each.</li>
 %% </ul>
--spec at_the_machine(map(), map(), [{binary(), atom()}]) -> [cell_alarms:solution()] | any.
+-spec at_the_machine(map(), map(), [{binary(), atom()}]) ->
+          [cell_alarms:solution()] | any | keep.
+at_the_machine(#{local_id := <<"held_twice">>, task := Task}, World, Held) ->
+    Serial = case [S || {S, T} <- Held, T =:= Task] of
+                 [S | _] -> S;
+                 [] -> undefined
+             end,
+    Holders = [T || {S, T} <- Held, S =:= Serial],
+    At = [T || {S, {machine, Place}} <- places(World), S =:= Serial,
+               T <- station_tasks(Place), lists:member(T, Holders)],
+    Keeper = case lists:sort(fun(X, Y) -> down_the_line(X) =< down_the_line(Y) end, At) of
+                 [] -> none;
+                 Sorted -> lists:last(Sorted)
+             end,
+    case Keeper of
+        Task -> keep;
+        _ -> [reset]
+    end;
 at_the_machine(#{local_id := Local, task := Task}, World, Held) ->
     Serial = case [S || {S, T} <- Held, T =:= Task] of
                  [S | _] -> S;
@@ -1088,6 +1123,21 @@ at_the_machine(#{local_id := Local, task := Task}, World, Held) ->
         _ ->
             any
     end.
+
+%% The tasks that may hold a product lying at a place of the machine: in a work
+%% fixture, the routing robot routes it where it lies and the upper robot takes charge
+%% of its modules there before it lifts them.
+station_tasks({loading, front}) -> [loading_front];
+station_tasks({loading, rear}) -> [loading_rear];
+station_tasks({work, front}) -> [work_front, lower, upper];
+station_tasks({work, rear}) -> [work_rear, lower, upper];
+station_tasks({unloading, front}) -> [unloading_front];
+station_tasks({unloading, rear}) -> [unloading_rear];
+station_tasks(gripper) -> [upper].
+
+down_the_line(Task) ->
+    maps:get(Task, #{loading_front => 1, loading_rear => 1, work_front => 2, work_rear => 2,
+                     lower => 3, upper => 4, unloading_front => 5, unloading_rear => 5}).
 
 upper_truth(Local, S, #{gripper := G} = W) ->
     In = fun(Where, Pos) -> [x || {S1, P} <- maps:values(maps:get(Where, W)), S1 =:= S,
@@ -1202,3 +1252,37 @@ env_str(Name, Default) ->
         "" -> Default;
         Text -> Text
     end.
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% The double holding answered from the machine: the holder whose station has the panel
+%% keeps it, the other is reset; neither station: both reset.
+held_twice_test_() ->
+    World = fun(Work, Loading, Gripper) ->
+                    #{upstream => #{front => []}, loading => #{front => Loading},
+                      work => #{front => Work}, unloading => #{front => empty},
+                      gripper => Gripper}
+            end,
+    Ask = fun(Task, W, Held) -> at_the_machine(#{local_id => <<"held_twice">>, task => Task},
+                                               W, Held) end,
+    P = <<"P1">>,
+    Both = [{P, loading_front}, {P, work_front}],
+    InFixture = World({P, full}, empty, empty),
+    AtStop = World(empty, {P, stop}, empty),
+    [?_assertEqual(keep, Ask(work_front, InFixture, Both)),
+     ?_assertEqual([reset], Ask(loading_front, InFixture, Both)),
+     ?_assertEqual(keep, Ask(loading_front, AtStop, Both)),
+     ?_assertEqual([reset], Ask(work_front, AtStop, Both)),
+     %% Only its frame in the fixture, the modules in the gripper: the upper robot's.
+     ?_assertEqual(keep, Ask(upper, World({P, frame}, empty, P), [{P, work_front}, {P, upper}])),
+     ?_assertEqual([reset], Ask(work_front, World({P, frame}, empty, P),
+                                [{P, work_front}, {P, upper}])),
+     %% In the fixture held by the work segment and the routing robot: downstream keeps.
+     ?_assertEqual(keep, Ask(lower, InFixture, [{P, work_front}, {P, lower}])),
+     ?_assertEqual([reset], Ask(work_front, InFixture, [{P, work_front}, {P, lower}])),
+     %% Not in the machine: Reset on each.
+     ?_assertEqual([reset], Ask(work_front, World(empty, empty, empty), Both)),
+     ?_assertEqual([reset], Ask(loading_front, World(empty, empty, empty), Both))].
+
+-endif.

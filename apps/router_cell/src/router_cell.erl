@@ -23,7 +23,7 @@
 %% the next boot of the cell.
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, machine_settings/0,
+-export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, machine_settings/0,
          router_settings/0, is_configured/0]).
 
 -define(CONN, router_plc).
@@ -42,8 +42,11 @@ cell_spec(Machine, Router) ->
                 lane => <<"Shared">>, io => [lower_io], settings => router,
                 args => #{prevs => [link(work_route, L) || L <- Lanes], next => route_pick}},
               #{id => upper, module => router_upper_task, zone => <<"Upper robot">>,
-                %% The module nests' sensors read too: after a Reset it empties them.
-                lane => <<"Shared">>, io => [upper_io | [group(work, L) || L <- Lanes]],
+                %% The module nests' sensors read too: after a Reset it empties them;
+                %% and the unloading conveyors', to tell whose modules in its gripper
+                %% that it holds no record of are.
+                lane => <<"Shared">>,
+                io => [upper_io | [group(K, L) || K <- [work, unloading], L <- Lanes]],
                 settings => router,
                 args => #{prev => route_pick,
                           nexts => maps:from_list([{L, link(pick_unload, L)} || L <- Lanes])}}],
@@ -65,10 +68,13 @@ lane_tasks(L) ->
        lane => Lane, io => [group(loading, L)], settings => router,
        args => #{lane => L, next => link(load_work, L)}},
      #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
-       io => [group(work, L)], settings => router,
+       %% The loading stopper's and the gripper's sensors read too: they tell whose a
+       %% panel in the fixture that the segment holds no record of is.
+       io => [group(work, L), group(loading, L), upper_io], settings => router,
        args => #{lane => L, prev => link(load_work, L), next => link(work_route, L)}},
      #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
-       lane => Lane, io => [group(unloading, L)], settings => router,
+       %% The gripper's sensor read too: modules in it are not on this conveyor.
+       lane => Lane, io => [group(unloading, L), upper_io], settings => router,
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
@@ -116,6 +122,8 @@ module(loading) -> router_loading_io;
 module(work) -> router_work_io;
 module(unloading) -> router_unloading_io.
 
+%% @doc The device task of a lane's segment.
+-spec task(loading | work | unloading, front | rear) -> atom().
 task(loading, front) -> loading_front;
 task(loading, rear) -> loading_rear;
 task(work, front) -> work_front;

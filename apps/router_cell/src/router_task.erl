@@ -15,9 +15,9 @@
 -export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3,
          interrupted/4, lane/1]).
 -export([take/3, take/4, offered/3, finish/4, finish/5, finish/6]).
--export([unheld/3, unheld_error/4]).
+-export([unheld/3, unheld_anywhere/2, unheld_error/4, fixture/1]).
 
--export_type([located/0]).
+-export_type([located/0, fixture_facts/0, fixture/0]).
 
 %% Whether the task's own sensors show the product of an interrupted transfer at its
 %% station (see interrupted/4).
@@ -221,6 +221,69 @@ unheld(Lane, Takers, Others) ->
     [x || {Task, P} <- Others, lists:member(Task, Takers),
           maps:get(lane, P, Lane) =:= Lane] =:= [].
 
+%% What the work segment knows when a whole panel lies in its fixture (its module nest
+%% full) and it holds no product itself: its lane; what the other tasks hold
+%% ({@link cell_task:others_products/1}); which task is the lane's loading segment;
+%% whether that segment's stopper sensor sees a panel; the serial the loading segment
+%% offers on the link to the fixture now (`none'); whether the upper robot's gripper
+%% sensor sees modules, and whether it is away from this lane's module nest (its last
+%% move, to another place, done).
+-type fixture_facts() :: #{lane := front | rear,
+                           others := [{atom(), cell_product:product()}],
+                           loading := atom(),
+                           stopper := boolean(),
+                           offered := binary() | none,
+                           gripper := boolean(),
+                           upper_away := boolean()}.
+%% Whose that panel is: a robot's that took charge of it where it lies; the one the
+%% loading segment offers, arrived ahead of its hand-over (`arrived'); the one the
+%% loading segment holds away from its stopper without offering it (its question to
+%% the operator pending, say); or nobody's (`unheld').
+-type fixture() :: {robot, lower | upper} | {arrived, binary()} | {loading, binary()} |
+                   unheld.
+
+%% @doc Whose the whole panel in a work fixture is, when the work segment holds none
+%% (see `fixture_facts()'). A record explains the panel only where that record's
+%% product physically can be in the fixture:
+%%
+%% <ul>
+%% <li>the routing robot's product of this lane: it routes panels where they lie;</li>
+%% <li>the upper robot's product of this lane, unless its gripper sensor sees modules
+%%     and the robot is away from this nest (they left the nest as it left): it takes
+%%     charge of them in the nest and grips them there, and they may have stuck
+%%     there. While it moves, they may not have left yet;</li>
+%% <li>the loading segment's product of this lane, only once its stopper sensor sees no
+%%     panel: at the stopper it is on the loading segment, not here. Offered on the
+%%     link to the fixture, it is that panel, arrived before the hand-over ended (a
+%%     restart cut it off): the work segment takes it in through the hand-over, as it
+%%     lies. Held without an offer, the loading segment's record is still being
+%%     settled.</li>
+%% </ul>
+%%
+%% In the normal hand-over the work segment holds the product from its commit on, so
+%% this is not asked.
+-spec fixture(fixture_facts()) -> fixture().
+fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper,
+          offered := Offered, gripper := Gripper, upper_away := Away}) ->
+    Of = fun(Task) -> [S || {T, #{serial := S} = P} <- Others, T =:= Task,
+                            maps:get(lane, P, Lane) =:= Lane] end,
+    %% A sensor that sees the product elsewhere rules its record out.
+    Elsewhere = fun(true, _Task) -> []; (false, Task) -> Of(Task) end,
+    case {Of(lower), Elsewhere(Gripper andalso Away, upper),
+          Elsewhere(Stopper, Loading)} of
+        {[_ | _], _, _} -> {robot, lower};
+        {[], [_ | _], _} -> {robot, upper};
+        {[], [], [S | _]} when S =:= Offered -> {arrived, S};
+        {[], [], [S | _]} -> {loading, S};
+        {[], [], []} -> unheld
+    end.
+
+%% @doc As {@link unheld/3}, for a station any lane's products may reach (the upper
+%% robot's gripper): none of the tasks `Takers' holds a product.
+-spec unheld_anywhere([atom()], [{atom(), cell_product:product()}]) -> boolean().
+unheld_anywhere(Takers, Others) ->
+    [x || {Task, _P} <- Others, lists:member(Task, Takers)] =:= [].
+
 %% @doc The operator's error for it: `Where' says what lies where ("a panel lies in the
 %% work fixture of lane front"); the operator takes it out of the machine and selects
 %% RETRY, and the task looks again.
@@ -254,6 +317,63 @@ unheld_test_() ->
      ?_assert(unheld(front, [lower, upper], [{lower, P(rear)}])),
      ?_assert(unheld(front, [lower, upper], [{loading_front, P(front)}])),
      %% A product without a lane may be of any lane.
-     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}]))].
+     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}])),
+     %% A taker whose sensor sees its product elsewhere is left out by the caller: its
+     %% record explains nothing here.
+     ?_assert(unheld(front, [], [{upper, P(front)}])),
+     %% Anywhere: any lane's product of a taker.
+     ?_assertNot(unheld_anywhere([unloading_rear], [{unloading_rear, P(rear)}])),
+     ?_assert(unheld_anywhere([unloading_rear], [{unloading_front, P(front)}])),
+     ?_assert(unheld_anywhere([], [{unloading_front, P(front)}]))].
+
+fixture_test_() ->
+    P = fun(S, Lane) -> #{serial => S, recipe => <<"r">>, failed => false, lane => Lane} end,
+    F = fun(Others, More) ->
+                fixture(maps:merge(#{lane => front, others => Others, loading => loading_front,
+                                     stopper => false, offered => none, gripper => false,
+                                     upper_away => false},
+                                   More))
+        end,
+    [%% Nobody holds anything: in no record.
+     ?_assertEqual(unheld, F([], #{})),
+     %% The routing robot routes panels of its lane where they lie; of the other lane
+     %% it does not explain this one.
+     ?_assertEqual({robot, lower}, F([{lower, P(<<"P1">>, front)}], #{})),
+     ?_assertEqual(unheld, F([{lower, P(<<"P1">>, rear)}], #{})),
+     ?_assertEqual({robot, lower}, F([{lower, maps:remove(lane, P(<<"P1">>, rear))}], #{})),
+     %% The upper robot: its product is in the nest while its gripper sees nothing, or
+     %% gripped there, or on its way out; in the gripper once the robot is away with
+     %% modules in it.
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{})),
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{upper_away => true})),
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}], #{gripper => true})),
+     ?_assertEqual(unheld, F([{upper, P(<<"P1">>, front)}],
+                             #{gripper => true, upper_away => true})),
+     ?_assertEqual(unheld, F([{upper, P(<<"P1">>, rear)}], #{})),
+     %% The wedge: the loading segment holds and offers the panel, its stopper sees
+     %% it: the panel in the fixture is another one, in no record, whatever the upper
+     %% robot carries in its gripper.
+     ?_assertEqual(unheld, F([{loading_front, P(<<"P2">>, front)}],
+                             #{stopper => true, offered => <<"P2">>})),
+     ?_assertEqual(unheld, F([{loading_front, P(<<"P2">>, front)},
+                              {upper, P(<<"P1">>, front)}],
+                             #{stopper => true, offered => <<"P2">>, gripper => true,
+                               upper_away => true})),
+     %% Past its stopper and offered: it is the panel in the fixture, taken in.
+     ?_assertEqual({arrived, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}],
+                                          #{offered => <<"P2">>})),
+     ?_assertEqual({arrived, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)},
+                                           {upper, P(<<"P1">>, front)}],
+                                          #{offered => <<"P2">>, gripper => true,
+                                            upper_away => true})),
+     %% Past its stopper, not offered (or another serial offered): still being settled.
+     ?_assertEqual({loading, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}], #{})),
+     ?_assertEqual({loading, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}],
+                                          #{offered => <<"P3">>})),
+     %% Another lane's loading segment, or its product of the other lane: no record here.
+     ?_assertEqual(unheld, F([{loading_rear, P(<<"P2">>, front)}], #{offered => <<"P2">>})),
+     ?_assertEqual(unheld, F([{loading_front, P(<<"P2">>, rear)}], #{offered => <<"P2">>})),
+     %% The stopper sees a panel the loading segment does not hold: no record here.
+     ?_assertEqual(unheld, F([], #{stopper => true}))].
 
 -endif.

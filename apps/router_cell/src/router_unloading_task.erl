@@ -24,8 +24,8 @@
 %% elsewhere they are conveyed (landing).
 %%
 %% Modules at the entry or the exit that no record holds (this task holds no product,
-%% nor does the upper robot one of this lane, as after a hand-out cut off once it let
-%% go) would be handed out as the next product, or have the next ones dropped on them:
+%% nor does the upper robot one of this lane with its gripper empty, as after a
+%% hand-out cut off once it let go) would be handed out as the next product, or have the next ones dropped on them:
 %% restarted, or idle, the task asks the operator to take them out of the machine
 %% (`unheld') and looks again at RETRY.
 -module(router_unloading_task).
@@ -160,11 +160,14 @@ watch(T, Phase, Point, Value) ->
 prev(T) -> cell_task:arg(T, prev, undefined).
 
 %% Modules seen at the entry or the exit while the task holds no product and the upper
-%% robot holds none of this lane.
+%% robot holds none of this lane that can lie here: with modules in its gripper (its
+%% sensor sees them), its product is there, not on this conveyor.
 unheld_here(T) ->
     cell_task:product(T) =:= undefined
         andalso (cell_task:in(T, panel_at_entry) orelse cell_task:in(T, panel_at_exit))
-        andalso router_task:unheld(router_task:lane(T), [upper], cell_task:others_products(T)).
+        andalso router_task:unheld(router_task:lane(T),
+                                   [upper || not cell_task:in(T, upper_io, product_present)],
+                                   cell_task:others_products(T)).
 
 unheld_error(T) ->
     router_task:unheld_error(T, "Modules on the unloading conveyor unknown",

@@ -134,12 +134,19 @@ step(T) ->
     step(router_task:phase(T), cell_task:woken_by(T), T).
 
 %% Modules in the gripper while the task holds no product and no unloading segment holds
-%% one (one it took in from the gripper, its transfer cut off before the gripper opened).
+%% one that can be in the gripper (one it took in from the gripper, its transfer cut off
+%% before the gripper opened): with modules on its conveyor (its sensors see them), an
+%% unloading segment's product is there, not in the gripper.
 unheld_here(T) ->
-    Others = cell_task:others_products(T),
-    Unloading = [Id || {Id, _} <- Others, lists:member(Id, [unloading_front, unloading_rear])],
     cell_task:product(T) =:= undefined andalso cell_task:in(T, product_present)
-        andalso Unloading =:= [].
+        andalso router_task:unheld_anywhere(
+                  [router_cell:task(unloading, L) || L <- maps:keys(cell_task:arg(T, nexts, #{})),
+                                                     not on_conveyor(T, L)],
+                  cell_task:others_products(T)).
+
+on_conveyor(T, Lane) ->
+    Group = router_cell:group(unloading, Lane),
+    cell_task:in(T, Group, panel_at_entry) orelse cell_task:in(T, Group, panel_at_exit).
 
 %% -- empty: take the routed modules ------------------------------------------------------
 step(idle, _Woken, T) ->

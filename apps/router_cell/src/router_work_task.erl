@@ -5,7 +5,8 @@
 %%
 %% <pre>
 %%  phase      waits for                                    then
-%%  idle       the fixture free (no panel in position)     → take
+%%  idle       the fixture free (no panel in position)     → take; a panel in position: see
+%%                                                          below
 %%  take       the loading segment's offer (STARVED)        commit (phase 2), belt on → moving_in
 %%  moving_in  the panel off the loading segment            → arriving
 %%             (Available off, phase 3)
@@ -25,15 +26,28 @@
 %%
 %% Restarted (reconcile), the fixture's sensor decides: with a product, arriving (the
 %% panel seen in position is completed and clamped; not yet there, the belt brings it);
-%% without one, a panel in position is the routing robot's or its frame (emptying),
-%% none is idle.
+%% without one, a panel in position is decided as below; none is idle.
 %%
-%% A whole panel in the fixture (its module nest full) that no record holds (this task
-%% holds no product, and neither robot holds one of this lane) would keep the fixture
-%% for ever: nobody routes it, and the segment waits for its nest to empty. Restarted,
-%% or idle with a panel in position, the task asks the operator to take it out of the
-%% machine instead (the clamps open), and looks again at RETRY (`unheld'). A panel
-%% the operator's Reset made the cell forget while it lay in the fixture ends so.
+%% A panel in position while the task holds no product (restarted, or idle): its frame
+%% (the nest empty) or a robot's panel is emptied (emptying). Whose a whole panel is
+%% ({@link router_task:fixture/1}) follows only the records whose product can lie there,
+%% each checked against the sensor that would see it elsewhere: the routing robot's
+%% product of this lane; the upper robot's unless its gripper sensor sees modules and
+%% it is away from this nest (its move elsewhere done);
+%% the loading segment's once its stopper sensor sees no panel. A product the loading
+%% segment offers on the link to this fixture is then the panel lying here, arrived
+%% before a restart cut its hand-over off: the task takes it in through the hand-over
+%% as it lies (take; the loading segment, its stopper empty, lets go of it at once).
+%% Held by the loading segment but not offered, its record is still being settled (a
+%% restart, its question to the operator): the task waits a transfer time for the
+%% offer (idle), then asks the operator to answer the loading segment's question
+%% first, then RETRY here (`fixture_unsettled').
+%%
+%% A whole panel in the fixture that no record holds would keep the fixture for ever:
+%% nobody routes it, and the segment waits for its nest to empty. The task asks the
+%% operator to take it out of the machine instead (the clamps open), and looks again at
+%% RETRY (`unheld'). A panel the operator's Reset made the cell forget while it lay in
+%% the fixture ends so, whatever the robots carry elsewhere meanwhile.
 -module(router_work_task).
 -behaviour(cell_task).
 
@@ -50,13 +64,18 @@ init(T0) ->
 reconcile(_Held, T2) ->
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
-            case unheld_here(T2) of
-                true ->
-                    unheld_error(T2);
-                false ->
-                    %% A panel the routing robot has, or its frame: the clamps hold it
-                    %% until the modules are out.
-                    {ok, phase(cell_task:out(T2, clamp, true), emptying)}
+            case in_fixture(T2) of
+                Robot when Robot =:= frame; element(1, Robot) =:= robot ->
+                    %% A panel a robot has, or its frame: the clamps hold it until the
+                    %% modules are out.
+                    {ok, phase(cell_task:out(T2, clamp, true), emptying)};
+                {arrived, S} ->
+                    {ok, arrived(T2, S)};
+                {loading, _S} ->
+                    %% The idle step gives the loading segment a moment to offer it.
+                    {ok, phase(T2, idle)};
+                unheld ->
+                    unheld_error(T2)
             end;
         {undefined, false} ->
             {ok, phase(T2, idle)};
@@ -75,11 +94,14 @@ step(T) ->
     step(router_task:phase(T), cell_task:woken_by(T), T).
 
 %% -- empty: take a panel from the loading segment ------------------------------------
-step(idle, _Woken, T) ->
-    case {cell_task:in(T, panel_in_position), unheld_here(T)} of
-        {false, _} -> {continue, phase(T, take)};
-        {true, true} -> unheld_error(T);
-        {true, false} -> {continue, phase(T, emptying)}
+step(idle, Woken, T) ->
+    case cell_task:in(T, panel_in_position) andalso in_fixture(T) of
+        false -> {continue, phase(T, take)};
+        {arrived, S} -> {continue, arrived(T, S)};
+        Robot when Robot =:= frame; element(1, Robot) =:= robot ->
+            {continue, phase(T, emptying)};
+        {loading, S} -> loading_holds(Woken, S, T);
+        unheld -> unheld_error(T)
     end;
 step(take, _Woken, T) ->
     %% Phase 2: both belts run.
@@ -157,13 +179,64 @@ step(in_transit, _Woken, T) ->
 
 %% -- a panel in the fixture that no record holds ------------------------------------------
 
-%% A whole panel in the fixture (its module nest full) while the task holds no product
-%% and no robot holds one of this lane.
-unheld_here(T) ->
-    cell_task:product(T) =:= undefined andalso cell_task:in(T, panel_in_position)
-        andalso not cell_task:in(T, nest_empty)
-        andalso router_task:unheld(router_task:lane(T), [lower, upper],
-                                   cell_task:others_products(T)).
+%% A panel in position while the task holds no product: a frame (the nest empty), or
+%% whose the whole panel is by the records that can explain it there and the sensors
+%% that rule them out (router_task:fixture/1).
+in_fixture(T) ->
+    %% The robots' sensors read before the nest's: modules that left the nest with a
+    %% move now done show in the nest sensor by then.
+    Facts = fixture_facts(T),
+    case cell_task:in(T, nest_empty) of
+        true -> frame;
+        false -> router_task:fixture(Facts)
+    end.
+
+fixture_facts(T) ->
+    Lane = router_task:lane(T),
+    Offered = case cell_handshake:peek(T, prev(T)) of
+                  {ok, #{serial := S}} -> S;
+                  none -> none
+              end,
+    #{lane => Lane, others => cell_task:others_products(T),
+      loading => router_cell:task(loading, Lane),
+      stopper => cell_task:in(T, router_cell:group(loading, Lane), panel_at_stop),
+      offered => Offered,
+      gripper => cell_task:in(T, upper_io, product_present),
+      upper_away => cell_task:in(T, upper_io, target) =/= router_upper_io:position(nest, Lane)
+          andalso cell_task:in(T, upper_io, done) =:= cell_task:in(T, upper_io, command)}.
+
+%% The panel the loading segment offers lies here already (a restart cut its
+%% hand-over off after it arrived): taken in through the hand-over as it lies; the
+%% loading segment, its stopper empty, lets go of it at once.
+arrived(T, S) ->
+    cell_task:log(T, brief, "panel ~ts, offered by the loading conveyor, lies in the fixture "
+                  "already: taken in as it lies", [S]),
+    phase(T, take).
+
+%% The loading segment holds it past its stopper without offering it: its record is
+%% being settled (a restart, its question to the operator). It has a transfer time to
+%% offer it; then the operator is asked, and RETRY waits for the offer again.
+loading_holds({timer, _}, S, T) ->
+    not_offered(S, T);
+loading_holds({handshake, _Prev, available, true}, S, T) ->
+    %% Offered, but not that product.
+    not_offered(S, T);
+loading_holds(_Woken, _S, T) ->
+    {wait, [{handshake, prev(T), available, true},
+            router_task:watchdog(T, transfer_timeout_ms, 10000)], T}.
+
+not_offered(S, T) ->
+    {error, cell_task:error_spec(
+              <<"fixture_unsettled">>, "Panel in the fixture not offered",
+              io_lib:format("A panel lies in the work fixture of lane ~ts. Records say panel "
+                            "~ts is on the loading conveyor, whose stopper sensor sees no "
+                            "panel, and it is not offered to this segment.~nAnswer the "
+                            "loading conveyor's question first: IGNORE there if this panel "
+                            "is ~ts (it is handed over as it lies); if it is not, take it "
+                            "out of the machine. Then select RETRY.",
+                            [router_task:lane(T), S, S]),
+              [retry]),
+     phase(cell_task:out(T, belt_run, false), idle)}.
 
 %% The operator takes it out; the clamps open for the hand, the belt stays off. RETRY
 %% looks again (reconcile, or the idle step).

@@ -16,7 +16,8 @@
          unloading_killed_in_every_phase/1, every_task_killed_at_once/1,
          task_tree_restarted/1, unloading_killed_while_the_upper_puts_down/1,
          panel_forgotten_in_the_fixture/1, plc_killed_during_a_routing_move/1,
-         plc_killed_during_a_clamp_move/1]).
+         plc_killed_during_a_clamp_move/1, held_twice_answered_at_the_machine/1,
+         held_twice_answered_wrong_the_loading_offer_taken_in/1]).
 
 -define(DEADLINE_MS, 60000).
 %% How long the line may take to go on after its PLC was killed: a restart of the PLC,
@@ -29,7 +30,8 @@ all() ->
      loading_killed_in_every_phase, work_killed_in_every_phase,
      lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted,
      unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture,
-     plc_killed_during_a_routing_move, plc_killed_during_a_clamp_move].
+     plc_killed_during_a_routing_move, plc_killed_during_a_clamp_move,
+     held_twice_answered_at_the_machine, held_twice_answered_wrong_the_loading_offer_taken_in].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -252,6 +254,142 @@ after_plc_kill(Pid, Done, #{asked := Asked, due := Due} = S, Deadline) ->
         ct:fail({no_recovery_in_time, S, cell_controller:tasks(), cell_alarms:list(),
                  router_sim:world()})
     end.
+
+%% The wedge of a chaos run: a node kill left the panel in the work fixture held by the
+%% work segment and by the loading segment at once (a copy in the loading segment's
+%% file as new as the work segment's record). The cell's guard raises its error on
+%% both. The operator at the machine finds the panel in the work fixture: Reset on the
+%% loading segment's error, none on the work segment's (it goes with the other). The
+%% loading segment forgets it, the work segment goes on with it, and it leaves the
+%% cell.
+held_twice_answered_at_the_machine(_Config) ->
+    Serial = held_in_the_fixture_and_at_loading(),
+    {Asked, Refused} = settle_held_twice(Serial, loading_front, #{}),
+    ct:log("asked ~tp; refused ~tp", [Asked, Refused]),
+    ?assertEqual([], [A || A <- Asked, lists:member(A, [<<"unheld">>, <<"fixture_unsettled">>])]),
+    ok = stop_cell(),
+    ?assertEqual([delivered], [How || {S, How} <- maps:get(ledger, router_sim:world()),
+                                      S =:= Serial]),
+    assert_books_agree().
+
+%% The same double holding answered as the chaos run's operator did, who did not look:
+%% Reset on the work segment's error, though the panel lies in its fixture. The work
+%% segment holds nothing, a whole panel lies in position, and the loading segment
+%% holds that serial with its stopper empty. The work segment neither waits for its
+%% nest to empty nor asks for the panel to be taken out: it says the loading segment's
+%% record is still being settled; the loading segment's question ("Panel not at the
+%% stopper") answered IGNORE (it is past the stopper: handed over as it lies), the
+%% loading segment offers it, and the work segment, at RETRY, takes it in through the
+%% hand-over as it lies. The line moves again and the panel leaves the cell.
+held_twice_answered_wrong_the_loading_offer_taken_in(_Config) ->
+    Serial = held_in_the_fixture_and_at_loading(),
+    {Asked, Refused} = settle_held_twice(Serial, work_front, #{<<"where">> => ignore}),
+    ct:log("asked ~tp; refused ~tp", [Asked, Refused]),
+    ?assertEqual([], [A || A <- Asked, A =:= <<"unheld">>]),
+    ok = stop_cell(),
+    ?assertEqual([delivered], [How || {S, How} <- maps:get(ledger, router_sim:world()),
+                                      S =:= Serial]),
+    assert_books_agree().
+
+%% The line runs, then no panel arrives any more; the last panel is caught clamped in
+%% the work fixture while the loading segment is empty (the physics held still). The
+%% loading segment is killed while its supervisor waits, and comes back from a file
+%% holding that panel in a record as new as the work segment's, as a node kill can
+%% leave it; the physics goes on. Returns the serial.
+held_in_the_fixture_and_at_loading() ->
+    ok = cell_events:subscribe(?EVENTS ++ [alarm_cleared]),
+    ok = cell_controller:start(<<"suite">>),
+    ok = line_goes_on(1),
+    ok = cell_settings:put(router_sim, #{arrival_ms => 3600000}, <<"suite">>),
+    Work = cell_task_proc:whereis(work_front),
+    1 = erlang:trace(Work, true, [call, {tracer, self()}]),
+    Serial = last_clamping(Work, deadline()),
+    1 = erlang:trace(Work, false, [call]),
+    flush_trace(Work),
+    [{work_front, Gen}] = cell_registry:holders(Serial),
+    #{product := Product} = cell_task_proc:info(work_front),
+    ok = sys:suspend(cell_task_sup),
+    Loading = cell_task_proc:whereis(loading_front),
+    Ref = erlang:monitor(process, Loading),
+    exit(Loading, kill),
+    receive {'DOWN', Ref, process, Loading, _} -> ok
+    after ?DEADLINE_MS -> ct:fail(loading_not_killed)
+    end,
+    ok = cell_product:save(cell_product:path(<<"Loading">>, <<"Front">>),
+                           cell_product:stored(Product, Gen, undefined)),
+    ok = sys:resume(cell_task_sup),
+    ok = sys:resume(router_sim),
+    ct:log("~ts in the work fixture, held by the work segment and copied to the loading "
+           "segment (generation ~b)", [Serial, Gen]),
+    Serial.
+
+%% The work segment enters clamping with a panel while none waits upstream and the
+%% loading segment is empty: the physics is held there (the clamps do not close) and
+%% the panel's serial returned. A panel caught otherwise lets the physics go on.
+last_clamping(Work, Deadline) ->
+    ok = await_phase(Work, clamping, Deadline),
+    W = router_sim:world(),
+    Empty = maps:get(front, maps:get(upstream, W)) =:= []
+        andalso maps:get(front, maps:get(loading, W)) =:= empty,
+    ok = sys:suspend(router_sim),
+    case {Empty, cell_task_proc:info(work_front), serial(loading_front)} of
+        {true, #{phase := clamping, product := #{serial := S}}, undefined} ->
+            S;
+        _ ->
+            ok = sys:resume(router_sim),
+            last_clamping(Work, Deadline)
+    end.
+
+%% Answers until the panel leaves the cell: the guard's error on `Reset' with Reset,
+%% on the other holder none (it goes with the first); the local ids in `Answers' so,
+%% the others as the suite's operator does. An answer refused (the double holding not
+%% settled yet) is given again once a record changed or an error went. Returns the
+%% local ids asked and those refused.
+settle_held_twice(Serial, Reset, Answers) ->
+    settle_held_twice(Serial, Reset, Answers, [], [], [], deadline()).
+
+settle_held_twice(Serial, Reset, Answers, Asked, Refused, Parked, Deadline) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := unloading_front, item := Serial}} ->
+            {lists:reverse(Asked), lists:reverse(Refused)};
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error} = A}} ->
+            #{local_id := L} = A,
+            case held_twice_answer(A, Reset, Answers) of
+                refused ->
+                    settle_held_twice(Serial, Reset, Answers, [L | Asked], [L | Refused],
+                                      [A | Parked], Deadline);
+                ok ->
+                    settle_held_twice(Serial, Reset, Answers, [L | Asked], Refused, Parked,
+                                      Deadline)
+            end;
+        {cell_event, #{type := Type}} when Type =:= product_saved; Type =:= alarm_cleared ->
+            Listed = [Id || #{id := Id} <- cell_alarms:list()],
+            Again = [A || #{id := Id} = A <- lists:reverse(Parked), lists:member(Id, Listed)],
+            Still = [A || A <- Again, held_twice_answer(A, Reset, Answers) =:= refused],
+            settle_held_twice(Serial, Reset, Answers, Asked, Refused, lists:reverse(Still),
+                              Deadline);
+        {cell_event, _} ->
+            settle_held_twice(Serial, Reset, Answers, Asked, Refused, Parked, Deadline)
+    after left(Deadline) ->
+        ct:fail({line_stuck, Serial, lists:reverse(Asked), cell_controller:tasks(),
+                 cell_alarms:list(), router_sim:world()})
+    end.
+
+held_twice_answer(#{local_id := <<"held_twice">>, task := Task, id := Id}, Reset, _Answers) ->
+    case Task of
+        Reset -> refused_or_ok(cell_alarms:answer(Id, reset, <<"suite">>));
+        _ -> ok
+    end;
+held_twice_answer(#{local_id := L, id := Id} = A, _Reset, Answers) ->
+    case maps:find(L, Answers) of
+        {ok, Solution} -> refused_or_ok(cell_alarms:answer(Id, Solution, <<"suite">>));
+        error -> refused_or_ok(cell_alarms:answer(Id, solution(L, maps:get(task, A), A),
+                                                  <<"suite">>))
+    end.
+
+refused_or_ok(ok) -> ok;
+refused_or_ok({error, not_found}) -> ok;
+refused_or_ok({error, {double_holding, _, _}}) -> refused.
 
 %% An error of one of these local ids raised by the task, the others answered meanwhile.
 await_alarm(Locals, Task, Deadline) ->
