@@ -1067,8 +1067,9 @@ try_answer(#{id := Id, caption := Caption} = Alarm, Choices, Then, #{harness := 
 %% <li>The upper robot's `where' and "Product lost" (`lost'): Retry when the modules are
 %%   in the gripper (or, asked where, back in the nest), Ignore when they lie on the
 %%   unloading conveyor, else Reset.</li>
-%% <li>Another task's `where': Ignore when the panel lies on the loading segment, else
-%%   Reset.</li>
+%% <li>Another task's `where': Ignore when the panel lies on the loading segment, or
+%%   whole in the lane's work fixture with no other task holding it (past the stopper),
+%%   else Reset.</li>
 %% <li>A product at a station that no record holds (`unheld': a panel in a work
 %%   fixture, modules on an unloading conveyor or in the gripper): taken out by hand,
 %%   then Retry.</li>
@@ -1113,9 +1114,10 @@ at_the_machine(#{local_id := Local, task := Task}, World, Held) ->
         _ when Task =:= upper, Local =:= <<"where">> orelse Local =:= <<"lost">> ->
             [upper_truth(Local, Serial, World)];
         <<"where">> ->
-            [case [x || {S, _} <- maps:values(maps:get(loading, World)), S =:= Serial] of
-                 [] -> reset;
-                 _ -> ignore
+            OnLoading = [x || {S, _} <- maps:values(maps:get(loading, World)), S =:= Serial],
+            [case OnLoading =/= [] orelse past_the_stopper(Task, Serial, World, Held) of
+                 false -> reset;
+                 true -> ignore
              end];
         <<"unheld">> ->
             ok = hand_out(Task, World, Held),
@@ -1138,6 +1140,17 @@ station_tasks(gripper) -> [upper].
 down_the_line(Task) ->
     maps:get(Task, #{loading_front => 1, loading_rear => 1, work_front => 2, work_rear => 2,
                      lower => 3, upper => 4, unloading_front => 5, unloading_rear => 5}).
+
+%% A loading segment's panel that lies whole in its lane's work fixture, no other task
+%% holding it: past the stopper, handed over as it lies (Ignore keeps it).
+past_the_stopper(Task, Serial, World, Held) ->
+    Lane = maps:get(Task, #{loading_front => front, loading_rear => rear}, none),
+    case maps:get(Lane, maps:get(work, World), empty) of
+        {Serial, Pos} when Pos =/= frame ->
+            [T || {S, T} <- Held, S =:= Serial, T =/= Task] =:= [];
+        _ ->
+            false
+    end.
 
 upper_truth(Local, S, #{gripper := G} = W) ->
     In = fun(Where, Pos) -> [x || {S1, P} <- maps:values(maps:get(Where, W)), S1 =:= S,
@@ -1284,5 +1297,24 @@ held_twice_test_() ->
      %% Not in the machine: Reset on each.
      ?_assertEqual([reset], Ask(work_front, World(empty, empty, empty), Both)),
      ?_assertEqual([reset], Ask(loading_front, World(empty, empty, empty), Both))].
+
+%% The loading segment's "where": Ignore while the panel is on the loading segment, or
+%% lies whole in the lane's work fixture with no other task holding it; else Reset.
+where_test_() ->
+    World = fun(Work, Loading) ->
+                    #{upstream => #{front => []}, loading => #{front => Loading},
+                      work => #{front => Work}, unloading => #{front => empty},
+                      gripper => empty}
+            end,
+    Ask = fun(W, Held) -> at_the_machine(#{local_id => <<"where">>, task => loading_front},
+                                         W, Held) end,
+    P = <<"P1">>,
+    Own = [{P, loading_front}],
+    [?_assertEqual([ignore], Ask(World(empty, {P, stop}), Own)),
+     ?_assertEqual([ignore], Ask(World({P, full}, empty), Own)),
+     ?_assertEqual([reset], Ask(World({P, full}, empty), [{P, work_front} | Own])),
+     ?_assertEqual([reset], Ask(World({P, frame}, empty), Own)),
+     ?_assertEqual([reset], Ask(World({<<"P2">>, full}, empty), Own)),
+     ?_assertEqual([reset], Ask(World(empty, empty), Own))].
 
 -endif.
