@@ -14,7 +14,7 @@ start(_Type, _Args) ->
             cell_log:notice(cell, "cellrt starting; cell root folder ~ts", [cell_config:root()]),
             _ = cell_file:cleanup(cell_config:dir(data)),
             %% Before anything else of the cell: whether the last run ended cleanly.
-            _ = cell_node_run:boot(),
+            Previous = cell_node_run:boot(),
             %% The database in Databases/ (statistics, traceability), started here
             %% where the application controller is free to start mnesia; if it cannot
             %% be, the statistics say why and try again (cell_stats).
@@ -22,6 +22,12 @@ start(_Type, _Args) ->
             %% Nothing of an earlier run of the application (a request, a stop after a
             %% fault) is taken for a restart inside this one.
             ok = cell_registry:new_run(),
+            %% A run that never reached its orderly stop (the power cut, the node
+            %% killed): the operator is told why the cell stands, until Start.
+            ok = case Previous of
+                     {unexpected, _} -> cell_registry:node_stopped();
+                     _ -> ok
+                 end,
             case cell_sup:start_link() of
                 {ok, Pid} ->
                     {ok, Pid};

@@ -18,7 +18,9 @@
 %% cell state is published as a `cell_state' event.
 %%
 %% A cell that stopped by itself (its tasks came back OFF after an internal fault, see
-%% {@link cell_registry:stopped_by_fault/1}) is told when the controller starts: a
+%% {@link cell_registry:stopped_by_fault/1}, or the node started again after an
+%% unexpected stop, see {@link cell_registry:node_stopped/0}) is told when the
+%% controller starts: a
 %% `request' event (Stop, by the cell, with the cause) and the alarm `cell:stopped',
 %% which says why and what to do, and stays (raised again by every start of the
 %% controller) until the operator's next Start clears it.
@@ -137,7 +139,10 @@ init([]) ->
 tell_stopped(undefined) ->
     ok;
 tell_stopped({Fault, At}) ->
-    Caption = <<"Cell stopped after an internal fault">>,
+    Caption = case Fault of
+                  node -> <<"Cell stopped by an unexpected restart">>;
+                  _ -> <<"Cell stopped after an internal fault">>
+              end,
     ok = cell_alarms:alarm(cell, ?STOPPED, Caption, stopped_text(Fault, At)),
     ok = cell_alarms:sync(),
     publish(request, #{request => stop, who => <<"cell">>, cause => Caption}).
@@ -148,7 +153,10 @@ stopped_text(Fault, At) ->
                           "the product journal or the handshake links) failed and was started "
                           "again, and the tasks with it";
               registry -> "the cell's controller was started anew (its task registry among "
-                          "what restarted)"
+                          "what restarted)";
+              node -> "the cell's runtime started again after its node stopped unexpectedly "
+                      "(the power cut, or the node killed or crashed); whatever ran then was "
+                      "cut short"
           end,
     io_lib:format("At ~ts ~ts. The tasks came back OFF and nothing has moved since.~nCheck "
                   "the machine: products part-way through a station, a robot or a belt "

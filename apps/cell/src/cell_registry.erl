@@ -25,7 +25,7 @@
          tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, published_state/0,
          control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([product_count/0, last_progress/0, wake_on_progress/0, stay_asleep/0]).
--export([new_run/0, stopped_by_fault/1, stopped/0, clear_stopped/0]).
+-export([new_run/0, stopped_by_fault/1, node_stopped/0, stopped/0, clear_stopped/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([previous/0, control_key/0, fault/0]).
@@ -33,8 +33,9 @@
 -type previous() :: fresh | clean | {crashed, term()}.
 %% What stopped the cell by itself: a part of the controller the tasks depend on (its
 %% services, the product journal, the handshake links) restarted them with it, or the
-%% registry itself (alone, or with the whole controller's tree) started anew.
--type fault() :: services | registry.
+%% registry itself (alone, or with the whole controller's tree) started anew; or the
+%% node itself stopped unexpectedly before this run (killed, crashed, its power cut).
+-type fault() :: services | registry | node.
 -type control_key() :: request | estop | service_mode | cell_state.
 
 -define(TASKS, cell_tasks).
@@ -319,9 +320,18 @@ new_run() ->
 -spec stopped_by_fault(fault()) -> ok.
 stopped_by_fault(Fault) ->
     ok = set_control(request, stop),
+    remember_stop(Fault).
+
+%% @doc The node stopped unexpectedly before this run of the application (see
+%% {@link cell_node_run}): the cell, OFF at its start, remembers it as a stop by a fault
+%% until the operator's Start, so the operator is told why it stands.
+-spec node_stopped() -> ok.
+node_stopped() ->
+    remember_stop(node).
+
+remember_stop(Fault) ->
     atomics:put(run_ref(), ?FAULT_AT, os:system_time(millisecond)),
-    atomics:put(run_ref(), ?FAULT, fault_code(Fault)),
-    ok.
+    atomics:put(run_ref(), ?FAULT, fault_code(Fault)).
 
 %% @doc Why the cell stopped by itself and when (system time, ms), or `undefined'.
 -spec stopped() -> {fault(), integer()} | undefined.
@@ -337,10 +347,12 @@ clear_stopped() ->
     atomics:put(run_ref(), ?FAULT, 0).
 
 fault_code(services) -> 1;
-fault_code(registry) -> 2.
+fault_code(registry) -> 2;
+fault_code(node) -> 3.
 
 fault_of(1) -> services;
-fault_of(2) -> registry.
+fault_of(2) -> registry;
+fault_of(3) -> node.
 
 request_code(stop) -> 0;
 request_code(start) -> 1;

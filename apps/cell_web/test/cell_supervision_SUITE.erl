@@ -101,8 +101,9 @@ stop_after_fault_on_the_panel(Config) ->
     ok = cell_web_client:ws_close(Ws).
 
 %% A record left saying the node runs (as a kill leaves it) is told in the log at the
-%% next start and counted as an unexpected restart; an orderly stop and start counts a
-%% clean one.
+%% next start, counted as an unexpected restart, and shown as the alarm that the cell
+%% stopped (by an unexpected restart) until the operator's Start; an orderly stop and
+%% start counts a clean one and raises nothing.
 unclean_stop_is_told(_Config) ->
     #{clean := C0, unexpected := U0} = cell_stats:node_restarts(),
     Path = filename:join(cell_config:dir(data), "cellrt.run"),
@@ -118,9 +119,16 @@ unclean_stop_is_told(_Config) ->
     ok = await_log(<<"the cell restarted after an unexpected stop of the node">>),
     ok = cell_log:unsubscribe(),
     ?assertEqual(#{clean => C0, unexpected => U0 + 1}, cell_stats:node_restarts()),
+    {ok, #{caption := <<"Cell stopped by an unexpected restart">>, description := Text}} =
+        cell_alarms:get(<<"cell:stopped">>),
+    ?assertNotEqual(nomatch, string:find(Text, <<"power cut">>)),
+    ok = cell_controller:start(<<"suite">>),
+    ?assertEqual({error, not_found}, cell_alarms:get(<<"cell:stopped">>)),
+    ok = cell_controller:stop(<<"suite">>),
     ok = application:stop(cell),
     {ok, _} = application:ensure_all_started(cell),
     ?assertEqual(#{clean => C0 + 1, unexpected => U0 + 1}, cell_stats:node_restarts()),
+    ?assertEqual({error, not_found}, cell_alarms:get(<<"cell:stopped">>)),
     _ = [{ok, _} = application:ensure_all_started(A) || A <- ?APPS],
     ok.
 
