@@ -412,7 +412,10 @@ read(_T, Group, Point) ->
     cell_hal:read(Group, Point).
 
 %% @doc Commands an output of the task's default IO group; it is written through in
-%% order, without waiting for the device.
+%% order, without waiting for the device. The task remembers what it commanded: when a
+%% connection it lost is back and the operator retries, the engine writes again each
+%% output the device no longer holds as commanded (a write lost with the connection,
+%% a PLC that took its outputs to safe values), then the task goes on.
 -spec out(task(), atom(), cell_hal_type:value()) -> task().
 out(T, Point, Value) ->
     out(T, default_group(T), Point, Value).
@@ -420,7 +423,7 @@ out(T, Point, Value) ->
 -spec out(task(), atom(), atom(), cell_hal_type:value()) -> task().
 out(T, Group, Point, Value) ->
     case cell_hal:write(Group, Point, Value) of
-        ok -> T;
+        ok -> T#task{commanded = cell_task_outputs:command(T#task.commanded, Group, Point, Value)};
         {error, disconnected} -> throw({cell_io_lost, Group, Point});
         {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
         {error, Reason} -> erlang:error({io, Group, Point, Reason})
