@@ -3,7 +3,8 @@
 %% in the `tab' argument as {woke, Id, N, Woken}. With a `serial' argument the task
 %% holds that product from its first init; a `mid_step' argument (a fun) runs inside
 %% the step that sees a panel, before it touches its IO: what happens to the HAL
-%% under a task in the middle of a step.
+%% under a task in the middle of a step. A `before_run' argument (a fun) runs in the
+%% first step before it commands the belt on: what happens to a write in flight.
 -module(cell_io_test_task).
 -behaviour(cell_task).
 
@@ -34,6 +35,7 @@ step(T) ->
     record(T),
     case cell_task:woken_by(T) of
         undefined ->
+            _ = (cell_task:arg(T, before_run, fun() -> ok end))(),
             {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};
         {answer, _} ->
             {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};

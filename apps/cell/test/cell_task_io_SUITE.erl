@@ -15,7 +15,7 @@
 -export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
          lost_while_paused/1, point_unavailable/1, worker_killed_mid_step/1,
          server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1,
-         outputs_set_again_after_reconnect/1]).
+         outputs_set_again_after_reconnect/1, write_lost_in_flight_written_again/1]).
 
 -define(TIMEOUT, 10000).
 
@@ -23,7 +23,7 @@ all() ->
     [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
      point_unavailable, worker_killed_mid_step, server_killed_mid_step,
      worker_stuck_mid_step, hal_restarts_while_waiting,
-     outputs_set_again_after_reconnect].
+     outputs_set_again_after_reconnect, write_lost_in_flight_written_again].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -250,6 +250,31 @@ outputs_set_again_after_reconnect(Config) ->
     ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
     still_holding(Task).
 
+%% The PLC stops answering just as the task commands its belt on: the write is taken
+%% by the connection but never reaches the PLC, and the connection counts as lost. Once
+%% the PLC answers again the HAL reads the belt back off; one Retry commands it on
+%% again before the task waits again, the panel comes, and the task goes on with no
+%% second error.
+write_lost_in_flight_written_again(_Config) ->
+    Self = self(),
+    %% The belt brings a panel whenever it runs.
+    ok = cell_hal_sim:on_change({conv, motor},
+                                fun(V) ->
+                                        Self ! {motor, V},
+                                        [{0, {conv, sensor}, true} || V]
+                                end),
+    Task = started(),
+    Id = await_io_error(),
+    ok = cell_hal_sim:link(plc1, up),
+    {ok, up} = await_conn(plc1, up),
+    ?assertNotEqual({ok, true}, cell_hal:read(conv, motor)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_motor(true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
+    still_holding(Task).
+
 %% -------------------------------------------------------------------------------------
 
 %% What a case gives its task: a product to hold, and what happens to the HAL in the
@@ -275,6 +300,9 @@ case_args(hal_restarts_while_waiting, _Tab) ->
     #{serial => <<"P1">>};
 case_args(outputs_set_again_after_reconnect, _Tab) ->
     #{serial => <<"P1">>};
+case_args(write_lost_in_flight_written_again, Tab) ->
+    #{serial => <<"P1">>,
+      before_run => once(Tab, fun() -> ok = cell_hal_sim:link(plc1, silent) end)};
 case_args(_Case, _Tab) ->
     #{}.
 
