@@ -479,7 +479,7 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                         {error, Spec, T1} ->
                             raise(setup, Spec, init, D1#data{task = T1, initialized = true})
                     catch
-                        throw:{cell_io_lost, Group, _Point} ->
+                        throw:{cell_io_lost, Group, _Point, _Commanded} ->
                             raise(setup, io_error(group_conn(Group)), io,
                                   D1#data{initialized = true, resume = undefined});
                         throw:{cell_io_unavailable, Group, Point, Why} ->
@@ -532,7 +532,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
                 Other ->
                     erlang:error({bad_reconcile_result, Mod, Other})
             catch
-                throw:{cell_io_lost, Group, _Point} ->
+                throw:{cell_io_lost, Group, _Point, _Commanded} ->
                     raise(setup, io_error(group_conn(Group)), io, D#data{resume = undefined});
                 throw:{cell_io_unavailable, Group, Point, Why} ->
                     raise(setup, point_error(Group, Point, Why), io, D#data{resume = undefined})
@@ -578,9 +578,10 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         Result -> after_step(Result, D)
     catch
         %% The step read or wrote a point whose connection is down: the step's work is
-        %% dropped and runs again, as it was woken, after Retry.
-        throw:{cell_io_lost, Group, _Point} ->
-            io_lost(State, Group, D);
+        %% dropped and runs again, as it was woken, after Retry; what it commanded
+        %% before is what is written again then (see reassert/2).
+        throw:{cell_io_lost, Group, _Point, Commanded} ->
+            io_lost(State, Group, D#data{task = commanded(Commanded, D#data.task)});
         %% A point its device cannot serve: the same, the connection itself being up.
         throw:{cell_io_unavailable, Group, Point, Why} ->
             raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
@@ -824,6 +825,10 @@ reassert(Ready, #data{lost = Lost, task = #task{id = Id, io = Groups, commanded 
                     raise(Ready, point_error(Group, Point, Why), io, D#data{resume = Ready})
             end
     end.
+
+%% What a step dropped at a lost connection had commanded until then.
+commanded(Commanded, T) when is_map(Commanded) ->
+    T#task{commanded = Commanded}.
 
 write_all([]) ->
     ok;
