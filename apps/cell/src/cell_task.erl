@@ -393,11 +393,11 @@ in(T, Point) ->
 
 %% @doc The value of a point of one of the task's IO groups.
 -spec in(task(), atom(), atom()) -> cell_hal_type:value().
-in(_T, Group, Point) ->
+in(T, Group, Point) ->
     case cell_hal:read(Group, Point) of
         {ok, Value} -> Value;
-        {error, disconnected} -> throw({cell_io_lost, Group, Point});
-        {error, not_yet_read} -> throw({cell_io_lost, Group, Point});
+        {error, disconnected} -> io_lost(T, Group, Point);
+        {error, not_yet_read} -> io_lost(T, Group, Point);
         {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
         {error, Reason} -> erlang:error({io, Group, Point, Reason})
     end.
@@ -412,7 +412,10 @@ read(_T, Group, Point) ->
     cell_hal:read(Group, Point).
 
 %% @doc Commands an output of the task's default IO group; it is written through in
-%% order, without waiting for the device.
+%% order, without waiting for the device. The task remembers what it commanded: when a
+%% connection it lost is back and the operator retries, the engine writes again each
+%% output the device no longer holds as commanded (a write lost with the connection,
+%% a PLC that took its outputs to safe values), then the task goes on.
 -spec out(task(), atom(), cell_hal_type:value()) -> task().
 out(T, Point, Value) ->
     out(T, default_group(T), Point, Value).
@@ -420,11 +423,18 @@ out(T, Point, Value) ->
 -spec out(task(), atom(), atom(), cell_hal_type:value()) -> task().
 out(T, Group, Point, Value) ->
     case cell_hal:write(Group, Point, Value) of
-        ok -> T;
-        {error, disconnected} -> throw({cell_io_lost, Group, Point});
+        ok -> T#task{commanded = cell_task_outputs:command(T#task.commanded, Group, Point, Value)};
+        {error, disconnected} -> io_lost(T, Group, Point);
         {error, {unavailable, Why}} -> throw({cell_io_unavailable, Group, Point, Why});
         {error, Reason} -> erlang:error({io, Group, Point, Reason})
     end.
+
+%% The engine drops the step and runs it again after Retry; what the step commanded
+%% before it found the connection lost goes with the throw, so that the outputs written
+%% again at that Retry are those it last commanded (see cell_task_proc).
+-spec io_lost(task(), atom(), atom()) -> no_return().
+io_lost(#task{commanded = Commanded}, Group, Point) ->
+    throw({cell_io_lost, Group, Point, Commanded}).
 
 default_group(#task{io = [G | _]}) -> G;
 default_group(#task{id = Id}) -> erlang:error({no_io_group, Id}).

@@ -21,5 +21,8 @@
     ipc = off :: cell_ipc:state(),
     answer :: cell_alarms:solution() | undefined,
     woken_by :: term(),
-    service_mode = false :: boolean()
+    service_mode = false :: boolean(),
+    %% The outputs this task commanded since its last init, as it last commanded them
+    %% (cell_task_outputs): what is written again when a lost connection is back.
+    commanded = #{} :: cell_task_outputs:image()
 }).

@@ -26,6 +26,16 @@
 %% further down the fan-out were still waiting for a scheduler to secure theirs. A held
 %% task runs no step; any other message ends the hold first.
 %%
+%% A connection of the task's IO lost while it runs takes it DOWN ("IO connection
+%% lost"). When the operator retries with the connection back, the task goes on with
+%% its outputs as it last commanded them: each output of that connection's groups the
+%% task commanded (through {@link cell_task:out/4}) and the device no longer holds as
+%% commanded (a write lost with the connection, a PLC that took its outputs to safe
+%% values; the HAL reads them back at reconnect) is written again, and the log says
+%% which, before its waits are armed again or its step runs again (see
+%% {@link cell_task_outputs}). Securing (uninit: Stop, Reset, emergency stop) and init
+%% start that record afresh, so a secured output is never set again by this path.
+%%
 %% After a crash the supervisor restarts the task; it restores its product from its
 %% file, reads its outputs as the crashed incarnation left them and secures them
 %% (uninit). If the cell runs, the task then initialises and reconciles as after any
@@ -83,6 +93,7 @@
     settings = #{} :: map(),              %% the snapshot for the next start
     deferred :: pause | service | undefined, %% a pause a transfer holds back
     conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
+    lost = [] :: [atom()],                %% connections lost since init or the last resume
     reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
     estop_flag :: atomics:atomics_ref(),   %% the node's emergency-stop flag, read before every step
     held :: atomics:atomics_ref() | undefined %% secured; OFF not yet announced (the barrier)
@@ -456,9 +467,11 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                 {error, Spec, D} ->
                     raise(setup, Spec, io, D#data{resume = undefined});
                 {ok, D} ->
-                    T = T0#task{answer = undefined, woken_by = undefined},
+                    %% init commands the outputs afresh.
+                    T = T0#task{answer = undefined, woken_by = undefined,
+                                commanded = cell_task_outputs:new()},
                     %% Taken before init writes an output.
-                    D1 = D#data{predecessor = predecessor(D)},
+                    D1 = D#data{predecessor = predecessor(D), lost = []},
                     try Mod:init(T) of
                         {ok, T1} ->
                             run_reconcile(undefined, undefined,
@@ -466,7 +479,7 @@ run_init(#data{task = #task{module = Mod} = T0} = D0) ->
                         {error, Spec, T1} ->
                             raise(setup, Spec, init, D1#data{task = T1, initialized = true})
                     catch
-                        throw:{cell_io_lost, Group, _Point} ->
+                        throw:{cell_io_lost, Group, _Point, _Commanded} ->
                             raise(setup, io_error(group_conn(Group)), io,
                                   D1#data{initialized = true, resume = undefined});
                         throw:{cell_io_unavailable, Group, Point, Why} ->
@@ -519,7 +532,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
                 Other ->
                     erlang:error({bad_reconcile_result, Mod, Other})
             catch
-                throw:{cell_io_lost, Group, _Point} ->
+                throw:{cell_io_lost, Group, _Point, _Commanded} ->
                     raise(setup, io_error(group_conn(Group)), io, D#data{resume = undefined});
                 throw:{cell_io_unavailable, Group, Point, Why} ->
                     raise(setup, point_error(Group, Point, Why), io, D#data{resume = undefined})
@@ -565,9 +578,10 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         Result -> after_step(Result, D)
     catch
         %% The step read or wrote a point whose connection is down: the step's work is
-        %% dropped and runs again, as it was woken, after Retry.
-        throw:{cell_io_lost, Group, _Point} ->
-            io_lost(State, Group, D);
+        %% dropped and runs again, as it was woken, after Retry; what it commanded
+        %% before is what is written again then (see reassert/2).
+        throw:{cell_io_lost, Group, _Point, Commanded} ->
+            io_lost(State, Group, D#data{task = commanded(Commanded, D#data.task)});
         %% A point its device cannot serve: the same, the connection itself being up.
         throw:{cell_io_unavailable, Group, Point, Why} ->
             raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
@@ -765,14 +779,65 @@ do_resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} 
     ok = headroom(),
     T = cell_handshake:reoffer(cell_task:set_state(T0, Ready, {arrow, 5}), Offers),
     D = D0#data{down = undefined, resume = undefined, reoffer = [], task = T},
-    case Pending of
-        {waits, Waits} ->
-            case arm(Waits, D) of
-                {ok, D1} -> {next_state, (D1#data.task)#task.ipc, D1};
-                {io_lost, Group, D1} -> io_lost(Ready, Group, D1)
-            end;
-        {step, _} ->
-            {next_state, T#task.ipc, D, [{next_event, internal, step}]}
+    %% Outputs first: what the task waits for may follow what it commanded.
+    case reassert(Ready, D) of
+        {ok, D1} ->
+            resume_pending(Ready, Pending, D1);
+        Lost ->
+            Lost
+    end.
+
+resume_pending(Ready, {waits, Waits}, D) ->
+    case arm(Waits, D) of
+        {ok, D1} -> {next_state, (D1#data.task)#task.ipc, D1};
+        {io_lost, Group, D1} -> io_lost(Ready, Group, D1)
+    end;
+resume_pending(_Ready, {step, _}, #data{task = T} = D) ->
+    {next_state, T#task.ipc, D, [{next_event, internal, step}]}.
+
+%% Going on after a connection of the task's IO was lost: every output of that
+%% connection's groups the task commanded and the device does not hold as commanded (a
+%% write lost with the connection, a PLC that took its outputs to safe values; the HAL
+%% read them back at reconnect) is written again, and the log says which. Outputs of
+%% connections that stayed up, and anything secured since (uninit clears the image),
+%% are left alone. `{ok, D}', or the task DOWN again if a write finds the connection
+%% gone or the point unavailable.
+reassert(_Ready, #data{lost = []} = D) ->
+    {ok, D};
+reassert(Ready, #data{lost = Lost, task = #task{id = Id, io = Groups, commanded = Image}} = D) ->
+    Ours = [G || G <- Groups, lists:member(group_conn(G), Lost)],
+    Now = maps:from_list([{{G, P}, V} || {G, P} <- maps:keys(Image), lists:member(G, Ours),
+                                         {ok, V} <- [cell_hal:read(G, P)]]),
+    case cell_task_outputs:writes(Image, Ours, Now) of
+        [] ->
+            {ok, D#data{lost = []}};
+        Writes ->
+            case write_all(Writes) of
+                ok ->
+                    cell_log:notice(Id, "connection ~ts back: outputs set again as the task "
+                                    "last commanded them: ~ts",
+                                    [lists:join(", ", [atom_to_list(C) || C <- Lost]),
+                                     cell_task_outputs:text(Writes)]),
+                    {ok, D#data{lost = []}};
+                {io_lost, Group} ->
+                    io_lost(Ready, Group, D);
+                {unavailable, Group, Point, Why} ->
+                    raise(Ready, point_error(Group, Point, Why), io, D#data{resume = Ready})
+            end
+    end.
+
+%% What a step dropped at a lost connection had commanded until then.
+commanded(Commanded, T) when is_map(Commanded) ->
+    T#task{commanded = Commanded}.
+
+write_all([]) ->
+    ok;
+write_all([{G, P, V} | Rest]) ->
+    case cell_hal:write(G, P, V) of
+        ok -> write_all(Rest);
+        {error, disconnected} -> {io_lost, G};
+        {error, {unavailable, Why}} -> {unavailable, G, P, Why};
+        {error, Reason} -> erlang:error({io, G, P, Reason})
     end.
 
 %% A request of the task's IO found its connection lost (down, or its HAL process
@@ -929,7 +994,9 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
              #task{} -> T1;
              _ -> T
          end,
-    D#data{task = T2, initialized = false}.
+    %% Secured: what the task commanded before is not written again (see reassert/2).
+    D#data{task = T2#task{commanded = cell_task_outputs:new()}, initialized = false,
+           lost = []}.
 
 goto(To, Cause, #data{task = T} = D, Actions) ->
     {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
@@ -1137,8 +1204,12 @@ conn_up(Conn, #data{conns = Conns} = D) ->
             end
     end.
 
-conn_status(Conn, Status, #data{conns = Conns} = D) ->
-    D#data{conns = maps:put(Conn, Status, Conns)}.
+conn_status(Conn, Status, #data{conns = Conns, lost = Lost} = D) ->
+    D1 = D#data{conns = maps:put(Conn, Status, Conns)},
+    case Status of
+        down -> D1#data{lost = lists:usort([Conn | Lost])};
+        up -> D1
+    end.
 
 group_conn(Group) ->
     case cell_hal:connection_of(Group) of

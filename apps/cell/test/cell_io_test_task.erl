@@ -3,7 +3,9 @@
 %% in the `tab' argument as {woke, Id, N, Woken}. With a `serial' argument the task
 %% holds that product from its first init; a `mid_step' argument (a fun) runs inside
 %% the step that sees a panel, before it touches its IO: what happens to the HAL
-%% under a task in the middle of a step.
+%% under a task in the middle of a step. A `before_run' argument (a fun) runs in the
+%% first step before it commands the belt on: what happens to a write in flight. With
+%% `stop_first' the step that sees a panel stops the belt before `mid_step' runs.
 -module(cell_io_test_task).
 -behaviour(cell_task).
 
@@ -34,15 +36,21 @@ step(T) ->
     record(T),
     case cell_task:woken_by(T) of
         undefined ->
+            _ = (cell_task:arg(T, before_run, fun() -> ok end))(),
             {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};
         {answer, _} ->
             {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)};
         {io, _, sensor, true} ->
             %% A panel: stop the belt, read the counter (a lost connection here is the
-            %% engine's to report), wait until the panel is taken away.
-            _ = (cell_task:arg(T, mid_step, fun() -> ok end))(),
-            Count = cell_task:in(T, count),
-            T1 = cell_task:put(cell_task:out(T, motor, false), count, Count),
+            %% engine's to report), wait until the panel is taken away. With
+            %% `stop_first' the belt is stopped before `mid_step' too.
+            T0 = case cell_task:arg(T, stop_first, false) of
+                     true -> cell_task:out(T, motor, false);
+                     false -> T
+                 end,
+            _ = (cell_task:arg(T0, mid_step, fun() -> ok end))(),
+            Count = cell_task:in(T0, count),
+            T1 = cell_task:put(cell_task:out(T0, motor, false), count, Count),
             {wait, {io, sensor, {eq, false}}, T1};
         {io, _, sensor, false} ->
             {wait, {io, sensor, {eq, true}}, cell_task:out(T, motor, true)}

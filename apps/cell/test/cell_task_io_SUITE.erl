@@ -4,7 +4,9 @@
 %% cannot serve does the same naming the point; a group the HAL does not know stops it
 %% at Start with a clear error. The HAL's processes killed or stuck under a task in the
 %% middle of a step are a lost connection to it, never a crash: the same error, and
-%% Retry takes it on with its product once the connection is back.
+%% Retry takes it on with its product once the connection is back. What the task
+%% commanded before the connection was lost and the device no longer holds is written
+%% again at that Retry, before the task's wait is armed again.
 -module(cell_task_io_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -12,14 +14,18 @@
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([waits_for_io/1, connection_lost_and_back/1, unknown_group/1,
          lost_while_paused/1, point_unavailable/1, worker_killed_mid_step/1,
-         server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1]).
+         server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1,
+         outputs_set_again_after_reconnect/1, write_lost_in_flight_written_again/1,
+         lost_in_a_step_that_stopped_the_belt/1]).
 
 -define(TIMEOUT, 10000).
 
 all() ->
     [waits_for_io, connection_lost_and_back, unknown_group, lost_while_paused,
      point_unavailable, worker_killed_mid_step, server_killed_mid_step,
-     worker_stuck_mid_step, hal_restarts_while_waiting].
+     worker_stuck_mid_step, hal_restarts_while_waiting,
+     outputs_set_again_after_reconnect, write_lost_in_flight_written_again,
+     lost_in_a_step_that_stopped_the_belt].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -47,6 +53,9 @@ end_per_testcase(_Case, _Config) ->
     _ = application:stop(cell),
     %% The statistics started the database in this root: it goes with the cell.
     _ = application:stop(mnesia),
+    %% The simulated PLC would outlive the case with its image and rules: the next
+    %% case starts with a new one, its sensor not left on.
+    _ = cell_hal_sim:stop_device(plc1),
     _ = cell_hal:remove_group(conv),
     _ = cell_hal:remove_connection(plc1),
     ok.
@@ -213,6 +222,93 @@ hal_restarts_while_waiting(_Config) ->
     await_woke({io, conv, sensor, true}),
     still_holding(Task).
 
+%% The task runs its belt and waits for the panel the belt brings. The link drops, and
+%% while it is down the PLC takes its outputs to safe values (the belt stops), as a
+%% write lost with the connection would leave it. Once the link is back, one Retry:
+%% the belt is commanded on again before the task waits again, the panel comes, and
+%% the task goes on with no second error.
+outputs_set_again_after_reconnect(Config) ->
+    Tab = ?config(tab, Config),
+    Self = self(),
+    %% The belt brings a panel only once it runs again after the loss.
+    ok = cell_hal_sim:on_change(
+           {conv, motor},
+           fun(V) ->
+                   Self ! {motor, V},
+                   case V andalso not ets:insert_new(Tab, {belt_ran}) of
+                       true -> [{0, {conv, sensor}, true}];
+                       false -> []
+                   end
+           end),
+    Task = started(),
+    await_motor(true),
+    ok = cell_hal_sim:link(plc1, down),
+    Id = await_io_error(),
+    ok = cell_hal_sim:set({conv, motor}, false),
+    ok = cell_hal_sim:link(plc1, up),
+    {ok, up} = await_conn(plc1, up),
+    ?assertEqual({ok, false}, cell_hal:read(conv, motor)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_motor(true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
+    still_holding(Task).
+
+%% The PLC stops answering just as the task commands its belt on: the write is taken
+%% by the connection but never reaches the PLC, and the connection counts as lost. Once
+%% the PLC answers again the HAL reads the belt back off; one Retry commands it on
+%% again before the task waits again, the panel comes, and the task goes on with no
+%% second error.
+write_lost_in_flight_written_again(_Config) ->
+    Self = self(),
+    %% The belt brings a panel whenever it runs.
+    ok = cell_hal_sim:on_change({conv, motor},
+                                fun(V) ->
+                                        Self ! {motor, V},
+                                        [{0, {conv, sensor}, true} || V]
+                                end),
+    Task = started(),
+    Id = await_io_error(),
+    ok = cell_hal_sim:link(plc1, up),
+    {ok, up} = await_conn(plc1, up),
+    ?assertNotEqual({ok, true}, cell_hal:read(conv, motor)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_motor(true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
+    still_holding(Task).
+
+%% The step that sees a panel stops the belt (the PLC has it stopped), then finds its
+%% connection's worker gone and is dropped. At the Retry the belt is not started
+%% again on the way: what the step commanded before the loss counts, and the step runs
+%% again as it was woken.
+lost_in_a_step_that_stopped_the_belt(_Config) ->
+    Self = self(),
+    ok = cell_hal_sim:on_change({conv, motor}, fun(V) -> Self ! {motor, V}, [] end),
+    Task = started(),
+    await_motor(true),
+    flush_motor(),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    await_woke({io, conv, sensor, true}),
+    Id = await_io_error(),
+    await_motor(false),
+    ok = sys:resume(cell_hal_conn_sup),
+    await_conn_restart(plc1),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    %% Written after whatever the task wrote: once the PLC confirmed it, every change
+    %% of the belt before it has been reported.
+    ok = cell_hal:write_sync(conv, motor, false, ?TIMEOUT),
+    receive
+        {motor, true} -> ct:fail(belt_started_again_at_retry)
+    after 0 ->
+        ok
+    end,
+    still_holding(Task).
+
 %% -------------------------------------------------------------------------------------
 
 %% What a case gives its task: a product to hold, and what happens to the HAL in the
@@ -236,6 +332,20 @@ case_args(worker_stuck_mid_step, Tab) ->
       mid_step => once(Tab, fun() -> ok = sys:suspend(worker(plc1)) end)};
 case_args(hal_restarts_while_waiting, _Tab) ->
     #{serial => <<"P1">>};
+case_args(outputs_set_again_after_reconnect, _Tab) ->
+    #{serial => <<"P1">>};
+case_args(lost_in_a_step_that_stopped_the_belt, Tab) ->
+    %% The belt's stop confirmed by the PLC before the worker goes.
+    #{serial => <<"P1">>, stop_first => true,
+      mid_step => once(Tab, fun() ->
+                                    ok = cell_hal:write_sync(conv, motor, false, ?TIMEOUT),
+                                    Worker = worker(plc1),
+                                    ok = sys:suspend(cell_hal_conn_sup),
+                                    kill(Worker)
+                            end)};
+case_args(write_lost_in_flight_written_again, Tab) ->
+    #{serial => <<"P1">>,
+      before_run => once(Tab, fun() -> ok = cell_hal_sim:link(plc1, silent) end)};
 case_args(_Case, _Tab) ->
     #{}.
 
@@ -290,6 +400,9 @@ await_conn_restart(Conn) ->
          ct:fail({connection_not, Status})
      end || Status <- [down, up]],
     ok.
+
+flush_motor() ->
+    receive {motor, _} -> flush_motor() after 0 -> ok end.
 
 flush_conn(Conn) ->
     receive {cell_hal_conn, Conn, _} -> flush_conn(Conn) after 0 -> ok end.
