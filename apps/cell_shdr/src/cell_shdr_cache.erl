@@ -228,9 +228,10 @@ attach(State0) ->
                 cell_log:info(?SOURCE, "watching the cell", []),
                 S2
             catch
-                exit:{noproc, _} -> retry(State#state{watched = Watched});
-                exit:{normal, _} -> retry(State#state{watched = Watched});
-                exit:{shutdown, _} -> retry(State#state{watched = Watched});
+                %% A service not there, or gone (killed, stopped) while it was asked.
+                exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                                   Why =:= killed; element(1, Why) =:= shutdown ->
+                    retry(State#state{watched = Watched});
                 %% The registry went (its tables with it) while they were read: its
                 %% 'DOWN' is on its way, and the next try finds it back.
                 error:badarg -> retry(State#state{watched = Watched})

@@ -110,7 +110,9 @@ messages(Msg) ->
     try cell_web_ws_h:messages(Msg)
     catch
         error:badarg -> resync;
-        exit:{noproc, _} -> resync
+        %% A service not there, or gone (killed, stopped) while it was asked.
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown -> resync
     end.
 
 resync(Pages) ->

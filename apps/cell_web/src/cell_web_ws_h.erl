@@ -111,7 +111,9 @@ websocket_info(cell_web_feed_resync, State) ->
     catch
         error:badarg ->
             {[], resync_later(State)};
-        exit:{noproc, _} ->
+        %% A service not there, or gone (killed, stopped) while it was asked.
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown ->
             {[], resync_later(State)}
     end;
 websocket_info({timeout, _, ping}, State) ->
