@@ -8,7 +8,8 @@
 %% <ul>
 %% <li>`init(Task)' — once when the task leaves OFF on Start, and again after a Reset:
 %%     validate settings and hardware, leave the outputs as the task starts from. The
-%%     engine has already loaded the task's product from its file. Returns `{ok, Task}'
+%%     engine has already loaded the task's product and its retained data from their
+%%     files. Returns `{ok, Task}'
 %%     or `{error, ErrorSpec, Task}' for the operator (the task waits in DOWN).</li>
 %% <li>`reconcile(Held, Task)' — right after every successful init, before the first
 %%     step: the restart reconciliation. `Held' (see `held()') is what the task's
