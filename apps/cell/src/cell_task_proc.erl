@@ -409,7 +409,7 @@ retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
             D#data{task = T1, retain_error = undefined};
         {error, Reason} ->
             cell_log:error(Id, "the retained data file ~ts cannot be read: ~ts; the task "
-                           "does not run until the operator answers", [Path, cell_retain:text(Reason)]),
+                           "does not run: the operator is asked when the cell starts", [Path, cell_retain:text(Reason)]),
             D#data{retain_error = Reason}
     end.
 
