@@ -184,10 +184,9 @@ retained_rows(#{id := Id} = Row) ->
         #{retained := Data} when is_map(Data), map_size(Data) > 0 ->
             [[Task, short(K), short(V)]
              || {K, V} <- lists:sort(maps:to_list(Data))];
-        #{retained := Data} when is_map(Data) ->
-            [[Task, "-", "(none)"]];
         _ ->
-            [[Task, "-", "(not loaded)"]]
+            %% Nothing retained yet, or a unit (its sequences keep none).
+            [[Task, "-", "(none)"]]
     end.
 
 %% @doc This shift's statistics.
