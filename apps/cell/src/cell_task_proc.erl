@@ -409,7 +409,8 @@ retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
             D#data{task = T1, retain_error = undefined};
         {error, Reason} ->
             cell_log:error(Id, "the retained data file ~ts cannot be read: ~ts; the task "
-                           "does not run: the operator is asked when the cell starts", [Path, cell_retain:text(Reason)]),
+                           "does not run: the operator is asked when the cell starts",
+                           [Path, cell_retain:text(Reason)]),
             D#data{retain_error = Reason}
     end.
 
@@ -940,9 +941,16 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
     end;
 answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
-    _ = file:rename(Path, Aside),
-    cell_log:notice(Id, "~ts set the damaged retained data file aside as ~ts; the task starts "
-                    "with no retained data, its counters again from their defaults", [Who, Aside]),
+    case file:rename(Path, Aside) of
+        ok ->
+            cell_log:notice(Id, "~ts set the damaged retained data file aside as ~ts; the "
+                            "task starts with no retained data, its counters again from "
+                            "their defaults", [Who, Aside]);
+        {error, Why} ->
+            %% Still there: read again below, and asked again if still unreadable.
+            cell_log:error(Id, "the damaged retained data file ~ts could not be set aside: "
+                           "~ts", [Path, file:format_error(Why)])
+    end,
     retained_again(D);
 answered(retain_file, _Retry, _Who, D) ->
     retained_again(D).
