@@ -8,6 +8,7 @@
 %% cell_diag:alarms().            % active errors and warnings, and how to answer them
 %% cell_diag:waits().             % what each task waits for: state, phase, IO, handshake
 %% cell_diag:product(<<"P1">>).   % where a product is, and its history
+%% cell_diag:retained().          % each task's retained data (counters, last serial)
 %% cell_diag:stats().             % this shift: time per state, items, cycle times
 %% cell_diag:trace(work_front).   % one task's log at Verbose for a minute
 %% cell_diag:top().               % the processes with the longest queues and most memory
@@ -19,8 +20,8 @@
 %% would stop the cell.
 -module(cell_diag).
 
--export([help/0, status/0, tasks/0, waits/0, io/1, alarms/0, product/1, stats/0, stats/1,
-         trace/1, trace/2, top/0]).
+-export([help/0, status/0, tasks/0, waits/0, io/1, alarms/0, product/1, retained/0, stats/0,
+         stats/1, trace/1, trace/2, top/0]).
 
 -define(TRACE_MS, 60000).
 
@@ -33,6 +34,7 @@ help() ->
            "cell_diag:io(Group)         an IO group's points and values\n",
            "cell_diag:alarms()          active errors and warnings, how to answer them\n",
            "cell_diag:product(Serial)   where a product is and its history\n",
+           "cell_diag:retained()        each task's retained data (counters, last serial)\n",
            "cell_diag:stats()           this shift; stats(total) since the first start\n",
            "cell_diag:trace(Task)       a task's log at Verbose for a minute; trace(Task, Ms)\n",
            "cell_diag:top()             processes with the longest queues, the most memory\n",
@@ -165,6 +167,26 @@ product(Serial) when is_binary(Serial) ->
         {error, not_found} ->
             print(io_lib:format("No product ~ts has been recorded.~n", [Serial])),
             {error, not_found}
+    end.
+
+%% @doc Each task's retained data, key by key, as its file holds them (see
+%% `cell_task:retain/3'), or why its file cannot be read.
+-spec retained() -> ok.
+retained() ->
+    Rows = lists:append([retained_rows(Row) || Row <- cell_controller:tasks()]),
+    print(table(["TASK", "KEY", "VALUE"], Rows)).
+
+retained_rows(#{id := Id} = Row) ->
+    Task = atom_to_list(Id),
+    case Row of
+        #{retained_error := Why} when Why =/= undefined ->
+            [[Task, "-", ["(file cannot be read: ", cell_retain:text(Why), ")"]]];
+        #{retained := Data} when is_map(Data), map_size(Data) > 0 ->
+            [[Task, short(K), short(V)]
+             || {K, V} <- lists:sort(maps:to_list(Data))];
+        _ ->
+            %% Nothing retained yet, or a unit (its sequences keep none).
+            [[Task, "-", "(none)"]]
     end.
 
 %% @doc This shift's statistics.

@@ -8,7 +8,8 @@
 %% <ul>
 %% <li>`init(Task)' — once when the task leaves OFF on Start, and again after a Reset:
 %%     validate settings and hardware, leave the outputs as the task starts from. The
-%%     engine has already loaded the task's product from its file. Returns `{ok, Task}'
+%%     engine has already loaded the task's product and its retained data from their
+%%     files. Returns `{ok, Task}'
 %%     or `{error, ErrorSpec, Task}' for the operator (the task waits in DOWN).</li>
 %% <li>`reconcile(Held, Task)' — right after every successful init, before the first
 %%     step: the restart reconciliation. `Held' (see `held()') is what the task's
@@ -51,6 +52,24 @@
 %% against the machine. Ownership across a transfer follows the files' generations and
 %% the in-transit mark ({@link cell_handshake}).
 %%
+%% Retained data (what PLC programmers call RETAIN or PERSISTENT variables): a task
+%% keeps what must outlive its product and its process (a serial counter, tool wear,
+%% the last serial made) as retained data, a small key-value store of its own with the
+%% product's promise (see {@link cell_retain}). {@link retained/3} reads a value, {@link
+%% retain/3} sets one, {@link retain_update/4} changes one by a function (a counter:
+%% `{Serial, T1} = cell_task:retain_update(T, serial, fun(N) -> N + 1 end, 0)') and
+%% {@link forget_retained/2} removes one; each change is on disk when it returns, so
+%% the task acts on a value only once it is durable, and after a crash, a kill of the
+%% node or a power cut the task goes on from the last value it made durable: a serial
+%% is never made twice. The engine loads the file when the task starts; Stop, Reset
+%% and a restart keep the data. A file that cannot be read is the operator's question
+%% before the task runs (RETRY reads it again; RESET sets it aside and starts the store
+%% empty, counters again from their defaults), never an empty store taken silently.
+%% Values are plain data (numbers, atoms, binaries, lists, tuples, maps; keys atoms or
+%% binaries) of at most 64 KiB for the whole store; anything else is refused with an
+%% error (`{bad_retained, Key, Why}') and nothing is written. `cell_diag:retained/0'
+%% and the panel's `GET /api/tasks/:id/retained' show the data.
+%%
 %% Waiting is waiting for a message: a waiting task costs no CPU. Between steps the
 %% engine honours the controller's requests (Pause holds the task in DOWN and Start
 %% resumes where it was; Stop ends in OFF through uninit) and the emergency stop.
@@ -67,6 +86,7 @@
 
 -export([id/1, zone/1, lane/1, module/1, args/1, arg/3, settings/1, setting/3,
          get/2, get/3, put/3, product/1, set_product/2, clear_product/1, others_products/1,
+         retained/1, retained/3, retain/3, retain_update/4, forget_retained/2,
          state/1, answer/1, woken_by/1, service_mode/1, io_groups/1, commanded/3, commanded/4]).
 -export([starved/1, unstarved/1, blocked/1, unblocked/1, identifier_read/3,
          transfer_in/2, work_start/1, work_pause/2, work_resume/1, work_complete/1,
@@ -74,7 +94,7 @@
 -export([error_spec/4, warning/4, warning/5, reset_warning/2, log/4]).
 -export([in/2, in/3, read/2, read/3, out/3, out/4]).
 %% For the engine and the handshake.
--export([new/1, set_state/3, publish/3, store/5]).
+-export([new/1, set_state/3, publish/3, store/5, load_retained/1]).
 
 -export_type([task/0, wait/0, step_result/0, spec/0, held/0, cause/0]).
 
@@ -125,6 +145,7 @@
 -spec new(spec()) -> task().
 new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
     Path = cell_product:path(Zone, Lane),
+    Retain = cell_retain:path(Zone, Lane),
     #task{id = Id, module = Mod, zone = Zone, lane = Lane,
           args = maps:get(args, Spec, #{}), io = maps:get(io, Spec, []),
           settings = case maps:get(settings, Spec, #{}) of
@@ -135,7 +156,8 @@ new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
                                    #{role => Role, phase => idle, available => false,
                                      not_busy => false}
                            end, maps:get(links, Spec, #{})),
-          product_path = Path, product_file = cell_file:record_file(Path)}.
+          product_path = Path, product_file = cell_file:record_file(Path),
+          retain_path = Retain, retain_file = cell_file:record_file(Retain)}.
 
 %% Accessors
 
@@ -204,6 +226,77 @@ others_products(#task{id = Id}) ->
 -spec clear_product(task()) -> task().
 clear_product(T) ->
     store(T, undefined, 0, undefined, #{}).
+
+%% @doc A value the task retained, or `Default' when it has none.
+-spec retained(task(), cell_retain:key(), term()) -> term().
+retained(#task{retained = R}, Key, Default) ->
+    maps:get(Key, R, Default).
+
+%% @doc Everything the task retained.
+-spec retained(task()) -> cell_retain:data().
+retained(#task{retained = R}) ->
+    R.
+
+%% @doc Retains `Value' under `Key'; it is on disk when this returns. A key or value
+%% {@link cell_retain} refuses raises `{bad_retained, Key, Why}', and nothing is
+%% written.
+-spec retain(task(), cell_retain:key(), term()) -> task().
+retain(#task{retained = R} = T, Key, Value) ->
+    case R of
+        #{Key := Value} ->
+            T;
+        #{} ->
+            case cell_retain:put(R, Key, Value) of
+                {ok, R1} -> keep(T, R1);
+                {error, Refusal} -> erlang:error(Refusal)
+            end
+    end.
+
+%% @doc Applies `Fun' to the value retained under `Key' (to `Default' when there is
+%% none) and retains the result, which it returns with the task; it is on disk when
+%% this returns. A serial counter: `{N, T1} = retain_update(T, serial, fun(S) -> S + 1
+%% end, 0)' gives 1, 2, 3 ... across restarts, crashes and power cuts.
+-spec retain_update(task(), cell_retain:key(), fun((term()) -> term()), term()) ->
+          {term(), task()}.
+retain_update(#task{retained = R} = T, Key, Fun, Default) ->
+    case cell_retain:update(R, Key, Fun, Default) of
+        {ok, New, R1} -> {New, keep(T, R1)};
+        {error, Refusal} -> erlang:error(Refusal)
+    end.
+
+%% @doc Removes what the task retained under `Key'; durable when this returns.
+-spec forget_retained(task(), cell_retain:key()) -> task().
+forget_retained(#task{retained = R} = T, Key) ->
+    case maps:is_key(Key, R) of
+        true -> keep(T, cell_retain:remove(R, Key));
+        false -> T
+    end.
+
+keep(#task{id = Id, retain_file = File} = T, Data) ->
+    case cell_retain:save(File, Data, #{}) of
+        ok ->
+            ok = cell_registry:update(Id, #{retained => Data}),
+            T#task{retained = Data};
+        {error, Reason} ->
+            %% Nothing may act on a value that is not durable: the task crashes and
+            %% the operator is told why (as for a product not saved).
+            erlang:error({retained_not_saved, Reason})
+    end.
+
+%% @private The task's retained data from its file, when the task starts; the
+%% registry row says what was loaded or why nothing could be.
+-spec load_retained(task()) -> {ok, task()} | {error, term()}.
+load_retained(#task{id = Id, module = Mod, retain_path = Path} = T) ->
+    %% The atoms of the task's code exist before its file is read.
+    _ = code:ensure_loaded(Mod),
+    case cell_retain:load(Path) of
+        {ok, Data} ->
+            ok = cell_registry:update(Id, #{retained => Data, retained_error => undefined}),
+            {ok, T#task{retained = Data}};
+        {error, Reason} = Error ->
+            ok = cell_registry:update(Id, #{retained => undefined, retained_error => Reason}),
+            Error
+    end.
 
 %% @private Stores the task's product with its generation and marker (`undefined'
 %% removes the file), and tells the registry.

@@ -17,6 +17,11 @@
     product_path :: binary(),
     %% The product file kept open for the task's writes (cell_file:record_file/1).
     product_file :: cell_file:record_file(),
+    %% The task's retained data (cell_retain) as its file holds it, the file's name and
+    %% its handle.
+    retained = #{} :: cell_retain:data(),
+    retain_path :: binary(),
+    retain_file :: cell_file:record_file(),
     links = #{} :: #{atom() => map()},         %% handshake links: role, last signals
     ipc = off :: cell_ipc:state(),
     answer :: cell_alarms:solution() | undefined,

@@ -65,7 +65,7 @@
 -type estop_barrier() :: {atomics:atomics_ref(), pos_integer(), pos_integer(), pid()}.
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | reconcile | step | crash | product_file | transit | io.
+-type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
 -type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
                | {reply, reference()}
@@ -84,6 +84,7 @@
     gen = 0 :: non_neg_integer(),         %% step messages and timers of older rounds are ignored
     armed = [] :: [armed()],
     load_error :: term(),                 %% the product file could not be read
+    retain_error :: term(),               %% the retained-data file could not be read
     crash :: term(),                      %% how the previous incarnation ended
     crash_ask = false :: boolean(),       %% the crash is the operator's to answer
     resumed = false :: boolean(),         %% went on by itself after a crash, not yet waited
@@ -220,6 +221,8 @@ handle_event(internal, {crashed, Reason}, setup, D) ->
     raise(setup, crash_error(Reason, D), crash, D);
 handle_event(internal, product_damaged, setup, D) ->
     raise(setup, damaged_error(D), product_file, D);
+handle_event(internal, retain_damaged, setup, D) ->
+    raise(setup, retain_damaged_error(D), retain_file, D);
 handle_event(internal, in_transit, setup, D) ->
     raise(setup, transit_error(D), transit, D);
 
@@ -373,7 +376,7 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
                                                  settings_key => settings_key(D0)}),
     D1 = D0#data{request = cell_registry:control(request),
                  estop = cell_registry:control(estop)},
-    D2 = service_flag(cell_registry:control(service_mode), D1),
+    D2 = retained(service_flag(cell_registry:control(service_mode), D1)),
     D = case cell_product:load(T#task.product_path) of
             {ok, Stored} ->
                 D2#data{task = cell_handshake:attach_all(take_loaded(D2#data.task, Stored))};
@@ -396,6 +399,19 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
             start_from_off(D3);
         _ ->
             start_from_off(D)
+    end.
+
+%% The task's retained data, as its file holds them; a file that cannot be read is the
+%% operator's question before the task runs, never an empty store.
+retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
+    case cell_task:load_retained(T) of
+        {ok, T1} ->
+            D#data{task = T1, retain_error = undefined};
+        {error, Reason} ->
+            cell_log:error(Id, "the retained data file ~ts cannot be read: ~ts; the task "
+                           "does not run: the operator is asked when the cell starts",
+                           [Path, cell_retain:text(Reason)]),
+            D#data{retain_error = Reason}
     end.
 
 %% Whether the operator is asked about the crash rather than the task's reconcile: the
@@ -426,20 +442,7 @@ start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) 
     {keep_state, D};
 start_from_off(#data{request = start} = D0) ->
     D = D0#data{task = (D0#data.task)#task{settings = D0#data.settings}},
-    {Event, D1} = case D of
-                      #data{crash = undefined, load_error = undefined,
-                            task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
-                      #data{crash = undefined, load_error = undefined} -> {run_init, D};
-                      #data{crash = undefined} -> {product_damaged, D};
-                      #data{crash = Why, crash_ask = true} ->
-                          {{crashed, Why}, D#data{crash = undefined, crash_ask = false}};
-                      #data{crash = _, load_error = undefined} ->
-                          %% The task's reconcile decides (an interrupted transfer's
-                          %% mark included), as after the operator's Retry.
-                          {run_init, go_on_after_crash(D)};
-                      #data{crash = _} ->
-                          {product_damaged, go_on_after_crash(D)}
-                  end,
+    {Event, D1} = setup_event(D),
     goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]);
 start_from_off(#data{request = pause, estop = false, crash = Why} = D)
   when Why =/= undefined ->
@@ -452,12 +455,37 @@ start_from_off(D) ->
     %% A task restarted while the cell is stopped stays OFF; its product is on disk.
     {keep_state, D#data{crash = undefined, crash_ask = false}}.
 
+%% What setup does first: the operator's question about a file the task's record cannot
+%% be read from (retained data first: nothing runs without them), an interrupted
+%% transfer or a crash, or init.
+setup_event(#data{retain_error = Why} = D) when Why =/= undefined ->
+    {retain_damaged, D};
+setup_event(D) ->
+    case D of
+        #data{crash = undefined, load_error = undefined,
+              task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
+        #data{crash = undefined, load_error = undefined} -> {run_init, D};
+        #data{crash = undefined} -> {product_damaged, D};
+        #data{crash = Why, crash_ask = true} ->
+            {{crashed, Why}, D#data{crash = undefined, crash_ask = false}};
+        #data{crash = _, load_error = undefined} ->
+            %% The task's reconcile decides (an interrupted transfer's mark included),
+            %% as after the operator's Retry.
+            {run_init, go_on_after_crash(D)};
+        #data{crash = _} ->
+            {product_damaged, go_on_after_crash(D)}
+    end.
+
 %% Going on by itself after a crash: the registry remembers it until the task first
 %% waits, so that a crash before that is the operator's to answer.
 go_on_after_crash(#data{task = #task{id = Id}} = D) ->
     ok = cell_registry:update(Id, #{resumed => true}),
     D#data{crash = undefined, resumed = true}.
 
+run_init(#data{retain_error = Why} = D) when Why =/= undefined ->
+    %% However setup was entered (a Reset, a product forgotten), nothing runs without
+    %% the task's retained data.
+    raise(setup, retain_damaged_error(D), retain_file, D);
 run_init(#data{task = #task{module = Mod} = T0} = D0) ->
     case estop_raised(D0) of
         true ->
@@ -910,7 +938,29 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
         {error, Reason} ->
             D1 = D#data{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
-    end.
+    end;
+answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
+    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
+    case file:rename(Path, Aside) of
+        ok ->
+            cell_log:notice(Id, "~ts set the damaged retained data file aside as ~ts; the "
+                            "task starts with no retained data, its counters again from "
+                            "their defaults", [Who, Aside]);
+        {error, Why} ->
+            %% Still there: read again below, and asked again if still unreadable.
+            cell_log:error(Id, "the damaged retained data file ~ts could not be set aside: "
+                           "~ts", [Path, file:format_error(Why)])
+    end,
+    retained_again(D);
+answered(retain_file, _Retry, _Who, D) ->
+    retained_again(D).
+
+%% The retained data read again (mended, restored or set aside meanwhile): the task
+%% goes on into setup as from OFF, or is asked again.
+retained_again(D0) ->
+    D = retained(D0),
+    {Event, D1} = setup_event(D),
+    goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]).
 
 %% Reset: uninit, then arrow 8 (from DOWN) to init again.
 reinit(D) ->
@@ -1268,6 +1318,19 @@ damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
                     [Path, Why]),
       [retry, reset]).
 
+retain_damaged_error(#data{task = #task{retain_path = Path}, retain_error = Why}) ->
+    cell_task:error_spec(
+      <<"retain_file">>, "Retained data damaged",
+      io_lib:format("The task's retained data (its counters, such as the last serial "
+                    "made) cannot be read from ~ts: ~ts.~nThe task does not run: starting "
+                    "it without them could repeat serials already made. Restore the file "
+                    "from a backup if there is one, then select RETRY to read it again. "
+                    "Select RESET to set the file aside and start the task with no "
+                    "retained data: its counters start again from their defaults, so check "
+                    "what the next serials will be.",
+                    [Path, cell_retain:text(Why)]),
+      [retry, reset]).
+
 transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
     cell_task:error_spec(
       <<"in_transit">>, "Product transfer interrupted",
@@ -1280,6 +1343,10 @@ transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
 
 crash_text({{product_not_saved, {Path, Reason}}, _}) ->
     io_lib:format("the product could not be saved to ~ts (~tp)", [Path, Reason]);
+crash_text({{retained_not_saved, {Path, Reason}}, _}) ->
+    io_lib:format("its retained data could not be saved to ~ts (~tp)", [Path, Reason]);
+crash_text({{bad_retained, _, _} = Refused, _}) ->
+    ["the task's code tried to retain what cannot be retained: ", cell_retain:text(Refused)];
 crash_text({Reason, Stack}) when is_list(Stack) ->
     io_lib:format("~tP", [Reason, 12]);
 crash_text(killed) ->

@@ -23,6 +23,7 @@ routes() ->
      {"/api/cell/:command", cell_web_cell_h, #{}},
      {"/api/tasks", cell_web_tasks_h, #{}},
      {"/api/tasks/:id", cell_web_tasks_h, #{}},
+     {"/api/tasks/:id/retained", cell_web_tasks_h, #{what => retained}},
      {"/api/alarms", cell_web_alarms_h, #{what => list}},
      {"/api/alarms/history", cell_web_alarms_h, #{what => history}},
      {"/api/alarms/:id/answer", cell_web_alarms_h, #{what => answer}},

@@ -1,7 +1,9 @@
 %% @doc `/api/tasks' — every device task: state, product serial, zone and lane;
 %% `/api/tasks/:id' — one task in full: why it is DOWN, its pending request, its
 %% product, the settings it runs on (the snapshot taken at the last Start) and, for a
-%% unit, its own state and the step its sequence is at.
+%% unit, its own state and the step its sequence is at; `/api/tasks/:id/retained' —
+%% the task's retained data (its counters, the last serial made: see
+%% `cell_task:retain/3'), as its file holds them, or why the file cannot be read.
 -module(cell_web_tasks_h).
 -behaviour(cowboy_handler).
 
@@ -9,18 +11,35 @@
 
 -spec init(cowboy_req:req(), map()) -> {ok, cowboy_req:req(), map()}.
 init(Req, Opts) ->
-    {ok, cell_web_req:run(Req, fun handle/2), Opts}.
+    What = maps:get(what, Opts, task),
+    {ok, cell_web_req:run(Req, fun(R, C) -> handle(What, R, C) end), Opts}.
 
-handle(Req, Caller) ->
+handle(What, Req, Caller) ->
     cowboy_req:method(Req) =:= <<"GET">>
         orelse cell_web_req:fail(405, method_not_allowed, "use GET", #{allow => <<"GET">>}),
     _ = cell_web_req:require(Caller, view),
     case cowboy_req:binding(id, Req) of
         undefined ->
             {json, 200, [cell_web_json:task(Row) || Row <- cell_controller:tasks()]};
+        Bin when What =:= retained ->
+            {json, 200, retained(task_id(Bin))};
         Bin ->
             {json, 200, detail(task_id(Bin))}
     end.
+
+%% What the task retained, as its registry row has it from the task's file.
+retained(Id) ->
+    {ok, Row} = cell_registry:task(Id),
+    {Data, Error} = case Row of
+                        #{retained_error := Why} when Why =/= undefined ->
+                            {null, unicode:characters_to_binary(cell_retain:text(Why))};
+                        #{retained := R} when is_map(R) ->
+                            {cell_web_json:term(R), null};
+                        _ ->
+                            {null, null}
+                    end,
+    #{<<"task">> => atom_to_binary(Id, utf8), <<"zone">> => maps:get(zone, Row),
+      <<"lane">> => maps:get(lane, Row), <<"retained">> => Data, <<"error">> => Error}.
 
 %% @doc The task a URL names, matched against the running cell's ids (an atom is never
 %% made from the request).

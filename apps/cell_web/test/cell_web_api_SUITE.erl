@@ -12,7 +12,8 @@
 all() ->
     [pages_and_unknown_routes, session_login_logout, roles_are_enforced,
      csrf_and_origin_are_checked, commands_change_the_cell, bad_requests_change_nothing,
-     errors_are_answered, warnings_are_closed, tasks_and_products, log_is_queried,
+     errors_are_answered, warnings_are_closed, tasks_and_products, retained_data_is_read,
+     log_is_queried,
      %% After log_is_queried: its errors are in the log that case reads.
      answer_refused_for_a_product_held_twice,
      settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
@@ -333,6 +334,31 @@ tasks_and_products(Config) ->
     ok = cell_controller:sync(),
     {200, #{<<"state">> := <<"DOWN">>, <<"down">> := #{<<"why">> := <<"paused">>}}, _} =
         req(Op, get, "/api/tasks/router").
+
+%% A task's retained data, read-only, for anyone who may view: as the task last made it
+%% durable, plain values as JSON.
+retained_data_is_read(Config) ->
+    _ = started(Config),
+    A = anon(Config),
+    cmd(Config, router, {retain, serial, 41}),
+    cmd(Config, router, {retain, <<"tool">>, #{wear => 0.25, changed => <<"2026-11-27">>}}),
+    {200, #{<<"task">> := <<"router">>, <<"zone">> := <<"Routing">>, <<"lane">> := <<"Front">>,
+            <<"retained">> := #{<<"serial">> := 41,
+                                <<"tool">> := #{<<"wear">> := 0.25,
+                                                <<"changed">> := <<"2026-11-27">>}},
+            <<"error">> := null}, _} = req(A, get, "/api/tasks/router/retained"),
+    cmd(Config, router, {retain, serial, 42}),
+    {200, #{<<"retained">> := #{<<"serial">> := 42}}, _} =
+        req(A, get, "/api/tasks/router/retained"),
+    {200, #{<<"task">> := <<"loader">>, <<"retained">> := Empty, <<"error">> := null}, _} =
+        req(A, get, "/api/tasks/loader/retained"),
+    ?assertEqual(#{}, Empty),
+    assert_error(404, <<"not_found">>, req(A, get, "/api/tasks/nothing/retained")),
+    {405, _, H} = req(as(admin, Config), put, "/api/tasks/router/retained", #{serial => 1}),
+    ?assertEqual({"allow", "GET"}, lists:keyfind("allow", 1, H)),
+    cmd(Config, router, {forget_retained, <<"tool">>}),
+    {200, #{<<"retained">> := Left}, _} = req(A, get, "/api/tasks/router/retained"),
+    ?assertEqual(#{<<"serial">> => 42}, Left).
 
 log_is_queried(Config) ->
     A = anon(Config),

@@ -2,7 +2,8 @@
 %% command `{Ref, Command}' (Ref is the task's `ref' argument) and does it:
 %% `{event, Fun}' (a cell_task event function of arity 1), `{error, Solutions}' (an
 %% error for the operator), `{warning, Id, Caption}', `{product, Serial | undefined}',
-%% `{log, Text}'. The answers its errors receive are sent to `notify' as
+%% `{log, Text}', `{retain, Key, Value}' and `{forget_retained, Key}' (retained data).
+%% The answers its errors receive are sent to `notify' as
 %% `{cell_web_demo_task, Id, answered, Solution}'.
 -module(cell_web_demo_task).
 -behaviour(cell_task).
@@ -56,6 +57,10 @@ do({error, Solutions}, T, _Ref) ->
     {error, cell_task:error_spec(<<"jam">>, "Board jammed",
                                  "The board is stuck at the stopper.\nFree it, then select "
                                  "RETRY to check the sensor again.", Solutions), T};
+do({retain, Key, Value}, T, Ref) ->
+    {wait, {reply, Ref}, cell_task:retain(T, Key, Value)};
+do({forget_retained, Key}, T, Ref) ->
+    {wait, {reply, Ref}, cell_task:forget_retained(T, Key)};
 do({warning, Id, Caption}, T, Ref) ->
     {wait, {reply, Ref}, cell_task:warning(T, Id, Caption, "Refill soon.")};
 %% A product comes and goes as the seed says (§2.3.4): taken, then ItemTransferIn;
