@@ -10,12 +10,13 @@
          end_per_testcase/2]).
 -export([daemon_ping_eval_stop/1, root_folder_from_environment/1,
          restart_after_sigkill/1, heart_restarts_after_sigkill/1, sigterm_stops_cleanly/1,
-         bad_root_folder_is_refused/1, ships_a_systemd_unit/1, make_run_first_screen/1]).
+         bad_root_folder_is_refused/1, ships_a_systemd_unit/1, make_run_first_screen/1,
+         make_run_shows_errors/1]).
 
 all() ->
     [daemon_ping_eval_stop, root_folder_from_environment, restart_after_sigkill,
      heart_restarts_after_sigkill, sigterm_stops_cleanly, bad_root_folder_is_refused,
-     ships_a_systemd_unit, make_run_first_screen].
+     ships_a_systemd_unit, make_run_first_screen, make_run_shows_errors].
 
 init_per_suite(Config) ->
     Rel = case os:getenv("CELLRT_REL") of
@@ -165,6 +166,21 @@ make_run_first_screen(Config) ->
      || Line <- ["cellrt: Ctrl-C stops the cell", "cellrt: stopped"]],
     ?assertMatch([_], [L || L <- Text, lists:suffix("[notice] cellrt stopped", L)]),
     ?assertEqual("cellrt: stopped", lists:last(Text)).
+
+%% What `make run' leaves out is only that chatter: a node that cannot boot says why
+%% on its screen, and the script ends with the VM's failure.
+make_run_shows_errors(Config) ->
+    Rel = filename:dirname(filename:dirname(?config(bin, Config))),
+    Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
+    Env = lists:keystore("CELLRT_ROOT", 1, [{"CELLRT_REL", Rel} | ?config(env, Config)],
+                         {"CELLRT_ROOT", "/proc/cellrt-cannot-create-this"}),
+    Port = open_port({spawn_executable, Script},
+                     [{env, Env}, exit_status, stderr_to_stdout, binary, {line, 4096}]),
+    {Status, Lines} = lines(Port, [], erlang:monotonic_time(millisecond) + 120000),
+    ct:log("~s", [lists:join("\n", Lines)]),
+    ?assertNotEqual(0, Status),
+    ?assertNotEqual([], [L || L <- Lines, string:find(L, "cell_root_folder") =/= nomatch]),
+    ?assertEqual("cellrt: stopped", lists:last(Lines)).
 
 %% Helpers
 
