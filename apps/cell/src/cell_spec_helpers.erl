@@ -210,7 +210,8 @@ connection(Id, Machine, #{real := {Driver, RealOpts}} = Choice)
 %% simulated one of its kind when the machine settings say simulation, otherwise the
 %% machine's own type (one the cell registers in the `hardware_types' of the
 %% `cell_hal' application, here `#{{camera, gige} => my_gige_camera}'); `none' where
-%% there is no such object.
+%% there is no such object. Run real, a `real' that is neither raises `{bad_hardware, Id,
+%% {bad_option, real}}'.
 %%
 %% ```
 %% cell_spec_helpers:hardware(top_camera, camera, Machine,
@@ -231,7 +232,9 @@ hardware(Id, Kind, Machine, #{real := Real} = Choice) when is_atom(Id), is_atom(
     case Chosen of
         none -> #{id => Id, kind => Kind, type => none};
         {Type, TypeOpts} when is_atom(Type), is_map(TypeOpts) ->
-            #{id => Id, kind => Kind, type => Type, opts => TypeOpts}
+            #{id => Id, kind => Kind, type => Type, opts => TypeOpts};
+        _ ->
+            erlang:error({bad_hardware, Id, {bad_option, real}})
     end.
 
 %%====================================================================

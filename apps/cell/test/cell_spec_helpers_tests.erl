@@ -122,7 +122,8 @@ hardware_test_() ->
      ?_assertEqual(#{id => marker, kind => laser_marker, type => none},
                    ?H:hardware(marker, laser_marker, sim(), #{real => none, sim => none})),
      ?_assertError(function_clause, ?H:hardware(top, camera, sim(), #{sim => #{}})),
-     ?_assertError({case_clause, _}, ?H:hardware(top, camera, real(), #{real => gige}))].
+     ?_assertError({bad_hardware, top, {bad_option, real}},
+                   ?H:hardware(top, camera, real(), #{real => gige}))].
 
 %% -------------------------------------------------------------------------------------
 %% The monitor, and a whole spec through the checks
