@@ -10,12 +10,13 @@
          end_per_testcase/2]).
 -export([daemon_ping_eval_stop/1, root_folder_from_environment/1,
          restart_after_sigkill/1, heart_restarts_after_sigkill/1, sigterm_stops_cleanly/1,
-         bad_root_folder_is_refused/1, ships_a_systemd_unit/1]).
+         bad_root_folder_is_refused/1, ships_a_systemd_unit/1, make_run_first_screen/1,
+         make_run_shows_errors/1]).
 
 all() ->
     [daemon_ping_eval_stop, root_folder_from_environment, restart_after_sigkill,
      heart_restarts_after_sigkill, sigterm_stops_cleanly, bad_root_folder_is_refused,
-     ships_a_systemd_unit].
+     ships_a_systemd_unit, make_run_first_screen, make_run_shows_errors].
 
 init_per_suite(Config) ->
     Rel = case os:getenv("CELLRT_REL") of
@@ -41,7 +42,10 @@ init_per_testcase(Case, Config) ->
            {"CELLRT_WEB_PORT", "0"}]
           %% Started again by hand after the kill, as a service manager would: heart,
           %% which would start it at the same moment, is left out.
-          ++ [{"CELLRT_HEART", "-noheart"} || Case =:= restart_after_sigkill],
+          ++ [{"CELLRT_HEART", "-noheart"} || Case =:= restart_after_sigkill]
+          %% Every command of the start script writes the release's sys.config from its
+          %% own environment, the pings that wait for the boot included.
+          ++ [{"CELLRT_SHDR_PORT", "0"} || Case =:= make_run_first_screen],
     [{env, Env}, {root, Root}, {node, list_to_atom(Node)} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -138,7 +142,59 @@ ships_a_systemd_unit(Config) ->
      || Line <- [<<"\nRestart=always\n">>, <<"\nExecStart=/opt/cellrt/bin/cellrt foreground\n">>,
                  <<"\nWantedBy=multi-user.target\n">>]].
 
+%% `make run' (scripts/run) shows the cell's own lines, not the start script's and
+%% heart's (the erlexec command line, the release folder, heart's pid); Ctrl-C (SIGINT
+%% to the script) stops the cell in order and its last lines still show.
+make_run_first_screen(Config) ->
+    Bin = ?config(bin, Config),
+    Rel = filename:dirname(filename:dirname(Bin)),
+    Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
+    Env = [{"CELLRT_REL", Rel} | ?config(env, Config)],
+    Port = open_port({spawn_executable, Script},
+                     [{env, Env}, exit_status, stderr_to_stdout, binary, {line, 4096}]),
+    {os_pid, OsPid} = erlang:port_info(Port, os_pid),
+    ok = await_up(Config),
+    _ = os:cmd("kill -INT " ++ integer_to_list(OsPid)),
+    {Status, Lines} = lines(Port, [], erlang:monotonic_time(millisecond) + 120000),
+    Text = [string:trim(re:replace(L, "\\e\\[[0-9;]*m", "", [global, {return, list}]))
+            || L <- Lines],
+    ct:log("~s", [lists:join("\n", Text)]),
+    ?assertEqual(0, Status),
+    [?assertEqual([], [L || L <- Text, lists:prefix(Noise, L)], Noise)
+     || Noise <- ["Exec: ", "Root: ", "heart_beat_kill_pid", Rel]],
+    [?assert(lists:member(Line, Text), Line)
+     || Line <- ["cellrt: Ctrl-C stops the cell", "cellrt: stopped"]],
+    ?assertMatch([_], [L || L <- Text, lists:suffix("[notice] cellrt stopped", L)]),
+    ?assertEqual("cellrt: stopped", lists:last(Text)).
+
+%% What `make run' leaves out is only that chatter: a node that cannot boot says why
+%% on its screen, and the script ends with the VM's failure.
+make_run_shows_errors(Config) ->
+    Rel = filename:dirname(filename:dirname(?config(bin, Config))),
+    Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
+    Env = lists:keystore("CELLRT_ROOT", 1, [{"CELLRT_REL", Rel} | ?config(env, Config)],
+                         {"CELLRT_ROOT", "/proc/cellrt-cannot-create-this"}),
+    Port = open_port({spawn_executable, Script},
+                     [{env, Env}, exit_status, stderr_to_stdout, binary, {line, 4096}]),
+    {Status, Lines} = lines(Port, [], erlang:monotonic_time(millisecond) + 120000),
+    ct:log("~s", [lists:join("\n", Lines)]),
+    ?assertNotEqual(0, Status),
+    ?assertNotEqual([], [L || L <- Lines, string:find(L, "cell_root_folder") =/= nomatch]),
+    ?assertEqual("cellrt: stopped", lists:last(Lines)).
+
 %% Helpers
+
+%% A port's output lines and its exit status, by the deadline.
+lines(Port, Acc, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {Port, {data, {eol, L}}} -> lines(Port, [binary_to_list(L) | Acc], Deadline);
+        {Port, {data, {noeol, L}}} -> lines(Port, [binary_to_list(L) | Acc], Deadline);
+        {Port, {exit_status, S}} -> {S, lists:reverse(Acc)}
+    after Left ->
+        catch port_close(Port),
+        ct:fail("timed out; output so far: ~p", [lists:reverse(Acc)])
+    end.
 
 other_pid(Config, Pid) ->
     case cellrt(Config, ["eval", "os:getpid()."]) of

@@ -34,6 +34,8 @@
 %% `cell_module' environment key names that module, whose `cell_spec/0' is called at
 %% boot. The `cell_spec' key may hold a spec directly (tests do). Every field is checked
 %% here; a bad spec stops the boot with an error that names the task and the field.
+%% A spec is written with {@link cell_spec_helpers} (the settings as saved, simulated or
+%% real IO, the monitor's IO, tasks, units and hardware objects).
 -module(cell_spec).
 
 -export([load/0, validate/1, empty/0, hosted_links/1]).
@@ -82,7 +84,14 @@ from_module(Mod) when is_atom(Mod) ->
     case code:ensure_loaded(Mod) of
         {module, Mod} ->
             case erlang:function_exported(Mod, cell_spec, 0) of
-                true -> validate(Mod:cell_spec());
+                true ->
+                    %% The helpers' refusals, raised from inside the spec's literal, come
+                    %% back as the checks' own errors do.
+                    try Mod:cell_spec() of
+                        Spec -> validate(Spec)
+                    catch
+                        error:{bad_task, _Id, _Why} = Refused -> {error, Refused}
+                    end;
                 false -> {error, {not_a_cell_module, Mod, "it exports no cell_spec/0"}}
             end;
         {error, _} ->

@@ -20,18 +20,18 @@
 %% the router's PLC over Modbus TCP (`plc_host', `plc_port', `plc_unit' of the
 %% `router' settings); `dual_lane' adds the rear lane. The task modules are the same
 %% either way: they only know their IO by name. A change of these settings applies at
-%% the next boot of the cell.
+%% the next boot of the cell. The settings are read, and the PLC chosen, with the
+%% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, machine_settings/0,
-         router_settings/0, is_configured/0]).
+-export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, router_settings/0]).
 
 -define(CONN, router_plc).
 
 %% @doc The cell spec, from the settings files as they are at boot.
 -spec cell_spec() -> map().
 cell_spec() ->
-    cell_spec(machine_settings(), router_settings()).
+    cell_spec(cell_spec_helpers:machine_settings(), router_settings()).
 
 %% @doc The cell spec for given machine and router settings.
 -spec cell_spec(map(), map()) -> map().
@@ -82,16 +82,12 @@ lane_tasks(L) ->
 -spec hal(map(), map()) -> #{connections := [cell_hal:connection_spec()],
                              groups := [cell_hal:group_spec()]}.
 hal(Machine, Router) ->
-    Poll = maps:get(hal_poll_ms, Router, 20),
-    Conn = case maps:get(simulation_mode, Machine, true) of
-               true ->
-                   #{id => ?CONN, driver => cell_hal_sim, opts => #{poll_ms => Poll}};
-               false ->
-                   #{id => ?CONN, driver => cell_hal_modbus,
-                     opts => #{host => binary_to_list(maps:get(plc_host, Router)),
-                               port => maps:get(plc_port, Router),
-                               unit => maps:get(plc_unit, Router), poll_ms => Poll}}
-           end,
+    Conn = cell_spec_helpers:connection(
+             ?CONN, Machine,
+             #{real => {cell_hal_modbus, #{host => binary_to_list(maps:get(plc_host, Router)),
+                                           port => maps:get(plc_port, Router),
+                                           unit => maps:get(plc_unit, Router)}},
+               opts => #{poll_ms => maps:get(hal_poll_ms, Router, 20)}}),
     %% Each lane's groups 100 addresses apart in the PLC's image.
     Groups = lists:append([[#{id => group(K, L), module => module(K), connection => ?CONN,
                               opts => #{base => Base + Off}}
@@ -106,8 +102,11 @@ hal(Machine, Router) ->
 
 %% @doc The lanes of the machine.
 -spec lanes(map()) -> [front | rear].
-lanes(#{dual_lane := true}) -> [front, rear];
-lanes(_) -> [front].
+lanes(Machine) ->
+    case cell_spec_helpers:dual_lane(Machine) of
+        true -> [front, rear];
+        false -> [front]
+    end.
 
 %% @doc The IO group instance of a lane's segment.
 -spec group(loading | work | unloading, front | rear) -> atom().
@@ -141,37 +140,8 @@ link(pick_unload, rear) -> pick_unload_rear.
 lane_name(front) -> <<"Front">>;
 lane_name(rear) -> <<"Rear">>.
 
-%% @doc The machine settings as saved (the controller is not running yet when the cell
-%% spec is built): defaults for a missing file, and for a file that does not validate
-%% (the settings owner logs that one when it loads it).
--spec machine_settings() -> map().
-machine_settings() ->
-    from_file(cell_machine_settings).
-
-%% @doc The router settings as saved.
+%% @doc The router settings as saved (the controller is not running yet when the cell
+%% spec is built).
 -spec router_settings() -> map().
 router_settings() ->
-    from_file(router_settings).
-
-from_file(Schema) ->
-    Path = filename:join(cell_config:dir(settings), atom_to_list(Schema:name()) ++ ".json"),
-    case file:read_file(Path) of
-        {ok, Bin} ->
-            case cell_settings_schema:from_json(Schema, Bin) of
-                {ok, Obj} -> Obj;
-                {error, _} -> cell_settings_schema:defaults(Schema)
-            end;
-        {error, _} ->
-            cell_settings_schema:defaults(Schema)
-    end.
-
-%% @doc Whether this is the cell the runtime runs (the `cell' application's
-%% `cell_module').
--spec is_configured() -> boolean().
-is_configured() ->
-    case cell_config:get(cell, cell_module, undefined) of
-        ?MODULE -> true;
-        "router_cell" -> true;
-        <<"router_cell">> -> true;
-        _ -> false
-    end.
+    cell_spec_helpers:saved_settings(router_settings).

@@ -13,11 +13,11 @@
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
-    case router_cell:is_configured() of
+    case cell_spec_helpers:is_configured_cell(router_cell) of
         true ->
             ok = router_recipes:ensure_demo(),
-            Machine = router_cell:machine_settings(),
-            router_cell_sup:start_link(maps:get(simulation_mode, Machine, true),
+            Machine = cell_spec_helpers:machine_settings(),
+            router_cell_sup:start_link(cell_spec_helpers:simulated(Machine),
                                        router_cell:lanes(Machine));
         false ->
             router_cell_sup:start_link(false, [])
