@@ -200,6 +200,8 @@ crash_restores_product(Config) ->
     %% itself, and a warning (not a question) says it crashed.
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch(#{product := P}, cell_task_proc:info(work)),
+    %% What the task raised as it booted (before it answered) is listed.
+    ok = cell_alarms:sync(),
     [#{id := Warned, kind := warning, caption := <<"Task restarted after a crash">>,
        solutions := [close], description := Text}] = cell_alarms:list(),
     ?assertNotEqual(nomatch, binary:match(Text, <<"PANEL-7">>)),
@@ -280,7 +282,10 @@ kill_and_await(Task) ->
     receive {cell_event, #{type := task_crashed, task := Task}} -> ok
     after 5000 -> ct:fail(no_restart)
     end,
-    ok = cell_controller:sync().
+    ok = cell_controller:sync(),
+    %% The restarted task has booted, and what it raised meanwhile is listed.
+    ok = cell_task_proc:sync(Task),
+    cell_alarms:sync().
 
 %% Every way into READY passes the task's reconcile with what its predecessor held: a
 %% Start from OFF, a restart after a crash (its product as saved), a Reset; a question
