@@ -72,6 +72,10 @@
 %% interrupted" in its `in_transit' phase: Ignore runs that phase's step (the product
 %% is here), Reset re-initialises the task and `after_reset/1' forgets the product.
 %%
+%% `apps/cell/test/cell_handover_task.erl' is a whole segment written so, which
+%% `prop_cell_handover' runs in a line through kills, link restarts, emergency stops and
+%% the operator's answers.
+%%
 %% The task's data keys `phase', `on_reset' and `transit_have' belong to this module.
 -module(cell_handover).
 
