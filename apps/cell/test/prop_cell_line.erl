@@ -8,13 +8,19 @@
 %% Checked: every pause and stop settles within a bound (no deadlock); whenever the
 %% line is still, every product fed in is out or owned by exactly one segment, on
 %% disk and in memory (none lost, none duplicated); a drain gets every product out.
+%%
+%% The harness (commands, setup, checks) serves prop_cell_handover too, whose line is
+%% written with the framework's hand-over patterns (cell_handover_task) and whose
+%% operator also answers Reset: a product the operator said is not there (forgotten)
+%% is accounted for as such.
 -module(prop_cell_line).
 -include_lib("proper/include/proper.hrl").
 -include_lib("eunit/include/eunit.hrl").
 
 -export([initial_state/0, command/1, precondition/2, postcondition/3, next_state/3]).
 -export([feed/1, start/0, pause/0, stop/0, estop/1, kill_task/1, kill_link/1, drain/0]).
--export([setup/1, teardown/0, final_check/0]).
+-export([setup/1, setup/2, setup/3, teardown/0, final_check/0, model/1, tab/0, size/0, task/1,
+         info/1]).
 
 -define(BOUND, 15000).
 
@@ -66,6 +72,10 @@ prop_parallel() ->
 %% -------------------------------------------------------------------------------------
 
 initial_state() -> #m{}.
+
+%% The model of a line of `Size' segments, before any command.
+-spec model(3..5) -> #m{}.
+model(Size) -> #m{size = Size}.
 
 command(#m{size = Size} = M) ->
     Tasks = tasks(Size),
@@ -179,8 +189,9 @@ drain() ->
 
 drain(Deadline) ->
     answer_errors(),
+    %% A product the operator's Reset made a segment forget does not come out.
     Missing = [S || {{fed, S}, _} <- ets:match_object(tab(), {{fed, '_'}, '_'}),
-                    not ets:member(out_tab(), S)],
+                    not ets:member(out_tab(), S), not ets:member(tab(), {forgotten, S})],
     case Missing of
         [] ->
             check();
@@ -190,7 +201,7 @@ drain(Deadline) ->
                 {cell_event, _} -> drain(Deadline);
                 {line_out, _, _} -> drain(Deadline)
             after max(0, Left) ->
-                {stuck, Missing, states(), cell_alarms:list()}
+                {stuck, Missing, states(), cell_alarms:list(), detail()}
             end
     end.
 
@@ -234,6 +245,10 @@ settle(Accept, Deadline) ->
             end
     end.
 
+%% What each segment does, for a report of a line that does not move.
+detail() ->
+    [{T, maps:with([phase, product, marker, waits, down, links], info(T))} || T <- tasks(size())].
+
 info(T) ->
     case cell_task_proc:whereis(T) of
         undefined -> #{};
@@ -253,6 +268,9 @@ catch_sync() ->
 %% Every product fed in is out, waiting in the feed, or owned by exactly one segment:
 %% on disk (the highest generation, never shared) and in memory.
 check() ->
+    %% A segment may be inside a step that sends a product out (the drain saw it in
+    %% the out table): the files are read once every segment is between steps.
+    ok = catch_sync(),
     #{root := Root, feed := Feed} = config(),
     Files = filelib:wildcard(filename:join([Root, "Data", "*.product"])),
     Stored = [{S, G} || F <- Files, {ok, #{product := #{serial := S}, gen := G}}
@@ -274,14 +292,22 @@ check() ->
                 _ -> []
             end,
     Waiting = Waiting0 -- First,
+    %% What the operator's Reset made a segment forget (it said the product is not
+    %% there): gone by the operator's word, never by the line's doing.
+    Forgotten = [S || {{forgotten, S}, _} <- ets:match_object(tab(), {{forgotten, '_'}, '_'})],
+    Twice = [S || {{duplicate_out, S}, _} <- ets:match_object(tab(), {{duplicate_out, '_'}, '_'})],
+    Accounted = Out ++ Owners ++ Waiting,
     Problems =
         [{shared_owner, Shared} || Shared =/= []]
         ++ [{duplicate_in_memory, InMemory} || lists:usort(InMemory) =/= InMemory]
         ++ [{memory_and_disk, InMemory, Owners} || InMemory =/= Owners]
         ++ [{out_and_owned, [S || S <- Owners, lists:member(S, Out)]}
             || [S || S <- Owners, lists:member(S, Out)] =/= []]
-        ++ [{lost_or_extra, Fed -- (Out ++ Owners ++ Waiting), (Out ++ Owners ++ Waiting) -- Fed}
-            || lists:sort(Out ++ Owners ++ Waiting) =/= Fed],
+        ++ [{sent_out_twice, Twice} || Twice =/= []]
+        ++ [{lost, Fed -- (Accounted ++ Forgotten)} || Fed -- (Accounted ++ Forgotten) =/= []]
+        ++ [{extra_or_twice, Accounted -- Fed} || Accounted -- Fed =/= []]
+        ++ [{twice, Accounted -- lists:usort(Accounted)}
+            || lists:sort(Accounted) =/= lists:usort(Accounted)],
     case Problems of
         [] -> ok;
         _ -> {conservation, Problems}
@@ -307,6 +333,15 @@ final_check() ->
 %% -------------------------------------------------------------------------------------
 
 setup(Size) ->
+    setup(Size, cell_line_task).
+
+%% A fresh line of `Size' segments of the task module `Module'.
+setup(Size, Module) ->
+    setup(Size, Module, 1).
+
+%% As setup/2, the segments' moves `Slower' times as long (transfers that take longer
+%% are more often cut off by the commands).
+setup(Size, Module, Slower) ->
     Root = filename:join(["/tmp", "prop_cell_line", os:getpid()]),
     _ = os:cmd("rm -rf '" ++ Root ++ "'"),
     Tab = ets:new(prop_cell_line_tab, [named_table, public]),
@@ -317,12 +352,12 @@ setup(Size) ->
     _ = application:load(cell_base),
     _ = application:load(cell),
     ok = application:set_env(cell_base, root, Root),
-    Tasks = [#{id => task(I), module => cell_line_task, zone => <<"Seg">>,
+    Tasks = [#{id => task(I), module => Module, zone => <<"Seg">>,
                lane => integer_to_binary(I),
                args => #{prev => case I of 1 -> undefined; _ -> hs_link(I - 1) end,
                          next => case I of Size -> undefined; _ -> hs_link(I) end,
-                         feed => Feed, out => Out, ref => Ref, notify => self(),
-                         delay => (I * 3) rem 5}}
+                         feed => Feed, out => Out, ref => Ref, notify => self(), sensors => Tab,
+                         delay => (I * 3) rem 5 * Slower}}
              || I <- lists:seq(1, Size)],
     Links = [#{id => hs_link(I), from => task(I), to => task(I + 1)} || I <- lists:seq(1, Size - 1)],
     ok = application:set_env(cell, cell_spec, #{tasks => Tasks, links => Links}),

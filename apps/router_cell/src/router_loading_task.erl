@@ -35,7 +35,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    T = router_task:after_reset(T0),
+    T = cell_handover:after_reset(T0),
     %% The warning follows the magazine input from the first step on.
     {ok, cell_task:put(cell_task:out(T, upstream_ready, false), magazine_low, undefined)}.
 
@@ -43,24 +43,23 @@ init(T0) ->
 %% but not seen, the operator says where it is.
 -spec reconcile(cell_task:held(), cell_task:task()) ->
           {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
-reconcile(_Held, T) ->
-    case {cell_task:product(T), cell_task:answer(T)} of
-        {undefined, _} ->
+reconcile(_Held, T0) ->
+    case cell_handover:reconcile(T0, fun(T) -> cell_task:in(T, panel_at_stop) end, fun where/2) of
+        {empty, T} ->
             {ok, phase(cell_task:out(T, belt_run, false), idle)};
-        {#{serial := S}, Look} when Look =:= undefined; Look =:= retry ->
-            case cell_task:in(T, panel_at_stop) of
-                %% A panel waits at the stopper, as its product file says.
-                true -> {ok, phase(cell_task:out(here(T), belt_run, false), full)};
-                false -> where(T, S)
-            end;
-        {#{serial := S}, ignore} ->
+        %% A panel waits at the stopper, as its product file says.
+        {here, sensor, T} ->
+            {ok, phase(cell_task:out(T, belt_run, false), full)};
+        {here, operator, T} ->
+            #{serial := S} = cell_task:product(T),
             cell_task:log(T, brief, "panel ~ts on its way to the work segment (operator)", [S]),
-            {ok, phase(cell_task:out(here(T), belt_run, false), full)};
-        {#{serial := S}, _Reset} ->
+            {ok, phase(cell_task:out(T, belt_run, false), full)};
+        {gone, S, T} ->
             cell_task:log(T, brief, "panel ~ts taken out of the machine (operator): forgotten",
                           [S]),
-            T1 = cell_task:clear_product(cell_task:work_abort(T, <<"taken out of the machine">>)),
-            {ok, phase(cell_task:out(T1, belt_run, false), idle)}
+            {ok, phase(cell_task:out(T, belt_run, false), idle)};
+        {error, _, _} = Ask ->
+            Ask
     end.
 
 where(T, S) ->
@@ -77,12 +76,6 @@ where(T, S) ->
               [retry, ignore, reset]),
      T}.
 
-here(T) ->
-    case cell_handshake:in_transit(T) of
-        true -> cell_handshake:confirm_here(T);
-        false -> T
-    end.
-
 %% Stop the belt and tell the previous machine to hold; the panel stays where it is.
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
@@ -91,7 +84,7 @@ uninit(T) ->
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
     T1 = magazine(T),
-    step(router_task:phase(T1), cell_task:woken_by(T1), T1).
+    step(cell_handover:phase(T1), cell_task:woken_by(T1), T1).
 
 %% -- empty: a panel from the previous machine ---------------------------------------
 step(idle, _Woken, T) ->
@@ -122,7 +115,7 @@ step(full, _Woken, T) ->
 step(offered, {handshake, _Next, not_busy, true}, T) ->
     leave(cell_task:out(T, belt_run, true));
 step(offered, _Woken, T) ->
-    router_task:offered(T, next(T), full);
+    cell_handover:offered(T, next(T), full);
 step(leaving, {timer, _}, T) ->
     jam(T, "did not leave the stopper");
 step(leaving, _Woken, T) ->
@@ -138,9 +131,9 @@ step(leaving, _Woken, T) ->
             {continue, phase(cell_task:out(T, belt_run, false), full)}
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(cell_task:out(T, belt_run, false), full, idle);
+    cell_handover:interrupted(cell_task:out(T, belt_run, false), full, idle);
 step(released, _Woken, T) ->
-    router_task:finish(T, next(T), idle, full, fun(_, T1) -> cell_task:out(T1, belt_run, false) end);
+    cell_handover:finish(T, next(T), idle, full, fun(_, T1) -> cell_task:out(T1, belt_run, false) end);
 %% -- the operator said the panel of an interrupted transfer is here ------------------
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), full)}.
@@ -205,4 +198,4 @@ next(T) ->
     cell_task:arg(T, next, undefined).
 
 phase(T, Phase) ->
-    router_task:phase(T, Phase).
+    cell_handover:phase(T, Phase).

@@ -33,7 +33,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    {_, T} = router_task:reset_chosen(T0),
+    {_, T} = cell_handover:reset_chosen(T0),
     %% Go on counting commands from the controller's last answer.
     %% The cut list is made again from the recipe: a stage cut short is done again.
     {ok, cell_task:put(cell_task:put(T, command, cell_task:in(T, done)), cuts, undefined)}.
@@ -59,7 +59,7 @@ uninit(T) ->
 
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
-    step(router_task:phase(T), cell_task:woken_by(T), T).
+    step(cell_handover:phase(T), cell_task:woken_by(T), T).
 
 %% -- empty: take a clamped panel from either lane ---------------------------------------
 step(idle, _Woken, T) ->
@@ -76,7 +76,7 @@ step(idle, _Woken, T) ->
             {wait, [{handshake, L, available, true} || L <- prevs(T)], T}
     end;
 step(taking, {handshake, _Link, interrupted}, T) ->
-    router_task:interrupted(T, routing, idle);
+    cell_handover:interrupted(T, routing, idle);
 step(taking, {handshake, Link, available, false}, T) ->
     T1 = cell_handshake:complete(T, Link),
     {continue, phase(T1, routing)};
@@ -106,11 +106,11 @@ step(offered, {handshake, Next, not_busy, true}, T) ->
     T1 = cell_handshake:release(T, Next),
     {wait, {handshake, Next, not_busy, false}, phase(T1, released)};
 step(offered, _Woken, T) ->
-    router_task:offered(T, next(T), routed);
+    cell_handover:offered(T, next(T), routed);
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(T, routed, idle);
+    cell_handover:interrupted(T, routed, idle);
 step(released, _Woken, T) ->
-    router_task:finish(T, next(T), idle, routed);
+    cell_handover:finish(T, next(T), idle, routed);
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), routing)}.
 
@@ -219,4 +219,4 @@ serial(T) ->
 prevs(T) -> cell_task:arg(T, prevs, []).
 next(T) -> cell_task:arg(T, next, undefined).
 
-phase(T, Phase) -> router_task:phase(T, Phase).
+phase(T, Phase) -> cell_handover:phase(T, Phase).

@@ -1,36 +1,13 @@
-%% @doc What the router's device tasks share: their phase, the IPC-2541 events they
-%% raise when they start or stop waiting, watchdogs, and errors whose Reset forgets
-%% something.
-%%
-%% The engine answers Reset by re-initialising the task (the seed's ResetException:
-%% uninit, then init). The seed lets the task catch it first, to forget its product
-%% ("Select RESET to delete product data"); here a task says with {@link error/6} what
-%% Reset is to mean, and its `init' asks {@link reset_chosen/1} whether Reset was the
-%% answer (the registry of errors records every answer before the task hears it). A
-%% task that re-initialises for another reason (a Stop, then Start) finds no Reset and
-%% keeps what it holds.
+%% @doc What the router's device tasks share beyond the framework's hand-over patterns
+%% ({@link cell_handover}): the IPC-2541 events they raise when they start or stop
+%% waiting on the machine (SMEMA, a robot), watchdogs, their lane, and whose a whole
+%% panel in a work fixture is.
 -module(router_task).
 
--export([phase/2, phase/1, starved/1, unstarved/1, blocked/1, unblocked/1]).
--export([watch/5, watchdog/3, error/6, reset_chosen/1, after_reset/1, interrupted/3,
-         interrupted/4, lane/1]).
--export([take/3, take/4, offered/3, finish/4, finish/5, finish/6]).
--export([unheld/3, unheld_anywhere/2, unheld_error/4, fixture/1]).
+-export([starved/1, unstarved/1, blocked/1, unblocked/1]).
+-export([watch/5, watchdog/3, lane/1, fixture/1]).
 
--export_type([located/0, fixture_facts/0, fixture/0]).
-
-%% Whether the task's own sensors show the product of an interrupted transfer at its
-%% station (see interrupted/4).
--type located() :: fun((cell_task:task()) -> boolean()).
-
-%% @doc Sets the task's phase (its own state within its IPC-2541 state).
--spec phase(cell_task:task(), atom()) -> cell_task:task().
-phase(T, Phase) ->
-    cell_task:put(T, phase, Phase).
-
--spec phase(cell_task:task()) -> atom().
-phase(T) ->
-    cell_task:get(T, phase, undefined).
+-export_type([fixture_facts/0, fixture/0]).
 
 %% @doc EquipmentStarved, unless the task is already STARVED.
 -spec starved(cell_task:task()) -> cell_task:task().
@@ -66,160 +43,13 @@ not_idle(T, Why, Event) ->
 -spec watch(cell_task:task(), atom(), atom(), cell_hal_type:value(), atom()) ->
           cell_task:step_result().
 watch(T, Phase, Point, Value, Watchdog) ->
-    {wait, [{io, Point, {eq, Value}}, watchdog(T, Watchdog, 10000)], phase(T, Phase)}.
+    {wait, [{io, Point, {eq, Value}}, watchdog(T, Watchdog, 10000)],
+     cell_handover:phase(T, Phase)}.
 
 %% @doc The watchdog wait of a setting.
 -spec watchdog(cell_task:task(), atom(), pos_integer()) -> cell_task:wait().
 watchdog(T, Setting, Default) ->
     {timer, cell_task:setting(T, Setting, Default)}.
-
-%% @doc An error for the operator; `OnReset' is what the task is to do if the answer
-%% is Reset (its `init' learns it from {@link reset_chosen/1}).
--spec error(cell_task:task(), binary(), iodata(), iodata(), [cell_alarms:solution()], atom()) ->
-          {error, cell_alarms:spec(), cell_task:task()}.
-error(T, Id, Caption, Text, Solutions, OnReset) ->
-    Pending = {Id, os:system_time(millisecond), OnReset},
-    {error, cell_task:error_spec(Id, Caption, Text, Solutions),
-     cell_task:put(T, on_reset, Pending)}.
-
-%% @doc In `init': what the task said Reset would mean, if the operator answered its
-%% last error with Reset; `none' otherwise. Either way the question is settled.
--spec reset_chosen(cell_task:task()) -> {atom(), cell_task:task()}.
-reset_chosen(T) ->
-    case cell_task:get(T, on_reset, undefined) of
-        undefined ->
-            {none, T};
-        {Id, Since, OnReset} ->
-            Global = <<(atom_to_binary(cell_task:id(T), utf8))/binary, ":", Id/binary>>,
-            Chosen = lists:any(fun(#{id := I, what := reset, time := At}) ->
-                                       I =:= Global andalso At >= Since;
-                                  (_) ->
-                                       false
-                               end, cell_alarms:history()),
-            T1 = cell_task:put(T, on_reset, undefined),
-            case Chosen of
-                true -> {OnReset, T1};
-                false -> {none, T1}
-            end
-    end.
-
-%% @doc In `init': the task as it is, or without its product if the operator answered
-%% its last error with a Reset that forgets it.
--spec after_reset(cell_task:task()) -> cell_task:task().
-after_reset(T0) ->
-    case reset_chosen(T0) of
-        {forget, T} -> cell_task:clear_product(T);
-        {_, T} -> T
-    end.
-
-%%--------------------------------------------------------------------
-%% The steps of a hand-over every station writes alike (seed §2.3.6)
-%%--------------------------------------------------------------------
-
-%% @doc Downstream, empty: commits to the partner's offer if it makes one (phase 2),
-%% then waits in `Phase' for it to let go (phase 3); else waits for an offer.
--spec take(cell_task:task(), atom(), atom()) -> cell_task:step_result().
-take(T, Prev, Phase) ->
-    take(T, Prev, Phase, fun(T1) -> T1 end).
-
-%% @doc As {@link take/3}, `OnCommit' applied once committed (a belt started).
--spec take(cell_task:task(), atom(), atom(), fun((cell_task:task()) -> cell_task:task())) ->
-          cell_task:step_result().
-take(T, Prev, Phase, OnCommit) ->
-    case cell_handshake:available(T, Prev) andalso cell_handshake:commit(T, Prev) of
-        {ok, T1} -> {wait, {handshake, Prev, available, false}, phase(OnCommit(T1), Phase)};
-        {not_available, T1} -> {wait, {handshake, Prev, available, true}, T1};
-        false -> {wait, {handshake, Prev, available, true}, T}
-    end.
-
-%% @doc Upstream, offered: an offer still open waits for the partner's commit; one
-%% that is gone (the link restarted) is made again from `Again'.
--spec offered(cell_task:task(), atom(), atom()) -> cell_task:step_result().
-offered(T, Next, Again) ->
-    case cell_handshake:phase(T, Next) of
-        offered -> {wait, {handshake, Next, not_busy, true}, T};
-        _ -> {continue, phase(T, Again)}
-    end.
-
-%% @doc Upstream, released: the end of the transfer (phase 4). Completed: on in
-%% `Done'; aborted (the partner gave the product back): again from `Again';
-%% interrupted: {@link interrupted/3}; else it waits.
--spec finish(cell_task:task(), atom(), atom(), atom()) -> cell_task:step_result().
-finish(T, Next, Done, Again) ->
-    finish(T, Next, Done, Again, fun(_, T1) -> T1 end).
-
-%% @doc As {@link finish/4}, `Settle(Outcome, T)' applied first once it has ended.
--spec finish(cell_task:task(), atom(), atom(), atom(),
-             fun((completed | aborted | interrupted, cell_task:task()) -> cell_task:task())) ->
-          cell_task:step_result().
-finish(T, Next, Done, Again, Settle) ->
-    finish(T, Next, Done, Again, Settle, fun(_) -> false end).
-
-%% @doc As {@link finish/5}; an interruption is settled by {@link interrupted/4} with
-%% `Here'.
--spec finish(cell_task:task(), atom(), atom(), atom(),
-             fun((completed | aborted | interrupted, cell_task:task()) -> cell_task:task()),
-             located()) ->
-          cell_task:step_result().
-finish(T, Next, Done, Again, Settle, Here) ->
-    case cell_handshake:finish(T, Next) of
-        {completed, T1} -> {continue, phase(Settle(completed, T1), Done)};
-        {aborted, T1} -> {continue, phase(Settle(aborted, T1), Again)};
-        {interrupted, T1} -> interrupted(Settle(interrupted, T1), Again, Done, Here);
-        {pending, T1} -> {wait, {handshake, Next, not_busy, false}, T1}
-    end.
-
-%% @doc After a transfer ended early (seed §2.3.6): a product that had not moved stays
-%% with the task (`Have' phase), one that was moving is the operator's to settle:
-%% Ignore, it is here (`Have'); Reset, it is not (forgotten: `init' takes `forget').
--spec interrupted(cell_task:task(), atom(), atom()) -> cell_task:step_result().
-interrupted(T, Have, Empty) ->
-    interrupted(T, Have, Empty, fun(_) -> false end).
-
-%% @doc As {@link interrupted/3}, but a product that was moving and that the task's own
-%% sensors show at its station (`Here') is confirmed here without a question. `Have'
-%% is kept for the task's `in_transit' step (`transit_have'), where an operator's
-%% Ignore goes on.
--spec interrupted(cell_task:task(), atom(), atom(), located()) -> cell_task:step_result().
-interrupted(T0, Have, Empty, Here) ->
-    T = cell_task:put(T0, transit_have, Have),
-    case {cell_task:product(T), cell_handshake:in_transit(T)} of
-        {undefined, _} ->
-            {continue, phase(T, Empty)};
-        {_, false} ->
-            {continue, phase(T, Have)};
-        {#{serial := S}, true} ->
-            case Here(T) of
-                true ->
-                    cell_task:log(T, brief, "the transfer of product ~ts was interrupted; "
-                                  "this station's sensors show where it is: it goes on from here",
-                                  [S]),
-                    {continue, phase(cell_handshake:confirm_here(T), Have)};
-                false ->
-                    transfer_question(T, S)
-            end
-    end.
-
-transfer_question(T, S) ->
-    error(phase(T, in_transit), <<"transfer">>, "Transfer interrupted",
-          io_lib:format("Product ~ts was moving when its transfer was interrupted.~n"
-                        "Check where it is. Select IGNORE if it is at this station, "
-                        "RESET if it is not (the station forgets it).", [S]),
-          [ignore, reset], forget).
-
-%%--------------------------------------------------------------------
-%% A product a station's sensor sees that no record holds
-%%--------------------------------------------------------------------
-
-%% @doc Whether what a station's sensor sees (its own task holding no product) is in no
-%% record: none of the tasks `Takers' (those that may hold it there, a robot that took
-%% charge of it in place, say) holds a product of `Lane' (a product without a lane
-%% counts as of every lane). `Others' is what the other tasks hold
-%% ({@link cell_task:others_products/1}).
--spec unheld(front | rear, [atom()], [{atom(), cell_product:product()}]) -> boolean().
-unheld(Lane, Takers, Others) ->
-    [x || {Task, P} <- Others, lists:member(Task, Takers),
-          maps:get(lane, P, Lane) =:= Lane] =:= [].
 
 %% What the work segment knows when a whole panel lies in its fixture (its module nest
 %% full) and it holds no product itself: its lane; what the other tasks hold
@@ -278,25 +108,6 @@ fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper
         {[], [], []} -> unheld
     end.
 
-%% @doc As {@link unheld/3}, for a station any lane's products may reach (the upper
-%% robot's gripper): none of the tasks `Takers' holds a product.
--spec unheld_anywhere([atom()], [{atom(), cell_product:product()}]) -> boolean().
-unheld_anywhere(Takers, Others) ->
-    [x || {Task, _P} <- Others, lists:member(Task, Takers)] =:= [].
-
-%% @doc The operator's error for it: `Where' says what lies where ("a panel lies in the
-%% work fixture of lane front"); the operator takes it out of the machine and selects
-%% RETRY, and the task looks again.
--spec unheld_error(cell_task:task(), iodata(), iodata(), [term()]) ->
-          {error, cell_alarms:spec(), cell_task:task()}.
-unheld_error(T, Caption, Where, Args) ->
-    {error, cell_task:error_spec(
-              <<"unheld">>, Caption,
-              [io_lib:format(Where, Args),
-               " and no record holds it: take it out of the machine, then select RETRY."],
-              [retry]),
-     T}.
-
 %% @doc The task's lane: `front' or `rear'.
 -spec lane(cell_task:task()) -> front | rear.
 lane(T) ->
@@ -304,27 +115,6 @@ lane(T) ->
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
-
-unheld_test_() ->
-    P = fun(Lane) -> #{serial => <<"P1">>, recipe => <<"r">>, failed => false, lane => Lane} end,
-    [%% Nobody holds anything: in no record.
-     ?_assert(unheld(front, [lower, upper], [])),
-     %% A robot holds a product of this lane: it may be the one seen.
-     ?_assertNot(unheld(front, [lower, upper], [{lower, P(front)}])),
-     ?_assertNot(unheld(front, [lower, upper], [{upper, P(front)}])),
-     %% Of the other lane, or held by a task that is not a taker (the loading segment
-     %% before the fixture): in no record.
-     ?_assert(unheld(front, [lower, upper], [{lower, P(rear)}])),
-     ?_assert(unheld(front, [lower, upper], [{loading_front, P(front)}])),
-     %% A product without a lane may be of any lane.
-     ?_assertNot(unheld(rear, [upper], [{upper, maps:remove(lane, P(front))}])),
-     %% A taker whose sensor sees its product elsewhere is left out by the caller: its
-     %% record explains nothing here.
-     ?_assert(unheld(front, [], [{upper, P(front)}])),
-     %% Anywhere: any lane's product of a taker.
-     ?_assertNot(unheld_anywhere([unloading_rear], [{unloading_rear, P(rear)}])),
-     ?_assert(unheld_anywhere([unloading_rear], [{unloading_front, P(front)}])),
-     ?_assert(unheld_anywhere([], [{unloading_front, P(front)}]))].
 
 fixture_test_() ->
     P = fun(S, Lane) -> #{serial => S, recipe => <<"r">>, failed => false, lane => Lane} end,

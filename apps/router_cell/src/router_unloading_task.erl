@@ -35,7 +35,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
-    {ok, router_task:after_reset(T)}.
+    {ok, cell_handover:after_reset(T)}.
 
 -spec reconcile(cell_task:held(), cell_task:task()) ->
           {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
@@ -65,16 +65,16 @@ uninit(T) ->
 
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
-    step(router_task:phase(T), cell_task:woken_by(T), T).
+    step(cell_handover:phase(T), cell_task:woken_by(T), T).
 
 %% -- empty: modules from the upper robot -------------------------------------------------
 step(idle, _Woken, T) ->
     case unheld_here(T) of
         true -> unheld_error(outputs(T, false, false));
-        false -> router_task:take(T, prev(T), receiving)
+        false -> cell_handover:take(T, prev(T), receiving)
     end;
 step(receiving, {handshake, _Prev, interrupted}, T) ->
-    router_task:interrupted(T, landing, idle);
+    cell_handover:interrupted(T, landing, idle);
 step(receiving, {handshake, _Prev, available, false}, T) ->
     watch(T, landing, panel_at_entry, true);
 step(receiving, _Woken, T) ->
@@ -165,13 +165,13 @@ prev(T) -> cell_task:arg(T, prev, undefined).
 unheld_here(T) ->
     cell_task:product(T) =:= undefined
         andalso (cell_task:in(T, panel_at_entry) orelse cell_task:in(T, panel_at_exit))
-        andalso router_task:unheld(router_task:lane(T),
+        andalso cell_handover:unheld(router_task:lane(T),
                                    [upper || not cell_task:in(T, upper_io, product_present)],
                                    cell_task:others_products(T)).
 
 unheld_error(T) ->
-    router_task:unheld_error(T, "Modules on the unloading conveyor unknown",
+    cell_handover:unheld_error(T, "Modules on the unloading conveyor unknown",
                              "Modules lie on the unloading conveyor of lane ~ts",
                              [router_task:lane(T)]).
 
-phase(T, Phase) -> router_task:phase(T, Phase).
+phase(T, Phase) -> cell_handover:phase(T, Phase).

@@ -69,7 +69,7 @@
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
     T = cell_task:put(T0, command, cell_task:in(T0, done)),
-    case router_task:reset_chosen(T) of
+    case cell_handover:reset_chosen(T) of
         {scrap, T1} ->
             %% Seed §2.3.8, RESET: "delete product data and continue with empty gripper".
             %% The data goes when the modules are in the scrap bin: until then they are
@@ -95,11 +95,11 @@ init(T0) ->
 -spec reconcile(cell_task:held(), cell_task:task()) ->
           {ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
 reconcile(Held, T) ->
-    case {cell_task:product(T), router_task:phase(T), cell_task:answer(T)} of
+    case {cell_task:product(T), cell_handover:phase(T), cell_task:answer(T)} of
         {undefined, _, _} ->
             case unheld_here(T) of
                 %% Kept closed: opened, they would fall wherever the robot stands.
-                true -> router_task:unheld_error(
+                true -> cell_handover:unheld_error(
                           phase(T, idle), "Modules in the gripper unknown",
                           "Modules are in the upper robot's gripper", []);
                 false -> {ok, phase(cell_task:out(T, gripper_close, false), idle)}
@@ -131,7 +131,7 @@ uninit(T) ->
 
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
-    step(router_task:phase(T), cell_task:woken_by(T), T).
+    step(cell_handover:phase(T), cell_task:woken_by(T), T).
 
 %% Modules in the gripper while the task holds no product and no unloading segment holds
 %% one that can be in the gripper (one it took in from the gripper, its transfer cut off
@@ -139,7 +139,7 @@ step(T) ->
 %% unloading segment's product is there, not in the gripper.
 unheld_here(T) ->
     cell_task:product(T) =:= undefined andalso cell_task:in(T, product_present)
-        andalso router_task:unheld_anywhere(
+        andalso cell_handover:unheld_anywhere(
                   [router_cell:task(unloading, L) || L <- maps:keys(cell_task:arg(T, nexts, #{})),
                                                      not on_conveyor(T, L)],
                   cell_task:others_products(T)).
@@ -150,9 +150,9 @@ on_conveyor(T, Lane) ->
 
 %% -- empty: take the routed modules ------------------------------------------------------
 step(idle, _Woken, T) ->
-    router_task:take(T, prev(T), taking);
+    cell_handover:take(T, prev(T), taking);
 step(taking, {handshake, _Prev, interrupted}, T) ->
-    router_task:interrupted(T, to_nest, idle);
+    cell_handover:interrupted(T, to_nest, idle);
 step(taking, {handshake, _Prev, available, false}, T) ->
     move(T, nest, to_nest);
 step(taking, _Woken, T) ->
@@ -297,7 +297,7 @@ step(full, _Woken, T) ->
 step(offered, {handshake, _Next, not_busy, true}, T) ->
     wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false);
 step(offered, _Woken, T) ->
-    router_task:offered(T, next(T), full);
+    cell_handover:offered(T, next(T), full);
 step(placing, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(placing, _Woken, T) ->
@@ -309,10 +309,10 @@ step(placing, _Woken, T) ->
             wait_io(cell_task:out(T, gripper_close, false), placing, gripper_closed, false)
     end;
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(T, full, idle, fun put_down/1);
+    cell_handover:interrupted(T, full, idle, fun put_down/1);
 step(released, _Woken, T) ->
     %% Given back: the modules are gripped again, to be offered again.
-    router_task:finish(T, next(T), idle, full,
+    cell_handover:finish(T, next(T), idle, full,
                        fun(aborted, T1) -> cell_task:out(T1, gripper_close, true);
                           (_, T1) -> T1
                        end, fun put_down/1);
@@ -321,7 +321,7 @@ step(in_transit, _Woken, T0) ->
     %% it; if not, they are where the cut-off transfer had them, in the nest (from the
     %% routing robot) or put down on the unloading conveyor (to it).
     T = cell_handshake:confirm_here(T0),
-    case {cell_task:in(T, product_present), cell_task:get(T, transit_have, undefined)} of
+    case {cell_task:in(T, product_present), cell_handover:transit_have(T)} of
         {true, _} -> {continue, phase(cell_task:out(T, gripper_close, true), to_unloading)};
         {false, full} -> {continue, phase(T, full)};
         {false, _} -> {continue, phase(cell_task:out(T, gripper_close, false), regrip)}
@@ -345,7 +345,7 @@ present(T) ->
                        false ->
                            ""
                    end,
-            router_task:error(
+            cell_handover:error(
               phase(cell_task:put(T, in_nest, InNest), lost), <<"lost">>, "Product lost",
               io_lib:format("Product was lost from gripper during move.~n"
                             "Please check gripper sensor:~n\t~ts (~ts)~n~ts"
@@ -379,14 +379,14 @@ gripper_check(T) ->
     case cell_task:in(T, product_present) of
         true ->
             %% Modules in the gripper: hold them and carry them on.
-            {ok, phase(cell_task:out(here(T), gripper_close, true), to_unloading)};
+            {ok, phase(cell_task:out(cell_handover:here(T), gripper_close, true), to_unloading)};
         false ->
             where(T)
     end.
 
 %% The record holds a product, the gripper sensor sees none.
 where(T) ->
-    router_task:error(phase(T, where), <<"where">>, "Modules not in the gripper",
+    cell_handover:error(phase(T, where), <<"where">>, "Modules not in the gripper",
               io_lib:format("Records say the modules of panel ~ts are in the upper robot's "
                             "gripper; the gripper sensor ~ts (~ts) says it is empty. Where "
                             "are they?~n"
@@ -402,14 +402,14 @@ where(T) ->
 answered_where(retry, T) ->
     cell_task:log(T, brief, "modules of panel ~ts in the module nest (operator): gripped "
                   "there again", [serial(T)]),
-    {ok, phase(cell_task:out(here(T), gripper_close, false), regrip)};
+    {ok, phase(cell_task:out(cell_handover:here(T), gripper_close, false), regrip)};
 answered_where(ignore, T) ->
     cell_task:log(T, brief, "modules of panel ~ts on the unloading conveyor (operator): "
                   "handed on as put down", [serial(T)]),
-    {ok, phase(cell_task:out(here(T), gripper_close, false), full)};
+    {ok, phase(cell_task:out(cell_handover:here(T), gripper_close, false), full)};
 answered_where(_Reset, T0) ->
     %% Answered here, not by a re-initialisation.
-    T = cell_task:put(T0, on_reset, undefined),
+    T = cell_handover:drop_reset(T0),
     #{serial := S} = cell_task:product(T),
     cell_task:log(T, brief, "modules of panel ~ts taken out of the machine (operator): "
                   "the product is scrapped", [S]),
@@ -420,14 +420,6 @@ answered_where(_Reset, T0) ->
 %% The modules lie there, to be offered again as they lie.
 put_down(T) ->
     not cell_task:in(T, gripper_closed) andalso not cell_task:in(T, product_present).
-
-%% The product is this robot's, whatever transfer brought it (the operator or the
-%% gripper said so).
-here(T) ->
-    case cell_handshake:in_transit(T) of
-        true -> cell_handshake:confirm_here(T);
-        false -> T
-    end.
 
 %% On the way to the scrap bin, the gripper holding on to the modules.
 to_scrap(T) ->
@@ -490,4 +482,4 @@ lane_link(T) ->
 next(T) ->
     cell_task:get(T, next).
 
-phase(T, Phase) -> router_task:phase(T, Phase).
+phase(T, Phase) -> cell_handover:phase(T, Phase).

@@ -55,7 +55,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
-    {ok, cell_task:out(router_task:after_reset(T0), belt_run, false)}.
+    {ok, cell_task:out(cell_handover:after_reset(T0), belt_run, false)}.
 
 %% The fixture's sensor decides: a panel in position with no record is the routing
 %% robot's (or its frame), to be emptied; with one, it is clamped and offered again.
@@ -91,7 +91,7 @@ uninit(T) ->
 
 -spec step(cell_task:task()) -> cell_task:step_result().
 step(T) ->
-    step(router_task:phase(T), cell_task:woken_by(T), T).
+    step(cell_handover:phase(T), cell_task:woken_by(T), T).
 
 %% -- empty: take a panel from the loading segment ------------------------------------
 step(idle, Woken, T) ->
@@ -105,9 +105,9 @@ step(idle, Woken, T) ->
     end;
 step(take, _Woken, T) ->
     %% Phase 2: both belts run.
-    router_task:take(T, prev(T), moving_in, fun(T1) -> cell_task:out(T1, belt_run, true) end);
+    cell_handover:take(T, prev(T), moving_in, fun(T1) -> cell_task:out(T1, belt_run, true) end);
 step(moving_in, {handshake, _Prev, interrupted}, T) ->
-    router_task:interrupted(cell_task:out(T, belt_run, false), arriving, idle);
+    cell_handover:interrupted(cell_task:out(T, belt_run, false), arriving, idle);
 step(moving_in, {handshake, _Prev, available, false}, T) ->
     watch(T, arriving, panel_in_position, true, transfer_timeout_ms);
 step(moving_in, _Woken, T) ->
@@ -144,11 +144,11 @@ step(offered, {handshake, Next, not_busy, true}, T) ->
     T1 = cell_handshake:release(T, Next),
     {wait, {handshake, Next, not_busy, false}, phase(T1, released)};
 step(offered, _Woken, T) ->
-    router_task:offered(T, next(T), clamping);
+    cell_handover:offered(T, next(T), clamping);
 step(released, {handshake, _Next, interrupted}, T) ->
-    router_task:interrupted(T, clamping, emptying);
+    cell_handover:interrupted(T, clamping, emptying);
 step(released, _Woken, T) ->
-    router_task:finish(T, next(T), emptying, clamping);
+    cell_handover:finish(T, next(T), emptying, clamping);
 %% -- the modules are out: the frame goes --------------------------------------------------
 step(emptying, _Woken, T) ->
     case cell_task:in(T, nest_empty) of
@@ -241,7 +241,7 @@ not_offered(S, T) ->
 %% The operator takes it out; the clamps open for the hand, the belt stays off. RETRY
 %% looks again (reconcile, or the idle step).
 unheld_error(T) ->
-    router_task:unheld_error(
+    cell_handover:unheld_error(
       phase(cell_task:out(cell_task:out(T, belt_run, false), clamp, false), idle),
       "Panel in the fixture unknown", "A panel lies in the work fixture of lane ~ts",
       [router_task:lane(T)]).
@@ -266,4 +266,4 @@ watch(T, Phase, Point, Value, Watchdog) ->
 prev(T) -> cell_task:arg(T, prev, undefined).
 next(T) -> cell_task:arg(T, next, undefined).
 
-phase(T, Phase) -> router_task:phase(T, Phase).
+phase(T, Phase) -> cell_handover:phase(T, Phase).

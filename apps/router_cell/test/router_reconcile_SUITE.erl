@@ -4,7 +4,7 @@
 %% where each panel physically is); the line must go on, and once stopped every serial
 %% a task holds is one the machine physically has, and the other way round.
 %%
-%% A phase is reached by tracing the task's calls of router_task:phase/2 (a message
+%% A phase is reached by tracing the task's calls of cell_handover:phase/2 (a message
 %% per phase entered): no waiting on time anywhere, every wait has a deadline.
 -module(router_reconcile_SUITE).
 -include_lib("common_test/include/ct.hrl").
@@ -50,12 +50,12 @@ init_per_testcase(Case, Config) ->
     {ok, _} = application:ensure_all_started(router_cell),
     {ok, up} = await_connection(),
     ok = router_sim:ready(?DEADLINE_MS),
-    {module, router_task} = code:ensure_loaded(router_task),
-    1 = erlang:trace_pattern({router_task, phase, 2}, true, [local]),
+    {module, cell_handover} = code:ensure_loaded(cell_handover),
+    1 = erlang:trace_pattern({cell_handover, phase, 2}, true, [local]),
     Config.
 
 end_per_testcase(_Case, _Config) ->
-    _ = erlang:trace_pattern({router_task, phase, 2}, false, [local]),
+    _ = erlang:trace_pattern({cell_handover, phase, 2}, false, [local]),
     _ = application:unset_env(cell, shutdown_wait_ms),
     _ = application:stop(router_cell),
     _ = application:stop(cell),
@@ -229,7 +229,7 @@ after_plc_kill(Pid, Done, #{asked := Asked, due := Due} = S, Deadline) ->
             %% Those the cell withdrew by itself meanwhile are no longer there to answer.
             _ = [cell_alarms:answer(Id, retry, <<"suite">>) || Id <- Due],
             after_plc_kill(Pid, Done, S#{conn := up, due := []}, Deadline);
-        {trace, Pid, call, {router_task, phase, [_, Done]}} ->
+        {trace, Pid, call, {cell_handover, phase, [_, Done]}} ->
             after_plc_kill(Pid, Done, S#{done := true}, Deadline);
         {trace, Pid, call, _} ->
             after_plc_kill(Pid, Done, S, Deadline);
@@ -527,7 +527,7 @@ kill_in(Task, Phase) ->
 
 await_phase(Pid, Phase, Deadline) ->
     receive
-        {trace, Pid, call, {router_task, phase, [_, Phase]}} -> ok;
+        {trace, Pid, call, {cell_handover, phase, [_, Phase]}} -> ok;
         {trace, Pid, call, _} -> await_phase(Pid, Phase, Deadline);
         {cell_event, #{type := alarm_raised, alarm := A}} ->
             ok = answer(A),
