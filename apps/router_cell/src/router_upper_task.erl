@@ -10,7 +10,10 @@
 %%  to_nest   there, or the watchdog                          close the gripper → gripping
 %%  gripping  the gripper closed, or the watchdog             modules in the gripper: complete
 %%                                                            (phase 4, ItemTransferIn); move to the
-%%                                                            lane's unloading segment → carrying
+%%                                                            lane's unloading segment → carrying;
+%%                                                            none: "Modules not gripped", RETRY
+%%                                                            → to_nest, unless another record now
+%%                                                            puts a panel there: asked where
 %%  carrying  there, or the watchdog                          modules still in the gripper → full;
 %%                                                            not: "Product lost" → lost (noted
 %%                                                            whether the nest still holds them)
@@ -177,8 +180,15 @@ step(to_nest, _Woken, T) ->
 step(gripping, {timer, _}, T) ->
     fault(T, "close the gripper");
 step(gripping, {answer, retry}, T) ->
-    %% The gripper was opened: to the nest again, and grip again.
-    move(T, nest, to_nest);
+    %% The gripper was opened: to the nest again, and grip again, unless another
+    %% record now puts a panel in that fixture (the next one came in meanwhile): then
+    %% what the nest holds is not this product's, and where it is is asked.
+    case nest_holder(T) of
+        ours ->
+            move(T, nest, to_nest);
+        {other, Task, Other} ->
+            where(T, refused_other(Task, Other))
+    end;
 step(gripping, _Woken, T) ->
     case {cell_task:in(T, gripper_closed), cell_task:in(T, product_present)} of
         {true, true} ->
@@ -395,8 +405,15 @@ forget_scrapped(T) ->
 %% robot's product's unless another record puts a panel in that fixture.
 nest_holder(T) ->
     L = lane(T),
-    router_task:nest_holder(L, [router_cell:task(work, L), lower],
-                            cell_task:others_products(T)).
+    Mine = serial(T),
+    %% A hand-over of this product not yet completed leaves it in the giver's record too.
+    Others = [O || {_, #{serial := S}} = O <- cell_task:others_products(T), S =/= Mine],
+    router_task:nest_holder(L, [router_cell:task(work, L), lower], Others).
+
+refused_other(Task, Other) ->
+    io_lib:format("RETRY was refused: the gripper sensor sees no modules, and ~ts's "
+                  "record puts panel ~ts in the fixture, so the modules in its nest are "
+                  "that panel's, not these.~n", [holder_name(Task), Other]).
 
 holder_name(lower) -> "the routing robot";
 holder_name(Task) -> io_lib:format("the work segment (~ts)", [Task]).
@@ -464,14 +481,10 @@ answered_where(retry, T) ->
             end;
         {false, {other, Task, Other}} ->
             %% Not taken as this product's: the question again, saying why.
-            Whose = holder_name(Task),
             cell_task:log(T, brief, "modules of panel ~ts said to be in the module nest "
                           "(operator), but ~ts's record puts panel ~ts in that "
-                          "fixture: asked again", [serial(T), Whose, Other]),
-            where(T, io_lib:format("RETRY was refused: the gripper sensor still sees no "
-                                   "modules, and ~ts's record puts panel ~ts in the "
-                                   "fixture, so the modules in its nest are that panel's, "
-                                   "not these.~n", [Whose, Other]))
+                          "fixture: asked again", [serial(T), holder_name(Task), Other]),
+            where(T, refused_other(Task, Other))
     end;
 answered_where(ignore, T) ->
     cell_task:log(T, brief, "modules of panel ~ts on the unloading conveyor (operator): "
