@@ -5,7 +5,7 @@
 -module(router_task).
 
 -export([starved/1, unstarved/1, blocked/1, unblocked/1]).
--export([watch/5, watchdog/3, lane/1, fixture/1]).
+-export([watch/5, watchdog/3, lane/1, fixture/1, nest_holder/3]).
 
 -export_type([fixture_facts/0, fixture/0]).
 
@@ -108,6 +108,24 @@ fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper
         {[], [], []} -> unheld
     end.
 
+%% @doc Whose the modules in the module nest of a lane's work fixture are when the
+%% upper robot holds a product of that lane whose modules its gripper sensor does not
+%% see: its own (`ours') only if no other record puts a product of that lane in the
+%% fixture, or `{other, Task, Serial}' for the record that does. The work segment
+%% holding a product holds the panel in its fixture (the upper robot's panel left it,
+%% the next one came in); the routing robot holding one routes it there. `Stations'
+%% are those tasks (the lane's work segment, the routing robot); `Others' is what the
+%% other tasks hold ({@link cell_task:others_products/1}). The robot takes modules in
+%% the nest as its product's only when this says `ours'.
+-spec nest_holder(front | rear, [atom()], [{atom(), cell_product:product()}]) ->
+          ours | {other, atom(), binary()}.
+nest_holder(Lane, Stations, Others) ->
+    case [{Task, S} || {Task, #{serial := S} = P} <- Others, lists:member(Task, Stations),
+                       maps:get(lane, P, Lane) =:= Lane] of
+        [] -> ours;
+        [{Task, S} | _] -> {other, Task, S}
+    end.
+
 %% @doc The task's lane: `front' or `rear'.
 -spec lane(cell_task:task()) -> front | rear.
 lane(T) ->
@@ -115,6 +133,21 @@ lane(T) ->
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
+
+nest_holder_test_() ->
+    P = fun(S, L) -> #{serial => S, lane => L} end,
+    Stations = [work_front, lower],
+    [%% Nothing else of the lane in the fixture: the upper robot's modules.
+     ?_assertEqual(ours, nest_holder(front, Stations, [])),
+     ?_assertEqual(ours, nest_holder(front, Stations, [{work_rear, P(<<"B">>, rear)},
+                                                       {loading_front, P(<<"C">>, front)}])),
+     %% The work segment holds the next panel: the nest holds its modules.
+     ?_assertEqual({other, work_front, <<"B">>},
+                   nest_holder(front, Stations, [{work_front, P(<<"B">>, front)}])),
+     %% The routing robot routes a panel of this lane there.
+     ?_assertEqual({other, lower, <<"C">>},
+                   nest_holder(front, Stations, [{lower, P(<<"C">>, front)}])),
+     ?_assertEqual(ours, nest_holder(front, Stations, [{lower, P(<<"C">>, rear)}]))].
 
 fixture_test_() ->
     P = fun(S, Lane) -> #{serial => S, recipe => <<"r">>, failed => false, lane => Lane} end,

@@ -10,7 +10,10 @@
 %%  to_nest   there, or the watchdog                          close the gripper → gripping
 %%  gripping  the gripper closed, or the watchdog             modules in the gripper: complete
 %%                                                            (phase 4, ItemTransferIn); move to the
-%%                                                            lane's unloading segment → carrying
+%%                                                            lane's unloading segment → carrying;
+%%                                                            none: "Modules not gripped", RETRY
+%%                                                            → to_nest, unless another record now
+%%                                                            puts a panel there: asked where
 %%  carrying  there, or the watchdog                          modules still in the gripper → full;
 %%                                                            not: "Product lost" → lost (noted
 %%                                                            whether the nest still holds them)
@@ -38,17 +41,28 @@
 %%  in_transit the operator said the modules of a cut-off     in the gripper → to_unloading; else
 %%            transfer are here (IGNORE)                      put down on the unloading conveyor
 %%                                                            → full, in the nest → regrip
-%%  where     the operator, after a restart found the gripper  RETRY: in the nest → regrip;
-%%            empty though the record holds a product          IGNORE: on the unloading segment
+%%  where     the operator, after a restart found the gripper  RETRY: the gripper sensor sees
+%%            empty though the record holds a product          them again → to_unloading; else in
+%%                                                            the nest, if no other record puts a
+%%                                                            panel there → regrip (another's:
+%%                                                            asked again, saying whose);
+%%                                                            IGNORE: on the unloading segment
 %%                                                            → full (offered, put down as it is);
 %%                                                            RESET: taken out → forgotten, idle
-%%  regrip    the gripper open, or the watchdog               move to the lane's nest → to_nest
+%%  regrip    -                                               move to the lane's nest, the gripper
+%%                                                            as it is → regrip_at
+%%  regrip_at at the nest, or the watchdog                    open the gripper there → reopened
+%%  reopened  the gripper open, or the watchdog               close the gripper → gripping
 %% </pre>
 %%
 %% Restarted (reconcile), the robot believes its gripper, not its record: a product
 %% held with the modules seen in the gripper goes on (gripper closed again,
 %% to_unloading), one whose modules are not there is a question for the operator
-%% (where), never a carry of an empty gripper. Holding no product, it opens the gripper,
+%% (where), never a carry of an empty gripper. Told they are back in the nest, it grips
+%% them there only if no other record puts a panel in that fixture (the work segment's
+%% next panel, say): modules it cannot tell are its product's are never taken as them.
+%% It opens the gripper only over the nest: modules its sensor lost that are still in it
+%% would otherwise be put down wherever it stands. Holding no product, it opens the gripper,
 %% unless the gripper sensor sees modules that no record holds (`unheld'): the operator
 %% takes them out of the gripper, then RETRY.
 %%
@@ -166,8 +180,15 @@ step(to_nest, _Woken, T) ->
 step(gripping, {timer, _}, T) ->
     fault(T, "close the gripper");
 step(gripping, {answer, retry}, T) ->
-    %% The gripper was opened: to the nest again, and grip again.
-    move(T, nest, to_nest);
+    %% The gripper was opened: to the nest again, and grip again, unless another
+    %% record now puts a panel in that fixture (the next one came in meanwhile): then
+    %% what the nest holds is not this product's, and where it is is asked.
+    case nest_holder(T) of
+        ours ->
+            move(T, nest, to_nest);
+        {other, Task, Other} ->
+            where(T, refused_other(Task, Other))
+    end;
 step(gripping, _Woken, T) ->
     case {cell_task:in(T, gripper_closed), cell_task:in(T, product_present)} of
         {true, true} ->
@@ -260,14 +281,24 @@ step(settling, _Woken, T) ->
     Want = cell_task:get(T, settle_to, cell_task:in(T, gripper_closed)),
     wait_io(T, settling, gripper_closed, Want);
 step(where, {answer, Answer}, T) ->
-    {ok, T1} = answered_where(Answer, T),
-    {continue, T1};
-step(regrip, {timer, _}, T) ->
-    fault(T, "open the gripper");
+    case answered_where(Answer, T) of
+        {ok, T1} -> {continue, T1};
+        Asked -> Asked
+    end;
 step(regrip, _Woken, T) ->
+    move(T, nest, regrip_at);
+step(regrip_at, {timer, _}, T) ->
+    fault(T, "reach the module nest");
+step(regrip_at, {io, _Group, done, _}, T) ->
+    wait_io(cell_task:out(T, gripper_close, false), reopened, gripper_closed, false);
+step(regrip_at, _Woken, T) ->
+    move(T, nest, regrip_at);
+step(reopened, {timer, _}, T) ->
+    fault(T, "open the gripper");
+step(reopened, _Woken, T) ->
     case cell_task:in(T, gripper_closed) of
-        false -> move(T, nest, to_nest);
-        true -> wait_io(cell_task:out(T, gripper_close, false), regrip, gripper_closed, false)
+        false -> wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true);
+        true -> wait_io(cell_task:out(T, gripper_close, false), reopened, gripper_closed, false)
     end;
 step(to_unloading, _Woken, T) ->
     %% After a restart with modules in the gripper.
@@ -324,7 +355,7 @@ step(in_transit, _Woken, T0) ->
     case {cell_task:in(T, product_present), cell_handover:transit_have(T)} of
         {true, _} -> {continue, phase(cell_task:out(T, gripper_close, true), to_unloading)};
         {false, full} -> {continue, phase(T, full)};
-        {false, _} -> {continue, phase(cell_task:out(T, gripper_close, false), regrip)}
+        {false, _} -> {continue, phase(T, regrip)}
     end.
 
 %% Over the unloading segment: are the modules still in the gripper? If not, whether
@@ -336,7 +367,12 @@ present(T) ->
         true ->
             {continue, phase(cell_task:put(T, in_nest, false), full)};
         false ->
-            InNest = nest_holds(T),
+            %% Judged when first found missing; asked again (RETRY), the nest may have
+            %% been emptied since, never filled with them again.
+            InNest = case cell_handover:phase(T) of
+                         lost -> cell_task:get(T, in_nest, false) andalso nest_holds(T);
+                         _ -> nest_holds(T) andalso nest_holder(T) =:= ours
+                     end,
             Nest = case InNest of
                        true ->
                            io_lib:format("The module nest sensor ~ts (~ts) says the modules "
@@ -365,6 +401,23 @@ forget_scrapped(T) ->
     T1 = cell_task:clear_product(cell_task:work_abort(T, <<"product lost">>)),
     {continue, phase(T1, idle)}.
 
+%% Whose the modules in the nest of the product's lane are, if they are there: this
+%% robot's product's unless another record puts a panel in that fixture.
+nest_holder(T) ->
+    L = lane(T),
+    Mine = serial(T),
+    %% A hand-over of this product not yet completed leaves it in the giver's record too.
+    Others = [O || {_, #{serial := S}} = O <- cell_task:others_products(T), S =/= Mine],
+    router_task:nest_holder(L, [router_cell:task(work, L), lower], Others).
+
+refused_other(Task, Other) ->
+    io_lib:format("RETRY was refused: the gripper sensor sees no modules, and ~ts's "
+                  "record puts panel ~ts in the fixture, so the modules in its nest are "
+                  "that panel's, not these.~n", [holder_name(Task), Other]).
+
+holder_name(lower) -> "the routing robot";
+holder_name(Task) -> io_lib:format("the work segment (~ts)", [Task]).
+
 %% Whether the module nest of the product's lane holds modules.
 nest_holds(T) ->
     not cell_task:in(T, nest_group(T), nest_empty).
@@ -384,25 +437,55 @@ gripper_check(T) ->
             where(T)
     end.
 
-%% The record holds a product, the gripper sensor sees none.
+%% The record holds a product, the gripper sensor sees none. `Refused' says why the
+%% last answer was not taken, if it was not.
 where(T) ->
+    where(T, "").
+
+where(T, Refused) ->
     cell_handover:error(phase(T, where), <<"where">>, "Modules not in the gripper",
               io_lib:format("Records say the modules of panel ~ts are in the upper robot's "
                             "gripper; the gripper sensor ~ts (~ts) says it is empty. Where "
-                            "are they?~n"
-                            "Select RETRY if they are back in the module nest of the "
-                            "fixture: the robot grips them there again.~n"
+                            "are they?~n~ts"
+                            "Select RETRY if they are in the gripper after all (seated "
+                            "again: the robot carries them on) or back in the module nest "
+                            "of the fixture: the robot grips them there again.~n"
                             "Select IGNORE if they are on the unloading conveyor: they have "
                             "been put down and go on from there.~n"
                             "Select RESET if they were taken out of the machine: the product "
                             "is scrapped.",
-                            [serial(T), address(product_present), caption(product_present)]),
+                            [serial(T), address(product_present), caption(product_present),
+                             Refused]),
                       [retry, ignore, reset], taken_out).
 
 answered_where(retry, T) ->
-    cell_task:log(T, brief, "modules of panel ~ts in the module nest (operator): gripped "
-                  "there again", [serial(T)]),
-    {ok, phase(cell_task:out(cell_handover:here(T), gripper_close, false), regrip)};
+    case {cell_task:in(T, product_present), nest_holder(T)} of
+        {true, _} ->
+            cell_task:log(T, brief, "modules of panel ~ts in the gripper after all (its "
+                          "sensor sees them again): carried on", [serial(T)]),
+            {ok, phase(cell_task:out(cell_handover:here(T), gripper_close, true), to_unloading)};
+        {false, ours} ->
+            case nest_holds(T) of
+                true ->
+                    cell_task:log(T, brief, "modules of panel ~ts in the module nest "
+                                  "(operator): gripped there again", [serial(T)]),
+                    {ok, phase(cell_handover:here(T), regrip)};
+                false ->
+                    cell_task:log(T, brief, "modules of panel ~ts said to be in the module "
+                                  "nest (operator), but its sensor says it is empty: asked "
+                                  "again", [serial(T)]),
+                    where(T, io_lib:format("RETRY was refused: the gripper sensor still sees "
+                                           "no modules, and the module nest sensor ~ts (~ts) "
+                                           "says the nest is empty.~n",
+                                           [nest_address(T), nest_caption(T)]))
+            end;
+        {false, {other, Task, Other}} ->
+            %% Not taken as this product's: the question again, saying why.
+            cell_task:log(T, brief, "modules of panel ~ts said to be in the module nest "
+                          "(operator), but ~ts's record puts panel ~ts in that "
+                          "fixture: asked again", [serial(T), holder_name(Task), Other]),
+            where(T, refused_other(Task, Other))
+    end;
 answered_where(ignore, T) ->
     cell_task:log(T, brief, "modules of panel ~ts on the unloading conveyor (operator): "
                   "handed on as put down", [serial(T)]),

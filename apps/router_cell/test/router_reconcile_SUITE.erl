@@ -17,7 +17,8 @@
          task_tree_restarted/1, unloading_killed_while_the_upper_puts_down/1,
          panel_forgotten_in_the_fixture/1, plc_killed_during_a_routing_move/1,
          plc_killed_during_a_clamp_move/1, held_twice_answered_at_the_machine/1,
-         held_twice_answered_wrong_the_loading_offer_taken_in/1]).
+         held_twice_answered_wrong_the_loading_offer_taken_in/1,
+         upper_lost_its_modules_the_next_panel_in_the_nest/1]).
 
 -define(DEADLINE_MS, 60000).
 %% How long the line may take to go on after its PLC was killed: a restart of the PLC,
@@ -31,16 +32,17 @@ all() ->
      lower_killed_in_every_phase, every_task_killed_at_once, task_tree_restarted,
      unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture,
      plc_killed_during_a_routing_move, plc_killed_during_a_clamp_move,
-     held_twice_answered_at_the_machine, held_twice_answered_wrong_the_loading_offer_taken_in].
+     held_twice_answered_at_the_machine, held_twice_answered_wrong_the_loading_offer_taken_in,
+     upper_lost_its_modules_the_next_panel_in_the_nest].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     ok = router_test_settings:write(
            Root, #{machine => #{dual_lane => false},
-                   router_sim => #{time_scale => 0.02, arrival_ms => 0,
-                                   product_lost_rate => 0.0, jam_rate => 0.0,
-                                   magazine_low_s => 0},
+                   router_sim => maps:merge(#{time_scale => 0.02, arrival_ms => 0,
+                                              product_lost_rate => 0.0, jam_rate => 0.0,
+                                              magazine_low_s => 0}, sim_faults(Case)),
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
                                motion_timeout_ms => 3000}}),
     _ = [application:load(A) || A <- [cell_base, cell_hal, cell, router_cell]],
@@ -62,6 +64,13 @@ end_per_testcase(_Case, _Config) ->
     _ = application:stop(mnesia),
     ok = cell_hal_sim_sup:stop_device(router_plc),
     ok.
+
+%% The modules slip in the gripper on every move and are not seated again while a
+%% case runs (an hour of the machine's time).
+sim_faults(upper_lost_its_modules_the_next_panel_in_the_nest) ->
+    #{product_lost_rate => 1.0, reseat_ms => 3600000};
+sim_faults(_Case) ->
+    #{}.
 
 %% -------------------------------------------------------------------------------------
 
@@ -113,6 +122,65 @@ unloading_killed_while_the_upper_puts_down(_Config) ->
     ok = cell_stats:flush(),
     {ok, #{status := out, failed := false}} = cell_stats:product(Serial),
     assert_books_agree().
+
+%% The upper robot's modules slip in its gripper on the way to the unloading conveyor
+%% (its sensor loses them; they are still in it), "Product lost"; meanwhile the frame
+%% leaves the fixture and the next panel comes in and is routed. The robot is killed;
+%% restarted, it finds its gripper sensor empty and asks where the modules are; the
+%% operator, who sees them in the gripper, answers Retry. The robot must not put them
+%% down over the unloading conveyor nor grip the next panel's modules in the nest as
+%% its own: the next panel's record is the routing robot's, so the Retry is refused
+%% with the reason, and the gripper still holds the robot's own product.
+upper_lost_its_modules_the_next_panel_in_the_nest(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    Lower = cell_task_proc:whereis(lower),
+    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    ok = cell_controller:start(<<"suite">>),
+    #{local_id := <<"lost">>} = await_alarm([<<"lost">>], upper, deadline()),
+    Mine = serial(upper),
+    %% The next panel routed and offered to the upper robot, which does not take it.
+    Next = await_offered_other(Lower, Mine, deadline()),
+    1 = erlang:trace(Lower, false, [call]),
+    flush_trace(Lower),
+    ct:log("~ts lost in the gripper, ~ts routed in the fixture; the machine: ~tp",
+           [Mine, Next, router_sim:world()]),
+    ?assertMatch(#{gripper := Mine}, router_sim:world()),
+    exit(cell_task_proc:whereis(upper), kill),
+    ok = await_restart([upper], deadline()),
+    #{id := Id} = await_alarm([<<"where">>], upper, deadline()),
+    ok = cell_alarms:answer(Id, retry, <<"suite">>),
+    %% Asked again, saying why; nothing moved.
+    #{local_id := Local, description := Text} =
+        await_alarm([<<"where">>, <<"lost">>, <<"not_gripped">>], upper, deadline()),
+    World = router_sim:world(),
+    ct:log("after Retry: ~ts ~ts; the machine: ~tp", [Local, Text, World]),
+    ?assertEqual(<<"where">>, Local),
+    ?assertMatch({match, _}, re:run(Text, <<"RETRY was refused">>)),
+    ?assertMatch(#{gripper := Mine}, World),
+    ?assertEqual(empty, slot(World, unloading, Mine)),
+    ?assertEqual({Next, full}, slot(World, work, Next)),
+    ?assertEqual(Mine, serial(upper)),
+    ?assertEqual(Next, serial(lower)).
+
+%% The serial of the product the task offers when it enters phase `offered' with a
+%% product other than `Not'.
+await_offered_other(Pid, Not, Deadline) ->
+    receive
+        {trace, Pid, call, {cell_handover, phase, [T, offered]}} ->
+            case cell_task:product(T) of
+                #{serial := S} when S =/= Not -> S;
+                _ -> await_offered_other(Pid, Not, Deadline)
+            end;
+        {trace, Pid, call, _} ->
+            await_offered_other(Pid, Not, Deadline);
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = answer(A),
+            await_offered_other(Pid, Not, Deadline);
+        {cell_event, _} ->
+            await_offered_other(Pid, Not, Deadline)
+    after left(Deadline) ->
+        ct:fail({never_offered, Not, cell_controller:tasks(), cell_alarms:list()})
+    end.
 
 %% The work segment killed once the panel lies clamped in its fixture: its record and
 %% its fixture's sensor agree, so it goes on by itself, asked nothing. Then an operator
