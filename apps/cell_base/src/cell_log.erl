@@ -21,7 +21,7 @@
 -export([log/4, error/3, warning/3, notice/3, info/3, debug/3, trace/3]).
 -export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2,
          set_default_level/1]).
--export([subscribe/0, unsubscribe/0]).
+-export([subscribe/0, unsubscribe/0, flush/0]).
 -export([format_line/1, parse_line/1, file_name/2, query/1, default_level/0]).
 
 -export_type([level/0, threshold/0, source/0, line/0, query/0]).
@@ -161,6 +161,15 @@ emit(Kind, Level, Source, Format, Args) ->
     Kind =:= task andalso notify(Line),
     Metadata = [{cell_log, Kind}, {cell_line, Line}, {source, key(Source)}],
     _ = lager:log(lager_level(Level), Metadata, "~ts", [Text]),
+    ok.
+
+%% @doc Returns once every line logged before it has reached the log files: their
+%% handlers write as the logger's event manager hands them each line, and this asks
+%% that manager after them. A command that halts the VM right after logging calls it
+%% first, or its last lines may never be written.
+-spec flush() -> ok.
+flush() ->
+    _ = catch gen_event:which_handlers(lager_event),
     ok.
 
 notify(Line) ->

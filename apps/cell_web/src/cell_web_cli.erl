@@ -23,9 +23,12 @@ set_password([User, Who]) ->
     case set_password(Name, Password, unicode:characters_to_binary(Who)) of
         {ok, updated} ->
             io:format("The password of ~ts is set.~n", [Name]),
+            %% The change's revision line is in the log before the VM goes.
+            ok = cell_log:flush(),
             erlang:halt(0);
         {error, Why} ->
             io:format("The password of ~ts is not set: ~ts.~n", [Name, describe(Why)]),
+            ok = cell_log:flush(),
             erlang:halt(1)
     end.
 
