@@ -274,8 +274,9 @@ unheld(Lane, Takers, Others) ->
 %% <ul>
 %% <li>the routing robot hands the routed panel to the upper robot: the routing robot's
 %%     record is gone at its release, the upper robot's is there only once saved, a
-%%     moment later (a Start after a Stop offers the routed panel again while this
-%%     segment reconciles);</li>
+%%     moment later (a Stop that came as the upper robot committed waits for the
+%%     hand-over, while this segment, stopped at once, starts again and
+%%     reconciles);</li>
 %% <li>the upper robot leaves the nest with the modules gripped: its new position is
 %%     written before the command to move there, and between the two the robot looks
 %%     away with the modules (its last move done), while they still lie in the
