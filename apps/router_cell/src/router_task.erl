@@ -57,20 +57,24 @@ watchdog(T, Setting, Default) ->
 %% whether that segment's stopper sensor sees a panel; the serial the loading segment
 %% offers on the link to the fixture now (`none'); whether the upper robot's gripper
 %% sensor sees modules, and whether it is away from this lane's module nest (its last
-%% move, to another place, done).
+%% move, to another place, done); whether the machine has had time to settle since an
+%% earlier look found the panel in no record (`again': a transfer time later, or the
+%% operator's answer since).
 -type fixture_facts() :: #{lane := front | rear,
                            others := [{atom(), cell_product:product()}],
                            loading := atom(),
                            stopper := boolean(),
                            offered := binary() | none,
                            gripper := boolean(),
-                           upper_away := boolean()}.
+                           upper_away := boolean(),
+                           again := boolean()}.
 %% Whose that panel is: a robot's that took charge of it where it lies; the one the
 %% loading segment offers, arrived ahead of its hand-over (`arrived'); the one the
 %% loading segment holds away from its stopper without offering it (its question to
-%% the operator pending, say); or nobody's (`unheld').
+%% the operator pending, say); or nobody's (`unheld'), which only a look taken once the
+%% machine has settled tells: a first look that finds no record is `look_again'.
 -type fixture() :: {robot, lower | upper} | {arrived, binary()} | {loading, binary()} |
-                   unheld.
+                   look_again | unheld.
 
 %% @doc Whose the whole panel in a work fixture is, when the work segment holds none
 %% (see `fixture_facts()'). A record explains the panel only where that record's
@@ -92,9 +96,29 @@ watchdog(T, Setting, Default) ->
 %%
 %% In the normal hand-over the work segment holds the product from its commit on, so
 %% this is not asked.
+%%
+%% The records and the sensors are read one after the other while the other tasks run
+%% on, and two moments of the machine look, in such a snapshot, like a panel in no
+%% record, though the panel is a robot's:
+%%
+%% <ul>
+%% <li>the routing robot hands the routed panel to the upper robot: the routing robot's
+%%     record is gone at its release, the upper robot's is there only once saved, a
+%%     moment later (a Stop that came as the upper robot committed waits for the
+%%     hand-over, while this segment, stopped at once, starts again and
+%%     reconciles);</li>
+%% <li>the upper robot leaves the nest with the modules gripped: its new position is
+%%     written before the command to move there, and between the two the robot looks
+%%     away with the modules (its last move done), while they still lie in the
+%%     nest.</li>
+%% </ul>
+%%
+%% Neither lasts: so no record found at a first look is `look_again', and only a look
+%% taken once the machine has settled (`again': a transfer time later, or after the
+%% operator's answer) tells `unheld'.
 -spec fixture(fixture_facts()) -> fixture().
 fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper,
-          offered := Offered, gripper := Gripper, upper_away := Away}) ->
+          offered := Offered, gripper := Gripper, upper_away := Away, again := Again}) ->
     Of = fun(Task) -> [S || {T, #{serial := S} = P} <- Others, T =:= Task,
                             maps:get(lane, P, Lane) =:= Lane] end,
     %% A sensor that sees the product elsewhere rules its record out.
@@ -105,7 +129,8 @@ fixture(#{lane := Lane, others := Others, loading := Loading, stopper := Stopper
         {[], [_ | _], _} -> {robot, upper};
         {[], [], [S | _]} when S =:= Offered -> {arrived, S};
         {[], [], [S | _]} -> {loading, S};
-        {[], [], []} -> unheld
+        {[], [], []} when Again -> unheld;
+        {[], [], []} -> look_again
     end.
 
 %% @doc Whose the modules in the module nest of a lane's work fixture are when the
@@ -154,7 +179,7 @@ fixture_test_() ->
     F = fun(Others, More) ->
                 fixture(maps:merge(#{lane => front, others => Others, loading => loading_front,
                                      stopper => false, offered => none, gripper => false,
-                                     upper_away => false},
+                                     upper_away => false, again => true},
                                    More))
         end,
     [%% Nobody holds anything: in no record.
@@ -197,6 +222,39 @@ fixture_test_() ->
      ?_assertEqual(unheld, F([{loading_rear, P(<<"P2">>, front)}], #{offered => <<"P2">>})),
      ?_assertEqual(unheld, F([{loading_front, P(<<"P2">>, rear)}], #{offered => <<"P2">>})),
      %% The stopper sees a panel the loading segment does not hold: no record here.
-     ?_assertEqual(unheld, F([], #{stopper => true}))].
+     ?_assertEqual(unheld, F([], #{stopper => true})),
+     %% A first look that finds no record looks again once the machine has settled;
+     %% one that finds a record needs no second look.
+     ?_assertEqual(look_again, F([], #{again => false})),
+     ?_assertEqual(look_again, F([{loading_front, P(<<"P2">>, front)}],
+                                 #{stopper => true, offered => <<"P2">>, again => false})),
+     ?_assertEqual({robot, lower}, F([{lower, P(<<"P1">>, front)}], #{again => false})),
+     ?_assertEqual({arrived, <<"P2">>}, F([{loading_front, P(<<"P2">>, front)}],
+                                          #{offered => <<"P2">>, again => false})),
+     %% What misfired: a Stop as the routing robot finished routing P1 and offered it,
+     %% the upper robot committed; the two hand it over (a transfer holds the Stop)
+     %% while the work segment, off at once, starts again and reconciles. The routing
+     %% robot's record is gone at its release, the upper robot's not yet saved; the nest
+     %% full, the gripper empty, the robot's last move (away from the nest) done; the
+     %% loading segment offers the next panel, P2, held at its stopper. Looked at again,
+     %% the upper robot holds P1.
+     ?_assertEqual(look_again, F([{loading_front, P(<<"P2">>, front)}],
+                                 #{stopper => true, offered => <<"P2">>, gripper => false,
+                                   upper_away => true, again => false})),
+     ?_assertEqual({robot, upper}, F([{loading_front, P(<<"P2">>, front)},
+                                      {upper, P(<<"P1">>, front)}],
+                                     #{stopper => true, offered => <<"P2">>,
+                                       gripper => false, upper_away => true,
+                                       again => true})),
+     %% The upper robot, the modules of P1 gripped in the nest, has written its next
+     %% position (the unloading segment) but not yet the command to go: its last move
+     %% (to the nest) done, it reads as away with modules, and its record is ruled out
+     %% while the modules still lie in the nest. Looked at again, it has left with them
+     %% (the nest empty: the frame, not asked here) or is still seen moving.
+     ?_assertEqual(look_again, F([{upper, P(<<"P1">>, front)}],
+                                 #{gripper => true, upper_away => true, again => false})),
+     ?_assertEqual({robot, upper}, F([{upper, P(<<"P1">>, front)}],
+                                     #{gripper => true, upper_away => false,
+                                       again => true}))].
 
 -endif.

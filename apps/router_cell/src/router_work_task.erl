@@ -46,8 +46,13 @@
 %% A whole panel in the fixture that no record holds would keep the fixture for ever:
 %% nobody routes it, and the segment waits for its nest to empty. The task asks the
 %% operator to take it out of the machine instead (the clamps open), and looks again at
-%% RETRY (`unheld'). A panel the operator's Reset made the cell forget while it lay in
-%% the fixture ends so, whatever the robots carry elsewhere meanwhile.
+%% RETRY (`unheld'). It asks only what a look taken once the machine has settled finds:
+%% records and sensors are read one after the other while the robots move on (the
+%% routed panel between the two robots' records, the upper robot's next position
+%% written before its command to go), so a first look that finds no record waits a
+%% transfer time, or for the nest to empty, and looks again (idle). A panel the
+%% operator's Reset made the cell forget while it lay in the fixture ends so, whatever
+%% the robots carry elsewhere meanwhile.
 -module(router_work_task).
 -behaviour(cell_task).
 
@@ -64,7 +69,8 @@ init(T0) ->
 reconcile(_Held, T2) ->
     case {cell_task:product(T2), cell_task:in(T2, panel_in_position)} of
         {undefined, true} ->
-            case in_fixture(T2) of
+            %% Looked at again after the operator's answer: the machine stood meanwhile.
+            case in_fixture(T2, cell_task:answer(T2) =/= undefined) of
                 Robot when Robot =:= frame; element(1, Robot) =:= robot ->
                     %% A panel a robot has, or its frame: the clamps hold it until the
                     %% modules are out.
@@ -73,6 +79,9 @@ reconcile(_Held, T2) ->
                     {ok, arrived(T2, S)};
                 {loading, _S} ->
                     %% The idle step gives the loading segment a moment to offer it.
+                    {ok, phase(T2, idle)};
+                look_again ->
+                    %% The idle step looks again once the machine has settled.
                     {ok, phase(T2, idle)};
                 unheld ->
                     unheld_error(T2)
@@ -95,12 +104,13 @@ step(T) ->
 
 %% -- empty: take a panel from the loading segment ------------------------------------
 step(idle, Woken, T) ->
-    case cell_task:in(T, panel_in_position) andalso in_fixture(T) of
+    case cell_task:in(T, panel_in_position) andalso in_fixture(T, settled(Woken)) of
         false -> {continue, phase(T, take)};
         {arrived, S} -> {continue, arrived(T, S)};
         Robot when Robot =:= frame; element(1, Robot) =:= robot ->
             {continue, phase(T, emptying)};
         {loading, S} -> loading_holds(Woken, S, T);
+        look_again -> look_again(T);
         unheld -> unheld_error(T)
     end;
 step(take, _Woken, T) ->
@@ -182,16 +192,16 @@ step(in_transit, _Woken, T) ->
 %% A panel in position while the task holds no product: a frame (the nest empty), or
 %% whose the whole panel is by the records that can explain it there and the sensors
 %% that rule them out (router_task:fixture/1).
-in_fixture(T) ->
+in_fixture(T, Again) ->
     %% The robots' sensors read before the nest's: modules that left the nest with a
     %% move now done show in the nest sensor by then.
-    Facts = fixture_facts(T),
+    Facts = fixture_facts(T, Again),
     case cell_task:in(T, nest_empty) of
         true -> frame;
         false -> router_task:fixture(Facts)
     end.
 
-fixture_facts(T) ->
+fixture_facts(T, Again) ->
     Lane = router_task:lane(T),
     Offered = case cell_handshake:peek(T, prev(T)) of
                   {ok, #{serial := S}} -> S;
@@ -203,7 +213,23 @@ fixture_facts(T) ->
       offered => Offered,
       gripper => cell_task:in(T, upper_io, product_present),
       upper_away => cell_task:in(T, upper_io, target) =/= router_upper_io:position(nest, Lane)
-          andalso cell_task:in(T, upper_io, done) =:= cell_task:in(T, upper_io, command)}.
+          andalso cell_task:in(T, upper_io, done) =:= cell_task:in(T, upper_io, command),
+      again => Again}.
+
+%% A first look found the panel in no record: a snapshot of a machine that moves on
+%% (router_task:fixture/1). The machine has a transfer time to settle, the modules
+%% leaving the nest ending it early; then the idle step looks again (`settled/1').
+look_again(T) ->
+    cell_task:log(T, brief, "a panel lies in the fixture and no record holds it at a first "
+                  "look; looked at again once the robots have settled", []),
+    {wait, [{io, nest_empty, {eq, true}}, router_task:watchdog(T, transfer_timeout_ms, 10000)],
+     phase(T, idle)}.
+
+%% Whether what woke the idle step comes after the machine had time to settle: a
+%% transfer time waited (look_again/1, loading_holds/3), or the operator's answer.
+settled({timer, _}) -> true;
+settled({answer, _}) -> true;
+settled(_) -> false.
 
 %% The panel the loading segment offers lies here already (a restart cut its
 %% hand-over off after it arrived): taken in through the hand-over as it lies; the
