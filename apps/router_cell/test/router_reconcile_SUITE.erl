@@ -735,7 +735,11 @@ assert_books_agree() ->
     Held = [S || #{serial := S} <- cell_controller:tasks(), is_binary(S)],
     World = router_sim:world(),
     ?assertEqual(length(Held), length(lists:usort(Held))),
-    ?assertEqual({held, lists:sort(in_machine(World))}, {held, lists:sort(Held)}),
+    %% A panel the previous machine pushed to the loading stopper as the cell stopped,
+    %% before the loading segment read its code, has not entered the cell yet.
+    Unread = [S || {S, stop} <- maps:values(maps:get(loading, World)),
+                   not lists:member(S, Held), cell_stats:product(S) =:= {error, not_found}],
+    ?assertEqual({held, lists:sort(in_machine(World) -- Unread)}, {held, lists:sort(Held)}),
     _ = [ok = cell_alarms:close(Id, <<"suite">>)
          || #{id := Id, kind := warning, local_id := <<"crash_resumed">>} <- cell_alarms:list()],
     ?assertEqual([], cell_alarms:list()).
