@@ -248,12 +248,7 @@ outputs_set_again_after_reconnect(Config) ->
     ok = cell_hal_sim:link(plc1, up),
     {ok, up} = await_conn(plc1, up),
     ?assertEqual({ok, false}, cell_hal:read(conv, motor)),
-    ok = cell_alarms:answer(Id, retry, <<"op">>),
-    await_motor(true),
-    await_woke({io, conv, sensor, true}),
-    ok = cell_controller:sync(),
-    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
-    still_holding(Task).
+    belt_on_again_after_retry(Id, Task).
 
 %% The PLC stops answering just as the task commands its belt on: the write is taken
 %% by the connection but never reaches the PLC, and the connection counts as lost. Once
@@ -273,12 +268,7 @@ write_lost_in_flight_written_again(_Config) ->
     ok = cell_hal_sim:link(plc1, up),
     {ok, up} = await_conn(plc1, up),
     ?assertNotEqual({ok, true}, cell_hal:read(conv, motor)),
-    ok = cell_alarms:answer(Id, retry, <<"op">>),
-    await_motor(true),
-    await_woke({io, conv, sensor, true}),
-    ok = cell_controller:sync(),
-    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
-    still_holding(Task).
+    belt_on_again_after_retry(Id, Task).
 
 %% The step that sees a panel stops the belt (the PLC has it stopped), then finds its
 %% connection's worker gone and is dropped. At the Retry the belt is not started
@@ -440,3 +430,13 @@ await_conn(Conn, Want) ->
                 ct:fail({connection_not, Want})
             end
     end.
+
+%% One Retry: the belt is commanded on again, the panel it brings wakes the task, and
+%% the task goes on holding its product with no second error.
+belt_on_again_after_retry(Id, Task) ->
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_motor(true),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(belt)),
+    still_holding(Task).
