@@ -17,30 +17,42 @@ all() ->
     [products_pass_between_nodes, downstream_node_killed_mid_transfer].
 
 init_per_suite(Config) ->
-    %% The test node joins the distribution so it can start peers.
+    %% The test node joins the distribution so it can start peers and watch them, as a
+    %% hidden node: it is not one of the line's cells. A visible one would be part of
+    %% global's cluster, and when the downstream node comes back global may cut the
+    %% test node off from it to keep the cluster whole, losing a product's `line_out'
+    %% message on the way.
     _ = os:cmd("epmd -daemon"),
-    case node() of
-        nonode@nohost ->
-            %% The peers are @localhost: the same host name keeps global's view of
-            %% the cluster in one piece.
-            Name = list_to_atom("hs_nodes_" ++ os:getpid() ++ "@localhost"),
-            {ok, _} = net_kernel:start([Name, shortnames]);
-        _ ->
-            ok
-    end,
-    Config.
+    Started = case node() of
+                  nonode@nohost ->
+                      %% The peers are @localhost: the same host name keeps global's
+                      %% view of the cluster in one piece.
+                      Name = list_to_atom("hs_nodes_" ++ os:getpid() ++ "@localhost"),
+                      {ok, _} = net_kernel:start(Name, #{name_domain => shortnames,
+                                                         hidden => true}),
+                      true;
+                  _ ->
+                      false
+              end,
+    [{started_dist, Started} | Config].
 
-end_per_suite(_Config) ->
-    ok.
+end_per_suite(Config) ->
+    case ?config(started_dist, Config) of
+        true -> ok = net_kernel:stop();
+        false -> ok
+    end.
 
 init_per_testcase(Case, Config) ->
     Base = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     Delay = case Case of products_pass_between_nodes -> 0; _ -> 400 end,
+    %% The first product to reach the downstream segment stops there in the middle of
+    %% its move, so the node is killed mid-transfer however busy the machine is.
+    Hold = Case =:= downstream_node_killed_mid_transfer,
     Up = start_peer(up, Config),
     Down = start_peer(down, Config),
     Cells = #{up => #{node => Up, root => filename:join(Base, "up")},
               down => #{node => Down, root => filename:join(Base, "down")}},
-    [{cells, Cells}, {delay, Delay}, {ref, make_ref()} | Config].
+    [{cells, Cells}, {delay, Delay}, {hold, Hold}, {ref, make_ref()} | Config].
 
 end_per_testcase(_Case, Config) ->
     [catch peer:stop(Peer) || {_, #{peer := Peer}} <- maps:to_list(peers(Config))],
@@ -58,8 +70,9 @@ products_pass_between_nodes(Config) ->
     check_conservation(Config, Serials).
 
 %% The downstream node dies while a product moves to it (it owns it on disk, marked in
-%% transit). Upstream sees the node go and keeps going; the node comes back on its
-%% folder, the operator is asked where the product is, and the line completes.
+%% transit: the segment holds it there until the kill). Upstream sees the node go and
+%% keeps going; the node comes back on its folder, the operator is asked where the
+%% product is, and the line completes.
 downstream_node_killed_mid_transfer(Config) ->
     start_cells(Config),
     Serials = feed(Config, 3),
@@ -73,9 +86,9 @@ downstream_node_killed_mid_transfer(Config) ->
     catch peer:stop(Peer),
     %% The downstream cell again, on the same folder and under the same name.
     Down2 = start_peer(down, Config),
-    Config2 = lists:keystore(cells, 1, Config,
-                             {cells, maps:update_with(down, fun(C) -> C#{node => Down2} end,
-                                                      ?config(cells, Config))}),
+    Cells2 = maps:update_with(down, fun(C) -> C#{node => Down2} end, ?config(cells, Config)),
+    Config2 = lists:keystore(hold, 1, lists:keystore(cells, 1, Config, {cells, Cells2}),
+                             {hold, false}),
     start_cell(Config2, down),
     ok = start(Config2, down),
     ok = start(Config2, up),
@@ -138,7 +151,8 @@ task(Id, Args, Config, Test) ->
     #{id => Id, module => cell_line_task, zone => atom_to_binary(Id, utf8),
       lane => <<"Line">>,
       args => Args#{feed => line_feed, out => line_out, ref => ?config(ref, Config),
-                    notify => Test, delay => ?config(delay, Config)}}.
+                    notify => Test, delay => ?config(delay, Config),
+                    hold => ?config(hold, Config)}}.
 
 start(Config, Which) ->
     peer_call(Config, Which, cell_controller, start, []).

@@ -5,8 +5,10 @@
 %% physical moves (0: none).
 %%
 %% Args: #{prev => Link, next => Link, feed => Tab, out => Tab, ref => Ref,
-%%         delay => Ms, notify => Pid, jam => true}. With `jam' the first product taken
-%% sticks before it arrives: an error with Retry. The feed is an ordered_set of {N, Serial}; when
+%%         delay => Ms, notify => Pid, jam => true, hold => true}. With `jam' the first
+%% product taken sticks before it arrives: an error with Retry. With `hold' a product
+%% stops in the middle of its move and stays there (a segment stopped mid-transfer,
+%% for a test to kill the node at that moment). The feed is an ordered_set of {N, Serial}; when
 %% it runs dry the first segment waits for `{Ref, fed}'. The out table gets
 %% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change
 %% (unless `phases => false') and `{line_out, Task, Serial}' for every product sent out.
@@ -48,7 +50,10 @@ step(idle, _Woken, T) ->
     end;
 step(moving_in, {handshake, Prev, available, false}, T) ->
     %% Phase 3 seen: the product left the previous segment; run until it arrives.
-    after_delay(arriving, T, fun() -> arrived(Prev, T) end);
+    case cell_task:arg(T, hold, false) of
+        true -> {wait, {reply, make_ref()}, phase(T, arriving)};
+        false -> after_delay(arriving, T, fun() -> arrived(Prev, T) end)
+    end;
 step(moving_in, {handshake, _Prev, interrupted}, T) ->
     interrupted(T);
 step(moving_in, _Woken, T) ->
