@@ -1,12 +1,12 @@
 %% The public API of docs/api.md, held against the code: every function the document
 %% lists is exported, has a -spec and a @doc; every export of a public module is either
-%% listed or marked internal, so a new export forces a decision; the behaviours have
-%% exactly the callbacks listed; the panel's API paths are those listed; the document
-%% speaks of the version the release and the apps carry.
+%% listed or marked internal, so a new export forces a decision (a new exported type
+%% too); the behaviours have exactly the callbacks listed; the panel's API paths are
+%% those listed; the document speaks of the version the release and the apps carry.
 %%
 %% The lists are the fenced blocks of docs/api.md tagged `api-public', `api-internal',
-%% `api-callbacks', `api-http' and `api-version'. Beams are read with beam_lib (names
-%% from the document never become atoms).
+%% `api-callbacks', `api-types', `api-internal-types', `api-http' and `api-version'.
+%% Beams are read with beam_lib (names from the document never become atoms).
 -module(cell_public_api_tests).
 -include_lib("eunit/include/eunit.hrl").
 
@@ -59,6 +59,22 @@ every_export_decided_test() ->
                || Mod <- lists:usort([M || {M, _, _} <- internal(Doc)]),
                   not lists:member(Mod, public_modules(Doc))],
     ?assertEqual([], flat(Undecided ++ Stale ++ Twice ++ Outside)).
+
+%% Every exported type of a public module is listed public or internal, and every type
+%% listed is exported.
+every_type_decided_test() ->
+    Doc = doc(),
+    Public = functions(block(Doc, "api-types")),
+    Internal = functions(block(Doc, "api-internal-types")),
+    Undecided = [io_lib:format("type ~ts:~ts/~b is exported but neither public nor internal "
+                               "in docs/api.md", [Mod, T, A])
+                 || Mod <- public_modules(Doc),
+                    {T, A} <- types(beam(Mod)),
+                    not lists:member({Mod, T, A}, Public ++ Internal)],
+    Missing = [io_lib:format("type ~ts:~ts/~b is listed but not exported", [Mod, T, A])
+               || {Mod, T, A} <- Public ++ Internal,
+                  not lists:member({T, A}, types(beam(Mod)))],
+    ?assertEqual([], flat(Undecided ++ Missing)).
 
 %% The behaviours a cell implements have exactly the callbacks listed, optional ones
 %% marked so.
@@ -186,6 +202,9 @@ exports(Beam) ->
 eunit_test("test", 0) -> true;
 eunit_test(Name, 0) -> lists:suffix("_test", Name) orelse lists:suffix("_test_", Name);
 eunit_test(_, _) -> false.
+
+types(Beam) ->
+    [{atom_to_list(T), A} || {attribute, _, export_type, Types} <- forms(Beam), {T, A} <- Types].
 
 forms(Beam) ->
     case beam_lib:chunks(Beam, [abstract_code]) of
