@@ -105,6 +105,27 @@ http_paths_test() ->
     Listed = lists:usort([P || [P | _] <- block(doc(), "api-http")]),
     ?assertEqual({[], []}, {Routed -- Listed, Listed -- Routed}).
 
+%% Every key the release's configuration sets for an app of cellrt is listed, and
+%% every environment variable the configuration reads.
+config_test() ->
+    Doc = doc(),
+    {ok, [Config]} = file:consult(filename:join([top(), "config", "sys.config.src"])),
+    Set = lists:usort([atom_to_list(App) ++ ":" ++ atom_to_list(Key)
+                       || {App, Env} <- Config, lists:prefix("cell", atom_to_list(App)),
+                          {Key, _} <- Env]),
+    Listed = [Entry || [Entry | _] <- block(Doc, "api-config")],
+    Read = lists:usort(
+             lists:append([Vars || File <- ["sys.config.src", "vm.args.src"],
+                                   {ok, Bin} <- [file:read_file(filename:join([top(), "config", File]))],
+                                   Vars <- [case re:run(Bin, "\\$\\{(CELLRT_[A-Z_]+)",
+                                                        [global, {capture, all_but_first, list}]) of
+                                                {match, Ms} -> lists:append(Ms);
+                                                nomatch -> []
+                                            end]])),
+    Env = [Var || [Var | _] <- block(Doc, "api-env")],
+    ?assertEqual({[], []}, {Set -- Listed, Read -- Env}),
+    ?assertMatch([_, _ | _], Read).
+
 %% The document speaks of the version the release is, and every app of cellrt carries it.
 version_test() ->
     [[Version]] = block(doc(), "api-version"),
