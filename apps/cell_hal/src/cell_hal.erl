@@ -267,8 +267,8 @@ unsubscribe(Group, Point) ->
 subscribe_connection(Conn) ->
     server({subscribe_connection, Conn, self()}).
 
-%% @doc Ends the caller's subscription to a connection's status (see {@link
-%% subscribe_connection/1}).
+%% @doc Ends the caller's subscription to a connection's status (see
+%% {@link subscribe_connection/1}).
 -spec unsubscribe_connection(atom()) -> ok.
 unsubscribe_connection(Conn) ->
     cell_hal_store:delete_conn_sub(Conn, self()).
