@@ -142,6 +142,7 @@ list() ->
 list(Task) ->
     [A || #{task := T} = A <- list(), T =:= Task].
 
+%% @doc One active error, alarm or warning by its id (`<<"Task:LocalId">>').
 -spec get(binary()) -> {ok, alarm()} | {error, not_found}.
 get(Id) ->
     case ets:lookup(?TAB, Id) of
@@ -154,16 +155,22 @@ get(Id) ->
 history() ->
     gen_server:call(?MODULE, history).
 
+%% @doc Whether an error waits for the operator.
 -spec has_error() -> boolean().
 has_error() -> any(error, '_').
+%% @doc Whether an error of `Task' waits for the operator.
 -spec has_error(atom()) -> boolean().
 has_error(Task) -> any(error, Task).
+%% @doc Whether an alarm is raised.
 -spec has_alarm() -> boolean().
 has_alarm() -> any(alarm, '_').
+%% @doc Whether an alarm of `Task' is raised.
 -spec has_alarm(atom()) -> boolean().
 has_alarm(Task) -> any(alarm, Task).
+%% @doc Whether a warning is set.
 -spec has_warning() -> boolean().
 has_warning() -> any(warning, '_').
+%% @doc Whether a warning of `Task' is set.
 -spec has_warning(atom()) -> boolean().
 has_warning(Task) -> any(warning, Task).
 

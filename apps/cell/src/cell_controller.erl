@@ -53,6 +53,7 @@ start_link() ->
 -spec start() -> ok | {error, estop_active}.
 start() -> start(<<"cell">>).
 
+%% @doc As {@link start/0}, `Who' (a user's name) recorded with the request.
 -spec start(binary()) -> ok | {error, estop_active}.
 start(Who) -> gen_server:call(?MODULE, {request, start, Who}).
 
@@ -60,6 +61,7 @@ start(Who) -> gen_server:call(?MODULE, {request, start, Who}).
 -spec pause() -> ok.
 pause() -> pause(<<"cell">>).
 
+%% @doc As {@link pause/0}, `Who' recorded with the request.
 -spec pause(binary()) -> ok.
 pause(Who) -> gen_server:call(?MODULE, {request, pause, Who}).
 
@@ -67,6 +69,7 @@ pause(Who) -> gen_server:call(?MODULE, {request, pause, Who}).
 -spec stop() -> ok.
 stop() -> stop(<<"cell">>).
 
+%% @doc As {@link stop/0}, `Who' recorded with the request.
 -spec stop(binary()) -> ok.
 stop(Who) -> gen_server:call(?MODULE, {request, stop, Who}).
 
@@ -77,6 +80,7 @@ stop(Who) -> gen_server:call(?MODULE, {request, stop, Who}).
 -spec estop(boolean()) -> ok.
 estop(On) -> estop(On, <<"cell">>).
 
+%% @doc As {@link estop/1}, `Who' recorded with it.
 -spec estop(boolean(), binary()) -> ok.
 estop(On, Who) when is_boolean(On) ->
     case On of
@@ -92,6 +96,7 @@ estop(On, Who) when is_boolean(On) ->
 -spec service_mode(boolean()) -> ok.
 service_mode(On) -> service_mode(On, <<"cell">>).
 
+%% @doc As {@link service_mode/1}, `Who' recorded with it.
 -spec service_mode(boolean(), binary()) -> ok.
 service_mode(On, Who) when is_boolean(On) ->
     gen_server:call(?MODULE, {service_mode, On, Who}).

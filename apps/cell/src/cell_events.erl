@@ -70,6 +70,7 @@ subscribe(Pid, Types) when is_pid(Pid), is_list(Types) ->
         Unknown -> {error, {unknown_types, Unknown}}
     end.
 
+%% @doc Unsubscribes the caller from every event.
 -spec unsubscribe() -> ok.
 unsubscribe() ->
     gen_server:call(?MODULE, {unsubscribe, self()}).

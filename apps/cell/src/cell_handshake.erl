@@ -148,6 +148,8 @@ available(T, Link) -> maps:get(available, link_view(T, Link), false).
 -spec not_busy(cell_task:task(), atom()) -> boolean().
 not_busy(T, Link) -> maps:get(not_busy, link_view(T, Link), false).
 
+%% @doc The phase of a link as the task last saw it (`idle', `offered', `committed',
+%% `released', `aborting'): an upstream task whose offer is gone finds it `idle'.
 -spec phase(cell_task:task(), atom()) -> cell_handshake_link:phase().
 phase(T, Link) -> maps:get(phase, link_view(T, Link), idle).
 

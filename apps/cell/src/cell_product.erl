@@ -26,6 +26,7 @@
 new(Serial, Recipe) ->
     new(Serial, Recipe, #{}).
 
+%% @doc A new good product with the task's own fields (cuts done, the lane ...).
 -spec new(binary(), binary(), map()) -> product().
 new(Serial, Recipe, Fields) when is_binary(Serial), is_binary(Recipe), is_map(Fields) ->
     Fields#{serial => Serial, recipe => Recipe, failed => false}.
@@ -100,6 +101,7 @@ delete(Path) ->
 delete(Path, Opts) ->
     cell_file:put_record(Path, undefined, Opts).
 
+%% @doc A product's serial; `undefined' for no product.
 -spec serial(product() | undefined) -> binary() | undefined.
 serial(undefined) -> undefined;
 serial(#{serial := S}) -> S.

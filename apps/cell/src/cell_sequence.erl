@@ -137,6 +137,7 @@ unit(#seq{unit = U}) -> U.
 -spec args(seq()) -> map().
 args(#seq{frames = [#frame{args = A} | _]}) -> A.
 
+%% @doc An argument of the running sequence, or `Default'.
 -spec arg(seq(), term(), term()) -> term().
 arg(Seq, Key, Default) -> maps:get(Key, args(Seq), Default).
 
@@ -144,9 +145,11 @@ arg(Seq, Key, Default) -> maps:get(Key, args(Seq), Default).
 -spec get(seq(), term()) -> term().
 get(#seq{frames = [#frame{vars = V} | _]}, Key) -> maps:get(Key, V).
 
+%% @doc A variable of the running sequence, or `Default' when it has none.
 -spec get(seq(), term(), term()) -> term().
 get(#seq{frames = [#frame{vars = V} | _]}, Key, Default) -> maps:get(Key, V, Default).
 
+%% @doc Sets a variable of the running sequence.
 -spec put(seq(), term(), term()) -> seq().
 put(#seq{frames = [#frame{vars = V} = F | Rest]} = Seq, Key, Value) ->
     Seq#seq{frames = [F#frame{vars = V#{Key => Value}} | Rest]}.
@@ -164,6 +167,7 @@ service_mode(#seq{service = S}) -> S.
 -spec settings(seq()) -> map().
 settings(#seq{settings = S}) -> S.
 
+%% @doc A field of the unit's settings, or `Default'.
 -spec setting(seq(), term(), term()) -> term().
 setting(#seq{settings = S}, Key, Default) -> maps:get(Key, S, Default).
 

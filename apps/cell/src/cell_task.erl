@@ -161,15 +161,19 @@ new(#{id := Id, module := Mod, zone := Zone, lane := Lane} = Spec) ->
 
 %% Accessors
 
+%% @doc The task's id in the cell spec.
 -spec id(task()) -> atom().
 id(#task{id = Id}) -> Id.
 
+%% @doc The task's zone (the machine part it covers, as the spec names it).
 -spec zone(task()) -> binary().
 zone(#task{zone = Z}) -> Z.
 
+%% @doc The task's lane, as the spec names it.
 -spec lane(task()) -> binary().
 lane(#task{lane = L}) -> L.
 
+%% @doc The task's module.
 -spec module(task()) -> module().
 module(#task{module = M}) -> M.
 
@@ -177,6 +181,7 @@ module(#task{module = M}) -> M.
 -spec args(task()) -> map().
 args(#task{args = A}) -> A.
 
+%% @doc One argument the cell spec gave the task, or `Default'.
 -spec arg(task(), term(), term()) -> term().
 arg(#task{args = A}, Key, Default) -> maps:get(Key, A, Default).
 
@@ -184,6 +189,7 @@ arg(#task{args = A}, Key, Default) -> maps:get(Key, A, Default).
 -spec settings(task()) -> map().
 settings(#task{settings = S}) -> S.
 
+%% @doc One field of the task's settings snapshot, or `Default'.
 -spec setting(task(), term(), term()) -> term().
 setting(#task{settings = S}, Key, Default) -> maps:get(Key, S, Default).
 
@@ -191,9 +197,12 @@ setting(#task{settings = S}, Key, Default) -> maps:get(Key, S, Default).
 -spec get(task(), term()) -> term().
 get(#task{data = D}, Key) -> maps:get(Key, D).
 
+%% @doc A field of the task module's own data, or `Default' when it has none.
 -spec get(task(), term(), term()) -> term().
 get(#task{data = D}, Key, Default) -> maps:get(Key, D, Default).
 
+%% @doc Sets a field of the task module's own data (kept in memory only: what must
+%% outlive the process goes with the product or in the retained data).
 -spec put(task(), term(), term()) -> task().
 put(#task{data = D} = T, Key, Value) -> T#task{data = maps:put(Key, Value, D)}.
 
@@ -350,6 +359,7 @@ woken_by(#task{woken_by = W}) -> W.
 commanded(Held, T, Point) ->
     commanded(Held, T, default_group(T), Point).
 
+%% @doc As {@link commanded/3}, for an output of one of the task's IO groups.
 -spec commanded(held(), task(), atom(), atom()) -> cell_hal_type:value() | undefined.
 commanded(#{outputs := Outs}, _T, Group, Point) ->
     maps:get(Point, maps:get(Group, Outs, #{}), undefined).
@@ -500,6 +510,7 @@ in(T, Group, Point) ->
 read(T, Point) ->
     read(T, default_group(T), Point).
 
+%% @doc As {@link read/2}, for a point of one of the task's IO groups.
 -spec read(task(), atom(), atom()) -> {ok, cell_hal_type:value()} | {error, term()}.
 read(_T, Group, Point) ->
     cell_hal:read(Group, Point).
@@ -513,6 +524,7 @@ read(_T, Group, Point) ->
 out(T, Point, Value) ->
     out(T, default_group(T), Point, Value).
 
+%% @doc As {@link out/3}, for an output of one of the task's IO groups.
 -spec out(task(), atom(), atom(), cell_hal_type:value()) -> task().
 out(T, Group, Point, Value) ->
     case cell_hal:write(Group, Point, Value) of

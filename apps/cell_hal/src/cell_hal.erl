@@ -118,10 +118,12 @@ add_group(Spec) ->
 remove_group(Id) ->
     cell_hal_server:call({remove_group, Id}).
 
+%% @doc The ids of the configured connections.
 -spec connections() -> [atom()].
 connections() ->
     lists:sort([Id || #hal_conn{id = Id} <- cell_hal_store:conns()]).
 
+%% @doc The ids of the configured IO group instances.
 -spec groups() -> [atom()].
 groups() ->
     lists:sort([Id || #hal_group{id = Id} <- cell_hal_store:groups()]).
@@ -249,6 +251,7 @@ cancel_watch(Ref) ->
 subscribe(Group, Point) ->
     server({subscribe, {Group, Point}, self()}).
 
+%% @doc Ends the caller's subscription to a point (see {@link subscribe/2}).
 -spec unsubscribe(atom(), atom()) -> ok.
 unsubscribe(Group, Point) ->
     cell_hal_store:delete_sub({Group, Point}, self()).
@@ -264,6 +267,8 @@ unsubscribe(Group, Point) ->
 subscribe_connection(Conn) ->
     server({subscribe_connection, Conn, self()}).
 
+%% @doc Ends the caller's subscription to a connection's status (see
+%% {@link subscribe_connection/1}).
 -spec unsubscribe_connection(atom()) -> ok.
 unsubscribe_connection(Conn) ->
     cell_hal_store:delete_conn_sub(Conn, self()).

@@ -127,6 +127,7 @@ subscribe(Id) ->
         error -> {error, not_present}
     end.
 
+%% @doc Ends the caller's subscription to an object's status (see {@link subscribe/1}).
 -spec unsubscribe(atom()) -> ok.
 unsubscribe(Id) ->
     case whereis_object(Id) of
