@@ -65,6 +65,34 @@ exceptions_test_() ->
                    cell_hal_modbus_codec:exception_name(11)),
      ?_assertEqual(unknown_exception, cell_hal_modbus_codec:exception_name(99))].
 
+%% Every exception a PLC sends reads as words an operator understands, with the
+%% specification's name and code for the PLC's manual.
+exception_words_test_() ->
+    T = fun(Code) -> lists:flatten(cell_hal_modbus_codec:exception_text(Code)) end,
+    [?_assertEqual("the PLC does not offer this function (illegal function, Modbus exception 1)",
+                   T(1)),
+     ?_assertEqual("the PLC refuses this address (illegal data address, Modbus exception 2)",
+                   T(2)),
+     ?_assertEqual("the PLC refuses this quantity or value (illegal data value, "
+                   "Modbus exception 3)", T(3)),
+     ?_assertEqual("the PLC failed while handling the request (server device failure, "
+                   "Modbus exception 4)", T(4)),
+     ?_assertEqual("the PLC took the request but has not finished it (acknowledge, "
+                   "Modbus exception 5)", T(5)),
+     ?_assertEqual("the PLC is busy with a long command (server device busy, "
+                   "Modbus exception 6)", T(6)),
+     ?_assertEqual("the gateway has no path to the device behind it (gateway path "
+                   "unavailable, Modbus exception 10)", T(10)),
+     ?_assertEqual("the device behind the gateway did not answer (gateway target failed "
+                   "to respond, Modbus exception 11)", T(11)),
+     ?_assertEqual("the PLC refused the request with a code the specification does not "
+                   "name (unknown exception, Modbus exception 99)", T(99)),
+     %% Decoded from the wire, then put in words: no code is left without them.
+     [?_assertMatch({exception, C}, decode_response({read_coils, 0, 1}, <<16#81, C>>))
+      || C <- [1, 2, 3, 4, 5, 6, 10, 11]],
+     [?_assertNotEqual(nomatch, string:find(T(C), "Modbus exception"))
+      || C <- lists:seq(1, 255)]].
+
 mismatched_replies_test_() ->
     Read = {read_holding_registers, 0, 2},
     [?_assertEqual({error, {wrong_function, 3, 4}}, decode_response(Read, h("04 04 0000 0000"))),
