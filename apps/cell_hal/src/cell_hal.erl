@@ -218,7 +218,10 @@ command(Key, Value, Mode) ->
 
 %% @doc Sends `{cell_hal_watch, Ref, Value}' once, when the point's value satisfies
 %% `Cond' — at once if it already does. An input satisfies nothing while its
-%% connection is down. A condition that cannot hold for the point's type is refused.
+%% connection is down. A point the driver cannot serve (see {@link read/2}) ends the
+%% watch instead, at once or when that happens: `{cell_hal_unavailable, Ref, Why}',
+%% Why in an operator's words, and no value follows. A condition that cannot hold for
+%% the point's type is refused.
 %% While the server restarts (with the connections' workers) a watch cannot be placed:
 %% `{error, disconnected}'.
 -spec watch(atom(), atom(), cell_hal_type:condition()) ->

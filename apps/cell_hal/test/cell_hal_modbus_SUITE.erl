@@ -153,10 +153,24 @@ await_status(Status) ->
 flush_conn() ->
     receive {cell_hal_conn, plc, _} -> flush_conn() after 0 -> ok end.
 
+%% A point refused for a moment ends the watch: it is placed again once the point
+%% is usable again (its subscribers are told its value then).
 await_value(G, Point, V) ->
+    ok = cell_hal:subscribe(G, Point),
+    Got = await_value(G, Point, V, erlang:monotonic_time(millisecond) + ?WAIT),
+    ok = cell_hal:unsubscribe(G, Point),
+    Got.
+
+await_value(G, Point, V, Deadline) ->
     {ok, Ref} = cell_hal:watch(G, Point, {eq, V}),
-    receive {cell_hal_watch, Ref, Got} -> Got
-    after ?WAIT -> ct:fail({never, G, Point, V, cell_hal:read(G, Point)})
+    Left = fun() -> max(0, Deadline - erlang:monotonic_time(millisecond)) end,
+    receive
+        {cell_hal_watch, Ref, Got} -> Got;
+        {cell_hal_unavailable, Ref, _} ->
+            receive {cell_hal, {G, Point}, _} -> await_value(G, Point, V, Deadline)
+            after Left() -> ct:fail({never_usable, G, Point, V, cell_hal:read(G, Point)})
+            end
+    after Left() -> ct:fail({never, G, Point, V, cell_hal:read(G, Point)})
     end.
 
 address(G, Point) ->
@@ -320,8 +334,12 @@ refused_poll_faults_its_points(Config) ->
     Beyond = case Kind of pymodbus -> 2000; libmodbus -> 10000 end,
     ok = group(io, #{base => Beyond, only => [int16_in]}),
     ok = group(io2, #{base => 0, only => [int16_in]}),
+    %% Placed before or after the point is found refused, the watch ends with why.
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 1}),
     #{{io, int16_in} := Logged} = await_logs(error, [{io, int16_in}]),
     {error, {unavailable, Why}} = cell_hal:read(io, int16_in),
+    receive {cell_hal_unavailable, Ref, Ended} -> ?assertEqual(Why, Ended)
+    after ?WAIT -> ct:fail(watch_not_ended) end,
     ct:log("~s", [Why]),
     ?assertEqual(Logged, Why),
     ?assertEqual(iolist_to_binary(["the PLC refuses this address (illegal data address, "
@@ -504,6 +522,9 @@ refused_address_faults_its_request(Config) ->
     ?assertEqual(#{{b, int16_in} => Words, {b, uint16_in} => Words}, Logged),
     ?assertEqual({error, {unavailable, Words}}, cell_hal:read(b, int16_in)),
     ?assertEqual({error, {unavailable, Words}}, cell_hal:read(b, uint16_in)),
+    %% A task waiting for a refused point is told at once, not left waiting.
+    {ok, Ref} = cell_hal:watch(b, int16_in, {eq, 22}),
+    receive {cell_hal_unavailable, Ref, Words} -> ok after ?WAIT -> ct:fail(watch_not_ended) end,
     %% The rest of the image is read, and keeps being read.
     11 = await_value(a, int16_in, 11),
     true = await_value(a, coil_in, true),
