@@ -163,7 +163,8 @@ info_of(#hal_point{key = {G, N}, conn = C, dir = D, type = T, declared = F, addr
 %% `disconnected' while its connection is down and `not_yet_read' before the first
 %% read of its group; an output reads its last commanded value (or the value read back
 %% from the device after a (re)connect). A point the driver cannot read or write (a
-%% symbol the PLC lacks) reads `{unavailable, Why}', Why in an operator's words.
+%% symbol the PLC lacks, an address a Modbus PLC refuses) reads `{unavailable, Why}',
+%% Why in an operator's words; the rest of its group and the connection go on.
 -spec read(atom(), atom()) ->
           {ok, cell_hal_type:value()}
         | error(disconnected | unknown_point | not_yet_read | {unavailable, binary()}).
