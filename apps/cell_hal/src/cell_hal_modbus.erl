@@ -531,8 +531,10 @@ finish_read(Tag, #rd{blocks = Plan, outputs = Outputs, values = Vs, refused = Re
             [{refused, U, R, Exc} | _] = [W || {{G1, _}, W} <- maps:to_list(Why), G1 =:= G],
             {ok, [{reply, Tag, {error, {group_refused, G, U, R, Exc}}}], S};
         _ ->
-            New = [{K, W} || {K, W} <- lists:sort(maps:to_list(Why)),
-                             not is_map_key(K, Outputs), maps:get(K, Faulted, none) =/= W],
+            %% Said at every read, not only when it changes: the HAL marks (and logs)
+            %% a point only when that changes, and a group removed and added again
+            %% has its points unmarked.
+            New = [{K, W} || {K, W} <- lists:sort(maps:to_list(Why)), not is_map_key(K, Outputs)],
             Back = [K || {K, _} <- Values, is_map_key(K, Faulted)],
             Faulted1 = maps:without(Back, maps:merge(Faulted, maps:from_list(New))),
             {ok, [{faults, New} || New =/= []] ++ [{reply, Tag, {ok, Values}}]

@@ -354,6 +354,10 @@ refused_poll_faults_its_points(Config) ->
     {ok, #{status := up, faults := []}} = cell_hal:info(plc),
     ok = set(Peer, ir, 4, [322]),
     322 = await_value(io2, int16_in, 322),
+    %% Added again, still refused: unavailable again.
+    ok = group(io, #{base => Beyond, only => [int16_in]}),
+    #{{io, int16_in} := Why} = await_logs(error, [{io, int16_in}]),
+    ?assertEqual({error, {unavailable, Why}}, cell_hal:read(io, int16_in)),
     never_down().
 
 refused_write(Config) ->
