@@ -589,6 +589,82 @@ network_error(Why) -> io_lib:format("~tp", [Why]).
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
+%% The requests of a read queued on a connection with no socket (nothing is sent),
+%% answered here one by one: `Answers' maps a request to its reply or exception.
+answer_read(Tag, Plan, Answers, S0) ->
+    {ok, S1} = read(Tag, Plan, S0),
+    Reqs = queue:to_list(S1#mb.polls),
+    S2 = S1#mb{polls = queue:new()},
+    case Reqs of
+        [] ->
+            receive {?MODULE, empty_read, Tag} = Msg -> handle_info(Msg, S2) end;
+        _ ->
+            lists:foldl(fun(#req{request = R} = Req, {ok, Es, Sx}) ->
+                                Result = case maps:get(R, Answers) of
+                                             {exception, C} ->
+                                                 {error, {modbus_exception, C, exception_name(C)}};
+                                             Reply ->
+                                                 {ok, Reply}
+                                         end,
+                                {ok, Es1, Sx1} = completed(Req, Result, Sx),
+                                {ok, Es ++ Es1, Sx1}
+                        end, {ok, [], S2}, Reqs)
+    end.
+
+exception_name(C) -> cell_hal_modbus_codec:exception_name(C).
+
+%% An exception for one request of a poll: the inputs it reads are reported unusable
+%% (the output it covers is not), before the values of the other requests; the request
+%% then rests and is not sent, its inputs reported again; answered again, they are
+%% usable again after their values.
+refused_request_test() ->
+    Pt = fun(K, Dir, Field) ->
+                 {ok, F} = cell_hal_modbus_plan:field(Dir, int16, Field, #{unit => 1, word_order => big}),
+                 #{key => K, dir => Dir, type => int16, field => F}
+         end,
+    S0 = (init(plc, #{host => "h", port => 1, unit => 1, word_order => big, timeout_ms => 1000,
+                      max_in_flight => 1, max_gap => 0}))#mb{refused_retry_ms = 100000,
+                                                            max_refused_retry_ms = 100000},
+    {Plan, #{requests := 2}} = plan([Pt({g, a}, in, {input_register, 0}),
+                                     Pt({g, b}, in, {holding_register, 10}),
+                                     Pt({g, c}, out, {holding_register, 11})], S0),
+    IR = {read_input_registers, 0, 1},
+    HR = {read_holding_registers, 10, 2},
+    Why = {refused, 1, HR, {modbus_exception, 2, illegal_data_address}},
+    {ok, Events, S1} = answer_read(1, Plan, #{IR => <<7:16>>, HR => {exception, 2}}, S0),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 1, {ok, [{{g, a}, 7}]}}], Events),
+    %% resting: not asked, its input reported again
+    {ok, Events2, S2} = answer_read(2, Plan, #{IR => <<8:16>>}, S1),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 2, {ok, [{{g, a}, 8}]}}], Events2),
+    %% its rest over, it is asked again, and answered
+    Over = erlang:monotonic_time(millisecond) - 1,
+    S3 = S2#mb{resting = maps:map(fun(_, {_, W, E}) -> {Over, W, E} end, S2#mb.resting)},
+    {ok, Events3, S4} = answer_read(3, Plan, #{IR => <<8:16>>, HR => <<5:16, 6:16>>}, S3),
+    [{reply, 3, {ok, Values3}}, Back] = Events3,
+    ?assertEqual([{{g, a}, 8}, {{g, b}, 5}, {{g, c}, 6}], lists:sort(Values3)),
+    ?assertEqual({faults, [{{g, b}, ok}]}, Back),
+    ?assertEqual(#{}, S4#mb.resting),
+    %% a request refused again and again rests twice as long each time, up to the most
+    Rests = lists:foldl(fun(_, {Sx, Acc}) ->
+                                Sy = rest(1, HR, {modbus_exception, 6, server_device_busy}, Sx),
+                                {_, W, _} = maps:get({1, HR}, Sy#mb.resting),
+                                {Sy, [W | Acc]}
+                        end, {S4#mb{refused_retry_ms = 500, max_refused_retry_ms = 3000}, []},
+                        lists:seq(1, 5)),
+    ?assertEqual([500, 1000, 2000, 3000, 3000], lists:reverse(element(2, Rests))),
+    %% every request of a read refused: no value, the connection still answers
+    {ok, Events5, _} = answer_read(5, Plan, #{IR => {exception, 2}, HR => {exception, 2}}, S0),
+    ?assertMatch([{faults, [{{g, a}, _}, {{g, b}, _}]}, {reply, 5, {ok, []}}], Events5),
+    %% refused_group => disconnect: a group refused whole is an error of the read
+    {ok, Events6, _} = answer_read(6, Plan, #{IR => {exception, 2}, HR => {exception, 2}},
+                                   S0#mb{refused_group = disconnect}),
+    ?assertMatch([{reply, 6, {error, {group_refused, g, 1, _, {modbus_exception, 2, _}}}}],
+                 Events6),
+    %% ... but one input of it read keeps it
+    {ok, Events7, _} = answer_read(7, Plan, #{IR => <<1:16>>, HR => {exception, 2}},
+                                   S0#mb{refused_group = disconnect}),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 7, {ok, [{{g, a}, 1}]}}], Events7).
+
 %% Transaction ids run 0..65535 and on from 0, never taking one still in flight.
 next_tid_test_() ->
     Req = #req{kind = {raw, x}, unit = 1, request = {read_coils, 0, 1}, timeout = 1},
