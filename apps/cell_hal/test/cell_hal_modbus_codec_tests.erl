@@ -69,24 +69,19 @@ exceptions_test_() ->
 %% specification's name and code for the PLC's manual.
 exception_words_test_() ->
     T = fun(Code) -> lists:flatten(cell_hal_modbus_codec:exception_text(Code)) end,
-    [?_assertEqual("the PLC does not offer this function (illegal function, Modbus exception 1)",
-                   T(1)),
-     ?_assertEqual("the PLC refuses this address (illegal data address, Modbus exception 2)",
-                   T(2)),
-     ?_assertEqual("the PLC refuses this quantity or value (illegal data value, "
-                   "Modbus exception 3)", T(3)),
-     ?_assertEqual("the PLC failed while handling the request (server device failure, "
-                   "Modbus exception 4)", T(4)),
-     ?_assertEqual("the PLC took the request but has not finished it (acknowledge, "
-                   "Modbus exception 5)", T(5)),
-     ?_assertEqual("the PLC is busy with a long command (server device busy, "
-                   "Modbus exception 6)", T(6)),
-     ?_assertEqual("the gateway has no path to the device behind it (gateway path "
-                   "unavailable, Modbus exception 10)", T(10)),
-     ?_assertEqual("the device behind the gateway did not answer (gateway target failed "
-                   "to respond, Modbus exception 11)", T(11)),
-     ?_assertEqual("the PLC refused the request with a code the specification does not "
-                   "name (unknown exception, Modbus exception 99)", T(99)),
+    Words = [{1, "the PLC does not offer this function (illegal function"},
+             {2, "the PLC refuses this address (illegal data address"},
+             {3, "the PLC refuses this quantity or value (illegal data value"},
+             {4, "the PLC failed while handling the request (server device failure"},
+             {5, "the PLC took the request but has not finished it (acknowledge"},
+             {6, "the PLC is busy with a long command (server device busy"},
+             {10, "the gateway has no path to the device behind it (gateway path unavailable"},
+             {11, "the device behind the gateway did not answer (gateway target failed to "
+                  "respond"},
+             {99, "the PLC refused the request with a code the specification does not name "
+                  "(unknown exception"}],
+    [[?_assertEqual(Text ++ ", Modbus exception " ++ integer_to_list(C) ++ ")", T(C))
+      || {C, Text} <- Words],
      %% Decoded from the wire, then put in words: no code is left without them.
      [?_assertMatch({exception, C}, decode_response({read_coils, 0, 1}, <<16#81, C>>))
       || C <- [1, 2, 3, 4, 5, 6, 10, 11]],
