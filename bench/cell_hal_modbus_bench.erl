@@ -280,7 +280,7 @@ image() ->
 
 %% The requests of one poll, as libmodbus is given them.
 poll_requests() ->
-    {Plan, _} = cell_hal_modbus:plan(image(), cell_hal_modbus:init(bench, #{host => "", port => 1,
+    {{Plan, _Outputs}, _} = cell_hal_modbus:plan(image(), cell_hal_modbus:init(bench, #{host => "", port => 1,
                                                                           unit => 1, word_order => big,
                                                                           timeout_ms => 1000,
                                                                           max_in_flight => 1,

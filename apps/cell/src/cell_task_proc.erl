@@ -244,6 +244,13 @@ handle_event(info, {cell_hal_watch, Ref, Value}, {ready, _, _}, #data{armed = Ar
         {io, Ref, Group, Point} -> wake({io, Group, Point, Value}, D);
         _ -> keep_state_and_data
     end;
+handle_event(info, {cell_hal_unavailable, Ref, Why}, {ready, _, _} = S, #data{armed = Armed} = D) ->
+    %% The point waited for cannot be served (a PLC refusing its address): DOWN with
+    %% the error naming it; Retry arms the wait again.
+    case lists:keyfind(Ref, 2, Armed) of
+        {io, Ref, Group, Point} -> raise(S, point_error(Group, Point, Why), io, D#data{resume = S});
+        _ -> keep_state_and_data
+    end;
 handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
     %% The task's IO is gone: nothing it reads can be trusted. DOWN until the operator
     %% retries with the connection back.
@@ -328,6 +335,8 @@ handle_event(info, {cell_hal_conn, Conn, Status}, _State, D) ->
     {keep_state, conn_status(Conn, Status, D)};
 handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     %% A watch of a wait the task has since left.
+    keep_state_and_data;
+handle_event(info, {cell_hal_unavailable, _Ref, _Why}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} = D) ->
     T = drop_stale(T0, Serial, Gen),
@@ -1285,7 +1294,8 @@ point_error(Group, Point, Why) ->
       <<"io_point">>, "IO point unavailable",
       io_lib:format("The point ~ts of the IO group ~ts cannot be used: ~ts.~nThe task "
                     "holds. Check the PLC program (the variable may have been renamed, "
-                    "removed or retyped), then select RETRY.",
+                    "removed or retyped, or the PLC may refuse its address), then select "
+                    "RETRY.",
                     [Point, Group, Why]),
       [retry]).
 

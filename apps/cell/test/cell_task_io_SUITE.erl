@@ -16,7 +16,7 @@
          lost_while_paused/1, point_unavailable/1, worker_killed_mid_step/1,
          server_killed_mid_step/1, worker_stuck_mid_step/1, hal_restarts_while_waiting/1,
          outputs_set_again_after_reconnect/1, write_lost_in_flight_written_again/1,
-         lost_in_a_step_that_stopped_the_belt/1]).
+         lost_in_a_step_that_stopped_the_belt/1, waited_point_unavailable/1]).
 
 -define(TIMEOUT, 10000).
 
@@ -25,7 +25,7 @@ all() ->
      point_unavailable, worker_killed_mid_step, server_killed_mid_step,
      worker_stuck_mid_step, hal_restarts_while_waiting,
      outputs_set_again_after_reconnect, write_lost_in_flight_written_again,
-     lost_in_a_step_that_stopped_the_belt].
+     lost_in_a_step_that_stopped_the_belt, waited_point_unavailable].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -104,6 +104,31 @@ connection_lost_and_back(_Config) ->
     %% The wait for the sensor is armed again.
     ok = cell_hal_sim:set({conv, sensor}, true),
     await_woke({io, conv, sensor, true}).
+
+%% The point a task waits for becomes one its device cannot serve (a PLC refusing its
+%% address): the task is told, not left waiting for ever: DOWN with an error naming
+%% the point and why. Retry while the fault stands: DOWN again; once it is gone the
+%% wait is armed again and wakes the task.
+waited_point_unavailable(_Config) ->
+    ok = cell_controller:start(),
+    await_woke(undefined),
+    ok = cell_events:subscribe([task_state]),
+    Why = <<"the PLC refuses this address (illegal data address, Modbus exception 2)">>,
+    true = cell_hal_store:set_fault({conv, sensor}, Why),
+    await_state(belt, down),
+    [#{id := Id, caption := <<"IO point unavailable">>, solutions := [retry],
+       description := Text}] = cell_alarms:list(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"sensor">>)),
+    ?assertNotEqual(nomatch, binary:match(Text, Why)),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    await_state(belt, down),
+    [#{id := Id2, caption := <<"IO point unavailable">>}] = cell_alarms:list(),
+    true = cell_hal_store:set_fault({conv, sensor}, undefined),
+    ok = cell_hal_sim:set({conv, sensor}, true),
+    ok = cell_alarms:answer(Id2, retry, <<"op">>),
+    await_woke({io, conv, sensor, true}),
+    ok = cell_controller:sync(),
+    ?assertEqual([], cell_alarms:list()).
 
 %% The device reports a point it cannot serve (a PLC variable renamed, say): the step
 %% that reads it takes the task DOWN with an error naming the point and why, not a

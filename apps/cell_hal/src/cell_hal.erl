@@ -165,7 +165,8 @@ info_of(#hal_point{key = {G, N}, conn = C, dir = D, type = T, declared = F, addr
 %% `disconnected' while its connection is down and `not_yet_read' before the first
 %% read of its group; an output reads its last commanded value (or the value read back
 %% from the device after a (re)connect). A point the driver cannot read or write (a
-%% symbol the PLC lacks) reads `{unavailable, Why}', Why in an operator's words.
+%% symbol the PLC lacks, an address a Modbus PLC refuses) reads `{unavailable, Why}',
+%% Why in an operator's words; the rest of its group and the connection go on.
 -spec read(atom(), atom()) ->
           {ok, cell_hal_type:value()}
         | error(disconnected | unknown_point | not_yet_read | {unavailable, binary()}).
@@ -220,7 +221,10 @@ command(Key, Value, Mode) ->
 
 %% @doc Sends `{cell_hal_watch, Ref, Value}' once, when the point's value satisfies
 %% `Cond' — at once if it already does. An input satisfies nothing while its
-%% connection is down. A condition that cannot hold for the point's type is refused.
+%% connection is down. A point the driver cannot serve (see {@link read/2}) ends the
+%% watch instead, at once or when that happens: `{cell_hal_unavailable, Ref, Why}',
+%% Why in an operator's words, and no value follows. A condition that cannot hold for
+%% the point's type is refused.
 %% While the server restarts (with the connections' workers) a watch cannot be placed:
 %% `{error, disconnected}'.
 -spec watch(atom(), atom(), cell_hal_type:condition()) ->

@@ -29,7 +29,8 @@
 
 %% A point's value, read without a process hop. `none' until first read or commanded.
 %% `fault' says, in words, why the driver cannot read or write the point (a symbol
-%% the PLC lacks), while the connection is up; the rest of its group works on.
+%% the PLC lacks, an address a Modbus PLC refuses), while the connection is up; the
+%% rest of its group works on.
 -record(hal_value, {key :: {atom(), atom()},
                     conn :: atom(),
                     dir :: in | out,

@@ -19,10 +19,12 @@
 %% so the worker knows when every value is fresh.
 %%
 %% <b>Single points.</b> A point the driver cannot serve while the connection works (a
-%% PLC symbol that is missing, or of another type than configured) is reported as
-%% `{faults, [{Key, Why}]}' and left out of the values, and as `{faults, [{Key, ok}]}'
-%% once it can be served again; the rest of the plan is read as usual. A read in
-%% which not one point could be served is an `{error, Why}'.
+%% PLC symbol that is missing, or of another type than configured; an address a Modbus
+%% PLC refuses) is reported as `{faults, [{Key, Why}]}' and left out of the values, and
+%% as `{faults, [{Key, ok}]}' once it can be served again; the rest of the plan is read
+%% as usual. A read in which not one point could be served for another reason (the
+%% device did not answer) is an `{error, Why}', and so is one the driver's own
+%% settings count as a lost connection (Modbus: `refused_group => disconnect').
 %%
 %% <b>Writing.</b> `write/4' queues one output write; writes reach the device in the
 %% order they were queued. A driver may merge queued writes into one exchange (an ADS

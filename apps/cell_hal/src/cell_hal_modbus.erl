@@ -15,6 +15,14 @@
 %%   (pipelining); only for devices that queue requests</td></tr>
 %% <tr><td>`max_gap'</td><td>0</td><td>unused registers or bits a block read may span
 %%   to join two points (only where the device answers for the gap)</td></tr>
+%% <tr><td>`refused_group'</td><td>`fault'</td><td>what a poll in which the PLC refuses
+%%   every request of an IO group means: `fault' (its points read unavailable, the rest
+%%   of the connection goes on) or `disconnect' (the connection is lost, as on a
+%%   transport failure, and is tried again at the worker's reconnect backoff)</td></tr>
+%% <tr><td>`refused_retry_ms'</td><td>500</td><td>how long a read request the PLC refused
+%%   rests before it is asked again (not at every poll), twice as long after each
+%%   further refusal</td></tr>
+%% <tr><td>`max_refused_retry_ms'</td><td>30000</td><td>the longest such rest</td></tr>
 %% </table>
 %%
 %% Requests carry transaction ids 0..65535, wrapping around, never one still in
@@ -26,12 +34,21 @@
 %% timer a connection, armed for the earliest deadline in flight, rather than one a
 %% request: a round trip costs no timer operation.
 %%
-%% Faults: a Modbus exception answers the request with `{error, {modbus_exception,
-%% Code, Name}}' (a poll refused fails the poll, and the worker counts the connection
-%% as lost); a frame that is malformed, too long, answers no request or answers for
-%% another unit closes the connection (`{lost, Why}'), because nothing after it on that
-%% stream can be trusted; so does a poll or write left unanswered past `timeout_ms'.
-%% A raw request that times out just fails; its late answer is dropped.
+%% Faults: a Modbus exception is the PLC answering, so it never takes the connection
+%% down. A write or raw request it refuses answers `{error, {modbus_exception, Code,
+%% Name}}'. A read request of a poll it refuses leaves the inputs of that request
+%% unusable (`{faults, ...}': they read `{error, {unavailable, Why}}', Why the
+%% exception in words, see {@link cell_hal_modbus_codec:exception_text/1}) while the
+%% rest of the poll is read as usual; the refused request rests `refused_retry_ms'
+%% (doubling, at most `max_refused_retry_ms') before it is asked again, and its inputs
+%% are usable again with the first value it answers. Outputs a refused read-back
+%% request covers are not marked: they keep their commanded value and their writes go
+%% to the PLC, which answers for itself. A poll in which the PLC refuses every request
+%% of a group is the `refused_group' option's to decide. Transport failures alone close
+%% the connection (`{lost, Why}'): a frame that is malformed, too long, answers no
+%% request or answers for another unit, because nothing after it on that stream can be
+%% trusted; a poll or write left unanswered past `timeout_ms'. A raw request that times
+%% out just fails; its late answer is dropped.
 -module(cell_hal_modbus).
 -behaviour(cell_hal_driver).
 
@@ -43,6 +60,21 @@
 
 -type tid() :: cell_hal_modbus_codec:tid().
 -type unit_id() :: cell_hal_modbus_codec:unit_id().
+-type key() :: cell_hal_driver:key().
+-type exception() :: {modbus_exception, cell_hal_modbus_codec:exception_code(), atom()}.
+%% The blocks of a read and the outputs among their points (a refusal leaves them
+%% unmarked).
+-type plan() :: {cell_hal_modbus_plan:plan(), #{key() => true}}.
+-export_type([plan/0]).
+
+%% A read of a plan on its way: requests still unanswered, values so far, and the
+%% blocks the PLC refused (or that rest after an earlier refusal).
+-record(rd, {left :: non_neg_integer(),
+             outputs :: #{key() => true},
+             blocks :: cell_hal_modbus_plan:plan(),
+             values = [] :: [cell_hal_driver:values()],
+             refused = [] :: [{cell_hal_modbus_plan:block(), unit_id(),
+                               cell_hal_modbus_codec:request(), exception()}]}).
 
 -record(req, {kind :: {poll, term(), cell_hal_modbus_plan:block()} | {write, term()}
                     | {raw, term()},
@@ -59,6 +91,9 @@
              timeout_ms :: pos_integer(),
              max_in_flight :: pos_integer(),
              max_gap :: non_neg_integer(),
+             refused_group :: fault | disconnect,
+             refused_retry_ms :: pos_integer(),
+             max_refused_retry_ms :: pos_integer(),
              socket :: gen_tcp:socket() | undefined,
              connector :: {pid(), reference()} | undefined,
              buf = <<>> :: binary(),
@@ -66,7 +101,11 @@
              in_flight = #{} :: #{tid() => #req{}},
              urgent = queue:new() :: queue:queue(#req{}),     %% writes and raw requests
              polls = queue:new() :: queue:queue(#req{}),
-             reads = #{} :: #{term() => {pos_integer(), [cell_hal_driver:values()]}},
+             reads = #{} :: #{term() => #rd{}},
+             %% read requests refused: when each is asked again, its next rest, why
+             resting = #{} :: #{{unit_id(), cell_hal_modbus_codec:request()} =>
+                                    {integer(), pos_integer(), exception()}},
+             faulted = #{} :: #{key() => term()},          %% inputs reported unusable
              late = #{} :: #{tid() => true},                %% timed-out raw requests
              timer :: {reference(), integer()} | undefined,  %% earliest deadline
              flush = false :: boolean()}).                  %% a flush is on its way
@@ -79,18 +118,27 @@
 -spec check_opts(map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 check_opts(Opts) ->
     Defaults = #{port => 502, unit => 1, word_order => big, timeout_ms => 1000,
-                 max_in_flight => 1, max_gap => 0},
+                 max_in_flight => 1, max_gap => 0, refused_group => fault,
+                 refused_retry_ms => 500, max_refused_retry_ms => 30000},
     Checks = #{host => fun is_host/1,
                port => fun(V) -> is_integer(V) andalso V > 0 andalso V =< 65535 end,
                unit => fun(V) -> is_integer(V) andalso V >= 0 andalso V =< 255 end,
                word_order => fun(V) -> V =:= big orelse V =:= little end,
                timeout_ms => fun(V) -> is_integer(V) andalso V > 0 end,
                max_in_flight => fun(V) -> is_integer(V) andalso V > 0 andalso V =< 1024 end,
-               max_gap => fun(V) -> is_integer(V) andalso V >= 0 andalso V =< 124 end},
+               max_gap => fun(V) -> is_integer(V) andalso V >= 0 andalso V =< 124 end,
+               refused_group => fun(V) -> V =:= fault orelse V =:= disconnect end,
+               refused_retry_ms => fun(V) -> is_integer(V) andalso V > 0 end,
+               max_refused_retry_ms => fun(V) -> is_integer(V) andalso V > 0 end},
     case [K || {K, V} <- maps:to_list(Opts),
                not (maps:is_key(K, Checks) andalso (maps:get(K, Checks))(V))] of
         [] when not is_map_key(host, Opts) -> {error, {bad_option, host}};
-        [] -> {ok, maps:merge(Defaults, Opts)};
+        [] ->
+            Checked = maps:merge(Defaults, Opts),
+            case maps:get(max_refused_retry_ms, Checked) < maps:get(refused_retry_ms, Checked) of
+                true -> {error, {bad_option, max_refused_retry_ms}};
+                false -> {ok, Checked}
+            end;
         [Bad | _] -> {error, {bad_option, Bad}}
     end.
 
@@ -129,7 +177,10 @@ init(Id, Opts) ->
            end,
     #mb{id = Id, host = Host, port = maps:get(port, Opts), unit = maps:get(unit, Opts),
         word_order = maps:get(word_order, Opts), timeout_ms = maps:get(timeout_ms, Opts),
-        max_in_flight = maps:get(max_in_flight, Opts), max_gap = maps:get(max_gap, Opts)}.
+        max_in_flight = maps:get(max_in_flight, Opts), max_gap = maps:get(max_gap, Opts),
+        refused_group = maps:get(refused_group, Opts, fault),
+        refused_retry_ms = maps:get(refused_retry_ms, Opts, 500),
+        max_refused_retry_ms = maps:get(max_refused_retry_ms, Opts, 30000)}.
 
 %% @private
 -spec endpoint(#mb{}) -> iodata().
@@ -176,32 +227,49 @@ disconnect(#mb{socket = Sock, connector = Connector} = S) ->
     end,
     _ = Sock =/= undefined andalso gen_tcp:close(Sock),
     ok = cancel(S#mb.timer),
+    %% What the PLC refused held for that connection: the next one asks afresh.
     S#mb{socket = undefined, connector = undefined, buf = <<>>, in_flight = #{},
          urgent = queue:new(), polls = queue:new(), reads = #{}, late = #{},
-         timer = undefined, flush = false}.
+         timer = undefined, flush = false, resting = #{}, faulted = #{}}.
 
 %%====================================================================
 %% Reads, writes, raw requests
 %%====================================================================
 
 %% @private
--spec plan([cell_hal_driver:point()], #mb{}) ->
-          {cell_hal_modbus_plan:plan(), #{requests := non_neg_integer()}}.
+-spec plan([cell_hal_driver:point()], #mb{}) -> {plan(), #{requests := non_neg_integer()}}.
 plan(Points, #mb{max_gap = Gap}) ->
     Plan = cell_hal_modbus_plan:plan([{K, T, F} || #{key := K, type := T, field := F} <- Points],
                                      Gap),
-    {Plan, #{requests => length(Plan)}}.
+    {{Plan, maps:from_list([{K, true} || #{key := K, dir := out} <- Points])},
+     #{requests => length(Plan)}}.
 
 %% @private
--spec read(term(), cell_hal_modbus_plan:plan(), #mb{}) -> {ok, #mb{}}.
-read(Tag, [], S) ->
+%% A request resting after a refusal is not sent: its block counts as refused again.
+-spec read(term(), plan(), #mb{}) -> {ok, #mb{}}.
+read(Tag, {[], _}, S) ->
     self() ! {?MODULE, empty_read, Tag},
     {ok, S};
-read(Tag, Plan, #mb{polls = Q, reads = Reads, timeout_ms = T} = S) ->
-    Reqs = [#req{kind = {poll, Tag, B}, unit = U, request = R, timeout = T}
-            || {B, {U, R}} <- lists:zip(Plan, cell_hal_modbus_plan:requests(Plan))],
-    pumped(S#mb{polls = queue:join(Q, queue:from_list(Reqs)),
-                reads = Reads#{Tag => {length(Plan), []}}}).
+read(Tag, {Plan, Outputs}, #mb{polls = Q, reads = Reads, timeout_ms = T, resting = Resting} = S) ->
+    Now = erlang:monotonic_time(millisecond),
+    {Asked, Rest} =
+        lists:partition(fun({_, UR}) ->
+                                case Resting of
+                                    #{UR := {At, _, _}} -> At =< Now;
+                                    #{} -> true
+                                end
+                        end, lists:zip(Plan, cell_hal_modbus_plan:requests(Plan))),
+    Rd = #rd{left = length(Asked), outputs = Outputs, blocks = Plan,
+             refused = [{B, U, R, element(3, maps:get({U, R}, Resting))} || {B, {U, R}} <- Rest]},
+    case Asked of
+        [] ->
+            self() ! {?MODULE, empty_read, Tag},
+            {ok, S#mb{reads = Reads#{Tag => Rd}}};
+        _ ->
+            Reqs = [#req{kind = {poll, Tag, B}, unit = U, request = R, timeout = T}
+                    || {B, {U, R}} <- Asked],
+            pumped(S#mb{polls = queue:join(Q, queue:from_list(Reqs)), reads = Reads#{Tag => Rd}})
+    end.
 
 %% @private
 -spec write(term(), cell_hal_driver:point(), cell_hal_type:value(), #mb{}) -> {ok, #mb{}}.
@@ -366,8 +434,11 @@ handle_info({?MODULE, connect_failed, Pid, Why}, #mb{connector = {Pid, MRef}} = 
     lost({connect, Why}, S#mb{connector = undefined});
 handle_info({'DOWN', MRef, process, Pid, Why}, #mb{connector = {Pid, MRef}} = S) ->
     lost({connect, Why}, S#mb{connector = undefined});
-handle_info({?MODULE, empty_read, Tag}, S) ->
-    {ok, [{reply, Tag, {ok, []}}], S};
+handle_info({?MODULE, empty_read, Tag}, #mb{reads = Reads} = S) ->
+    case maps:take(Tag, Reads) of
+        {Rd, Rest} -> finish_read(Tag, Rd, S#mb{reads = Rest});
+        error -> {ok, [{reply, Tag, {ok, []}}], S}
+    end;
 handle_info({timeout, _, {?MODULE, deadline}}, S) ->
     %% A timer of a connection closed since.
     {ok, [], S};
@@ -418,23 +489,58 @@ completed(#req{kind = {write, Tag}}, Error, S) ->
     {ok, [{reply, Tag, Error}], S};
 completed(#req{kind = {raw, Tag}}, Result, S) ->
     {ok, [{reply, Tag, Result}], S};
-completed(#req{kind = {poll, Tag, Block}}, {ok, Reply}, #mb{reads = Reads} = S) ->
+completed(#req{kind = {poll, Tag, Block}, unit = U, request = R}, Result,
+          #mb{reads = Reads, resting = Resting} = S) ->
     case Reads of
-        #{Tag := {1, Acc}} ->
-            Values = lists:append([cell_hal_modbus_plan:decode(Block, Reply) | Acc]),
-            {ok, [{reply, Tag, {ok, Values}}], S#mb{reads = maps:remove(Tag, Reads)}};
-        #{Tag := {N, Acc}} ->
-            {ok, [], S#mb{reads = Reads#{Tag := {N - 1, [cell_hal_modbus_plan:decode(Block, Reply) | Acc]}}}};
+        #{Tag := #rd{left = Left, values = Vs, refused = Refused} = Rd} ->
+            {Rd1, S1} =
+                case Result of
+                    {ok, Reply} ->
+                        {Rd#rd{values = [cell_hal_modbus_plan:decode(Block, Reply) | Vs]},
+                         S#mb{resting = maps:remove({U, R}, Resting)}};
+                    {error, Exc} ->
+                        {Rd#rd{refused = [{Block, U, R, Exc} | Refused]}, rest(U, R, Exc, S)}
+                end,
+            case Left of
+                1 -> finish_read(Tag, Rd1#rd{left = 0}, S1#mb{reads = maps:remove(Tag, Reads)});
+                _ -> {ok, [], S1#mb{reads = Reads#{Tag := Rd1#rd{left = Left - 1}}}}
+            end;
         #{} ->
-            {ok, [], S}   %% the read already failed
-    end;
-completed(#req{kind = {poll, Tag, _}, unit = U, request = R}, {error, Exc}, S) ->
-    {ok, [{reply, Tag, {error, {read_refused, U, R, Exc}}}], drop_read(Tag, S)}.
+            {ok, [], S}
+    end.
 
-%% A read that failed: its requests not yet sent are dropped, late answers ignored.
-drop_read(Tag, #mb{polls = P, reads = Reads} = S) ->
-    S#mb{polls = queue:filter(fun(#req{kind = {poll, T, _}}) -> T =/= Tag end, P),
-         reads = maps:remove(Tag, Reads)}.
+%% A refused request rests before it is asked again, twice as long as last time.
+rest(U, R, Exc, #mb{resting = Resting, refused_retry_ms = Min, max_refused_retry_ms = Max} = S) ->
+    Wait = case Resting of
+               #{{U, R} := {_, Last, _}} -> min(2 * Last, Max);
+               #{} -> Min
+           end,
+    S#mb{resting = Resting#{{U, R} => {erlang:monotonic_time(millisecond) + Wait, Wait, Exc}}}.
+
+%% A read whose requests are all answered (or refused): the inputs of refused requests
+%% are reported unusable before the values go out, those read again usable after.
+%% A group refused whole is the `refused_group' option's to decide.
+finish_read(Tag, #rd{blocks = Plan, outputs = Outputs, values = Vs, refused = Refused},
+            #mb{faulted = Faulted} = S) ->
+    Values = lists:append(lists:reverse(Vs)),
+    Why = maps:from_list([{K, {refused, U, R, Exc}}
+                          || {B, U, R, Exc} <- Refused, K <- cell_hal_modbus_plan:keys(B)]),
+    case S#mb.refused_group =:= disconnect andalso
+             cell_hal_modbus_plan:refused_groups(Plan, maps:keys(Why), Outputs) of
+        [G | _] ->
+            [{refused, U, R, Exc} | _] = [W || {{G1, _}, W} <- maps:to_list(Why), G1 =:= G],
+            {ok, [{reply, Tag, {error, {group_refused, G, U, R, Exc}}}], S};
+        _ ->
+            %% Said at every read, not only when it changes: the HAL marks (and logs)
+            %% a point only when that changes, and a group removed and added again
+            %% has its points unmarked.
+            New = [{K, W} || {K, W} <- lists:sort(maps:to_list(Why)), not is_map_key(K, Outputs)],
+            Back = [K || {K, _} <- Values, is_map_key(K, Faulted)],
+            Faulted1 = maps:without(Back, maps:merge(Faulted, maps:from_list(New))),
+            {ok, [{faults, New} || New =/= []] ++ [{reply, Tag, {ok, Values}}]
+                 ++ [{faults, [{K, ok} || K <- Back]} || Back =/= []],
+             S#mb{faulted = Faulted1}}
+    end.
 
 lost(Why, S) ->
     lost_after(Why, S, []).
@@ -462,12 +568,15 @@ format_reason({unexpected_tid, Tid}) ->
                   "answered", [Tid]);
 format_reason({wrong_unit, Asked, Got}) ->
     io_lib:format("the PLC answered for unit ~b to a request for unit ~b", [Got, Asked]);
-format_reason({read_refused, Unit, Req, Exc}) ->
-    io_lib:format("the PLC refused to ~s (unit ~b): ~s",
-                  [cell_hal_modbus_codec:describe(Req), Unit, format_reason(Exc)]);
-format_reason({modbus_exception, Code, Name}) ->
-    io_lib:format("~s (Modbus exception ~b)", [string:replace(atom_to_list(Name), "_", " ", all),
-                                               Code]);
+format_reason({refused, Unit, Req, {modbus_exception, Code, _}}) ->
+    [cell_hal_modbus_codec:exception_text(Code),
+     io_lib:format(": ~s (unit ~b)", [cell_hal_modbus_codec:describe(Req), Unit])];
+format_reason({group_refused, Group, Unit, Req, {modbus_exception, Code, _}}) ->
+    [io_lib:format("the PLC refuses every request of IO group ~s, such as ~s (unit ~b): ",
+                   [Group, cell_hal_modbus_codec:describe(Req), Unit]),
+     cell_hal_modbus_codec:exception_text(Code)];
+format_reason({modbus_exception, Code, _Name}) ->
+    cell_hal_modbus_codec:exception_text(Code);
 format_reason(timeout) -> "no answer in time";
 format_reason({bad_request, What}) ->
     io_lib:format("the request is outside Modbus limits (~s)", [What]);
@@ -479,6 +588,82 @@ network_error(Why) -> io_lib:format("~tp", [Why]).
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
+
+%% The requests of a read queued on a connection with no socket (nothing is sent),
+%% answered here one by one: `Answers' maps a request to its reply or exception.
+answer_read(Tag, Plan, Answers, S0) ->
+    {ok, S1} = read(Tag, Plan, S0),
+    Reqs = queue:to_list(S1#mb.polls),
+    S2 = S1#mb{polls = queue:new()},
+    case Reqs of
+        [] ->
+            receive {?MODULE, empty_read, Tag} = Msg -> handle_info(Msg, S2) end;
+        _ ->
+            lists:foldl(fun(#req{request = R} = Req, {ok, Es, Sx}) ->
+                                Result = case maps:get(R, Answers) of
+                                             {exception, C} ->
+                                                 {error, {modbus_exception, C, exception_name(C)}};
+                                             Reply ->
+                                                 {ok, Reply}
+                                         end,
+                                {ok, Es1, Sx1} = completed(Req, Result, Sx),
+                                {ok, Es ++ Es1, Sx1}
+                        end, {ok, [], S2}, Reqs)
+    end.
+
+exception_name(C) -> cell_hal_modbus_codec:exception_name(C).
+
+%% An exception for one request of a poll: the inputs it reads are reported unusable
+%% (the output it covers is not), before the values of the other requests; the request
+%% then rests and is not sent, its inputs reported again; answered again, they are
+%% usable again after their values.
+refused_request_test() ->
+    Pt = fun(K, Dir, Field) ->
+                 {ok, F} = cell_hal_modbus_plan:field(Dir, int16, Field, #{unit => 1, word_order => big}),
+                 #{key => K, dir => Dir, type => int16, field => F}
+         end,
+    S0 = (init(plc, #{host => "h", port => 1, unit => 1, word_order => big, timeout_ms => 1000,
+                      max_in_flight => 1, max_gap => 0}))#mb{refused_retry_ms = 100000,
+                                                            max_refused_retry_ms = 100000},
+    {Plan, #{requests := 2}} = plan([Pt({g, a}, in, {input_register, 0}),
+                                     Pt({g, b}, in, {holding_register, 10}),
+                                     Pt({g, c}, out, {holding_register, 11})], S0),
+    IR = {read_input_registers, 0, 1},
+    HR = {read_holding_registers, 10, 2},
+    Why = {refused, 1, HR, {modbus_exception, 2, illegal_data_address}},
+    {ok, Events, S1} = answer_read(1, Plan, #{IR => <<7:16>>, HR => {exception, 2}}, S0),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 1, {ok, [{{g, a}, 7}]}}], Events),
+    %% resting: not asked, its input reported again
+    {ok, Events2, S2} = answer_read(2, Plan, #{IR => <<8:16>>}, S1),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 2, {ok, [{{g, a}, 8}]}}], Events2),
+    %% its rest over, it is asked again, and answered
+    Over = erlang:monotonic_time(millisecond) - 1,
+    S3 = S2#mb{resting = maps:map(fun(_, {_, W, E}) -> {Over, W, E} end, S2#mb.resting)},
+    {ok, Events3, S4} = answer_read(3, Plan, #{IR => <<8:16>>, HR => <<5:16, 6:16>>}, S3),
+    [{reply, 3, {ok, Values3}}, Back] = Events3,
+    ?assertEqual([{{g, a}, 8}, {{g, b}, 5}, {{g, c}, 6}], lists:sort(Values3)),
+    ?assertEqual({faults, [{{g, b}, ok}]}, Back),
+    ?assertEqual(#{}, S4#mb.resting),
+    %% a request refused again and again rests twice as long each time, up to the most
+    Rests = lists:foldl(fun(_, {Sx, Acc}) ->
+                                Sy = rest(1, HR, {modbus_exception, 6, server_device_busy}, Sx),
+                                {_, W, _} = maps:get({1, HR}, Sy#mb.resting),
+                                {Sy, [W | Acc]}
+                        end, {S4#mb{refused_retry_ms = 500, max_refused_retry_ms = 3000}, []},
+                        lists:seq(1, 5)),
+    ?assertEqual([500, 1000, 2000, 3000, 3000], lists:reverse(element(2, Rests))),
+    %% every request of a read refused: no value, the connection still answers
+    {ok, Events5, _} = answer_read(5, Plan, #{IR => {exception, 2}, HR => {exception, 2}}, S0),
+    ?assertMatch([{faults, [{{g, a}, _}, {{g, b}, _}]}, {reply, 5, {ok, []}}], Events5),
+    %% refused_group => disconnect: a group refused whole is an error of the read
+    {ok, Events6, _} = answer_read(6, Plan, #{IR => {exception, 2}, HR => {exception, 2}},
+                                   S0#mb{refused_group = disconnect}),
+    ?assertMatch([{reply, 6, {error, {group_refused, g, 1, _, {modbus_exception, 2, _}}}}],
+                 Events6),
+    %% ... but one input of it read keeps it
+    {ok, Events7, _} = answer_read(7, Plan, #{IR => <<1:16>>, HR => {exception, 2}},
+                                   S0#mb{refused_group = disconnect}),
+    ?assertEqual([{faults, [{{g, b}, Why}]}, {reply, 7, {ok, [{{g, a}, 1}]}}], Events7).
 
 %% Transaction ids run 0..65535 and on from 0, never taking one still in flight.
 next_tid_test_() ->
@@ -509,6 +694,17 @@ options_test_() ->
      ?_assertEqual({error, {bad_option, word_order}}, check_opts(#{host => "h", word_order => cdab})),
      ?_assertEqual({error, {bad_option, max_in_flight}}, check_opts(#{host => "h", max_in_flight => 0})),
      ?_assertEqual({error, {bad_option, max_gap}}, check_opts(#{host => "h", max_gap => 125})),
+     ?_assertMatch({ok, #{refused_group := fault, refused_retry_ms := 500,
+                          max_refused_retry_ms := 30000}}, check_opts(#{host => "h"})),
+     ?_assertMatch({ok, #{refused_group := disconnect}},
+                   check_opts(#{host => "h", refused_group => disconnect})),
+     ?_assertEqual({error, {bad_option, refused_group}},
+                   check_opts(#{host => "h", refused_group => ignore})),
+     ?_assertEqual({error, {bad_option, refused_retry_ms}},
+                   check_opts(#{host => "h", refused_retry_ms => 0})),
+     ?_assertEqual({error, {bad_option, max_refused_retry_ms}},
+                   check_opts(#{host => "h", refused_retry_ms => 1000,
+                                max_refused_retry_ms => 999})),
      ?_assertEqual({error, {bad_option, colour}}, check_opts(#{host => "h", colour => red}))].
 
 reasons_read_as_words_test_() ->
@@ -517,10 +713,17 @@ reasons_read_as_words_test_() ->
                    lists:flatten(format_reason({connect, nxdomain}))),
      ?_assertEqual("no answer within 1000 ms to read holding registers 0..9 (unit 1)",
                    lists:flatten(format_reason({no_answer, 1000, 1, {read_holding_registers, 0, 10}}))),
-     ?_assertEqual("the PLC refused to read input registers 5 (unit 2): illegal data address "
-                   "(Modbus exception 2)",
-                   lists:flatten(format_reason({read_refused, 2, {read_input_registers, 5, 1},
+     ?_assertEqual("the PLC refuses this address (illegal data address, Modbus exception 2): "
+                   "read input registers 5 (unit 2)",
+                   lists:flatten(format_reason({refused, 2, {read_input_registers, 5, 1},
                                                 {modbus_exception, 2, illegal_data_address}}))),
+     ?_assertEqual("the PLC refuses every request of IO group io, such as read coils 3..4 "
+                   "(unit 1): the device behind the gateway did not answer (gateway target "
+                   "failed to respond, Modbus exception 11)",
+                   lists:flatten(format_reason({group_refused, io, 1, {read_coils, 3, 2},
+                                                {modbus_exception, 11, gateway_target_failed_to_respond}}))),
+     ?_assertEqual("the PLC does not offer this function (illegal function, Modbus exception 1)",
+                   lists:flatten(format_reason({modbus_exception, 1, illegal_function}))),
      ?_assertEqual("the PLC answered for unit 3 to a request for unit 1",
                    lists:flatten(format_reason({wrong_unit, 1, 3})))].
 -endif.

@@ -23,7 +23,7 @@
 
 -export([check_request/1, request_pdu/1, adu/3, frame/1]).
 -export([decode_request/1, response_pdu/2, decode_response/2]).
--export([exception_name/1, format_error/1, describe/1, limit/1]).
+-export([exception_name/1, exception_text/1, format_error/1, describe/1, limit/1]).
 
 -export_type([request/0, reply/0, address/0, unit_id/0, tid/0, error_reason/0,
               exception_code/0]).
@@ -326,6 +326,26 @@ exception_name(8) -> memory_parity_error;
 exception_name(10) -> gateway_path_unavailable;
 exception_name(11) -> gateway_target_failed_to_respond;
 exception_name(_) -> unknown_exception.
+
+%% @doc An exception in an operator's words: what the PLC said, then the
+%% specification's name and code for whoever reads the PLC's manual,
+%% "the PLC refuses this address (illegal data address, Modbus exception 2)".
+-spec exception_text(exception_code()) -> iolist().
+exception_text(Code) ->
+    Name = string:replace(atom_to_list(exception_name(Code)), "_", " ", all),
+    [exception_words(Code), " (", Name, ", Modbus exception ", integer_to_list(Code), ")"].
+
+exception_words(1) -> "the PLC does not offer this function";
+exception_words(2) -> "the PLC refuses this address";
+exception_words(3) -> "the PLC refuses this quantity or value";
+exception_words(4) -> "the PLC failed while handling the request";
+exception_words(5) -> "the PLC took the request but has not finished it";
+exception_words(6) -> "the PLC is busy with a long command";
+exception_words(7) -> "the PLC cannot carry out this request";
+exception_words(8) -> "the PLC found a parity error in its memory";
+exception_words(10) -> "the gateway has no path to the device behind it";
+exception_words(11) -> "the device behind the gateway did not answer";
+exception_words(_) -> "the PLC refused the request with a code the specification does not name".
 
 %% @doc What went wrong with a frame, in words.
 -spec format_error(error_reason()) -> iolist().

@@ -29,7 +29,8 @@
 %% fewest requests for sorted spans; a value is never split across two requests.
 -module(cell_hal_modbus_plan).
 
--export([field/4, plan/2, requests/1, decode/2, write_request/3, describe/1]).
+-export([field/4, plan/2, requests/1, decode/2, keys/1, refused_groups/3, write_request/3,
+         describe/1]).
 
 -export_type([field/0, table/0, block/0, plan/0]).
 
@@ -161,6 +162,26 @@ value(Type, #{word_order := O}, Off, Regs) ->
     <<_:Off/binary-unit:16, Bytes:N/binary-unit:16, _/binary>> = Regs,
     cell_hal_type_codec:decode_registers(Type, Bytes, O).
 
+%% @doc The points a block's request reads: those a refusal of that request leaves
+%% without a value.
+-spec keys(block()) -> [key()].
+keys(#{points := Ps}) ->
+    [K || {K, _, _, _} <- Ps].
+
+%% @doc The IO groups a PLC refuses whole: those of which every input in the plan is
+%% among the refused keys. Keys are the HAL's `{Group, Point}'; `Outputs' are not
+%% counted (a read-back the PLC refuses says nothing of a group's inputs), so a group
+%% of outputs only is never refused whole. A group is refused whole however its
+%% inputs are spread over requests (and whatever other groups' points share those
+%% requests); one of its inputs read is enough to keep it.
+-spec refused_groups(plan(), [{atom(), atom()}], #{{atom(), atom()} => true}) -> [atom()].
+refused_groups(Plan, Refused, Outputs) ->
+    Out = maps:from_list([{K, true} || K <- Refused]),
+    Groups = lists:foldl(fun({G, _} = K, Acc) ->
+                                 Acc#{G => maps:get(G, Acc, true) andalso is_map_key(K, Out)}
+                         end, #{}, [K || B <- Plan, K <- keys(B), not is_map_key(K, Outputs)]),
+    lists:sort([G || {G, true} <- maps:to_list(Groups)]).
+
 %% @doc The request that writes a value to an output's field.
 -spec write_request(cell_hal_type:type(), field(), cell_hal_type:value()) ->
           {cell_hal_modbus_codec:unit_id(), cell_hal_modbus_codec:request()}.
@@ -271,6 +292,46 @@ coil_decode_test() ->
     Plan = plan([pt(a, bool, {coil, 5}), pt(b, bool, {coil, 7})], 2),
     ?assertEqual([{1, {read_coils, 5, 3}}], requests(Plan)),
     ?assertEqual([{a, true}, {b, false}], decode(hd(Plan), [true, true, false])).
+
+%% A refused request leaves exactly the points of its block without a value; the
+%% other blocks' points are not touched.
+keys_of_a_request_test() ->
+    Plan = plan([pt({g, a}, int16, {holding_register, 10}), pt({g, b}, int32, {holding_register, 11}),
+                 pt({g, c}, int16, {holding_register, 20}), pt({h, d}, bool, {coil, 3}),
+                 pt({h, e}, bool, {coil, 4})], 0),
+    ?assertEqual([{1, {read_coils, 3, 2}}, {1, {read_holding_registers, 10, 3}},
+                  {1, {read_holding_registers, 20, 1}}],
+                 lists:sort(requests(Plan))),
+    ByRequest = maps:from_list(lists:zip(requests(Plan), [keys(B) || B <- Plan])),
+    ?assertEqual([{g, a}, {g, b}], maps:get({1, {read_holding_registers, 10, 3}}, ByRequest)),
+    ?assertEqual([{g, c}], maps:get({1, {read_holding_registers, 20, 1}}, ByRequest)),
+    ?assertEqual([{h, d}, {h, e}], maps:get({1, {read_coils, 3, 2}}, ByRequest)),
+    %% every point is in exactly one request
+    ?assertEqual(5, length(lists:usort(lists:append(maps:values(ByRequest))))).
+
+refused_groups_test_() ->
+    %% g spans two requests, one shared with h; k is alone in its own.
+    Plan = plan([pt({g, a}, int16, {holding_register, 0}), pt({h, b}, int16, {holding_register, 1}),
+                 pt({g, c}, int16, {holding_register, 10}), pt({k, d}, int16, {input_register, 0})],
+                0),
+    [R0, R10, I0] = [keys(B) || B <- Plan],
+    F = fun(Refused) -> refused_groups(Plan, Refused, #{}) end,
+    [?_assertEqual([], F([])),
+     %% one request of g refused: g still has a point read
+     ?_assertEqual([], F(R10)),
+     ?_assertEqual([h], F(R0)),
+     %% every request of g refused: g, and h whose only point shares one of them
+     ?_assertEqual([g, h], F(R0 ++ R10)),
+     ?_assertEqual([k], F(I0)),
+     ?_assertEqual([g, h, k], F(R0 ++ R10 ++ I0)),
+     %% keys of no point of the plan change nothing
+     ?_assertEqual([], F([{x, y}])),
+     ?_assertEqual([], refused_groups([], [{g, a}], #{})),
+     %% outputs are not counted: h is all outputs, never refused whole; g's inputs
+     %% alone decide for g
+     ?_assertEqual([g], refused_groups(Plan, R0 ++ R10, #{{h, b} => true})),
+     ?_assertEqual([g], refused_groups(Plan, [{g, a}], #{{g, c} => true, {h, b} => true})),
+     ?_assertEqual([], refused_groups(Plan, [{g, c}], #{{g, c} => true}))].
 
 write_request_test_() ->
     F = fun(Type, Field) -> {ok, R} = f(out, Type, Field), R end,

@@ -243,13 +243,30 @@ fire({_, Ref, Pid, Cond} = W, V) ->
             ok
     end.
 
+%% A watch ended by its point's fault, at most once as a fire is.
+fail({_, Ref, Pid, _} = W, Why) ->
+    case ets:take(?CLAIMS, Ref) of
+        [_] ->
+            true = ets:delete_object(?WATCHES, W),
+            Pid ! {cell_hal_unavailable, Ref, Why},
+            ok;
+        [] ->
+            ok
+    end.
+
 %% @doc Marks a point unusable (`Why' in words) or usable again (`undefined');
-%% true when that changed anything.
+%% true when that changed anything. A point made unusable ends its watches: each
+%% watcher gets `{cell_hal_unavailable, Ref, Why}' instead of a value, so that nobody
+%% waits for a point that cannot be read.
 -spec set_fault(key(), binary() | undefined) -> boolean().
 set_fault(Key, Why) ->
     try ets:lookup_element(?VALUES, Key, #hal_value.fault) of
         Why -> false;
-        _ -> ets:update_element(?VALUES, Key, {#hal_value.fault, Why})
+        _ ->
+            Changed = ets:update_element(?VALUES, Key, {#hal_value.fault, Why}),
+            _ = Changed andalso is_binary(Why) andalso
+                lists:foreach(fun(W) -> fail(W, Why) end, ets:lookup(?WATCHES, Key)),
+            Changed
     catch
         error:badarg -> false
     end.
@@ -351,8 +368,9 @@ delete_conn_sub(Conn, Pid) ->
 conn_subs(Conn) -> [Pid || {_, Pid} <- ets:lookup(?CONN_SUBS, Conn)].
 
 %% @doc Registers a watch, then fires it at once if the current value (`none' when
-%% there is no fresh one) already satisfies it. Registering before looking closes the
-%% race with a worker publishing meanwhile: one of the two sees the other.
+%% there is no fresh one) already satisfies it, or ends it at once if the point is
+%% unusable (see {@link set_fault/2}). Registering before looking closes the race with
+%% a worker publishing (or marking the point) meanwhile: one of the two sees the other.
 -spec add_watch(key(), reference(), pid(), cell_hal_type:condition()) -> ok.
 add_watch(Key, Ref, Pid, Cond) ->
     true = ets:insert(?CLAIMS, {Ref, Key, Pid}),
@@ -360,6 +378,7 @@ add_watch(Key, Ref, Pid, Cond) ->
     true = ets:insert(?WATCHES, W),
     case read(Key) of
         {ok, V} -> fire(W, V);
+        {error, {unavailable, Why}} -> fail(W, Why);
         {error, _} -> ok
     end.
 

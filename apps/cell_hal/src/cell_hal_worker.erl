@@ -25,9 +25,10 @@
 %% fresh: values are stored before the connection is marked up, and it is marked down
 %% before anyone is told.
 %%
-%% A point the driver reports unusable (a symbol the PLC lacks, or of another type)
-%% reads as `{error, {unavailable, Why}}' while the rest of its group works on; the
-%% worker logs it once, and again when it can be used. Points fed by device
+%% A point the driver reports unusable (a symbol the PLC lacks, or of another type; an
+%% address a Modbus PLC refuses) reads as `{error, {unavailable, Why}}' while the rest
+%% of its group and the connection work on; its watches end with that reason (see
+%% {@link cell_hal:watch/3}); the worker logs it once, and again when it can be used. Points fed by device
 %% notifications keep their newest `samples_kept' time-stamped samples for tasks
 %% ({@link cell_hal:samples/3}); going down forgets them, as it forgets the
 %% faults.

@@ -9,7 +9,10 @@
 -export([all/0, groups/0, init_per_suite/1, end_per_suite/1, init_per_group/2,
          end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
 -export([every_type_in_both_word_orders/1, all_four_tables/1, raw_functions/1,
-         exceptions/1, refused_poll_goes_down/1, refused_write/1,
+         exceptions/1, refused_poll_faults_its_points/1, refused_write/1,
+         refused_address_faults_its_request/1, exception_every_fifth_request/1,
+         refused_write_keeps_the_connection/1, whole_group_refused_faults_it/1,
+         whole_group_refused_disconnects/1,
          server_killed_mid_poll/1, server_stops_answering/1, per_request_timeout/1,
          pipelined_requests/1, malformed_frames_close_the_connection/1,
          transaction_ids_wrap_around/1, connection_refused/1]).
@@ -21,12 +24,17 @@ all() ->
 
 groups() ->
     Common = [every_type_in_both_word_orders, all_four_tables, raw_functions, exceptions,
-              refused_poll_goes_down, refused_write, server_killed_mid_poll,
+              refused_poll_faults_its_points, refused_write, server_killed_mid_poll,
               server_stops_answering, per_request_timeout, pipelined_requests,
               connection_refused],
     [{pymodbus, [], Common},
      {libmodbus, [], Common ++ [malformed_frames_close_the_connection,
-                                transaction_ids_wrap_around]}].
+                                transaction_ids_wrap_around,
+                                refused_address_faults_its_request,
+                                exception_every_fifth_request,
+                                refused_write_keeps_the_connection,
+                                whole_group_refused_faults_it,
+                                whole_group_refused_disconnects]}].
 
 init_per_suite(Config) ->
     Priv = ?config(priv_dir, Config),
@@ -56,6 +64,7 @@ init_per_testcase(_Case, Config) ->
     [{peer, Peer} | Config].
 
 end_per_testcase(_Case, Config) ->
+    _ = cell_log:unsubscribe(),
     [ok = cell_hal:remove_group(G) || G <- cell_hal:groups()],
     [ok = cell_hal:remove_connection(C) || C <- cell_hal:connections()],
     stop_peer(?config(peer, Config)).
@@ -144,10 +153,24 @@ await_status(Status) ->
 flush_conn() ->
     receive {cell_hal_conn, plc, _} -> flush_conn() after 0 -> ok end.
 
+%% A point refused for a moment ends the watch: it is placed again once the point
+%% is usable again (its subscribers are told its value then).
 await_value(G, Point, V) ->
+    ok = cell_hal:subscribe(G, Point),
+    Got = await_value(G, Point, V, erlang:monotonic_time(millisecond) + ?WAIT),
+    ok = cell_hal:unsubscribe(G, Point),
+    Got.
+
+await_value(G, Point, V, Deadline) ->
     {ok, Ref} = cell_hal:watch(G, Point, {eq, V}),
-    receive {cell_hal_watch, Ref, Got} -> Got
-    after ?WAIT -> ct:fail({never, G, Point, V, cell_hal:read(G, Point)})
+    Left = fun() -> max(0, Deadline - erlang:monotonic_time(millisecond)) end,
+    receive
+        {cell_hal_watch, Ref, Got} -> Got;
+        {cell_hal_unavailable, Ref, _} ->
+            receive {cell_hal, {G, Point}, _} -> await_value(G, Point, V, Deadline)
+            after Left() -> ct:fail({never_usable, G, Point, V, cell_hal:read(G, Point)})
+            end
+    after Left() -> ct:fail({never, G, Point, V, cell_hal:read(G, Point)})
     end.
 
 address(G, Point) ->
@@ -300,25 +323,42 @@ exceptions(Config) ->
     ?assertEqual(up, cell_hal:status(plc)),
     ?assertEqual({ok, <<0:16>>}, R({read_holding_registers, 0, 1}, 2000)).
 
-refused_poll_goes_down(Config) ->
+%% A group placed where the device has no registers: its point reads unavailable, with
+%% the exception in words; the other group and the connection go on.
+refused_poll_faults_its_points(Config) ->
     Kind = ?config(kind, Config),
+    Peer = ?config(peer, Config),
+    ok = cell_log:subscribe(),
     ok = connect(Config),
     ok = await_status(up),
-    ok = cell_log:subscribe(),
-    %% A group placed where the device has no registers: the image cannot be read.
     Beyond = case Kind of pymodbus -> 2000; libmodbus -> 10000 end,
     ok = group(io, #{base => Beyond, only => [int16_in]}),
     ok = group(io2, #{base => 0, only => [int16_in]}),
-    receive {cell_hal_conn, plc, down} -> ok after ?WAIT -> ct:fail(not_down) end,
-    {ok, #{reason := Reason}} = cell_hal:info(plc),
-    ct:log("~s", [Reason]),
-    ?assertNotEqual(nomatch, binary:match(Reason, <<"the PLC refused to read input registers">>)),
-    ?assertNotEqual(nomatch, binary:match(Reason, <<"illegal data address (Modbus exception 2)">>)),
-    ?assertEqual({error, disconnected}, cell_hal:read(io2, int16_in)),
+    %% Placed before or after the point is found refused, the watch ends with why.
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 1}),
+    #{{io, int16_in} := Logged} = await_logs(error, [{io, int16_in}]),
+    {error, {unavailable, Why}} = cell_hal:read(io, int16_in),
+    receive {cell_hal_unavailable, Ref, Ended} -> ?assertEqual(Why, Ended)
+    after ?WAIT -> ct:fail(watch_not_ended) end,
+    ct:log("~s", [Why]),
+    ?assertEqual(Logged, Why),
+    ?assertEqual(iolist_to_binary(["the PLC refuses this address (illegal data address, "
+                                   "Modbus exception 2): read input registers ",
+                                   integer_to_list(Beyond + 4), " (unit 1)"]), Why),
+    ok = set(Peer, ir, 4, [321]),
+    321 = await_value(io2, int16_in, 321),
+    {ok, #{status := up, faults := [#{point := {io, int16_in}, reason := Why}]}} =
+        cell_hal:info(plc),
+    never_down(),
     ok = cell_hal:remove_group(io),
-    ok = await_status(up),
-    ?assertEqual({ok, 0}, cell_hal:read(io2, int16_in)),
-    ok = cell_log:unsubscribe().
+    {ok, #{status := up, faults := []}} = cell_hal:info(plc),
+    ok = set(Peer, ir, 4, [322]),
+    322 = await_value(io2, int16_in, 322),
+    %% Added again, still refused: unavailable again.
+    ok = group(io, #{base => Beyond, only => [int16_in]}),
+    #{{io, int16_in} := Why} = await_logs(error, [{io, int16_in}]),
+    ?assertEqual({error, {unavailable, Why}}, cell_hal:read(io, int16_in)),
+    never_down().
 
 refused_write(Config) ->
     Peer = ?config(peer, Config),
@@ -336,8 +376,8 @@ refused_write(Config) ->
             {cell_log, #{text := Text, level := error}} =
                 receive {cell_log, #{source := <<"hal/plc">>, level := error}} = M -> M
                 after ?WAIT -> ct:fail(not_logged) end,
-            ?assertEqual(<<"writing io.coil_out := false on plc failed: illegal function "
-                           "(Modbus exception 1)">>, Text),
+            ?assertEqual(<<"writing io.coil_out := false on plc failed: the PLC does not offer "
+                           "this function (illegal function, Modbus exception 1)">>, Text),
             ok = cell_log:unsubscribe();
         pymodbus ->
             ok
@@ -463,6 +503,178 @@ connection_refused(Config) ->
                                               "refused; retrying in", [maps:get(tcp, Peer)])),
     ?assertEqual(Expected, binary:part(Text, 0, byte_size(Expected))),
     ok = cell_log:unsubscribe().
+
+%% One address refused: the points of the request that reads it are unavailable with
+%% the exception in words, every other point goes on, and the connection stays up.
+%% Readable again, they are usable again with the value the PLC holds.
+refused_address_faults_its_request(Config) ->
+    Peer = ?config(peer, Config),
+    %% b.int16_in (input register 24) is refused; b.uint16_in (25) is read by the
+    %% same request.
+    [] = cmd(Peer, "refuse ir 24 2", []),
+    ok = set(Peer, ir, 4, [11]),
+    ok = set(Peer, ir, 24, [22, 33]),
+    ok = set(Peer, co, 1, [1]),
+    ok = cell_log:subscribe(),
+    ok = connect(Config, #{refused_retry_ms => 20, max_refused_retry_ms => 100}),
+    ok = group(a, #{base => 0, only => [int16_in, coil_in, discrete_in]}),
+    ok = group(b, #{base => 20, only => [int16_in, uint16_in]}),
+    ok = await_status(up),
+    Logged = await_logs(error, [{b, int16_in}, {b, uint16_in}]),
+    Words = <<"the PLC refuses this address (illegal data address, Modbus exception 2): "
+              "read input registers 24..25 (unit 1)">>,
+    ?assertEqual(#{{b, int16_in} => Words, {b, uint16_in} => Words}, Logged),
+    ?assertEqual({error, {unavailable, Words}}, cell_hal:read(b, int16_in)),
+    ?assertEqual({error, {unavailable, Words}}, cell_hal:read(b, uint16_in)),
+    %% A task waiting for a refused point is told at once, not left waiting.
+    {ok, Ref} = cell_hal:watch(b, int16_in, {eq, 22}),
+    receive {cell_hal_unavailable, Ref, Words} -> ok after ?WAIT -> ct:fail(watch_not_ended) end,
+    %% The rest of the image is read, and keeps being read.
+    11 = await_value(a, int16_in, 11),
+    true = await_value(a, coil_in, true),
+    ?assertEqual({ok, false}, cell_hal:read(a, discrete_in)),
+    ok = set(Peer, ir, 4, [12]),
+    12 = await_value(a, int16_in, 12),
+    {ok, #{status := up, faults := Faults}} = cell_hal:info(plc),
+    ?assertEqual([{b, int16_in}, {b, uint16_in}], [K || #{point := K} <- Faults]),
+    never_down(),
+    %% The PLC answers for the address again: both points come back.
+    ok = set(Peer, ir, 24, [44]),
+    [] = cmd(Peer, "refuse ir 24 0", []),
+    _ = await_logs(silent, [{b, int16_in}, {b, uint16_in}]),
+    ?assertEqual({ok, 44}, cell_hal:read(b, int16_in)),
+    ?assertEqual({ok, 33}, cell_hal:read(b, uint16_in)),
+    {ok, #{status := up, faults := []}} = cell_hal:info(plc),
+    never_down().
+
+%% A PLC that refuses every fifth request (busy) still lets the connection come up, and
+%% every point keeps being read: a refused request only costs its points one read.
+exception_every_fifth_request(Config) ->
+    Peer = ?config(peer, Config),
+    [] = cmd(Peer, "fail_every 5 6", []),
+    ok = connect(Config, #{refused_retry_ms => 20, max_refused_retry_ms => 40}),
+    ok = group(a, #{base => 0, only => [int16_in, coil_in, discrete_in]}),
+    ok = await_status(up),
+    [begin
+         ok = set(Peer, ir, 4, [V]),
+         V = await_value(a, int16_in, V),
+         ok = set(Peer, co, 1, [V rem 2]),
+         _ = await_value(a, coil_in, V rem 2 =:= 1)
+     end || V <- lists:seq(1, 10)],
+    ?assert(hd(cmd(Peer, "count ir 4", [])) >= 10),
+    never_down().
+
+%% A write to an address the PLC refuses: the caller is told, in a term and in the log,
+%% and the connection stays up (the read-back of that output at connect, refused too,
+%% did not take it down either).
+refused_write_keeps_the_connection(Config) ->
+    Peer = ?config(peer, Config),
+    [] = cmd(Peer, "refuse hr 4 2", []),
+    ok = connect(Config),
+    ok = group(a, #{base => 0, only => [int16_in, int16_out]}),
+    ok = await_status(up),
+    ?assertEqual({error, {modbus_exception, 2, illegal_data_address}},
+                 cell_hal:write_sync(a, int16_out, 5, ?WAIT)),
+    ok = cell_log:subscribe(),
+    ok = cell_hal:write(a, int16_out, 6),
+    {cell_log, #{text := Text}} =
+        receive {cell_log, #{source := <<"hal/plc">>, level := error}} = M -> M
+        after ?WAIT -> ct:fail(not_logged) end,
+    ?assertEqual(<<"writing a.int16_out := 6 on plc failed: the PLC refuses this address "
+                   "(illegal data address, Modbus exception 2)">>, Text),
+    ok = set(Peer, ir, 4, [9]),
+    9 = await_value(a, int16_in, 9),
+    {ok, #{status := up, faults := []}} = cell_hal:info(plc),
+    never_down().
+
+%% Every request of a group refused, by default: its points are unavailable, the other
+%% group goes on, and the refused requests rest (here longer than the test) instead of
+%% going out at every poll.
+whole_group_refused_faults_it(Config) ->
+    Peer = ?config(peer, Config),
+    [] = cmd(Peer, "refuse ir 44 2", []),
+    [] = cmd(Peer, "refuse co 41 11", []),
+    ok = cell_log:subscribe(),
+    ok = connect(Config, #{refused_retry_ms => 60000, max_refused_retry_ms => 60000}),
+    ok = group(a, #{base => 0, only => [int16_in]}),
+    ok = group(c, #{base => 40, only => [int16_in, coil_in]}),
+    ok = await_status(up),
+    #{{c, coil_in} := CoilWhy} = await_logs(error, [{c, int16_in}, {c, coil_in}]),
+    ?assertEqual(<<"the device behind the gateway did not answer (gateway target failed to "
+                   "respond, Modbus exception 11): read coils 41 (unit 1)">>, CoilWhy),
+    ok = set(Peer, ir, 4, [5]),
+    5 = await_value(a, int16_in, 5),
+    %% Thirty more reads of a: c's requests went out once each.
+    [] = cmd(Peer, "notify_after ir 4 ~b", [hd(cmd(Peer, "count ir 4", [])) + 30]),
+    #{port := P} = Peer,
+    receive {P, {data, {eol, <<"reached">>}}} -> ok after ?WAIT -> ct:fail(not_polled) end,
+    ?assertEqual([1], cmd(Peer, "count ir 44", [])),
+    ?assertEqual([1], cmd(Peer, "count co 41", [])),
+    {error, {unavailable, _}} = cell_hal:read(c, int16_in),
+    never_down().
+
+%% `refused_group => disconnect': one refused request of a group leaves the connection
+%% up; every request of the group refused is a lost connection, retried at the
+%% reconnect backoff until the PLC answers for the group again.
+whole_group_refused_disconnects(Config) ->
+    Peer = ?config(peer, Config),
+    [] = cmd(Peer, "refuse ir 44 2", []),
+    ok = cell_log:subscribe(),
+    ok = connect(Config, #{refused_group => disconnect, refused_retry_ms => 20,
+                           max_refused_retry_ms => 40}),
+    ok = group(a, #{base => 0, only => [int16_in]}),
+    ok = group(c, #{base => 40, only => [int16_in, coil_in]}),
+    ok = await_status(up),
+    _ = await_logs(error, [{c, int16_in}]),
+    ok = set(Peer, co, 41, [1]),
+    true = await_value(c, coil_in, true),
+    never_down(),
+    [] = cmd(Peer, "refuse co 41 2", []),
+    receive {cell_hal_conn, plc, down} -> ok after ?WAIT -> ct:fail(not_down) end,
+    {ok, #{reason := Reason}} = cell_hal:info(plc),
+    ct:log("~s", [Reason]),
+    ?assertNotEqual(nomatch, binary:match(Reason, <<"the PLC refuses every request of IO group c">>)),
+    ?assertEqual({error, disconnected}, cell_hal:read(a, int16_in)),
+    [] = cmd(Peer, "refuse ir 44 0", []),
+    [] = cmd(Peer, "refuse co 41 0", []),
+    ok = set(Peer, ir, 44, [7]),
+    ok = await_status(up),
+    7 = await_value(c, int16_in, 7),
+    {ok, #{faults := []}} = cell_hal:info(plc).
+
+%% The connection went down at no point so far.
+never_down() ->
+    receive {cell_hal_conn, plc, down} -> ct:fail(went_down) after 0 -> ok end,
+    ?assertEqual(up, cell_hal:status(plc)).
+
+%% The worker's log lines, one per point, that it cannot be used (`error') or can be
+%% used again (`silent', a notice): point => what the line says after the point.
+await_logs(Level, Points) ->
+    await_logs(Level, Points, #{}, erlang:monotonic_time(millisecond) + ?WAIT).
+
+await_logs(_Level, [], Got, _Deadline) ->
+    Got;
+await_logs(Level, Points, Got, Deadline) ->
+    Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
+    receive
+        {cell_log, #{source := <<"hal/plc">>, level := Level, text := Text}} ->
+            case [P || {G, N} = P <- Points, is_point_line(Text, G, N)] of
+                [P] ->
+                    After = case binary:split(Text, <<"cannot be used: ">>) of
+                                [_, Why] -> Why;
+                                [_] -> Text
+                            end,
+                    await_logs(Level, Points -- [P], Got#{P => After}, Deadline);
+                [] ->
+                    await_logs(Level, Points, Got, Deadline)
+            end
+    after Left ->
+            ct:fail({not_logged, Level, Points, cell_hal:info(plc)})
+    end.
+
+is_point_line(Text, G, N) ->
+    Name = iolist_to_binary([atom_to_list(G), $., atom_to_list(N), " ("]),
+    binary:longest_common_prefix([Text, Name]) =:= byte_size(Name).
 
 %% Faulty frames from the device close only that connection, with the reason in words,
 %% and never put a value in front of a task.

@@ -65,6 +65,29 @@ exceptions_test_() ->
                    cell_hal_modbus_codec:exception_name(11)),
      ?_assertEqual(unknown_exception, cell_hal_modbus_codec:exception_name(99))].
 
+%% Every exception a PLC sends reads as words an operator understands, with the
+%% specification's name and code for the PLC's manual.
+exception_words_test_() ->
+    T = fun(Code) -> lists:flatten(cell_hal_modbus_codec:exception_text(Code)) end,
+    Words = [{1, "the PLC does not offer this function (illegal function"},
+             {2, "the PLC refuses this address (illegal data address"},
+             {3, "the PLC refuses this quantity or value (illegal data value"},
+             {4, "the PLC failed while handling the request (server device failure"},
+             {5, "the PLC took the request but has not finished it (acknowledge"},
+             {6, "the PLC is busy with a long command (server device busy"},
+             {10, "the gateway has no path to the device behind it (gateway path unavailable"},
+             {11, "the device behind the gateway did not answer (gateway target failed to "
+                  "respond"},
+             {99, "the PLC refused the request with a code the specification does not name "
+                  "(unknown exception"}],
+    [[?_assertEqual(Text ++ ", Modbus exception " ++ integer_to_list(C) ++ ")", T(C))
+      || {C, Text} <- Words],
+     %% Decoded from the wire, then put in words: no code is left without them.
+     [?_assertMatch({exception, C}, decode_response({read_coils, 0, 1}, <<16#81, C>>))
+      || C <- [1, 2, 3, 4, 5, 6, 10, 11]],
+     [?_assertNotEqual(nomatch, string:find(T(C), "Modbus exception"))
+      || C <- lists:seq(1, 255)]].
+
 mismatched_replies_test_() ->
     Read = {read_holding_registers, 0, 2},
     [?_assertEqual({error, {wrong_function, 3, 4}}, decode_response(Read, h("04 04 0000 0000"))),

@@ -13,6 +13,12 @@
  *   get co|di|hr|ir ADDR N     "ok V..."
  *   silent 1|0                 stop answering requests (they time out) / answer again
  *   reject FC                  answer function FC with exception 1 (illegal function)
+ *   refuse co|di|hr|ir ADDR C  answer every request that touches ADDR of that table
+ *                              with exception C (0: answer it again)
+ *   fail_every N C             answer every Nth request with exception C (0: stop)
+ *   count co|di|hr|ir ADDR     "ok N": how many requests touched ADDR of that table
+ *   notify_after co|di|hr|ir ADDR N
+ *                              "ok", then "reached" once N requests have touched it
  *   mangle KIND                answer the next request with a faulty frame:
  *                              tid (another transaction id), unit (another unit),
  *                              proto (protocol id 1), oversize (length field 300),
@@ -37,6 +43,41 @@ static modbus_mapping_t *map;
 static int silent = 0;
 static int rejected[256];
 static char mangle[16] = "";
+static uint8_t refused[4][SIZE];     /* exception code per table and address, 0 none */
+static int fail_every = 0, fail_code = 0, requests = 0;
+static unsigned asked[4][SIZE];       /* requests that touched each address */
+static int notify_table = -1, notify_addr = 0;
+static unsigned notify_count = 0;
+
+static int table_index(const char *t) {
+    return !strcmp(t, "co") ? 0 : !strcmp(t, "di") ? 1 : !strcmp(t, "hr") ? 2 : 3;
+}
+
+/* The exception code a refused address in the request's span asks for, or 0; counts
+   the request for each address it touches. */
+static int refusal(const uint8_t *q) {
+    int fc = q[7], addr = q[8] << 8 | q[9], n = 1, table;
+    switch (fc) {
+    case 1: case 15: table = 0; break;
+    case 2: table = 1; break;
+    case 3: case 6: case 16: case 22: case 23: table = 2; break;
+    case 4: table = 3; break;
+    default: return 0;
+    }
+    if (fc <= 4 || fc == 15 || fc == 16 || fc == 23) n = q[10] << 8 | q[11];
+    int code = 0;
+    for (int a = addr; a < addr + n && a < SIZE; a++) {
+        asked[table][a]++;
+        if (refused[table][a] && !code) code = refused[table][a];
+    }
+    if (notify_table == table && notify_addr >= addr && notify_addr < addr + n
+        && asked[table][notify_addr] >= notify_count) {
+        notify_table = -1;
+        printf("reached\n");
+        fflush(stdout);
+    }
+    return code;
+}
 
 static void reply(const char *fmt, const char *extra) {
     printf(fmt, extra);
@@ -81,6 +122,24 @@ static void command(char *line, fd_set *clients, int *fdmax, int listener) {
         reply("ok%s\n", "");
     } else if (!strcmp(argv[0], "reject") && argc == 2) {
         rejected[atoi(argv[1]) & 0xFF] = 1;
+        reply("ok%s\n", "");
+    } else if (!strcmp(argv[0], "refuse") && argc == 4 && table_size(argv[1])) {
+        int addr = atoi(argv[2]);
+        if (addr >= 0 && addr < SIZE) refused[table_index(argv[1])][addr] = (uint8_t)atoi(argv[3]);
+        reply("ok%s\n", "");
+    } else if (!strcmp(argv[0], "count") && argc == 3 && table_size(argv[1])) {
+        int addr = atoi(argv[2]);
+        printf("ok %u\n", addr >= 0 && addr < SIZE ? asked[table_index(argv[1])][addr] : 0);
+        fflush(stdout);
+    } else if (!strcmp(argv[0], "notify_after") && argc == 4 && table_size(argv[1])) {
+        notify_table = table_index(argv[1]);
+        notify_addr = atoi(argv[2]);
+        notify_count = (unsigned)atoi(argv[3]);
+        reply("ok%s\n", "");
+    } else if (!strcmp(argv[0], "fail_every") && argc == 3) {
+        fail_every = atoi(argv[1]);
+        fail_code = atoi(argv[2]);
+        requests = 0;
         reply("ok%s\n", "");
     } else if (!strcmp(argv[0], "mangle") && argc == 2) {
         snprintf(mangle, sizeof mangle, "%s", argv[1]);
@@ -188,8 +247,13 @@ int main(int argc, char **argv) {
                     break;
                 }
                 if (rc > 0 && !silent) {
-                    int unit = query[6], fc = query[7];
+                    int unit = query[6], fc = query[7], refuse = refusal(query);
+                    int nth = fail_every > 0 && ++requests % fail_every == 0;
                     if (mangle[0]) send_mangled(fd, query);
+                    else if (nth)
+                        modbus_reply_exception(ctx, query, fail_code);
+                    else if (refuse)
+                        modbus_reply_exception(ctx, query, refuse);
                     else if (unit != 1 && unit != 255)
                         modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
                     else if (rejected[fc])
