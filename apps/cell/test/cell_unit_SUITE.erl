@@ -534,7 +534,7 @@ specs_name_what_is_wrong(_Config) ->
                  Check(#{user_states => [x, x]})),
     ?assertEqual({error, {bad_link, l, {unit, u}}},
                  cell_spec:validate(#{tasks => [Unit(#{}), #{id => t, module => cell_test_task,
-                                                             zone => <<"Z">>, lane => <<"L">>}],
+                                                             zone => <<"T">>, lane => <<"L">>}],
                                       links => [#{id => l, from => t, to => u}]})).
 
 %% A user state reports the READY sub-state its sequence says; the same report from
