@@ -59,7 +59,12 @@
                pending = [] :: [{estop | service_mode, boolean()}],    %% for the controller
                retry_ms = ?RETRY_MIN :: pos_integer(),
                attach = #{} :: #{atom() => pos_integer()},            %% hardware: backoff
-               hw = #{} :: #{reference() => atom()}}).                %% hardware: monitors
+               hw = #{} :: #{reference() => atom()},                  %% hardware: monitors
+               %% what the HAL's server, away, could not take: done again, in order,
+               %% when it says it is back (`back')
+               away = [] :: [{add, connection | group, map()} | {connection, atom()}
+                             | {input, cell_monitor_spec:point()}],
+               back :: reference() | undefined}).
 
 %%====================================================================
 %% API
@@ -130,6 +135,8 @@ handle_event(info, {cell_hal, {_, _} = P, _Cue}, watching, D) ->
     core({point, P, read(P)}, D);
 handle_event(info, {cell_hal_conn, Conn, _Cue}, watching, D) ->
     connection(Conn, D);
+handle_event(info, {cell_hal_back, Ref}, watching, #data{back = Ref} = D) ->
+    again(D);
 handle_event(info, {cell_hal_hw, Id, up}, watching, D) ->
     core({device, {hardware, Id}, up}, D);
 handle_event(info, {cell_hal_hw, Id, down}, watching, D) ->
@@ -242,6 +249,10 @@ add(Kind, #{id := Id} = Spec, Add, #data{added = Added} = D) ->
             cell_log:info(?LOG, "~ts ~ts is already in the HAL: taken over as it is",
                           [kind_name(Kind), Id]),
             D#data{added = [{Kind, Id} | Added]};
+        {error, disconnected} ->
+            cell_log:warning(?LOG, "the HAL is restarting: the ~ts ~ts is added when it is "
+                             "back", [kind_name(Kind), Id]),
+            away({add, Kind, Spec}, D);
         {error, Why} ->
             Text = io_lib:format("The HAL refused the ~ts ~ts of the cell spec: ~tp. "
                                  "Correct the cell's configuration and restart the cell.",
@@ -258,14 +269,52 @@ kind_name(hardware) -> "hardware object".
 connection_subscribe(Conn, D) ->
     case cell_hal:subscribe_connection(Conn) of
         {ok, _} -> step(connection(Conn, D));
-        {error, unknown_connection} -> {D, []}
+        {error, unknown_connection} -> {D, []};
+        {error, disconnected} -> step(hal_away(Conn, away({connection, Conn}, D)))
     end.
 
 input_subscribe({G, P} = Point, D) ->
     case cell_hal:subscribe(G, P) of
         ok -> core_step({point, Point, read(Point)}, D);
-        {error, unknown_point} -> {D, []}
+        {error, unknown_point} -> {D, []};
+        {error, disconnected} -> core_step({point, Point, unknown}, away({input, Point}, D))
     end.
+
+%% The HAL's server is away (it restarts): what could not be done then is done when
+%% it says it is back, one message asked for however much waits.
+away(Step, #data{away = Away, back = Back} = D) ->
+    D#data{away = Away ++ [Step],
+           back = case Back of
+                      undefined -> cell_hal:notify_back();
+                      _ -> Back
+                  end}.
+
+%% The HAL's server is back: what waited is done again, in the order it came (pieces
+%% added before what is subscribed to in them); what finds it away again waits again.
+again(#data{away = Away} = D0) ->
+    cell_log:info(?LOG, "the HAL is back: what waited for it is done again", []),
+    Steps = [fun(Di) -> redo(Step, Di) end || Step <- Away],
+    {D, A} = lists:foldl(fun(Step, {Di, Ai}) ->
+                                 {Dj, Aj} = Step(Di),
+                                 {Dj, Ai ++ Aj}
+                         end, {D0#data{away = [], back = undefined}, []}, Steps),
+    {keep_state, D, A}.
+
+redo({add, connection, Spec}, D) -> {add(connection, Spec, fun cell_hal:add_connection/1, D), []};
+redo({add, group, Spec}, D) -> {add(group, Spec, fun cell_hal:add_group/1, D), []};
+redo({connection, Conn}, D) -> connection_subscribe(Conn, D);
+redo({input, Point}, D) -> input_subscribe(Point, D).
+
+%% A connection the monitor cannot follow while the HAL's server is away: down, its
+%% inputs unknown, as for a lost connection (what the core does with a connection
+%% that is down: an alarm after its grace, the beacon, nothing taken from its inputs).
+hal_away(Conn, #data{inputs = Inputs} = D) ->
+    Events = [{point, P, unknown} || P <- maps:get(Conn, Inputs, [])]
+        ++ [{device, {connection, Conn}, {down, <<"the HAL is restarting">>}}],
+    lists:foldl(fun(E, {keep_state, Di, Ai}) ->
+                        {keep_state, Dj, Aj} = core(E, Di),
+                        {keep_state, Dj, Ai ++ Aj}
+                end, {keep_state, D, []}, Events).
 
 core_step(Event, D) ->
     step(core(Event, D)).
