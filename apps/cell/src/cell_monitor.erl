@@ -188,8 +188,7 @@ handle_event(info, Msg, _State, _D) ->
 %% @private
 -spec terminate(term(), state(), #data{}) -> ok.
 terminate(Reason, _State, #data{added = Added} = D) when Reason =:= normal;
-                                                          Reason =:= shutdown;
-                                                          element(1, Reason) =:= shutdown ->
+                                                          Reason =:= shutdown ->
     safe_outputs(D),
     lists:foreach(fun remove/1, Added),
     _ = Added =/= [] andalso cell_log:notice(?LOG, "HAL disconnected: ~ts", [summary(Added)]),
@@ -212,7 +211,7 @@ attach(#data{spec = #{hal := Hal, monitor := Mon} = Spec} = D0) ->
                      D0, Conns),
     D2 = lists:foldl(fun(G, Di) -> add(group, G, fun cell_hal:add_group/1, Di) end, D1, Groups),
     D3 = lists:foldl(fun(#{type := none}, Di) -> Di;
-                        (H, Di) -> add(hardware, H, fun cell_hal_hw:add/1, Di)
+                        (H, Di) -> add(hardware, H, fun hw_add/1, Di)
                      end, D2, Hw),
     Info = cell_monitor_spec:points(Hal, Mon),
     Inputs = maps:groups_from_list(fun(P) -> maps:get(connection, maps:get(P, Info)) end,
@@ -248,6 +247,12 @@ add(Kind, #{id := Id} = Spec, Add, #data{added = Added} = D) ->
             ok = cell_alarms:clear_alarm(?TASK, AlarmId),
             cell_log:info(?LOG, "~ts ~ts is already in the HAL: taken over as it is",
                           [kind_name(Kind), Id]),
+            D#data{added = [{Kind, Id} | Added]};
+        {error, disconnected} when Kind =:= hardware ->
+            %% Attached as one whose process went away: created again from the spec,
+            %% with its backoff, once the HAL's supervisor of hardware objects is back.
+            cell_log:warning(?LOG, "the HAL is restarting: the ~ts ~ts is created when it "
+                             "is back", [kind_name(Kind), Id]),
             D#data{added = [{Kind, Id} | Added]};
         {error, disconnected} ->
             cell_log:warning(?LOG, "the HAL is restarting: the ~ts ~ts is added when it is "
@@ -350,7 +355,7 @@ attach_hardware(Id, #data{spec = #{hal := #{hardware := Hw}}, attach = Backoff} 
     [Spec] = [H || #{id := I} = H <- Hw, I =:= Id],
     Found = case subscribe_hardware(Id) of
                 {error, not_present} ->
-                    _ = cell_hal_hw:add(Spec),
+                    _ = hw_add(Spec),
                     subscribe_hardware(Id);
                 Status ->
                     Status
@@ -371,8 +376,7 @@ attach_hardware(Id, #data{spec = #{hal := #{hardware := Hw}}, attach = Backoff} 
 %% each child by the object's id; the process may end between finding it and calling
 %% it.
 subscribe_hardware(Id) ->
-    case [Pid || {I, Pid, _, _} <- supervisor:which_children(cell_hal_hw_sup),
-                 I =:= Id, is_pid(Pid)] of
+    case [Pid || {I, Pid, _, _} <- hw_children(), I =:= Id, is_pid(Pid)] of
         [Pid] ->
             try cell_hal_hw:subscribe(Id) of
                 {ok, Status} -> {ok, Status, Pid};
@@ -382,6 +386,19 @@ subscribe_hardware(Id) ->
             end;
         [] ->
             {error, not_present}
+    end.
+
+%% The HAL's supervisor of hardware objects restarts with its server: while it is
+%% away there is no object to find, and none can be created (`disconnected', as the
+%% HAL's own calls say).
+hw_children() ->
+    try supervisor:which_children(cell_hal_hw_sup)
+    catch exit:{_, {gen_server, call, [cell_hal_hw_sup | _]}} -> []
+    end.
+
+hw_add(Spec) ->
+    try cell_hal_hw:add(Spec)
+    catch exit:{_, {gen_server, call, [cell_hal_hw_sup | _]}} -> {error, disconnected}
     end.
 
 read({G, P}) ->

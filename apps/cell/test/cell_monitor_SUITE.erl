@@ -472,6 +472,17 @@ hal_server_away_as_the_monitor_starts(_Config) ->
                            {group, axes}]}, cell_monitor:info()),
     ok = cell_hal_sim:set({general, door_locked}, false),
     await(door_warning, fun() -> has_alarm(<<"cell:door">>) end),
+    ?assertEqual(New, whereis(cell_monitor)),
+    %% The HAL's server killed while the monitor runs (its workers and hardware objects
+    %% restart with it): the monitor follows the PLC and the camera back.
+    {ok, up} = cell_hal:subscribe_connection(plc1),
+    exit(whereis(cell_hal_server), kill),
+    receive {cell_hal_conn, plc1, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    receive {cell_hal_conn, plc1, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    ok = cell_hal_sim:set({general, door_locked}, true),
+    await(door_locked_again, fun() -> not has_alarm(<<"cell:door">>)
+                                          andalso device_status(plc1) =:= up
+                                          andalso device_status(camera) =:= up end),
     ?assertEqual(New, whereis(cell_monitor)).
 
 hal_refusal_is_an_alarm(_Config) ->
