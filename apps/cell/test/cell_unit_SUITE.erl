@@ -516,8 +516,24 @@ hal_server_away_is_lost_io(_Config) ->
     %% Followed indeed: the connection lost now is a fault again.
     ok = cell_hal_sim:link(plc, down),
     await_state(fault),
-    ?assertEqual(New, cell_unit:whereis(?U)),
-    ok = cell_hal_sim:link(plc, up).
+    #{id := Fault} = error_of(?U),
+    ok = cell_hal_sim:link(plc, up),
+    ok = await_conn(plc, up),
+    ok = cell_alarms:answer(Fault, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED),
+    %% The HAL's server killed while the unit works: its workers restart with it, the
+    %% connection goes down and up; the unit stops on the fault, and Reset takes it
+    %% back to work. The same unit all along.
+    {ok, _} = cell_hal:subscribe_connection(plc),
+    exit(whereis(cell_hal_server), kill),
+    await_state(fault),
+    #{caption := Caption, id := Restarted} = error_of(?U),
+    ok = await_conn(plc, up),
+    ok = cell_alarms:answer(Restarted, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED),
+    ?assertEqual(New, cell_unit:whereis(?U)).
 
 %% A unit and a device task in one cell: the controller starts, pauses and stops both;
 %% the cell state is the higher of theirs; the panel's calls answer for both.

@@ -530,6 +530,16 @@ hal_server_away_as_the_block_starts(Config) ->
     HB = ?P:tag(Plc, heartbeat),
     ok = ?P:await(Plc, heartbeat, not HB),
     ok = command_and_status(Plc, clear_results, 1),
+    ?assertEqual(New, cell_inspect_block:whereis(line1)),
+    %% The HAL's server killed while the block runs: its worker restarts with it, the
+    %% PLC is lost and back; the block goes offline and online and works on.
+    exit(whereis(cell_hal_server), kill),
+    ok = next_view(line1, fun(#{state := S}) -> S =:= offline end),
+    ok = next_view(line1, fun(#{state := S}) -> S =:= online end),
+    HB2 = ?P:tag(Plc, heartbeat),
+    ok = ?P:await(Plc, heartbeat, not HB2),
+    ?assertMatch(#{inspection_status := 3}, ?P:trigger(Plc, <<"STATION1">>, <<"SN-H2">>)),
+    _ = ?T:request_seen(?CAM),
     ?assertEqual(New, cell_inspect_block:whereis(line1)).
 
 %% The PLC stops answering while the camera sends its image: the block goes on and
