@@ -288,10 +288,10 @@ notify_back() ->
     %% Recorded first, looked for after: a server that starts from here on finds the
     %% record; one found here is asked to answer (if it dies first, its successor
     %% finds the record).
-    case whereis(cell_hal_server) of
-        undefined -> ok;
-        Pid -> Pid ! {waiting, Ref}
-    end,
+    _ = case whereis(cell_hal_server) of
+            undefined -> ok;
+            Pid -> Pid ! {waiting, Ref}
+        end,
     Ref.
 
 %% @doc Whether a connection is up (its inputs are fresh).
