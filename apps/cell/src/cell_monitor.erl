@@ -29,6 +29,12 @@
 %% supervisor) is attached again: subscribed to, or created again from the spec, 100 ms
 %% after it went and up to 5 s apart until it is back.
 %%
+%% What the HAL's server cannot take while it is away (restarting: `{error,
+%% disconnected}') — a connection or group to add, a connection or input to subscribe
+%% to — waits, in order, for the HAL's `{cell_hal_back, Ref}' ({@link
+%% cell_hal:notify_back/0}); meanwhile the connection is down for the core and its
+%% inputs unknown.
+%%
 %% <b>Termination</b> (§2.4.3): when the cell application stops (any shutdown by the
 %% supervisor), the monitor sets the beacon dark and the drives' reset outputs off,
 %% then removes the hardware objects, groups and connections it added: the HAL is

@@ -8,6 +8,10 @@
 %%   settings => [router_loading_settings]}
 %% '''
 %%
+%% Each task's zone and lane name its product and retained-data files
+%% (`Data/<Zone>@<Lane>.product', `.retain'): two tasks whose names come to one file are
+%% refused, naming both and the file.
+%%
 %% `links' are the handshakes between tasks: `#{id => load_work, from => loading,
 %% to => work}'. An end may be a task of another node, `{Task, Node}' (a line of cells),
 %% or `undefined' for a master task that connects at run time (the seed's feeders).

@@ -44,6 +44,10 @@
 %%     references the unit again.</li>
 %% </ul>
 %%
+%% A connection of the unit's IO that the HAL's server could not subscribe it to (away,
+%% restarting) is down for the unit, as a lost one is, until the HAL's `{cell_hal_back,
+%% Ref}' ({@link cell_hal:notify_back/0}) subscribes it again.
+%%
 %% After a crash the supervisor restarts the unit: its outputs are made safe, it
 %% boots again into Init and, if the cell was running, raises an error naming the
 %% crash: it moves again only after the operator's Reset. Steps run in this process;

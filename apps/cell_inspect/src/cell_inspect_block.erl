@@ -23,7 +23,11 @@
 %% PLC whole again, then the alarm is cleared.
 %%
 %% The block never polls: it subscribes to its input points and its connection in the
-%% HAL, whose worker polls the PLC (or receives its notifications). The Heartbeat
+%% HAL, whose worker polls the PLC (or receives its notifications). Subscriptions the
+%% HAL's server cannot take while it is away (restarting) leave the block `offline', as
+%% a lost link does, until the HAL's `{cell_hal_back, Ref}' ({@link
+%% cell_hal:notify_back/0}); a group the HAL already holds for the block is taken as it
+%% is, without the server. The Heartbeat
 %% toggles every `heartbeat_ms' in every state. A block that stops (or crashes) writes
 %% nothing more: the PLC sees the Heartbeat stop; the block that starts again takes
 %% over from what the PLC holds (see {@link cell_inspect_status}).
