@@ -29,6 +29,12 @@
 %% supervisor) is attached again: subscribed to, or created again from the spec, 100 ms
 %% after it went and up to 5 s apart until it is back.
 %%
+%% What the HAL's server cannot take while it is away (restarting: `{error,
+%% disconnected}') — a connection or group to add, a connection or input to subscribe
+%% to — waits, in order, for the HAL's `{cell_hal_back, Ref}' ({@link
+%% cell_hal:notify_back/0}); meanwhile the connection is down for the core and its
+%% inputs unknown.
+%%
 %% <b>Termination</b> (§2.4.3): when the cell application stops (any shutdown by the
 %% supervisor), the monitor sets the beacon dark and the drives' reset outputs off,
 %% then removes the hardware objects, groups and connections it added: the HAL is
@@ -59,7 +65,12 @@
                pending = [] :: [{estop | service_mode, boolean()}],    %% for the controller
                retry_ms = ?RETRY_MIN :: pos_integer(),
                attach = #{} :: #{atom() => pos_integer()},            %% hardware: backoff
-               hw = #{} :: #{reference() => atom()}}).                %% hardware: monitors
+               hw = #{} :: #{reference() => atom()},                  %% hardware: monitors
+               %% what the HAL's server, away, could not take: done again, in order,
+               %% when it says it is back (`back')
+               away = [] :: [{add, connection | group, map()} | {connection, atom()}
+                             | {input, cell_monitor_spec:point()}],
+               back :: reference() | undefined}).
 
 %%====================================================================
 %% API
@@ -130,6 +141,8 @@ handle_event(info, {cell_hal, {_, _} = P, _Cue}, watching, D) ->
     core({point, P, read(P)}, D);
 handle_event(info, {cell_hal_conn, Conn, _Cue}, watching, D) ->
     connection(Conn, D);
+handle_event(info, {cell_hal_back, Ref}, watching, #data{back = Ref} = D) ->
+    again(D);
 handle_event(info, {cell_hal_hw, Id, up}, watching, D) ->
     core({device, {hardware, Id}, up}, D);
 handle_event(info, {cell_hal_hw, Id, down}, watching, D) ->
@@ -181,8 +194,7 @@ handle_event(info, Msg, _State, _D) ->
 %% @private
 -spec terminate(term(), state(), #data{}) -> ok.
 terminate(Reason, _State, #data{added = Added} = D) when Reason =:= normal;
-                                                          Reason =:= shutdown;
-                                                          element(1, Reason) =:= shutdown ->
+                                                          Reason =:= shutdown ->
     safe_outputs(D),
     lists:foreach(fun remove/1, Added),
     _ = Added =/= [] andalso cell_log:notice(?LOG, "HAL disconnected: ~ts", [summary(Added)]),
@@ -205,7 +217,7 @@ attach(#data{spec = #{hal := Hal, monitor := Mon} = Spec} = D0) ->
                      D0, Conns),
     D2 = lists:foldl(fun(G, Di) -> add(group, G, fun cell_hal:add_group/1, Di) end, D1, Groups),
     D3 = lists:foldl(fun(#{type := none}, Di) -> Di;
-                        (H, Di) -> add(hardware, H, fun cell_hal_hw:add/1, Di)
+                        (H, Di) -> add(hardware, H, fun hw_add/1, Di)
                      end, D2, Hw),
     Info = cell_monitor_spec:points(Hal, Mon),
     Inputs = maps:groups_from_list(fun(P) -> maps:get(connection, maps:get(P, Info)) end,
@@ -242,6 +254,16 @@ add(Kind, #{id := Id} = Spec, Add, #data{added = Added} = D) ->
             cell_log:info(?LOG, "~ts ~ts is already in the HAL: taken over as it is",
                           [kind_name(Kind), Id]),
             D#data{added = [{Kind, Id} | Added]};
+        {error, disconnected} when Kind =:= hardware ->
+            %% Attached as one whose process went away: created again from the spec,
+            %% with its backoff, once the HAL's supervisor of hardware objects is back.
+            cell_log:warning(?LOG, "the HAL is restarting: the ~ts ~ts is created when it "
+                             "is back", [kind_name(Kind), Id]),
+            D#data{added = [{Kind, Id} | Added]};
+        {error, disconnected} ->
+            cell_log:warning(?LOG, "the HAL is restarting: the ~ts ~ts is added when it is "
+                             "back", [kind_name(Kind), Id]),
+            away({add, Kind, Spec}, D);
         {error, Why} ->
             Text = io_lib:format("The HAL refused the ~ts ~ts of the cell spec: ~tp. "
                                  "Correct the cell's configuration and restart the cell.",
@@ -258,14 +280,52 @@ kind_name(hardware) -> "hardware object".
 connection_subscribe(Conn, D) ->
     case cell_hal:subscribe_connection(Conn) of
         {ok, _} -> step(connection(Conn, D));
-        {error, unknown_connection} -> {D, []}
+        {error, unknown_connection} -> {D, []};
+        {error, disconnected} -> step(hal_away(Conn, away({connection, Conn}, D)))
     end.
 
 input_subscribe({G, P} = Point, D) ->
     case cell_hal:subscribe(G, P) of
         ok -> core_step({point, Point, read(Point)}, D);
-        {error, unknown_point} -> {D, []}
+        {error, unknown_point} -> {D, []};
+        {error, disconnected} -> core_step({point, Point, unknown}, away({input, Point}, D))
     end.
+
+%% The HAL's server is away (it restarts): what could not be done then is done when
+%% it says it is back, one message asked for however much waits.
+away(Step, #data{away = Away, back = Back} = D) ->
+    D#data{away = Away ++ [Step],
+           back = case Back of
+                      undefined -> cell_hal:notify_back();
+                      _ -> Back
+                  end}.
+
+%% The HAL's server is back: what waited is done again, in the order it came (pieces
+%% added before what is subscribed to in them); what finds it away again waits again.
+again(#data{away = Away} = D0) ->
+    cell_log:info(?LOG, "the HAL is back: what waited for it is done again", []),
+    Steps = [fun(Di) -> redo(Step, Di) end || Step <- Away],
+    {D, A} = lists:foldl(fun(Step, {Di, Ai}) ->
+                                 {Dj, Aj} = Step(Di),
+                                 {Dj, Ai ++ Aj}
+                         end, {D0#data{away = [], back = undefined}, []}, Steps),
+    {keep_state, D, A}.
+
+redo({add, connection, Spec}, D) -> {add(connection, Spec, fun cell_hal:add_connection/1, D), []};
+redo({add, group, Spec}, D) -> {add(group, Spec, fun cell_hal:add_group/1, D), []};
+redo({connection, Conn}, D) -> connection_subscribe(Conn, D);
+redo({input, Point}, D) -> input_subscribe(Point, D).
+
+%% A connection the monitor cannot follow while the HAL's server is away: down, its
+%% inputs unknown, as for a lost connection (what the core does with a connection
+%% that is down: an alarm after its grace, the beacon, nothing taken from its inputs).
+hal_away(Conn, #data{inputs = Inputs} = D) ->
+    Events = [{point, P, unknown} || P <- maps:get(Conn, Inputs, [])]
+        ++ [{device, {connection, Conn}, {down, <<"the HAL is restarting">>}}],
+    lists:foldl(fun(E, {keep_state, Di, Ai}) ->
+                        {keep_state, Dj, Aj} = core(E, Di),
+                        {keep_state, Dj, Ai ++ Aj}
+                end, {keep_state, D, []}, Events).
 
 core_step(Event, D) ->
     step(core(Event, D)).
@@ -301,7 +361,7 @@ attach_hardware(Id, #data{spec = #{hal := #{hardware := Hw}}, attach = Backoff} 
     [Spec] = [H || #{id := I} = H <- Hw, I =:= Id],
     Found = case subscribe_hardware(Id) of
                 {error, not_present} ->
-                    _ = cell_hal_hw:add(Spec),
+                    _ = hw_add(Spec),
                     subscribe_hardware(Id);
                 Status ->
                     Status
@@ -322,8 +382,7 @@ attach_hardware(Id, #data{spec = #{hal := #{hardware := Hw}}, attach = Backoff} 
 %% each child by the object's id; the process may end between finding it and calling
 %% it.
 subscribe_hardware(Id) ->
-    case [Pid || {I, Pid, _, _} <- supervisor:which_children(cell_hal_hw_sup),
-                 I =:= Id, is_pid(Pid)] of
+    case [Pid || {I, Pid, _, _} <- hw_children(), I =:= Id, is_pid(Pid)] of
         [Pid] ->
             try cell_hal_hw:subscribe(Id) of
                 {ok, Status} -> {ok, Status, Pid};
@@ -333,6 +392,19 @@ subscribe_hardware(Id) ->
             end;
         [] ->
             {error, not_present}
+    end.
+
+%% The HAL's supervisor of hardware objects restarts with its server: while it is
+%% away there is no object to find, and none can be created (`disconnected', as the
+%% HAL's own calls say).
+hw_children() ->
+    try supervisor:which_children(cell_hal_hw_sup)
+    catch exit:{_, {gen_server, call, [cell_hal_hw_sup | _]}} -> []
+    end.
+
+hw_add(Spec) ->
+    try cell_hal_hw:add(Spec)
+    catch exit:{_, {gen_server, call, [cell_hal_hw_sup | _]}} -> {error, disconnected}
     end.
 
 read({G, P}) ->

@@ -8,6 +8,10 @@
 %%   settings => [router_loading_settings]}
 %% '''
 %%
+%% Each task's zone and lane name its product and retained-data files
+%% (`Data/<Zone>@<Lane>.product', `.retain'): two tasks whose names come to one file are
+%% refused, naming both and the file.
+%%
 %% `links' are the handshakes between tasks: `#{id => load_work, from => loading,
 %% to => work}'. An end may be a task of another node, `{Task, Node}' (a line of cells),
 %% or `undefined' for a master task that connects at run time (the seed's feeders).
@@ -103,7 +107,7 @@ from_module(Mod) when is_atom(Mod) ->
 validate(#{tasks := Tasks} = Spec) when is_list(Tasks) ->
     Name = maps:get(name, Spec, <<"cell">>),
     Schemas = maps:get(settings, Spec, []),
-    case tasks(Tasks, [], #{}) of
+    case files_apart(tasks(Tasks, [], #{})) of
         {ok, _} when not is_binary(Name) ->
             {error, {bad_cell_spec, name, Name}};
         {ok, Checked} ->
@@ -170,6 +174,41 @@ with_links(#{id := Id} = T, Links) ->
     Mine = maps:from_list([{L, #{role => up}} || #{id := L, from := F} <- Links, F =:= Id]
                           ++ [{L, #{role => down}} || #{id := L, to := To} <- Links, To =:= Id]),
     T#{links => Mine}.
+
+%% Each task keeps its product and its retained data in files named by its zone and
+%% lane (see cell_product:file_name/2): two tasks whose names come to the same file
+%% would overwrite each other's product, so such a spec is refused, naming both tasks
+%% and the file. Names that differ only in characters a file name cannot hold (which
+%% become `_'), in where the `@' falls, in upper and lower case, or in how an accented
+%% letter is encoded are the same file on some file systems the data folder may live
+%% on (FAT, NTFS, APFS): they are refused too. Units are held to it as well: a unit is
+%% built as a task (cell_task:new/1 names its files the same way), and the panel and
+%% the logs tell the cell's tasks apart by zone and lane.
+files_apart({ok, Checked} = Ok) ->
+    Named = [{file_key(cell_product:file_name(Zone, Lane)), Id,
+              [cell_product:file_name(Zone, Lane), cell_retain:file_name(Zone, Lane)]}
+             || #{id := Id, zone := Zone, lane := Lane} <- Checked],
+    case first_shared(Named, #{}) of
+        none -> Ok;
+        {First, Second, Files} ->
+            {error, {bad_task, Second,
+                     {shares_files_with, First, Files,
+                      "each task keeps its product and retained data in files named by "
+                      "its zone and lane: give each task its own zone or lane"}}}
+    end;
+files_apart(Error) ->
+    Error.
+
+first_shared([], _Seen) ->
+    none;
+first_shared([{Key, Id, Files} | Rest], Seen) ->
+    case Seen of
+        #{Key := {First, FirstFiles}} -> {First, Id, lists:usort(FirstFiles ++ Files)};
+        #{} -> first_shared(Rest, Seen#{Key => {Id, Files}})
+    end.
+
+file_key(File) ->
+    string:casefold(unicode:characters_to_nfc_list(File)).
 
 tasks([], Acc, _Seen) ->
     {ok, lists:reverse(Acc)};
@@ -256,6 +295,7 @@ is_step_module(Mod) ->
 
 validate_test_() ->
     Good = #{id => a, module => cell_test_task, zone => <<"Z">>, lane => <<"L">>},
+    B = Good#{id => b, lane => <<"M">>},
     [?_assertMatch({ok, #{name := <<"cell">>, tasks := [#{io := [], args := #{}}]}},
                    validate(#{tasks => [Good]})),
      ?_assertEqual({error, {bad_task, a, duplicate_id}}, validate(#{tasks => [Good, Good]})),
@@ -279,18 +319,53 @@ validate_test_() ->
                    validate(#{tasks => [], settings => [lists]})),
      ?_assertMatch({ok, #{tasks := [#{links := #{l := #{role := up}}},
                                     #{links := #{l := #{role := down}}}]}},
-                   validate(#{tasks => [Good, Good#{id => b}],
+                   validate(#{tasks => [Good, B],
                               links => [#{id => l, from => a, to => b}]})),
      ?_assertEqual({error, {bad_link, l, {bad_option, to}}},
                    validate(#{tasks => [Good], links => [#{id => l, from => a, to => nobody}]})),
      ?_assertEqual({error, {bad_link, l, same_task_at_both_ends}},
                    validate(#{tasks => [Good], links => [#{id => l, from => a, to => a}]})),
      ?_assertEqual({error, {bad_link, l, duplicate_id}},
-                   validate(#{tasks => [Good, Good#{id => b}],
+                   validate(#{tasks => [Good, B],
                               links => [#{id => l, from => a, to => b},
                                         #{id => l, from => b, to => a}]})),
      ?_assertMatch({ok, _}, validate(#{tasks => [Good],
                                        links => [#{id => l, from => {x, 'n@h'}, to => a}]}))].
+
+%% Two tasks whose zone and lane come to one product file (and one retained-data file)
+%% are refused, naming both tasks and the files; every other pair is accepted.
+shared_files_test_() ->
+    T = fun(Id, Zone, Lane) -> #{id => Id, module => cell_test_task, zone => Zone,
+                                  lane => Lane} end,
+    Refused = fun(Files, Tasks) ->
+                      ?_assertMatch({error, {bad_task, t2, {shares_files_with, t1, Files, _}}},
+                                    validate(#{tasks => Tasks}))
+              end,
+    Same = ["Z@Front.product", "Z@Front.retain"],
+    [Refused(Same, [T(t1, <<"Z">>, <<"Front">>), T(t2, <<"Z">>, <<"Front">>)]),
+     %% a unit too, and the second of three
+     Refused(Same, [T(t1, <<"Z">>, <<"Front">>), T(t0, <<"Y">>, <<"Front">>),
+                    #{id => t2, module => cell_test_decl_unit, zone => <<"Z">>,
+                      lane => <<"Front">>, args => #{decl => #{}}}]),
+     %% characters a file name cannot hold become the same `_'
+     Refused(["a_b@L.product", "a_b@L.retain"],
+             [T(t1, <<"a/b">>, <<"L">>), T(t2, <<"a:b">>, <<"L">>)]),
+     %% the `@' inside a name
+     Refused(["a@b@c.product", "a@b@c.retain"],
+             [T(t1, <<"a@b">>, <<"c">>), T(t2, <<"a">>, <<"b@c">>)]),
+     %% case, and an accent written as one character or as two
+     Refused(["Z@Front.product", "Z@Front.retain", "z@FRONT.product", "z@FRONT.retain"],
+             [T(t1, <<"Z">>, <<"Front">>), T(t2, <<"z">>, <<"FRONT">>)]),
+     Refused([[$S, $a, 16#308, $g, $e, $n, $@, $L | ".product"],
+              [$S, $a, 16#308, $g, $e, $n, $@, $L | ".retain"],
+              [$S, 16#E4, $g, $e, $n, $@, $L | ".product"],
+              [$S, 16#E4, $g, $e, $n, $@, $L | ".retain"]],
+             [T(t1, <<"Sägen"/utf8>>, <<"L">>),
+              T(t2, <<"Sa", 16#308/utf8, "gen">>, <<"L">>)]),
+     ?_assertMatch({ok, _}, validate(#{tasks => [T(t1, <<"Z">>, <<"Front">>),
+                                                 T(t2, <<"Z">>, <<"Rear">>),
+                                                 T(t3, <<"Y">>, <<"Front">>),
+                                                 T(t4, <<"Z_">>, <<"Front">>)]}))].
 
 hosted_links_test() ->
     Links = [#{id => a, from => t1, to => t2}, #{id => b, from => t2, to => {t9, 'n@h'}},

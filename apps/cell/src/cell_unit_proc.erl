@@ -44,6 +44,10 @@
 %%     references the unit again.</li>
 %% </ul>
 %%
+%% A connection of the unit's IO that the HAL's server could not subscribe it to (away,
+%% restarting) is down for the unit, as a lost one is, until the HAL's `{cell_hal_back,
+%% Ref}' ({@link cell_hal:notify_back/0}) subscribes it again.
+%%
 %% After a crash the supervisor restarts the unit: its outputs are made safe, it
 %% boots again into Init and, if the cell was running, raises an error naming the
 %% crash: it moves again only after the operator's Reset. Steps run in this process;
@@ -84,6 +88,8 @@
     cycle = false :: boolean(),              %% a cycle message is on its way
     settles = [] :: [gen_statem:from()],
     conns = #{} :: #{atom() => up | down},
+    away = [] :: [atom()],                   %% connections the HAL's server, away, did
+    back :: reference() | undefined,         %% not subscribe: again when it is back
     settings = #{} :: map(),                 %% the snapshot for the next GoHome
     in_force = #{} :: map()                  %% the settings the sequences run on
 }).
@@ -185,6 +191,12 @@ handle_event(info, {Ref, Term} = Msg, State, #data{seq = Seq} = D) when is_refer
     end;
 handle_event(info, {cell_hal_conn, Conn, Status}, State, D) ->
     connection(Conn, Status, State, D);
+handle_event(info, {cell_hal_back, Ref}, State, #data{id = Id, back = Ref, away = Away} = D0) ->
+    D = resubscribe(Away, D0#data{away = [], back = undefined}),
+    _ = [cell_log:info(Id, "the HAL is back: connection ~ts followed again (~ts)",
+                       [C, maps:get(C, D#data.conns)])
+         || C <- Away, not lists:member(C, D#data.away)],
+    keep(State, D);
 
 %% --------------------------------------------------------------------------------------
 %% every state: the operator's answer to the unit's error
@@ -329,7 +341,12 @@ arrive(_State, _D) ->
 start_sequence(go_home, #data{conns = Conns0} = D) when Conns0 =/= #{} ->
     %% Referencing needs the IO: asked of the HAL itself, since its news of a
     %% reconnection may still be on the way here.
-    Conns = maps:map(fun(C, _) -> cell_hal:status(C) end, Conns0),
+    Conns = maps:map(fun(C, _) ->
+                             case lists:member(C, D#data.away) of
+                                 true -> down;
+                                 false -> cell_hal:status(C)
+                             end
+                     end, Conns0),
     case [C || {C, down} <- lists:sort(maps:to_list(Conns))] of
         [Conn | _] ->
             transition(aborted, go_home, D#data{conns = Conns,
@@ -636,20 +653,36 @@ crash_text(Reason) -> io_lib:format("~tP", [Reason, 12]).
 %% -------------------------------------------------------------------------------------
 
 %% The connections of the unit's IO groups, watched: losing one aborts what runs.
-subscribe_io(#data{spec = Spec, conns = Conns0} = D) ->
-    Conns = lists:foldl(
-              fun(Group, Acc) ->
-                      case cell_hal:connection_of(Group) of
-                          {ok, Conn} when not is_map_key(Conn, Acc) ->
-                              {ok, Status} = cell_hal:subscribe_connection(Conn),
-                              Acc#{Conn => Status};
-                          _ ->
-                              %% Known already, or a group not configured yet (its
-                              %% points fail when used, naming them).
-                              Acc
-                      end
-              end, Conns0, maps:get(io, Spec, [])),
-    D#data{conns = Conns}.
+subscribe_io(#data{spec = Spec, conns = Conns} = D) ->
+    New = lists:usort([Conn || Group <- maps:get(io, Spec, []),
+                               {ok, Conn} <- [cell_hal:connection_of(Group)],
+                               not is_map_key(Conn, Conns)]),
+    %% Known already, or a group not configured yet (its points fail when used,
+    %% naming them).
+    resubscribe(New, D).
+
+%% A connection the HAL's server could not subscribe to, being away (it restarts), is
+%% down for the unit, as a lost connection is: what runs is aborted (the unit stops on
+%% the fault) and GoHome refuses to start. It is subscribed to again when the HAL says
+%% it is back.
+resubscribe(Conns, D) ->
+    lists:foldl(
+      fun(Conn, #data{conns = Cs, away = Away, back = Back} = Di) ->
+              case cell_hal:subscribe_connection(Conn) of
+                  {ok, Status} ->
+                      Di#data{conns = Cs#{Conn => Status}};
+                  {error, disconnected} ->
+                      cell_log:warning(Di#data.id, "the HAL is restarting: connection ~ts "
+                                       "is taken as lost until it is back", [Conn]),
+                      Di#data{conns = Cs#{Conn => down}, away = lists:usort([Conn | Away]),
+                              back = case Back of
+                                         undefined -> cell_hal:notify_back();
+                                         _ -> Back
+                                     end};
+                  {error, unknown_connection} ->
+                      Di
+              end
+      end, D, Conns).
 
 connection(Conn, down, State, #data{conns = Conns} = D0) when is_map_key(Conn, Conns) ->
     D = D0#data{conns = Conns#{Conn => down}},

@@ -18,7 +18,7 @@
          drive_error_is_reset/1, drive_error_for_the_operator/1,
          speed_override_applied_while_running/1, beacon_follows_the_cell/1,
          hal_disconnected_when_the_cell_stops/1, monitor_crash_keeps_the_hal/1,
-         hal_refusal_is_an_alarm/1]).
+         hal_refusal_is_an_alarm/1, hal_server_away_as_the_monitor_starts/1]).
 
 -define(IDS, [load, work, unload]).
 -define(WAIT, 10000).
@@ -30,7 +30,7 @@ all() ->
      camera_loss_crash_and_removal, drive_error_is_reset, drive_error_for_the_operator,
      speed_override_applied_while_running, beacon_follows_the_cell,
      hal_disconnected_when_the_cell_stops, monitor_crash_keeps_the_hal,
-     hal_refusal_is_an_alarm].
+     hal_refusal_is_an_alarm, hal_server_away_as_the_monitor_starts].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -443,6 +443,47 @@ monitor_crash_keeps_the_hal(_Config) ->
     %% What it took over, it takes down.
     ok = application:stop(cell),
     ?assertEqual([], cell_hal:connections()).
+
+%% The HAL's server is away (it restarts) as the monitor starts after a crash: the
+%% monitor does not crash again; it takes the PLC for lost (its inputs unknown, so
+%% nothing is decided on them; the operator told once the start's grace is over) and,
+%% woken by the HAL when its server is back, takes over the connection and the groups
+%% and follows the inputs again.
+hal_server_away_as_the_monitor_starts(_Config) ->
+    ok = cell_settings:put(monitor, #{connect_grace_ms => 100}, <<"suite">>),
+    ok = supervisor:terminate_child(cell_hal_sup, cell_hal_server),
+    Old = whereis(cell_monitor),
+    exit(Old, kill),
+    await(restarted, fun() -> lists:member(whereis(cell_monitor), [undefined, Old]) =:= false end),
+    New = whereis(cell_monitor),
+    ?assertMatch(#{inputs := #{estop_ok := unknown, door_locked := unknown, air_ok := unknown},
+                   hal := [{hardware, camera}]}, cell_monitor:info()),
+    await(loss_reported, fun() -> has_alarm(<<"cell:connection.plc1">>) end),
+    ?assertNotEqual(nomatch, binary:match(maps:get(description, element(2, cell_alarms:get(
+                                                                         <<"cell:connection.plc1">>))),
+                                          <<"the HAL is restarting">>)),
+    ?assertEqual(down, device_status(plc1)),
+    %% Its server back: taken over as it was, followed again; the same monitor.
+    {ok, _} = supervisor:restart_child(cell_hal_sup, cell_hal_server),
+    await(back, fun() -> device_status(plc1) =:= up andalso input(estop_ok) =:= true
+                             andalso not has_alarm(<<"cell:connection.plc1">>) end),
+    ?assertEqual(New, whereis(cell_monitor)),
+    ?assertMatch(#{hal := [{hardware, camera}, {connection, plc1}, {group, general},
+                           {group, axes}]}, cell_monitor:info()),
+    ok = cell_hal_sim:set({general, door_locked}, false),
+    await(door_warning, fun() -> has_alarm(<<"cell:door">>) end),
+    ?assertEqual(New, whereis(cell_monitor)),
+    %% The HAL's server killed while the monitor runs (its workers and hardware objects
+    %% restart with it): the monitor follows the PLC and the camera back.
+    {ok, up} = cell_hal:subscribe_connection(plc1),
+    exit(whereis(cell_hal_server), kill),
+    receive {cell_hal_conn, plc1, down} -> ok after ?WAIT -> ct:fail(no_down) end,
+    receive {cell_hal_conn, plc1, up} -> ok after ?WAIT -> ct:fail(no_up) end,
+    ok = cell_hal_sim:set({general, door_locked}, true),
+    await(door_locked_again, fun() -> not has_alarm(<<"cell:door">>)
+                                          andalso device_status(plc1) =:= up
+                                          andalso device_status(camera) =:= up end),
+    ?assertEqual(New, whereis(cell_monitor)).
 
 hal_refusal_is_an_alarm(_Config) ->
     %% plc2's options are refused by its driver: the cell runs, the operator is told.

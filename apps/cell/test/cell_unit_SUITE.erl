@@ -15,7 +15,7 @@
          pause_during_a_move_holds_at_the_next_step/1, service_mode_halts/1,
          an_action_from_fault_returns_there/1, a_crashed_unit_waits_for_the_operator/1,
          units_and_tasks_side_by_side/1, specs_name_what_is_wrong/1,
-         ready_events_outside_ready_are_a_fault/1]).
+         ready_events_outside_ready_are_a_fault/1, hal_server_away_is_lost_io/1]).
 
 -define(WAIT, 10000).
 -define(U, picker).
@@ -35,7 +35,7 @@ all() ->
      pause_during_a_move_holds_at_the_next_step, service_mode_halts,
      an_action_from_fault_returns_there, a_crashed_unit_waits_for_the_operator,
      units_and_tasks_side_by_side, specs_name_what_is_wrong,
-     ready_events_outside_ready_are_a_fault].
+     ready_events_outside_ready_are_a_fault, hal_server_away_is_lost_io].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -196,6 +196,13 @@ await_step(Step) ->
             end
     after ?WAIT ->
         ct:fail({no_step, Step, cell_unit:info(?U)})
+    end.
+
+await_log(Text) ->
+    receive
+        {cell_log, #{source := <<"picker">>, text := Text}} -> ok
+    after ?WAIT ->
+        ct:fail({no_log, Text, cell_unit:info(?U)})
     end.
 
 await_value(Point, V) ->
@@ -482,6 +489,52 @@ a_crashed_unit_waits_for_the_operator(_Config) ->
     ok = cell_alarms:answer(Id, reset, <<"ct">>),
     await_state(automatic).
 
+%% The HAL's server is away (it restarts) as the unit starts again after a crash: the
+%% unit does not crash again; its connection, which it could not subscribe to, is lost
+%% IO for it, so Reset stops it on that fault; woken by the HAL when its server is back,
+%% it follows the connection again, and Reset then takes it back to work.
+hal_server_away_is_lost_io(_Config) ->
+    start_cell(#{}),
+    run(),
+    ok = supervisor:terminate_child(cell_hal_sup, cell_hal_server),
+    Old = cell_unit:whereis(?U),
+    exit(Old, kill),
+    _ = await_event(fun(#{type := T, task := ?U}) -> T =:= task_crashed; (_) -> false end),
+    await_state(init),
+    New = cell_unit:whereis(?U),
+    ?assertNotEqual(Old, New),
+    #{local_id := <<"crashed">>, id := Crashed} = error_of(?U),
+    ok = cell_alarms:answer(Crashed, reset, <<"ct">>),
+    await_state(fault),
+    #{caption := Caption, id := Lost} = error_of(?U),
+    ?assertEqual(<<"the connection plc to the unit's IO was lost">>, Caption),
+    {ok, _} = supervisor:restart_child(cell_hal_sup, cell_hal_server),
+    await_log(<<"the HAL is back: connection plc followed again (up)">>),
+    ok = cell_alarms:answer(Lost, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED),
+    %% Followed indeed: the connection lost now is a fault again.
+    ok = cell_hal_sim:link(plc, down),
+    await_state(fault),
+    #{id := Fault} = error_of(?U),
+    ok = cell_hal_sim:link(plc, up),
+    ok = await_conn(plc, up),
+    ok = cell_alarms:answer(Fault, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED),
+    %% The HAL's server killed while the unit works: its workers restart with it, the
+    %% connection goes down and up; the unit stops on the fault, and Reset takes it
+    %% back to work. The same unit all along.
+    {ok, _} = cell_hal:subscribe_connection(plc),
+    exit(whereis(cell_hal_server), kill),
+    await_state(fault),
+    #{caption := Caption, id := Restarted} = error_of(?U),
+    ok = await_conn(plc, up),
+    ok = cell_alarms:answer(Restarted, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED),
+    ?assertEqual(New, cell_unit:whereis(?U)).
+
 %% A unit and a device task in one cell: the controller starts, pauses and stops both;
 %% the cell state is the higher of theirs; the panel's calls answer for both.
 units_and_tasks_side_by_side(_Config) ->
@@ -534,7 +587,7 @@ specs_name_what_is_wrong(_Config) ->
                  Check(#{user_states => [x, x]})),
     ?assertEqual({error, {bad_link, l, {unit, u}}},
                  cell_spec:validate(#{tasks => [Unit(#{}), #{id => t, module => cell_test_task,
-                                                             zone => <<"Z">>, lane => <<"L">>}],
+                                                             zone => <<"T">>, lane => <<"L">>}],
                                       links => [#{id => l, from => t, to => u}]})).
 
 %% A user state reports the READY sub-state its sequence says; the same report from

@@ -34,8 +34,12 @@
 %% what was subscribed and watched lives in tables that outlive them. A request of the
 %% IO API that finds the process serving it gone, sees it die, or waits for it in vain
 %% gets what a lost connection gives: `{error, disconnected}' (a task raises "IO
-%% connection lost" and goes on after Retry), never an exit. Cancelling a watch and
-%% unsubscribing touch only the caller's own rows, without the server.
+%% connection lost" and goes on after Retry), never an exit; so does a change of the
+%% configuration (adding or removing a connection or a group) while the server is
+%% away. Cancelling a watch and unsubscribing touch only the caller's own rows,
+%% without the server. A process that found the server away asks for
+%% `{cell_hal_back, Ref}' with {@link notify_back/0} and subscribes again when it
+%% comes: the monitor, the units and the inspection blocks do so.
 %%
 %% <b>Time-stamped samples</b> (seed 000 §2.3.7). A driver with device-side
 %% notifications (ADS) stamps each sample with the PLC's time, the time of the PLC
@@ -62,6 +66,7 @@
 -export([read/2, write/3, write_sync/4, watch/3, cancel_watch/1, subscribe/2,
          unsubscribe/2]).
 -export([subscribe_connection/1, unsubscribe_connection/1, status/1, info/1]).
+-export([notify_back/0]).
 -export([request/3, samples/3]).
 
 -export_type([connection_spec/0, group_spec/0, point_info/0, conn_info/0]).
@@ -96,27 +101,29 @@
 %% samples kept of each point fed by device notifications, default 1000; see
 %% {@link samples/3}).
 -spec add_connection(connection_spec()) ->
-          ok | error({bad_option, atom()} | {already_exists, atom()} | {worker, term()}).
+          ok | error({bad_option, atom()} | {already_exists, atom()} | {worker, term()}
+                     | disconnected).
 add_connection(Spec) ->
-    cell_hal_server:call({add_connection, Spec}).
+    server({add_connection, Spec}).
 
 %% @doc Removes a connection once no group is bound to it; its worker closes it.
--spec remove_connection(atom()) -> ok | error(unknown_connection | {in_use, [atom()]}).
+-spec remove_connection(atom()) ->
+          ok | error(unknown_connection | {in_use, [atom()]} | disconnected).
 remove_connection(Id) ->
-    cell_hal_server:call({remove_connection, Id}).
+    server({remove_connection, Id}).
 
 %% @doc Adds a group instance bound to a connection: its module lists the points for
 %% its options, and the connection's driver checks every field first.
 -spec add_group(group_spec()) ->
           ok | error({bad_option, atom()} | {already_exists, atom()}
-                     | {bad_point, term(), term()} | {bad_group, term()}).
+                     | {bad_point, term(), term()} | {bad_group, term()} | disconnected).
 add_group(Spec) ->
-    cell_hal_server:call({add_group, Spec}).
+    server({add_group, Spec}).
 
 %% @doc Removes a group instance; its subscriptions and watches end.
--spec remove_group(atom()) -> ok | error(unknown_group).
+-spec remove_group(atom()) -> ok | error(unknown_group | disconnected).
 remove_group(Id) ->
-    cell_hal_server:call({remove_group, Id}).
+    server({remove_group, Id}).
 
 %% @doc The ids of the configured connections.
 -spec connections() -> [atom()].
@@ -276,6 +283,25 @@ subscribe_connection(Conn) ->
 -spec unsubscribe_connection(atom()) -> ok.
 unsubscribe_connection(Conn) ->
     cell_hal_store:delete_conn_sub(Conn, self()).
+
+%% @doc Sends `{cell_hal_back, Ref}' to the caller once, when the HAL's server takes
+%% requests again: for a process whose subscription (or change of the configuration)
+%% got `{error, disconnected}' because the server was away, so that it asks again on
+%% that message rather than by polling. If the server is there now the message comes
+%% at once; if it is away, from the next server as it starts. The wait is kept in a
+%% table that outlives the server.
+-spec notify_back() -> reference().
+notify_back() ->
+    Ref = make_ref(),
+    ok = cell_hal_store:add_waiter(Ref, self()),
+    %% Recorded first, looked for after: a server that starts from here on finds the
+    %% record; one found here is asked to answer (if it dies first, its successor
+    %% finds the record).
+    _ = case whereis(cell_hal_server) of
+            undefined -> ok;
+            Pid -> Pid ! {waiting, Ref}
+        end,
+    Ref.
 
 %% @doc Whether a connection is up (its inputs are fresh).
 -spec status(atom()) -> up | down | error(unknown_connection).

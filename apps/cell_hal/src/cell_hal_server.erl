@@ -37,6 +37,10 @@ call(Request) ->
 init([]) ->
     Monitors = maps:from_list([{P, erlang:monitor(process, P)}
                                || P <- cell_hal_store:subscribers()]),
+    %% Those who found the server away are told it is back: the requests they send on
+    %% this wait until init/1 has returned. The name is registered before init/1
+    %% runs, so a waiter that did not find it recorded itself before this look.
+    _ = [back(Ref, Pid) || {Ref, Pid} <- cell_hal_store:take_waiters()],
     {ok, #state{monitors = Monitors}}.
 
 %% @private
@@ -86,6 +90,10 @@ handle_cast(Msg, _S) ->
 
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({waiting, Ref}, S) ->
+    %% A waiter that found this server running (the row is gone if init/1 took it).
+    _ = [back(R, Pid) || {R, Pid} <- cell_hal_store:take_waiter(Ref)],
+    {noreply, S};
 handle_info({'DOWN', MRef, process, Pid, _}, #state{monitors = Ms} = S) ->
     case Ms of
         #{Pid := MRef} ->
@@ -94,6 +102,9 @@ handle_info({'DOWN', MRef, process, Pid, _}, #state{monitors = Ms} = S) ->
         #{} ->
             {noreply, S}
     end.
+
+back(Ref, Pid) ->
+    Pid ! {cell_hal_back, Ref}.
 
 monitor_pid(Pid, #state{monitors = Ms} = S) ->
     case Ms of

@@ -29,6 +29,7 @@
 -export([add_samples/3, samples/2, clear_samples/1]).
 -export([add_sub/2, delete_sub/2, add_conn_sub/2, delete_conn_sub/2, conn_subs/1,
          add_watch/4, cancel_watch/1, forget/1, subscribers/0]).
+-export([add_waiter/2, take_waiter/1, take_waiters/0]).
 
 -define(CONNS, cell_hal_conns).
 -define(GROUPS, cell_hal_groups).
@@ -41,6 +42,7 @@
 -define(SIM, cell_hal_sim_devices).
 -define(HW, cell_hal_hw_objects).
 -define(SAMPLES, cell_hal_samples).
+-define(WAITERS, cell_hal_waiters).
 
 -type key() :: {atom(), atom()}.
 
@@ -61,6 +63,8 @@ create_tables() ->
     ?HW = ets:new(?HW, [set | Read]),
     %% {{Key, Seq}, TimeNs, Value}: a point's samples in arrival order, a range of keys
     ?SAMPLES = ets:new(?SAMPLES, [ordered_set | Read]),
+    %% {Ref, Pid}: a process to tell when the server takes requests again
+    ?WAITERS = ets:new(?WAITERS, [set | Read]),
     ok.
 
 %%====================================================================
@@ -409,6 +413,26 @@ subscribers() ->
     lists:usort([P || {_, P} <- ets:tab2list(?SUBS)] ++
                 [P || {_, P} <- ets:tab2list(?CONN_SUBS)] ++
                 [P || {_, _, P} <- ets:tab2list(?CLAIMS)]).
+
+%%====================================================================
+%% Waiting for the server
+%%====================================================================
+
+%% @doc Records a process to tell, under `Ref', when the server takes requests again.
+-spec add_waiter(reference(), pid()) -> ok.
+add_waiter(Ref, Pid) ->
+    true = ets:insert(?WAITERS, {Ref, Pid}),
+    ok.
+
+%% @doc The process waiting under `Ref', taken: each is told once, by whoever takes it.
+-spec take_waiter(reference()) -> [{reference(), pid()}].
+take_waiter(Ref) ->
+    ets:take(?WAITERS, Ref).
+
+%% @doc Every process waiting, taken (by a server that starts).
+-spec take_waiters() -> [{reference(), pid()}].
+take_waiters() ->
+    lists:append([ets:take(?WAITERS, Ref) || {Ref, _} <- ets:tab2list(?WAITERS)]).
 
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").

@@ -21,7 +21,7 @@
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
          io_while_a_worker_restarts/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1,
-         device_killed_comes_back_with_its_memory/1]).
+         device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1]).
 
 -define(WAIT, 5000).
 
@@ -37,7 +37,8 @@ all() ->
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators,
-     backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory].
+     backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory,
+     told_when_the_server_is_back].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -628,6 +629,28 @@ io_while_the_server_restarts(_Config) ->
     7 = await_value(uint16_in, 7),
     receive {cell_hal_watch, Cancelled, _} = M1 -> ct:fail({cancelled_fired, M1}) after 0 -> ok end,
     receive {cell_hal, {io, uint16_in}, _} = M2 -> ct:fail({unsubscribed, M2}) after 0 -> ok end.
+
+%% A process that found the server away asks to be told when it is back: the server
+%% that starts tells it, once; with a server running the message comes at once. A change of the configuration while the
+%% server is away says `disconnected' too, and changes nothing.
+told_when_the_server_is_back(_Config) ->
+    ok = sim(s26),
+    Now = cell_hal:notify_back(),
+    receive {cell_hal_back, Now} -> ok after ?WAIT -> ct:fail(not_told_at_once) end,
+    ok = sys:suspend(cell_hal_sup),
+    kill(whereis(cell_hal_server)),
+    ?assertEqual({error, disconnected},
+                 cell_hal:add_group(#{id => io2, module => cell_hal_test_io, connection => s26})),
+    ?assertEqual({error, disconnected}, cell_hal:remove_group(io)),
+    Later = cell_hal:notify_back(),
+    %% Nobody can tell it yet: the server is gone and its supervisor held.
+    receive {cell_hal_back, Later} -> ct:fail(told_while_away) after 0 -> ok end,
+    ok = sys:resume(cell_hal_sup),
+    receive {cell_hal_back, Later} -> ok after ?WAIT -> ct:fail(not_told) end,
+    ok = await_restart(s26),
+    receive {cell_hal_back, _} = Again -> ct:fail({told_twice, Again}) after 0 -> ok end,
+    ?assertEqual([io], cell_hal:groups()),
+    ?assertEqual(ok, cell_hal:subscribe(io, int16_in)).
 
 %% A worker killed, its supervisor held so that it has not come back: its connection
 %% still reads as up, and a write finds no worker: `disconnected', as a lost

@@ -291,14 +291,23 @@ closed_socket_goes_the_slow_way(E) ->
 %% nothing behind. The reason is the monitor's: the client's exit reason if the client
 %% took the monitor before it began to exit, `noproc' if after. Which comes first is
 %% not ordered: the monitor is the reader's signal to the client, the exit the test's,
-%% and signals from two senders keep no order (the PLC having the frame orders nothing
-%% between them), just as with a call to a process that exits at that moment.
+%% and the runtime orders signals only between one sender and one receiver, not along
+%% a chain of causes (the PLC having the frame orders nothing between them): a loop of
+%% this case alone saw `noproc' in 1 run in 300 to 63 in 300, with the reader's monitor
+%% taken before its frame went out. A call to a process that exits at that moment has
+%% the same two outcomes. What is ordered is the test's own signals: when the client
+%% shows the reader's monitor to the test before the test's exit, the reason is the
+%% client's.
 connection_exits(E) ->
     R = reader(E, [?X], ?WAIT),
     {2, _, _} = request(E),
+    {monitored_by, By} = process_info(E#env.conn, monitored_by),
     exit(E#env.conn, stopped),
     {{down, Reason}, []} = read_result(R),
-    ?assert(lists:member(Reason, [stopped, noproc])).
+    case lists:member(R, By) of
+        true -> ?assertEqual(stopped, Reason);
+        false -> ?assert(lists:member(Reason, [stopped, noproc]))
+    end.
 
 %% What the tables cannot answer at once goes the slow way, untouched: a variable not
 %% published, a bad argument, a group beyond one sum command, no time, a client that

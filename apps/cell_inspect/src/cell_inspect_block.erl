@@ -23,7 +23,11 @@
 %% PLC whole again, then the alarm is cleared.
 %%
 %% The block never polls: it subscribes to its input points and its connection in the
-%% HAL, whose worker polls the PLC (or receives its notifications). The Heartbeat
+%% HAL, whose worker polls the PLC (or receives its notifications). Subscriptions the
+%% HAL's server cannot take while it is away (restarting) leave the block `offline', as
+%% a lost link does, until the HAL's `{cell_hal_back, Ref}' ({@link
+%% cell_hal:notify_back/0}); a group the HAL already holds for the block is taken as it
+%% is, without the server. The Heartbeat
 %% toggles every `heartbeat_ms' in every state. A block that stops (or crashes) writes
 %% nothing more: the PLC sees the Heartbeat stop; the block that starts again takes
 %% over from what the PLC holds (see {@link cell_inspect_status}).
@@ -68,7 +72,10 @@
                %% or of another type), with why: the operator sees them in an alarm
                faults = #{} :: #{cell_inspect_tags:tag() => binary()},
                last_view :: map() | undefined,
-               retry = ?RETRY_MS :: pos_integer()}).
+               retry = ?RETRY_MS :: pos_integer(),
+               %% the HAL's server was away (it restarts): what it could not take is
+               %% asked again when it says it is back
+               back :: reference() | undefined}).
 
 -type job() :: {process, ref()} | {override, ref()} | {load, binary(), {module(), binary()}}.
 
@@ -200,6 +207,8 @@ starting(state_timeout, start, D) ->
     start(D);
 starting(state_timeout, go, D) ->
     go(D);
+starting(info, {cell_hal_back, Ref}, #data{back = Ref} = D) ->
+    start(D#data{back = undefined});
 starting(cast, {client_state, Id, _, _} = Msg, #data{waiting = W} = D) ->
     {keep_state, D1} = common(cast, Msg, starting, D),
     case W -- [Id] of
@@ -225,6 +234,10 @@ start(#data{id = Id, source = Src} = D) ->
                                      [Why]),
                     retry(D)
             end;
+        {error, disconnected} ->
+            cell_log:warning(Src, "the HAL is restarting: the block is added to connection "
+                             "~s when it is back", [D#data.conn]),
+            {keep_state, D#data{back = cell_hal:notify_back()}};
         {error, Why} ->
             cell_log:error(Src, "cannot add the block to connection ~s: ~0tp; trying again",
                            [D#data.conn, Why]),
@@ -234,30 +247,79 @@ start(#data{id = Id, source = Src} = D) ->
 retry(#data{retry = R} = D) ->
     {keep_state, D#data{retry = min(2 * R, 30000)}, [{state_timeout, R, start}]}.
 
+%% A group the HAL holds already (left by the block's previous run: the HAL keeps its
+%% configuration across its own restarts) is taken as it is, without the HAL's server.
 ensure_group(#data{id = Id, conn = Conn, io = Io}) ->
-    case cell_hal:add_group(#{id => Id, module => cell_inspect_io, connection => Conn,
-                              opts => Io}) of
-        ok -> ok;
-        {error, {already_exists, Id}} ->
-            case cell_hal:connection_of(Id) of
-                {ok, Conn} -> ok;
-                Other -> {error, {group_taken, Id, Other}}
-            end;
-        {error, _} = E -> E
+    case cell_hal:connection_of(Id) of
+        {ok, Conn} ->
+            ok;
+        {ok, _} = Other ->
+            {error, {group_taken, Id, Other}};
+        {error, unknown_group} ->
+            case cell_hal:add_group(#{id => Id, module => cell_inspect_io, connection => Conn,
+                                      opts => Io}) of
+                ok -> ok;
+                {error, {already_exists, Id}} ->
+                    case cell_hal:connection_of(Id) of
+                        {ok, Conn} -> ok;
+                        Other -> {error, {group_taken, Id, Other}}
+                    end;
+                {error, _} = E -> E
+            end
     end.
 
 %% Subscribes to the PLC's connection and inputs, then reads the PLC if it is up.
 %% InspectionStatus is watched too: the HAL reads a new group's outputs back once, and
 %% its change says that read is done.
-go(#data{id = Id, conn = Conn, io = Io, source = Src} = D) ->
-    _ = [ok = cell_hal:subscribe(Id, P) || P <- [inspection_status
-                                                 | cell_inspect_io:input_points(Io)]],
-    {ok, Status} = cell_hal:subscribe_connection(Conn),
-    cell_log:info(Src, "started on connection ~s (~s)", [Conn, Status]),
+go(#data{conn = Conn, source = Src} = D) ->
     Heartbeat = {{timeout, heartbeat}, maps:get(heartbeat_ms, D#data.settings), tick},
-    case Status of
-        up -> {next_state, online, plc_up(D), [Heartbeat]};
-        down -> {next_state, offline, D, [Heartbeat]}
+    case subscribe(D) of
+        {ok, Status} ->
+            cell_log:info(Src, "started on connection ~s (~s)", [Conn, Status]),
+            case Status of
+                up -> {next_state, online, plc_up(D), [Heartbeat]};
+                down -> {next_state, offline, D, [Heartbeat]}
+            end;
+        disconnected ->
+            {next_state, offline, hal_away(D), [Heartbeat]}
+    end.
+
+%% The HAL's server is away (it restarts) as the block subscribes: the PLC is taken as
+%% lost (offline: nothing written, commands wait) until the HAL says it is back.
+hal_away(#data{conn = Conn, source = Src} = D) ->
+    cell_log:warning(Src, "the HAL is restarting: the PLC on connection ~s is taken as lost "
+                     "until it is back", [Conn]),
+    D#data{back = cell_hal:notify_back()}.
+
+%% The HAL's server is back: subscribed again, and online if the PLC's connection is up.
+back(State, #data{conn = Conn, source = Src} = D0) ->
+    D = D0#data{back = undefined},
+    Subscribed = subscribe(D),
+    _ = [cell_log:info(Src, "the HAL is back: the PLC on connection ~s is followed again (~s)",
+                       [Conn, Status]) || {ok, Status} <- [Subscribed]],
+    case {Subscribed, State} of
+        {{ok, up}, online} -> {keep_state, plc_up(D)};
+        {{ok, up}, offline} -> {next_state, online, plc_up(D)};
+        {{ok, down}, online} -> {next_state, offline, feed(plc_down, offline, D#data{synced = false})};
+        {{ok, down}, offline} -> {keep_state, D};
+        {disconnected, _} -> {keep_state, hal_away(D)}
+    end.
+
+%% Subscribes to the block's inputs and connection (again: the HAL keeps one
+%% subscription of a process to a point): the connection's status, or `disconnected'
+%% when the HAL's server is away.
+subscribe(#data{id = Id, conn = Conn, io = Io}) ->
+    subscribe(Id, Conn, [inspection_status | cell_inspect_io:input_points(Io)]).
+
+subscribe(Id, Conn, [P | Points]) ->
+    case cell_hal:subscribe(Id, P) of
+        ok -> subscribe(Id, Conn, Points);
+        {error, disconnected} -> disconnected
+    end;
+subscribe(_Id, Conn, []) ->
+    case cell_hal:subscribe_connection(Conn) of
+        {ok, Status} -> {ok, Status};
+        {error, disconnected} -> disconnected
     end.
 
 %%--------------------------------------------------------------------
@@ -302,6 +364,8 @@ offline(Type, Event, D) ->
 %% Every state
 %%--------------------------------------------------------------------
 
+common(info, {cell_hal_back, Ref}, State, #data{back = Ref} = D) ->
+    back(State, D);
 common({timeout, heartbeat}, tick, State, D) ->
     {keep_state, feed(heartbeat, State, D),
      [{{timeout, heartbeat}, maps:get(heartbeat_ms, D#data.settings), tick}]};

@@ -22,7 +22,8 @@
          message_clients_disconnect/1, message_replaced/1, restart_while_requesting/1,
          restart_while_waiting_for_an_answer/1, link_lost_and_back/1,
          command_raised_while_link_down/1, settings_change_applies_at_once/1,
-         two_blocks_two_plcs/1, traceability_by_serial/1]).
+         two_blocks_two_plcs/1, traceability_by_serial/1,
+         hal_server_away_as_the_block_starts/1]).
 
 all() ->
     [heartbeat_toggles, echoes, udt_bytes, trigger_pass, trigger_fail_with_string,
@@ -36,7 +37,7 @@ all() ->
      message_clients_disconnect, message_replaced, restart_while_requesting,
      restart_while_waiting_for_an_answer, link_lost_and_back,
      command_raised_while_link_down, settings_change_applies_at_once,
-     two_blocks_two_plcs, traceability_by_serial].
+     two_blocks_two_plcs, traceability_by_serial, hal_server_away_as_the_block_starts].
 
 groups() -> [].
 
@@ -505,6 +506,41 @@ restart_while_waiting_for_an_answer(Config) ->
     _ = ?T:message_seen(?CAM),
     exit(cell_inspect_block:whereis(line1), kill),
     ok = ?P:await(Plc, message_status, 4).
+
+%% The HAL's server is away (it restarts) as the block starts again after a crash
+%% while Requesting: the block does not crash again; it takes its PLC as lost (offline:
+%% nothing written, the heartbeat still) and, woken by the HAL when its server is back,
+%% follows the PLC again and answers it as after any restart: Error with InternalError
+%% instead of waiting for ever, the heartbeat going again.
+hal_server_away_as_the_block_starts(Config) ->
+    Plc = plc(Config),
+    subscribe_cam(?CAM),
+    _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-H">>),
+    _ = ?T:request_seen(?CAM),
+    ok = supervisor:terminate_child(cell_hal_sup, cell_hal_server),
+    Old = cell_inspect_block:whereis(line1),
+    exit(Old, kill),
+    ok = await_view(line1, fun(#{state := S}) -> S =:= offline end),
+    New = cell_inspect_block:whereis(line1),
+    ?assertNotEqual(Old, New),
+    ?assertEqual(3, ?P:tag(Plc, inspection_status)),
+    {ok, _} = supervisor:restart_child(cell_hal_sup, cell_hal_server),
+    ok = ?P:await(Plc, inspection_status, 5),
+    ?assertEqual(4, ?P:tag(Plc, error_code)),
+    HB = ?P:tag(Plc, heartbeat),
+    ok = ?P:await(Plc, heartbeat, not HB),
+    ok = command_and_status(Plc, clear_results, 1),
+    ?assertEqual(New, cell_inspect_block:whereis(line1)),
+    %% The HAL's server killed while the block runs: its worker restarts with it, the
+    %% PLC is lost and back; the block goes offline and online and works on.
+    exit(whereis(cell_hal_server), kill),
+    ok = next_view(line1, fun(#{state := S}) -> S =:= offline end),
+    ok = next_view(line1, fun(#{state := S}) -> S =:= online end),
+    HB2 = ?P:tag(Plc, heartbeat),
+    ok = ?P:await(Plc, heartbeat, not HB2),
+    ?assertMatch(#{inspection_status := 3}, ?P:trigger(Plc, <<"STATION1">>, <<"SN-H2">>)),
+    _ = ?T:request_seen(?CAM),
+    ?assertEqual(New, cell_inspect_block:whereis(line1)).
 
 %% The PLC stops answering while the camera sends its image: the block goes on and
 %% writes Complete when the PLC is back.

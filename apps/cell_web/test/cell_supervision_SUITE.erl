@@ -27,7 +27,8 @@ init_per_suite(Config) ->
                                        cell_base]],
     _ = [application:load(A) || A <- [cell_base, cell, cell_web, cell_shdr, cell_inspect]],
     ok = application:set_env(cell_base, root, Root),
-    Specs = [cell_web_demo_task:spec(Id, <<"Z">>, <<"Front">>, self()) || Id <- [t1, t2]],
+    Specs = [cell_web_demo_task:spec(Id, <<"Z">>, Lane, self())
+             || {Id, Lane} <- [{t1, <<"Front">>}, {t2, <<"Rear">>}]],
     ok = application:set_env(cell, cell_spec, #{name => <<"suite">>, tasks => Specs}),
     ok = application:set_env(cell_web, port, 0),
     ok = application:set_env(cell_shdr, port, 0),
