@@ -432,6 +432,7 @@ io_error(disconnected) -> "cannot be reached: its connection is down";
 io_error(unknown_point) -> "is not configured";
 io_error(not_an_output) -> "is an input and cannot be written";
 io_error(not_yet_read) -> "has not been read yet";
+io_error({unavailable, Why}) when is_binary(Why) -> ["cannot be read: ", Why];
 io_error({bad_value, V}) -> io_lib:format("cannot take the value ~tp", [V]);
 io_error({bad_condition, C}) -> io_lib:format("cannot reach the condition ~tp", [C]);
 io_error(Why) -> io_lib:format("failed: ~tp", [Why]).

@@ -82,7 +82,8 @@
     ready = active :: cell_unit_fsm:ready(), %% what the sequence reported (Automatic, user)
     step :: undefined | {pos_integer(), module(), term()},
     watches = #{} :: #{term() => reference()},
-    refs = #{} :: #{reference() => term()},
+    %% A watch's reference: its sequence key and the point it watches.
+    refs = #{} :: #{reference() => {term(), {atom(), atom()}}},
     timers = #{} :: #{term() => reference()},
     gen = 0 :: non_neg_integer(),            %% cycle messages of older rounds are ignored
     cycle = false :: boolean(),              %% a cycle message is on its way
@@ -178,8 +179,18 @@ handle_event(info, {timeout, TRef, ?TIMER(Key)}, State, #data{timers = Timers} =
     end;
 handle_event(info, {cell_hal_watch, Ref, Value}, State, #data{refs = Refs, watches = W} = D) ->
     case maps:take(Ref, Refs) of
-        {Key, Refs1} ->
+        {{Key, _Point}, Refs1} ->
             run(State, fun(S) -> cell_sequence_runner:event(S, {watch, Key, Value}, now_ms()) end,
+                D#data{refs = Refs1, watches = maps:remove(Key, W)});
+        error ->
+            keep_state_and_data
+    end;
+handle_event(info, {cell_hal_unavailable, Ref, Why}, State, #data{refs = Refs, watches = W} = D) ->
+    %% The point a step waits for cannot be read (the PLC refuses its address): the
+    %% sequence is aborted as for a watch the HAL could not place, never left waiting.
+    case maps:take(Ref, Refs) of
+        {{Key, Point}, Refs1} ->
+            run(State, fun(S) -> cell_sequence_runner:fail(S, {io, Point, {unavailable, Why}}) end,
                 D#data{refs = Refs1, watches = maps:remove(Key, W)});
         error ->
             keep_state_and_data
@@ -732,7 +743,7 @@ exec1({watch, Key, {G, P}, Cond}, _State, D0) ->
     D = cancel_watch(Key, D0),
     case cell_hal:watch(G, P, Cond) of
         {ok, Ref} ->
-            {ok, D#data{watches = (D#data.watches)#{Key => Ref}, refs = (D#data.refs)#{Ref => Key}}};
+            {ok, D#data{watches = (D#data.watches)#{Key => Ref}, refs = (D#data.refs)#{Ref => {Key, {G, P}}}}};
         {error, Why} ->
             {error, {io, {G, P}, Why}, D}
     end;

@@ -15,7 +15,8 @@
          pause_during_a_move_holds_at_the_next_step/1, service_mode_halts/1,
          an_action_from_fault_returns_there/1, a_crashed_unit_waits_for_the_operator/1,
          units_and_tasks_side_by_side/1, specs_name_what_is_wrong/1,
-         ready_events_outside_ready_are_a_fault/1, hal_server_away_is_lost_io/1]).
+         ready_events_outside_ready_are_a_fault/1, hal_server_away_is_lost_io/1,
+         a_watched_point_unavailable_is_a_fault/1]).
 
 -define(WAIT, 10000).
 -define(U, picker).
@@ -35,7 +36,8 @@ all() ->
      pause_during_a_move_holds_at_the_next_step, service_mode_halts,
      an_action_from_fault_returns_there, a_crashed_unit_waits_for_the_operator,
      units_and_tasks_side_by_side, specs_name_what_is_wrong,
-     ready_events_outside_ready_are_a_fault, hal_server_away_is_lost_io].
+     ready_events_outside_ready_are_a_fault, hal_server_away_is_lost_io,
+     a_watched_point_unavailable_is_a_fault].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -383,6 +385,22 @@ lost_io_is_a_fault(_Config) ->
     ?assertEqual(<<"the connection plc to the unit's IO was lost">>, Caption),
     ok = cell_hal_sim:link(plc, up),
     ok = await_conn(plc, up),
+    ok = cell_alarms:answer(Id, reset, <<"ct">>),
+    await_state(automatic),
+    await_ipc(?STARVED).
+
+%% The input the picker waits for becomes unreadable (a Modbus PLC refusing its
+%% address): the wait ends in a fault naming the point and why, never waits for ever;
+%% once the point reads again, Reset takes the picker back to work.
+a_watched_point_unavailable_is_a_fault(_Config) ->
+    start_cell(#{}),
+    run(),
+    Why = <<"the PLC refuses this address (illegal data address, Modbus exception 2)">>,
+    true = cell_hal_store:set_fault({?G, part_is_at_end}, Why),
+    await_state(fault),
+    #{caption := Caption, id := Id} = error_of(?U),
+    ?assertEqual(<<"IO point picker_io.part_is_at_end cannot be read: ", Why/binary>>, Caption),
+    true = cell_hal_store:set_fault({?G, part_is_at_end}, undefined),
     ok = cell_alarms:answer(Id, reset, <<"ct">>),
     await_state(automatic),
     await_ipc(?STARVED).
