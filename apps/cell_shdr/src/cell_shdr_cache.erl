@@ -30,7 +30,7 @@
 -module(cell_shdr_cache).
 -behaviour(gen_server).
 
--export([start_link/0, register_client/1, settings/0, items/0, points/0,
+-export([start_link/0, register_client/1, alive/0, settings/0, items/0, points/0,
          time_series/4, refresh_assets/0, clients/0, sync/0, log_tables/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
@@ -48,12 +48,17 @@
 -type registration() :: #{preamble := iodata(), seq := non_neg_integer(),
                           offset := non_neg_integer(), head := atomics:atomics_ref(),
                           log := ets:tid() | atom(), limit := pos_integer(),
-                          ping_period := pos_integer()}.
+                          ping_period := pos_integer(), life_timeout := pos_integer()}.
 
 -record(task, {serial :: binary() | undefined,
                program = unavailable :: binary() | unavailable,
                started :: integer() | undefined,     %% monotonic µs of work start
                count = 0 :: non_neg_integer()}).
+
+%% A client: its monitor, its wake flag, whether it has shown life (a PING), and its
+%% place in the order of connects.
+-record(client, {ref :: reference(), flag :: atomics:atomics_ref(), alive = false :: boolean(),
+                 since :: pos_integer()}).
 
 -record(state, {head :: atomics:atomics_ref(),
                 seq = 0 :: non_neg_integer(),
@@ -61,7 +66,7 @@
                 oldest = 1 :: pos_integer(),
                 conds = #{} :: #{binary() => #{binary() => cell_shdr_codec:condition()}},
                 assets = #{} :: #{binary() => binary()},
-                clients = #{} :: #{pid() => {reference(), atomics:atomics_ref()}},
+                clients = #{} :: #{pid() => #client{}},
                 settings = #{} :: map(),
                 prefixes = #{} :: #{atom() => binary()},
                 tasks = #{} :: #{atom() => #task{}},
@@ -84,9 +89,19 @@ start_link() ->
 %% @doc Registers the calling client: it is monitored, woken through `Flag' (an
 %% atomics array of one, set to 1 by the client when it waits), and receives the
 %% snapshot to send first and the log position it stands for.
--spec register_client(atomics:atomics_ref()) -> registration().
+%%
+%% At most `max_clients' are registered. When every place is taken, the oldest client
+%% that has not shown life ({@link alive/0}) is sent `{cell_shdr, evicted}' and loses
+%% its place to the caller; when every one has, the caller is refused.
+-spec register_client(atomics:atomics_ref()) ->
+          {ok, registration()} | {error, {full, pos_integer()}}.
 register_client(Flag) ->
     gen_server:call(?MODULE, {register, self(), Flag}, 30000).
+
+%% @doc The calling client has shown life (its first PING): it keeps its place.
+-spec alive() -> ok.
+alive() ->
+    gen_server:cast(?MODULE, {alive, self()}).
 
 %% @doc The adapter's settings in force.
 -spec settings() -> map().
@@ -147,13 +162,21 @@ handle_continue(attach, State) ->
     {noreply, attach(State)}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
-handle_call({register, Pid, Flag}, _From, #state{clients = Clients} = State) ->
-    Ref = monitor(process, Pid),
-    Reg = #{preamble => snapshot(State), seq => State#state.seq,
-            offset => State#state.offset, head => State#state.head, log => ?LOG,
-            limit => setting(max_client_buffer, State),
-            ping_period => setting(ping_period, State)},
-    {reply, Reg, State#state{clients = Clients#{Pid => {Ref, Flag}}}};
+handle_call({register, Pid, Flag}, _From, State0) ->
+    case make_room(State0) of
+        {ok, #state{clients = Clients} = State} ->
+            Ref = monitor(process, Pid),
+            Reg = #{preamble => snapshot(State), seq => State#state.seq,
+                    offset => State#state.offset, head => State#state.head, log => ?LOG,
+                    limit => setting(max_client_buffer, State),
+                    ping_period => setting(ping_period, State),
+                    life_timeout => setting(life_timeout, State)},
+            Client = #client{ref = Ref, flag = Flag, since = erlang:unique_integer([positive,
+                                                                                    monotonic])},
+            {reply, {ok, Reg}, State#state{clients = Clients#{Pid => Client}}};
+        full ->
+            {reply, {error, {full, setting(max_clients, State0)}}, State0}
+    end;
 handle_call(settings, _From, State) ->
     {reply, State#state.settings, State};
 handle_call(items, _From, State) ->
@@ -170,6 +193,11 @@ handle_call(log_tables, _From, State) ->
     {reply, {?LOG, State#state.head}, State}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({alive, Pid}, #state{clients = Clients} = State) ->
+    case Clients of
+        #{Pid := C} -> {noreply, State#state{clients = Clients#{Pid => C#client{alive = true}}}};
+        _ -> {noreply, State}   %% gone, or given its place meanwhile
+    end;
 handle_cast({time_series, Key, {Ms, Mono}, Rate, Values}, State) ->
     Line = cell_shdr_codec:time_series_line(stamp(Ms, Mono, State), Key, length(Values),
                                             Rate, Values),
@@ -200,6 +228,25 @@ handle_info({timeout, TRef, attach}, #state{retry = TRef} = State) ->
 -spec terminate(term(), #state{}) -> ok.
 terminate(_Reason, _State) ->
     ok.
+
+%% A place for one more client: a free one, or the place of the oldest client that has
+%% not shown life, which is told to go.
+make_room(#state{clients = Clients} = State) ->
+    case map_size(Clients) < setting(max_clients, State) of
+        true ->
+            {ok, State};
+        false ->
+            case lists:sort([{Since, Pid} || {Pid, #client{alive = false, since = Since}}
+                                                 <- maps:to_list(Clients)]) of
+                [{_, Pid} | _] ->
+                    #client{ref = Ref} = maps:get(Pid, Clients),
+                    demonitor(Ref, [flush]),
+                    Pid ! {cell_shdr, evicted},
+                    {ok, State#state{clients = maps:remove(Pid, Clients)}};
+                [] ->
+                    full
+            end
+    end.
 
 reason(normal) -> "normal stop";
 reason(shutdown) -> "shut down";
@@ -295,10 +342,6 @@ settings_changed(#state{settings = Old} = State) ->
     case maps:with([port, bind], New) =:= maps:with([port, bind], Old) of
         true -> ok;
         false -> ok = cell_shdr_listener:restart()
-    end,
-    case maps:get(max_clients, New) =:= maps:get(max_clients, Old) of
-        true -> ok;
-        false -> ok = cell_shdr_listener:max_clients(maps:get(max_clients, New))
     end,
     case maps:with([points], New) =:= maps:with([points], Old) of
         true -> ok;
@@ -695,7 +738,7 @@ emit(Lines, #state{seq = Seq0, offset = Off0} = State) ->
 
 %% Wakes the clients that said they wait; a busy client finds the entry itself.
 wake(Clients) ->
-    maps:foreach(fun(Pid, {_, Flag}) ->
+    maps:foreach(fun(Pid, #client{flag = Flag}) ->
                          case atomics:compare_exchange(Flag, 1, 1, 0) of
                              ok -> Pid ! {cell_shdr, wake};
                              _ -> ok

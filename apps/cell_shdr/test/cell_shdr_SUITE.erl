@@ -22,7 +22,9 @@
          flood_of_clients/1, garbage_input/1, adapter_crash_spares_the_cell/1,
          cell_services_restart/1, identity_changes_announced/1,
          devices_xml_matches_stream/1, stream_reads_as_agent/1,
-         taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1]).
+         taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1,
+         client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
+         closed_socket_in_words/1]).
 
 -define(TASKS, [load, robot]).
 -define(WAIT, 20000).
@@ -35,7 +37,8 @@ all() ->
      silent_agent_disconnected, slow_client_dropped, flood_of_clients, garbage_input,
      adapter_crash_spares_the_cell, cell_services_restart, identity_changes_announced,
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
-     a_unit_is_a_path_like_a_task].
+     a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
+     idle_client_closed, closed_socket_in_words].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -623,12 +626,90 @@ stream_reads_as_agent(Config) ->
      || {K, [V]} <- Snap ++ Changes, maps:get(K, Declared, none) =:= sample],
     ok = gen_tcp:close(S).
 
+%% The limit is exact however many acceptors ranch runs: a client beyond it is refused
+%% at once (the connection closed, nothing sent, a log line), never left waiting in the
+%% kernel's queue; a place freed is taken by the next client.
+client_limit_exact(_Config) ->
+    ok = cell_log:subscribe(),
+    ok = put_settings(#{max_clients => 3}),
+    In = [connect() || _ <- lists:seq(1, 3)],
+    [_ = snapshot(S) || S <- In],
+    Refs = [monitor(process, P) || P <- cell_shdr:clients()],
+    ?assertEqual(3, length(Refs)),
+    [begin
+         Out = connect(),
+         ?assertEqual({error, closed}, gen_tcp:recv(Out, 0, left(deadline(5000)))),
+         ok = gen_tcp:close(Out)
+     end || _ <- lists:seq(1, 3)],
+    ?assert(await_log(<<"refused: 3 clients are connected">>, deadline())),
+    ?assertEqual(3, length(cell_shdr:clients())),
+    [First | Rest] = In,
+    ok = gen_tcp:close(First),
+    ?assertEqual(1, length(await_down(Refs, 1, deadline()))),
+    ok = cell_shdr_cache:sync(),
+    Next = connect(),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(Next)),
+    [ok = gen_tcp:close(S) || S <- [Next | Rest]].
+
+%% Connections that never PING and never read cannot hold the adapter: a client
+%% arriving when they fill every place takes the place of the oldest of them, and gets
+%% its snapshot at once.
+idle_flood_cannot_lock_out(_Config) ->
+    Max = maps:get(max_clients, cell_shdr_cache:settings()),
+    Idle = [connect([{recbuf, 1024}]) || _ <- lists:seq(1, 200)],
+    T0 = erlang:monotonic_time(millisecond),
+    Agent = connect(),
+    ok = gen_tcp:send(Agent, <<"* PING\n">>),
+    {Snap, _} = read_until(Agent, fun(L) -> binary:match(L, <<"* PONG">>) =:= {0, 6} end,
+                           deadline(5000)),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], Snap),
+    ?assert(erlang:monotonic_time(millisecond) - T0 < 5000),
+    ?assert(length(cell_shdr:clients()) =< Max),
+    %% Its place is kept while the idle ones keep coming.
+    More = [connect([{recbuf, 1024}]) || _ <- lists:seq(1, 100)],
+    ok = cell_shdr_cache:sync(),
+    ?assertEqual([], snapshot(Agent)),
+    ?assert(length(cell_shdr:clients()) =< Max),
+    [ok = gen_tcp:close(S) || S <- [Agent | Idle ++ More]].
+
+%% A client that shows no life (no PING) within `life_timeout' of its connect is
+%% closed; one that PINGs in time stays.
+idle_client_closed(_Config) ->
+    ok = cell_log:subscribe(),
+    ok = put_settings(#{life_timeout => 1000}),
+    T0 = erlang:monotonic_time(millisecond),
+    Idle = connect(),
+    Alive = connect(),
+    ok = gen_tcp:send(Alive, <<"* PING\n">>),
+    ?assertEqual({error, closed}, drain(Idle, deadline(10000))),
+    ?assert(erlang:monotonic_time(millisecond) - T0 >= 1000),
+    ?assert(await_log(<<"sent no PING within 1000 ms of its connect">>, deadline())),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(Alive)),
+    ?assertEqual([], snapshot(Alive)),
+    ?assertEqual(1, length(cell_shdr:clients())),
+    ok = gen_tcp:close(Alive).
+
+%% A client that closes its connection is logged in words.
+closed_socket_in_words(_Config) ->
+    ok = cell_log:subscribe(),
+    S = connect(),
+    _ = snapshot(S),
+    [Client] = cell_shdr:clients(),
+    Ref = monitor(process, Client),
+    ok = gen_tcp:close(S),
+    ok = cell_controller:service_mode(true),
+    ?assertEqual([Ref], await_down([Ref], 1, deadline())),
+    ?assert(await_log(<<"the agent closed the connection">>, deadline())).
+
 %% -------------------------------------------------------------------------------------
 %% Helpers
 %% -------------------------------------------------------------------------------------
 
 deadline() ->
-    erlang:monotonic_time(millisecond) + ?WAIT.
+    deadline(?WAIT).
+
+deadline(Ms) ->
+    erlang:monotonic_time(millisecond) + Ms.
 
 left(Deadline) ->
     max(0, Deadline - erlang:monotonic_time(millisecond)).
