@@ -30,7 +30,9 @@
 -module(cell_shdr_cache).
 -behaviour(gen_server).
 
--export([start_link/0, register_client/1, alive/0, settings/0, items/0, points/0,
+-include_lib("kernel/include/file.hrl").
+
+-export([start_link/0, register_client/1, alive/0, close_clients/0, settings/0, items/0, points/0,
          time_series/4, refresh_assets/0, clients/0, sync/0, log_tables/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
@@ -43,6 +45,7 @@
 -define(BACKOFF_MIN, 10).
 -define(BACKOFF_MAX, 1000).
 -define(ITEMS_A_LINE, 24).
+-define(REMOVED_KEPT, 256).
 -define(WATCHED, [cell_registry, cell_events, cell_alarms, cell_settings]).
 
 -type registration() :: #{preamble := iodata(), seq := non_neg_integer(),
@@ -65,7 +68,8 @@
                 offset = 0 :: non_neg_integer(),
                 oldest = 1 :: pos_integer(),
                 conds = #{} :: #{binary() => #{binary() => cell_shdr_codec:condition()}},
-                assets = #{} :: #{binary() => binary()},
+                assets = #{} :: #{binary() => {binary(), integer()}},  %% document, time
+                removed = #{} :: #{binary() => integer()},             %% removal time
                 clients = #{} :: #{pid() => #client{}},
                 settings = #{} :: map(),
                 prefixes = #{} :: #{atom() => binary()},
@@ -76,7 +80,8 @@
                 watched = #{} :: #{reference() => atom()},
                 attached = false :: boolean(),
                 backoff = ?BACKOFF_MIN :: pos_integer(),
-                retry :: reference() | undefined}).
+                retry :: reference() | undefined,
+                closing = false :: boolean()}).
 
 %%====================================================================
 %% API
@@ -94,9 +99,16 @@ start_link() ->
 %% that has not shown life ({@link alive/0}) is sent `{cell_shdr, evicted}' and loses
 %% its place to the caller; when every one has, the caller is refused.
 -spec register_client(atomics:atomics_ref()) ->
-          {ok, registration()} | {error, {full, pos_integer()}}.
+          {ok, registration()} | {error, {full, pos_integer()} | closing}.
 register_client(Flag) ->
     gen_server:call(?MODULE, {register, self(), Flag}, 30000).
+
+%% @doc The adapter stops: `avail' goes UNAVAILABLE, the cell is no longer watched, new
+%% clients are refused, and each client is told to send what is left of the log and
+%% close. Returns the clients told.
+-spec close_clients() -> [pid()].
+close_clients() ->
+    gen_server:call(?MODULE, close_clients).
 
 %% @doc The calling client has shown life (its first PING): it keeps its place.
 -spec alive() -> ok.
@@ -162,6 +174,8 @@ handle_continue(attach, State) ->
     {noreply, attach(State)}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
+handle_call({register, _, _}, _From, #state{closing = true} = State) ->
+    {reply, {error, closing}, State};
 handle_call({register, Pid, Flag}, _From, State0) ->
     case make_room(State0) of
         {ok, #state{clients = Clients} = State} ->
@@ -189,6 +203,13 @@ handle_call(clients, _From, State) ->
     {reply, maps:keys(State#state.clients), State};
 handle_call(sync, _From, State) ->
     {reply, ok, State};
+handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
+    _ = Retry =/= undefined andalso erlang:cancel_timer(Retry),
+    State1 = detach_quietly(State0#state{retry = undefined, closing = true}),
+    State = set([{<<"avail">>, unavailable}], now_stamp(), State1),
+    Pids = maps:keys(State#state.clients),
+    _ = [Pid ! {cell_shdr, closing} || Pid <- Pids],
+    {reply, Pids, State};
 handle_call(log_tables, _From, State) ->
     {reply, {?LOG, State#state.head}, State}.
 
@@ -223,7 +244,9 @@ handle_info({'DOWN', Ref, process, _, Reason}, #state{watched = W} = State)
                      "UNAVAILABLE until it is back", [Name, reason(Reason)]),
     {noreply, detach(State)};
 handle_info({timeout, TRef, attach}, #state{retry = TRef} = State) ->
-    {noreply, attach(State#state{retry = undefined})}.
+    {noreply, attach(State#state{retry = undefined})};
+handle_info({timeout, _, attach}, #state{closing = true} = State) ->
+    {noreply, State}.
 
 -spec terminate(term(), #state{}) -> ok.
 terminate(_Reason, _State) ->
@@ -646,19 +669,48 @@ assets(State) ->
                  true -> recipe_assets(State);
                  false -> #{}
              end,
-    Old = State#state.assets,
-    S = stamp_now(State),
+    #state{assets = Old, removed = Removed0} = State,
+    Now = os:system_time(millisecond),
     Type = cell_shdr_assets:type(),
-    Lines = [cell_shdr_codec:asset_line(S, Id, Type, Doc)
-             || {Id, Doc} <- lists:sort(maps:to_list(Wanted)), maps:get(Id, Old, none) =/= Doc]
-        ++ [cell_shdr_codec:remove_asset_line(S, Id)
-            || Id <- lists:sort(maps:keys(Old)), not is_map_key(Id, Wanted)],
-    emit(Lines, State#state{assets = Wanted}).
+    Gone = [Id || Id <- lists:sort(maps:keys(Old)), not is_map_key(Id, Wanted)],
+    Lines = [cell_shdr_codec:asset_line(asset_stamp(Ms, State), Id, Type, Doc)
+             || {Id, {Doc, Ms} = A} <- lists:sort(maps:to_list(Wanted)),
+                maps:get(Id, Old, none) =/= A]
+        ++ [cell_shdr_codec:remove_asset_line(asset_stamp(Now, State), Id) || Id <- Gone],
+    Removed = maps:without(maps:keys(Wanted),
+                           maps:merge(Removed0, maps:from_list([{Id, Now} || Id <- Gone]))),
+    emit(Lines, State#state{assets = Wanted, removed = forget_oldest(Removed)}).
 
+%% The removals a new client is told of are the latest ?REMOVED_KEPT.
+forget_oldest(Removed) when map_size(Removed) =< ?REMOVED_KEPT ->
+    Removed;
+forget_oldest(Removed) ->
+    Sorted = lists:keysort(2, maps:to_list(Removed)),
+    maps:from_list(lists:nthtail(map_size(Removed) - ?REMOVED_KEPT, Sorted)).
+
+%% Each recipe with the time of its file: an agent records an asset as changed at the
+%% time its line carries, so an unchanged file must always carry the same time.
 recipe_assets(State) ->
     Uuid = setting(uuid, State),
-    maps:from_list([{Name, cell_shdr_assets:recipe(Info, Uuid)}
-                    || Name <- cell_recipe:list(), {ok, Info} <- [cell_recipe:info(Name)]]).
+    Dir = cell_config:dir(products),
+    maps:from_list([{Name, {cell_shdr_assets:recipe(Info#{modified => Ms}, Uuid), Ms}}
+                    || Name <- cell_recipe:list(), {ok, Info} <- [cell_recipe:info(Name)],
+                       Ms <- [file_time(Dir, Name, Info)]]).
+
+file_time(Dir, Name, #{modified := Modified}) ->
+    File = filename:join(Dir, unicode:characters_to_list(<<Name/binary, ".zprd">>)),
+    case file:read_file_info(File, [{time, posix}]) of
+        {ok, #file_info{mtime = Secs}} -> Secs * 1000;
+        {error, _} -> Modified
+    end.
+
+%% An asset's line carries the asset's own time (in relative-time mode, which counts
+%% from the VM's start, the time it is sent).
+asset_stamp(Ms, State) ->
+    case setting(relative_time, State) of
+        true -> stamp_now(State);
+        false -> {utc, Ms}
+    end.
 
 %%====================================================================
 %% HAL points
@@ -706,10 +758,14 @@ snapshot(State) ->
                    _ -> [cell_shdr_codec:condition_line(S, K, C)
                          || {_, C} <- lists:sort(maps:to_list(Codes))]
                end || {K, Codes} <- lists:sort(maps:to_list(State#state.conds))]),
+    %% Assets as they are, each with its own time: removing all and sending them again
+    %% would have an agent record every one as removed and changed at each connect.
+    %% Those removed lately are removed again, for an agent that was away then.
     Type = cell_shdr_assets:type(),
-    Assets = [cell_shdr_codec:remove_all_assets_line(S, Type)
-              | [cell_shdr_codec:asset_line(S, Id, Type, Doc)
-                 || {Id, Doc} <- lists:sort(maps:to_list(State#state.assets))]],
+    Assets = [cell_shdr_codec:remove_asset_line(asset_stamp(Ms, State), Id)
+              || {Id, Ms} <- lists:keysort(2, maps:to_list(State#state.removed))]
+        ++ [cell_shdr_codec:asset_line(asset_stamp(Ms, State), Id, Type, Doc)
+            || {Id, {Doc, Ms}} <- lists:sort(maps:to_list(State#state.assets))],
     [Commands, Data, Conds, Assets].
 
 adapter_version() ->

@@ -79,6 +79,9 @@ init({Ref, Transport, _Opts}) ->
             cell_log:warning(?SOURCE, "MTConnect client ~ts refused: ~p clients are connected, "
                              "the limit (max_clients), and each has shown life", [Peer, Max]),
             _ = Transport:close(Socket),
+            exit(normal);
+        {error, closing} ->
+            _ = Transport:close(Socket),
             exit(normal)
     end.
 
@@ -125,6 +128,15 @@ handle_info({timeout, TRef, life}, #c{life = TRef, peer = Peer, life_timeout = L
                      "(life_timeout); disconnected", [Peer, Life]),
     close(C),
     {stop, {shutdown, no_life}, C};
+handle_info({cell_shdr, closing}, #c{peer = Peer} = C) ->
+    case send_all(C) of
+        {ok, C1} ->
+            cell_log:info(?SOURCE, "MTConnect client ~ts disconnected: the adapter stops", [Peer]),
+            close(C1),
+            {stop, normal, C1};
+        {stop, _, _} = Stop ->
+            Stop
+    end;
 handle_info({timeout, _, life}, C) ->
     %% Cancelled by the first PING as it fell due.
     {noreply, C};
@@ -237,6 +249,18 @@ copy(Head, #c{pos = Pos, log = Log, sent = Sent, limit = Limit, peer = Peer} = C
             {stop, {shutdown, too_slow}, C};
         [] ->
             too_slow(C)
+    end.
+
+%% Everything the log holds, batch after batch, before the adapter stops.
+send_all(#c{pos = Pos, head = HeadRef} = C) ->
+    case atomics:get(HeadRef, 1) of
+        Pos ->
+            {ok, C};
+        Head ->
+            case copy(Head, C) of
+                {ok, C1} -> send_all(C1);
+                {stop, _, _} = Stop -> Stop
+            end
     end.
 
 too_slow(#c{peer = Peer, limit = Limit} = C) ->

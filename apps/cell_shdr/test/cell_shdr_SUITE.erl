@@ -13,6 +13,7 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 -include_lib("xmerl/include/xmerl.hrl").
+-include_lib("kernel/include/file.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([snapshot_at_connect/1, changes_only_after/1, duplicates_filtered/1,
@@ -24,6 +25,7 @@
          devices_xml_matches_stream/1, stream_reads_as_agent/1,
          taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1,
          client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
+         assets_sent_as_they_are/1, stop_streamed/1,
          closed_socket_in_words/1]).
 
 -define(TASKS, [load, robot]).
@@ -38,7 +40,8 @@ all() ->
      adapter_crash_spares_the_cell, cell_services_restart, identity_changes_announced,
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
      a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
-     idle_client_closed, closed_socket_in_words].
+     idle_client_closed, assets_sent_as_they_are, stop_streamed,
+     closed_socket_in_words].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -101,7 +104,8 @@ snapshot_at_connect(_Config) ->
     Conds = [K || #{key := K, category := condition} <- Items],
     ?assertEqual(lists:sort([[K, <<"NORMAL">>, <<>>, <<>>, <<>>, <<>>] || K <- Conds]),
                  lists:sort([F || {_, F} <- conditions(Lines)])),
-    ?assert(lists:member(<<"@REMOVE_ALL_ASSETS@|File">>, [strip_ts(L) || L <- Lines])),
+    %% Assets as they are: nothing removed to be sent again (see assets_sent_as_they_are).
+    ?assertEqual([], [L || L <- Lines, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
     [?assertMatch({match, _}, re:run(Ts, ?TS), L) || L <- Lines, {Ts, _} <- [split(L)],
                                                      Ts =/= <<"*">>],
     ok = gen_tcp:close(S).
@@ -340,7 +344,7 @@ relative_time(_Config) ->
     ok = gen_tcp:close(S).
 
 %% Recipes as File assets: multiline documents, changed ones sent again, removed
-%% ones removed; a new client starts from @REMOVE_ALL_ASSETS@.
+%% ones removed; a new client is told of the removal too.
 multiline_assets(Config) ->
     ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up\nfront | rear">>},
                           <<"anna">>),
@@ -368,8 +372,8 @@ multiline_assets(Config) ->
     ?assertEqual([<<"@REMOVE_ASSET@|Panel 4711">>], [strip_ts(X) || X <- barrier(S)]),
     S2 = connect(),
     Snap2 = [strip_ts(X) || X <- snapshot(S2)],
-    {_, [<<"@REMOVE_ALL_ASSETS@|File">> | After]} =
-        lists:splitwith(fun(X) -> X =/= <<"@REMOVE_ALL_ASSETS@|File">> end, Snap2),
+    {_, [<<"@REMOVE_ASSET@|Panel 4711">> | After]} =
+        lists:splitwith(fun(X) -> X =/= <<"@REMOVE_ASSET@|Panel 4711">> end, Snap2),
     ?assertMatch([<<"@ASSET@|Panel 4712|File|--multiline--", _/binary>> | _], After),
     ok = gen_tcp:close(S),
     ok = gen_tcp:close(S2).
@@ -688,6 +692,53 @@ idle_client_closed(_Config) ->
     ?assertEqual([], snapshot(Alive)),
     ?assertEqual(1, length(cell_shdr:clients())),
     ok = gen_tcp:close(Alive).
+
+%% Assets at connect as they are: no @REMOVE_ALL_ASSETS@, each stamped with its recipe
+%% file's modification time, the same for every client; a recipe removed while an
+%% agent was away is removed for the next client too.
+assets_sent_as_they_are(_Config) ->
+    ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up">>}, <<"anna">>),
+    ok = cell_recipe:save(<<"Panel 4712">>, #{description => <<"One up">>}, <<"bert">>),
+    File = filename:join(cell_config:dir(products), "Panel 4711.zprd"),
+    Mtime = 1767323045,                 % 2026-01-02T03:04:05Z
+    ok = file:write_file_info(File, #file_info{mtime = Mtime}, [{time, posix}]),
+    ok = cell_shdr:refresh_assets(),
+    S1 = connect(),
+    Snap1 = snapshot(S1),
+    S2 = connect(),
+    Snap2 = snapshot(S2),
+    Assets = fun(Lines) -> [L || L <- Lines, has(L, <<"|@">>)] end,
+    ?assertEqual([], [L || L <- Snap1, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
+    [Head | _] = [L || L <- Snap1, has(L, <<"|@ASSET@|Panel 4711|">>)],
+    ?assertMatch(<<"2026-01-02T03:04:05.000Z|@ASSET@|", _/binary>>, Head),
+    [Doc] = assets(Snap1, <<"Panel 4711">>),
+    ?assertNotEqual(nomatch, binary:match(Doc, <<"timestamp=\"2026-01-02T03:04:05.000Z\"">>)),
+    %% Asset lines are the same bytes for every client (the body lines hold no time).
+    ?assertEqual(Assets(Snap1), Assets(Snap2)),
+    ?assertEqual([Doc], assets(Snap2, <<"Panel 4711">>)),
+    ok = cell_recipe:delete(<<"Panel 4711">>),
+    ok = cell_shdr:refresh_assets(),
+    ?assertEqual([<<"@REMOVE_ASSET@|Panel 4711">>], [strip_ts(X) || X <- barrier(S1)]),
+    S3 = connect(),
+    Snap3 = [strip_ts(X) || X <- snapshot(S3)],
+    ?assert(lists:member(<<"@REMOVE_ASSET@|Panel 4711">>, Snap3)),
+    ?assertEqual([], [L || L <- Snap3, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
+    ?assertMatch([<<"@ASSET@|Panel 4712|File|--multiline--", _/binary>>],
+                 [L || L <- Snap3, has(L, <<"@ASSET@|">>)]),
+    [ok = gen_tcp:close(S) || S <- [S1, S2, S3]].
+
+%% The adapter stopping sends avail UNAVAILABLE to its clients before it closes them.
+stop_streamed(_Config) ->
+    S = connect(),
+    _ = snapshot(S),
+    Stopper = spawn_link(fun() -> ok = application:stop(cell_shdr) end),
+    Ref = monitor(process, Stopper),
+    {Before, _} = read_until(S, fun(L) -> has(L, <<"|avail|UNAVAILABLE">>) end, deadline()),
+    ?assertEqual([], Before),
+    ?assertEqual({error, closed}, drain(S, deadline())),
+    receive {'DOWN', Ref, process, Stopper, normal} -> ok
+    after ?WAIT -> ct:fail("the adapter did not stop")
+    end.
 
 %% A client that closes its connection is logged in words.
 closed_socket_in_words(_Config) ->
