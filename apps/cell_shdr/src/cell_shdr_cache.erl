@@ -46,6 +46,7 @@
 -define(BACKOFF_MAX, 1000).
 -define(ITEMS_A_LINE, 24).
 -define(REMOVED_KEPT, 256).
+-define(HOLD, 2).
 -define(WATCHED, [cell_registry, cell_events, cell_alarms, cell_settings]).
 
 -type registration() :: #{preamble := iodata(), seq := non_neg_integer(),
@@ -81,7 +82,11 @@
                 attached = false :: boolean(),
                 backoff = ?BACKOFF_MIN :: pos_integer(),
                 retry :: reference() | undefined,
-                closing = false :: boolean()}).
+                closing = false :: boolean(),
+                %% Values held until their millisecond is over: their stamp, the
+                %% updates in order, the timer that sends them.
+                pending = none :: none | {cell_shdr_codec:stamp(), [{binary(), term()}],
+                                          reference()}}).
 
 %%====================================================================
 %% API
@@ -177,7 +182,7 @@ handle_continue(attach, State) ->
 handle_call({register, _, _}, _From, #state{closing = true} = State) ->
     {reply, {error, closing}, State};
 handle_call({register, Pid, Flag}, _From, State0) ->
-    case make_room(State0) of
+    case make_room(flush(State0)) of
         {ok, #state{clients = Clients} = State} ->
             Ref = monitor(process, Pid),
             Reg = #{preamble => snapshot(State), seq => State#state.seq,
@@ -189,7 +194,7 @@ handle_call({register, Pid, Flag}, _From, State0) ->
                                                                                     monotonic])},
             {reply, {ok, Reg}, State#state{clients = Clients#{Pid => Client}}};
         full ->
-            {reply, {error, {full, setting(max_clients, State0)}}, State0}
+            {reply, {error, {full, setting(max_clients, State0)}}, flush(State0)}
     end;
 handle_call(settings, _From, State) ->
     {reply, State#state.settings, State};
@@ -202,16 +207,16 @@ handle_call(refresh_assets, _From, State) ->
 handle_call(clients, _From, State) ->
     {reply, maps:keys(State#state.clients), State};
 handle_call(sync, _From, State) ->
-    {reply, ok, State};
+    {reply, ok, flush(State)};
 handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
     _ = Retry =/= undefined andalso erlang:cancel_timer(Retry),
     State1 = detach_quietly(State0#state{retry = undefined, closing = true}),
-    State = set([{<<"avail">>, unavailable}], now_stamp(), State1),
+    State = flush(set([{<<"avail">>, unavailable}], now_stamp(), State1)),
     Pids = maps:keys(State#state.clients),
     _ = [Pid ! {cell_shdr, closing} || Pid <- Pids],
     {reply, Pids, State};
 handle_call(log_tables, _From, State) ->
-    {reply, {?LOG, State#state.head}, State}.
+    {reply, {?LOG, State#state.head}, flush(State)}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
 handle_cast({alive, Pid}, #state{clients = Clients} = State) ->
@@ -246,6 +251,11 @@ handle_info({'DOWN', Ref, process, _, Reason}, #state{watched = W} = State)
 handle_info({timeout, TRef, attach}, #state{retry = TRef} = State) ->
     {noreply, attach(State#state{retry = undefined})};
 handle_info({timeout, _, attach}, #state{closing = true} = State) ->
+    {noreply, State};
+handle_info({timeout, TRef, flush}, #state{pending = {_, _, TRef}} = State) ->
+    {noreply, flush(State)};
+handle_info({timeout, _, flush}, State) ->
+    %% Sent meanwhile with something else.
     {noreply, State}.
 
 -spec terminate(term(), #state{}) -> ok.
@@ -573,16 +583,43 @@ key(P, Task, Suffix) ->
 %%====================================================================
 
 %% Sets values; those that changed go out on shared lines stamped `Stamp'.
-set(Updates, Stamp, State) ->
-    Changed = changed(Updates, #{}, []),
-    case Changed of
+%%
+%% A value that lasted no time is not sent: values are held until the millisecond of
+%% their stamp is over (?HOLD ms, or until anything else is sent), and of the changes
+%% of an item with the same stamp only the last goes out; none when it is back to what
+%% was sent. A MESSAGE is not a state: each goes out at once.
+set(Updates, {Ms, Mono}, State0) ->
+    S = stamp(Ms, Mono, State0),
+    Messages = State0#state.messages,
+    {Msgs, Values} = lists:partition(fun({K, _}) -> is_map_key(K, Messages) end, Updates),
+    State = case Msgs of
+                [] -> State0;
+                _ -> put_values(Msgs, S, flush(State0))
+            end,
+    hold(Values, S, State).
+
+hold([], _S, State) ->
+    State;
+hold(Values, S, #state{pending = {S, Held, TRef}} = State) ->
+    State#state{pending = {S, Held ++ Values, TRef}};
+hold(Values, S, State0) ->
+    State = flush(State0),
+    State#state{pending = {S, Values, erlang:start_timer(?HOLD, self(), flush)}}.
+
+%% Sends the values held.
+flush(#state{pending = none} = State) ->
+    State;
+flush(#state{pending = {S, Held, TRef}} = State) ->
+    _ = erlang:cancel_timer(TRef),
+    put_values(Held, S, State#state{pending = none}).
+
+put_values(Updates, S, State) ->
+    case changed(Updates, #{}, []) of
         [] ->
             State;
-        _ ->
+        Changed ->
             true = ets:insert(?VALUES, Changed),
-            {Ms, Mono} = Stamp,
-            S = stamp(Ms, Mono, State),
-            emit(value_lines(S, Changed, State), State)
+            append(value_lines(S, Changed, State), State)
     end.
 
 %% The last update of a key wins; unchanged keys drop out.
@@ -781,9 +818,13 @@ all_items(#state{prefixes = P, points = Points}) ->
 %% The log
 %%====================================================================
 
-emit([], State) ->
+%% Lines other than values: after the values held, which came first.
+emit(Lines, State) ->
+    append(Lines, flush(State)).
+
+append([], State) ->
     State;
-emit(Lines, #state{seq = Seq0, offset = Off0} = State) ->
+append(Lines, #state{seq = Seq0, offset = Off0} = State) ->
     Bin = iolist_to_binary(Lines),
     Seq = Seq0 + 1,
     Off = Off0 + byte_size(Bin),
