@@ -210,7 +210,13 @@ handle_call(sync, _From, State) ->
     {reply, ok, flush(State)};
 handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
     _ = Retry =/= undefined andalso erlang:cancel_timer(Retry),
-    State1 = detach_quietly(State0#state{retry = undefined, closing = true}),
+    %% What the cell's tables say now, its Stop at a node's shutdown included: a task
+    %% writes its state there before it publishes it, and the event may not be here yet.
+    Now = case State0#state.attached of
+              true -> resync(State0);
+              false -> State0
+          end,
+    State1 = detach_quietly(Now#state{retry = undefined, closing = true}),
     State = flush(set([{<<"avail">>, unavailable}], now_stamp(), State1)),
     Pids = maps:keys(State#state.clients),
     _ = [Pid ! {cell_shdr, closing} || Pid <- Pids],

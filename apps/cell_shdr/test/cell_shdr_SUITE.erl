@@ -26,7 +26,8 @@
          taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1,
          client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
          assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
-         closed_socket_in_words/1]).
+         closed_socket_in_words/1, node_stop_streams_the_cell_stop/1]).
+-export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
 -define(WAIT, 20000).
@@ -41,7 +42,7 @@ all() ->
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
      a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
-     closed_socket_in_words].
+     closed_socket_in_words, node_stop_streams_the_cell_stop].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -782,6 +783,57 @@ same_millisecond_coalesced(_Config) ->
     ?assertEqual([<<"WAIT">>, <<"ACTIVE">>],
                  [X || {<<"robot_execution">>, X} <- pairs(barrier(S))]),
     ok = gen_tcp:close(S).
+
+%% The node going down (init:stop, as at Ctrl-C or a service stop): the agent sees the
+%% cell's Stop (every task and the cell STOPPED), then avail UNAVAILABLE, then the end
+%% of the connection. The adapter stops before the cell (it depends on it), so it has
+%% the cell stop first.
+node_stop_streams_the_cell_stop(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root-node-stop"),
+    Paths = [P || P <- code:get_path(), string:find(P, "_build") =/= nomatch
+                                            orelse string:find(P, "_debdeps") =/= nomatch],
+    Name = list_to_atom("cell_shdr_stop_" ++ os:getpid()),
+    {ok, Peer, _Node} = peer:start(#{name => Name, host => "localhost",
+                                     args => lists:append([["-pa", P] || P <- Paths]),
+                                     connection => standard_io}),
+    PeerRef = monitor(process, Peer),
+    Call = fun(M, F, A) -> peer:call(Peer, M, F, A, ?WAIT) end,
+    Specs = Call(?MODULE, peer_tasks, []),
+    _ = [ok = Call(application, load, [A]) || A <- [cell_base, cell, cell_shdr]],
+    [ok = Call(application, set_env, [A, K, V])
+     || {A, K, V} <- [{cell_base, root, Root}, {cell, shutdown_wait_ms, 10000},
+                      {cell, cell_spec, #{name => <<"peer">>, tasks => Specs}},
+                      {cell_shdr, port, 0}, {cell_shdr, hal_module, cell_shdr_test_hal}]],
+    {ok, _} = Call(application, ensure_all_started, [cell_shdr]),
+    _ = Call(sys, get_state, [cell_shdr_listener]),
+    Port = Call(cell_shdr, port, []),
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {packet, line},
+                                                     {buffer, 1 bsl 20}]),
+    _ = snapshot(S),
+    ok = Call(cell_controller, start, []),
+    await_pair(S, <<"robot_execution">>, <<"READY">>),
+    ok = Call(init, stop, []),
+    {Lines, Last} = read_until(S, fun(L) -> has(L, <<"|avail|UNAVAILABLE">>) end, deadline()),
+    P = pairs(Lines ++ [Last]),
+    ?assertMatch({<<"avail">>, <<"UNAVAILABLE">>}, lists:last(P)),
+    [?assert(lists:member({K, <<"STOPPED">>}, P), K)
+     || K <- [<<"robot_execution">>, <<"load_execution">>, <<"execution">>]],
+    ?assertEqual({error, closed}, drain(S, deadline())),
+    receive {'DOWN', PeerRef, process, Peer, _} -> ok
+    after ?WAIT -> ct:fail("the node did not stop")
+    end.
+
+%% On a test node: the suite's scripted tasks, their table kept by a process of its own.
+peer_tasks() ->
+    Self = self(),
+    _ = spawn(fun() ->
+                      Tab = ets:new(cell_shdr_suite, [public]),
+                      Self ! {tab, Tab},
+                      receive stop -> ok end
+              end),
+    receive {tab, Tab} -> [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
+    after ?WAIT -> error(no_table)
+    end.
 
 %% A client that closes its connection is logged in words.
 closed_socket_in_words(_Config) ->
