@@ -26,7 +26,8 @@
          taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1,
          client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
          assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
-         closed_socket_in_words/1, node_stop_streams_the_cell_stop/1]).
+         closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
+         two_cells_one_agent/1]).
 -export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
@@ -42,7 +43,7 @@ all() ->
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
      a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
-     closed_socket_in_words, node_stop_streams_the_cell_stop].
+     closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -565,8 +566,12 @@ devices_xml_matches_stream(Config) ->
     File = filename:join(?config(priv_dir, Config), "Devices.xml"),
     ok = cell_shdr:devices_xml(File),
     {Doc, _} = xmerl_scan:file(File),
-    Declared = [{attr(E, id), attr(E, type), attr(E, category)}
+    %% The stream's keys are the items' names (an agent finds an item by its name;
+    %% ids are the cell's own: two_cells_one_agent).
+    Declared = [{attr(E, name), attr(E, type), attr(E, category)}
                 || E <- xmerl_xpath:string("//DataItem", Doc)],
+    [?assertEqual("cell_" ++ attr(E, name), attr(E, id))
+     || E <- xmerl_xpath:string("//DataItem", Doc)],
     S = connect(),
     Snap = snapshot(S),
     Streamed = maps:keys(values(Snap)) ++ [K || {_, [K | _]} <- conditions(Snap)],
@@ -834,6 +839,35 @@ peer_tasks() ->
     receive {tab, Tab} -> [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
     after ?WAIT -> error(no_table)
     end.
+
+%% Two cells feed one agent: their Devices.xml merged into one file declare no id
+%% twice (the reference agent refuses a second device holding an id already taken),
+%% and each cell's ids stay the same across restarts (derived from its device name).
+two_cells_one_agent(Config) ->
+    Items = cell_shdr_cache:items(),
+    Settings = cell_shdr_cache:settings(),
+    Xml = fun(Name, Uuid) ->
+                  cell_shdr_devices:xml(Items, Settings#{device_name => Name, uuid => Uuid},
+                                        1767323045000)
+          end,
+    A = Xml(<<"cell_a">>, <<"0e1c7a52-8d0e-4a53-9d3b-3c5c8e1f0a01">>),
+    ?assertEqual(A, Xml(<<"cell_a">>, <<"0e1c7a52-8d0e-4a53-9d3b-3c5c8e1f0a01">>)),
+    B = Xml(<<"cell_b">>, <<"5b0f7d3e-2a61-4c1e-8f55-6d7a9b2c4e02">>),
+    %% One document holding both devices, as an agent's configuration would.
+    [HeadA, DeviceA] = binary:split(A, <<"<Devices>\n">>),
+    [DeviceA1, _] = binary:split(DeviceA, <<"  </Devices>">>),
+    [_, DeviceB] = binary:split(B, <<"<Devices>\n">>),
+    Merged = <<HeadA/binary, "<Devices>\n", DeviceA1/binary, DeviceB/binary>>,
+    {Doc, _} = xmerl_scan:string(binary_to_list(Merged)),
+    Ids = [V || #xmlAttribute{value = V} <- xmerl_xpath:string("//@id", Doc)],
+    ?assertEqual(length(Ids), length(lists:usort(Ids)),
+                 Ids -- lists:usort(Ids)),
+    ?assertEqual(2, length(xmerl_xpath:string("//Device", Doc))),
+    %% The stream's keys are the items' names, the same in every cell.
+    Names = [V || #xmlAttribute{value = V} <- xmerl_xpath:string("//DataItem/@name", Doc)],
+    ?assertEqual(2 * length(Items), length(Names)),
+    ?assertEqual(lists:sort([binary_to_list(K) || #{key := K} <- Items]), lists:usort(Names)),
+    schema_check("MTConnectDevices_2.0_1.0.xsd", Merged, Config).
 
 %% A client that closes its connection is logged in words.
 closed_socket_in_words(_Config) ->
@@ -1134,12 +1168,13 @@ assets_document(Doc) ->
        "deviceModelChangeTime=\"2026-01-01T00:00:00Z\"/>\n  <Assets>\n">>,
      Doc, <<"\n  </Assets>\n</MTConnectAssets>\n">>].
 
-%% The data items of a Devices.xml by id, each with the fields an agent reads after
-%% its key: condition, message, time_series, sample or event.
+%% The data items of a Devices.xml by name (the agent finds an item of the device by
+%% it), each with the fields an agent reads after its key: condition, message,
+%% time_series, sample or event.
 declared(File) ->
     {Doc, _} = xmerl_scan:file(File),
     maps:from_list(
-      [{list_to_binary(attr(E, id)),
+      [{list_to_binary(attr(E, name)),
         case {attr(E, category), attr(E, type),
               [V || #xmlAttribute{value = V} <- xmerl_xpath:string("@representation", E)]} of
             {"CONDITION", _, _} -> condition;
