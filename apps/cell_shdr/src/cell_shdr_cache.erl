@@ -76,6 +76,9 @@
                 prefixes = #{} :: #{atom() => binary()},
                 tasks = #{} :: #{atom() => #task{}},
                 counts = {0, 0} :: {non_neg_integer(), non_neg_integer()}, %% good, bad
+                %% Each task's part count as the statistics had it when the adapter
+                %% started (`undefined' until read).
+                base :: #{atom() => non_neg_integer()} | undefined,
                 points = [] :: [map()],
                 messages = #{} :: #{binary() => true},   %% keys of MESSAGE points
                 watched = #{} :: #{reference() => atom()},
@@ -423,8 +426,9 @@ uuid4() ->
 %% Recomputing everything from the cell
 %%====================================================================
 
-resync(State0) ->
+resync(State00) ->
     Stamp = now_stamp(),
+    State0 = load_counts(State00),
     Rows = cell_registry:tasks(),
     Ids = [Id || #{id := Id} <- Rows],
     State1 = State0#state{prefixes = cell_shdr_items:prefixes(Ids)},
@@ -450,18 +454,47 @@ resync(State0) ->
     State5 = resync_points(State4),
     assets(State5).
 
+%% The part counts go on from the statistics the cell keeps (work completed and
+%% aborted, per task, in total), read once when the adapter starts: an agent must not
+%% see them start again from zero at every restart. Without statistics (none in the
+%% cell, or not answering) they start from zero.
+load_counts(#state{base = undefined} = State) ->
+    Counters = try
+                   _ = cell_stats:flush(),
+                   cell_stats:counters(total)
+               catch
+                   exit:{Why, _} when Why =:= noproc; Why =:= timeout; Why =:= normal;
+                                      Why =:= shutdown; Why =:= killed ->
+                       cell_log:warning(?SOURCE, "the statistics do not answer; part "
+                                        "counts start from zero", []),
+                       #{}
+               end,
+    Tasks = maps:filter(fun(K, _) -> K =/= cell end, Counters),
+    Good = lists:sum([maps:get(completed, C, 0) || C <- maps:values(Tasks)]),
+    Bad = lists:sum([maps:get(aborted, C, 0) || C <- maps:values(Tasks)]),
+    State#state{counts = {Good, Bad},
+                base = maps:map(fun(_, C) -> maps:get(completed, C, 0) + maps:get(aborted, C, 0)
+                                end, Tasks)};
+load_counts(State) ->
+    State.
+
+%% What the adapter knows of a task (its count from the statistics at first).
+task(Task, #state{tasks = Tasks, base = Base}) ->
+    case Tasks of
+        #{Task := T} -> T;
+        _ -> #task{count = maps:get(Task, Base, 0)}
+    end.
+
 %% Items that start UNAVAILABLE or at zero until something happens, set once.
-initial(#state{prefixes = P, tasks = Tasks, counts = {Good, Bad}}) ->
+initial(#state{prefixes = P, counts = {Good, Bad}} = State) ->
     Keys = [{<<"program">>, unavailable}, {<<"cycle_time">>, unavailable},
             {<<"part_count">>, Good + Bad}, {<<"part_count_good">>, Good},
             {<<"part_count_bad">>, Bad}]
         ++ lists:append(
              [[{key(P, T, <<"part_state">>), unavailable},
                {key(P, T, <<"cycle_time">>), unavailable},
-               {key(P, T, <<"part_count">>), case Tasks of
-                                                 #{T := #task{count = C}} -> C;
-                                                 _ -> 0
-                                             end}] || T <- maps:keys(P)]),
+               {key(P, T, <<"part_count">>), (task(T, State))#task.count}]
+              || T <- maps:keys(P)]),
     [KV || {K, _} = KV <- Keys, ets:lookup(?VALUES, K) =:= []].
 
 resync_points(#state{points = Points} = State) ->
@@ -521,12 +554,12 @@ task_event(Type, Task, _Ev, {_, Mono} = Stamp, State0) ->
 
 %% Work start and end: cycle time, part counts, the cell's program.
 work(item_work_start, Task, Mono, #state{tasks = Tasks} = State) ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     {[{<<"program">>, T#task.program}],
      State#state{tasks = Tasks#{Task => T#task{started = Mono}}}};
 work(Type, Task, Mono, #state{tasks = Tasks, prefixes = P, counts = {Good, Bad}} = State)
   when Type =:= item_work_complete; Type =:= item_work_abort ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     Count = T#task.count + 1,
     {G1, B1} = case Type of
                    item_work_complete -> {Good + 1, Bad};
@@ -556,7 +589,7 @@ refresh_product(Task, State) ->
     end.
 
 refresh_product(Task, Row, #state{tasks = Tasks, prefixes = P} = State) ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     Serial = maps:get(serial, Row, undefined),
     case Serial =:= T#task.serial andalso is_map_key(Task, Tasks) of
         true ->

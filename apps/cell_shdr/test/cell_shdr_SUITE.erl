@@ -27,7 +27,7 @@
          client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
          assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
          closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
-         two_cells_one_agent/1]).
+         two_cells_one_agent/1, part_counts_go_on_after_restart/1]).
 -export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
@@ -43,7 +43,8 @@ all() ->
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
      a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
-     closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent].
+     closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent,
+     part_counts_go_on_after_restart].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -868,6 +869,42 @@ two_cells_one_agent(Config) ->
     ?assertEqual(2 * length(Items), length(Names)),
     ?assertEqual(lists:sort([binary_to_list(K) || #{key := K} <- Items]), lists:usort(Names)),
     schema_check("MTConnectDevices_2.0_1.0.xsd", Merged, Config).
+
+%% Part counts go on from the statistics the cell keeps when the adapter starts
+%% again, not from zero.
+part_counts_go_on_after_restart(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    %% The statistics count the work done on a product.
+    cmd(Config, robot, {product, cell_product:new(<<"SN-0001">>, <<"Panel 4711">>)}),
+    cmd(Config, robot, {event, {transfer_in, <<"SN-0001">>}}),
+    [begin
+         cmd(Config, robot, {event, work_start}),
+         cmd(Config, robot, {event, Ev})
+     end || Ev <- [work_complete, work_complete, {work_abort, <<"scratched">>}]],
+    ok = cell_controller:sync(),
+    S = connect(),
+    V = values(snapshot(S)),
+    Counts = [{K, maps:get(K, V)} || K <- [<<"robot_part_count">>, <<"part_count">>,
+                                           <<"part_count_good">>, <<"part_count_bad">>]],
+    ?assertEqual([{<<"robot_part_count">>, <<"3">>}, {<<"part_count">>, <<"3">>},
+                  {<<"part_count_good">>, <<"2">>}, {<<"part_count_bad">>, <<"1">>}], Counts),
+    ok = gen_tcp:close(S),
+    ok = application:stop(cell_shdr),
+    {ok, _} = application:ensure_all_started(cell_shdr),
+    _ = sys:get_state(cell_shdr_listener),
+    S2 = connect(),
+    V2 = values(snapshot(S2)),
+    ?assertEqual(Counts, [{K, maps:get(K, V2)} || {K, _} <- Counts]),
+    ?assertEqual(<<"0">>, maps:get(<<"load_part_count">>, V2)),
+    cmd(Config, robot, {event, work_start}),
+    cmd(Config, robot, {event, work_complete}),
+    ?assertEqual([{<<"robot_part_count">>, <<"4">>}, {<<"part_count">>, <<"4">>},
+                  {<<"part_count_good">>, <<"3">>}],
+                 [{K, X} || {K, X} <- pairs(barrier(S2)),
+                            lists:member(K, [<<"robot_part_count">>, <<"part_count">>,
+                                             <<"part_count_good">>])]),
+    ok = gen_tcp:close(S2).
 
 %% A client that closes its connection is logged in words.
 closed_socket_in_words(_Config) ->
