@@ -12,7 +12,10 @@
 %%
 %% <b>Values.</b> Plain items live in the ETS table `cell_shdr_values' (`{Key,
 %% Value}'); a change equal to the current value is dropped, so each client sees a
-%% value once. Each condition item holds its active native codes; on every alarm event
+%% value once. A value that lasted no time is not sent either: values are held until
+%% the millisecond of their stamp is over, and of an item's changes within one
+%% timestamp only the last goes out (MESSAGE points, which are no states, go at once).
+%% The part counts go on from the statistics' totals when the adapter starts. Each condition item holds its active native codes; on every alarm event
 %% the item is marked from `cell_alarms:list/0' and swept: a new or changed code is
 %% sent at its level, a code gone is sent NORMAL, and when none is left one NORMAL
 %% with no code clears the item.
