@@ -274,23 +274,21 @@ handle_info({timeout, _, flush}, State) ->
 terminate(_Reason, _State) ->
     ok.
 
-%% A place for one more client: a free one, or the place of the oldest client that has
-%% not shown life, which is told to go.
+%% A place for one more client (see cell_shdr_admission): a free one, or the place of
+%% the oldest client that has not shown life, which is told to go.
 make_room(#state{clients = Clients} = State) ->
-    case map_size(Clients) < setting(max_clients, State) of
-        true ->
+    Known = [{Since, Alive, Pid} || {Pid, #client{alive = Alive, since = Since}}
+                                        <- maps:to_list(Clients)],
+    case cell_shdr_admission:admit(Known, setting(max_clients, State)) of
+        admit ->
             {ok, State};
-        false ->
-            case lists:sort([{Since, Pid} || {Pid, #client{alive = false, since = Since}}
-                                                 <- maps:to_list(Clients)]) of
-                [{_, Pid} | _] ->
-                    #client{ref = Ref} = maps:get(Pid, Clients),
-                    demonitor(Ref, [flush]),
-                    Pid ! {cell_shdr, evicted},
-                    {ok, State#state{clients = maps:remove(Pid, Clients)}};
-                [] ->
-                    full
-            end
+        {evict, Pid} ->
+            #client{ref = Ref} = maps:get(Pid, Clients),
+            demonitor(Ref, [flush]),
+            Pid ! {cell_shdr, evicted},
+            {ok, State#state{clients = maps:remove(Pid, Clients)}};
+        full ->
+            full
     end.
 
 reason(normal) -> "normal stop";
