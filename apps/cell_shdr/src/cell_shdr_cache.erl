@@ -625,7 +625,8 @@ key(P, Task, Suffix) ->
 %% Sets values; those that changed go out on shared lines stamped `Stamp'.
 %%
 %% A value that lasted no time is not sent: values are held until the millisecond of
-%% their stamp is over (?HOLD ms, or until anything else is sent), and of the changes
+%% their stamp is over (?HOLD ms after the change, or until anything else is sent, or
+%% a change of another millisecond comes), and of the changes
 %% of an item with the same stamp only the last goes out; none when it is back to what
 %% was sent. A MESSAGE is not a state: each goes out at once.
 set(Updates, {Ms, Mono}, State0) ->
@@ -636,15 +637,18 @@ set(Updates, {Ms, Mono}, State0) ->
                 [] -> State0;
                 _ -> put_values(Msgs, S, flush(State0))
             end,
-    hold(Values, S, State).
+    hold(Values, S, Mono, State).
 
-hold([], _S, State) ->
+hold([], _S, _Mono, State) ->
     State;
-hold(Values, S, #state{pending = {S, Held, TRef}} = State) ->
+hold(Values, S, _Mono, #state{pending = {S, Held, TRef}} = State) ->
     State#state{pending = {S, Held ++ Values, TRef}};
-hold(Values, S, State0) ->
+hold(Values, S, Mono, State0) ->
     State = flush(State0),
-    State#state{pending = {S, Values, erlang:start_timer(?HOLD, self(), flush)}}.
+    %% ?HOLD ms after the change's own instant its millisecond is over, however late
+    %% the cache reads it.
+    Due = erlang:convert_time_unit(Mono, microsecond, millisecond) + ?HOLD,
+    State#state{pending = {S, Values, erlang:start_timer(Due, self(), flush, [{abs, true}])}}.
 
 %% Sends the values held.
 flush(#state{pending = none} = State) ->
