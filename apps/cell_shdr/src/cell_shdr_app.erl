@@ -31,7 +31,9 @@ prep_stop(State) ->
                            erlang:monotonic_time(millisecond) + ?CLOSE_WAIT)
     catch
         %% The cache is restarting or gone: its clients went with it.
-        exit:{noproc, _} -> ok
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown ->
+            ok
     end,
     State.
 

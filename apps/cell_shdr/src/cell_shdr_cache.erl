@@ -219,7 +219,7 @@ handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
     %% What the cell's tables say now, its Stop at a node's shutdown included: a task
     %% writes its state there before it publishes it, and the event may not be here yet.
     Now = case State0#state.attached of
-              true -> resync(State0);
+              true -> read_again(State0);
               false -> State0
           end,
     State1 = detach_quietly(Now#state{retry = undefined, closing = true}),
@@ -328,6 +328,16 @@ attach(State0) ->
             end;
         _Missing ->
             retry(State)
+    end.
+
+%% The cell's tables read once more before the adapter stops; a service of the cell
+%% gone meanwhile (its 'DOWN' still on its way) leaves the values as they are.
+read_again(State) ->
+    try resync(State)
+    catch
+        error:badarg -> State;
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown -> State
     end.
 
 retry(#state{backoff = B} = State) ->
