@@ -78,12 +78,18 @@ init({Ref, Transport, _Opts}) ->
         {error, {full, Max}} ->
             cell_log:warning(?SOURCE, "MTConnect client ~ts refused: ~p clients are connected, "
                              "the limit (max_clients), and each has shown life", [Peer, Max]),
-            _ = Transport:close(Socket),
-            exit(normal);
+            refuse(Transport, Socket);
         {error, closing} ->
-            _ = Transport:close(Socket),
-            exit(normal)
+            refuse(Transport, Socket)
     end.
+
+%% The end of the stream first, so the client reads a plain end even when what it sent
+%% (its PING) is still unread here and the close itself resets the connection.
+-spec refuse(module(), inet:socket()) -> no_return().
+refuse(Transport, Socket) ->
+    _ = Transport:shutdown(Socket, write),
+    _ = Transport:close(Socket),
+    exit(normal).
 
 start(#{preamble := Preamble, seq := Seq, offset := Off, head := Head, log := Log,
         limit := Limit, ping_period := Period, life_timeout := Life},
