@@ -12,7 +12,10 @@
 %%
 %% <b>Values.</b> Plain items live in the ETS table `cell_shdr_values' (`{Key,
 %% Value}'); a change equal to the current value is dropped, so each client sees a
-%% value once. Each condition item holds its active native codes; on every alarm event
+%% value once. A value that lasted no time is not sent either: values are held until
+%% the millisecond of their stamp is over, and of an item's changes within one
+%% timestamp only the last goes out (MESSAGE points, which are no states, go at once).
+%% The part counts go on from the statistics' totals when the adapter starts. Each condition item holds its active native codes; on every alarm event
 %% the item is marked from `cell_alarms:list/0' and swept: a new or changed code is
 %% sent at its level, a code gone is sent NORMAL, and when none is left one NORMAL
 %% with no code clears the item.
@@ -30,7 +33,9 @@
 -module(cell_shdr_cache).
 -behaviour(gen_server).
 
--export([start_link/0, register_client/1, settings/0, items/0, points/0,
+-include_lib("kernel/include/file.hrl").
+
+-export([start_link/0, register_client/1, alive/0, close_clients/0, settings/0, items/0, points/0,
          time_series/4, refresh_assets/0, clients/0, sync/0, log_tables/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
@@ -43,35 +48,51 @@
 -define(BACKOFF_MIN, 10).
 -define(BACKOFF_MAX, 1000).
 -define(ITEMS_A_LINE, 24).
+-define(REMOVED_KEPT, 256).
+-define(HOLD, 2).
 -define(WATCHED, [cell_registry, cell_events, cell_alarms, cell_settings]).
 
 -type registration() :: #{preamble := iodata(), seq := non_neg_integer(),
                           offset := non_neg_integer(), head := atomics:atomics_ref(),
                           log := ets:tid() | atom(), limit := pos_integer(),
-                          ping_period := pos_integer()}.
+                          ping_period := pos_integer(), life_timeout := pos_integer()}.
 
 -record(task, {serial :: binary() | undefined,
                program = unavailable :: binary() | unavailable,
                started :: integer() | undefined,     %% monotonic µs of work start
                count = 0 :: non_neg_integer()}).
 
+%% A client: its monitor, its wake flag, whether it has shown life (a PING), and its
+%% place in the order of connects.
+-record(client, {ref :: reference(), flag :: atomics:atomics_ref(), alive = false :: boolean(),
+                 since :: pos_integer()}).
+
 -record(state, {head :: atomics:atomics_ref(),
                 seq = 0 :: non_neg_integer(),
                 offset = 0 :: non_neg_integer(),
                 oldest = 1 :: pos_integer(),
                 conds = #{} :: #{binary() => #{binary() => cell_shdr_codec:condition()}},
-                assets = #{} :: #{binary() => binary()},
-                clients = #{} :: #{pid() => {reference(), atomics:atomics_ref()}},
+                assets = #{} :: #{binary() => {binary(), integer()}},  %% document, time
+                removed = #{} :: #{binary() => integer()},             %% removal time
+                clients = #{} :: #{pid() => #client{}},
                 settings = #{} :: map(),
                 prefixes = #{} :: #{atom() => binary()},
                 tasks = #{} :: #{atom() => #task{}},
                 counts = {0, 0} :: {non_neg_integer(), non_neg_integer()}, %% good, bad
+                %% Each task's part count as the statistics had it when the adapter
+                %% started (`undefined' until read).
+                base :: #{atom() => non_neg_integer()} | undefined,
                 points = [] :: [map()],
                 messages = #{} :: #{binary() => true},   %% keys of MESSAGE points
                 watched = #{} :: #{reference() => atom()},
                 attached = false :: boolean(),
                 backoff = ?BACKOFF_MIN :: pos_integer(),
-                retry :: reference() | undefined}).
+                retry :: reference() | undefined,
+                closing = false :: boolean(),
+                %% Values held until their millisecond is over: their stamp, the
+                %% updates in order, the timer that sends them.
+                pending = none :: none | {cell_shdr_codec:stamp(), [{binary(), term()}],
+                                          reference()}}).
 
 %%====================================================================
 %% API
@@ -84,9 +105,26 @@ start_link() ->
 %% @doc Registers the calling client: it is monitored, woken through `Flag' (an
 %% atomics array of one, set to 1 by the client when it waits), and receives the
 %% snapshot to send first and the log position it stands for.
--spec register_client(atomics:atomics_ref()) -> registration().
+%%
+%% At most `max_clients' are registered. When every place is taken, the oldest client
+%% that has not shown life ({@link alive/0}) is sent `{cell_shdr, evicted}' and loses
+%% its place to the caller; when every one has, the caller is refused.
+-spec register_client(atomics:atomics_ref()) ->
+          {ok, registration()} | {error, {full, pos_integer()} | closing}.
 register_client(Flag) ->
     gen_server:call(?MODULE, {register, self(), Flag}, 30000).
+
+%% @doc The adapter stops: `avail' goes UNAVAILABLE, the cell is no longer watched, new
+%% clients are refused, and each client is told to send what is left of the log and
+%% close. Returns the clients told.
+-spec close_clients() -> [pid()].
+close_clients() ->
+    gen_server:call(?MODULE, close_clients).
+
+%% @doc The calling client has shown life (its first PING): it keeps its place.
+-spec alive() -> ok.
+alive() ->
+    gen_server:cast(?MODULE, {alive, self()}).
 
 %% @doc The adapter's settings in force.
 -spec settings() -> map().
@@ -147,13 +185,23 @@ handle_continue(attach, State) ->
     {noreply, attach(State)}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
-handle_call({register, Pid, Flag}, _From, #state{clients = Clients} = State) ->
-    Ref = monitor(process, Pid),
-    Reg = #{preamble => snapshot(State), seq => State#state.seq,
-            offset => State#state.offset, head => State#state.head, log => ?LOG,
-            limit => setting(max_client_buffer, State),
-            ping_period => setting(ping_period, State)},
-    {reply, Reg, State#state{clients = Clients#{Pid => {Ref, Flag}}}};
+handle_call({register, _, _}, _From, #state{closing = true} = State) ->
+    {reply, {error, closing}, State};
+handle_call({register, Pid, Flag}, _From, State0) ->
+    case make_room(flush(State0)) of
+        {ok, #state{clients = Clients} = State} ->
+            Ref = monitor(process, Pid),
+            Reg = #{preamble => snapshot(State), seq => State#state.seq,
+                    offset => State#state.offset, head => State#state.head, log => ?LOG,
+                    limit => setting(max_client_buffer, State),
+                    ping_period => setting(ping_period, State),
+                    life_timeout => setting(life_timeout, State)},
+            Client = #client{ref = Ref, flag = Flag, since = erlang:unique_integer([positive,
+                                                                                    monotonic])},
+            {reply, {ok, Reg}, State#state{clients = Clients#{Pid => Client}}};
+        full ->
+            {reply, {error, {full, setting(max_clients, State0)}}, flush(State0)}
+    end;
 handle_call(settings, _From, State) ->
     {reply, State#state.settings, State};
 handle_call(items, _From, State) ->
@@ -165,11 +213,29 @@ handle_call(refresh_assets, _From, State) ->
 handle_call(clients, _From, State) ->
     {reply, maps:keys(State#state.clients), State};
 handle_call(sync, _From, State) ->
-    {reply, ok, State};
+    {reply, ok, flush(State)};
+handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
+    _ = Retry =/= undefined andalso erlang:cancel_timer(Retry),
+    %% What the cell's tables say now, its Stop at a node's shutdown included: a task
+    %% writes its state there before it publishes it, and the event may not be here yet.
+    Now = case State0#state.attached of
+              true -> read_again(State0);
+              false -> State0
+          end,
+    State1 = detach_quietly(Now#state{retry = undefined, closing = true}),
+    State = flush(set([{<<"avail">>, unavailable}], now_stamp(), State1)),
+    Pids = maps:keys(State#state.clients),
+    _ = [Pid ! {cell_shdr, closing} || Pid <- Pids],
+    {reply, Pids, State};
 handle_call(log_tables, _From, State) ->
-    {reply, {?LOG, State#state.head}, State}.
+    {reply, {?LOG, State#state.head}, flush(State)}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({alive, Pid}, #state{clients = Clients} = State) ->
+    case Clients of
+        #{Pid := C} -> {noreply, State#state{clients = Clients#{Pid => C#client{alive = true}}}};
+        _ -> {noreply, State}   %% gone, or given its place meanwhile
+    end;
 handle_cast({time_series, Key, {Ms, Mono}, Rate, Values}, State) ->
     Line = cell_shdr_codec:time_series_line(stamp(Ms, Mono, State), Key, length(Values),
                                             Rate, Values),
@@ -195,11 +261,35 @@ handle_info({'DOWN', Ref, process, _, Reason}, #state{watched = W} = State)
                      "UNAVAILABLE until it is back", [Name, reason(Reason)]),
     {noreply, detach(State)};
 handle_info({timeout, TRef, attach}, #state{retry = TRef} = State) ->
-    {noreply, attach(State#state{retry = undefined})}.
+    {noreply, attach(State#state{retry = undefined})};
+handle_info({timeout, _, attach}, #state{closing = true} = State) ->
+    {noreply, State};
+handle_info({timeout, TRef, flush}, #state{pending = {_, _, TRef}} = State) ->
+    {noreply, flush(State)};
+handle_info({timeout, _, flush}, State) ->
+    %% Sent meanwhile with something else.
+    {noreply, State}.
 
 -spec terminate(term(), #state{}) -> ok.
 terminate(_Reason, _State) ->
     ok.
+
+%% A place for one more client (see cell_shdr_admission): a free one, or the place of
+%% the oldest client that has not shown life, which is told to go.
+make_room(#state{clients = Clients} = State) ->
+    Known = [{Since, Alive, Pid} || {Pid, #client{alive = Alive, since = Since}}
+                                        <- maps:to_list(Clients)],
+    case cell_shdr_admission:admit(Known, setting(max_clients, State)) of
+        admit ->
+            {ok, State};
+        {evict, Pid} ->
+            #client{ref = Ref} = maps:get(Pid, Clients),
+            demonitor(Ref, [flush]),
+            Pid ! {cell_shdr, evicted},
+            {ok, State#state{clients = maps:remove(Pid, Clients)}};
+        full ->
+            full
+    end.
 
 reason(normal) -> "normal stop";
 reason(shutdown) -> "shut down";
@@ -238,6 +328,16 @@ attach(State0) ->
             end;
         _Missing ->
             retry(State)
+    end.
+
+%% The cell's tables read once more before the adapter stops; a service of the cell
+%% gone meanwhile (its 'DOWN' still on its way) leaves the values as they are.
+read_again(State) ->
+    try resync(State)
+    catch
+        error:badarg -> State;
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown -> State
     end.
 
 retry(#state{backoff = B} = State) ->
@@ -296,10 +396,6 @@ settings_changed(#state{settings = Old} = State) ->
         true -> ok;
         false -> ok = cell_shdr_listener:restart()
     end,
-    case maps:get(max_clients, New) =:= maps:get(max_clients, Old) of
-        true -> ok;
-        false -> ok = cell_shdr_listener:max_clients(maps:get(max_clients, New))
-    end,
     case maps:with([points], New) =:= maps:with([points], Old) of
         true -> ok;
         false -> cell_shdr_sampler:reconfigure()
@@ -341,8 +437,9 @@ uuid4() ->
 %% Recomputing everything from the cell
 %%====================================================================
 
-resync(State0) ->
+resync(State00) ->
     Stamp = now_stamp(),
+    State0 = load_counts(State00),
     Rows = cell_registry:tasks(),
     Ids = [Id || #{id := Id} <- Rows],
     State1 = State0#state{prefixes = cell_shdr_items:prefixes(Ids)},
@@ -368,18 +465,47 @@ resync(State0) ->
     State5 = resync_points(State4),
     assets(State5).
 
+%% The part counts go on from the statistics the cell keeps (work completed and
+%% aborted, per task, in total), read once when the adapter starts: an agent must not
+%% see them start again from zero at every restart. Without statistics (none in the
+%% cell, or not answering) they start from zero.
+load_counts(#state{base = undefined} = State) ->
+    Counters = try
+                   _ = cell_stats:flush(),
+                   cell_stats:counters(total)
+               catch
+                   exit:{Why, _} when Why =:= noproc; Why =:= timeout; Why =:= normal;
+                                      Why =:= shutdown; Why =:= killed ->
+                       cell_log:warning(?SOURCE, "the statistics do not answer; part "
+                                        "counts start from zero", []),
+                       #{}
+               end,
+    Tasks = maps:filter(fun(K, _) -> K =/= cell end, Counters),
+    Good = lists:sum([maps:get(completed, C, 0) || C <- maps:values(Tasks)]),
+    Bad = lists:sum([maps:get(aborted, C, 0) || C <- maps:values(Tasks)]),
+    State#state{counts = {Good, Bad},
+                base = maps:map(fun(_, C) -> maps:get(completed, C, 0) + maps:get(aborted, C, 0)
+                                end, Tasks)};
+load_counts(State) ->
+    State.
+
+%% What the adapter knows of a task (its count from the statistics at first).
+task(Task, #state{tasks = Tasks, base = Base}) ->
+    case Tasks of
+        #{Task := T} -> T;
+        _ -> #task{count = maps:get(Task, Base, 0)}
+    end.
+
 %% Items that start UNAVAILABLE or at zero until something happens, set once.
-initial(#state{prefixes = P, tasks = Tasks, counts = {Good, Bad}}) ->
+initial(#state{prefixes = P, counts = {Good, Bad}} = State) ->
     Keys = [{<<"program">>, unavailable}, {<<"cycle_time">>, unavailable},
             {<<"part_count">>, Good + Bad}, {<<"part_count_good">>, Good},
             {<<"part_count_bad">>, Bad}]
         ++ lists:append(
              [[{key(P, T, <<"part_state">>), unavailable},
                {key(P, T, <<"cycle_time">>), unavailable},
-               {key(P, T, <<"part_count">>), case Tasks of
-                                                 #{T := #task{count = C}} -> C;
-                                                 _ -> 0
-                                             end}] || T <- maps:keys(P)]),
+               {key(P, T, <<"part_count">>), (task(T, State))#task.count}]
+              || T <- maps:keys(P)]),
     [KV || {K, _} = KV <- Keys, ets:lookup(?VALUES, K) =:= []].
 
 resync_points(#state{points = Points} = State) ->
@@ -439,12 +565,12 @@ task_event(Type, Task, _Ev, {_, Mono} = Stamp, State0) ->
 
 %% Work start and end: cycle time, part counts, the cell's program.
 work(item_work_start, Task, Mono, #state{tasks = Tasks} = State) ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     {[{<<"program">>, T#task.program}],
      State#state{tasks = Tasks#{Task => T#task{started = Mono}}}};
 work(Type, Task, Mono, #state{tasks = Tasks, prefixes = P, counts = {Good, Bad}} = State)
   when Type =:= item_work_complete; Type =:= item_work_abort ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     Count = T#task.count + 1,
     {G1, B1} = case Type of
                    item_work_complete -> {Good + 1, Bad};
@@ -474,7 +600,7 @@ refresh_product(Task, State) ->
     end.
 
 refresh_product(Task, Row, #state{tasks = Tasks, prefixes = P} = State) ->
-    T = maps:get(Task, Tasks, #task{}),
+    T = task(Task, State),
     Serial = maps:get(serial, Row, undefined),
     case Serial =:= T#task.serial andalso is_map_key(Task, Tasks) of
         true ->
@@ -507,16 +633,47 @@ key(P, Task, Suffix) ->
 %%====================================================================
 
 %% Sets values; those that changed go out on shared lines stamped `Stamp'.
-set(Updates, Stamp, State) ->
-    Changed = changed(Updates, #{}, []),
-    case Changed of
+%%
+%% A value that lasted no time is not sent: values are held until the millisecond of
+%% their stamp is over (?HOLD ms after the change, or until anything else is sent, or
+%% a change of another millisecond comes), and of the changes
+%% of an item with the same stamp only the last goes out; none when it is back to what
+%% was sent. A MESSAGE is not a state: each goes out at once.
+set(Updates, {Ms, Mono}, State0) ->
+    S = stamp(Ms, Mono, State0),
+    Messages = State0#state.messages,
+    {Msgs, Values} = lists:partition(fun({K, _}) -> is_map_key(K, Messages) end, Updates),
+    State = case Msgs of
+                [] -> State0;
+                _ -> put_values(Msgs, S, flush(State0))
+            end,
+    hold(Values, S, Mono, State).
+
+hold([], _S, _Mono, State) ->
+    State;
+hold(Values, S, _Mono, #state{pending = {S, Held, TRef}} = State) ->
+    State#state{pending = {S, Held ++ Values, TRef}};
+hold(Values, S, Mono, State0) ->
+    State = flush(State0),
+    %% ?HOLD ms after the change's own instant its millisecond is over, however late
+    %% the cache reads it.
+    Due = erlang:convert_time_unit(Mono, microsecond, millisecond) + ?HOLD,
+    State#state{pending = {S, Values, erlang:start_timer(Due, self(), flush, [{abs, true}])}}.
+
+%% Sends the values held.
+flush(#state{pending = none} = State) ->
+    State;
+flush(#state{pending = {S, Held, TRef}} = State) ->
+    _ = erlang:cancel_timer(TRef),
+    put_values(Held, S, State#state{pending = none}).
+
+put_values(Updates, S, State) ->
+    case changed(Updates, #{}, []) of
         [] ->
             State;
-        _ ->
+        Changed ->
             true = ets:insert(?VALUES, Changed),
-            {Ms, Mono} = Stamp,
-            S = stamp(Ms, Mono, State),
-            emit(value_lines(S, Changed, State), State)
+            append(value_lines(S, Changed, State), State)
     end.
 
 %% The last update of a key wins; unchanged keys drop out.
@@ -603,19 +760,48 @@ assets(State) ->
                  true -> recipe_assets(State);
                  false -> #{}
              end,
-    Old = State#state.assets,
-    S = stamp_now(State),
+    #state{assets = Old, removed = Removed0} = State,
+    Now = os:system_time(millisecond),
     Type = cell_shdr_assets:type(),
-    Lines = [cell_shdr_codec:asset_line(S, Id, Type, Doc)
-             || {Id, Doc} <- lists:sort(maps:to_list(Wanted)), maps:get(Id, Old, none) =/= Doc]
-        ++ [cell_shdr_codec:remove_asset_line(S, Id)
-            || Id <- lists:sort(maps:keys(Old)), not is_map_key(Id, Wanted)],
-    emit(Lines, State#state{assets = Wanted}).
+    Gone = [Id || Id <- lists:sort(maps:keys(Old)), not is_map_key(Id, Wanted)],
+    Lines = [cell_shdr_codec:asset_line(asset_stamp(Ms, State), Id, Type, Doc)
+             || {Id, {Doc, Ms} = A} <- lists:sort(maps:to_list(Wanted)),
+                maps:get(Id, Old, none) =/= A]
+        ++ [cell_shdr_codec:remove_asset_line(asset_stamp(Now, State), Id) || Id <- Gone],
+    Removed = maps:without(maps:keys(Wanted),
+                           maps:merge(Removed0, maps:from_list([{Id, Now} || Id <- Gone]))),
+    emit(Lines, State#state{assets = Wanted, removed = forget_oldest(Removed)}).
 
+%% The removals a new client is told of are the latest ?REMOVED_KEPT.
+forget_oldest(Removed) when map_size(Removed) =< ?REMOVED_KEPT ->
+    Removed;
+forget_oldest(Removed) ->
+    Sorted = lists:keysort(2, maps:to_list(Removed)),
+    maps:from_list(lists:nthtail(map_size(Removed) - ?REMOVED_KEPT, Sorted)).
+
+%% Each recipe with the time of its file: an agent records an asset as changed at the
+%% time its line carries, so an unchanged file must always carry the same time.
 recipe_assets(State) ->
     Uuid = setting(uuid, State),
-    maps:from_list([{Name, cell_shdr_assets:recipe(Info, Uuid)}
-                    || Name <- cell_recipe:list(), {ok, Info} <- [cell_recipe:info(Name)]]).
+    Dir = cell_config:dir(products),
+    maps:from_list([{Name, {cell_shdr_assets:recipe(Info#{modified => Ms}, Uuid), Ms}}
+                    || Name <- cell_recipe:list(), {ok, Info} <- [cell_recipe:info(Name)],
+                       Ms <- [file_time(Dir, Name, Info)]]).
+
+file_time(Dir, Name, #{modified := Modified}) ->
+    File = filename:join(Dir, unicode:characters_to_list(<<Name/binary, ".zprd">>)),
+    case file:read_file_info(File, [{time, posix}]) of
+        {ok, #file_info{mtime = Secs}} -> Secs * 1000;
+        {error, _} -> Modified
+    end.
+
+%% An asset's line carries the asset's own time (in relative-time mode, which counts
+%% from the VM's start, the time it is sent).
+asset_stamp(Ms, State) ->
+    case setting(relative_time, State) of
+        true -> stamp_now(State);
+        false -> {utc, Ms}
+    end.
 
 %%====================================================================
 %% HAL points
@@ -663,10 +849,14 @@ snapshot(State) ->
                    _ -> [cell_shdr_codec:condition_line(S, K, C)
                          || {_, C} <- lists:sort(maps:to_list(Codes))]
                end || {K, Codes} <- lists:sort(maps:to_list(State#state.conds))]),
+    %% Assets as they are, each with its own time: removing all and sending them again
+    %% would have an agent record every one as removed and changed at each connect.
+    %% Those removed lately are removed again, for an agent that was away then.
     Type = cell_shdr_assets:type(),
-    Assets = [cell_shdr_codec:remove_all_assets_line(S, Type)
-              | [cell_shdr_codec:asset_line(S, Id, Type, Doc)
-                 || {Id, Doc} <- lists:sort(maps:to_list(State#state.assets))]],
+    Assets = [cell_shdr_codec:remove_asset_line(asset_stamp(Ms, State), Id)
+              || {Id, Ms} <- lists:keysort(2, maps:to_list(State#state.removed))]
+        ++ [cell_shdr_codec:asset_line(asset_stamp(Ms, State), Id, Type, Doc)
+            || {Id, {Doc, Ms}} <- lists:sort(maps:to_list(State#state.assets))],
     [Commands, Data, Conds, Assets].
 
 adapter_version() ->
@@ -682,9 +872,13 @@ all_items(#state{prefixes = P, points = Points}) ->
 %% The log
 %%====================================================================
 
-emit([], State) ->
+%% Lines other than values: after the values held, which came first.
+emit(Lines, State) ->
+    append(Lines, flush(State)).
+
+append([], State) ->
     State;
-emit(Lines, #state{seq = Seq0, offset = Off0} = State) ->
+append(Lines, #state{seq = Seq0, offset = Off0} = State) ->
     Bin = iolist_to_binary(Lines),
     Seq = Seq0 + 1,
     Off = Off0 + byte_size(Bin),
@@ -695,7 +889,7 @@ emit(Lines, #state{seq = Seq0, offset = Off0} = State) ->
 
 %% Wakes the clients that said they wait; a busy client finds the entry itself.
 wake(Clients) ->
-    maps:foreach(fun(Pid, {_, Flag}) ->
+    maps:foreach(fun(Pid, #client{flag = Flag}) ->
                          case atomics:compare_exchange(Flag, 1, 1, 0) of
                              ok -> Pid ! {cell_shdr, wake};
                              _ -> ok

@@ -4,8 +4,15 @@
 %% device uuid from the settings, so an agent can be pointed at the cell without
 %% writing XML by hand.
 %%
-%% The cell is a Device (id `cellrt_device'); its Controller holds the cell-wide
-%% items and one Path per device task; configured HAL points sit on the Device.
+%% The cell is a Device; its Controller holds the cell-wide items and one Path per
+%% device task; configured HAL points sit on the Device.
+%%
+%% Ids are unique per cell, so several cells can feed one agent (which refuses a
+%% device declaring an id another device has): each is derived from the device name,
+%% itself unique in an agent and stable across restarts. The Device's id is the name,
+%% a component's `<name>.controller' and `<name>.path.<task>', a data item's
+%% `<name>_<key>'. A data item's name is its key, the same in every cell: it is what
+%% the stream carries, and an agent finds an item of a device by its name.
 -module(cell_shdr_devices).
 
 -export([xml/3, version/0]).
@@ -32,18 +39,18 @@ xml(Items, Settings, NowMs) ->
          "version=\"">>, version(), <<"\" deviceModelChangeTime=\"">>, Now,
        <<"\" bufferSize=\"131072\" assetBufferSize=\"1024\" assetCount=\"0\"/>\n">>,
        <<"  <Devices>\n">>,
-       <<"    <Device id=\"cellrt_device\" name=\"">>, Esc(Name), <<"\" uuid=\"">>,
+       <<"    <Device id=\"">>, Esc(Name), <<"\" name=\"">>, Esc(Name), <<"\" uuid=\"">>,
        Esc(maps:get(uuid, Settings)), <<"\">\n">>,
        description(Settings, <<"      ">>),
-       data_items([I || #{component := device} = I <- Items], <<"      ">>),
+       data_items(Name, [I || #{component := device} = I <- Items], <<"      ">>),
        <<"      <Components>\n">>,
-       <<"        <Controller id=\"cellrt_controller\" name=\"controller\">\n">>,
-       data_items([I || #{component := controller} = I <- Items], <<"          ">>),
+       <<"        <Controller id=\"">>, Esc(Name), <<".controller\" name=\"controller\">\n">>,
+       data_items(Name, [I || #{component := controller} = I <- Items], <<"          ">>),
        case Paths of
            [] -> [];
            _ ->
                [<<"          <Components>\n">>,
-                [path(Prefix, Task, Items) || {Prefix, Task} <- Paths],
+                [path(Name, Prefix, Task, Items) || {Prefix, Task} <- Paths],
                 <<"          </Components>\n">>]
        end,
        <<"        </Controller>\n">>,
@@ -61,22 +68,22 @@ description(Settings, Indent) ->
     [Indent, <<"<Description">>, Attrs, $>, Esc(maps:get(description, Settings)),
      <<"</Description>\n">>].
 
-path(Prefix, Task, Items) ->
+path(Device, Prefix, Task, Items) ->
     Esc = fun cell_shdr_assets:xml_escape/1,
     Mine = [I || #{component := {path, T, _}} = I <- Items, T =:= Task],
-    [<<"            <Path id=\"cellrt_path_">>, Esc(Prefix), <<"\" name=\"">>,
+    [<<"            <Path id=\"">>, Esc(Device), <<".path.">>, Esc(Prefix), <<"\" name=\"">>,
      Esc(atom_to_binary(Task, utf8)), <<"\">\n">>,
-     data_items(Mine, <<"              ">>),
+     data_items(Device, Mine, <<"              ">>),
      <<"            </Path>\n">>].
 
-data_items([], _Indent) ->
+data_items(_Device, [], _Indent) ->
     [];
-data_items(Items, Indent) ->
+data_items(Device, Items, Indent) ->
     [Indent, <<"<DataItems>\n">>,
-     [[Indent, <<"  ">>, data_item(I), $\n] || I <- Items],
+     [[Indent, <<"  ">>, data_item(Device, I), $\n] || I <- Items],
      Indent, <<"</DataItems>\n">>].
 
-data_item(#{key := Key, type := Type, category := Cat} = I) ->
+data_item(Device, #{key := Key, type := Type, category := Cat} = I) ->
     Esc = fun cell_shdr_assets:xml_escape/1,
     Opt = fun(F, A) ->
                   case maps:find(F, I) of
@@ -90,7 +97,7 @@ data_item(#{key := Key, type := Type, category := Cat} = I) ->
                       cell_shdr_codec:format_rate(Rate), $"];
                  _ -> []
              end,
-    [<<"<DataItem category=\"">>, category(Cat), <<"\" id=\"">>, Esc(Key),
+    [<<"<DataItem category=\"">>, category(Cat), <<"\" id=\"">>, Esc(Device), $_, Esc(Key),
      <<"\" name=\"">>, Esc(Key), <<"\" type=\"">>, Esc(Type), $",
      Opt(sub_type, <<"subType">>), Opt(units, <<"units">>), Series, <<"/>">>].
 

@@ -20,7 +20,8 @@
 %%   started last</td></tr>
 %% <tr><td>`part_count', `part_count_good', `part_count_bad'</td><td>PART_COUNT (ALL,
 %%   GOOD, BAD)</td><td>work completed or aborted, completed, aborted (seed 000
-%%   §2.3.4 ItemWorkComplete / ItemWorkAbort), since the adapter started</td></tr>
+%%   §2.3.4 ItemWorkComplete / ItemWorkAbort), going on from the statistics' totals
+%%   when the adapter starts</td></tr>
 %% <tr><td>`cycle_time'</td><td>PROCESS_TIMER (PROCESS), seconds</td><td>work start
 %%   to work complete of the last product completed</td></tr>
 %% <tr><td>`system'</td><td>SYSTEM condition</td><td>the cell's own alarms (the
@@ -33,7 +34,7 @@
 %%   the product T holds</td></tr>
 %% <tr><td>`T_program'</td><td>PROGRAM</td><td>the recipe of that product</td></tr>
 %% <tr><td>`T_part_count'</td><td>PART_COUNT (ALL)</td><td>T's completed and aborted
-%%   work</td></tr>
+%%   work, likewise</td></tr>
 %% <tr><td>`T_cycle_time'</td><td>PROCESS_TIMER (PROCESS)</td><td>T's last work
 %%   start to complete</td></tr>
 %% <tr><td>`T_system'</td><td>SYSTEM condition</td><td>T's errors, alarms,

@@ -2,7 +2,8 @@
 %% and, when it cannot (the port is taken), says so in the log and tries again with a
 %% backoff (1 s doubling to 30 s) instead of crashing, so a port conflict never takes
 %% the adapter, let alone the cell, down. A change of port or address in the
-%% settings moves the listener (connected clients reconnect).
+%% settings moves the listener (connected clients reconnect). How many clients may be
+%% connected is the cache's to decide (see {@link cell_shdr_protocol}), not ranch's.
 %%
 %% The port is `CELLRT_SHDR_PORT' (the `cell_shdr' environment key `port') when set,
 %% else the `port' field of the settings; the address likewise `CELLRT_SHDR_BIND'
@@ -10,7 +11,7 @@
 -module(cell_shdr_listener).
 -behaviour(gen_server).
 
--export([start_link/0, restart/0, max_clients/1, port/0]).
+-export([start_link/0, restart/0, port/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -32,11 +33,6 @@ start_link() ->
 restart() ->
     gen_server:cast(?MODULE, restart).
 
-%% @doc Changes how many clients may be connected at once.
--spec max_clients(pos_integer()) -> ok.
-max_clients(N) ->
-    gen_server:cast(?MODULE, {max_clients, N}).
-
 %% @doc The port listened on, or `undefined' while not listening.
 -spec port() -> inet:port_number() | undefined.
 port() ->
@@ -56,15 +52,9 @@ init([]) ->
 handle_call(Msg, _From, _State) ->
     error({unexpected_call, Msg}).
 
--spec handle_cast(restart | {max_clients, pos_integer()}, #state{}) -> {noreply, #state{}}.
+-spec handle_cast(restart, #state{}) -> {noreply, #state{}}.
 handle_cast(restart, State) ->
-    {noreply, listen(stop(State))};
-handle_cast({max_clients, N}, #state{listening = true} = State) ->
-    ok = ranch:set_max_connections(?REF, N),
-    {noreply, State};
-handle_cast({max_clients, _}, State) ->
-    %% Not listening: the next listen reads it from the settings.
-    {noreply, State}.
+    {noreply, listen(stop(State))}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}} | {stop, term(), #state{}}.
 handle_info({timeout, TRef, listen}, #state{retry = TRef} = State) ->
@@ -82,9 +72,11 @@ terminate(_Reason, State) ->
 listen(#state{backoff = B} = State) ->
     case address() of
         {ok, Ip, Port} ->
-            Settings = cell_shdr_cache:settings(),
+            %% No limit in ranch: its limit holds connections beyond it in the kernel's
+            %% queue, once per acceptor's connection supervisor. The cache admits
+            %% `max_clients' exactly, and a client beyond is closed at once.
             Opts = #{socket_opts => [{ip, Ip}, {port, Port}],
-                     max_connections => maps:get(max_clients, Settings),
+                     max_connections => infinity,
                      num_acceptors => 2},
             case ranch:start_listener(?REF, ranch_tcp, Opts, cell_shdr_protocol, #{}) of
                 {ok, _} ->

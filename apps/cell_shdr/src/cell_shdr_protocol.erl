@@ -12,6 +12,15 @@
 %% with a log line, and one that reads nothing for the socket's send timeout (5 s) is
 %% dropped too, so neither the cache nor another client ever waits for it.
 %%
+%% <b>Admission and life.</b> The cache admits at most `max_clients' clients (one
+%% count for the whole listener, whatever ranch's acceptors); a client beyond it is
+%% closed at once with a log line, never left in the kernel's queue. A client must show
+%% life with a `* PING' within `life_timeout' of its connect, or it is closed: TCP
+%% cannot tell the adapter whether a client reads the little it is sent, and every
+%% MTConnect agent PINGs at connect. Until then it holds its place only until a new
+%% client needs it: when every place is taken, the newcomer takes the place of the
+%% oldest client that has not PINGed, so idle connections can never lock an agent out.
+%%
 %% <b>Input.</b> The socket is in `{active, once}'. `* PING' is answered `* PONG
 %% <period>' at once; after the first PING, a client silent for two periods is
 %% disconnected (seed 003: "if the agent becomes unresponsive, the adapter can
@@ -43,6 +52,8 @@
             ping_period :: pos_integer(),
             heard :: integer(),                   %% monotonic ms of the last input
             heartbeat :: reference() | undefined, %% armed after the first PING
+            life :: reference() | alive,          %% the life check, until the first PING
+            life_timeout :: pos_integer(),
             buffer = <<>> :: binary(),
             warned = false :: boolean()}).
 
@@ -61,12 +72,33 @@ init({Ref, Transport, _Opts}) ->
                                     {nodelay, true}, {sndbuf, ?SNDBUF}]),
     Peer = peer(Transport, Socket),
     Flag = atomics:new(1, []),
-    #{preamble := Preamble, seq := Seq, offset := Off, head := Head, log := Log,
-      limit := Limit, ping_period := Period} = cell_shdr_cache:register_client(Flag),
+    case cell_shdr_cache:register_client(Flag) of
+        {ok, Reg} ->
+            start(Reg, Socket, Transport, Peer, Flag);
+        {error, {full, Max}} ->
+            cell_log:warning(?SOURCE, "MTConnect client ~ts refused: ~p clients are connected, "
+                             "the limit (max_clients), and each has shown life", [Peer, Max]),
+            refuse(Transport, Socket);
+        {error, closing} ->
+            refuse(Transport, Socket)
+    end.
+
+%% The end of the stream first, so the client reads a plain end even when what it sent
+%% (its PING) is still unread here and the close itself resets the connection.
+-spec refuse(module(), inet:socket()) -> no_return().
+refuse(Transport, Socket) ->
+    _ = Transport:shutdown(Socket, write),
+    _ = Transport:close(Socket),
+    exit(normal).
+
+start(#{preamble := Preamble, seq := Seq, offset := Off, head := Head, log := Log,
+        limit := Limit, ping_period := Period, life_timeout := Life},
+      Socket, Transport, Peer, Flag) ->
     cell_log:info(?SOURCE, "MTConnect client ~ts connected", [Peer]),
     C = #c{socket = Socket, transport = Transport, peer = Peer, flag = Flag, head = Head,
            log = Log, pos = Seq, sent = Off, limit = Limit, ping_period = Period,
-           heard = now_ms()},
+           heard = now_ms(), life = erlang:start_timer(Life, self(), life),
+           life_timeout = Life},
     case send(Preamble, C) of
         ok ->
             ok = active_once(C),
@@ -95,8 +127,30 @@ handle_info({cell_shdr, wake}, C) ->
 handle_info({tcp, Socket, Data}, #c{socket = Socket} = C) ->
     input(Data, C#c{heard = now_ms()});
 handle_info({tcp_closed, Socket}, #c{socket = Socket, peer = Peer} = C) ->
-    cell_log:info(?SOURCE, "MTConnect client ~ts disconnected", [Peer]),
+    cell_log:info(?SOURCE, "MTConnect client ~ts disconnected (~ts)", [Peer, posix(closed)]),
     {stop, normal, C};
+handle_info({timeout, TRef, life}, #c{life = TRef, peer = Peer, life_timeout = Life} = C) ->
+    cell_log:warning(?SOURCE, "MTConnect client ~ts sent no PING within ~p ms of its connect "
+                     "(life_timeout); disconnected", [Peer, Life]),
+    close(C),
+    {stop, {shutdown, no_life}, C};
+handle_info({cell_shdr, closing}, #c{peer = Peer} = C) ->
+    case send_all(C) of
+        {ok, C1} ->
+            cell_log:info(?SOURCE, "MTConnect client ~ts disconnected: the adapter stops", [Peer]),
+            close(C1),
+            {stop, normal, C1};
+        {stop, _, _} = Stop ->
+            Stop
+    end;
+handle_info({timeout, _, life}, C) ->
+    %% Cancelled by the first PING as it fell due.
+    {noreply, C};
+handle_info({cell_shdr, evicted}, #c{peer = Peer} = C) ->
+    cell_log:warning(?SOURCE, "MTConnect client ~ts, which has sent no PING yet, gave its place "
+                     "to a new client (max_clients reached); disconnected", [Peer]),
+    close(C),
+    {stop, {shutdown, evicted}, C};
 handle_info({tcp_error, Socket, Reason}, #c{socket = Socket, peer = Peer} = C) ->
     cell_log:info(?SOURCE, "MTConnect client ~ts: connection error ~ts", [Peer, posix(Reason)]),
     {stop, normal, C};
@@ -135,7 +189,8 @@ input(Data, #c{buffer = Buf, peer = Peer} = C) ->
 
 commands([], C) ->
     {ok, C};
-commands([ping | Rest], #c{ping_period = Period} = C) ->
+commands([ping | Rest], #c{ping_period = Period} = C0) ->
+    C = alive(C0),
     C1 = case C#c.heartbeat of
              undefined -> C#c{heartbeat = erlang:start_timer(Period, self(), heartbeat)};
              _ -> C
@@ -150,6 +205,14 @@ commands([{unknown, Line} | Rest], #c{warned = false, peer = Peer} = C) ->
     commands(Rest, C#c{warned = true});
 commands([{unknown, _} | Rest], C) ->
     commands(Rest, C).
+
+%% The first PING: the client has shown life, and no longer gives its place to a new one.
+alive(#c{life = alive} = C) ->
+    C;
+alive(#c{life = TRef} = C) ->
+    _ = erlang:cancel_timer(TRef),
+    ok = cell_shdr_cache:alive(),
+    C#c{life = alive}.
 
 %% What a log line may show of a client's input: printable ASCII, at most 60 bytes.
 printable(Line) ->
@@ -192,6 +255,18 @@ copy(Head, #c{pos = Pos, log = Log, sent = Sent, limit = Limit, peer = Peer} = C
             {stop, {shutdown, too_slow}, C};
         [] ->
             too_slow(C)
+    end.
+
+%% Everything the log holds, batch after batch, before the adapter stops.
+send_all(#c{pos = Pos, head = HeadRef} = C) ->
+    case atomics:get(HeadRef, 1) of
+        Pos ->
+            {ok, C};
+        Head ->
+            case copy(Head, C) of
+                {ok, C1} -> send_all(C1);
+                {stop, _, _} = Stop -> Stop
+            end
     end.
 
 too_slow(#c{peer = Peer, limit = Limit} = C) ->
@@ -258,6 +333,8 @@ peer(Transport, Socket) ->
         {error, _} -> <<"(unknown address)">>
     end.
 
+%% inet:format_error/1 knows the POSIX codes only: `closed' is the peer's plain close.
+posix(closed) -> "the agent closed the connection";
 posix(Reason) when is_atom(Reason) -> inet:format_error(Reason);
 posix(Reason) -> io_lib:format("~0tp", [Reason]).
 

@@ -38,7 +38,12 @@ fields() ->
        doc => <<"Address the listener binds to; 0.0.0.0 for every interface "
                 "(CELLRT_SHDR_BIND overrides it).">>},
      #{name => max_clients, type => {integer, 1, 1000}, default => 64,
-       doc => <<"Agents connected at once; more are refused.">>},
+       doc => <<"Agents connected at once; more are refused at once, unless one "
+                "connected has not yet sent a PING: the newcomer takes its place.">>},
+     #{name => life_timeout, type => {integer, 1000, 600000}, default => 10000,
+       unit => <<"ms">>,
+       doc => <<"A client that sends no * PING within this time after its connect is "
+                "disconnected.">>},
      #{name => max_client_buffer, type => {integer, 4096, 67108864}, default => 1048576,
        unit => <<"bytes">>,
        doc => <<"How far a client may fall behind before it is dropped.">>},

@@ -13,6 +13,7 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 -include_lib("xmerl/include/xmerl.hrl").
+-include_lib("kernel/include/file.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([snapshot_at_connect/1, changes_only_after/1, duplicates_filtered/1,
@@ -22,7 +23,12 @@
          flood_of_clients/1, garbage_input/1, adapter_crash_spares_the_cell/1,
          cell_services_restart/1, identity_changes_announced/1,
          devices_xml_matches_stream/1, stream_reads_as_agent/1,
-         taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1]).
+         taken_port_waited_for_and_moved/1, a_unit_is_a_path_like_a_task/1,
+         client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
+         assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
+         closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
+         two_cells_one_agent/1, part_counts_go_on_after_restart/1]).
+-export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
 -define(WAIT, 20000).
@@ -35,7 +41,10 @@ all() ->
      silent_agent_disconnected, slow_client_dropped, flood_of_clients, garbage_input,
      adapter_crash_spares_the_cell, cell_services_restart, identity_changes_announced,
      devices_xml_matches_stream, stream_reads_as_agent, taken_port_waited_for_and_moved,
-     a_unit_is_a_path_like_a_task].
+     a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
+     idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
+     closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent,
+     part_counts_go_on_after_restart].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -98,7 +107,8 @@ snapshot_at_connect(_Config) ->
     Conds = [K || #{key := K, category := condition} <- Items],
     ?assertEqual(lists:sort([[K, <<"NORMAL">>, <<>>, <<>>, <<>>, <<>>] || K <- Conds]),
                  lists:sort([F || {_, F} <- conditions(Lines)])),
-    ?assert(lists:member(<<"@REMOVE_ALL_ASSETS@|File">>, [strip_ts(L) || L <- Lines])),
+    %% Assets as they are: nothing removed to be sent again (see assets_sent_as_they_are).
+    ?assertEqual([], [L || L <- Lines, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
     [?assertMatch({match, _}, re:run(Ts, ?TS), L) || L <- Lines, {Ts, _} <- [split(L)],
                                                      Ts =/= <<"*">>],
     ok = gen_tcp:close(S).
@@ -110,8 +120,11 @@ changes_only_after(Config) ->
     ok = cell_controller:start(),
     Lines = barrier(S),
     V = pairs(Lines),
-    ?assertEqual([<<"WAIT">>, <<"READY">>], [X || {<<"robot_execution">>, X} <- V]),
-    ?assertEqual([<<"POWERING_UP">>, <<"UNAVAILABLE">>], [X || {<<"robot_wait_state">>, X} <- V]),
+    %% The robot's init is over at once: its WAIT may have lasted no time (not sent).
+    ?assert(lists:member([X || {<<"robot_execution">>, X} <- V],
+                         [[<<"WAIT">>, <<"READY">>], [<<"READY">>]])),
+    ?assert(lists:member([X || {<<"robot_wait_state">>, X} <- V],
+                         [[<<"POWERING_UP">>, <<"UNAVAILABLE">>], []])),
     ?assertEqual(<<"READY">>, lists:last([X || {<<"execution">>, X} <- V])),
     %% Nothing unchanged came again.
     ?assertEqual([], [K || {K, _} <- V, lists:member(K, [<<"avail">>, <<"estop">>, <<"mode">>,
@@ -140,17 +153,27 @@ duplicates_filtered(Config) ->
     S2 = connect(),
     ?assertEqual(<<"MANUAL">>, maps:get(<<"mode">>, values(snapshot(S2)))),
     ok = cell_controller:service_mode(false),
+    %% A third client sees each change arrive before the next is made, so that each
+    %% lasts (a value that lasted no time is not sent: same_millisecond_coalesced).
+    Clock = connect(),
+    _ = snapshot(Clock),
     ok = cell_controller:start(),
-    cmd(Config, load, {event, unstarved}),
-    cmd(Config, load, {event, starved}),
-    cmd(Config, load, {event, unstarved}),
+    await_pair(Clock, <<"load_execution">>, <<"READY">>),
+    [begin
+         cmd(Config, load, {event, Ev}),
+         await_pair(Clock, <<"load_execution">>, Exec)
+     end || {Ev, Exec} <- [{unstarved, <<"ACTIVE">>}, {starved, <<"READY">>},
+                           {unstarved, <<"ACTIVE">>}]],
     ok = cell_controller:sync(),
     P1 = pairs(barrier(S1)),
     P2 = pairs(barrier(S2)),
     ?assertEqual(P1, P2),
     no_repeats(P1),
-    ?assertEqual([<<"WAIT">>, <<"READY">>, <<"ACTIVE">>, <<"READY">>, <<"ACTIVE">>],
-                 [X || {<<"load_execution">>, X} <- P1]),
+    %% The init's WAIT is over at once: it may have lasted no time.
+    ?assert(lists:member([X || {<<"load_execution">>, X} <- P1],
+                         [[<<"WAIT">>, <<"READY">>, <<"ACTIVE">>, <<"READY">>, <<"ACTIVE">>],
+                          [<<"READY">>, <<"ACTIVE">>, <<"READY">>, <<"ACTIVE">>]])),
+    ok = gen_tcp:close(Clock),
     ok = gen_tcp:close(S1),
     ok = gen_tcp:close(S2).
 
@@ -160,8 +183,13 @@ task_items_follow_products(Config) ->
     _ = snapshot(S),
     ok = cell_controller:start(),
     _ = barrier(S),
+    Clock = connect(),
+    _ = snapshot(Clock),
     cmd(Config, robot, {product, cell_product:new(<<"SN-0001">>, <<"Panel 4711">>)}),
     cmd(Config, robot, {event, {transfer_in, <<"SN-0001">>}}),
+    %% Seen before the next change, so that it lasts (see same_millisecond_coalesced).
+    await_pair(Clock, <<"robot_part_state">>, <<"NEEDS_PROCESSING">>),
+    ok = gen_tcp:close(Clock),
     cmd(Config, robot, {event, work_start}),
     V = pairs(barrier(S)),
     ?assertEqual([<<"SN-0001">>], [X || {<<"robot_serial">>, X} <- V]),
@@ -337,7 +365,7 @@ relative_time(_Config) ->
     ok = gen_tcp:close(S).
 
 %% Recipes as File assets: multiline documents, changed ones sent again, removed
-%% ones removed; a new client starts from @REMOVE_ALL_ASSETS@.
+%% ones removed; a new client is told of the removal too.
 multiline_assets(Config) ->
     ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up\nfront | rear">>},
                           <<"anna">>),
@@ -365,8 +393,8 @@ multiline_assets(Config) ->
     ?assertEqual([<<"@REMOVE_ASSET@|Panel 4711">>], [strip_ts(X) || X <- barrier(S)]),
     S2 = connect(),
     Snap2 = [strip_ts(X) || X <- snapshot(S2)],
-    {_, [<<"@REMOVE_ALL_ASSETS@|File">> | After]} =
-        lists:splitwith(fun(X) -> X =/= <<"@REMOVE_ALL_ASSETS@|File">> end, Snap2),
+    {_, [<<"@REMOVE_ASSET@|Panel 4711">> | After]} =
+        lists:splitwith(fun(X) -> X =/= <<"@REMOVE_ASSET@|Panel 4711">> end, Snap2),
     ?assertMatch([<<"@ASSET@|Panel 4712|File|--multiline--", _/binary>> | _], After),
     ok = gen_tcp:close(S),
     ok = gen_tcp:close(S2).
@@ -539,8 +567,12 @@ devices_xml_matches_stream(Config) ->
     File = filename:join(?config(priv_dir, Config), "Devices.xml"),
     ok = cell_shdr:devices_xml(File),
     {Doc, _} = xmerl_scan:file(File),
-    Declared = [{attr(E, id), attr(E, type), attr(E, category)}
+    %% The stream's keys are the items' names (an agent finds an item by its name;
+    %% ids are the cell's own: two_cells_one_agent).
+    Declared = [{attr(E, name), attr(E, type), attr(E, category)}
                 || E <- xmerl_xpath:string("//DataItem", Doc)],
+    [?assertEqual("cell_" ++ attr(E, name), attr(E, id))
+     || E <- xmerl_xpath:string("//DataItem", Doc)],
     S = connect(),
     Snap = snapshot(S),
     Streamed = maps:keys(values(Snap)) ++ [K || {_, [K | _]} <- conditions(Snap)],
@@ -623,12 +655,281 @@ stream_reads_as_agent(Config) ->
      || {K, [V]} <- Snap ++ Changes, maps:get(K, Declared, none) =:= sample],
     ok = gen_tcp:close(S).
 
+%% The limit is exact however many acceptors ranch runs: a client beyond it is refused
+%% at once (the connection closed, nothing sent, a log line), never left waiting in the
+%% kernel's queue; a place freed is taken by the next client.
+client_limit_exact(_Config) ->
+    ok = cell_log:subscribe(),
+    ok = put_settings(#{max_clients => 3}),
+    In = [connect() || _ <- lists:seq(1, 3)],
+    [_ = snapshot(S) || S <- In],
+    Refs = [monitor(process, P) || P <- cell_shdr:clients()],
+    ?assertEqual(3, length(Refs)),
+    %% Refused with a plain end of the stream, also when the client PINGs at once as
+    %% an agent does (its PING is never read).
+    [begin
+         Out = connect(),
+         _ = Ping andalso gen_tcp:send(Out, <<"* PING\n">>),
+         ?assertEqual({error, closed}, gen_tcp:recv(Out, 0, left(deadline(5000)))),
+         ok = gen_tcp:close(Out)
+     end || Ping <- [false, true, true]],
+    ?assert(await_log(<<"refused: 3 clients are connected">>, deadline())),
+    ?assertEqual(3, length(cell_shdr:clients())),
+    [First | Rest] = In,
+    ok = gen_tcp:close(First),
+    ?assertEqual(1, length(await_down(Refs, 1, deadline()))),
+    ok = cell_shdr_cache:sync(),
+    Next = connect(),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(Next)),
+    [ok = gen_tcp:close(S) || S <- [Next | Rest]].
+
+%% Connections that never PING and never read cannot hold the adapter: a client
+%% arriving when they fill every place takes the place of the oldest of them, and gets
+%% its snapshot at once.
+idle_flood_cannot_lock_out(_Config) ->
+    Max = maps:get(max_clients, cell_shdr_cache:settings()),
+    Idle = [connect([{recbuf, 1024}]) || _ <- lists:seq(1, 200)],
+    T0 = erlang:monotonic_time(millisecond),
+    Agent = connect(),
+    ok = gen_tcp:send(Agent, <<"* PING\n">>),
+    {Snap, _} = read_until(Agent, fun(L) -> binary:match(L, <<"* PONG">>) =:= {0, 6} end,
+                           deadline(5000)),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], Snap),
+    ?assert(erlang:monotonic_time(millisecond) - T0 < 5000),
+    ?assert(length(cell_shdr:clients()) =< Max),
+    %% Its place is kept while the idle ones keep coming.
+    More = [connect([{recbuf, 1024}]) || _ <- lists:seq(1, 100)],
+    ok = cell_shdr_cache:sync(),
+    ?assertEqual([], snapshot(Agent)),
+    ?assert(length(cell_shdr:clients()) =< Max),
+    [ok = gen_tcp:close(S) || S <- [Agent | Idle ++ More]].
+
+%% A client that shows no life (no PING) within `life_timeout' of its connect is
+%% closed; one that PINGs in time stays.
+idle_client_closed(_Config) ->
+    ok = cell_log:subscribe(),
+    ok = put_settings(#{life_timeout => 1000}),
+    T0 = erlang:monotonic_time(millisecond),
+    Idle = connect(),
+    Alive = connect(),
+    ok = gen_tcp:send(Alive, <<"* PING\n">>),
+    ?assertEqual({error, closed}, drain(Idle, deadline(10000))),
+    ?assert(erlang:monotonic_time(millisecond) - T0 >= 1000),
+    ?assert(await_log(<<"sent no PING within 1000 ms of its connect">>, deadline())),
+    ?assertMatch([<<"* shdrVersion: 2">> | _], snapshot(Alive)),
+    ?assertEqual([], snapshot(Alive)),
+    ?assertEqual(1, length(cell_shdr:clients())),
+    ok = gen_tcp:close(Alive).
+
+%% Assets at connect as they are: no @REMOVE_ALL_ASSETS@, each stamped with its recipe
+%% file's modification time, the same for every client; a recipe removed while an
+%% agent was away is removed for the next client too.
+assets_sent_as_they_are(_Config) ->
+    ok = cell_recipe:save(<<"Panel 4711">>, #{description => <<"Two up">>}, <<"anna">>),
+    ok = cell_recipe:save(<<"Panel 4712">>, #{description => <<"One up">>}, <<"bert">>),
+    File = filename:join(cell_config:dir(products), "Panel 4711.zprd"),
+    Mtime = 1767323045,                 % 2026-01-02T03:04:05Z
+    ok = file:write_file_info(File, #file_info{mtime = Mtime}, [{time, posix}]),
+    ok = cell_shdr:refresh_assets(),
+    S1 = connect(),
+    Snap1 = snapshot(S1),
+    S2 = connect(),
+    Snap2 = snapshot(S2),
+    Assets = fun(Lines) -> [L || L <- Lines, has(L, <<"|@">>)] end,
+    ?assertEqual([], [L || L <- Snap1, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
+    [Head | _] = [L || L <- Snap1, has(L, <<"|@ASSET@|Panel 4711|">>)],
+    ?assertMatch(<<"2026-01-02T03:04:05.000Z|@ASSET@|", _/binary>>, Head),
+    [Doc] = assets(Snap1, <<"Panel 4711">>),
+    ?assertNotEqual(nomatch, binary:match(Doc, <<"timestamp=\"2026-01-02T03:04:05.000Z\"">>)),
+    %% Asset lines are the same bytes for every client (the body lines hold no time).
+    ?assertEqual(Assets(Snap1), Assets(Snap2)),
+    ?assertEqual([Doc], assets(Snap2, <<"Panel 4711">>)),
+    ok = cell_recipe:delete(<<"Panel 4711">>),
+    ok = cell_shdr:refresh_assets(),
+    ?assertEqual([<<"@REMOVE_ASSET@|Panel 4711">>], [strip_ts(X) || X <- barrier(S1)]),
+    S3 = connect(),
+    Snap3 = [strip_ts(X) || X <- snapshot(S3)],
+    ?assert(lists:member(<<"@REMOVE_ASSET@|Panel 4711">>, Snap3)),
+    ?assertEqual([], [L || L <- Snap3, has(L, <<"@REMOVE_ALL_ASSETS@">>)]),
+    ?assertMatch([<<"@ASSET@|Panel 4712|File|--multiline--", _/binary>>],
+                 [L || L <- Snap3, has(L, <<"@ASSET@|">>)]),
+    [ok = gen_tcp:close(S) || S <- [S1, S2, S3]].
+
+%% The adapter stopping sends avail UNAVAILABLE to its clients before it closes them.
+stop_streamed(_Config) ->
+    S = connect(),
+    _ = snapshot(S),
+    Stopper = spawn_link(fun() -> ok = application:stop(cell_shdr) end),
+    Ref = monitor(process, Stopper),
+    {Before, _} = read_until(S, fun(L) -> has(L, <<"|avail|UNAVAILABLE">>) end, deadline()),
+    ?assertEqual([], Before),
+    ?assertEqual({error, closed}, drain(S, deadline())),
+    receive {'DOWN', Ref, process, Stopper, normal} -> ok
+    after ?WAIT -> ct:fail("the adapter did not stop")
+    end.
+
+%% A value that lasted no time is not sent: of two changes of an item within the same
+%% millisecond only the last goes out (none when it is back to what was sent); a
+%% change that lasted a millisecond is sent.
+same_millisecond_coalesced(_Config) ->
+    S = connect(),
+    _ = snapshot(S),
+    Cache = whereis(cell_shdr_cache),
+    Ms = os:system_time(millisecond) - 1000,
+    Mono = erlang:monotonic_time(microsecond) - 1000000,
+    Ev = fun(State, Dt) -> Cache ! {cell_event, #{type => task_state, task => robot,
+                                                   state => State, time => Ms + Dt,
+                                                   mono => Mono + Dt * 1000}}
+         end,
+    Ev(setup, 0),
+    Ev({ready, processing, active}, 0),
+    ?assertEqual([<<"ACTIVE">>], [X || {<<"robot_execution">>, X} <- pairs(barrier(S))]),
+    Ev({ready, idle, blocked}, 5),
+    Ev({ready, processing, active}, 5),
+    ?assertEqual([], [X || {<<"robot_execution">>, X} <- pairs(barrier(S))]),
+    Ev({ready, idle, blocked}, 6),
+    Ev({ready, processing, active}, 7),
+    ?assertEqual([<<"WAIT">>, <<"ACTIVE">>],
+                 [X || {<<"robot_execution">>, X} <- pairs(barrier(S))]),
+    ok = gen_tcp:close(S).
+
+%% The node going down (init:stop, as at Ctrl-C or a service stop): the agent sees the
+%% cell's Stop (every task and the cell STOPPED), then avail UNAVAILABLE, then the end
+%% of the connection. The adapter stops before the cell (it depends on it), so it has
+%% the cell stop first.
+node_stop_streams_the_cell_stop(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "root-node-stop"),
+    Paths = [P || P <- code:get_path(), string:find(P, "_build") =/= nomatch
+                                            orelse string:find(P, "_debdeps") =/= nomatch],
+    Name = list_to_atom("cell_shdr_stop_" ++ os:getpid()),
+    {ok, Peer, _Node} = peer:start(#{name => Name, host => "localhost",
+                                     args => lists:append([["-pa", P] || P <- Paths]),
+                                     connection => standard_io}),
+    PeerRef = monitor(process, Peer),
+    Call = fun(M, F, A) -> peer:call(Peer, M, F, A, ?WAIT) end,
+    Specs = Call(?MODULE, peer_tasks, []),
+    _ = [ok = Call(application, load, [A]) || A <- [cell_base, cell, cell_shdr]],
+    [ok = Call(application, set_env, [A, K, V])
+     || {A, K, V} <- [{cell_base, root, Root}, {cell, shutdown_wait_ms, 10000},
+                      {cell, cell_spec, #{name => <<"peer">>, tasks => Specs}},
+                      {cell_shdr, port, 0}, {cell_shdr, hal_module, cell_shdr_test_hal}]],
+    {ok, _} = Call(application, ensure_all_started, [cell_shdr]),
+    _ = Call(sys, get_state, [cell_shdr_listener]),
+    Port = Call(cell_shdr, port, []),
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {packet, line},
+                                                     {buffer, 1 bsl 20}]),
+    _ = snapshot(S),
+    ok = Call(cell_controller, start, []),
+    await_pair(S, <<"robot_execution">>, <<"READY">>),
+    ok = Call(init, stop, []),
+    {Lines, Last} = read_until(S, fun(L) -> has(L, <<"|avail|UNAVAILABLE">>) end, deadline()),
+    P = pairs(Lines ++ [Last]),
+    ?assertMatch({<<"avail">>, <<"UNAVAILABLE">>}, lists:last(P)),
+    [?assert(lists:member({K, <<"STOPPED">>}, P), K)
+     || K <- [<<"robot_execution">>, <<"load_execution">>, <<"execution">>]],
+    ?assertEqual({error, closed}, drain(S, deadline())),
+    receive {'DOWN', PeerRef, process, Peer, _} -> ok
+    after ?WAIT -> ct:fail("the node did not stop")
+    end.
+
+%% On a test node: the suite's scripted tasks, their table kept by a process of its own.
+peer_tasks() ->
+    Self = self(),
+    _ = spawn(fun() ->
+                      Tab = ets:new(cell_shdr_suite, [public]),
+                      Self ! {tab, Tab},
+                      receive stop -> ok end
+              end),
+    receive {tab, Tab} -> [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
+    after ?WAIT -> error(no_table)
+    end.
+
+%% Two cells feed one agent: their Devices.xml merged into one file declare no id
+%% twice (the reference agent refuses a second device holding an id already taken),
+%% and each cell's ids stay the same across restarts (derived from its device name).
+two_cells_one_agent(Config) ->
+    Items = cell_shdr_cache:items(),
+    Settings = cell_shdr_cache:settings(),
+    Xml = fun(Name, Uuid) ->
+                  cell_shdr_devices:xml(Items, Settings#{device_name => Name, uuid => Uuid},
+                                        1767323045000)
+          end,
+    A = Xml(<<"cell_a">>, <<"0e1c7a52-8d0e-4a53-9d3b-3c5c8e1f0a01">>),
+    ?assertEqual(A, Xml(<<"cell_a">>, <<"0e1c7a52-8d0e-4a53-9d3b-3c5c8e1f0a01">>)),
+    B = Xml(<<"cell_b">>, <<"5b0f7d3e-2a61-4c1e-8f55-6d7a9b2c4e02">>),
+    %% One document holding both devices, as an agent's configuration would.
+    [HeadA, DeviceA] = binary:split(A, <<"<Devices>\n">>),
+    [DeviceA1, _] = binary:split(DeviceA, <<"  </Devices>">>),
+    [_, DeviceB] = binary:split(B, <<"<Devices>\n">>),
+    Merged = <<HeadA/binary, "<Devices>\n", DeviceA1/binary, DeviceB/binary>>,
+    {Doc, _} = xmerl_scan:string(binary_to_list(Merged)),
+    Ids = [V || #xmlAttribute{value = V} <- xmerl_xpath:string("//@id", Doc)],
+    ?assertEqual(length(Ids), length(lists:usort(Ids)),
+                 Ids -- lists:usort(Ids)),
+    ?assertEqual(2, length(xmerl_xpath:string("//Device", Doc))),
+    %% The stream's keys are the items' names, the same in every cell.
+    Names = [V || #xmlAttribute{value = V} <- xmerl_xpath:string("//DataItem/@name", Doc)],
+    ?assertEqual(2 * length(Items), length(Names)),
+    ?assertEqual(lists:sort([binary_to_list(K) || #{key := K} <- Items]), lists:usort(Names)),
+    schema_check("MTConnectDevices_2.0_1.0.xsd", Merged, Config).
+
+%% Part counts go on from the statistics the cell keeps when the adapter starts
+%% again, not from zero.
+part_counts_go_on_after_restart(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    %% The statistics count the work done on a product.
+    cmd(Config, robot, {product, cell_product:new(<<"SN-0001">>, <<"Panel 4711">>)}),
+    cmd(Config, robot, {event, {transfer_in, <<"SN-0001">>}}),
+    [begin
+         cmd(Config, robot, {event, work_start}),
+         cmd(Config, robot, {event, Ev})
+     end || Ev <- [work_complete, work_complete, {work_abort, <<"scratched">>}]],
+    ok = cell_controller:sync(),
+    S = connect(),
+    V = values(snapshot(S)),
+    Counts = [{K, maps:get(K, V)} || K <- [<<"robot_part_count">>, <<"part_count">>,
+                                           <<"part_count_good">>, <<"part_count_bad">>]],
+    ?assertEqual([{<<"robot_part_count">>, <<"3">>}, {<<"part_count">>, <<"3">>},
+                  {<<"part_count_good">>, <<"2">>}, {<<"part_count_bad">>, <<"1">>}], Counts),
+    ok = gen_tcp:close(S),
+    ok = application:stop(cell_shdr),
+    {ok, _} = application:ensure_all_started(cell_shdr),
+    _ = sys:get_state(cell_shdr_listener),
+    S2 = connect(),
+    V2 = values(snapshot(S2)),
+    ?assertEqual(Counts, [{K, maps:get(K, V2)} || {K, _} <- Counts]),
+    ?assertEqual(<<"0">>, maps:get(<<"load_part_count">>, V2)),
+    cmd(Config, robot, {event, work_start}),
+    cmd(Config, robot, {event, work_complete}),
+    ?assertEqual([{<<"robot_part_count">>, <<"4">>}, {<<"part_count">>, <<"4">>},
+                  {<<"part_count_good">>, <<"3">>}],
+                 [{K, X} || {K, X} <- pairs(barrier(S2)),
+                            lists:member(K, [<<"robot_part_count">>, <<"part_count">>,
+                                             <<"part_count_good">>])]),
+    ok = gen_tcp:close(S2).
+
+%% A client that closes its connection is logged in words.
+closed_socket_in_words(_Config) ->
+    ok = cell_log:subscribe(),
+    S = connect(),
+    _ = snapshot(S),
+    [Client] = cell_shdr:clients(),
+    Ref = monitor(process, Client),
+    ok = gen_tcp:close(S),
+    ok = cell_controller:service_mode(true),
+    ?assertEqual([Ref], await_down([Ref], 1, deadline())),
+    ?assert(await_log(<<"the agent closed the connection">>, deadline())).
+
 %% -------------------------------------------------------------------------------------
 %% Helpers
 %% -------------------------------------------------------------------------------------
 
 deadline() ->
-    erlang:monotonic_time(millisecond) + ?WAIT.
+    deadline(?WAIT).
+
+deadline(Ms) ->
+    erlang:monotonic_time(millisecond) + Ms.
 
 left(Deadline) ->
     max(0, Deadline - erlang:monotonic_time(millisecond)).
@@ -907,12 +1208,13 @@ assets_document(Doc) ->
        "deviceModelChangeTime=\"2026-01-01T00:00:00Z\"/>\n  <Assets>\n">>,
      Doc, <<"\n  </Assets>\n</MTConnectAssets>\n">>].
 
-%% The data items of a Devices.xml by id, each with the fields an agent reads after
-%% its key: condition, message, time_series, sample or event.
+%% The data items of a Devices.xml by name (the agent finds an item of the device by
+%% it), each with the fields an agent reads after its key: condition, message,
+%% time_series, sample or event.
 declared(File) ->
     {Doc, _} = xmerl_scan:file(File),
     maps:from_list(
-      [{list_to_binary(attr(E, id)),
+      [{list_to_binary(attr(E, name)),
         case {attr(E, category), attr(E, type),
               [V || #xmlAttribute{value = V} <- xmerl_xpath:string("@representation", E)]} of
             {"CONDITION", _, _} -> condition;
