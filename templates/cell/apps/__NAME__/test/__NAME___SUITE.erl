@@ -1,0 +1,176 @@
+%% The __NAME__ cell, run in this node on its simulated line: parts pass the line,
+%% each with a serial of its own; the serial counter goes on after the cell is
+%% stopped and started again (retained data), never repeating one; a press stroke
+%% that sticks is the operator's question, and their answer does what it says.
+%%
+%% The simulation runs fast (`sim_time_scale'); every wait is for an event of the
+%% cell with a deadline. The operator panel and the SHDR adapter are not started here
+%% (they are applications of the release), so no port is taken.
+-module(__NAME___SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([parts_pass_the_line/1, serials_survive_a_restart/1, stuck_stroke_answers/1]).
+
+-define(DEADLINE_MS, 60000).
+-define(EVENTS, [item_transfer_out, alarm_raised, cell_state]).
+
+all() ->
+    [parts_pass_the_line, serials_survive_a_restart, stuck_stroke_answers].
+
+init_per_testcase(Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    Own = maps:merge(#{sim_time_scale => 0.05, sim_arrival_ms => 0, hal_poll_ms => 5,
+                       transfer_timeout_ms => 5000, stroke_timeout_ms => 2000},
+                     settings(Case)),
+    ok = write_settings(Root, #{machine => #{simulation_mode => true},
+                                __NAME__ => Own}),
+    ok = start(Root),
+    [{root, Root} | Config].
+
+end_per_testcase(_Case, _Config) ->
+    stop().
+
+settings(stuck_stroke_answers) -> #{sim_stick_rate => 1.0};
+settings(_) -> #{}.
+
+%% -------------------------------------------------------------------------------------
+
+%% Ten parts enter, are pressed and leave, each with a serial of its own, in order.
+parts_pass_the_line(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Out = collect_out(10, fun never_answer/1),
+    ok = stop_cell(),
+    ?assertEqual(Out, lists:usort(Out)),
+    ?assertEqual(<<"P000001">>, hd(Out)),
+    #{delivered := Delivered} = __NAME___sim:world(),
+    ?assert(Delivered >= 10).
+
+%% The cell stopped and its applications started again (as at a new boot of the
+%% node): the infeed's serial counter goes on from where it was.
+serials_survive_a_restart(Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    First = collect_out(3, fun never_answer/1),
+    ok = stop_cell(),
+    ok = stop(),
+    ok = start(?config(root, Config)),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    Second = collect_out(3, fun never_answer/1),
+    ok = stop_cell(),
+    All = First ++ Second,
+    ?assertEqual(length(All), length(lists:usort(All))),
+    ?assert(lists:max(First) < lists:min(Second)).
+
+%% Every stroke sticks: the press asks; Retry presses again (it sticks again), Ignore
+%% sends the part on, marked failed.
+stuck_stroke_answers(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    {ok, #{id := Id}} = await_alarm(<<"Press stroke not completed">>),
+    ok = cell_alarms:answer(Id, retry, <<"suite">>),
+    {ok, #{id := Id2}} = await_alarm(<<"Press stroke not completed">>),
+    ok = cell_alarms:answer(Id2, ignore, <<"suite">>),
+    [Serial] = collect_out(1, fun(_) -> ok end),
+    ok = stop_cell(fun(#{id := A, kind := error}) -> cell_alarms:answer(A, ignore, <<"suite">>);
+                      (_) -> ok
+                   end),
+    ?assertEqual(<<"P000001">>, Serial).
+
+%% -------------------------------------------------------------------------------------
+
+start(Root) ->
+    _ = [application:load(A) || A <- [cell_base, cell_hal, cell, __NAME__]],
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:set_env(cell, cell_module, __NAME__),
+    ok = application:set_env(cell, shutdown_wait_ms, 10000),
+    {ok, _} = application:ensure_all_started(__NAME__),
+    ok = await_up(__NAME___plc),
+    __NAME___sim:ready(?DEADLINE_MS).
+
+stop() ->
+    _ = application:stop(__NAME__),
+    _ = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = cell_hal_sim_sup:stop_device(__NAME___plc),
+    ok.
+
+write_settings(Root, Objects) ->
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects).
+
+await_up(Conn) ->
+    case cell_hal:subscribe_connection(Conn) of
+        {ok, up} -> ok;
+        {ok, down} ->
+            receive {cell_hal_conn, Conn, up} -> ok
+            after ?DEADLINE_MS -> ct:fail({connection_not_up, Conn})
+            end
+    end.
+
+stop_cell() ->
+    stop_cell(fun never_answer/1).
+
+%% Stop, and wait until every task is OFF; errors raised meanwhile go to `Answer'.
+stop_cell(Answer) ->
+    ok = cell_controller:stop(<<"suite">>),
+    ok = cell_controller:sync(),
+    case cell_controller:state() of
+        off -> ok;
+        _ -> await(fun(#{type := cell_state, state := off}) -> true;
+                      (#{type := alarm_raised, alarm := A}) -> ok = Answer(A), false;
+                      (_) -> false
+                   end)
+    end.
+
+await_alarm(Caption) ->
+    Deadline = erlang:monotonic_time(millisecond) + ?DEADLINE_MS,
+    receive
+        {cell_event, #{type := alarm_raised, alarm := #{caption := Caption} = A}} -> {ok, A}
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({no_alarm, Caption, cell_alarms:list()})
+    end.
+
+await(Match) ->
+    Deadline = erlang:monotonic_time(millisecond) + ?DEADLINE_MS,
+    await(Match, Deadline).
+
+await(Match, Deadline) ->
+    receive
+        {cell_event, E} ->
+            case Match(E) of
+                true -> ok;
+                false -> await(Match, Deadline)
+            end
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({no_event, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% The serials of the next N parts the press sends out; alarms go to `Answer'.
+collect_out(N, Answer) ->
+    collect_out(N, Answer, [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS).
+
+collect_out(0, _Answer, Acc, _Deadline) ->
+    lists:reverse(Acc);
+collect_out(N, Answer, Acc, Deadline) ->
+    receive
+        {cell_event, #{type := item_transfer_out, task := press, item := S}} ->
+            collect_out(N - 1, Answer, [S | Acc], Deadline);
+        {cell_event, #{type := alarm_raised, alarm := A}} ->
+            ok = Answer(A),
+            collect_out(N, Answer, Acc, Deadline);
+        {cell_event, _} ->
+            collect_out(N, Answer, Acc, Deadline)
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+never_answer(#{kind := error} = A) -> ct:fail({unexpected_error, A});
+never_answer(_) -> ok.
