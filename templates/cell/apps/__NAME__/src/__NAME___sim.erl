@@ -30,51 +30,56 @@
 start_link() ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
 
-%% @doc The world as it is now (see {@link __NAME___line}).
--spec world() -> __NAME___line:world().
+%% @doc The world as it is now (see {@link __NAME___line}); `undefined' until the
+%% simulation has attached to the HAL.
+-spec world() -> __NAME___line:world() | undefined.
 world() ->
     gen_server:call(?MODULE, world).
 
 %% @doc Returns once the simulation runs and the HAL has read every input as the
-%% simulation set it: a Start from then on finds the machine as it is.
+%% simulation last set it: a Start from then on finds the machine as it is. (The
+%% simulation watches each input for the value it set, again whenever it sets another.)
 -spec ready(timeout()) -> ok | {error, timeout}.
 ready(Timeout) ->
-    Deadline = erlang:monotonic_time(millisecond) + Timeout,
-    Inputs = gen_server:call(?MODULE, inputs, Timeout),
-    Refs = [begin
-                {ok, Ref} = cell_hal:watch(?GROUP, P, {eq, V}),
-                Ref
-            end || {P, V} <- maps:to_list(Inputs)],
-    await_watches(Refs, Deadline).
-
-await_watches([], _Deadline) ->
-    ok;
-await_watches([Ref | Rest], Deadline) ->
-    receive
-        {cell_hal_watch, Ref, _} -> await_watches(Rest, Deadline)
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        {error, timeout}
+    try gen_server:call(?MODULE, ready, Timeout)
+    catch exit:{timeout, _} -> {error, timeout}
     end.
 
 %%====================================================================
 %% gen_server
 %%====================================================================
 
+%% `waiting': the callers of ready/1; `unseen': the watch of each input the HAL has not
+%% yet read as the simulation last set it (kept while someone waits).
 -spec init([]) -> {ok, map()}.
 init([]) ->
     self() ! attach,
-    {ok, #{world => undefined, waiting => []}}.
+    {ok, #{world => undefined, waiting => [], unseen => #{}}}.
 
--spec handle_call(world | inputs, gen_server:from(), map()) ->
+-spec handle_call(world | ready, gen_server:from(), map()) ->
           {reply, term(), map()} | {noreply, map()}.
-handle_call(_Req, From, #{world := undefined, waiting := Waiting} = S) ->
-    %% Answered once attached.
+handle_call(world, _From, #{world := W} = S) ->
+    {reply, W, S};
+handle_call(ready, From, #{world := undefined, waiting := Waiting} = S) ->
+    %% Answered once attached and seen.
     {noreply, S#{waiting := [From | Waiting]}};
-handle_call(Req, _From, #{world := W} = S) ->
-    {reply, answer(Req, W), S}.
+handle_call(ready, From, #{world := W, waiting := Waiting} = S) ->
+    {noreply, seen(watch_all(__NAME___line:inputs(W), S#{waiting := [From | Waiting]}))}.
 
-answer(world, W) -> W;
-answer(inputs, W) -> __NAME___line:inputs(W).
+%% A watch on each input for the value the simulation set.
+watch_all(Inputs, #{unseen := Unseen} = S) ->
+    S#{unseen := maps:fold(fun(P, V, Acc) ->
+                                   _ = [cell_hal:cancel_watch(R) || {ok, R} <- [maps:find(P, Acc)]],
+                                   {ok, Ref} = cell_hal:watch(?GROUP, P, {eq, V}),
+                                   Acc#{P => Ref}
+                           end, Unseen, Inputs)}.
+
+%% Everyone waiting is answered once the HAL has seen every input.
+seen(#{unseen := Unseen, waiting := Waiting} = S) when map_size(Unseen) =:= 0 ->
+    _ = [gen_server:reply(From, ok) || From <- Waiting],
+    S#{waiting := []};
+seen(S) ->
+    S.
 
 -spec handle_cast(term(), map()) -> {noreply, map()}.
 handle_cast(_Msg, S) ->
@@ -88,6 +93,8 @@ handle_info({out, Point, Value}, #{world := W} = S) when W =/= undefined ->
     {noreply, apply_physics(__NAME___line:output(Point, Value, P, W), S)};
 handle_info({event, Event}, #{world := W} = S) when W =/= undefined ->
     {noreply, apply_physics(__NAME___line:event(Event, params(), W), S)};
+handle_info({cell_hal_watch, Ref, _}, #{unseen := Unseen} = S) ->
+    {noreply, seen(S#{unseen := maps:filter(fun(_, R) -> R =/= Ref end, Unseen)})};
 handle_info(_Msg, S) ->
     {noreply, S}.
 
@@ -100,7 +107,7 @@ terminate(_Reason, #{world := W}) ->
 %%====================================================================
 
 %% The physics needs the simulated PLC's points, which the cell's monitor adds.
-attach(#{waiting := Waiting} = S) ->
+attach(S) ->
     case cell_hal:points(?GROUP) of
         {ok, Points} ->
             Self = self(),
@@ -114,8 +121,10 @@ attach(#{waiting := Waiting} = S) ->
             #{world := W1} = S1,
             cell_log:notice(__NAME__, "simulated line running: ~b part(s) in the machine",
                             [__NAME___line:parts(W1)]),
-            _ = [gen_server:reply(From, ok) || From <- Waiting],
-            S1#{waiting := []};
+            case S1 of
+                #{waiting := []} -> S1;
+                #{} -> seen(watch_all(__NAME___line:inputs(W1), S1))
+            end;
         {error, _} ->
             _ = erlang:send_after(?ATTACH_MS, self(), attach),
             S
@@ -129,15 +138,20 @@ put_out(P, #{outs := Outs} = W) ->
 
 apply_physics({W, Effects}, #{world := Old} = S) ->
     Scale = maps:get(sim_time_scale, settings(), 1.0),
-    lists:foreach(fun({set, P, V}) ->
-                          ok = cell_hal_sim:set({?GROUP, P}, V);
-                     ({'after', Ms, Event}) ->
-                          erlang:send_after(round(Ms * Scale), self(), {event, Event})
-                  end, Effects),
+    Set = lists:foldl(fun({set, P, V}, Acc) ->
+                              ok = cell_hal_sim:set({?GROUP, P}, V),
+                              Acc#{P => V};
+                         ({'after', Ms, Event}, Acc) ->
+                              _ = erlang:send_after(round(Ms * Scale), self(), {event, Event}),
+                              Acc
+                      end, #{}, Effects),
     Moved = Old =:= undefined orelse
         maps:with([infeed, press, delivered], Old) =/= maps:with([infeed, press, delivered], W),
     Moved andalso save(W),
-    S#{world := W}.
+    case S of
+        #{waiting := []} -> S#{world := W};
+        #{} -> watch_all(Set, S#{world := W})
+    end.
 
 params() ->
     __NAME___line:params(settings()).

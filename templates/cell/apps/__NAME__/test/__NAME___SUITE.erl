@@ -49,12 +49,14 @@ parts_pass_the_line(_Config) ->
     ?assert(Delivered >= 10).
 
 %% The cell stopped and its applications started again (as at a new boot of the
-%% node): the infeed's serial counter goes on from where it was.
+%% node): the parts the tasks held are reconciled with the sensors and go on, first
+%% out; the infeed's serial counter goes on from where it was.
 serials_survive_a_restart(Config) ->
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
     First = collect_out(3, fun never_answer/1),
     ok = stop_cell(),
+    Held = lists:sort([S || #{serial := S} <- cell_controller:tasks(), is_binary(S)]),
     ok = stop(),
     ok = start(?config(root, Config)),
     ok = cell_events:subscribe(?EVENTS),
@@ -63,6 +65,7 @@ serials_survive_a_restart(Config) ->
     ok = stop_cell(),
     All = First ++ Second,
     ?assertEqual(length(All), length(lists:usort(All))),
+    ?assertEqual(Held, lists:sublist(Second, length(Held))),
     ?assert(lists:max(First) < lists:min(Second)).
 
 %% Every stroke sticks: the press asks; Retry presses again (it sticks again), Ignore
