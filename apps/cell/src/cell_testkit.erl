@@ -28,7 +28,7 @@
 -module(cell_testkit).
 
 -export([write_settings/2, start/3, stop/2, await_connection/2, stop_cell/2,
-         await_event/2]).
+         await_event/2, collect/4]).
 
 %% @doc Writes settings objects into a cell root folder before the cell starts there:
 %% `Settings/<name>.json' for each `Name => Fields' (fields left out take their
@@ -107,4 +107,35 @@ await_until(Match, Deadline) ->
             end
     after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
         erlang:error({no_event, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+%% @doc What `Pick' finds in the next events the caller receives (`{true, Value}'),
+%% until it has found `N', in the order found; an alarm raised meanwhile goes to
+%% `Answer', as in {@link stop_cell/2}. The serials of the next three parts out:
+%% ```
+%% collect(3, fun(#{type := item_transfer_out, task := press, item := S}) -> {true, S};
+%%               (_) -> false
+%%            end, fun(_Alarm) -> ok end, 60000)
+%% '''
+-spec collect(non_neg_integer(), fun((cell_events:event()) -> {true, term()} | false),
+              fun((cell_alarms:alarm()) -> ok), non_neg_integer()) -> [term()].
+collect(N, Pick, Answer, Timeout) ->
+    collect(N, Pick, Answer, [], erlang:monotonic_time(millisecond) + Timeout).
+
+collect(0, _Pick, _Answer, Acc, _Deadline) ->
+    lists:reverse(Acc);
+collect(N, Pick, Answer, Acc, Deadline) ->
+    receive
+        {cell_event, E} ->
+            case {Pick(E), E} of
+                {{true, V}, _} ->
+                    collect(N - 1, Pick, Answer, [V | Acc], Deadline);
+                {false, #{type := alarm_raised, alarm := A}} ->
+                    ok = Answer(A),
+                    collect(N, Pick, Answer, Acc, Deadline);
+                {false, _} ->
+                    collect(N, Pick, Answer, Acc, Deadline)
+            end
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        erlang:error({only, lists:reverse(Acc), cell_controller:tasks(), cell_alarms:list()})
     end.

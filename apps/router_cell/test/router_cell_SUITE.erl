@@ -498,25 +498,11 @@ await_event(Match) ->
 %% Products the unloading segments hand out, until N have left; errors are answered
 %% by `Answer'.
 collect_out(N, Answer) ->
-    collect_out(N, Answer, [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS).
-
-collect_out(0, _Answer, Acc, _Deadline) ->
-    lists:reverse(Acc);
-collect_out(N, Answer, Acc, Deadline) ->
-    receive
-        {cell_event, #{type := item_transfer_out, task := T, item := S}} ->
-            case is_unloading(T) of
-                true -> collect_out(N - 1, Answer, [S | Acc], Deadline);
-                false -> collect_out(N, Answer, Acc, Deadline)
-            end;
-        {cell_event, #{type := alarm_raised, alarm := A}} ->
-            ok = Answer(A),
-            collect_out(N, Answer, Acc, Deadline);
-        {cell_event, _} ->
-            collect_out(N, Answer, Acc, Deadline)
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
-    end.
+    cell_testkit:collect(N, fun(#{type := item_transfer_out, task := T, item := S}) ->
+                                    is_unloading(T) andalso {true, S};
+                               (_) ->
+                                    false
+                            end, Answer, ?DEADLINE_MS).
 
 %% Waits for a task log line that begins with `Prefix' (the case subscribed).
 await_log(Prefix) ->

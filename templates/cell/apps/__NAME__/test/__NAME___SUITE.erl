@@ -116,22 +116,11 @@ await_alarm(Caption) ->
 
 %% The serials of the next N parts the press sends out; alarms go to `Answer'.
 collect_out(N, Answer) ->
-    collect_out(N, Answer, [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS).
-
-collect_out(0, _Answer, Acc, _Deadline) ->
-    lists:reverse(Acc);
-collect_out(N, Answer, Acc, Deadline) ->
-    receive
-        {cell_event, #{type := item_transfer_out, task := press, item := S}} ->
-            collect_out(N - 1, Answer, [S | Acc], Deadline);
-        {cell_event, #{type := alarm_raised, alarm := A}} ->
-            ok = Answer(A),
-            collect_out(N, Answer, Acc, Deadline);
-        {cell_event, _} ->
-            collect_out(N, Answer, Acc, Deadline)
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
-    end.
+    cell_testkit:collect(N, fun(#{type := item_transfer_out, task := press, item := S}) ->
+                                    {true, S};
+                               (_) ->
+                                    false
+                            end, Answer, ?DEADLINE_MS).
 
 never_answer(#{kind := error} = A) -> ct:fail({unexpected_error, A});
 never_answer(_) -> ok.
