@@ -4,14 +4,22 @@
 %% <pre>
 %%  phase      waits for                                 then
 %%  idle       the infeed's offer (STARVED)              commit (phase 2), belt on → moving_in
-%%  moving_in  the infeed's Available off (phase 3)      → arriving
+%%  moving_in  the infeed's Available off (phase 3)      → arriving; the transfer interrupted:
+%%                                                       cell_handover:interrupted/3
 %%  arriving   the part in the die, or the watchdog      belt off, complete (phase 4) → pressing;
-%%                                                       late: "Part did not arrive" (RETRY)
-%%  pressing   -                                         depth from the recipe, ram down → stroke
-%%  stroke     the ram at the bottom, or the watchdog    ram up → pressed; late: "Press stroke not
-%%                                                       completed" (RETRY, IGNORE)
+%%                                                       late: "Part did not arrive" (RETRY:
+%%                                                       → moving_in_again, the belt on again)
+%%  pressing   -                                         depth from the recipe, ram down → stroke;
+%%                                                       no depth: "Recipe not usable" (RETRY)
+%%  stroke     the ram at the bottom, or the watchdog    ram up → pressed; late: ram up, "Press
+%%                                                       stroke not completed" → stroke_answered
+%%  stroke_answered  the ram at the top                  RETRY: → pressing; IGNORE: the part
+%%                                                       marked failed → pressed
 %%  pressed    the ram at the top                        belt on → ejecting
-%%  ejecting   the part out of the die                   belt off, the product out → idle
+%%  ejecting   the part out of the die, or the watchdog  belt off, the product out → idle; still
+%%                                                       there: "Part not out" (RETRY)
+%%  in_transit the operator's Ignore after "Transfer     → pressing (Reset: forgotten at init)
+%%             interrupted"
 %% </pre>
 %%
 %% The product records how far it got (`pressed', `handing_out'), saved with it, so a
