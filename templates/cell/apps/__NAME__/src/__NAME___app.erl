@@ -5,7 +5,7 @@
 -module(__NAME___app).
 -behaviour(application).
 
--export([start/2, stop/1]).
+-export([start/2, prep_stop/1, stop/1]).
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
@@ -17,6 +17,15 @@ start(_Type, _Args) ->
         false ->
             __NAME___sup:start_link(false)
     end.
+
+%% @doc As the node stops, the cell's tasks come to rest first, while the simulation
+%% still runs: a part moving from the infeed into the press arrives. (This application
+%% stops before cellrt's `cell', which would otherwise stop the tasks after the
+%% simulation had gone.)
+-spec prep_stop(term()) -> term().
+prep_stop(State) ->
+    ok = cell_app:rest(),
+    State.
 
 -spec stop(term()) -> ok.
 stop(_State) ->
