@@ -1238,12 +1238,7 @@ write_settings(Root) ->
                                 jam_rate => 0.01, jam_ms => 100000,
                                 magazine_low_s => 600, magazine_refill_s => 120},
                 router => #{transfer_timeout_ms => 3000, motion_timeout_ms => 5000}},
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects).
+    cell_testkit:write_settings(Root, Objects).
 
 uniform(N, #{rand := R} = H) ->
     {X, R1} = rand:uniform_s(max(N, 1), R),

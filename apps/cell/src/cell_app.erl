@@ -4,6 +4,8 @@
 -behaviour(application).
 
 -export([start/2, prep_stop/1, stop/1]).
+%% For a cell's application that stops before `cell' (see rest/0).
+-export([rest/0]).
 
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
@@ -50,20 +52,36 @@ start(_Type, _Args) ->
 %% themselves stop and start the cell many times).
 -spec prep_stop(term()) -> term().
 prep_stop(_State) ->
+    ok = rest(),
+    %% An orderly stop (only then is prep_stop called): stop/1 records it as clean.
+    stopping.
+
+%% @doc What the cell does as the node stops (see {@link prep_stop/1}): a Stop, and
+%% the wait of at most `shutdown_wait_ms' for every task to come to rest; at once when
+%% they are. A cell's own application stops before `cell' (it depends on it): one whose
+%% processes the tasks need until they rest (the simulation of its machine, which must
+%% finish a transfer under way) calls this from its own `prep_stop/1', so the tasks
+%% come to rest while the simulation still runs.
+-spec rest() -> ok.
+rest() ->
     case application:get_env(cell, shutdown_wait_ms, 0) of
         Wait when is_integer(Wait), Wait > 0 -> stop_tasks(Wait);
         _ -> ok
-    end,
-    %% An orderly stop (only then is prep_stop called): stop/1 records it as clean.
-    stopping.
+    end.
 
 stop_tasks(Wait) ->
     try
         ok = cell_events:subscribe([task_state]),
-        ok = cell_controller:stop(<<"shutdown">>),
-        ok = cell_controller:sync(),
-        await_rest(Wait, erlang:monotonic_time(millisecond) + Wait),
-        cell_events:unsubscribe()
+        case cell_controller:state() of
+            %% Stopped already (a cell's application had it rest first).
+            off ->
+                ok;
+            _ ->
+                ok = cell_controller:stop(<<"shutdown">>),
+                ok = cell_controller:sync(),
+                await_rest(Wait, erlang:monotonic_time(millisecond) + Wait)
+        end,
+        ok = cell_events:unsubscribe()
     catch
         exit:Why ->
             cell_log:error(cell, "the cell could not be stopped before shutting down: ~0tp",

@@ -9,7 +9,7 @@
 -module(router_cell_app).
 -behaviour(application).
 
--export([start/2, stop/1]).
+-export([start/2, prep_stop/1, stop/1]).
 
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
@@ -22,6 +22,13 @@ start(_Type, _Args) ->
         false ->
             router_cell_sup:start_link(false, [])
     end.
+
+%% @doc As the node stops, the cell's tasks come to rest first, while the physics still
+%% runs: a panel moving between two segments arrives ({@link cell_app:rest/0}).
+-spec prep_stop(term()) -> term().
+prep_stop(State) ->
+    ok = cell_app:rest(),
+    State.
 
 -spec stop(term()) -> ok.
 stop(_State) ->

@@ -465,11 +465,7 @@ diagnostics(_Config) ->
 %% -------------------------------------------------------------------------------------
 
 start(Root) ->
-    _ = [application:load(A) || A <- [cell_base, cell_hal, cell, router_cell]],
-    ok = application:set_env(cell_base, root, Root),
-    ok = application:unset_env(cell, cell_spec),
-    ok = application:set_env(cell, cell_module, router_cell),
-    {ok, _} = application:ensure_all_started(router_cell),
+    ok = cell_testkit:start(Root, router_cell, router_cell),
     await_hal().
 
 %% The router's PLC connected, and its inputs read as the physics set them up: a task
@@ -482,20 +478,10 @@ await_hal() ->
 %% database; and the simulated PLC, which a new node has anew (the world it simulates
 %% is on disc).
 stop() ->
-    _ = application:stop(router_cell),
-    _ = application:stop(cell),
-    _ = application:stop(mnesia),
-    ok = cell_hal_sim_sup:stop_device(router_plc),
-    ok.
+    cell_testkit:stop(router_cell, [router_plc]).
 
 await_up(Conn) ->
-    case cell_hal:subscribe_connection(Conn) of
-        {ok, up} -> ok;
-        {ok, down} ->
-            receive {cell_hal_conn, Conn, up} -> ok
-            after ?DEADLINE_MS -> ct:fail({connection_not_up, Conn})
-            end
-    end.
+    cell_testkit:await_connection(Conn, ?DEADLINE_MS).
 
 %% Stop, and wait until every task is OFF; errors raised meanwhile are answered by
 %% `Answer' (none is expected unless one is given).
@@ -504,53 +490,19 @@ stop_cell() ->
 
 stop_cell(Answer) ->
     ok = cell_events:subscribe(?EVENTS),
-    ok = cell_controller:stop(<<"suite">>),
-    ok = cell_controller:sync(),
-    case cell_controller:state() of
-        off -> ok;
-        _ -> await_event(fun(#{type := cell_state, state := off}) -> true;
-                            (#{type := alarm_raised, alarm := A}) -> ok = Answer(A), false;
-                            (_) -> false
-                         end)
-    end.
+    cell_testkit:stop_cell(Answer, ?DEADLINE_MS).
 
 await_event(Match) ->
-    Deadline = erlang:monotonic_time(millisecond) + ?DEADLINE_MS,
-    await_event(Match, Deadline).
-
-await_event(Match, Deadline) ->
-    receive
-        {cell_event, E} ->
-            case Match(E) of
-                true -> ok;
-                false -> await_event(Match, Deadline)
-            end
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail({no_event, cell_controller:tasks(), cell_alarms:list()})
-    end.
+    cell_testkit:await_event(Match, ?DEADLINE_MS).
 
 %% Products the unloading segments hand out, until N have left; errors are answered
 %% by `Answer'.
 collect_out(N, Answer) ->
-    collect_out(N, Answer, [], erlang:monotonic_time(millisecond) + ?DEADLINE_MS).
-
-collect_out(0, _Answer, Acc, _Deadline) ->
-    lists:reverse(Acc);
-collect_out(N, Answer, Acc, Deadline) ->
-    receive
-        {cell_event, #{type := item_transfer_out, task := T, item := S}} ->
-            case is_unloading(T) of
-                true -> collect_out(N - 1, Answer, [S | Acc], Deadline);
-                false -> collect_out(N, Answer, Acc, Deadline)
-            end;
-        {cell_event, #{type := alarm_raised, alarm := A}} ->
-            ok = Answer(A),
-            collect_out(N, Answer, Acc, Deadline);
-        {cell_event, _} ->
-            collect_out(N, Answer, Acc, Deadline)
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail({only_out, length(Acc), cell_controller:tasks(), cell_alarms:list()})
-    end.
+    cell_testkit:collect(N, fun(#{type := item_transfer_out, task := T, item := S}) ->
+                                    is_unloading(T) andalso {true, S};
+                               (_) ->
+                                    false
+                            end, Answer, ?DEADLINE_MS).
 
 %% Waits for a task log line that begins with `Prefix' (the case subscribed).
 await_log(Prefix) ->

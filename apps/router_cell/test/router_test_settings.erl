@@ -5,9 +5,4 @@
 -export([write/2]).
 
 write(Root, Objects) ->
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects).
+    cell_testkit:write_settings(Root, Objects).
