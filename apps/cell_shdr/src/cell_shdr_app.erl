@@ -2,7 +2,7 @@
 %% that its agents see the stop.
 %%
 %% The adapter depends on the cell, so the node stops it first: the cell's own orderly
-%% stop (`cell_app:prep_stop/1', every task brought to rest) would come after the
+%% stop (`cell_app:rest/0', every task brought to rest) would come after the
 %% agents' connections had gone, and an agent would see only the connection's end.
 %% When the node is going down, the adapter has the cell stop first, while it still
 %% streams the stop; then, whenever the adapter stops, `avail' goes UNAVAILABLE and
@@ -23,7 +23,7 @@ start(_Type, _Args) ->
 prep_stop(State) ->
     case init:get_status() of
         %% The node stops: the cell's Stop, as the cell would make it after us.
-        {stopping, _} -> _ = cell_app:prep_stop(shdr);
+        {stopping, _} -> ok = cell_app:rest();
         _ -> ok
     end,
     try cell_shdr_cache:close_clients() of
