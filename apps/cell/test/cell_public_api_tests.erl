@@ -60,6 +60,28 @@ every_export_decided_test() ->
                   not lists:member(Mod, public_modules(Doc))],
     ?assertEqual([], flat(Undecided ++ Stale ++ Twice ++ Outside)).
 
+%% The generated cell project is what a cell author starts from: it calls cellrt only
+%% through the public API (functions and types), so what it teaches stays promised.
+template_calls_only_public_test() ->
+    Doc = doc(),
+    Allowed = lists:usort([{M, F} || {M, F, _} <- public(Doc)
+                                     ++ functions(block(Doc, "api-types"))]),
+    Files = filelib:wildcard(filename:join([top(), "templates", "**", "*.erl"])),
+    ?assertNotEqual([], Files),
+    Calls = lists:usort(
+              [{filename:basename(File), M, F}
+               || File <- Files,
+                  {ok, Bin} <- [file:read_file(File)],
+                  [M, F] <- case re:run(Bin, "\\b(cell_[a-z0-9_]*):([a-z][a-zA-Z0-9_]*)\\(",
+                                        [global, {capture, all_but_first, list}]) of
+                                {match, Ms} -> Ms;
+                                nomatch -> []
+                            end]),
+    Problems = [io_lib:format("~ts calls ~ts:~ts, which docs/api.md does not list public",
+                              [File, M, F])
+                || {File, M, F} <- Calls, not lists:member({M, F}, Allowed)],
+    ?assertEqual([], flat(Problems)).
+
 %% Every exported type of a public module is listed public or internal, and every type
 %% listed is exported.
 every_type_decided_test() ->
