@@ -306,6 +306,8 @@ reply_error(Status, Code, Message, Extra, Req) ->
     Req1 = case Status of
                405 -> cowboy_req:set_resp_header(<<"allow">>, maps:get(allow, Extra, <<>>), Req);
                413 -> cowboy_req:set_resp_header(<<"connection">>, <<"close">>, Req);
+               429 -> cowboy_req:set_resp_header(<<"retry-after">>,
+                                                 maps:get(retry_after, Extra, <<"1">>), Req);
                _ -> Req
            end,
     reply_json(Status, maps:merge(cell_web_json:term(maps:remove(close, Extra)),

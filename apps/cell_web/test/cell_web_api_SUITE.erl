@@ -19,7 +19,7 @@ all() ->
      settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
      statistics_and_history, audit_trail_is_kept, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
-     anonymous_view_can_be_switched_off, login_attempts_are_braked,
+     anonymous_view_can_be_switched_off, login_attempts_are_braked, login_brake_is_per_account,
      demo_passwords_refused_when_configured, listener_waits_for_a_taken_port].
 
 init_per_suite(Config) ->
@@ -126,7 +126,6 @@ session_login_logout(Config) ->
     assert_error(401, <<"bad_login">>, req(A, post, "/api/session",
                                            #{user => <<"nobody">>, password => <<"x">>})),
     assert_error(400, <<"bad_request">>, req(A, post, "/api/session", #{user => 1})),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>),
     {200, #{<<"user">> := <<"service">>, <<"role">> := <<"service">>,
             <<"demo_password">> := true}, H} =
         req(A, post, "/api/session", #{user => <<"service">>, password => <<"service">>}),
@@ -482,8 +481,7 @@ users_are_managed(Config) ->
     {error, 401, _} = cell_web_client:login(anon(Config), "jdoe", "s3cret-pass"),
     assert_error(409, <<"last_admin">>, req(Ad, delete, "/api/users/admin")),
     assert_error(409, <<"last_admin">>, req(Ad, put, "/api/users/admin", #{role => <<"service">>})),
-    assert_error(404, <<"not_found">>, req(Ad, delete, "/api/users/nobody")),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>).
+    assert_error(404, <<"not_found">>, req(Ad, delete, "/api/users/nobody")).
 
 password_is_changed(Config) ->
     Op = as(operator, Config),
@@ -649,7 +647,30 @@ login_attempts_are_braked(Config) ->
     %% Even the right password waits out the brake.
     assert_error(429, <<"too_many_attempts">>,
                  req(A, post, "/api/session", #{user => <<"admin">>, password => <<"admin">>})),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>),
+    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>, <<"admin">>),
+    {ok, _} = cell_web_client:login(A, "admin", "admin").
+
+%% Guesses at one account are braked whatever other users of the same address do, and
+%% the brake holds back only the guessed account.
+login_brake_is_per_account(Config) ->
+    A = anon(Config),
+    Wrong = #{user => <<"admin">>, password => <<"guess">>},
+    Results = lists:append(
+                [begin
+                     Guesses = [element(1, req(A, post, "/api/session", Wrong))
+                                || _ <- lists:seq(1, 9)],
+                     {ok, _} = cell_web_client:login(A, "operator", "operator"),
+                     Guesses
+                 end || _ <- lists:seq(1, 4)]),
+    %% Ten free failures, then every guess refused before its password is checked.
+    ?assertEqual(lists:duplicate(10, 401) ++ lists:duplicate(26, 429), Results),
+    {429, #{<<"error">> := <<"too_many_attempts">>}, H} =
+        req(A, post, "/api/session", #{user => <<"admin">>, password => <<"admin">>}),
+    {_, Retry} = lists:keyfind("retry-after", 1, H),
+    ?assert(list_to_integer(Retry) > 0),
+    %% Another account of the same address is not held back.
+    {ok, _} = cell_web_client:login(A, "service", "service"),
+    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>, <<"admin">>),
     {ok, _} = cell_web_client:login(A, "admin", "admin").
 
 demo_passwords_refused_when_configured(_Config) ->
