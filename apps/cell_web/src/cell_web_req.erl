@@ -71,7 +71,13 @@ audit(Req, #{user := User, role := Role}, Status, Detail) ->
               target => cowboy_req:path(Req),
               outcome => integer_to_binary(Status),
               detail => Detail},
-    case cell_web_audit:record(Entry) of
+    %% A refusal of a caller not logged in costs the caller nothing: counted, not
+    %% each written (see cell_web_audit).
+    Written = case Role =:= anonymous andalso Status >= 400 of
+                  true -> cell_web_audit:refused(Entry);
+                  false -> cell_web_audit:record(Entry)
+              end,
+    case Written of
         ok -> ok;
         {error, _} -> ok      %% logged by the audit process; the answer is sent
     end.

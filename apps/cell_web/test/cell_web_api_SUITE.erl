@@ -17,7 +17,8 @@ all() ->
      %% After log_is_queried: its errors are in the log that case reads.
      answer_refused_for_a_product_held_twice,
      settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
-     statistics_and_history, audit_trail_is_kept, websocket_snapshot_and_live,
+     statistics_and_history, audit_trail_is_kept, audit_flood_is_bounded,
+     audit_files_rotate_and_expire, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
      anonymous_view_can_be_switched_off, login_attempts_are_braked, login_brake_is_per_account,
      demo_passwords_refused_when_configured, listener_waits_for_a_taken_port].
@@ -537,6 +538,74 @@ audit_trail_is_kept(Config) ->
     %% On disk, one line each, in the day's file.
     {ok, Files} = file:list_dir(filename:join(?config(root, Config), "Logs")),
     ?assert(lists:any(fun(F) -> lists:prefix("audit ", F) end, Files)).
+
+audit_flood_is_bounded(Config) ->
+    Dir = filename:join(?config(root, Config), "Logs"),
+    Before = audit_files(Dir),
+    A = anon(Config),
+    Long = "/api/cell/" ++ lists:duplicate(2048, $x),
+    [{404, _, _} = req(A, post, Long) || _ <- lists:seq(1, 300)],
+    %% At most one line (the first of the address in its minute), the path cut short;
+    %% the rest counted.
+    Added = added_lines(Before, audit_files(Dir)),
+    ?assert(length(Added) =< 1),
+    ?assert(iolist_size(Added) < 1024),
+    ok = cell_web_audit:flush(),
+    Count = lists:last(added_lines(Before, audit_files(Dir))),
+    #{<<"address">> := <<"127.0.0.1">>, <<"detail">> := Detail, <<"target">> := Target} =
+        jsx:decode(Count, [return_maps]),
+    [N | _] = binary:split(Detail, <<" ">>),
+    ?assert(binary_to_integer(N) >= 299),
+    ?assertNotEqual(nomatch, binary:match(Detail, <<"more refused requests from this address">>)),
+    ?assert(byte_size(Target) =< 256),
+    %% A logged-in caller's refusals are each written.
+    Op = as(operator, Config),
+    Mid = audit_files(Dir),
+    {403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => 10}),
+    {403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => 10}),
+    ?assertEqual(2, length(added_lines(Mid, audit_files(Dir)))).
+
+audit_files_rotate_and_expire(Config) ->
+    Dir = filename:join(?config(root, Config), "Logs"),
+    Old = filename:join(Dir, "audit 2001-01-01.jsonl"),
+    ok = file:write_file(Old, <<"{}\n">>),
+    ok = application:stop(cell_web),
+    ok = application:set_env(cell_web, audit_file_max_bytes, 2000),
+    try
+        ok = application:start(cell_web),
+        Op = as(operator, [{port, cell_web:port()} | Config]),
+        T0 = os:system_time(millisecond),
+        [{403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => I})
+         || I <- lists:seq(1, 30)],
+        %% The file of 2001 went when the trail opened today's.
+        ?assertNot(filelib:is_regular(Old)),
+        {ok, Names} = file:list_dir(Dir),
+        Parts = [N || N <- Names, {ok, _, P} <- [cell_web_audit_rules:parse_name(N)], P > 1],
+        ?assertNotEqual([], Parts),
+        [?assert(filelib:file_size(filename:join(Dir, N)) < 2000 + 1024)
+         || N <- Names, lists:prefix("audit ", N)],
+        %% Read back across the parts, in order.
+        Entries = cell_web_audit:query(#{from => T0, who => <<"operator">>, limit => 1000}),
+        ?assertEqual(30, length([E || #{outcome := <<"403">>} = E <- Entries]))
+    after
+        ok = application:stop(cell_web),
+        ok = application:unset_env(cell_web, audit_file_max_bytes),
+        ok = application:start(cell_web)
+    end.
+
+audit_files(Dir) ->
+    {ok, Names} = file:list_dir(Dir),
+    maps:from_list([{N, Bin} || N <- Names, lists:prefix("audit ", N),
+                                {ok, Bin} <- [file:read_file(filename:join(Dir, N))]]).
+
+%% The lines added to the audit files since `Before'.
+added_lines(Before, After) ->
+    lists:append(
+      [begin
+           Old = maps:get(N, Before, <<>>),
+           New = binary:part(Bin, byte_size(Old), byte_size(Bin) - byte_size(Old)),
+           binary:split(New, <<"\n">>, [global, trim_all])
+       end || {N, Bin} <- lists:sort(maps:to_list(After))]).
 
 websocket_snapshot_and_live(Config) ->
     Op = as(operator, Config),
