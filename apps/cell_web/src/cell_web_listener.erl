@@ -73,8 +73,10 @@ listen(#state{ip = Ip, port = Port, backoff = Backoff} = State) ->
                                   %% instead of holding its connection's process.
                                   {send_timeout, 10000}, {send_timeout_close, true}],
                   num_acceptors => 4, max_connections => 1024},
-    Protocol = #{env => #{dispatch => cell_web_routes:dispatch()},
-                 middlewares => [cowboy_router, cell_web_headers, cowboy_handler],
+    Protocol = #{env => #{dispatch => cell_web_routes:dispatch(),
+                          hosts => cell_web_hosts:names(Ip)},
+                 middlewares => [cell_web_headers, cell_web_hosts, cowboy_router,
+                                 cowboy_handler],
                  idle_timeout => 120000, request_timeout => 30000},
     case cowboy:start_clear(?REF, Transport, Protocol) of
         {ok, _} ->

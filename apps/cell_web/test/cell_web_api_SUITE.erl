@@ -11,7 +11,7 @@
 
 all() ->
     [pages_and_unknown_routes, session_login_logout, roles_are_enforced,
-     csrf_and_origin_are_checked, commands_change_the_cell, bad_requests_change_nothing,
+     csrf_and_origin_are_checked, foreign_host_names_are_refused, commands_change_the_cell, bad_requests_change_nothing,
      errors_are_answered, warnings_are_closed, tasks_and_products, retained_data_is_read,
      log_is_queried,
      %% After log_is_queried: its errors are in the log that case reads.
@@ -192,6 +192,32 @@ csrf_and_origin_are_checked(Config) ->
     ?assertEqual(stop, maps:get(request, cell_controller:flags())),
     Origin = "http://127.0.0.1:" ++ integer_to_list(?config(port, Config)),
     {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start", none, [{"origin", Origin}]).
+
+%% A page of another site whose name was made to resolve to this PC (DNS rebinding)
+%% sends its own name in Host and Origin: refused, whatever it asks.
+foreign_host_names_are_refused(Config) ->
+    A = anon(Config),
+    Op = as(operator, Config),
+    Port = integer_to_list(?config(port, Config)),
+    Rebound = [{"host", "attacker.example:" ++ Port}],
+    assert_error(403, <<"unknown_host">>, cell_web_client:req(A, get, "/api/cell", none, Rebound)),
+    {403, #{<<"message">> := M}, _} = cell_web_client:req(A, get, "/", none, Rebound),
+    ?assertNotEqual(nomatch, binary:match(M, <<"attacker.example">>)),
+    assert_error(403, <<"unknown_host">>,
+                 cell_web_client:req(Op, post, "/api/cell/start", none,
+                                     [{"origin", "http://attacker.example:" ++ Port} | Rebound])),
+    assert_error(403, <<"bad_origin">>,
+                 cell_web_client:req(Op, post, "/api/cell/start", none,
+                                     [{"origin", "http://attacker.example:" ++ Port}])),
+    assert_error(403, <<"bad_origin">>,
+                 cell_web_client:req(A, get, "/api/cell", none,
+                                     [{"origin", "http://attacker.example:" ++ Port}])),
+    {error, 403} = cell_web_client:ws_connect(A, "http://attacker.example:" ++ Port),
+    %% The panel's own names pass.
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", "localhost:" ++ Port}]),
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", "LOCALHOST"}]),
+    {ok, Short} = inet:gethostname(),
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", Short}]).
 
 commands_change_the_cell(Config) ->
     Op = started(Config),
