@@ -91,7 +91,7 @@ fail(Status, Code, Message) ->
 %% trail only).
 -spec fail(cowboy:http_status(), atom(), iodata(), map()) -> no_return().
 fail(Status, Code, Message, Extra) ->
-    throw({cell_web_error, Status, Code, unicode:characters_to_binary(Message), Extra}).
+    throw({cell_web_error, Status, Code, cell_web_words:no_terms(Message), Extra}).
 
 %% @doc Checks that the caller may do something: `view' (anyone when anonymous
 %% viewing is on, else any user) or a role (that role or a higher one).
@@ -181,7 +181,7 @@ read_json(Req0) ->
                 {ok, _} -> fail(400, bad_json, "the body must be a JSON object");
                 {error, not_json} -> fail(400, bad_json, "the body is not valid JSON");
                 {error, Why} -> fail(400, bad_json, ["the body is refused: ",
-                                                     cell_settings_schema:format_error(Why)])
+                                                     cell_web_words:settings_error(Why)])
             end
     end.
 

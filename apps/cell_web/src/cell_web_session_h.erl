@@ -46,7 +46,7 @@ handle(password, Req, Caller0) ->
     case cell_web_users:set_password(Name, New, Name) of
         {ok, updated} -> ok;
         {error, {password, Why}} -> cell_web_req:fail(422, weak_password, password_text(Why));
-        {error, Why} -> cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Why))
+        {error, Why} -> cell_web_req:fail(422, invalid, cell_web_words:settings_error(Why))
     end,
     {ok, User} = cell_web_users:find(Name),
     ok = cell_web_sessions:revalidate(),

@@ -12,7 +12,7 @@
 all() ->
     [pages_and_unknown_routes, session_login_logout, roles_are_enforced,
      csrf_and_origin_are_checked, foreign_host_names_are_refused, commands_change_the_cell, bad_requests_change_nothing,
-     errors_are_answered, warnings_are_closed, tasks_and_products, retained_data_is_read,
+     errors_are_answered, error_messages_carry_no_terms, warnings_are_closed, tasks_and_products, retained_data_is_read,
      log_is_queried,
      %% After log_is_queried: its errors are in the log that case reads.
      answer_refused_for_a_product_held_twice,
@@ -316,6 +316,61 @@ answer_refused_for_a_product_held_twice(Config) ->
     ?assertEqual({error, not_found}, cell_alarms:get(<<"loader:jam">>)),
     cmd(Config, router, {product, undefined}),
     ok = cell_events:unsubscribe().
+
+%% Every refusal is said in words: no answer carries an Erlang term (a tuple opening
+%% with an atom, a binary, a map, a pid), however odd the request.
+error_messages_carry_no_terms(Config) ->
+    Sv = as(service, Config),
+    Ad = as(admin, Config),
+    Huge = 1000000000000000000000000000000,
+    Deep = #{speed_override => #{<<"a">> => [<<"b">>, #{<<"c">> => 1}]}},
+    Requests =
+        [{Sv, post, "/api/settings/machine/restore", #{rev => Huge}},
+         {Sv, post, "/api/settings/machine/restore", #{rev => 999}},
+         {Sv, post, "/api/settings/machine/restore", #{rev => <<"x">>}},
+         {Sv, get, "/api/settings/machine/revisions/" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/settings/machine/diff?from=1&to=" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/settings/nothing", none},
+         {Sv, put, "/api/settings/machine", Deep},
+         {Sv, put, "/api/settings/machine", #{speed_override => [1, <<"x">>]}},
+         {Sv, put, "/api/settings/machine", #{speed_override => <<"fast">>}},
+         {Sv, put, "/api/settings/machine", {"application/json", <<"[1,2]">>}},
+         {Sv, put, "/api/settings/machine", {"application/json", <<"{\"a\":">>}},
+         {Sv, put, "/api/settings/machine", {"text/plain", <<"x">>}},
+         {Ad, put, "/api/users/admin", #{role => <<"service">>}},
+         {Ad, put, "/api/users/x%20y", #{role => <<"operator">>, password => <<"s3cret-pass">>}},
+         {Ad, put, "/api/users/newbie", #{role => #{<<"a">> => 1}, password => [1]}},
+         {Ad, put, "/api/users/newbie", #{role => <<"king">>, password => <<"s3cret-pass">>}},
+         {Sv, get, "/api/recipes/CON", none},
+         {Sv, get, "/api/recipes/a%3Ab", none},
+         {Sv, get, "/api/recipes/nothing-here", none},
+         {Sv, post, "/api/recipes/nothing-here/copy", #{to => <<"a%3Ab">>}},
+         {Sv, post, "/api/recipes/nothing-here/rename", #{to => #{}}},
+         {Sv, put, "/api/recipes/x/file", {"application/zip", <<"PK not a zip">>}},
+         {Sv, post, "/api/alarms/nothing/answer", #{solution => <<"retry">>}},
+         {Sv, post, "/api/alarms/x/answer", #{solution => #{}}},
+         {Sv, post, "/api/inspect/messages/answer",
+          #{block => <<"b">>, ref => <<"r">>, answer => <<"yes">>}},
+         {Sv, get, "/api/products/nothing", none},
+         {Sv, get, "/api/log?from=yesterday&limit=" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/audit?from=x", none},
+         {Sv, post, "/api/session/password", #{old => <<"service">>, new => [<<"x">>]}},
+         {Sv, post, "/api/cell/launch", none},
+         {Sv, get, "/api/tasks/nothing/retained", none}],
+    lists:foreach(
+      fun({C, M, P, B}) ->
+              {Status, Body, _} = req(C, M, P, B),
+              Text = case is_map(Body) of
+                         true -> jsx:encode(Body);
+                         false -> Body
+                     end,
+              ?assertEqual({M, P, true}, {M, P, Status >= 400 orelse Status}),
+              ?assertEqual({M, P, false}, {M, P, cell_web_words:has_terms(Text)})
+      end, Requests),
+    %% The restore of a revision that cannot exist says so.
+    {404, #{<<"message">> := Words}, _} =
+        req(Sv, post, "/api/settings/machine/restore", #{rev => Huge}),
+    ?assertNotEqual(nomatch, binary:match(Words, <<"there is no revision">>)).
 
 warnings_are_closed(Config) ->
     Op = started(Config),
