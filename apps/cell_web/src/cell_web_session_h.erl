@@ -91,13 +91,14 @@ new_session(User, Demo, Req) ->
         cell_web_sessions:create(User, #{addr => cell_web_req:peer(Req), demo_password => Demo}),
     Req1 = cowboy_req:set_resp_cookie(cell_web_req:session_cookie(), Id, Req,
                                       #{http_only => true, same_site => strict,
-                                        path => <<"/">>}),
+                                        secure => cell_web_listener:https(), path => <<"/">>}),
     {Req1, session(#{user => U, role => R, session => Id, csrf => Csrf})}.
 
 logout(Req, #{session := Id}) ->
     _ = Id =/= undefined andalso cell_web_sessions:delete(Id),
     Req1 = cowboy_req:set_resp_cookie(cell_web_req:session_cookie(), <<>>, Req,
                                       #{http_only => true, same_site => strict,
+                                        secure => cell_web_listener:https(),
                                         path => <<"/">>, max_age => 0}),
     {done, cell_web_req:reply_json(200, session(#{user => null, role => anonymous,
                                                    session => undefined, csrf => undefined}),

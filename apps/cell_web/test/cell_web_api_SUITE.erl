@@ -21,7 +21,8 @@ all() ->
      audit_files_rotate_and_expire, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
      anonymous_view_can_be_switched_off, login_attempts_are_braked, login_brake_is_per_account,
-     demo_passwords_refused_when_configured, listener_waits_for_a_taken_port].
+     demo_passwords_refused_when_configured, listener_waits_for_a_taken_port,
+     https_when_configured].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -863,4 +864,99 @@ listener_waits_for_a_taken_port(_Config) ->
         ok = application:stop(cell_web),
         ok = application:set_env(cell_web, port, 0),
         ok = application:start(cell_web)
+    end.
+
+%% HTTPS with a certificate and key in the root folder: the API answers a client that
+%% checks the certificate (issued here by a throwaway authority, since OTP refuses a
+%% self-signed server certificate), the session cookie is Secure; plain HTTP gets no
+%% answer; a client trusting another authority is refused; a missing key is said in
+%% the log.
+https_when_configured(Config) ->
+    Root = ?config(root, Config),
+    Priv = ?config(priv_dir, Config),
+    Cert = filename:join(Root, "panel.crt"),
+    Key = filename:join(Root, "panel.key"),
+    Ca = filename:join(Priv, "ca.crt"),
+    ok = certificates(Priv, "ca", Cert, Key),
+    Other = filename:join(Priv, "other.crt"),
+    ok = certificates(Priv, "other", filename:join(Priv, "other-panel.crt"),
+                      filename:join(Priv, "other-panel.key")),
+    ok = application:stop(cell_web),
+    ok = application:set_env(cell_web, https, true),
+    {ok, _} = application:ensure_all_started(ssl),
+    try
+        ok = application:start(cell_web),
+        Url = "https://127.0.0.1:" ++ integer_to_list(cell_web:port()),
+        ?assertEqual(list_to_binary(Url ++ "/"), cell_web:url()),
+        Ssl = [{ssl, [{verify, verify_peer}, {cacertfile, Ca},
+                      {server_name_indication, "localhost"}]},
+               {timeout, 30000}],
+        {ok, {{_, 200, _}, _, Body}} =
+            httpc:request(get, {Url ++ "/api/session", []}, Ssl, [{body_format, binary}]),
+        #{<<"user">> := null} = jsx:decode(Body, [return_maps]),
+        {ok, {{_, 200, _}, H, _}} =
+            httpc:request(post, {Url ++ "/api/session", [], "application/json",
+                                 jsx:encode(#{user => <<"operator">>, password => <<"operator">>})},
+                          Ssl, [{body_format, binary}]),
+        [SetCookie] = [V || {"set-cookie", V} <- H],
+        ?assertNotEqual(nomatch, string:find(SetCookie, "; Secure")),
+        %% A client that does not trust the certificate is refused by its own check
+        %% (a client of its own, which has no connection open yet).
+        {ok, _} = inets:start(httpc, [{profile, cell_web_untrusted}]),
+        try
+            {error, _} = httpc:request(get, {Url ++ "/api/session", []},
+                                       [{ssl, [{verify, verify_peer}, {cacertfile, Other},
+                                               {server_name_indication, "localhost"}]}],
+                                       [], cell_web_untrusted)
+        after
+            ok = inets:stop(httpc, cell_web_untrusted)
+        end,
+        %% Plain HTTP on the same port gets no HTTP answer.
+        ?assertMatch({error, _}, httpc:request(get, {"http://127.0.0.1:" ++
+                                                         integer_to_list(cell_web:port()) ++
+                                                         "/api/session", []},
+                                               [{timeout, 10000}], [])),
+        %% Without its key the panel says so and waits; the cell runs on.
+        ok = application:stop(cell_web),
+        ok = file:delete(Key),
+        ok = cell_log:subscribe(),
+        ok = application:start(cell_web),
+        await(fun({cell_log, #{source := <<"web">>, text := T}}) ->
+                      binary:match(T, <<"cannot serve HTTPS">>) =/= nomatch
+                          andalso binary:match(T, <<"panel.key">>) =/= nomatch;
+                 (_) -> false end, 10000),
+        ?assertEqual({error, not_listening}, cell_web_listener:port())
+    after
+        _ = cell_log:unsubscribe(),
+        ok = application:stop(cell_web),
+        ok = application:unset_env(cell_web, https),
+        ok = application:start(cell_web)
+    end.
+
+%% An authority `<Dir>/<Name>.crt' and a server certificate it issued for 127.0.0.1
+%% and localhost.
+certificates(Dir, Name, Cert, Key) ->
+    CaCrt = filename:join(Dir, Name ++ ".crt"),
+    CaKey = filename:join(Dir, Name ++ ".key"),
+    Csr = filename:join(Dir, Name ++ ".csr"),
+    Ext = filename:join(Dir, Name ++ ".ext"),
+    ok = file:write_file(Ext, "subjectAltName=IP:127.0.0.1,DNS:localhost\n"),
+    ok = openssl(["req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+                  "-subj", "/CN=" ++ Name, "-keyout", CaKey, "-out", CaCrt]),
+    ok = openssl(["req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1",
+                  "-keyout", Key, "-out", Csr]),
+    ok = openssl(["x509", "-req", "-in", Csr, "-CA", CaCrt, "-CAkey", CaKey,
+                  "-CAcreateserial", "-days", "2", "-extfile", Ext, "-out", Cert]).
+
+openssl(Args) ->
+    Port = open_port({spawn_executable, os:find_executable("openssl")},
+                     [exit_status, stderr_to_stdout, {args, Args}]),
+    0 = await_exit(Port),
+    ok.
+
+await_exit(Port) ->
+    receive
+        {Port, {exit_status, S}} -> S;
+        {Port, {data, _}} -> await_exit(Port)
+    after 60000 -> ct:fail(openssl_timeout)
     end.
