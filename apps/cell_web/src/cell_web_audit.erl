@@ -60,7 +60,8 @@ record(Entry) ->
 refused(Entry) ->
     gen_server:call(?MODULE, {refused, Entry#{time => os:system_time(millisecond)}}, 30000).
 
-%% @doc Writes the refusals counted so far now, without waiting for the minute to end.
+%% @doc Writes the refusals counted so far now, without waiting for the minute to end;
+%% the next refusal begins a new minute.
 -spec flush() -> ok | {error, term()}.
 flush() ->
     gen_server:call(?MODULE, flush, 30000).
@@ -156,13 +157,17 @@ handle_call({refused, Entry}, _From, #state{refusals = R0} = State0) ->
         {write, R} -> write(Entry, State#state{refusals = R});
         {counted, R} -> {reply, ok, State#state{refusals = R}}
     end;
-handle_call(flush, _From, State) ->
-    flush(State).
+handle_call(flush, _From, #state{timer = Timer} = State) ->
+    _ = Timer =/= undefined andalso erlang:cancel_timer(Timer),
+    flush(State#state{timer = undefined}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({timeout, Ref, flush}, #state{timer = Ref} = State) ->
     {reply, _, State1} = flush(State#state{timer = undefined}),
-    {noreply, State1}.
+    {noreply, State1};
+handle_info({timeout, _Cancelled, flush}, State) ->
+    %% A minute ended early by flush/0 whose timer had already fired.
+    {noreply, State}.
 
 %% The minute of the refusals starts with the first one.
 armed(#state{timer = undefined} = State) ->
