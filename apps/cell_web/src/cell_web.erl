@@ -21,4 +21,8 @@ url() ->
                {0, 0, 0, 0} -> "127.0.0.1";
                _ -> inet:ntoa(Ip)
            end,
-    iolist_to_binary(io_lib:format("http://~s:~p/", [Host, port()])).
+    Scheme = case cell_web_listener:https() of
+                 true -> "https";
+                 false -> "http"
+             end,
+    iolist_to_binary(io_lib:format("~s://~s:~p/", [Scheme, Host, port()])).

@@ -58,7 +58,7 @@ handle(answer, Req0, Caller0) ->
         {error, {not_recorded, Why}} ->
             cell_web_req:fail(503, not_recorded,
                               [Id, " not answered: the answer could not be recorded in the "
-                               "product trace (", io_lib:format("~0p", [Why]), "). Check the "
+                               "product trace (", recorded_why(Why), "). Check the "
                                "disc of the cell PC, then answer again"],
                               #{detail => Detail});
         {error, {not_allowed, Allowed}} ->
@@ -66,6 +66,12 @@ handle(answer, Req0, Caller0) ->
                               [Id, " does not offer ", atom_to_binary(Solution, utf8)],
                               #{allowed => Allowed, detail => Detail})
     end.
+
+recorded_why({file, _, R}) when is_atom(R) -> file:format_error(R);
+recorded_why(R) when is_atom(R) -> file:format_error(R);
+recorded_why(Why) ->
+    cell_log:trace(web, "an answer could not be recorded in the product trace: ~0tP", [Why, 30]),
+    "the trace log says why".
 
 get_only(Req) ->
     cowboy_req:method(Req) =:= <<"GET">>

@@ -74,9 +74,18 @@ handle(answer, Req0, Caller0) ->
                               "the PLC cannot hold some of these characters", #{detail => Detail});
         {error, Why} ->
             cell_web_req:fail(409, not_answered,
-                              ["the answer was not taken: ", io_lib:format("~0tp", [Why])],
+                              ["the answer was not taken: ", not_taken(Why)],
                               #{detail => Detail})
     end.
+
+%% Words for the rest of the refusals (a block that went away, a call that timed
+%% out); the reason itself goes to the trace log.
+not_taken(not_shown_to_client) -> "this message was not shown on the panel";
+not_taken({noproc, _}) -> "the inspection block stopped meanwhile";
+not_taken({timeout, _}) -> "the inspection block did not answer in time";
+not_taken(Why) ->
+    cell_log:trace(web, "an answer to an inspection message was not taken: ~0tP", [Why, 30]),
+    "the inspection block refused it; the trace log says why".
 
 %% The inspection app is temporary and may not run: then its processes are absent.
 running(Fun, Default) ->

@@ -1,4 +1,7 @@
-%% @doc Owns the panel's HTTP listener (cowboy over ranch).
+%% @doc Owns the panel's HTTP listener (cowboy over ranch), or its HTTPS listener when
+%% the `cell_web' setting `https' is true: the certificate and key are PEM files in the
+%% cell root folder (`https_certfile', `https_keyfile'; `panel.crt' and `panel.key'),
+%% read when the listener starts, and the session cookie is then `Secure'.
 %%
 %% The panel must never keep the cell from running: when the port cannot be opened
 %% (taken by another program, an address the PC does not have), this process says so
@@ -6,7 +9,7 @@
 -module(cell_web_listener).
 -behaviour(gen_server).
 
--export([start_link/0, port/0, listening/0]).
+-export([start_link/0, port/0, listening/0, https/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -25,6 +28,11 @@ start_link() ->
 -spec port() -> {ok, inet:port_number()} | {error, not_listening}.
 port() ->
     gen_server:call(?MODULE, port).
+
+%% @doc Whether the panel is configured to serve HTTPS.
+-spec https() -> boolean().
+https() ->
+    lists:member(application:get_env(cell_web, https, false), [true, "true", <<"true">>]).
 
 %% @doc Whether the listener is up.
 -spec listening() -> boolean().
@@ -73,18 +81,64 @@ listen(#state{ip = Ip, port = Port, backoff = Backoff} = State) ->
                                   %% instead of holding its connection's process.
                                   {send_timeout, 10000}, {send_timeout_close, true}],
                   num_acceptors => 4, max_connections => 1024},
-    Protocol = #{env => #{dispatch => cell_web_routes:dispatch()},
-                 middlewares => [cowboy_router, cell_web_headers, cowboy_handler],
+    Protocol = #{env => #{dispatch => cell_web_routes:dispatch(),
+                          hosts => cell_web_hosts:names(Ip)},
+                 middlewares => [cell_web_headers, cell_web_hosts, cowboy_router,
+                                 cowboy_handler],
                  idle_timeout => 120000, request_timeout => 30000},
-    case cowboy:start_clear(?REF, Transport, Protocol) of
-        {ok, _} ->
-            cell_log:notice(web, "operator panel on http://~ts:~p", [address(Ip), ranch:get_port(?REF)]),
+    Started = case https() of
+                  false -> {"http", cowboy:start_clear(?REF, Transport, Protocol)};
+                  true -> {"https", start_tls(Transport, Protocol)}
+              end,
+    case Started of
+        {Scheme, {ok, _}} ->
+            cell_log:notice(web, "operator panel on ~ts://~ts:~p",
+                            [Scheme, address(Ip), ranch:get_port(?REF)]),
             State#state{listening = true, backoff = 1000};
-        {error, Reason} ->
+        {_, {error, {tls_file, Path, Why}}} ->
+            cell_log:error(web, "the operator panel cannot serve HTTPS: ~ts ~ts; trying again "
+                           "in ~p s", [Path, Why, Backoff div 1000]),
+            retry(State);
+        {_, {error, Reason}} ->
             cell_log:error(web, "the operator panel cannot listen on ~ts:~p (~ts); trying again "
                            "in ~p s", [address(Ip), Port, reason(Reason), Backoff div 1000]),
-            _ = erlang:start_timer(Backoff, self(), retry),
-            State#state{backoff = min(2 * Backoff, ?MAX_BACKOFF_MS)}
+            retry(State)
+    end.
+
+retry(#state{backoff = Backoff} = State) ->
+    _ = erlang:start_timer(Backoff, self(), retry),
+    State#state{backoff = min(2 * Backoff, ?MAX_BACKOFF_MS)}.
+
+%% The certificate and key are checked here, so that a missing or unreadable file is
+%% said at once, not at the first browser's handshake.
+start_tls(#{socket_opts := Opts} = Transport, Protocol) ->
+    Root = cell_config:root(),
+    Cert = filename:join(Root, application:get_env(cell_web, https_certfile, "panel.crt")),
+    Key = filename:join(Root, application:get_env(cell_web, https_keyfile, "panel.key")),
+    case {pem(Cert, 'Certificate'), pem(Key, key)} of
+        {ok, ok} ->
+            cowboy:start_tls(?REF, Transport#{socket_opts := [{certfile, Cert}, {keyfile, Key},
+                                                              {versions, ['tlsv1.3', 'tlsv1.2']}
+                                                              | Opts]},
+                             Protocol);
+        {{error, Why}, _} -> {error, {tls_file, Cert, Why}};
+        {ok, {error, Why}} -> {error, {tls_file, Key, Why}}
+    end.
+
+pem(Path, Kind) ->
+    case file:read_file(Path) of
+        {ok, Bin} ->
+            Entries = try public_key:pem_decode(Bin) catch _:_ -> [] end,
+            Wanted = [E || {Type, _, _} = E <- Entries,
+                           Kind =:= 'Certificate' andalso Type =:= 'Certificate'
+                               orelse Kind =:= key andalso Type =/= 'Certificate'],
+            case Wanted of
+                [_ | _] -> ok;
+                [] when Kind =:= key -> {error, "holds no private key in PEM"};
+                [] -> {error, "holds no certificate in PEM"}
+            end;
+        {error, R} ->
+            {error, ["cannot be read: ", file:format_error(R)]}
     end.
 
 address(Ip) -> inet:ntoa(Ip).

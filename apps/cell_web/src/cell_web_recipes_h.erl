@@ -27,7 +27,7 @@ handle(list, Req, Caller) ->
     _ = cell_web_req:require(Caller, view),
     {json, 200, [case cell_recipe:info(N) of
                      {ok, Info} -> Info;
-                     {error, Why} -> #{name => N, error => cell_recipe:format_error(Why)}
+                     {error, Why} -> #{name => N, error => cell_web_words:recipe_error(Why)}
                  end || N <- cell_recipe:list()]};
 handle(one, Req, Caller) ->
     Name = name(Req),
@@ -98,7 +98,7 @@ name(Req) ->
 checked(Name) ->
     case cell_recipe:check_name(Name) of
         ok -> Name;
-        {error, Why} -> cell_web_req:fail(400, bad_name, cell_recipe:format_error(Why))
+        {error, Why} -> cell_web_req:fail(400, bad_name, cell_web_words:recipe_error(Why))
     end.
 
 %% A recipe result, or the error answered with a fitting status.
@@ -112,7 +112,7 @@ ok({error, Why}) ->
                          {file, _, _} -> {500, file_error};
                          _ -> {422, invalid_recipe}
                      end,
-    cell_web_req:fail(Status, Code, cell_recipe:format_error(Why)).
+    cell_web_req:fail(Status, Code, cell_web_words:recipe_error(Why)).
 
 %% The file name for the browser: ASCII for old clients, UTF-8 (RFC 6266) for the rest.
 disposition(Name) ->

@@ -71,7 +71,13 @@ audit(Req, #{user := User, role := Role}, Status, Detail) ->
               target => cowboy_req:path(Req),
               outcome => integer_to_binary(Status),
               detail => Detail},
-    case cell_web_audit:record(Entry) of
+    %% A refusal of a caller not logged in costs the caller nothing: counted, not
+    %% each written (see cell_web_audit).
+    Written = case Role =:= anonymous andalso Status >= 400 of
+                  true -> cell_web_audit:refused(Entry);
+                  false -> cell_web_audit:record(Entry)
+              end,
+    case Written of
         ok -> ok;
         {error, _} -> ok      %% logged by the audit process; the answer is sent
     end.
@@ -85,7 +91,7 @@ fail(Status, Code, Message) ->
 %% trail only).
 -spec fail(cowboy:http_status(), atom(), iodata(), map()) -> no_return().
 fail(Status, Code, Message, Extra) ->
-    throw({cell_web_error, Status, Code, unicode:characters_to_binary(Message), Extra}).
+    throw({cell_web_error, Status, Code, cell_web_words:no_terms(Message), Extra}).
 
 %% @doc Checks that the caller may do something: `view' (anyone when anonymous
 %% viewing is on, else any user) or a role (that role or a higher one).
@@ -175,7 +181,7 @@ read_json(Req0) ->
                 {ok, _} -> fail(400, bad_json, "the body must be a JSON object");
                 {error, not_json} -> fail(400, bad_json, "the body is not valid JSON");
                 {error, Why} -> fail(400, bad_json, ["the body is refused: ",
-                                                     cell_settings_schema:format_error(Why)])
+                                                     cell_web_words:settings_error(Why)])
             end
     end.
 
@@ -306,6 +312,8 @@ reply_error(Status, Code, Message, Extra, Req) ->
     Req1 = case Status of
                405 -> cowboy_req:set_resp_header(<<"allow">>, maps:get(allow, Extra, <<>>), Req);
                413 -> cowboy_req:set_resp_header(<<"connection">>, <<"close">>, Req);
+               429 -> cowboy_req:set_resp_header(<<"retry-after">>,
+                                                 maps:get(retry_after, Extra, <<"1">>), Req);
                _ -> Req
            end,
     reply_json(Status, maps:merge(cell_web_json:term(maps:remove(close, Extra)),

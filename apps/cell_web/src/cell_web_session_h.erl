@@ -6,7 +6,9 @@
 %%     is on, whether the user still has a demo password.</li>
 %% <li>`POST' with `{"user": Name, "password": P}' — log in: sets the session cookie
 %%     (HttpOnly, SameSite=Strict) and answers as `GET'. Wrong name or password: 401,
-%%     the same answer for both. Too many failures from one address: 429.</li>
+%%     the same answer for both. Too many failures for that account from this
+%%     address, or from this address for accounts not known there: 429 with
+%%     `Retry-After', before the password is checked.</li>
 %% <li>`DELETE' — log out.</li>
 %% <li>`POST /api/session/password' with `{"old": P, "new": Q}' — change one's own
 %%     password; the session is renewed.</li>
@@ -44,7 +46,7 @@ handle(password, Req, Caller0) ->
     case cell_web_users:set_password(Name, New, Name) of
         {ok, updated} -> ok;
         {error, {password, Why}} -> cell_web_req:fail(422, weak_password, password_text(Why));
-        {error, Why} -> cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Why))
+        {error, Why} -> cell_web_req:fail(422, invalid, cell_web_words:settings_error(Why))
     end,
     {ok, User} = cell_web_users:find(Name),
     ok = cell_web_sessions:revalidate(),
@@ -53,25 +55,33 @@ handle(password, Req, Caller0) ->
 
 login(Req) ->
     Addr = cell_web_req:peer(Req),
-    cell_web_sessions:login_allowed(Addr)
-        orelse cell_web_req:fail(429, too_many_attempts,
-                                 "too many failed logins from this address; wait five minutes"),
     {Body, _} = cell_web_req:read_json(Req),
     {Name, Password} =
         case Body of
             #{<<"user">> := U, <<"password">> := P} when is_binary(U), is_binary(P),
+                                                         byte_size(U) =< 256,
                                                          byte_size(P) =< 1024 -> {U, P};
             _ -> cell_web_req:fail(400, bad_request, "give user and password as text")
         end,
+    case cell_web_sessions:login_allowed(Addr, Name) of
+        ok ->
+            ok;
+        {wait, Ms} ->
+            Seconds = integer_to_binary((Ms + 999) div 1000),
+            cell_web_req:fail(429, too_many_attempts,
+                              ["too many failed logins; try again in ", Seconds, " s"],
+                              #{retry_after => Seconds,
+                                detail => <<"login braked for ", Name/binary>>})
+    end,
     case cell_web_users:authenticate(Name, Password) of
         {ok, User} ->
-            ok = cell_web_sessions:login_succeeded(Addr),
+            ok = cell_web_sessions:login_succeeded(Addr, Name),
             Demo = lists:member(Name, [<<"operator">>, <<"service">>, <<"admin">>])
                 andalso Password =:= Name,
             {Req1, Session} = new_session(User, Demo, Req),
             {done, cell_web_req:reply_json(200, Session, Req1), <<"login as ", Name/binary>>};
         {error, bad_login} ->
-            ok = cell_web_sessions:login_failed(Addr),
+            ok = cell_web_sessions:login_failed(Addr, Name),
             cell_web_req:fail(401, bad_login, "wrong user name or password",
                               #{detail => <<"login refused for ", Name/binary>>})
     end.
@@ -81,13 +91,14 @@ new_session(User, Demo, Req) ->
         cell_web_sessions:create(User, #{addr => cell_web_req:peer(Req), demo_password => Demo}),
     Req1 = cowboy_req:set_resp_cookie(cell_web_req:session_cookie(), Id, Req,
                                       #{http_only => true, same_site => strict,
-                                        path => <<"/">>}),
+                                        secure => cell_web_listener:https(), path => <<"/">>}),
     {Req1, session(#{user => U, role => R, session => Id, csrf => Csrf})}.
 
 logout(Req, #{session := Id}) ->
     _ = Id =/= undefined andalso cell_web_sessions:delete(Id),
     Req1 = cowboy_req:set_resp_cookie(cell_web_req:session_cookie(), <<>>, Req,
                                       #{http_only => true, same_site => strict,
+                                        secure => cell_web_listener:https(),
                                         path => <<"/">>, max_age => 0}),
     {done, cell_web_req:reply_json(200, session(#{user => null, role => anonymous,
                                                    session => undefined, csrf => undefined}),

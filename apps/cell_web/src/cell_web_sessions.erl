@@ -9,12 +9,16 @@
 %% after login (the `web' settings), or when its user's role or password changes or
 %% the user is removed; its websockets are told and close.
 %%
+%% Failed logins are braked per account and address, and per address, with windows
+%% that grow with every failure; the decisions are {@link cell_web_throttle}'s, the
+%% state is held here.
+%%
 %% Requests read the table directly; this process alone writes it.
 -module(cell_web_sessions).
 -behaviour(gen_server).
 
 -export([start_link/0, create/2, lookup/1, delete/1, attach/1, revalidate/0,
-         login_allowed/1, login_failed/1, login_succeeded/1, count/0]).
+         login_allowed/2, login_failed/2, login_succeeded/2, count/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -export_type([session/0]).
@@ -24,14 +28,11 @@
                      stamp := binary(), demo_password := boolean()}.
 
 -define(TAB, cell_web_session_table).
--define(LOGINS, cell_web_login_table).
 -define(SWEEP_MS, 60000).
 -define(TOUCH_MS, 10000).
-%% At most this many failed logins from one address in the window; then 429.
--define(MAX_FAILURES, 10).
--define(FAILURE_WINDOW_MS, 300000).
 
--record(state, {sockets = #{} :: #{pid() => {reference(), binary() | anonymous}}}).
+-record(state, {sockets = #{} :: #{pid() => {reference(), binary() | anonymous}},
+                logins = cell_web_throttle:new() :: cell_web_throttle:state()}).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -86,21 +87,21 @@ attach(Id) when is_binary(Id) ->
 revalidate() ->
     gen_server:call(?MODULE, revalidate).
 
-%% @doc False while an address has failed to log in too often.
--spec login_allowed(binary()) -> boolean().
-login_allowed(Addr) ->
-    case ets:lookup(?LOGINS, Addr) of
-        [{Addr, N, First}] -> N < ?MAX_FAILURES orelse now_ms() - First > ?FAILURE_WINDOW_MS;
-        [] -> true
-    end.
+%% @doc Whether `Name' may try to log in from `Addr' now, or how many milliseconds
+%% it must wait (see {@link cell_web_throttle}).
+-spec login_allowed(binary(), binary()) -> ok | {wait, pos_integer()}.
+login_allowed(Addr, Name) ->
+    gen_server:call(?MODULE, {login_allowed, Addr, Name}).
 
--spec login_failed(binary()) -> ok.
-login_failed(Addr) ->
-    gen_server:call(?MODULE, {login_failed, Addr}).
+%% @doc A login of `Name' from `Addr' was refused (wrong name or password).
+-spec login_failed(binary(), binary()) -> ok.
+login_failed(Addr, Name) ->
+    gen_server:call(?MODULE, {login_failed, Addr, Name}).
 
--spec login_succeeded(binary()) -> ok.
-login_succeeded(Addr) ->
-    gen_server:call(?MODULE, {login_succeeded, Addr}).
+%% @doc `Name' logged in from `Addr'.
+-spec login_succeeded(binary(), binary()) -> ok.
+login_succeeded(Addr, Name) ->
+    gen_server:call(?MODULE, {login_succeeded, Addr, Name}).
 
 %% @doc How many sessions there are.
 -spec count() -> non_neg_integer().
@@ -123,7 +124,6 @@ valid(#{created := C, last_seen := L, user := Name, stamp := Stamp}, Now) ->
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
     ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
-    ?LOGINS = ets:new(?LOGINS, [named_table, protected]),
     _ = erlang:send_after(?SWEEP_MS, self(), sweep),
     {ok, #state{}}.
 
@@ -143,18 +143,12 @@ handle_call({attach, Pid, Owner}, _From, #state{sockets = Socks} = State) ->
     {reply, ok, State#state{sockets = Socks#{Pid => {Ref, Owner}}}};
 handle_call(revalidate, _From, State) ->
     {reply, ok, sweep(State)};
-handle_call({login_failed, Addr}, _From, State) ->
-    Now = now_ms(),
-    _ = case ets:lookup(?LOGINS, Addr) of
-            [{Addr, N, First}] when Now - First =< ?FAILURE_WINDOW_MS ->
-                ets:insert(?LOGINS, {Addr, N + 1, First});
-            _ ->
-                ets:insert(?LOGINS, {Addr, 1, Now})
-        end,
-    {reply, ok, State};
-handle_call({login_succeeded, Addr}, _From, State) ->
-    true = ets:delete(?LOGINS, Addr),
-    {reply, ok, State}.
+handle_call({login_allowed, Addr, Name}, _From, #state{logins = L} = State) ->
+    {reply, cell_web_throttle:check(Addr, Name, now_ms(), L), State};
+handle_call({login_failed, Addr, Name}, _From, #state{logins = L} = State) ->
+    {reply, ok, State#state{logins = cell_web_throttle:failed(Addr, Name, now_ms(), L)}};
+handle_call({login_succeeded, Addr, Name}, _From, #state{logins = L} = State) ->
+    {reply, ok, State#state{logins = cell_web_throttle:succeeded(Addr, Name, now_ms(), L)}}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
 handle_cast({touch, Key, Now}, State) ->
@@ -167,12 +161,9 @@ handle_cast({expire, Key}, State) ->
     {noreply, end_session(Key, State)}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info(sweep, State) ->
+handle_info(sweep, #state{logins = L} = State) ->
     _ = erlang:send_after(?SWEEP_MS, self(), sweep),
-    Now = now_ms(),
-    true = ets:select_delete(?LOGINS, [{{'_', '_', '$1'},
-                                        [{'<', '$1', Now - ?FAILURE_WINDOW_MS}], [true]}]) >= 0,
-    {noreply, sweep(State)};
+    {noreply, sweep(State#state{logins = cell_web_throttle:sweep(now_ms(), L)})};
 handle_info({'DOWN', _Ref, process, Pid, _}, #state{sockets = Socks} = State) ->
     {noreply, State#state{sockets = maps:remove(Pid, Socks)}}.
 

@@ -105,14 +105,14 @@ saved(Name, ok, Detail) ->
     Name =:= web andalso cell_web_sessions:revalidate(),
     {json, 200, object(Name), iolist_to_binary(Detail)};
 saved(_Name, {error, {invalid, Path, _} = Why}, _Detail) ->
-    cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Why),
+    cell_web_req:fail(422, invalid, cell_web_words:settings_error(Why),
                       #{field => cell_settings_schema:format_path(Path)});
 saved(_Name, {error, Why}, _Detail) ->
-    cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Why)).
+    cell_web_req:fail(422, invalid, cell_web_words:settings_error(Why)).
 
 -spec not_found(term()) -> no_return().
 not_found(Why) ->
-    cell_web_req:fail(404, not_found, cell_settings_schema:format_error(Why)).
+    cell_web_req:fail(404, not_found, cell_web_words:settings_error(Why)).
 
 rev(Bin) ->
     try binary_to_integer(Bin) of

@@ -83,4 +83,4 @@ refused(not_found) ->
 refused(last_admin) ->
     cell_web_req:fail(409, last_admin, "the last admin cannot be removed or demoted");
 refused(Other) ->
-    cell_web_req:fail(422, invalid, cell_settings_schema:format_error(Other)).
+    cell_web_req:fail(422, invalid, cell_web_words:settings_error(Other)).

@@ -11,16 +11,18 @@
 
 all() ->
     [pages_and_unknown_routes, session_login_logout, roles_are_enforced,
-     csrf_and_origin_are_checked, commands_change_the_cell, bad_requests_change_nothing,
-     errors_are_answered, warnings_are_closed, tasks_and_products, retained_data_is_read,
+     csrf_and_origin_are_checked, foreign_host_names_are_refused, commands_change_the_cell, bad_requests_change_nothing,
+     errors_are_answered, error_messages_carry_no_terms, warnings_are_closed, tasks_and_products, retained_data_is_read,
      log_is_queried,
      %% After log_is_queried: its errors are in the log that case reads.
      answer_refused_for_a_product_held_twice,
      settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
-     statistics_and_history, audit_trail_is_kept, websocket_snapshot_and_live,
+     statistics_and_history, audit_trail_is_kept, audit_flood_is_bounded,
+     audit_files_rotate_and_expire, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
-     anonymous_view_can_be_switched_off, login_attempts_are_braked,
-     demo_passwords_refused_when_configured, listener_waits_for_a_taken_port].
+     anonymous_view_can_be_switched_off, login_attempts_are_braked, login_brake_is_per_account,
+     https_when_configured, demo_passwords_refused_when_configured,
+     listener_waits_for_a_taken_port].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -126,7 +128,6 @@ session_login_logout(Config) ->
     assert_error(401, <<"bad_login">>, req(A, post, "/api/session",
                                            #{user => <<"nobody">>, password => <<"x">>})),
     assert_error(400, <<"bad_request">>, req(A, post, "/api/session", #{user => 1})),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>),
     {200, #{<<"user">> := <<"service">>, <<"role">> := <<"service">>,
             <<"demo_password">> := true}, H} =
         req(A, post, "/api/session", #{user => <<"service">>, password => <<"service">>}),
@@ -192,6 +193,32 @@ csrf_and_origin_are_checked(Config) ->
     ?assertEqual(stop, maps:get(request, cell_controller:flags())),
     Origin = "http://127.0.0.1:" ++ integer_to_list(?config(port, Config)),
     {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start", none, [{"origin", Origin}]).
+
+%% A page of another site whose name was made to resolve to this PC (DNS rebinding)
+%% sends its own name in Host and Origin: refused, whatever it asks.
+foreign_host_names_are_refused(Config) ->
+    A = anon(Config),
+    Op = as(operator, Config),
+    Port = integer_to_list(?config(port, Config)),
+    Rebound = [{"host", "attacker.example:" ++ Port}],
+    assert_error(403, <<"unknown_host">>, cell_web_client:req(A, get, "/api/cell", none, Rebound)),
+    {403, #{<<"message">> := M}, _} = cell_web_client:req(A, get, "/", none, Rebound),
+    ?assertNotEqual(nomatch, binary:match(M, <<"attacker.example">>)),
+    assert_error(403, <<"unknown_host">>,
+                 cell_web_client:req(Op, post, "/api/cell/start", none,
+                                     [{"origin", "http://attacker.example:" ++ Port} | Rebound])),
+    assert_error(403, <<"bad_origin">>,
+                 cell_web_client:req(Op, post, "/api/cell/start", none,
+                                     [{"origin", "http://attacker.example:" ++ Port}])),
+    assert_error(403, <<"bad_origin">>,
+                 cell_web_client:req(A, get, "/api/cell", none,
+                                     [{"origin", "http://attacker.example:" ++ Port}])),
+    {error, 403} = cell_web_client:ws_connect(A, "http://attacker.example:" ++ Port),
+    %% The panel's own names pass.
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", "localhost:" ++ Port}]),
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", "LOCALHOST"}]),
+    {ok, Short} = inet:gethostname(),
+    {200, _, _} = cell_web_client:req(A, get, "/api/cell", none, [{"host", Short}]).
 
 commands_change_the_cell(Config) ->
     Op = started(Config),
@@ -290,6 +317,61 @@ answer_refused_for_a_product_held_twice(Config) ->
     ?assertEqual({error, not_found}, cell_alarms:get(<<"loader:jam">>)),
     cmd(Config, router, {product, undefined}),
     ok = cell_events:unsubscribe().
+
+%% Every refusal is said in words: no answer carries an Erlang term (a tuple opening
+%% with an atom, a binary, a map, a pid), however odd the request.
+error_messages_carry_no_terms(Config) ->
+    Sv = as(service, Config),
+    Ad = as(admin, Config),
+    Huge = 1000000000000000000000000000000,
+    Deep = #{speed_override => #{<<"a">> => [<<"b">>, #{<<"c">> => 1}]}},
+    Requests =
+        [{Sv, post, "/api/settings/machine/restore", #{rev => Huge}},
+         {Sv, post, "/api/settings/machine/restore", #{rev => 999}},
+         {Sv, post, "/api/settings/machine/restore", #{rev => <<"x">>}},
+         {Sv, get, "/api/settings/machine/revisions/" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/settings/machine/diff?from=1&to=" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/settings/nothing", none},
+         {Sv, put, "/api/settings/machine", Deep},
+         {Sv, put, "/api/settings/machine", #{speed_override => [1, <<"x">>]}},
+         {Sv, put, "/api/settings/machine", #{speed_override => <<"fast">>}},
+         {Sv, put, "/api/settings/machine", {"application/json", <<"[1,2]">>}},
+         {Sv, put, "/api/settings/machine", {"application/json", <<"{\"a\":">>}},
+         {Sv, put, "/api/settings/machine", {"text/plain", <<"x">>}},
+         {Ad, put, "/api/users/admin", #{role => <<"service">>}},
+         {Ad, put, "/api/users/x%20y", #{role => <<"operator">>, password => <<"s3cret-pass">>}},
+         {Ad, put, "/api/users/newbie", #{role => #{<<"a">> => 1}, password => [1]}},
+         {Ad, put, "/api/users/newbie", #{role => <<"king">>, password => <<"s3cret-pass">>}},
+         {Sv, get, "/api/recipes/CON", none},
+         {Sv, get, "/api/recipes/a%3Ab", none},
+         {Sv, get, "/api/recipes/nothing-here", none},
+         {Sv, post, "/api/recipes/nothing-here/copy", #{to => <<"a%3Ab">>}},
+         {Sv, post, "/api/recipes/nothing-here/rename", #{to => #{}}},
+         {Sv, put, "/api/recipes/x/file", {"application/zip", <<"PK not a zip">>}},
+         {Sv, post, "/api/alarms/nothing/answer", #{solution => <<"retry">>}},
+         {Sv, post, "/api/alarms/x/answer", #{solution => #{}}},
+         {Sv, post, "/api/inspect/messages/answer",
+          #{block => <<"b">>, ref => <<"r">>, answer => <<"yes">>}},
+         {Sv, get, "/api/products/nothing", none},
+         {Sv, get, "/api/log?from=yesterday&limit=" ++ integer_to_list(Huge), none},
+         {Sv, get, "/api/audit?from=x", none},
+         {Sv, post, "/api/session/password", #{old => <<"service">>, new => [<<"x">>]}},
+         {Sv, post, "/api/cell/launch", none},
+         {Sv, get, "/api/tasks/nothing/retained", none}],
+    lists:foreach(
+      fun({C, M, P, B}) ->
+              {Status, Body, _} = req(C, M, P, B),
+              Text = case is_map(Body) of
+                         true -> jsx:encode(Body);
+                         false -> Body
+                     end,
+              ?assertEqual({M, P, true}, {M, P, Status >= 400 orelse Status}),
+              ?assertEqual({M, P, false}, {M, P, cell_web_words:has_terms(Text)})
+      end, Requests),
+    %% The restore of a revision that cannot exist says so.
+    {404, #{<<"message">> := Words}, _} =
+        req(Sv, post, "/api/settings/machine/restore", #{rev => Huge}),
+    ?assertNotEqual(nomatch, binary:match(Words, <<"there is no revision">>)).
 
 warnings_are_closed(Config) ->
     Op = started(Config),
@@ -482,8 +564,7 @@ users_are_managed(Config) ->
     {error, 401, _} = cell_web_client:login(anon(Config), "jdoe", "s3cret-pass"),
     assert_error(409, <<"last_admin">>, req(Ad, delete, "/api/users/admin")),
     assert_error(409, <<"last_admin">>, req(Ad, put, "/api/users/admin", #{role => <<"service">>})),
-    assert_error(404, <<"not_found">>, req(Ad, delete, "/api/users/nobody")),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>).
+    assert_error(404, <<"not_found">>, req(Ad, delete, "/api/users/nobody")).
 
 password_is_changed(Config) ->
     Op = as(operator, Config),
@@ -539,6 +620,75 @@ audit_trail_is_kept(Config) ->
     %% On disk, one line each, in the day's file.
     {ok, Files} = file:list_dir(filename:join(?config(root, Config), "Logs")),
     ?assert(lists:any(fun(F) -> lists:prefix("audit ", F) end, Files)).
+
+audit_flood_is_bounded(Config) ->
+    Dir = filename:join(?config(root, Config), "Logs"),
+    %% The refusals of the cases before are written: the flood begins a minute.
+    ok = cell_web_audit:flush(),
+    Before = audit_files(Dir),
+    A = anon(Config),
+    Long = "/api/cell/" ++ lists:duplicate(2048, $x),
+    [{404, _, _} = req(A, post, Long) || _ <- lists:seq(1, 300)],
+    %% At most one line (the first of the address in its minute), the path cut short;
+    %% the rest counted.
+    Added = added_lines(Before, audit_files(Dir)),
+    ?assert(length(Added) =< 1),
+    ?assert(iolist_size(Added) < 1024),
+    ok = cell_web_audit:flush(),
+    Count = lists:last(added_lines(Before, audit_files(Dir))),
+    #{<<"address">> := <<"127.0.0.1">>, <<"detail">> := Detail, <<"target">> := Target} =
+        jsx:decode(Count, [return_maps]),
+    [N | _] = binary:split(Detail, <<" ">>),
+    ?assert(binary_to_integer(N) >= 299),
+    ?assertNotEqual(nomatch, binary:match(Detail, <<"more refused requests from this address">>)),
+    ?assert(byte_size(Target) =< 256),
+    %% A logged-in caller's refusals are each written.
+    Op = as(operator, Config),
+    Mid = audit_files(Dir),
+    {403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => 10}),
+    {403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => 10}),
+    ?assertEqual(2, length(added_lines(Mid, audit_files(Dir)))).
+
+audit_files_rotate_and_expire(Config) ->
+    Dir = filename:join(?config(root, Config), "Logs"),
+    Old = filename:join(Dir, "audit 2001-01-01.jsonl"),
+    ok = file:write_file(Old, <<"{}\n">>),
+    ok = application:stop(cell_web),
+    ok = application:set_env(cell_web, audit_file_max_bytes, 2000),
+    try
+        ok = application:start(cell_web),
+        Op = as(operator, [{port, cell_web:port()} | Config]),
+        T0 = os:system_time(millisecond),
+        [{403, _, _} = req(Op, put, "/api/settings/machine", #{speed_override => I})
+         || I <- lists:seq(1, 30)],
+        %% The file of 2001 went when the trail opened today's.
+        ?assertNot(filelib:is_regular(Old)),
+        {ok, Names} = file:list_dir(Dir),
+        Parts = [N || N <- Names, {ok, _, P} <- [cell_web_audit_rules:parse_name(N)], P > 1],
+        ?assertNotEqual([], Parts),
+        [?assert(filelib:file_size(filename:join(Dir, N)) < 2000 + 1024) || N <- Parts],
+        %% Read back across the parts, in order.
+        Entries = cell_web_audit:query(#{from => T0, who => <<"operator">>, limit => 1000}),
+        ?assertEqual(30, length([E || #{outcome := <<"403">>} = E <- Entries]))
+    after
+        ok = application:stop(cell_web),
+        ok = application:unset_env(cell_web, audit_file_max_bytes),
+        ok = application:start(cell_web)
+    end.
+
+audit_files(Dir) ->
+    {ok, Names} = file:list_dir(Dir),
+    maps:from_list([{N, Bin} || N <- Names, lists:prefix("audit ", N),
+                                {ok, Bin} <- [file:read_file(filename:join(Dir, N))]]).
+
+%% The lines added to the audit files since `Before'.
+added_lines(Before, After) ->
+    lists:append(
+      [begin
+           Old = maps:get(N, Before, <<>>),
+           New = binary:part(Bin, byte_size(Old), byte_size(Bin) - byte_size(Old)),
+           binary:split(New, <<"\n">>, [global, trim_all])
+       end || {N, Bin} <- lists:sort(maps:to_list(After))]).
 
 websocket_snapshot_and_live(Config) ->
     Op = as(operator, Config),
@@ -649,7 +799,33 @@ login_attempts_are_braked(Config) ->
     %% Even the right password waits out the brake.
     assert_error(429, <<"too_many_attempts">>,
                  req(A, post, "/api/session", #{user => <<"admin">>, password => <<"admin">>})),
-    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>),
+    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>, <<"admin">>),
+    {ok, _} = cell_web_client:login(A, "admin", "admin").
+
+%% Guesses at one account are braked whatever other users of the same address do, and
+%% the brake holds back only the guessed account: the users who work from that address
+%% get in all along.
+login_brake_is_per_account(Config) ->
+    A = anon(Config),
+    {ok, _} = cell_web_client:login(A, "operator", "operator"),
+    {ok, _} = cell_web_client:login(A, "service", "service"),
+    Wrong = #{user => <<"admin">>, password => <<"guess">>},
+    Results = lists:append(
+                [begin
+                     Guesses = [element(1, req(A, post, "/api/session", Wrong))
+                                || _ <- lists:seq(1, 9)],
+                     {ok, _} = cell_web_client:login(A, "operator", "operator"),
+                     Guesses
+                 end || _ <- lists:seq(1, 4)]),
+    %% Ten free failures, then every guess refused before its password is checked.
+    ?assertEqual(lists:duplicate(10, 401) ++ lists:duplicate(26, 429), Results),
+    {429, #{<<"error">> := <<"too_many_attempts">>}, H} =
+        req(A, post, "/api/session", #{user => <<"admin">>, password => <<"admin">>}),
+    {_, Retry} = lists:keyfind("retry-after", 1, H),
+    ?assert(list_to_integer(Retry) > 0),
+    %% Another account of the same address is not held back.
+    {ok, _} = cell_web_client:login(A, "service", "service"),
+    ok = cell_web_sessions:login_succeeded(<<"127.0.0.1">>, <<"admin">>),
     {ok, _} = cell_web_client:login(A, "admin", "admin").
 
 demo_passwords_refused_when_configured(_Config) ->
@@ -692,4 +868,99 @@ listener_waits_for_a_taken_port(_Config) ->
         ok = application:stop(cell_web),
         ok = application:set_env(cell_web, port, 0),
         ok = application:start(cell_web)
+    end.
+
+%% HTTPS with a certificate and key in the root folder: the API answers a client that
+%% checks the certificate (issued here by a throwaway authority, since OTP refuses a
+%% self-signed server certificate), the session cookie is Secure; plain HTTP gets no
+%% answer; a client trusting another authority is refused; a missing key is said in
+%% the log.
+https_when_configured(Config) ->
+    Root = ?config(root, Config),
+    Priv = ?config(priv_dir, Config),
+    Cert = filename:join(Root, "panel.crt"),
+    Key = filename:join(Root, "panel.key"),
+    Ca = filename:join(Priv, "ca.crt"),
+    ok = certificates(Priv, "ca", Cert, Key),
+    Other = filename:join(Priv, "other.crt"),
+    ok = certificates(Priv, "other", filename:join(Priv, "other-panel.crt"),
+                      filename:join(Priv, "other-panel.key")),
+    ok = application:stop(cell_web),
+    ok = application:set_env(cell_web, https, true),
+    {ok, _} = application:ensure_all_started(ssl),
+    try
+        ok = application:start(cell_web),
+        Url = "https://127.0.0.1:" ++ integer_to_list(cell_web:port()),
+        ?assertEqual(list_to_binary(Url ++ "/"), cell_web:url()),
+        Ssl = [{ssl, [{verify, verify_peer}, {cacertfile, Ca},
+                      {server_name_indication, "localhost"}]},
+               {timeout, 30000}],
+        {ok, {{_, 200, _}, _, Body}} =
+            httpc:request(get, {Url ++ "/api/session", []}, Ssl, [{body_format, binary}]),
+        #{<<"user">> := null} = jsx:decode(Body, [return_maps]),
+        {ok, {{_, 200, _}, H, _}} =
+            httpc:request(post, {Url ++ "/api/session", [], "application/json",
+                                 jsx:encode(#{user => <<"operator">>, password => <<"operator">>})},
+                          Ssl, [{body_format, binary}]),
+        [SetCookie] = [V || {"set-cookie", V} <- H],
+        ?assertNotEqual(nomatch, string:find(SetCookie, "; Secure")),
+        %% A client that does not trust the certificate is refused by its own check
+        %% (a client of its own, which has no connection open yet).
+        {ok, _} = inets:start(httpc, [{profile, cell_web_untrusted}]),
+        try
+            {error, _} = httpc:request(get, {Url ++ "/api/session", []},
+                                       [{ssl, [{verify, verify_peer}, {cacertfile, Other},
+                                               {server_name_indication, "localhost"}]}],
+                                       [], cell_web_untrusted)
+        after
+            ok = inets:stop(httpc, cell_web_untrusted)
+        end,
+        %% Plain HTTP on the same port gets no HTTP answer.
+        ?assertMatch({error, _}, httpc:request(get, {"http://127.0.0.1:" ++
+                                                         integer_to_list(cell_web:port()) ++
+                                                         "/api/session", []},
+                                               [{timeout, 10000}], [])),
+        %% Without its key the panel says so and waits; the cell runs on.
+        ok = application:stop(cell_web),
+        ok = file:delete(Key),
+        ok = cell_log:subscribe(),
+        ok = application:start(cell_web),
+        await(fun({cell_log, #{source := <<"web">>, text := T}}) ->
+                      binary:match(T, <<"cannot serve HTTPS">>) =/= nomatch
+                          andalso binary:match(T, <<"panel.key">>) =/= nomatch;
+                 (_) -> false end, 10000),
+        ?assertEqual({error, not_listening}, cell_web_listener:port())
+    after
+        _ = cell_log:unsubscribe(),
+        ok = application:stop(cell_web),
+        ok = application:unset_env(cell_web, https),
+        ok = application:start(cell_web)
+    end.
+
+%% An authority `<Dir>/<Name>.crt' and a server certificate it issued for 127.0.0.1
+%% and localhost.
+certificates(Dir, Name, Cert, Key) ->
+    CaCrt = filename:join(Dir, Name ++ ".crt"),
+    CaKey = filename:join(Dir, Name ++ ".key"),
+    Csr = filename:join(Dir, Name ++ ".csr"),
+    Ext = filename:join(Dir, Name ++ ".ext"),
+    ok = file:write_file(Ext, "subjectAltName=IP:127.0.0.1,DNS:localhost\n"),
+    ok = openssl(["req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+                  "-subj", "/CN=" ++ Name, "-keyout", CaKey, "-out", CaCrt]),
+    ok = openssl(["req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1",
+                  "-keyout", Key, "-out", Csr]),
+    ok = openssl(["x509", "-req", "-in", Csr, "-CA", CaCrt, "-CAkey", CaKey,
+                  "-CAcreateserial", "-days", "2", "-extfile", Ext, "-out", Cert]).
+
+openssl(Args) ->
+    Port = open_port({spawn_executable, os:find_executable("openssl")},
+                     [exit_status, stderr_to_stdout, {args, Args}]),
+    0 = await_exit(Port),
+    ok.
+
+await_exit(Port) ->
+    receive
+        {Port, {exit_status, S}} -> S;
+        {Port, {data, _}} -> await_exit(Port)
+    after 60000 -> ct:fail(openssl_timeout)
     end.
