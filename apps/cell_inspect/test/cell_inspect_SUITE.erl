@@ -507,8 +507,8 @@ restart_while_waiting_for_an_answer(Config) ->
     exit(cell_inspect_block:whereis(line1), kill),
     ok = ?P:await(Plc, message_status, 4).
 
-%% The HAL's server is away (it restarts) as the block starts again after a crash
-%% while Requesting: the block does not crash again; it takes its PLC as lost (offline:
+%% The HAL's server is away (it restarts) as the block starts again while
+%% Requesting: the block does not crash again; it takes its PLC as lost (offline:
 %% nothing written, the heartbeat still) and, woken by the HAL when its server is back,
 %% follows the PLC again and answers it as after any restart: Error with InternalError
 %% instead of waiting for ever, the heartbeat going again.
@@ -518,11 +518,15 @@ hal_server_away_as_the_block_starts(Config) ->
     _ = ?P:trigger(Plc, <<"STATION1">>, <<"SN-H">>),
     _ = ?T:request_seen(?CAM),
     ok = supervisor:terminate_child(cell_hal_sup, cell_hal_server),
+    %% The block starts again while the HAL is away: it comes up offline. What the
+    %% block before it said is dropped, so that only the new one's view counts.
     Old = cell_inspect_block:whereis(line1),
-    exit(Old, kill),
+    ok = supervisor:terminate_child(cell_inspect_block_sup, line1),
+    ok = drop_views(line1),
+    {ok, New} = supervisor:restart_child(cell_inspect_block_sup, line1),
     ok = await_view(line1, fun(#{state := S}) -> S =:= offline end),
-    New = cell_inspect_block:whereis(line1),
     ?assertNotEqual(Old, New),
+    ?assertEqual(New, cell_inspect_block:whereis(line1)),
     ?assertEqual(3, ?P:tag(Plc, inspection_status)),
     {ok, _} = supervisor:restart_child(cell_hal_sup, cell_hal_server),
     ok = ?P:await(Plc, inspection_status, 5),
@@ -657,6 +661,11 @@ await_view(Block, Cond) ->
                 false -> next_view(Block, Cond)
             end;
         {error, _} -> next_view(Block, Cond)
+    end.
+
+drop_views(Block) ->
+    receive {cell_inspect, view, #{id := Block}} -> drop_views(Block)
+    after 0 -> ok
     end.
 
 next_view(Block, Cond) ->
