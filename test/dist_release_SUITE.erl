@@ -12,12 +12,14 @@
 
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
--export([no_cookie_makes_one_in_the_root/1, cookie_others_can_read_is_refused/1,
+-export([no_cookie_makes_one_in_the_root/1, well_known_cookie_is_warned_of/1,
+         cookie_others_can_read_is_refused/1,
          distribution_listens_on_loopback/1, distribution_bind_opens_it/1,
          bad_distribution_bind_is_refused/1, tls_distribution_between_two_nodes/1]).
 
 all() ->
-    [no_cookie_makes_one_in_the_root, cookie_others_can_read_is_refused,
+    [no_cookie_makes_one_in_the_root, well_known_cookie_is_warned_of,
+     cookie_others_can_read_is_refused,
      distribution_listens_on_loopback, distribution_bind_opens_it,
      bad_distribution_bind_is_refused, tls_distribution_between_two_nodes].
 
@@ -44,6 +46,7 @@ init_per_testcase(Case, Config) ->
            %% What the test's own environment may hold must not decide for the node.
            {"CELLRT_COOKIE", case Case of
                                  tls_distribution_between_two_nodes -> "cellrt_ct_tls";
+                                 well_known_cookie_is_warned_of -> "cellrt";
                                  _ -> false
                              end},
            {"CELLRT_DIST_BIND", case Case of
@@ -95,6 +98,17 @@ no_cookie_makes_one_in_the_root(Config) ->
     ?assertEqual({ok, Bin}, file:read_file(File)),
     ?assertEqual(list_to_atom(Cookie), erpc:call(Node, erlang, get_cookie, [])),
     true = erlang:disconnect_node(Node).
+
+%% Given the cookie older releases shipped with, a build other than the production one
+%% starts and says in the log what to do (the production build refuses it:
+%% cell_dist's unit tests).
+well_known_cookie_is_warned_of(Config) ->
+    ok = start(Config),
+    {0, _} = cellrt(Config, ["eval", "cell_log:flush()."]),
+    [Log] = filelib:wildcard(filename:join([?config(root, Config), "Logs", "log *.log"])),
+    {ok, Bin} = file:read_file(Log),
+    ?assertNotEqual(nomatch, binary:match(Bin, <<"WARNING cell_base: the node's distribution "
+                                                 "cookie is the well-known `cellrt'">>)).
 
 %% A cookie file other users can read is as good as no cookie: the start is refused
 %% and says what to do.
