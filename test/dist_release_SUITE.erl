@@ -74,8 +74,8 @@ no_cookie_makes_one_in_the_root(Config) ->
     {ok, Bin} = file:read_file(File),
     Cookie = binary_to_list(Bin),
     ?assertMatch({match, _}, re:run(Cookie, "^[0-9a-f]{64}$")),
-    %% The vm.args the start script writes holds the cookie: it is kept beside it, in
-    %% a folder only the owner can open; the root stays as any folder.
+    %% The vm.args the start script writes is kept beside the cookie, in a folder only
+    %% the owner can open; the root stays as any folder.
     Dist = filename:dirname(File),
     {ok, #file_info{mode = DistMode}} = file:read_file_info(Dist),
     ?assertEqual(8#700, DistMode band 8#777),
@@ -85,7 +85,13 @@ no_cookie_makes_one_in_the_root(Config) ->
     {ok, #file_info{mode = RootMode}} = file:read_file_info(?config(root, Config)),
     ?assertEqual(UsualMode band 8#777, RootMode band 8#777),
     {ok, VmArgs} = file:read_file(filename:join(Dist, "vm.args")),
-    ?assertNotEqual(nomatch, binary:match(VmArgs, <<"-setcookie ", Bin/binary>>)),
+    ?assertNotEqual(nomatch, binary:match(VmArgs, <<"-sname ">>)),
+    %% ps shows a command line to every user of the PC: the node reads its cookie from
+    %% the file, so that it is on none.
+    ?assertEqual(nomatch, binary:match(VmArgs, Bin)),
+    Args = eval(Config, "os:cmd(\"ps -o args= -p \" ++ os:getpid())."),
+    ?assertNotEqual(nomatch, string:find(Args, ?config(name, Config))),
+    ?assertEqual(nomatch, string:find(Args, Cookie)),
     true = erlang:set_cookie(Node, cellrt),
     ?assertEqual(false, net_kernel:connect_node(Node)),
     true = erlang:set_cookie(Node, list_to_atom(Cookie)),
