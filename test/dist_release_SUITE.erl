@@ -176,6 +176,7 @@ tls_distribution_between_two_nodes(Config) ->
     ok = start(Config),
     ?assertEqual("tls", eval(Config, "{ok, [{_, I} | _]} = net_kernel:nodes_info(), "
                                   "element(4, proplists:get_value(address, I)).")),
+    ?assertEqual([{127, 0, 0, 1}], dist_addresses(Config)),
     Peer = fun(Name, ConfFile) ->
                    peer(Name, ConfFile, "cellrt_ct_tls", Node)
            end,
