@@ -2,7 +2,8 @@
 %% script with a deadline.
 -module(cellrt_rel).
 
--export([top/0, bin/0, run/4, collect/2, boot_apps/0, await_boot/2, await_boot_expr/0]).
+-export([top/0, bin/0, run/4, collect/2, boot_apps/0, await_boot/2, await_boot_expr/0,
+         await_ping/4, start_dist/1, stop_dist/1]).
 
 %% The project folder: $CELLRT_TOP (set by the Makefile and scripts/test), else derived
 %% from this file's path, which rebar3 copies under _build/.
@@ -48,6 +49,34 @@ await_boot_expr() ->
     lists:flatten(io_lib:format("lists:foreach(fun({A, T}) -> {ok, _} = "
                                 "application:ensure_all_started(A, T) end, ~w).",
                                 [boot_apps()])).
+
+%% Runs the start script's `ping' until `Done(Output)' holds, at most `Tries' times;
+%% `ok' or `{error, timeout}'. `ping' waits for its answer, so each try is a round trip,
+%% not a sleep.
+await_ping(_Bin, _Env, _Done, 0) ->
+    {error, timeout};
+await_ping(Bin, Env, Done, Tries) ->
+    {_, Out} = run(Bin, ["ping"], Env, 30000),
+    case Done(Out) of
+        true -> ok;
+        false -> await_ping(Bin, Env, Done, Tries - 1)
+    end.
+
+%% Makes the test's node a distributed one, named from `Prefix' and its OS pid, unless
+%% it is already; whether it did (for stop_dist/1).
+start_dist(Prefix) ->
+    case node() of
+        nonode@nohost ->
+            Name = list_to_atom(Prefix ++ "_" ++ os:getpid() ++ "@localhost"),
+            {ok, _} = net_kernel:start([Name, shortnames]),
+            true;
+        _ ->
+            false
+    end.
+
+%% Ends what start_dist/1 started.
+stop_dist(true) -> _ = net_kernel:stop(), ok;
+stop_dist(false) -> ok.
 
 %% Runs the start script `Bin' with `Args' and `Env'; its exit status and output.
 run(Bin, Args, Env, Timeout) ->

@@ -224,12 +224,5 @@ await_up(Config) ->
 await_down(Config) ->
     await(Config, fun(Out) -> string:trim(Out) =/= "pong" end, 100).
 
-%% `ping' itself waits for its answer, so each try is a round trip, not a sleep.
-await(_Config, _Done, 0) ->
-    {error, timeout};
 await(Config, Done, N) ->
-    {_, Out} = cellrt(Config, ["ping"]),
-    case Done(Out) of
-        true -> ok;
-        false -> await(Config, Done, N - 1)
-    end.
+    cellrt_rel:await_ping(?config(bin, Config), ?config(env, Config), Done, N).

@@ -24,21 +24,10 @@ init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
     Bin = cellrt_rel:bin(),
     filelib:is_regular(Bin) orelse ct:fail("no release: build it with `rebar3 release`"),
-    Started = case node() of
-                  nonode@nohost ->
-                      Name = list_to_atom("router_suite_" ++ os:getpid() ++ "@localhost"),
-                      {ok, _} = net_kernel:start([Name, shortnames]),
-                      true;
-                  _ ->
-                      false
-              end,
-    [{bin, Bin}, {started_dist, Started} | Config].
+    [{bin, Bin}, {started_dist, cellrt_rel:start_dist("router_suite")} | Config].
 
 end_per_suite(Config) ->
-    case ?config(started_dist, Config) of
-        true -> _ = net_kernel:stop(), ok;
-        false -> ok
-    end.
+    cellrt_rel:stop_dist(?config(started_dist, Config)).
 
 run_answer_stop_restart(Config) ->
     %% The priv_dir is shared by every suite of the run: a root of this suite's own.

@@ -50,6 +50,16 @@ init(Spec) ->
         0 -> ok;
         _ -> ok = net_kernel:monitor_nodes(true)
     end,
+    case cell_dist:unreachable_peers(cell_dist:listen_interface(), node(), maps:keys(Peers)) of
+        [] ->
+            ok;
+        Away ->
+            cell_log:error(cell, "the cells on ~ts are on other PCs, but this node's "
+                           "distribution listens on this PC only: set CELLRT_DIST_BIND to "
+                           "the address of the line's network on every PC of the line, and "
+                           "run the line's distribution over TLS (README, \"Security\")",
+                           [lists:join(", ", [atom_to_list(N) || N <- Away])])
+    end,
     _ = [self() ! {connect, N} || N <- maps:keys(Peers)],
     {ok, #state{peers = Peers}}.
 
