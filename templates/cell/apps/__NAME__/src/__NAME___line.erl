@@ -7,7 +7,9 @@
 %% ram's position, the count of parts that arrived and of parts delivered to the next
 %% machine, and the moves under way. Each function returns the new world and the
 %% effects for the simulation to carry out: `{set, Input, Value}' (a sensor changes)
-%% and `{'after', Ms, Event}' (an event of this module, `Ms' milliseconds later).
+%% and `{'after', Ms, Event}' (an event of this module, `Ms' milliseconds later). The
+%% sensors that go off are set before those that come on, so a part moving on is never
+%% seen at two stations at once.
 %%
 %% <ul>
 %% <li>A part arrives at the infeed `arrival_ms' after the infeed emptied.</li>
@@ -180,9 +182,14 @@ timers(#{pending := Old}, #{pending := New}) ->
     [{'after', Ms, {Kind, G}}
      || {Kind, {G, Ms}} <- maps:to_list(New), maps:get(Kind, Old, undefined) =/= {G, Ms}].
 
+%% The sensors that changed, those that go off first: a part leaves one sensor before it
+%% reaches the next, so the PLC never shows it at two stations in one scan (set in the
+%% order of their names, a part moving to a station named later would be seen at both,
+%% and taken there for another part).
 sensors(W0, W1) ->
     Old = inputs(W0),
-    [{set, K, V} || {K, V} <- maps:to_list(inputs(W1)), maps:get(K, Old) =/= V].
+    Changed = [{set, K, V} || {K, V} <- maps:to_list(inputs(W1)), maps:get(K, Old) =/= V],
+    [C || {set, _, false} = C <- Changed] ++ [C || {set, _, V} = C <- Changed, V =/= false].
 
 out(Point, #{outs := Outs}) ->
     maps:get(Point, Outs, false) =:= true.
