@@ -24,7 +24,8 @@
 %% </ul>
 -module(__NAME___line).
 
--export([new/0, start/2, output/4, event/3, inputs/1, parts/1, params/1]).
+-export([new/0, start/2, output/4, event/3, inputs/1, parts/1, params/1, persisted/1,
+         moved/2]).
 
 -export_type([world/0, effect/0, event/0]).
 
@@ -107,6 +108,21 @@ inputs(#{infeed := Infeed, press := Press, ram := Ram, outs := Outs}) ->
 -spec parts(world()) -> 0..2.
 parts(#{infeed := Infeed, press := Press}) ->
     length([x || true <- [Infeed, Press]]).
+
+%% @doc What of the world is kept across a restart of the node: where the parts are,
+%% the ram, the counts. {@link start/2} takes it up again (merged into {@link new/0}):
+%% the moves under way start again, the outputs are read anew. A station added to the
+%% line is added here too.
+-spec persisted(world()) -> map().
+persisted(W) ->
+    maps:with([infeed, press, ram, arrived, delivered], W).
+
+%% @doc Whether a part arrived, moved on or left from `Old' to `New': when the world is
+%% worth saving again.
+-spec moved(world(), world()) -> boolean().
+moved(Old, New) ->
+    Places = [infeed, press, delivered],
+    maps:with(Places, Old) =/= maps:with(Places, New).
 
 %%--------------------------------------------------------------------
 

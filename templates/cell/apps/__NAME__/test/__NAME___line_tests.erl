@@ -2,7 +2,8 @@
 %% and of the moves ending: a PropEr property. Whatever happens, no part is made or
 %% lost (every part that arrived was delivered or is in the machine), the sensors say
 %% what the world holds, a part moving on is never seen at two stations between two
-%% effects, the ram is never at both ends, and the line, its belts run, delivers.
+%% effects, the ram is never at both ends, the world as saved starts again with its
+%% parts where they were, and the line, its belts run, delivers.
 -module(__NAME___line_tests).
 
 -include_lib("proper/include/proper.hrl").
@@ -25,7 +26,7 @@ prop_line() ->
                 {W0, Fx0} = __NAME___line:start(P0, __NAME___line:new()),
                 {W, Sensors, _P} = lists:foldl(fun run/2, {W0, apply_sets(Fx0, #{}), P0}, Steps),
                 conserved(W) andalso Sensors =:= __NAME___line:inputs(W)
-                    andalso delivers(W)
+                    andalso restarts(W, P0) andalso delivers(W)
             end).
 
 run({roll, R}, {W, Sensors, P}) ->
@@ -69,6 +70,17 @@ shown(Sensors) ->
 
 conserved(#{arrived := A, delivered := D} = W) ->
     A =:= D + __NAME___line:parts(W).
+
+%% The world as saved, taken up again by a node started again: the same parts where
+%% they were, none made or lost.
+restarts(W, P) ->
+    {W1, _} = __NAME___line:start(P, maps:merge(__NAME___line:new(), __NAME___line:persisted(W))),
+    conserved(W1) andalso maps:with([arrived, delivered], W1) =:= maps:with([arrived, delivered], W)
+        andalso parts_seen(W1) =:= parts_seen(W).
+
+parts_seen(W) ->
+    maps:filter(fun(K, _) -> lists:prefix("part_", atom_to_list(K)) end,
+                __NAME___line:inputs(W)).
 
 %% The belts and the ram left as they are, the moves under way run to their end: with
 %% both belts on, every part that arrives goes through and out.
