@@ -1,7 +1,9 @@
 %% @doc The IO group of the line: every point of the infeed conveyor and of the press,
-%% where it is in the PLC's Modbus image, its wiring label and its caption on the
-%% operator's IO page. The same module runs on the simulated PLC (which keeps each
-%% point by its name and ignores the field) and on the real one over Modbus TCP.
+%% where it is in the PLC's Modbus image, its wiring label and its caption: the words
+%% it is shown with, beside its value, by cellrt's diagnostics in the node's shell
+%% (`cell_diag' io, see the README). The same module runs on the simulated PLC (which
+%% keeps each point by its name and ignores the field) and on the real one over Modbus
+%% TCP.
 %%
 %% A point: `field' is `{discrete_input, A}' (a bool input), `{coil, A}' (a bool
 %% output), `{input_register, A}' (a number read) or `{holding_register, A}' (a number

@@ -7,7 +7,9 @@
 %% ram's position, the count of parts that arrived and of parts delivered to the next
 %% machine, and the moves under way. Each function returns the new world and the
 %% effects for the simulation to carry out: `{set, Input, Value}' (a sensor changes)
-%% and `{'after', Ms, Event}' (an event of this module, `Ms' milliseconds later).
+%% and `{'after', Ms, Event}' (an event of this module, `Ms' milliseconds later). The
+%% sensors that go off are set before those that come on, so a part moving on is never
+%% seen at two stations at once.
 %%
 %% <ul>
 %% <li>A part arrives at the infeed `arrival_ms' after the infeed emptied.</li>
@@ -22,7 +24,8 @@
 %% </ul>
 -module(__NAME___line).
 
--export([new/0, start/2, output/4, event/3, inputs/1, parts/1, params/1]).
+-export([new/0, start/2, output/4, event/3, inputs/1, parts/1, params/1, persisted/1,
+         moved/2]).
 
 -export_type([world/0, effect/0, event/0]).
 
@@ -106,6 +109,21 @@ inputs(#{infeed := Infeed, press := Press, ram := Ram, outs := Outs}) ->
 parts(#{infeed := Infeed, press := Press}) ->
     length([x || true <- [Infeed, Press]]).
 
+%% @doc What of the world is kept across a restart of the node: where the parts are,
+%% the ram, the counts. {@link start/2} takes it up again (merged into {@link new/0}):
+%% the moves under way start again, the outputs are read anew. A station added to the
+%% line is added here too.
+-spec persisted(world()) -> map().
+persisted(W) ->
+    maps:with([infeed, press, ram, arrived, delivered], W).
+
+%% @doc Whether a part arrived, moved on or left from `Old' to `New': when the world is
+%% worth saving again.
+-spec moved(world(), world()) -> boolean().
+moved(Old, New) ->
+    Places = [infeed, press, delivered],
+    maps:with(Places, Old) =/= maps:with(Places, New).
+
 %%--------------------------------------------------------------------
 
 %% `Before': the world as the event found it, whose sensors the effects change.
@@ -180,9 +198,14 @@ timers(#{pending := Old}, #{pending := New}) ->
     [{'after', Ms, {Kind, G}}
      || {Kind, {G, Ms}} <- maps:to_list(New), maps:get(Kind, Old, undefined) =/= {G, Ms}].
 
+%% The sensors that changed, those that go off first: a part leaves one sensor before it
+%% reaches the next, so the PLC never shows it at two stations in one scan (set in the
+%% order of their names, a part moving to a station named later would be seen at both,
+%% and taken there for another part).
 sensors(W0, W1) ->
     Old = inputs(W0),
-    [{set, K, V} || {K, V} <- maps:to_list(inputs(W1)), maps:get(K, Old) =/= V].
+    Changed = [{set, K, V} || {K, V} <- maps:to_list(inputs(W1)), maps:get(K, Old) =/= V],
+    [C || {set, _, false} = C <- Changed] ++ [C || {set, _, V} = C <- Changed, V =/= false].
 
 out(Point, #{outs := Outs}) ->
     maps:get(Point, Outs, false) =:= true.

@@ -117,7 +117,7 @@ step(pressing, _Woken, T) ->
             {error, cell_task:error_spec(
                       <<"recipe">>, "Recipe not usable",
                       io_lib:format("Part ~ts is of recipe ~ts, which gives no stroke depth "
-                                    "(~p). Correct the recipe on the panel, then select RETRY.",
+                                    "(~p). Correct the recipe, then select RETRY.",
                                     [S, Recipe, Why]),
                       [retry]),
              T}

@@ -1,7 +1,11 @@
 %% @doc The cell's recipes (one a part type): a recipe's settings are the standard
 %% recipe settings object ({@link cell_recipe_settings}); the press reads the part's
 %% `board_thickness' from it and presses that deep. A new cell starts with the demo
-%% recipe; the operator makes more on the panel's recipe page.
+%% recipe. The panel has no recipe page: recipes are made over its REST API (`GET
+%% /api/recipes', `PUT /api/recipes/NAME' with a recipe file, by a `service' user) or in
+%% the node: `cell_recipe:save(<<"thick-part">>, #{description => <<"4 mm">>, settings =>
+%% #{board_thickness => 4.0}}, <<"your name">>)'; the setting `recipe' says which one
+%% the line produces.
 -module(__NAME___recipes).
 
 -export([ensure_demo/0, stroke_depth/1]).

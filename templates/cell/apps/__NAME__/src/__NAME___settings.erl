@@ -1,8 +1,15 @@
 %% @doc The cell's own settings object, `Settings/__NAME__.json': what the line
 %% produces, its watchdogs, where the real PLC is, and how the simulation behaves.
 %% The tasks run on the snapshot taken at Start; `plc_*' and `hal_poll_ms' are read
-%% when the cell boots (the HAL is connected then). The operator panel shows and edits
-%% it like every settings object.
+%% when the cell boots (the HAL is connected then).
+%%
+%% The operator panel shows the line, the errors, the log and the users, not this
+%% object: it is read and changed over the panel's REST API (`GET /api/settings/__NAME__',
+%% `PUT /api/settings/__NAME__' with the fields to change as JSON, by a `service' user)
+%% or in the node (`bin/__NAME__ remote_console'):
+%% `cell_settings:put(__NAME__, #{stroke_timeout_ms => 4000}, <<"your name">>)', which
+%% `cell_settings:get(__NAME__)' reads back. A value out of range is refused with its
+%% field named and nothing changed; every change is a revision with who and when.
 -module(__NAME___settings).
 -behaviour(cell_settings_schema).
 

@@ -5,9 +5,10 @@
 %% It puts a rule on every output of the `line_io' group (the simulated PLC tells it
 %% when the HAL wrote one), hands each change to the physics, and carries out what the
 %% physics returns: it sets the inputs as the sensors would see the machine, and arms
-%% a timer for each move. It never polls. The world is saved in
-%% `Data/__NAME___sim.world' whenever a part moves, so a node started again finds its
-%% parts where they were, as a real machine would.
+%% a timer for each move. It never polls. The world (what the physics says is kept,
+%% `__NAME___line:persisted/1') is saved in `Data/__NAME___sim.world' whenever a part
+%% moves, so a node started again finds its parts where they were, as a real machine
+%% would.
 %%
 %% It starts after the cell's monitor has connected the HAL; should the HAL go away
 %% under it (the monitor restarted), a write fails, it crashes and, started again by
@@ -145,8 +146,7 @@ apply_physics({W, Effects}, #{world := Old} = S) ->
                               _ = erlang:send_after(round(Ms * Scale), self(), {event, Event}),
                               Acc
                       end, #{}, Effects),
-    Moved = Old =:= undefined orelse
-        maps:with([infeed, press, delivered], Old) =/= maps:with([infeed, press, delivered], W),
+    Moved = Old =:= undefined orelse __NAME___line:moved(Old, W),
     Moved andalso save(W),
     case S of
         #{waiting := []} -> S#{world := W};
@@ -172,7 +172,7 @@ saved() ->
     end.
 
 save(W) ->
-    case cell_file:write_term(path(), maps:with([infeed, press, ram, arrived, delivered], W)) of
+    case cell_file:write_term(path(), __NAME___line:persisted(W)) of
         ok -> ok;
         {error, Reason} -> cell_log:warning(__NAME__, "simulated line: world not saved: ~p", [Reason])
     end.
