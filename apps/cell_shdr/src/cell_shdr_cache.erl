@@ -15,7 +15,10 @@
 %% value once. A value that lasted no time is not sent either: values are held until
 %% the millisecond of their stamp is over, and of an item's changes within one
 %% timestamp only the last goes out (MESSAGE points, which are no states, go at once).
-%% The part counts go on from the statistics' totals when the adapter starts. Each condition item holds its active native codes; on every alarm event
+%% The part counts go on from the statistics' totals when the adapter starts. A HAL
+%% point's item is read again when its connection goes down or up and when the HAL
+%% marks the point faulty or clears it: UNAVAILABLE at once while it cannot be read,
+%% never its last value as if it were current. Each condition item holds its active native codes; on every alarm event
 %% the item is marked from `cell_alarms:list/0' and swept: a new or changed code is
 %% sent at its level, a code gone is sent NORMAL, and when none is left one NORMAL
 %% with no code clears the item.
@@ -246,6 +249,11 @@ handle_info({cell_event, Event}, State) ->
     {noreply, event(Event, State)};
 handle_info({cell_hal, {Group, Point}, Value}, State) ->
     {noreply, hal_value(Group, Point, Value, State)};
+handle_info({cell_hal_fault, {Group, Point}, _Why}, State) ->
+    {noreply, hal_reread(Group, Point, State)};
+handle_info({cell_hal_conn, _Conn, _Status}, State) ->
+    %% The points of that connection read as unavailable, or read again.
+    {noreply, resync_points(State)};
 handle_info({cell_settings, changed, shdr}, State) ->
     {noreply, settings_changed(State)};
 handle_info({cell_settings, changed, _}, State) ->
@@ -817,6 +825,12 @@ hal_read(#{group := Group, point := Point} = P) ->
         {ok, V} -> cell_shdr_items:point_value(P, V);
         {error, _} -> unavailable
     end.
+
+%% A point's fault set (it reads as unavailable) or cleared (it reads its value).
+hal_reread(Group, Point, #state{points = Points} = State) ->
+    Updates = [{N, hal_read(P)} || #{time_series := false, name := N} = P <- Points,
+                                   cell_shdr_hal:same_point(P, Group, Point)],
+    set(Updates, now_stamp(), State).
 
 hal_value(Group, Point, Value, #state{points = Points} = State) ->
     Updates = [{N, cell_shdr_items:point_value(P, Value)}
