@@ -990,6 +990,14 @@ hal_points(Case) ->
             after ?WAIT -> ct:fail("the simulated PLC did not come up")
             end,
             ok = cell_hal:unsubscribe_connection(?PLC),
+            %% The HAL has read what the simulated PLC was given (its first read may
+            %% have come before).
+            _ = [begin
+                     {ok, Ref} = cell_hal:watch(conv, P, {eq, V}),
+                     receive {cell_hal_watch, Ref, V} -> ok
+                     after ?WAIT -> ct:fail("the HAL did not read ~p", [P])
+                     end
+                 end || {P, V} <- [{sensor, false}, {count, 5}]],
             put_settings(#{points => [point(<<"conv_count">>, <<"conv">>, <<"count">>,
                                             sample, <<"COUNT">>, <<>>),
                                       point(<<"conv_sensor">>, <<"conv">>, <<"sensor">>,
