@@ -28,7 +28,8 @@
          assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
          closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
          two_cells_one_agent/1, part_counts_go_on_after_restart/1,
-         points_unavailable_while_link_down/1, faulted_point_unavailable/1]).
+         points_unavailable_while_link_down/1, faulted_point_unavailable/1,
+         work_items_for_working_tasks_only/1]).
 -export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
@@ -48,13 +49,13 @@ all() ->
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
      closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent,
      part_counts_go_on_after_restart, points_unavailable_while_link_down,
-     faulted_point_unavailable].
+     faulted_point_unavailable, work_items_for_working_tasks_only].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
     Root = filename:join(?config(priv_dir, Config), "root-" ++ atom_to_list(Case)),
     Tab = ets:new(cell_shdr_suite, [public]),
-    Specs = [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
+    Specs = [works(Case, Id, cell_test_task:spec(Id, Tab, self())) || Id <- ?TASKS]
         ++ case Case of
                a_unit_is_a_path_like_a_task ->
                    [cell_test_unit:spec(picker, #{tab => Tab, booting => false})];
@@ -968,6 +969,36 @@ faulted_point_unavailable(_Config) ->
     await_pairs(S, [{<<"conv_count">>, <<"5">>}]),
     ?assertEqual({ok, 5}, cell_hal:read(conv, count)),
     ok = gen_tcp:close(S).
+
+%% A task that does no work (here `load', whose module calls no work start: its spec
+%% says nothing, so the cell takes it from the code) has no part count and no cycle
+%% time, neither in Devices.xml nor on the stream: they would never carry data. A
+%% task that does (`robot', declared so) has both.
+work_items_for_working_tasks_only(Config) ->
+    File = filename:join(?config(priv_dir, Config), "Devices-work.xml"),
+    ok = cell_shdr:devices_xml(File),
+    {Doc, _} = xmerl_scan:file(File),
+    Declared = [attr(E, name) || E <- xmerl_xpath:string("//DataItem", Doc)],
+    Own = ["part_count", "cycle_time"],
+    ?assertEqual([], [D || D <- Declared, S <- Own, D =:= "load_" ++ S]),
+    ?assertEqual(["robot_" ++ S || S <- Own],
+                 [D || S <- Own, D <- Declared, D =:= "robot_" ++ S]),
+    ?assert(lists:member("load_execution", Declared)),
+    S = connect(),
+    V = values(snapshot(S)),
+    ?assertEqual([], [K || K <- [<<"load_part_count">>, <<"load_cycle_time">>],
+                           maps:is_key(K, V)]),
+    ?assertEqual(<<"0">>, maps:get(<<"robot_part_count">>, V)),
+    ?assertEqual(<<"UNAVAILABLE">>, maps:get(<<"robot_cycle_time">>, V)),
+    ?assertEqual([{load, false}, {robot, true}],
+                 [{Id, W} || #{id := Id, work := W} <- cell_registry:tasks()]),
+    ok = gen_tcp:close(S).
+
+%% The suite's tasks do work when told to (the test task starts work by a command),
+%% so they say so; but for the case that shows a task doing none, whose `load' leaves
+%% it to its module's code.
+works(work_items_for_working_tasks_only, load, Spec) -> Spec;
+works(_Case, _Id, Spec) -> Spec#{work => true}.
 
 hal_module(Case) ->
     case lists:member(Case, ?REAL_HAL_CASES) of
