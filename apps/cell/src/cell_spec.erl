@@ -25,6 +25,12 @@
 %% declaration is checked here too. Units take no part in handshakes: a link naming one
 %% is refused.
 %%
+%% A task's `work' (a boolean) says whether it does work on its items (calls
+%% `cell_task:work_start/1', or its unit's sequence `cell_sequence:work_start/1'), so
+%% that it has cycle times and part counts to report (the SHDR adapter declares them
+%% for such tasks only); without it, a unit does, and a device task does when its
+%% module calls `cell_task:work_start/1'.
+%%
 %% A task's `settings' names the settings object (see {@link cell_settings}) whose
 %% snapshot it runs on, taken at each Start; a map gives fixed settings instead. The
 %% cell's `settings' lists the schema modules of its own settings objects.
@@ -231,7 +237,8 @@ task(T) ->
               {lane, fun is_name/1}],
     Optional = [{io, [], fun(L) -> is_list(L) andalso lists:all(fun is_atom/1, L) end},
                 {settings, #{}, fun(S) -> is_map(S) orelse is_atom(S) end},
-                {args, #{}, fun is_map/1}],
+                {args, #{}, fun is_map/1},
+                {work, undefined, fun is_boolean/1}],
     case [K || {K, Ok} <- Checks, not (maps:is_key(K, T) andalso Ok(maps:get(K, T)))] of
         [] ->
             case [K || {K, _, Ok} <- Optional, maps:is_key(K, T), not Ok(maps:get(K, T))] of
@@ -239,7 +246,9 @@ task(T) ->
                     Unknown = maps:keys(T) -- [id, links | [K || {K, _} <- Checks] ++
                                                           [K || {K, _, _} <- Optional]],
                     case Unknown of
-                        [] -> check_unit(maps:merge(maps:from_list([{K, D} || {K, D, _} <- Optional]), T));
+                        [] ->
+                            Defaults = maps:from_list([{K, D} || {K, D, _} <- Optional]),
+                            check_unit(works(maps:merge(Defaults, T)));
                         _ -> {error, {unknown_keys, Unknown}}
                     end;
                 Bad ->
@@ -250,6 +259,28 @@ task(T) ->
     end.
 
 is_name(B) -> is_binary(B) andalso B =/= <<>>.
+
+%% Whether a task does work (starts and ends work on its items, so it has cycle times
+%% and part counts to report): as declared, else a unit does (its sequences, modules
+%% of their own, may) and a device task does when its module's code calls
+%% cell_task:work_start/1. A module whose code cannot be read is taken to work, so
+%% nothing it reports goes unheard.
+works(#{work := undefined, module := Mod} = T) ->
+    T#{work => cell_unit:is_unit_module(Mod) orelse calls_work_start(Mod)};
+works(T) ->
+    T.
+
+calls_work_start(Mod) ->
+    case code:get_object_code(Mod) of
+        {Mod, Beam, _File} -> imports_work_start(Beam);
+        error -> true
+    end.
+
+imports_work_start(Beam) ->
+    case beam_lib:chunks(Beam, [imports]) of
+        {ok, {_, [{imports, Imports}]}} -> lists:member({cell_task, work_start, 1}, Imports);
+        {error, beam_lib, _} -> true
+    end.
 
 is_schema(Mod) when is_atom(Mod) ->
     code:ensure_loaded(Mod) =:= {module, Mod}
@@ -308,6 +339,17 @@ validate_test_() ->
                    validate(#{tasks => [Good#{zone => "Z"}]})),
      ?_assertEqual({error, {bad_task, a, {bad_option, io}}},
                    validate(#{tasks => [Good#{io => [<<"x">>]}]})),
+     %% Whether a task does work: as declared, else as its module's code says (the
+     %% test task starts work by a call its commands name, not one of its code).
+     ?_assertMatch({ok, #{tasks := [#{work := false}]}}, validate(#{tasks => [Good]})),
+     ?_assertMatch({ok, #{tasks := [#{work := true}]}},
+                   validate(#{tasks => [Good#{work => true}]})),
+     ?_assertEqual({error, {bad_task, a, {bad_option, work}}},
+                   validate(#{tasks => [Good#{work => yes}]})),
+     ?_assert(calls_work_start(cell_spec_no_such_module)),
+     ?_assert(imports_work_start(beam(<<"f(T) -> cell_task:work_start(T).">>))),
+     ?_assertNot(imports_work_start(beam(<<"f(T) -> cell_task:work_complete(T).">>))),
+     ?_assert(imports_work_start(<<"not a module">>)),
      ?_assertEqual({error, {bad_task, a, {unknown_keys, [colour]}}},
                    validate(#{tasks => [Good#{colour => red}]})),
      ?_assertMatch({error, {bad_task, _, _}}, validate(#{tasks => [#{id => "a"}]})),
@@ -371,4 +413,16 @@ hosted_links_test() ->
     Links = [#{id => a, from => t1, to => t2}, #{id => b, from => t2, to => {t9, 'n@h'}},
              #{id => c, from => {t0, 'n@h'}, to => t1}, #{id => d, from => t2, to => undefined}],
     ?assertEqual([a, c, d], [I || #{id := I} <- hosted_links(#{links => Links})]).
+
+%% The object code of a module of one exported function `f/1'.
+beam(Source) ->
+    Forms = [begin
+                 {ok, Tokens, _} = erl_scan:string(F),
+                 {ok, Form} = erl_parse:parse_form(Tokens),
+                 Form
+             end || F <- ["-module(cell_spec_work_probe).", "-export([f/1]).",
+                          binary_to_list(Source)]],
+    {ok, cell_spec_work_probe, Beam} = compile:forms(Forms, [binary]),
+    Beam.
+
 -endif.

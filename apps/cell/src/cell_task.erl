@@ -119,7 +119,7 @@
                      | {reset, task()}.
 -type spec() :: #{id := atom(), module := module(), zone := binary(), lane := binary(),
                   io => [atom()], settings => map() | atom(), args => map(),
-                  links => #{atom() => #{role := up | down}}}.
+                  work => boolean(), links => #{atom() => #{role := up | down}}}.
 
 %% Why a task starts: from OFF on Start (after a Stop, or with the node's boot), after
 %% its process crashed (the cell running), after a Reset, or, running, because the

@@ -382,7 +382,8 @@ terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
 boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
     Previous = cell_registry:register_task(Id, #{module => Mod, zone => Z, lane => L,
                                                  state => off, serial => undefined,
-                                                 settings_key => settings_key(D0)}),
+                                                 settings_key => settings_key(D0),
+                                                 work => maps:get(work, D0#data.spec, true)}),
     D1 = D0#data{request = cell_registry:control(request),
                  estop = cell_registry:control(estop)},
     D2 = retained(service_flag(cell_registry:control(service_mode), D1)),

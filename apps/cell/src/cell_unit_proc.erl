@@ -266,7 +266,7 @@ boot(#data{id = Id, spec = Spec} = D0) ->
                  Id, #{module => maps:get(module, Spec), zone => maps:get(zone, Spec),
                        lane => maps:get(lane, Spec), state => off, serial => undefined,
                        settings_key => settings_key(Spec), kind => unit,
-                       unit_state => booting}),
+                       unit_state => booting, work => maps:get(work, Spec, true)}),
     Request = cell_registry:control(request),
     Service = cell_registry:control(service_mode),
     D1 = subscribe_io(D0#data{request = Request, estop = cell_registry:control(estop),

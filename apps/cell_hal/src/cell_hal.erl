@@ -24,6 +24,10 @@
 %% <li>`{cell_hal, {Group, Point}, Value}' on every change of a subscribed point (a
 %%   change of an output is a new commanded value or a value read back after a
 %%   reconnect);</li>
+%% <li>`{cell_hal_fault, {Group, Point}, Why}' to the same subscribers when the driver
+%%   reports the point unusable (`Why' in words: reads give `{error, {unavailable,
+%%   Why}}'), and `{cell_hal_fault, {Group, Point}, cleared}' when it is usable again
+%%   (a read gives its value);</li>
 %% <li>`{cell_hal_conn, ConnId, up | down}' when a connection goes up (after its first
 %%   complete read) or down.</li>
 %% </ul>
@@ -256,7 +260,9 @@ watch(Group, Point, Cond) ->
 cancel_watch(Ref) ->
     cell_hal_store:cancel_watch(Ref).
 
-%% @doc Sends `{cell_hal, {Group, Point}, Value}' to the caller on every change.
+%% @doc Sends `{cell_hal, {Group, Point}, Value}' to the caller on every change, and
+%% `{cell_hal_fault, {Group, Point}, Why | cleared}' when the point becomes unusable
+%% or usable again.
 %% `{error, disconnected}' while the server restarts.
 -spec subscribe(atom(), atom()) -> ok | error(unknown_point | disconnected).
 subscribe(Group, Point) ->

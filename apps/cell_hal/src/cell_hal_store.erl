@@ -261,7 +261,9 @@ fail({_, Ref, Pid, _} = W, Why) ->
 %% @doc Marks a point unusable (`Why' in words) or usable again (`undefined');
 %% true when that changed anything. A point made unusable ends its watches: each
 %% watcher gets `{cell_hal_unavailable, Ref, Why}' instead of a value, so that nobody
-%% waits for a point that cannot be read.
+%% waits for a point that cannot be read. Its subscribers get `{cell_hal_fault, Key,
+%% Why}', or `{cell_hal_fault, Key, cleared}' when it is usable again (then a read
+%% gives its value), so that nobody shows a value the point no longer has.
 -spec set_fault(key(), binary() | undefined) -> boolean().
 set_fault(Key, Why) ->
     try ets:lookup_element(?VALUES, Key, #hal_value.fault) of
@@ -270,6 +272,13 @@ set_fault(Key, Why) ->
             Changed = ets:update_element(?VALUES, Key, {#hal_value.fault, Why}),
             _ = Changed andalso is_binary(Why) andalso
                 lists:foreach(fun(W) -> fail(W, Why) end, ets:lookup(?WATCHES, Key)),
+            Told = case Why of
+                       undefined -> cleared;
+                       _ -> Why
+                   end,
+            _ = Changed andalso
+                lists:foreach(fun({_, Pid}) -> Pid ! {cell_hal_fault, Key, Told} end,
+                              ets:lookup(?SUBS, Key)),
             Changed
     catch
         error:badarg -> false

@@ -405,6 +405,9 @@ common(info, {timeout, _, settings}, State, D) ->
             _ = erlang:start_timer(R, self(), settings),
             {keep_state, D#data{retry = min(2 * R, 30000)}}
     end;
+common(info, {cell_hal_fault, {Id, _}, _}, _State, #data{id = Id}) ->
+    %% A point the PLC cannot serve: the block's requests to it fail and say so.
+    keep_state_and_data;
 common(info, {cell_inspect, Id, panel_up, _}, _State, #data{id = Id, settings = S}) ->
     cell_inspect_panel:block(Id, self(), maps:get(panel_messages, S, false)),
     keep_state_and_data;

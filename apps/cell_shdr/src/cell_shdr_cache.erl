@@ -15,7 +15,10 @@
 %% value once. A value that lasted no time is not sent either: values are held until
 %% the millisecond of their stamp is over, and of an item's changes within one
 %% timestamp only the last goes out (MESSAGE points, which are no states, go at once).
-%% The part counts go on from the statistics' totals when the adapter starts. Each condition item holds its active native codes; on every alarm event
+%% The part counts go on from the statistics' totals when the adapter starts. A HAL
+%% point's item is read again when its connection goes down or up and when the HAL
+%% marks the point faulty or clears it: UNAVAILABLE at once while it cannot be read,
+%% never its last value as if it were current. Each condition item holds its active native codes; on every alarm event
 %% the item is marked from `cell_alarms:list/0' and swept: a new or changed code is
 %% sent at its level, a code gone is sent NORMAL, and when none is left one NORMAL
 %% with no code clears the item.
@@ -77,6 +80,9 @@
                 clients = #{} :: #{pid() => #client{}},
                 settings = #{} :: map(),
                 prefixes = #{} :: #{atom() => binary()},
+                %% Tasks that do no work (their spec's `work' is false): no part count
+                %% and no cycle time of their own.
+                idle = [] :: [atom()],
                 tasks = #{} :: #{atom() => #task{}},
                 counts = {0, 0} :: {non_neg_integer(), non_neg_integer()}, %% good, bad
                 %% Each task's part count as the statistics had it when the adapter
@@ -246,6 +252,11 @@ handle_info({cell_event, Event}, State) ->
     {noreply, event(Event, State)};
 handle_info({cell_hal, {Group, Point}, Value}, State) ->
     {noreply, hal_value(Group, Point, Value, State)};
+handle_info({cell_hal_fault, {Group, Point}, _Why}, State) ->
+    {noreply, hal_reread(Group, Point, State)};
+handle_info({cell_hal_conn, _Conn, _Status}, State) ->
+    %% The points of that connection read as unavailable, or read again.
+    {noreply, resync_points(State)};
 handle_info({cell_settings, changed, shdr}, State) ->
     {noreply, settings_changed(State)};
 handle_info({cell_settings, changed, _}, State) ->
@@ -442,7 +453,8 @@ resync(State00) ->
     State0 = load_counts(State00),
     Rows = cell_registry:tasks(),
     Ids = [Id || #{id := Id} <- Rows],
-    State1 = State0#state{prefixes = cell_shdr_items:prefixes(Ids)},
+    State1 = State0#state{prefixes = cell_shdr_items:prefixes(Ids),
+                          idle = [Id || #{id := Id, work := false} <- Rows]},
     P = State1#state.prefixes,
     {TaskUpdates, State2} =
         lists:foldl(fun(#{id := Id, state := S} = Row, {Acc, St}) ->
@@ -497,14 +509,17 @@ task(Task, #state{tasks = Tasks, base = Base}) ->
     end.
 
 %% Items that start UNAVAILABLE or at zero until something happens, set once.
-initial(#state{prefixes = P, counts = {Good, Bad}} = State) ->
+initial(#state{prefixes = P, counts = {Good, Bad}, idle = Idle} = State) ->
     Keys = [{<<"program">>, unavailable}, {<<"cycle_time">>, unavailable},
             {<<"part_count">>, Good + Bad}, {<<"part_count_good">>, Good},
             {<<"part_count_bad">>, Bad}]
         ++ lists:append(
-             [[{key(P, T, <<"part_state">>), unavailable},
-               {key(P, T, <<"cycle_time">>), unavailable},
-               {key(P, T, <<"part_count">>), (task(T, State))#task.count}]
+             [[{key(P, T, <<"part_state">>), unavailable}
+               | case lists:member(T, Idle) of
+                     true -> [];
+                     false -> [{key(P, T, <<"cycle_time">>), unavailable},
+                               {key(P, T, <<"part_count">>), (task(T, State))#task.count}]
+                 end]
               || T <- maps:keys(P)]),
     [KV || {K, _} = KV <- Keys, ets:lookup(?VALUES, K) =:= []].
 
@@ -583,12 +598,24 @@ work(Type, Task, Mono, #state{tasks = Tasks, prefixes = P, counts = {Good, Bad}}
                 _ ->
                     []
             end,
-    {[{key(P, Task, <<"part_count">>), Count}, {<<"part_count">>, G1 + B1},
-      {<<"part_count_good">>, G1}, {<<"part_count_bad">>, B1} | Cycle],
+    Updates = [{key(P, Task, <<"part_count">>), Count}, {<<"part_count">>, G1 + B1},
+               {<<"part_count_good">>, G1}, {<<"part_count_bad">>, B1} | Cycle],
+    {own_work_items(Task, Updates, State),
      State#state{tasks = Tasks#{Task => T#task{count = Count, started = undefined}},
                  counts = {G1, B1}}};
 work(_Type, _Task, _Mono, State) ->
     {[], State}.
+
+%% A task declared to do no work has no part count or cycle time of its own, none
+%% declared: should it work all the same, only the cell's go on.
+own_work_items(Task, Updates, #state{idle = Idle, prefixes = P}) ->
+    case lists:member(Task, Idle) of
+        true ->
+            Own = [key(P, Task, <<"part_count">>), key(P, Task, <<"cycle_time">>)],
+            [U || {K, _} = U <- Updates, not lists:member(K, Own)];
+        false ->
+            Updates
+    end.
 
 %% The product a task holds, from the registry (the task writes it there before it
 %% publishes): its serial, and its recipe from the product file when the serial
@@ -818,6 +845,12 @@ hal_read(#{group := Group, point := Point} = P) ->
         {error, _} -> unavailable
     end.
 
+%% A point's fault set (it reads as unavailable) or cleared (it reads its value).
+hal_reread(Group, Point, #state{points = Points} = State) ->
+    Updates = [{N, hal_read(P)} || #{time_series := false, name := N} = P <- Points,
+                                   cell_shdr_hal:same_point(P, Group, Point)],
+    set(Updates, now_stamp(), State).
+
 hal_value(Group, Point, Value, #state{points = Points} = State) ->
     Updates = [{N, cell_shdr_items:point_value(P, Value)}
                || #{time_series := false, name := N} = P <- Points,
@@ -865,8 +898,8 @@ adapter_version() ->
         undefined -> <<"0">>
     end.
 
-all_items(#state{prefixes = P, points = Points}) ->
-    cell_shdr_items:items(lists:sort(maps:keys(P)), Points).
+all_items(#state{prefixes = P, idle = Idle, points = Points}) ->
+    cell_shdr_items:items(lists:sort(maps:keys(P)), Idle, Points).
 
 %%====================================================================
 %% The log

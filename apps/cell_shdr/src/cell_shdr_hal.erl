@@ -1,6 +1,9 @@
 %% @doc The adapter's one door to the HAL (docs/architecture.md, "HAL"): reads a
-%% point, subscribes to its changes (`{cell_hal, {Group, Point}, Value}'), and names
-%% points from the settings without making atoms.
+%% point, subscribes to its changes (`{cell_hal, {Group, Point}, Value}'), to its
+%% faults (`{cell_hal_fault, {Group, Point}, Why | cleared}') and to its connection's
+%% status (`{cell_hal_conn, Conn, up | down}'), so that a point that cannot be read
+%% is shown UNAVAILABLE as soon as the HAL knows; and names points from the settings
+%% without making atoms.
 %%
 %% The HAL module is the `cell_shdr' environment key `hal_module' (default
 %% `cell_hal'), so the adapter's tests can stand a scripted HAL in its place. While no
@@ -14,16 +17,28 @@
 read(Group, Point) ->
     with_point(Group, Point, fun(Mod, G, P) -> Mod:read(G, P) end).
 
-%% @doc Subscribes the caller to a point's changes.
+%% @doc Subscribes the caller to a point's changes and faults, and to the status of
+%% its connection (a point is read again on each of them: see {@link read/2}).
 -spec subscribe(binary(), binary()) -> ok | {error, term()}.
 subscribe(Group, Point) ->
     with_point(Group, Point, fun(Mod, G, P) ->
                                      case Mod:subscribe(G, P) of
-                                         ok -> ok;
-                                         {ok, _} -> ok;
+                                         ok -> subscribe_connection(Mod, G);
+                                         {ok, _} -> subscribe_connection(Mod, G);
                                          {error, _} = E -> E
                                      end
                              end).
+
+subscribe_connection(Mod, Group) ->
+    case Mod:connection_of(Group) of
+        {ok, Conn} ->
+            case Mod:subscribe_connection(Conn) of
+                {ok, _} -> ok;
+                {error, _} = E -> E
+            end;
+        {error, _} = E ->
+            E
+    end.
 
 %% @doc Whether a configured point (names as binaries) is the HAL's `{Group, Point}'.
 -spec same_point(#{group := binary(), point := binary(), atom() => term()}, atom(),

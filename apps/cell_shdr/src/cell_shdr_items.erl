@@ -34,9 +34,9 @@
 %%   the product T holds</td></tr>
 %% <tr><td>`T_program'</td><td>PROGRAM</td><td>the recipe of that product</td></tr>
 %% <tr><td>`T_part_count'</td><td>PART_COUNT (ALL)</td><td>T's completed and aborted
-%%   work, likewise</td></tr>
+%%   work, likewise (only for a task that does work: its spec's `work')</td></tr>
 %% <tr><td>`T_cycle_time'</td><td>PROCESS_TIMER (PROCESS)</td><td>T's last work
-%%   start to complete</td></tr>
+%%   start to complete (likewise)</td></tr>
 %% <tr><td>`T_system'</td><td>SYSTEM condition</td><td>T's errors, alarms,
 %%   warnings</td></tr>
 %% </table>
@@ -67,7 +67,7 @@
 %% kind (`error', `alarm', `warning'); the text is the caption and the description.
 -module(cell_shdr_items).
 
--export([items/2, prefixes/1, task_key/3, valid_name/1]).
+-export([items/2, items/3, prefixes/1, task_key/3, valid_name/1]).
 -export([execution/1, wait_state/1, part_state/1, controller_mode/1, estop/1,
          condition/1, native_code/1, condition_owner/2, is_message/1, point_value/2]).
 
@@ -79,9 +79,17 @@
                   component := component(), sub_type => binary(), units => binary(),
                   time_series => true, rate => number()}.
 
-%% @doc Every data item for these tasks (in order) and configured points.
+%% @doc Every data item for these tasks (in order) and configured points, every task
+%% doing work.
 -spec items([atom()], [map()]) -> [item()].
 items(Tasks, Points) ->
+    items(Tasks, [], Points).
+
+%% @doc Every data item for these tasks (in order) and configured points; the tasks in
+%% `Idle' do no work (their spec's `work' is false): they have no part count and no
+%% cycle time, which would never carry data.
+-spec items([atom()], [atom()], [map()]) -> [item()].
+items(Tasks, Idle, Points) ->
     Prefixes = prefixes(Tasks),
     [ev(<<"avail">>, <<"AVAILABILITY">>, device),
      ev(<<"estop">>, <<"EMERGENCY_STOP">>, controller),
@@ -94,20 +102,24 @@ items(Tasks, Points) ->
      (ev(<<"part_count_bad">>, <<"PART_COUNT">>, controller))#{sub_type => <<"BAD">>},
      cycle_time(<<"cycle_time">>, controller),
      condition_item(<<"system">>, controller)]
-        ++ lists:append([task_items(T, maps:get(T, Prefixes)) || T <- Tasks])
+        ++ lists:append([task_items(T, maps:get(T, Prefixes), not lists:member(T, Idle))
+                         || T <- Tasks])
         ++ [point_item(P) || P <- Points].
 
-task_items(Task, Prefix) ->
+task_items(Task, Prefix, Works) ->
     C = {path, Task, Prefix},
     K = fun(S) -> <<Prefix/binary, $_, S/binary>> end,
     [ev(K(<<"execution">>), <<"EXECUTION">>, C),
      ev(K(<<"wait_state">>), <<"WAIT_STATE">>, C),
      ev(K(<<"part_state">>), <<"PART_PROCESSING_STATE">>, C),
      (ev(K(<<"serial">>), <<"PART_UNIQUE_ID">>, C))#{sub_type => <<"SERIAL_NUMBER">>},
-     ev(K(<<"program">>), <<"PROGRAM">>, C),
-     (ev(K(<<"part_count">>), <<"PART_COUNT">>, C))#{sub_type => <<"ALL">>},
-     cycle_time(K(<<"cycle_time">>), C),
-     condition_item(K(<<"system">>), C)].
+     ev(K(<<"program">>), <<"PROGRAM">>, C)]
+        ++ case Works of
+               true -> [(ev(K(<<"part_count">>), <<"PART_COUNT">>, C))#{sub_type => <<"ALL">>},
+                        cycle_time(K(<<"cycle_time">>), C)];
+               false -> []
+           end
+        ++ [condition_item(K(<<"system">>), C)].
 
 point_item(#{name := Name, type := Type, category := Cat, sub_type := Sub,
              units := Units} = P) ->

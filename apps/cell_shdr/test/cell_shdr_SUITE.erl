@@ -27,10 +27,14 @@
          client_limit_exact/1, idle_flood_cannot_lock_out/1, idle_client_closed/1,
          assets_sent_as_they_are/1, stop_streamed/1, same_millisecond_coalesced/1,
          closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
-         two_cells_one_agent/1, part_counts_go_on_after_restart/1]).
+         two_cells_one_agent/1, part_counts_go_on_after_restart/1,
+         points_unavailable_while_link_down/1, faulted_point_unavailable/1,
+         work_items_for_working_tasks_only/1]).
 -export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
+-define(PLC, shdr_suite_plc).
+-define(REAL_HAL_CASES, [points_unavailable_while_link_down, faulted_point_unavailable]).
 -define(WAIT, 20000).
 -define(TS, "^\\d{4}-\\d\\d-\\d\\dT\\d\\d:\\d\\d:\\d\\d\\.\\d{3}Z$").
 
@@ -44,13 +48,14 @@ all() ->
      a_unit_is_a_path_like_a_task, client_limit_exact, idle_flood_cannot_lock_out,
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
      closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent,
-     part_counts_go_on_after_restart].
+     part_counts_go_on_after_restart, points_unavailable_while_link_down,
+     faulted_point_unavailable, work_items_for_working_tasks_only].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
     Root = filename:join(?config(priv_dir, Config), "root-" ++ atom_to_list(Case)),
     Tab = ets:new(cell_shdr_suite, [public]),
-    Specs = [cell_test_task:spec(Id, Tab, self()) || Id <- ?TASKS]
+    Specs = [works(Case, Id, cell_test_task:spec(Id, Tab, self())) || Id <- ?TASKS]
         ++ case Case of
                a_unit_is_a_path_like_a_task ->
                    [cell_test_unit:spec(picker, #{tab => Tab, booting => false})];
@@ -64,15 +69,22 @@ init_per_testcase(Case, Config) ->
     ok = cell_config:ensure_root(),
     ok = application:set_env(cell, cell_spec, #{name => <<"suite">>, tasks => Specs}),
     ok = application:set_env(cell_shdr, port, 0),
-    ok = application:set_env(cell_shdr, hal_module, cell_shdr_test_hal),
+    ok = application:set_env(cell_shdr, hal_module, hal_module(Case)),
     {ok, _} = application:ensure_all_started(cell_shdr),
+    ok = hal_points(Case),
     %% The listener listens once its continue has run: it answers after that.
     _ = sys:get_state(cell_shdr_listener),
     Refs = maps:from_list([{Id, Ref} || #{id := Id, args := #{ref := Ref}} <- Specs]),
     [{refs, Refs}, {root, Root}, {tab, Tab} | Config].
 
-end_per_testcase(_Case, _Config) ->
+end_per_testcase(Case, _Config) ->
     _ = application:stop(cell_shdr),
+    _ = [begin
+             %% The simulated PLC would outlive the case with its image.
+             _ = cell_hal_sim:stop_device(?PLC),
+             _ = cell_hal:remove_group(conv),
+             cell_hal:remove_connection(?PLC)
+         end || hal_module(Case) =:= cell_hal],
     _ = application:stop(cell),
     %% The statistics started the database in this root: it goes with the cell.
     _ = application:stop(mnesia),
@@ -926,6 +938,117 @@ closed_socket_in_words(_Config) ->
     ok = cell_controller:service_mode(true),
     ?assertEqual([Ref], await_down([Ref], 1, deadline())),
     ?assert(await_log(<<"the agent closed the connection">>, deadline())).
+
+%% The HAL's own points, a simulated PLC's: while their connection is down they read
+%% as nothing, and the agent sees UNAVAILABLE at once, not the last value as if it
+%% were current; once the connection is up again, their values.
+points_unavailable_while_link_down(_Config) ->
+    S = connect(),
+    V = values(snapshot(S)),
+    ?assertEqual({<<"5">>, <<"false">>},
+                 {maps:get(<<"conv_count">>, V), maps:get(<<"conv_sensor">>, V)}),
+    ok = cell_hal_sim:link(?PLC, down),
+    await_pairs(S, [{<<"conv_count">>, <<"UNAVAILABLE">>},
+                    {<<"conv_sensor">>, <<"UNAVAILABLE">>}]),
+    ok = cell_hal_sim:link(?PLC, up),
+    await_pairs(S, [{<<"conv_count">>, <<"5">>}, {<<"conv_sensor">>, <<"false">>}]),
+    ok = gen_tcp:close(S).
+
+%% A point the PLC cannot serve (the HAL marks it faulty, as for a Modbus exception):
+%% its item goes UNAVAILABLE at once, the others stay; once the fault is cleared, its
+%% value again.
+faulted_point_unavailable(_Config) ->
+    S = connect(),
+    V = values(snapshot(S)),
+    ?assertEqual(<<"5">>, maps:get(<<"conv_count">>, V)),
+    Why = <<"the PLC refuses this address (illegal data address, Modbus exception 2)">>,
+    true = cell_hal_store:set_fault({conv, count}, Why),
+    {Before, Line} = await_pairs(S, [{<<"conv_count">>, <<"UNAVAILABLE">>}]),
+    ?assertEqual([], [P || {<<"conv_sensor">>, _} = P <- pairs([Line | Before])]),
+    true = cell_hal_store:set_fault({conv, count}, undefined),
+    await_pairs(S, [{<<"conv_count">>, <<"5">>}]),
+    ?assertEqual({ok, 5}, cell_hal:read(conv, count)),
+    ok = gen_tcp:close(S).
+
+%% A task that does no work (here `load', whose module calls no work start: its spec
+%% says nothing, so the cell takes it from the code) has no part count and no cycle
+%% time, neither in Devices.xml nor on the stream: they would never carry data. A
+%% task that does (`robot', declared so) has both.
+work_items_for_working_tasks_only(Config) ->
+    File = filename:join(?config(priv_dir, Config), "Devices-work.xml"),
+    ok = cell_shdr:devices_xml(File),
+    {Doc, _} = xmerl_scan:file(File),
+    Declared = [attr(E, name) || E <- xmerl_xpath:string("//DataItem", Doc)],
+    Own = ["part_count", "cycle_time"],
+    ?assertEqual([], [D || D <- Declared, S <- Own, D =:= "load_" ++ S]),
+    ?assertEqual(["robot_" ++ S || S <- Own],
+                 [D || S <- Own, D <- Declared, D =:= "robot_" ++ S]),
+    ?assert(lists:member("load_execution", Declared)),
+    S = connect(),
+    V = values(snapshot(S)),
+    ?assertEqual([], [K || K <- [<<"load_part_count">>, <<"load_cycle_time">>],
+                           maps:is_key(K, V)]),
+    ?assertEqual(<<"0">>, maps:get(<<"robot_part_count">>, V)),
+    ?assertEqual(<<"UNAVAILABLE">>, maps:get(<<"robot_cycle_time">>, V)),
+    ?assertEqual([{load, false}, {robot, true}],
+                 [{Id, W} || #{id := Id, work := W} <- cell_registry:tasks()]),
+    ok = gen_tcp:close(S).
+
+%% The suite's tasks do work when told to (the test task starts work by a command),
+%% so they say so; but for the case that shows a task doing none, whose `load' leaves
+%% it to its module's code.
+works(work_items_for_working_tasks_only, load, Spec) -> Spec;
+works(_Case, _Id, Spec) -> Spec#{work => true}.
+
+hal_module(Case) ->
+    case lists:member(Case, ?REAL_HAL_CASES) of
+        true -> cell_hal;
+        false -> cell_shdr_test_hal
+    end.
+
+%% The real HAL's cases: a simulated PLC with a conveyor's points, two of them items.
+hal_points(Case) ->
+    case hal_module(Case) of
+        cell_hal ->
+            ok = cell_hal:add_connection(#{id => ?PLC, driver => cell_hal_sim,
+                                           opts => #{poll_ms => 10}}),
+            {ok, _} = cell_hal:subscribe_connection(?PLC),
+            ok = cell_hal:add_group(#{id => conv, module => cell_io_test_group,
+                                      connection => ?PLC}),
+            ok = cell_hal_sim:set({conv, sensor}, false),
+            ok = cell_hal_sim:set({conv, count}, 5),
+            receive {cell_hal_conn, ?PLC, up} -> ok
+            after ?WAIT -> ct:fail("the simulated PLC did not come up")
+            end,
+            ok = cell_hal:unsubscribe_connection(?PLC),
+            %% The HAL has read what the simulated PLC was given (its first read may
+            %% have come before).
+            _ = [begin
+                     {ok, Ref} = cell_hal:watch(conv, P, {eq, V}),
+                     receive {cell_hal_watch, Ref, V} -> ok
+                     after ?WAIT -> ct:fail("the HAL did not read ~p", [P])
+                     end
+                 end || {P, V} <- [{sensor, false}, {count, 5}]],
+            put_settings(#{points => [point(<<"conv_count">>, <<"conv">>, <<"count">>,
+                                            sample, <<"COUNT">>, <<>>),
+                                      point(<<"conv_sensor">>, <<"conv">>, <<"sensor">>,
+                                            event, <<"PRESENCE">>, <<>>)]});
+        cell_shdr_test_hal ->
+            ok
+    end.
+
+%% Reads lines until every pair expected was seen (in any order); returns the lines
+%% before the last one and that line.
+await_pairs(S, Expected) ->
+    Seen = ets:new(seen, [bag]),
+    Done = fun(L) ->
+                   true = ets:insert(Seen, pairs([L])),
+                   lists:all(fun({K, V}) -> ets:match_object(Seen, {K, V}) =/= [] end,
+                             Expected)
+           end,
+    Result = read_until(S, Done, deadline()),
+    true = ets:delete(Seen),
+    Result.
 
 %% -------------------------------------------------------------------------------------
 %% Helpers

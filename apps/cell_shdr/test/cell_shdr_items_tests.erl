@@ -85,6 +85,16 @@ items_unique_test() ->
     ?assertMatch([#{time_series := true, rate := 10.0, sub_type := <<"ACTUAL">>}],
                  [I || #{key := <<"current">>} = I <- Items]).
 
+%% A task that does no work has no part count and no cycle time of its own.
+items_of_idle_tasks_test() ->
+    Keys = fun(Idle) -> [K || #{key := K} <- cell_shdr_items:items([load, robot], Idle, [])] end,
+    All = Keys([]),
+    ?assertEqual(All, [K || #{key := K} <- cell_shdr_items:items([load, robot], [])]),
+    ?assertEqual(All -- [<<"load_part_count">>, <<"load_cycle_time">>], Keys([load])),
+    ?assertEqual(All -- [<<"load_part_count">>, <<"load_cycle_time">>,
+                         <<"robot_part_count">>, <<"robot_cycle_time">>],
+                 Keys([robot, load])).
+
 %% A sample is what an agent reads as a number, or UNAVAILABLE; an event is text.
 point_value_test_() ->
     Sample = #{category => sample},

@@ -3,9 +3,11 @@
 %% unknown_point}'; `subscribe(Group, Point)' makes the caller receive `{cell_hal,
 %% {Group, Point}, Value}' on every change. A point may be a counter, which reads
 %% 1, 2, 3 ... (one more at each read), so a time series shows every sample it took.
+%% Its groups belong to no connection (`connection_of/1' knows none).
 -module(cell_shdr_test_hal).
 
--export([start/0, stop/0, set/3, counter/2, read/2, subscribe/2]).
+-export([start/0, stop/0, set/3, counter/2, read/2, subscribe/2, connection_of/1,
+         subscribe_connection/1]).
 
 -define(TAB, cell_shdr_test_hal).
 
@@ -45,3 +47,9 @@ read(Group, Point) ->
 subscribe(Group, Point) ->
     true = ets:insert(?TAB, {{sub, Group, Point, self()}}),
     ok.
+
+connection_of(_Group) ->
+    {error, unknown_group}.
+
+subscribe_connection(_Conn) ->
+    {error, unknown_connection}.
