@@ -139,6 +139,9 @@ handle_event({call, _}, _Request, starting, _D) ->
 %%--------------------------------------------------------------------
 handle_event(info, {cell_hal, {_, _} = P, _Cue}, watching, D) ->
     core({point, P, read(P)}, D);
+handle_event(info, {cell_hal_fault, {_, _} = P, _WhyOrCleared}, watching, D) ->
+    %% The PLC refuses the point (or serves it again): unknown while it cannot be read.
+    core({point, P, read(P)}, D);
 handle_event(info, {cell_hal_conn, Conn, _Cue}, watching, D) ->
     connection(Conn, D);
 handle_event(info, {cell_hal_back, Ref}, watching, #data{back = Ref} = D) ->

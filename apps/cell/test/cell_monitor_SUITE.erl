@@ -18,7 +18,8 @@
          drive_error_is_reset/1, drive_error_for_the_operator/1,
          speed_override_applied_while_running/1, beacon_follows_the_cell/1,
          hal_disconnected_when_the_cell_stops/1, monitor_crash_keeps_the_hal/1,
-         hal_refusal_is_an_alarm/1, hal_server_away_as_the_monitor_starts/1]).
+         hal_refusal_is_an_alarm/1, hal_server_away_as_the_monitor_starts/1,
+         a_refused_input_is_unknown/1]).
 
 -define(IDS, [load, work, unload]).
 -define(WAIT, 10000).
@@ -30,7 +31,8 @@ all() ->
      camera_loss_crash_and_removal, drive_error_is_reset, drive_error_for_the_operator,
      speed_override_applied_while_running, beacon_follows_the_cell,
      hal_disconnected_when_the_cell_stops, monitor_crash_keeps_the_hal,
-     hal_refusal_is_an_alarm, hal_server_away_as_the_monitor_starts].
+     hal_refusal_is_an_alarm, hal_server_away_as_the_monitor_starts,
+     a_refused_input_is_unknown].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -498,6 +500,17 @@ hal_refusal_is_an_alarm(_Config) ->
 
 %% Waits until `Cond' holds, checking again after each event, log line or HAL change
 %% this process is told of.
+%% An input the PLC refuses (a Modbus exception on its address) is unknown to the
+%% monitor while it cannot be read, not its last value; served again, it is read again.
+%% The HAL tells the monitor before the test's next call reaches it (one sender).
+a_refused_input_is_unknown(_Config) ->
+    ?assert(input(air_ok)),
+    Why = <<"the PLC refuses this address (illegal data address, Modbus exception 2)">>,
+    true = cell_hal_store:set_fault({general, air_ok}, Why),
+    ?assertEqual(unknown, input(air_ok)),
+    true = cell_hal_store:set_fault({general, air_ok}, undefined),
+    ?assert(input(air_ok)).
+
 await(What, Cond) ->
     await(What, Cond, erlang:monotonic_time(millisecond) + ?WAIT).
 
