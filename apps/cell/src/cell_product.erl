@@ -17,9 +17,19 @@
 %% What a product file holds: the product, its generation and, while it moves
 %% between two tasks, a marker. The generation grows at every change of owner, so of
 %% two files naming the same serial the one with the higher generation is the owner;
-%% the other is a stale copy a crash left behind.
+%% the other is a stale copy a crash left behind. The marker says which side the
+%% product came from (`upstream': this task is taking it in; `downstream': it was
+%% leaving this task) over which link.
+%%
+%% Files are decoded with `binary_to_term/2''s `safe', which refuses atoms the node does
+%% not know yet: every atom of this record is named in this module's code (see
+%% valid_marker/1), so a node just started reads a file whoever wrote it and whichever
+%% modules it has loaded (the handshake, which writes the marker, may not be). The
+%% product's own fields are the task module's atoms, loaded before the file is read;
+%% the link is named by the task's spec.
 -type stored() :: #{product := product(), gen := pos_integer(), marker := marker()}.
--type marker() :: undefined | #{link := atom(), from := term(), phase := in_transit}.
+-type marker() :: undefined | #{link := atom(), from := upstream | downstream,
+                                phase := in_transit}.
 
 %% @doc A new good product.
 -spec new(binary(), binary()) -> product().
@@ -75,7 +85,9 @@ load(Path) ->
     end.
 
 valid_marker(undefined) -> true;
-valid_marker(#{link := L, phase := in_transit}) -> is_atom(L);
+valid_marker(#{link := L, from := From, phase := in_transit})
+  when From =:= upstream; From =:= downstream ->
+    is_atom(L);
 valid_marker(_) -> false.
 
 %% @doc Saves a product durably; `undefined' when the task holds none.
@@ -140,7 +152,8 @@ save_load_test() ->
     Prod = stored(new(<<"S1">>, <<"recipe-a">>, #{cuts_done => 3}), 1, undefined),
     ok = save(P, Prod),
     ?assertEqual({ok, Prod}, load(P)),
-    Moving = stored(new(<<"S1">>, <<"r">>), 4, #{link => l1, from => a, phase => in_transit}),
+    Moving = stored(new(<<"S1">>, <<"r">>), 4,
+                    #{link => l1, from => upstream, phase => in_transit}),
     ok = save(P, Moving, #{sync => false}),
     ?assertEqual({ok, Moving}, load(P)),
     ok = save(P, undefined),
@@ -152,5 +165,8 @@ save_load_test() ->
     ok = cell_file:write_term(P, Prod#{gen => 0}),
     ?assertMatch({error, {bad_product, _}}, load(P)),
     ok = cell_file:write_term(P, Prod#{marker => nonsense}),
+    ?assertMatch({error, {bad_product, _}}, load(P)),
+    ok = cell_file:write_term(P, Moving#{marker => #{link => l1, from => a,
+                                                     phase => in_transit}}),
     ?assertMatch({error, {bad_product, _}}, load(P)).
 -endif.

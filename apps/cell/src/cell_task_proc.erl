@@ -389,7 +389,7 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
     D2 = retained(service_flag(cell_registry:control(service_mode), D1)),
     D = case cell_product:load(T#task.product_path) of
             {ok, Stored} ->
-                D2#data{task = cell_handshake:attach_all(take_loaded(D2#data.task, Stored))};
+                D2#data{task = restore(D2#data.task, Stored)};
             {error, Reason} ->
                 cell_log:error(Id, "the product file ~ts cannot be read (~tp); the "
                                "operator is asked when the cell starts",
@@ -942,9 +942,11 @@ answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Pa
 answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
-            %% Mended (or removed) meanwhile: taken as at boot.
-            D1 = D#data{task = take_loaded(T, Stored), load_error = undefined},
-            goto(setup, {arrow, 8}, D1, [{next_event, internal, run_init}]);
+            %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
+            %% start, so a product marked in transit is the operator's question
+            %% before the task can send it on.
+            {Event, D1} = setup_event(D#data{task = restore(T, Stored), load_error = undefined}),
+            goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]);
         {error, Reason} ->
             D1 = D#data{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
@@ -1152,6 +1154,10 @@ wake_events(_, T) ->
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
+%% The record of the product file taken, and the task's partners told what it holds.
+restore(T, Stored) ->
+    cell_handshake:attach_all(take_loaded(T, Stored)).
+
 take_loaded(#task{id = Id} = T, undefined) ->
     %% What the crashed incarnation held in the registry and no longer in its file (it
     %% died between the two) is not held by anyone.

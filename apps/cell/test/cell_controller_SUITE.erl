@@ -11,7 +11,7 @@
          crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
          damaged_product_file/1,
          reconcile_gets_what_was_held/1,
-         damaged_product_file_mended/1,
+         damaged_product_file_mended/1, damaged_product_file_mended_in_transit/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
          cell_state_follows_tasks/1, cell_state_settles_under_races/1,
          bad_spec_is_refused/1, settings_snapshot_at_start/1,
@@ -25,7 +25,7 @@ all() ->
      service_mode_pauses, crash_restores_product, crash_asked_where_reconcile_cannot_decide,
      older_copy_answer_not_refused, damaged_product_file,
      reconcile_gets_what_was_held,
-     damaged_product_file_mended,
+     damaged_product_file_mended, damaged_product_file_mended_in_transit,
      product_survives_restart, warnings, events_have_their_fields,
      cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused,
      settings_snapshot_at_start,
@@ -350,6 +350,27 @@ damaged_product_file_mended(Config) ->
     ?assertEqual([{work, 3}], cell_registry:holders(<<"PANEL-5">>)),
     ?assertMatch([#{id := work, serial := <<"PANEL-5">>}],
                  [R || #{id := work} = R <- cell_controller:tasks()]).
+
+%% The mended file holds a product marked in transit (its transfer was interrupted
+%% when the file became unreadable): Retry asks where it is, as any start with such a
+%% file does, and never sends it on unasked.
+damaged_product_file_mended_in_transit(Config) ->
+    {Path, Id} = start_with_damaged_file(Config),
+    P = cell_product:new(<<"PANEL-6">>, <<"r">>),
+    ok = cell_product:save(Path, cell_product:stored(P, 4, #{link => out_link, from => upstream,
+                                                            phase => in_transit})),
+    ok = cell_alarms:answer(Id, retry, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    [#{id := Where, caption := <<"Product transfer interrupted">>,
+       solutions := [ignore, reset]}] = cell_alarms:list(),
+    ?assertMatch(#{product := P, marker := #{phase := in_transit}}, cell_task_proc:info(work)),
+    %% Here after all: the task goes on with it, no longer marked.
+    ok = cell_alarms:answer(Where, ignore, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
+    ?assertMatch(#{product := P, marker := undefined}, cell_task_proc:info(work)),
+    ?assertEqual({ok, cell_product:stored(P, 4, undefined)}, cell_product:load(Path)).
 
 %% The cell started with the work task's product file cut short: the task is DOWN
 %% with the operator asked. The file's path and the error's id.

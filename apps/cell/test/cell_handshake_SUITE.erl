@@ -13,7 +13,8 @@
 -export([products_pass/1, pause_waits_for_transfer/1, estop_while_moving/1,
          kill_downstream_before_release/1, kill_upstream_after_release/1,
          kill_link_mid_transfer/1, try_abort_offering_race/1, dynamic_feeders/1,
-         abort_after_release_gives_back/1, stop_waits_for_transfer_through_an_error/1]).
+         abort_after_release_gives_back/1, stop_waits_for_transfer_through_an_error/1,
+         reset_of_interrupted_transfer_forgets/1]).
 
 -define(SEGMENTS, [src, a, b, sink]).
 -define(TIMEOUT, 10000).
@@ -22,7 +23,7 @@ all() ->
     [products_pass, pause_waits_for_transfer, estop_while_moving,
      kill_downstream_before_release, kill_upstream_after_release, kill_link_mid_transfer,
      try_abort_offering_race, dynamic_feeders, abort_after_release_gives_back,
-     stop_waits_for_transfer_through_an_error].
+     stop_waits_for_transfer_through_an_error, reset_of_interrupted_transfer_forgets].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -161,6 +162,55 @@ kill_downstream_before_release(Config) ->
     Out = answer_until_out(Serials, ignore),
     ?assertEqual(lists:sort(Serials), lists:sort(Out)),
     check_conservation(Config, Serials).
+
+%% As above, but the operator answers src's "Transfer interrupted" with Reset (the
+%% product is not there): src forgets it and never sends it on.
+reset_of_interrupted_transfer_forgets(Config) ->
+    ok = cell_events:subscribe([task_crashed, alarm_raised]),
+    [S] = feed(Config, 1),
+    ok = cell_controller:start(),
+    await_phase(src, leaving),
+    %% The phases src went through so far are behind us: the next idle is the
+    %% one after the Reset.
+    ok = flush_phases(src),
+    exit(cell_task_proc:whereis(a), kill),
+    receive {cell_event, #{type := task_crashed, task := a}} -> ok
+    after ?TIMEOUT -> ct:fail(no_restart)
+    end,
+    _ = [cell_alarms:answer(Id, answer_for(reset, Sols), <<"suite">>)
+         || #{id := Id, kind := error, solutions := Sols} <- cell_alarms:list()],
+    answer_until_forgotten(S),
+    ok = cell_controller:sync(),
+    ?assertMatch(#{product := undefined}, cell_task_proc:info(src)),
+    ?assertEqual([], [T || T <- ?SEGMENTS,
+                           #{product := #{serial := S1}} <- [cell_task_proc:info(T)], S1 =:= S]),
+    ?assertEqual([], ets:tab2list(?config(out, Config))),
+    Files = filelib:wildcard(filename:join([?config(root, Config), "Data", "*.product"])),
+    ?assertEqual([], [F || F <- Files, {ok, #{product := #{serial := S1}}}
+                                           <- [cell_product:load(F)], S1 =:= S]).
+
+%% Answers src's "Transfer interrupted" with Reset and a's crash as asked, until src
+%% forgot the product (idle after the Reset; without the Reset it went idle only after
+%% handing the product on).
+answer_until_forgotten(S) ->
+    receive
+        {cell_event, #{type := alarm_raised, alarm := #{id := <<"src:transfer">> = Id}}} ->
+            ok = cell_alarms:answer(Id, reset, <<"suite">>),
+            answer_until_forgotten(S);
+        {cell_event, #{type := alarm_raised, alarm := #{id := Id, kind := error,
+                                                         solutions := Sols}}} ->
+            _ = cell_alarms:answer(Id, answer_for(reset, Sols), <<"suite">>),
+            answer_until_forgotten(S);
+        {line_phase, src, idle} ->
+            ok
+    after ?TIMEOUT ->
+        ct:fail({src_not_idle, S, cell_alarms:list()})
+    end.
+
+flush_phases(Task) ->
+    receive {line_phase, Task, _} -> flush_phases(Task)
+    after 0 -> ok
+    end.
 
 %% src is killed after the product left it: a owns it and goes on.
 kill_upstream_after_release(Config) ->

@@ -12,6 +12,11 @@
 %% it runs dry the first segment waits for `{Ref, fed}'. The out table gets
 %% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change
 %% (unless `phases => false') and `{line_out, Task, Serial}' for every product sent out.
+%%
+%% A transfer interrupted while the product moved asks the operator (Ignore: it is here;
+%% Reset: it is not). The engine answers Reset by initialising the task again: `init'
+%% then forgets the product, as a user's task does (cell_handover:error/6 and
+%% after_reset/1), so a product the operator says is gone is never sent on.
 -module(cell_line_task).
 -behaviour(cell_task).
 
@@ -19,7 +24,7 @@
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T) ->
-    {ok, T}.
+    {ok, cell_handover:after_reset(T)}.
 
 %% A line of simulated segments has no sensors to hold the record against: the product
 %% file is where the product is, and the segment goes on from there.
@@ -106,7 +111,7 @@ step(in_transit, _Woken, T) ->
         %% Meanwhile a newer record elsewhere took the product from this task.
         {_, undefined} -> {continue, phase(T, idle)};
         {ignore, _} -> {continue, phase(cell_handshake:confirm_here(T), full)};
-        {reset, _} -> {continue, phase(cell_task:clear_product(T), idle)};
+        %% (Reset re-initialises the task: init forgets the product.)
         _ -> {continue, T}
     end.
 
@@ -162,12 +167,11 @@ interrupted(T) ->
         {_, false} ->
             {continue, phase(T, full)};
         {#{serial := S}, true} ->
-            Spec = cell_task:error_spec(
-                     <<"transfer">>, "Transfer interrupted",
-                     io_lib:format("Product ~ts was moving when its transfer was "
-                                   "interrupted. IGNORE: it is here. RESET: it is not.", [S]),
-                     [ignore, reset]),
-            {error, Spec, phase(T, in_transit)}
+            cell_handover:error(
+              phase(T, in_transit), <<"transfer">>, "Transfer interrupted",
+              io_lib:format("Product ~ts was moving when its transfer was "
+                            "interrupted. IGNORE: it is here. RESET: it is not.", [S]),
+              [ignore, reset], forget)
     end.
 
 after_delay(Phase, T, Now) ->

@@ -1,18 +1,57 @@
 %% Product files under a real SIGKILL of a whole VM that is writing them, many times
 %% in a row: each file is always readable (never torn) and holds the last acknowledged
-%% product or the one being written when the VM died (never lost).
+%% product or the one being written when the VM died (never lost). A file written by
+%% one VM is read by a fresh one that has loaded nothing but what reading needs.
 -module(cell_product_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0]).
--export([sigkill_while_writing/1]).
+-export([sigkill_while_writing/1, in_transit_read_by_fresh_vm/1]).
 
 -define(ROUNDS, 60).
 -define(FILES, 4).
 
 all() ->
-    [sigkill_while_writing].
+    [sigkill_while_writing, in_transit_read_by_fresh_vm].
+
+%% A product marked in transit, read by a VM that has just started, in which the
+%% handshake (whose code writes the marker) was never loaded: the file is read, never
+%% reported damaged because the marker's atoms are not known yet.
+in_transit_read_by_fresh_vm(Config) ->
+    Dir = filename:join(?config(priv_dir, Config), "Fresh"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    Path = filename:join(Dir, cell_product:file_name(<<"Z">>, <<"L">>)),
+    Stored = cell_product:stored(cell_product:new(<<"S1">>, <<"r">>), 3,
+                                 #{link => fresh_vm_link, from => upstream,
+                                   phase => in_transit}),
+    ok = cell_product:save(Path, Stored),
+    %% The reader names the link, as the task's spec does in a cell.
+    Eval = "io:format(\"handshake ~p~n\", [code:is_loaded(cell_handshake)]), "
+           "Link = fresh_vm_link, "
+           "io:format(\"read ~0tp ~p~n\", [cell_product:load(os:getenv(\"PRODUCT\")), Link]), "
+           "halt().",
+    Erl = os:find_executable("erl"),
+    Paths = lists:usort([filename:dirname(code:which(M))
+                         || M <- [cell_product, cell_file, cell_config]]),
+    Args = lists:append([["-pa", P] || P <- Paths]) ++ ["-noshell", "-noinput", "-eval", Eval],
+    Port = open_port({spawn_executable, Erl},
+                     [{args, Args}, {line, 4096}, exit_status, use_stdio, stderr_to_stdout,
+                      {env, [{"PRODUCT", Path}]}]),
+    Lines = port_lines(Port, []),
+    ?assert(lists:member("handshake false", Lines), Lines),
+    Expected = lists:flatten(io_lib:format("read ~0tp fresh_vm_link", [{ok, Stored}])),
+    ?assert(lists:member(Expected, Lines), Lines).
+
+port_lines(Port, Acc) ->
+    receive
+        {Port, {data, {eol, Line}}} -> port_lines(Port, [Line | Acc]);
+        {Port, {data, {noeol, Line}}} -> port_lines(Port, [Line | Acc]);
+        {Port, {exit_status, 0}} -> lists:reverse(Acc);
+        {Port, {exit_status, S}} -> ct:fail({reader_failed, S, lists:reverse(Acc)})
+    after 60000 ->
+        ct:fail({reader_silent, lists:reverse(Acc)})
+    end.
 
 sigkill_while_writing(Config) ->
     Dir = filename:join(?config(priv_dir, Config), "Data"),
