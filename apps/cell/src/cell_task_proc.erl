@@ -387,6 +387,10 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
     D1 = D0#data{request = cell_registry:control(request),
                  estop = cell_registry:control(estop)},
     D2 = retained(service_flag(cell_registry:control(service_mode), D1)),
+    %% A product's own fields may name atoms only the task's module holds: loaded
+    %% before its file is read, on a node just started too (cell_product names its
+    %% own), whatever read the retained data first.
+    {module, Mod} = code:ensure_loaded(Mod),
     D = case cell_product:load(T#task.product_path) of
             {ok, Stored} ->
                 D2#data{task = restore(D2#data.task, Stored)};
