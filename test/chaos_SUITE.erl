@@ -22,21 +22,10 @@ suite() ->
 
 init_per_suite(Config) ->
     filelib:is_regular(cellrt_rel:bin()) orelse ct:fail("no release: build it with `rebar3 release`"),
-    Started = case node() of
-                  nonode@nohost ->
-                      Name = list_to_atom("chaos_suite_" ++ os:getpid() ++ "@localhost"),
-                      {ok, _} = net_kernel:start([Name, shortnames]),
-                      true;
-                  _ ->
-                      false
-              end,
-    [{started_dist, Started} | Config].
+    [{started_dist, cellrt_rel:start_dist("chaos_suite")} | Config].
 
 end_per_suite(Config) ->
-    case ?config(started_dist, Config) of
-        true -> _ = net_kernel:stop(), ok;
-        false -> ok
-    end.
+    cellrt_rel:stop_dist(?config(started_dist, Config)).
 
 kills_lose_nothing(Config) ->
     Priv = ?config(priv_dir, Config),
