@@ -56,15 +56,11 @@
 %% warnings raised and answered while a task held it, and how it left. Other parts of
 %% the runtime add their own records with {@link record/3}.
 %%
-%% Tables (mnesia): `cell_stats_counter' (ordered_set, disc_copies: key
-%% `{Period, Scope, Metric}', Period `total' or a shift id, Scope a task or `cell');
-%% `cell_trace_open' (disc_copies: the products in the cell, the summary of each);
-%% `cell_trace_product' (disc_only_copies: the summary of each product that left,
-%% written once, with the counters that count it leaving) and `cell_trace_event' (disc_only_copies,
-%% bag: the history by serial). The traceability tables live on disc only, so memory
-%% does not grow with the number of products; they are purged after the `statistics'
-%% settings' `trace_days' (or sooner, past `trace_max_records'), shift counters after
-%% `shift_days'.
+%% The tables and the reports read from them are {@link cell_stats_db}'s; the time
+%% per state and the shifts, pure, {@link cell_stats_clock}'s. The traceability tables
+%% live on disc only, so memory does not grow with the number of products; they are
+%% purged after the `statistics' settings' `trace_days' (or sooner, past
+%% `trace_max_records'), shift counters after `shift_days'.
 %%
 %% If the database cannot be opened the statistics go on in memory, say why in the
 %% log, and try again every ten seconds.
@@ -82,10 +78,6 @@
 -type period() :: total | cell_stats_shift:id().
 -type options() :: #{exits => all | [atom()]}.
 
--define(COUNTER, cell_stats_counter).
--define(OPEN, cell_trace_open).
--define(PRODUCT, cell_trace_product).
--define(EVENT, cell_trace_event).
 -define(FLUSH_MS, 1000).
 -define(RETRY_MS, 10000).
 -define(LOAD_MS, 60000).
@@ -110,8 +102,7 @@
 -record(st, {db = closed :: closed | open,
              exits :: all | [atom()],
              started :: integer(),                              %% wall µs
-             tasks = #{} :: #{atom() => {atom(), integer()}},   %% state, accounted up to
-             shift :: {cell_stats_shift:id(), integer(), integer()} | undefined,
+             clock :: cell_stats_clock:clock(),     %% each task's state, the shift
              pending :: ets:tid(),        %% {Key, add | min | max | set | first, Value}
              products = #{} :: #{binary() => #prod{}},
              holding = #{} :: #{atom() => binary()},            %% task -> serial
@@ -146,8 +137,7 @@
              gone = #{} :: #{binary() => atom()},
              stale = #{} :: #{binary() => atom()},
              retry_at = 0 :: integer() | infinity,
-             purge_at = 0 :: integer(),
-             shift_end = 0 :: integer()}).                      %% wall µs
+             purge_at = 0 :: integer()}).
 
 %%====================================================================
 %% API
@@ -201,147 +191,20 @@ summary() ->
 %% throughput per hour. Read from the database (what was written up to a second ago).
 -spec summary(period()) -> map().
 summary(Period) ->
-    %% The products in the cell read with the counters: the books add up in any read.
-    {{{From, To}, Counters}, InCell} =
-        view(fun() -> {counted(Period), length(mnesia:all_keys(?OPEN))} end,
-             {{{now_us(), now_us()}, #{}}, 0}),
-    Hours = max(To - From, 0) / 3600.0e6,
-    Cell = maps:get(cell, Counters, #{}),
-    Out = maps:get(out, Cell, 0),
-    Tasks = maps:without([cell], Counters),
-    #{period => period_label(Period), from => From div 1000, to => To div 1000,
-      cell => #{in => maps:get(in, Cell, 0), out => Out, good => maps:get(good, Cell, 0),
-                failed => maps:get(failed, Cell, 0),
-                scrapped => maps:get(scrapped, Cell, 0),
-                lead_ms => times(lead, Cell), cycle_ms => times(cycle, Cell),
-                throughput_per_hour => case Hours > 0 of
-                                           true -> round1(Out / Hours);
-                                           false -> 0.0
-                                       end},
-      in_cell => InCell,
-      tasks => maps:map(fun(_, C) -> task_summary(C) end, Tasks)}.
-
-task_summary(C) ->
-    Time = maps:from_list([{S, V div 1000} || {{time, S}, V} <- maps:to_list(C)]),
-    Total = lists:sum(maps:values(Time)),
-    #{time_ms => Time, total_ms => Total,
-      share => maps:map(fun(_, V) when Total > 0 -> round1(100 * V / Total);
-                           (_, _) -> 0.0
-                        end, Time),
-      in => maps:get(in, C, 0), out => maps:get(out, C, 0),
-      completed => maps:get(completed, C, 0), aborted => maps:get(aborted, C, 0),
-      scrapped => maps:get(scrapped, C, 0), errors => maps:get(errors, C, 0),
-      warnings => maps:get(warnings, C, 0), crashes => maps:get(crashes, C, 0),
-      cycle_ms => times(cycle, C), lead_ms => times(lead, C), work_ms => times(work, C)}.
-
-times(Kind, C) ->
-    case maps:get({Kind, n}, C, 0) of
-        0 -> #{n => 0};
-        N -> #{n => N, mean => round1(maps:get({Kind, sum}, C) / N / 1000),
-               min => round1(maps:get({Kind, min}, C) / 1000),
-               max => round1(maps:get({Kind, max}, C) / 1000)}
-    end.
-
-round1(X) -> round(X * 10) / 10.
+    cell_stats_db:summary(Period, fun shift_starts/0).
 
 %% @doc The counters of a period up to the last write: `#{Scope => #{Metric =>
 %% Value}}', times in microseconds, the time of tasks still in their state included.
 -spec counters(period()) -> #{atom() => map()}.
 counters(Period) ->
-    {_Span, Counters} = view(fun() -> counted(Period) end, {undefined, #{}}),
-    Counters.
+    cell_stats_db:counters(Period, fun shift_starts/0).
 
 %% @doc For every task seen, the time counted in its states and the time from when it
 %% was first seen to the last write, in microseconds, read together: the books are
 %% right when the two are equal (for tests and diagnostics).
 -spec time_check() -> #{atom() => {non_neg_integer(), non_neg_integer()}}.
 time_check() ->
-    view(fun() ->
-                 {_Span, Counters} = counted(total),
-                 case meta(flushed, undefined) of
-                     undefined ->
-                         #{};
-                     Flushed ->
-                         maps:from_list(
-                           [{T, {lists:sum([V || {{time, _}, V} <- maps:to_list(
-                                                                      maps:get(T, Counters, #{}))]),
-                                 Flushed - First}} || {T, First} <- firsts()])
-                 end
-         end, #{}).
-
-%% Reads the counters in one transaction: a report never sees part of a write, nor a
-%% write that came between two of its reads (the span of one and the counters of the
-%% next would not add up).
-view(Fun, Default) ->
-    case mnesia:transaction(Fun) of
-        {atomic, Result} -> Result;
-        {aborted, _} -> Default
-    end.
-
-%% In a transaction: the period's span and its counters.
-counted(Period) ->
-    {From, To} = span(Period),
-    {{From, To}, with_open(From, To, written(Period))}.
-
-%% The counters as written.
-written(Period) ->
-    Rows = mnesia:select(?COUNTER, [{{?COUNTER, {Period, '$1', '$2'}, '$3'},
-                                     [], [{{'$1', '$2', '$3'}}]}]),
-    lists:foldl(fun({Scope, Metric, V}, Acc) ->
-                        maps:update_with(Scope, fun(M) -> M#{Metric => V} end,
-                                         #{Metric => V}, Acc)
-                end, #{}, Rows).
-
-%% The counters with the time of every task in the state it was in at the last write,
-%% as much of it as falls in the period's span.
-with_open(From, To, Counters) ->
-    lists:foldl(fun({T, {State, Since}}, Acc) when is_integer(Since) ->
-                        case To - max(From, Since) of
-                            D when D > 0 ->
-                                maps:update_with(T, fun(C) -> maps:update_with({time, State},
-                                                                               fun(V) -> V + D end,
-                                                                               D, C)
-                                                    end, #{{time, State} => D}, Acc);
-                            _ ->
-                                Acc
-                        end;
-                   (_, Acc) ->
-                        Acc
-                end, Counters, open_rows()).
-
-%% Each task's state and since when it is counted there, as last written.
-open_rows() ->
-    mnesia:select(?COUNTER, [{{?COUNTER, {meta, {open, '$1'}}, '$2'}, [], [{{'$1', '$2'}}]}]).
-
-%% The time a period covers: a shift from its start to its end or to the last write;
-%% the total from the first task seen to the last write.
-%% Both begin no earlier than the first task was seen.
-span(total) ->
-    Flushed = meta(flushed, now_us()),
-    {first_seen(Flushed), Flushed};
-span({_, _} = Id) ->
-    {Start, End} = case meta({shift, Id}, undefined) of
-                       {_, _} = Recorded ->
-                           Recorded;
-                       undefined ->
-                           #{start := S, 'end' := E} = shift_by_id(Id),
-                           {to_us(S), to_us(E)}
-                   end,
-    Flushed = meta(flushed, now_us()),
-    {max(Start, first_seen(Flushed)), min(End, Flushed)}.
-
-first_seen(Default) ->
-    lists:min([Default | [First || {_, First} <- firsts()]]).
-
-%% Each task's first time seen.
-firsts() ->
-    mnesia:select(?COUNTER, [{{?COUNTER, {meta, {first, '$1'}}, '$2'}, [], [{{'$1', '$2'}}]}]).
-
-meta(Key, Default) ->
-    case mnesia:read(?COUNTER, {meta, Key}) of
-        [{?COUNTER, _, V}] -> V;
-        [] -> Default
-    end.
+    cell_stats_db:time_check().
 
 %% @doc How many times the node started again, after a clean stop and after an
 %% unexpected one (killed, crashed, power cut), as the node's run record counts them
@@ -353,13 +216,12 @@ node_restarts() ->
 %% @doc The periods recorded: `total' and the shifts, oldest first.
 -spec periods() -> [period()].
 periods() ->
-    Keys = safe(fun() -> mnesia:dirty_all_keys(?COUNTER) end, []),
-    [total | lists:usort([P || {{_, _} = P, _, _} <- Keys])].
+    cell_stats_db:periods().
 
 %% @doc The shift running now, by the `statistics' settings.
 -spec shift_now() -> cell_stats_shift:id().
 shift_now() ->
-    #{id := Id} = cell_stats_shift:at(local(now_us()), shift_starts()),
+    #{id := Id} = cell_stats_shift:at(cell_stats_clock:local(now_us()), shift_starts()),
     Id.
 
 %% @doc A product's history: where it is or how it left (as written with the counters,
@@ -367,55 +229,17 @@ shift_now() ->
 %% first (times in milliseconds since the epoch).
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
-    %% The row in the cell first: a product leaving has its summary written in the
-    %% transaction that deletes that row, so one of the two is found.
-    Summary = case safe(fun() -> mnesia:dirty_read(?OPEN, Serial) end, []) of
-                  [{?OPEN, _, Row}] ->
-                      summary(Serial, from_open(Row, 0), in_cell, undefined);
-                  [] ->
-                      case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
-                          [{?PRODUCT, _, Left}] -> Left;
-                          [] -> undefined
-                      end
-              end,
-    Events = safe(fun() -> mnesia:dirty_read(?EVENT, Serial) end, []),
-    case {Summary, Events} of
-        {undefined, []} ->
-            {error, not_found};
-        _ ->
-            Sorted = lists:sort([{T, Seq, E} || {?EVENT, _, T, Seq, E} <- Events]),
-            History = [E#{time => T} || {T, _, E} <- Sorted],
-            %% Its summary is written with the counters, up to a second after its
-            %% history: until then it is read from the history.
-            Info = case Summary of
-                       undefined -> cell_stats_trace:from_history(Serial, History);
-                       I -> I
-                   end,
-            {ok, Info#{events => History}}
-    end.
+    cell_stats_db:product(Serial).
 
 %% @doc How many products are in the cell.
 -spec in_cell() -> non_neg_integer().
 in_cell() ->
-    case safe(fun() -> mnesia:table_info(?OPEN, size) end, 0) of
-        N when is_integer(N) -> N;
-        _ -> 0
-    end.
+    cell_stats_db:in_cell().
 
 %% @doc The tables, for {@link cell_db:ensure_tables/2}.
 -spec tables() -> [cell_db:table()].
 tables() ->
-    [{?COUNTER, [{type, ordered_set}, {attributes, [key, value]}]},
-     {?OPEN, [{attributes, [serial, info]}]},
-     {?PRODUCT, [{storage, disc_only_copies}, {attributes, [serial, info]}]},
-     {?EVENT, [{storage, disc_only_copies}, {type, bag},
-               {attributes, [serial, time, seq, entry]}]}].
-
-%% Reads skip the process; while the database is not open they find nothing.
-safe(Fun, Default) ->
-    try Fun()
-    catch exit:{aborted, _} -> Default
-    end.
+    cell_stats_db:tables().
 
 %%====================================================================
 %% gen_server
@@ -435,8 +259,8 @@ init(Opts) ->
     ok = cell_settings:register(cell_stats_settings),
     Now = now_us(),
     %% Every task as the registry has it now: counting starts here.
-    Tasks = maps:from_list([{Id, {name(S), Now}} || #{id := Id, state := S}
-                                                         <- cell_registry:tasks()]),
+    Tasks = maps:from_list([{Id, {cell_stats_clock:state_name(S), Now}}
+                            || #{id := Id, state := S} <- cell_registry:tasks()]),
     Holding = maps:from_list([{Id, S} || #{id := Id, serial := S} <- cell_registry:tasks(),
                                          is_binary(S)]),
     %% What is counted until the next write, kept outside the heap: a thousand tasks
@@ -444,7 +268,8 @@ init(Opts) ->
     %% every collection.
     Pending = ets:new(cell_stats_pending, [set, private]),
     {ok, Writer} = cell_stats_writer:start_link(),
-    {ok, #st{exits = maps:get(exits, Opts, all), started = Now, tasks = Tasks,
+    {ok, #st{exits = maps:get(exits, Opts, all), started = Now,
+             clock = cell_stats_clock:new(Tasks),
              holding = Holding, pending = Pending, writer = Writer},
      {continue, open}}.
 
@@ -505,9 +330,9 @@ terminate(_Reason, _St) ->
 %%====================================================================
 
 event(#{type := task_state, task := T, state := S} = E, St) ->
-    At = event_us(E),
-    {St1, Upto} = account_task(T, At, St),
-    counting(T, name(S), Upto, St1);
+    clock(fun(C) -> cell_stats_clock:task_state(T, cell_stats_clock:state_name(S),
+                                                 event_us(E), fun shift_starts/0, C)
+          end, St);
 event(#{type := product_saved, task := T} = E, St) ->
     saved(T, maps:get(item, E, undefined), maps:get(product, E, undefined), event_us(E), St);
 event(#{type := item_transfer_in, task := T, item := S} = E, St) ->
@@ -749,52 +574,15 @@ since(Serial, Key, #st{products = Ps}) ->
 %% Time per state
 %%====================================================================
 
-%% Closes a task's interval in its current state at `At'; answers the point it was
-%% counted up to (never backwards: events of different tasks arrive in any order).
-account_task(T, At, #st{tasks = Tasks} = St) ->
-    case maps:find(T, Tasks) of
-        {ok, {State, Since}} ->
-            Upto = max(At, Since),
-            {account(T, State, Since, Upto, St), Upto};
-        error ->
-            %% A task seen for the first time: its time starts now.
-            {op({meta, {first, T}}, first, At, St), At}
-    end.
-
-%% Adds a stretch of time in a state to the shift(s) it falls in and to the total.
-account(_Scope, _State, From, To, St) when To =< From ->
-    St;
-account(Scope, State, From, To, St) ->
-    {Id, _Start, End, St1} = shift_of(From, St),
-    Upto = min(To, End),
-    St2 = add([{Id, Scope, {time, State}}, {total, Scope, {time, State}}], Upto - From, St1),
-    account(Scope, State, Upto, To, St2).
-
-%% A task is in `State', counted up to `Upto': kept, and written with the counters
-%% (queries add the time since; a restart counts it up to the runtime's last write).
-counting(T, State, Upto, St) ->
-    St1 = op({meta, {open, T}}, set, {State, Upto}, St),
-    St1#st{tasks = maps:put(T, {State, Upto}, St1#st.tasks)}.
-
-%% Once a shift has ended, every task's time in its state is closed at that moment, so
-%% the shift's counters hold all of its time.
-shift_ended(Now, #st{shift_end = End} = St) when Now < End ->
-    St;
-shift_ended(Now, St0) ->
-    St1 = close_stretches(Now, St0),
-    {_, _, End, St2} = shift_of(Now, St1),
-    St2#st{shift_end = End}.
-
-close_stretches(Now, St) ->
-    maps:fold(fun(T, {State, Since}, Acc) ->
-                      counting(T, State, max(Now, Since),
-                               account(T, State, Since, max(Now, Since), Acc))
-              end, St, St#st.tasks).
+%% A step of the clock (cell_stats_clock), its counter operations applied.
+clock(Fun, #st{clock = C} = St) ->
+    {Ops, C1} = Fun(C),
+    lists:foldl(fun({K, Op, V}, Acc) -> op(K, Op, V, Acc) end, St#st{clock = C1}, Ops).
 
 %% What is counted so far written, with the time of the write.
 flush(St0) ->
     Now = now_us(),
-    St1 = shift_ended(Now, St0),
+    St1 = clock(fun(C) -> cell_stats_clock:shift_ended(Now, fun shift_starts/0, C) end, St0),
     St2 = reconcile(Now, St1),
     St3 = case St2#st.db of
               closed when Now >= St2#st.retry_at -> open(St2);
@@ -815,8 +603,7 @@ count(Keys, At, St) ->
     count_by(Keys, 1, At, St).
 
 count_by(Keys, N, At, St) ->
-    {Id, _, _, St1} = shift_of(At, St),
-    add(lists:append([[{Id, Scope, M}, {total, Scope, M}] || {Scope, M} <- Keys]), N, St1).
+    clock(fun(C) -> cell_stats_clock:count(Keys, N, At, fun shift_starts/0, C) end, St).
 
 count_cell(Metrics, At, St) ->
     count([{cell, M} || M <- Metrics], At, St).
@@ -825,37 +612,19 @@ count_cell_by(Metrics, N, At, St) ->
     count_by([{cell, M} || M <- Metrics], N, At, St).
 
 %% A duration ending at `At' since `From' (nothing when there is no start).
-timing(_Key, undefined, _At, St) ->
-    St;
-timing({Scope, Kind}, From, At, St) ->
-    D = max(At - From, 0),
-    {Id, _, _, St1} = shift_of(At, St),
-    lists:foldl(fun(P, Acc) ->
-                        Acc1 = add([{P, Scope, {Kind, n}}], 1, Acc),
-                        Acc2 = add([{P, Scope, {Kind, sum}}], D, Acc1),
-                        Acc3 = op({P, Scope, {Kind, min}}, min, D, Acc2),
-                        op({P, Scope, {Kind, max}}, max, D, Acc3)
-                end, St1, [Id, total]).
-
-add(Keys, N, St) ->
-    lists:foldl(fun(K, Acc) -> op(K, add, N, Acc) end, St, Keys).
+timing(Key, From, At, St) ->
+    clock(fun(C) -> cell_stats_clock:timing(Key, From, At, fun shift_starts/0, C) end, St).
 
 op(Key, add, V, #st{pending = Pending} = St) ->
     _ = ets:update_counter(Pending, Key, {3, V}, {Key, add, 0}),
     St;
 op(Key, Op, V, #st{pending = Pending} = St) ->
     New = case ets:lookup(Pending, Key) of
-              [{_, Op, Old}] -> merge(Op, Old, V);
+              [{_, Op, Old}] -> cell_stats_db:merge(Op, Old, V);
               [] -> V
           end,
     true = ets:insert(Pending, {Key, Op, New}),
     St.
-
-merge(add, Old, V) -> Old + V;
-merge(min, Old, V) -> min(Old, V);
-merge(max, Old, V) -> max(Old, V);
-merge(set, _Old, V) -> V;
-merge(first, Old, _V) -> Old.
 
 %% Before the counters are written with the id of the last journal record applied,
 %% what those records wrote to the histories is made durable: every write handed over
@@ -873,10 +642,9 @@ durable_history(#st{db = open, attached = Attached, applied = A, saved = S} = St
             St1 = history_written(St),
             case St1#st.db of
                 open ->
-                    case {sync_table(?EVENT), sync_table(?PRODUCT)} of
-                        {ok, ok} -> {Mark, St1#st{unsynced = false}};
-                        {{error, Why}, _} -> {undefined, closed(Why, St1)};
-                        {_, {error, Why}} -> {undefined, closed(Why, St1)}
+                    case cell_stats_db:sync_histories() of
+                        ok -> {Mark, St1#st{unsynced = false}};
+                        {error, Why} -> {undefined, closed(Why, St1)}
                     end;
                 closed ->
                     {undefined, St1}
@@ -886,12 +654,6 @@ durable_history(#st{db = open, attached = Attached, applied = A, saved = S} = St
     end;
 durable_history(St) ->
     {undefined, St}.
-
-%% mnesia keeps a table on disc only in a dets file of the table's name.
-sync_table(Tab) ->
-    try dets:sync(Tab)
-    catch error:badarg -> {error, {no_table, Tab}}
-    end.
 
 %% The counters and the histories hold what the journal's records up to `Mark'
 %% changed: the journal lets them go.
@@ -939,45 +701,19 @@ journal_bound(#st{journal_warned = Warned} = St) ->
 
 %% One transaction a second: every counter and the time they cover, together, with the
 %% id of the last journal record whose effects they hold.
-write_pending(Now, Mark, #st{db = open, pending = Pending} = St) ->
-    F = fun() ->
-                %% One lock for all: a thousand tasks starting change thousands of
-                %% counters, and a lock request each would cost more than the writes.
-                ok = mnesia:write_lock_table(?COUNTER),
-                ets:foldl(fun({K, Op, V}, ok) ->
-                                  New = case mnesia:read(?COUNTER, K, write) of
-                                            [{?COUNTER, _, Old}] when Op =/= set ->
-                                                merge(Op, Old, V);
-                                            _ ->
-                                                V
-                                        end,
-                                  mnesia:write({?COUNTER, K, New})
-                          end, ok, Pending),
-                ok = books(St),
-                _ = Mark =:= undefined orelse
-                    mnesia:write({?COUNTER, {meta, journal}, Mark}),
-                mnesia:write({?COUNTER, {meta, flushed}, Now})
-        end,
-    case mnesia:transaction(F) of
-        {atomic, ok} ->
-            _ = mnesia:sync_log(),
+write_pending(Now, Mark, #st{db = open, pending = Pending, book_open = Open,
+                              book_left = Gone} = St) ->
+    case cell_stats_db:write_counters(Pending, Open, Gone, Mark, Now) of
+        ok ->
             true = ets:delete_all_objects(Pending),
             St#st{book_open = #{}, book_left = #{}};
-        {aborted, Why} ->
+        {error, Why} ->
             closed(Why, St)
     end;
 write_pending(_Now, _Mark, St) ->
     %% Not before the database is open: the time of the last write tells how long
     %% the runtime was down.
     St.
-
-%% In the counters' transaction: the books as the counters count them.
-books(#st{book_open = Open, book_left = Gone}) ->
-    ok = maps:fold(fun(Serial, Info, ok) -> mnesia:write({?PRODUCT, Serial, Info}) end,
-                   ok, Gone),
-    maps:fold(fun(Serial, delete, ok) -> mnesia:delete({?OPEN, Serial});
-                 (Serial, Row, ok) -> mnesia:write({?OPEN, Serial, Row})
-              end, ok, Open).
 
 %%====================================================================
 %% The database
@@ -990,7 +726,7 @@ books(#st{book_open = Open, book_left = Gone}) ->
 %% not be, this tries again.
 open(#st{db = closed} = St) ->
     Result = case cell_db:start() of
-                 ok -> cell_db:ensure_tables(tables(), ?LOAD_MS);
+                 ok -> cell_db:ensure_tables(cell_stats_db:tables(), ?LOAD_MS);
                  {error, _} = E -> E
              end,
     case Result of
@@ -1019,36 +755,36 @@ closed(Why, #st{db = Was} = St) ->
 %% the products the cell held are known again; what was kept in memory meanwhile is
 %% written.
 opened(#st{started = Started} = St0) ->
-    {Flushed, OpenRows, Firsts} =
-        view(fun() -> {meta(flushed, undefined), open_rows(), maps:from_list(firsts())} end,
-             {undefined, [], #{}}),
+    {Flushed, OpenRows, Firsts} = cell_stats_db:at_open(),
     Closed = lists:foldl(fun({T, Was}, Acc) ->
                                  Acc1 = until_down(T, Was, Flushed, Acc),
-                                 case maps:is_key(T, Acc1#st.tasks) of
+                                 case maps:is_key(T, cell_stats_clock:tasks(Acc1#st.clock)) of
                                      true ->
                                          Acc1;
                                      false ->
                                          %% Not in this cell any more: nothing of it is open.
                                          Key = {meta, {open, T}},
-                                         db(fun() -> mnesia:dirty_delete(?COUNTER, Key) end, Acc1)
+                                         db(fun() -> cell_stats_db:delete_counter(Key) end, Acc1)
                                  end
                          end, St0, OpenRows),
     St1 = maps:fold(fun(T, {State, Since}, Acc0) ->
-                            Acc = counting(T, State, Since, Acc0),
+                            Acc = clock(fun(C) -> cell_stats_clock:counting(T, State, Since, C)
+                                        end, Acc0),
                             case maps:find(T, Firsts) of
                                 error ->
-                                    op({meta, {first, T}}, first, Started, Acc);
+                                    clock(fun(C) -> {[cell_stats_clock:seen(T, Started)], C} end,
+                                          Acc);
                                 _ when is_integer(Flushed), Flushed < Started ->
                                     account(T, off, Flushed, Started, Acc);
                                 _ ->
                                     Acc
                             end
-                    end, Closed, Closed#st.tasks),
-    Open = safe(fun() -> ets_list(?OPEN) end, []),
+                    end, Closed, cell_stats_clock:tasks(Closed#st.clock)),
+    Open = cell_stats_db:open_products(),
     %% A product the books are still to write (one that left while the database was
     %% away, say) is as the statistics have it, not as its row was.
     Known = lists:foldl(
-              fun({?OPEN, Serial, Info}, Acc) ->
+              fun({Serial, Info}, Acc) ->
                       case maps:is_key(Serial, Acc) orelse
                           maps:is_key(Serial, St1#st.book_open) of
                           true -> Acc;
@@ -1078,14 +814,13 @@ opened(#st{started = Started} = St0) ->
 attach(#st{attached = true} = St) ->
     St;
 attach(St) ->
-    case {whereis(cell_trace_journal),
-          mnesia:transaction(fun() -> meta(journal, undefined) end)} of
+    case {whereis(cell_trace_journal), cell_stats_db:journal_mark()} of
         {undefined, _} ->
             %% No journal (the statistics started alone): the events are all there is.
             St;
-        {_, {aborted, _}} ->
+        {_, {error, _}} ->
             St;
-        {_, {atomic, Saved}} ->
+        {_, {ok, Saved}} ->
             Records = cell_trace_journal:attach(),
             St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
             Fresh = [R || #{id := Id} = R <- Records,
@@ -1171,8 +906,9 @@ until_down(T, {State, Upto}, Flushed, St) when is_atom(State), is_integer(Upto),
 until_down(_T, _Was, _Flushed, St) ->
     St.
 
-ets_list(Tab) ->
-    mnesia:dirty_select(Tab, [{'_', [], ['$_']}]).
+account(Scope, State, From, To, St) ->
+    clock(fun(C) -> cell_stats_clock:account(Scope, State, From, To, fun shift_starts/0, C) end,
+          St).
 
 %% A write of the history: when the database is open, handed to the writer at once
 %% if it is idle, else with what else comes until it is; when it is not, kept (up to
@@ -1225,11 +961,12 @@ trace(undefined, _At, _Task, _Entry, St) ->
 trace(Serial, At, Task, Entry, #st{applying = {Id, K}} = St) ->
     %% Of a journal record: the same entry each time it is applied, which the bag
     %% keeps once.
-    Rec = {?EVENT, Serial, At div 1000, {At, {Id, K}}, Entry#{task => Task}},
-    db(fun() -> mnesia:dirty_write(Rec) end, St#st{applying = {Id, K + 1}});
+    E = Entry#{task => Task},
+    db(fun() -> cell_stats_db:write_history(Serial, At, {Id, K}, E) end,
+       St#st{applying = {Id, K + 1}});
 trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
-    Rec = {?EVENT, Serial, At div 1000, {At, Seq}, Entry#{task => Task}},
-    db(fun() -> mnesia:dirty_write(Rec) end, St#st{seq = Seq + 1}).
+    E = Entry#{task => Task},
+    db(fun() -> cell_stats_db:write_history(Serial, At, Seq, E) end, St#st{seq = Seq + 1}).
 
 %% A product in the cell: its summary is its row of the products in the cell (a RAM
 %% table with a log, cheap to write); the summary on disc only is written when it leaves.
@@ -1238,9 +975,11 @@ trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
 %% them; a record applied again after a crash then finds the books as they were when
 %% the counters were, and counts what they do not hold, once.
 write_open(Serial, #prod{} = P, #st{book_open = Open} = St) ->
-    Row = #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
-            entry => P#prod.entry},
-    St#st{book_open = Open#{Serial => Row}}.
+    St#st{book_open = Open#{Serial => open_row(P)}}.
+
+open_row(#prod{} = P) ->
+    #{entered => P#prod.entered, recipe => P#prod.recipe, failed => P#prod.failed,
+      entry => P#prod.entry}.
 
 %% A product as its row in the cell has it (`Entered' when the row lacks the time).
 from_open(Row, Entered) ->
@@ -1250,7 +989,7 @@ from_open(Row, Entered) ->
 %% The summary of a product that left (`out' or `scrapped', by which task and when)
 %% replaces its row in the cell, in the books.
 write_left(Serial, #prod{} = P, Status, Left, #st{book_open = Open, book_left = Gone} = St) ->
-    Info = summary(Serial, P, Status, Left),
+    Info = cell_stats_db:product_summary(Serial, open_row(P), Status, Left),
     St#st{book_open = Open#{Serial => delete}, book_left = Gone#{Serial => Info}}.
 
 %% How a product that left did, as the books have it: what is still to write first.
@@ -1258,53 +997,20 @@ left_summary(Serial, #st{book_left = Gone}) ->
     case maps:find(Serial, Gone) of
         {ok, Info} ->
             Info;
-        error ->
-            case safe(fun() -> mnesia:dirty_read(?PRODUCT, Serial) end, []) of
-                [{?PRODUCT, _, Info}] -> Info;
-                [] -> undefined
-            end
+        error -> cell_stats_db:left_summary(Serial)
     end.
-
-%% A product's summary (times in ms): where it is, or how it left (`{Task, At}').
-summary(Serial, #prod{} = P, Status, Left) ->
-    {ExitTask, LeftAt} = case Left of
-                             undefined -> {undefined, undefined};
-                             {T, At} -> {T, At div 1000}
-                         end,
-    #{serial => Serial, status => Status, recipe => P#prod.recipe, failed => P#prod.failed,
-      entered => P#prod.entered div 1000, entry_task => P#prod.entry, left => LeftAt,
-      exit_task => ExitTask}.
 
 %% Records older than the settings keep are removed, once an hour.
 purge(Now, St) ->
     #{trace_days := TraceDays, shift_days := ShiftDays} = settings(),
-    {CutDate, _} = local(Now - ShiftDays * 86400 * 1000000),
-    %% A shift's counters, and its span, by the date the shift began.
-    Before = fun(Key) ->
-                     safe(fun() ->
-                                  mnesia:dirty_select(?COUNTER, [{{?COUNTER, Key, '_'},
-                                                                  [{'<', '$1', {const, CutDate}}],
-                                                                  [{element, 2, '$_'}]}])
-                          end, [])
-             end,
-    Keys = Before({{'$1', '_'}, '_', '_'}) ++ Before({meta, {shift, {'$1', '_'}}}),
-    St1 = lists:foldl(fun(K, Acc) -> db(fun() -> mnesia:dirty_delete(?COUNTER, K) end, Acc) end,
+    {Keys, Old} = cell_stats_db:expired(Now, ShiftDays, TraceDays),
+    St1 = lists:foldl(fun(K, Acc) -> db(fun() -> cell_stats_db:delete_counter(K) end, Acc) end,
                       St, Keys),
-    Cut = (Now div 1000) - TraceDays * 86400 * 1000,
-    Old = safe(fun() ->
-                       mnesia:dirty_select(?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},
-                                                       [{is_integer, '$2'}, {'<', '$2', Cut}],
-                                                       ['$1']}])
-               end, []),
     forget(Old, St1).
 
 forget(Serials, St) ->
-    lists:foldl(fun(Serial, Acc) ->
-                        db(fun() ->
-                                   ok = mnesia:dirty_delete(?EVENT, Serial),
-                                   mnesia:dirty_delete(?PRODUCT, Serial)
-                           end, Acc)
-                end, St, Serials).
+    lists:foldl(fun(Serial, Acc) -> db(fun() -> cell_stats_db:forget(Serial) end, Acc) end,
+                St, Serials).
 
 %% The histories live in a dets file, which cannot pass 2 GB. Past the settings'
 %% `trace_max_records' (checked at every write: the count costs nothing) the histories
@@ -1313,29 +1019,15 @@ forget(Serials, St) ->
 %% days, never stops recording.
 trim(#st{db = open} = St) ->
     #{trace_max_records := Max} = settings(),
-    case safe(fun() -> mnesia:table_info(?EVENT, size) end, 0) of
-        N when is_integer(N), N > Max ->
-            Left = lists:sort(safe(fun() ->
-                                           mnesia:dirty_select(
-                                             ?PRODUCT, [{{?PRODUCT, '$1', #{left => '$2'}},
-                                                         [{is_integer, '$2'}],
-                                                         [{{'$2', '$1'}}]}])
-                                   end, [])),
-            Products = max(1, safe(fun() -> mnesia:table_info(?PRODUCT, size) end, 1)),
-            Drop = lists:sublist(Left, ceil((N - Max * 0.9) * Products / N)),
-            case Drop of
-                [] ->
-                    St;
-                _ ->
-                    {Until, _} = lists:last(Drop),
-                    cell_log:warning(cell, "statistics: the product histories reached ~b "
-                                     "records; the histories of the ~b products that left "
-                                     "until ~ts were removed", [Max, length(Drop),
-                                                               time_text(Until)]),
-                    forget([S || {_, S} <- Drop], St)
-            end;
-        _ ->
-            St
+    case cell_stats_db:over_limit(Max) of
+        [] ->
+            St;
+        Drop ->
+            {Until, _} = lists:last(Drop),
+            cell_log:warning(cell, "statistics: the product histories reached ~b "
+                             "records; the histories of the ~b products that left "
+                             "until ~ts were removed", [Max, length(Drop), time_text(Until)]),
+            forget([S || {_, S} <- Drop], St)
     end;
 trim(St) ->
     St.
@@ -1358,28 +1050,6 @@ event_us(#{at := At}) when is_integer(At) -> At;
 event_us(#{mono := Mono}) -> Mono + erlang:time_offset(microsecond);
 event_us(_) -> now_us().
 
-%% The shift a moment falls in: the one last used if it still does.
-shift_of(Us, #st{shift = {Id, Start, End}} = St) when Us >= Start, Us < End ->
-    {Id, Start, End, St};
-shift_of(Us, St) ->
-    #{id := Id, start := S, 'end' := E} = cell_stats_shift:at(local(Us), shift_starts()),
-    Start = to_us(S),
-    End = max(to_us(E), Us + 1),
-    %% A shift's span as the plan had it when the shift was first counted: a report of
-    %% it stays right after the plan has changed.
-    St1 = op({meta, {shift, Id}}, first, {Start, End}, St),
-    {Id, Start, End, St1#st{shift = {Id, Start, End}}}.
-
-shift_by_id({Date, N} = Id) ->
-    Starts = shift_starts(),
-    Minute = lists:nth(min(N, length(Starts)), Starts),
-    #{id := Found} = Shift = cell_stats_shift:at({Date, {Minute div 60, Minute rem 60, 0}},
-                                                 Starts),
-    case Found of
-        Id -> Shift;
-        _ -> Shift#{id := Id}
-    end.
-
 shift_starts() ->
     #{shifts := Texts} = settings(),
     case cell_stats_shift:parse_all(Texts) of
@@ -1393,28 +1063,6 @@ settings() ->
     catch error:_ -> Defaults;
           exit:_ -> Defaults
     end.
-
-local(Us) ->
-    calendar:system_time_to_local_time(Us, microsecond).
-
-to_us(Local) ->
-    Utc = case calendar:local_time_to_universal_time_dst(Local) of
-              [U | _] -> U;
-              [] -> erlang:localtime_to_universaltime(Local)        %% a DST gap
-          end,
-    (calendar:datetime_to_gregorian_seconds(Utc) - 62167219200) * 1000000.
-
-period_label(total) -> <<"total">>;
-period_label(Id) -> cell_stats_shift:label(Id).
-
-%% The short name of a state in the counters.
-name(off) -> off;
-name(down) -> down;
-name(setup) -> setup;
-name({ready, idle, blocked}) -> blocked;
-name({ready, idle, starved}) -> starved;
-name({ready, processing, active}) -> active;
-name({ready, processing, executing}) -> executing.
 
 text(B) when is_binary(B) -> B;
 text(A) when is_atom(A) -> atom_to_binary(A, utf8);

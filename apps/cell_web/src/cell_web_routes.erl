@@ -1,5 +1,5 @@
-%% @doc The panel's routes: the operator page, the REST API, the websocket. Anything
-%% else is a JSON 404.
+%% @doc The panel's routes: the operator page, the REST API, the websocket, the routes
+%% of the extensions (`cell_web_extension'). Anything else is a JSON 404.
 -module(cell_web_routes).
 
 -export([dispatch/0, routes/0]).
@@ -46,9 +46,6 @@ routes() ->
      {"/api/users", cell_web_users_h, #{}},
      {"/api/users/:name", cell_web_users_h, #{}},
      {"/api/audit", cell_web_audit_h, #{}},
-     {"/api/inspect", cell_web_inspect_h, #{what => blocks}},
-     {"/api/inspect/messages", cell_web_inspect_h, #{what => messages}},
-     {"/api/inspect/messages/answer", cell_web_inspect_h, #{what => answer}},
-     {"/api/inspect/parts/:serial", cell_web_inspect_h, #{what => part}},
-     {"/api/ws", cell_web_ws_h, #{}},
-     {'_', cell_web_notfound_h, #{}}].
+     {"/api/ws", cell_web_ws_h, #{}}]
+        ++ cell_web_extension:routes()
+        ++ [{'_', cell_web_notfound_h, #{}}].

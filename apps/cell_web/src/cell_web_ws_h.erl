@@ -13,12 +13,12 @@
 %%     withdrawn (`cleared' and `who' say which and by whom)</li>
 %% <li>`{"type": "event", "event": Event}' — an IPC-2541 item event and the like</li>
 %% <li>`{"type": "log", "line": Line}' — a task log line</li>
-%% <li>`{"type": "inspect_messages", "messages": [Message]}' — the PLC messages waiting
-%%     for an answer on the panel (the whole list, at connect and at every change)</li>
+%% <li>the messages of the extensions' feeds (`cell_web_extension'), as
+%%     `{"type": "inspect_messages", "messages": [Message]}' of the inspection blocks</li>
 %% </ul>
 %%
-%% While a page is connected the panel is a message client of the inspection blocks
-%% that ask for it (`cell_inspect_panel'); that process is monitored like the others.
+%% Each extension with a feed is joined as the page connects; what it names to watch
+%% (the inspection panel's process) is monitored like the others.
 %%
 %% The changes come already encoded from {@link cell_web_feed}, which makes them once
 %% for every page. A slow browser never slows the cell: the feed sends to this process
@@ -27,7 +27,7 @@
 %% reading altogether is dropped by the socket's send timeout. When a service of the
 %% cell restarts, the feed attaches again and the page gets a fresh snapshot
 %% (`"resync": true') without reconnecting. The socket closes with 4001 when the
-%% session ends, 1012 when the feed itself (or the inspection panel) restarts; the page
+%% session ends, 1012 when the feed itself (or an extension's feed) restarts; the page
 %% connects again.
 -module(cell_web_ws_h).
 -behaviour(cowboy_websocket).
@@ -43,7 +43,8 @@
 
 -record(state, {caller :: cell_web_req:caller(),
                 feed :: reference() | undefined,
-                inspect :: reference() | undefined}).
+                %% The extensions whose feeds this page joined, by their monitors.
+                extensions = #{} :: #{reference() => module()}}).
 
 -spec init(cowboy_req:req(), map()) ->
           {cowboy_websocket, cowboy_req:req(), #state{}, map()} | {ok, cowboy_req:req(), map()}.
@@ -74,25 +75,35 @@ websocket_init(#state{caller = Caller} = State) ->
                                       #{session := Id} -> Id
                                   end),
     _ = erlang:start_timer(?PING_MS, self(), ping),
-    {Inspect, Messages} = join_inspection(),
+    {Extensions, Messages} = join_extensions(),
     {[snapshot(false, State) | Messages],
-     State#state{feed = Feed, inspect = Inspect}}.
+     State#state{feed = Feed, extensions = Extensions}}.
 
-%% The inspection blocks' messages, when their app runs.
-join_inspection() ->
-    case cell_inspect_panel:join(self()) of
-        {ok, Ms} -> {monitor(process, cell_inspect_panel), [inspect_messages(Ms)]};
-        {error, not_running} -> {undefined, []}
+%% The feeds of the extensions that have one and run.
+join_extensions() ->
+    Joined = [{Mod, Watch, Ms} || Mod <- cell_web_extension:modules(),
+                                  erlang:function_exported(Mod, feed_join, 1),
+                                  {ok, Watch, Ms} <- [Mod:feed_join(self())]],
+    {maps:from_list([{monitor(process, Watch), Mod} || {Mod, Watch, _} <- Joined]),
+     [frame(Ms) || {_, _, Ms} <- Joined, Ms =/= []]}.
+
+frame(Messages) ->
+    {text, jsx:encode(Messages)}.
+
+%% What the joined extensions make of a message the page's process does not know
+%% itself; a message none of them takes is a bug.
+extension_info(Info, Extensions) ->
+    Results = [Mod:feed_info(Info) || Mod <- lists:usort(maps:values(Extensions))],
+    case [Ms || {ok, Ms} <- Results] of
+        [] -> erlang:error({unexpected_message, Info});
+        Taken -> [frame(Ms) || Ms <- Taken, Ms =/= []]
     end.
-
-inspect_messages(Ms) ->
-    {text, jsx:encode([#{<<"type">> => <<"inspect_messages">>,
-                         <<"messages">> => [cell_web_inspect_h:message_json(M) || M <- Ms]}])}.
 
 -spec websocket_handle(cow_ws:frame(), #state{}) ->
           {[cow_ws:frame()], #state{}}.
-websocket_handle({text, <<"resync">>}, #state{inspect = I} = State) ->
-    {[snapshot(true, State) | [inspect_messages(cell_inspect_panel:messages()) || I =/= undefined]],
+websocket_handle({text, <<"resync">>}, #state{extensions = Extensions} = State) ->
+    {[snapshot(true, State) | [frame(Ms) || Mod <- lists:usort(maps:values(Extensions)),
+                                            Ms <- [Mod:feed_resync()], Ms =/= []]],
      State};
 websocket_handle({text, _}, State) ->
     {[{close, 1003, <<"the panel sends nothing but resync">>}], State};
@@ -119,13 +130,13 @@ websocket_info(cell_web_feed_resync, State) ->
 websocket_info({timeout, _, ping}, State) ->
     _ = erlang:start_timer(?PING_MS, self(), ping),
     {[ping], State};
-websocket_info({cell_inspect_panel, Ms}, State) ->
-    {[inspect_messages(Ms)], State};
 websocket_info({cell_web_session, ended}, State) ->
     {[{close, 4001, <<"session ended">>}], State};
-websocket_info({'DOWN', Ref, process, _, _}, #state{feed = F, inspect = I} = State)
-  when Ref =:= F; Ref =:= I ->
-    {[{close, 1012, <<"the cell restarted">>}], State}.
+websocket_info({'DOWN', Ref, process, _, _}, #state{feed = F, extensions = Es} = State)
+  when Ref =:= F; is_map_key(Ref, Es) ->
+    {[{close, 1012, <<"the cell restarted">>}], State};
+websocket_info(Info, #state{extensions = Es} = State) ->
+    {extension_info(Info, Es), State}.
 
 resync_later(State) ->
     _ = erlang:send_after(?RESYNC_RETRY_MS, self(), cell_web_feed_resync),

@@ -6,12 +6,16 @@
 %% traceability of a part (its inspections and overrides).
 %%
 %% The panel is a message client of the blocks whose settings say so (see
-%% `cell_inspect_panel'); the page gets the messages live over the websocket. When
-%% the inspection app does not run, the lists are empty and an answer is 404.
--module(cell_web_inspect_h).
+%% `cell_inspect_panel'); the page gets the messages live over the websocket
+%% (`cell_inspect_web'). When the inspection app does not run, the lists are empty and
+%% an answer is 404.
+%%
+%% The panel (`cell_web') serves these routes as an extension (`cell_inspect_web'):
+%% the handler runs in the panel's processes and uses its request helpers.
+-module(cell_inspect_web_h).
 -behaviour(cowboy_handler).
 
--export([init/2, message_json/1]).
+-export([init/2]).
 
 -spec init(cowboy_req:req(), map()) -> {ok, cowboy_req:req(), map()}.
 init(Req, Opts) ->
@@ -24,7 +28,8 @@ handle(blocks, Req, Caller) ->
 handle(messages, Req, Caller) ->
     get_only(Req),
     _ = cell_web_req:require(Caller, view),
-    {json, 200, [message_json(M) || M <- running(fun cell_inspect_panel:messages/0, [])]};
+    {json, 200, [cell_inspect_web:message_json(M)
+                 || M <- running(fun cell_inspect_panel:messages/0, [])]};
 handle(part, Req, Caller) ->
     get_only(Req),
     _ = cell_web_req:require(Caller, view),
@@ -108,8 +113,3 @@ block_json(B) ->
     cell_web_json:term(maps:update_with(message, fun(undefined) -> undefined;
                                                     (M) -> maps:without([ref], M)
                                                  end, B)).
-
-%% @doc A message waiting on the panel, for the page.
--spec message_json(map()) -> map().
-message_json(M) ->
-    cell_web_json:term(M).
