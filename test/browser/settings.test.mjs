@@ -1,0 +1,93 @@
+// The Settings page: a form made from each object's schema, a refused value shown at
+// its field, revisions, differences and restore; only service and admin see it, and
+// the panel's own object is an admin's.
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import { Cell, open, login, logout, shot, fetchJson } from './cell.mjs';
+
+const cell = new Cell();
+let browser;
+let page;
+
+before(async () => {
+  await cell.start();
+  browser = await open(cell);
+  page = browser.page;
+});
+
+after(async () => {
+  if (browser) await browser.close();
+  await cell.stop();
+});
+
+test('anyone and an operator do not see the Settings tab', async () => {
+  await page.waitForSelector('[data-testid=tab-settings]', { state: 'hidden' });
+  await login(page, 'operator');
+  await page.waitForSelector('[data-testid=tab-settings]', { state: 'hidden' });
+  const status = await page.evaluate(() => fetch('/api/settings/machine', {
+    method: 'PUT', headers: { 'content-type': 'application/json' }, body: '{"speed_override": 10}' }).then((r) => r.status));
+  assert.ok(status === 403 || status === 401, String(status));
+  await logout(page);
+});
+
+test('a service user changes a setting; a value out of range is shown at its field', async () => {
+  await login(page, 'service');
+  await page.click('[data-testid=tab-settings]');
+  await page.click('[data-testid=settings-machine]');
+  const field = page.locator('[data-testid="field-speed_override"]');
+  await field.waitFor();
+  assert.match(await field.textContent(), /1 to 100 %/);
+  assert.match(await field.textContent(), /default 50/);
+  // Out of range: refused, said at the field, nothing saved.
+  await field.locator('input').fill('150');
+  await page.evaluate(() => { for (const i of document.querySelectorAll('#view-settings input')) i.removeAttribute('max'); });
+  await page.click('[data-testid=settings-save]');
+  await page.waitForSelector('[data-testid="field-speed_override"].invalid [data-testid=field-error]:not(:empty)');
+  assert.equal((await fetchJson(page, '/api/settings/machine')).values.speed_override, 50);
+  // In range: saved as a new revision.
+  await field.locator('input').fill('80');
+  await page.click('[data-testid=settings-save]');
+  await page.waitForSelector('[data-testid=toast]:has-text("machine saved")');
+  assert.equal((await fetchJson(page, '/api/settings/machine')).values.speed_override, 80);
+  await page.waitForSelector('[data-testid=settings-revisions] tbody tr:nth-child(2)');
+  const first = await page.locator('[data-testid=settings-revisions] tbody tr').first().locator('td').nth(2).textContent();
+  assert.equal(first, 'service');
+  await shot(page, 'settings', true);
+});
+
+test('the difference between two revisions, and a restore of the older', async () => {
+  const revs = await fetchJson(page, '/api/settings/machine/revisions');
+  const [now, before] = revs;
+  await page.selectOption('[data-testid=diff-from]', String(before.rev));
+  await page.selectOption('[data-testid=diff-to]', String(now.rev));
+  await page.click('[data-testid=settings-diff-show]');
+  const row = page.locator('[data-testid=settings-diff] tr[data-path="speed_override"]');
+  await row.waitFor();
+  assert.equal(await row.locator('td.old').textContent(), '50');
+  assert.equal(await row.locator('td.new').textContent(), '80');
+  page.once('dialog', (d) => d.accept());
+  await page.click(`[data-testid=restore-${before.rev}]`);
+  await page.waitForSelector(`[data-testid=toast]:has-text("restored to revision ${before.rev}")`);
+  assert.equal((await fetchJson(page, '/api/settings/machine')).values.speed_override, 50);
+  assert.equal(await page.inputValue('#set-speed_override'), '50');
+  const after = await fetchJson(page, '/api/settings/machine/revisions');
+  assert.equal(after.length, revs.length + 1);
+  assert.equal(after[0].who, 'service');
+});
+
+test('the panel\'s own settings are an admin\'s: a service user sees them read-only', async () => {
+  await page.click('[data-testid=settings-web]');
+  await page.waitForSelector('[data-testid=settings-form] h2:has-text("web")');
+  assert.equal(await page.isDisabled('[data-testid=settings-save]'), true);
+  await logout(page);
+  await page.waitForSelector('[data-testid=tab-settings]', { state: 'hidden' });
+  await login(page, 'admin');
+  await page.click('[data-testid=tab-settings]');
+  await page.click('[data-testid=settings-web]');
+  await page.waitForSelector('[data-testid=settings-form] h2:has-text("web")');
+  assert.equal(await page.isDisabled('[data-testid=settings-save]'), false);
+  await page.fill('#set-idle_minutes', '45');
+  await page.click('[data-testid=settings-save]');
+  await page.waitForSelector('[data-testid=toast]:has-text("web saved")');
+  assert.equal((await fetchJson(page, '/api/settings/web')).values.idle_minutes, 45);
+});
