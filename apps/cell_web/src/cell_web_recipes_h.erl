@@ -88,7 +88,7 @@ handle(dxf, Req, Caller) ->
                  true -> maps:with([description, settings, files], ok(cell_recipe:load(Name)));
                  false -> #{description => <<"imported from DXF">>}
              end,
-    ok = ok(cell_recipe:save(Name, Recipe#{drawing => Drawing}, Who)),
+    ok = ok(cell_recipe:save(Name, Recipe#{drawing => cell_recipe_drawing:new([Drawing])}, Who)),
     Status = case Existed of true -> 200; false -> 201 end,
     {json, Status, #{<<"recipe">> => ok(cell_recipe:info(Name)),
                      <<"imported">> => N, <<"skipped">> => Skipped},

@@ -4,7 +4,8 @@
 %%
 %% Commands: `error TASK retry,reset' · `warning TASK ID CAPTION...' · `event TASK FUN'
 %% · `product TASK SERIAL|none' · `log TASK TEXT...' · `recipe NAME' (a recipe whose
-%% drawing has three cuts with their ExecOrder) · `sync' · `quit'.
+%% drawing has three cuts with their ExecOrder) · `flush' (the statistics written) ·
+%% `sync' · `quit'.
 -module(cell_web_demo).
 
 -export([main/0]).
@@ -55,6 +56,8 @@ loop(Tasks) ->
 
 run([<<"sync">>], _Tasks) ->
     ok;
+run([<<"flush">>], _Tasks) ->
+    cell_stats:flush();
 run([<<"error">>, Task, Sols], Tasks) ->
     Solutions = [S || B <- binary:split(Sols, <<",">>, [global]),
                       S <- cell_alarms:solutions(), atom_to_binary(S, utf8) =:= B],

@@ -86,10 +86,10 @@
   async function loadInCell() {
     const list = await attempt(panel, () => panel.api('GET', '/api/products'));
     if (!list) return;
-    root.querySelector('.in-cell').replaceChildren(
-      list.length === 0 ? el('span', { class: 'quiet', text: 'No product in the cell.' }) :
+    root.querySelector('.in-cell').replaceChildren(...(
+      list.length === 0 ? [el('span', { class: 'quiet', text: 'No product in the cell.' })] :
         list.map((p) => el('button', { class: 'small chip', testid: `in-cell-${p.serial}`,
-                                       on: { click: () => search(p.serial) } }, `${p.serial} · ${p.task}`)));
+                                       on: { click: () => search(p.serial) } }, `${p.serial} · ${p.task}`))));
   }
 
   function changed() {

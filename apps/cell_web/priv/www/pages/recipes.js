@@ -226,7 +226,8 @@
     order.forEach((o, i) => marks.push(svg('g', { class: 'exec-mark', 'data-exec-order': o.n, 'data-step': i + 1 },
       svg('circle', { cx: o.x, cy: o.y, r: font * 0.8 }),
       svg('text', { x: o.x, y: o.y, 'font-size': font, 'text-anchor': 'middle', 'dominant-baseline': 'central' }, String(o.n)))));
-    const types = [...new Set(prims.map((p) => (p.attributes || {}).ItemType).filter(Boolean))];
+    const typesOf = (it) => [(it.attributes || {}).ItemType, ...(it.children || []).flatMap(typesOf)];
+    const types = [...new Set(typesOf(drawing).filter(Boolean))];
     return el('figure', { class: 'drawing' },
       svg('svg', { viewBox: `${b.x0 - m} ${b.y0 - m} ${w + 2 * m} ${h + 2 * m}`, preserveAspectRatio: 'xMidYMid meet',
                    role: 'img', 'aria-label': 'recipe drawing', 'data-testid': 'drawing-svg',

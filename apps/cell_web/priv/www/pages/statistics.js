@@ -191,7 +191,7 @@
       const now = Date.now();
       const day = el('input', { type: 'date', class: 'day', testid: 'stats-day', value: localInput(now).slice(0, 10) });
       const from = el('input', { type: 'datetime-local', testid: 'stats-from', value: localInput(now - 86400000) });
-      const to = el('input', { type: 'datetime-local', testid: 'stats-to', value: localInput(now) });
+      const to = el('input', { type: 'datetime-local', testid: 'stats-to', title: 'empty: now' });
       section.append(
         el('div', { class: 'filters stats-choice' },
           el('button', { class: 'small', testid: 'stats-shift', text: 'This shift', on: { click: () => choose('period=shift') } }),
@@ -202,7 +202,10 @@
           el('button', { class: 'small', testid: 'stats-day-show', text: 'Day', on: { click: () => { if (day.value) choose(`day=${day.value}`); } } }),
           el('label', {}, 'from ', from), el('label', {}, 'to ', to),
           el('button', { class: 'small', testid: 'stats-range-show', text: 'Range',
-                         on: { click: () => choose(`from=${fromInput(from.value)}&to=${fromInput(to.value)}`) } })),
+                         on: { click: () => {
+                           if (!from.value) { panel.toast('Choose where the range begins.'); return; }
+                           choose(`from=${fromInput(from.value)}` + (to.value ? `&to=${fromInput(to.value)}` : ''));
+                         } } })),
         el('p', { class: 'selection', testid: 'stats-selection' }),
         el('div', { class: 'stats-body' }));
       p.on('task', schedule);

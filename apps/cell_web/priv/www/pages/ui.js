@@ -18,7 +18,7 @@ window.cellUi = (() => {
       else if (k in node && !(node instanceof SVGElement)) node[k] = v;
       else node.setAttribute(k, v === true ? '' : String(v));
     }
-    for (const c of children.flat()) {
+    for (const c of children.flat(Infinity)) {
       if (c === null || c === undefined || c === false) continue;
       node.append(c instanceof Node ? c : document.createTextNode(String(c)));
     }
