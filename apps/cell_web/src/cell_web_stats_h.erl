@@ -98,7 +98,7 @@ selected(Qs) ->
     case Qs of
         #{<<"day">> := Day} when is_binary(Day) ->
             Date = date_param(Day),
-            {day, Day, cell_web_charts:selection({day, Date}, spans())};
+            {day, Day, cell_web_charts:selection({day, Date}, [{P, 0, 0} || P <- shifts()])};
         #{<<"from">> := _} ->
             From = cell_web_req:time_param(<<"from">>, Qs),
             To = case cell_web_req:time_param(<<"to">>, Qs) of
@@ -108,7 +108,12 @@ selected(Qs) ->
             From < To orelse cell_web_req:fail(400, bad_query, "from must be before to"),
             To - From =< 31 * ?DAY_MS
                 orelse cell_web_req:fail(400, bad_query, "ask for at most 31 days"),
-            {range, null, cell_web_charts:selection({range, From, To}, spans())};
+            %% A shift overlapping the range starts on its first day, the day before
+            %% (a night shift) or a day within it: only those are read.
+            First = add_days(local_date(From), -1),
+            Last = local_date(To),
+            Near = [P || {D, _} = P <- shifts(), D >= First, D =< Last],
+            {range, null, cell_web_charts:selection({range, From, To}, spans(Near))};
         _ ->
             P = period(maps:get(<<"period">>, Qs, <<"shift">>)),
             {period, label(P), [P]}
@@ -129,19 +134,30 @@ date_param(_) ->
 bad_day() ->
     cell_web_req:fail(400, bad_query, "day must be a date, 2024-05-01").
 
-%% The shifts recorded with their spans.
-spans() ->
-    [{P, F, T} || P <- cell_stats:periods(), P =/= total,
-                  #{from := F, to := T} <- [cell_stats:summary(P)]].
+%% The shifts recorded.
+shifts() ->
+    [P || P <- cell_stats:periods(), P =/= total].
 
-%% The products that left the cell between two times, from their summaries.
+%% Shifts with their spans.
+spans(Shifts) ->
+    [{P, F, T} || P <- Shifts, #{from := F, to := T} <- [cell_stats:summary(P)]].
+
+local_date(Ms) ->
+    {Date, _} = calendar:system_time_to_local_time(Ms div 1000, second),
+    Date.
+
+add_days(Date, N) ->
+    calendar:gregorian_days_to_date(calendar:date_to_gregorian_days(Date) + N).
+
+%% The products that left the cell between two times, from the summaries the
+%% statistics write of each (`cell_trace_product', see cell_stats), chosen in the table.
 exits(From, To) when To < From ->
     [];
 exits(From, To) ->
-    Rows = try mnesia:dirty_select(cell_trace_product,
-                                   [{{cell_trace_product, '_', '$1'}, [], ['$1']}])
+    Spec = [{{cell_trace_product, '_', #{status => out, left => '$1', failed => '$2'}},
+             [{is_integer, '$1'}, {'>=', '$1', From}, {'=<', '$1', To}],
+             [{{'$1', '$2'}}]}],
+    Rows = try mnesia:dirty_select(cell_trace_product, Spec)
            catch exit:{aborted, _} -> []
            end,
-    [{At, case Failed of true -> failed; false -> good end}
-     || #{status := out, left := At, failed := Failed} <- Rows,
-        is_integer(At), At >= From, At =< To].
+    [{At, case Failed of true -> failed; false -> good end} || {At, Failed} <- Rows].
