@@ -91,3 +91,21 @@ test('the panel\'s own settings are an admin\'s: a service user sees them read-o
   await page.waitForSelector('[data-testid=toast]:has-text("web saved")');
   assert.equal((await fetchJson(page, '/api/settings/web')).values.idle_minutes, 45);
 });
+
+test('each page fits 1024x768 and 1280x800 touch panels, its buttons touch-sized', async () => {
+  for (const [width, height] of [[1024, 768], [1280, 800]]) {
+    await page.setViewportSize({ width, height });
+    for (const id of ['settings', 'recipes', 'statistics', 'products', 'audit']) {
+      await page.click(`[data-testid=tab-${id}]`);
+      await page.waitForSelector(`#view-${id}:not(.hidden)`);
+      const size = await page.evaluate(() => ({
+        width: document.documentElement.scrollWidth, height: document.documentElement.scrollHeight }));
+      assert.ok(size.width <= width && size.height <= height, `${id} ${width}: ${JSON.stringify(size)}`);
+      const small = await page.locator(`#view-${id} button:visible`).evaluateAll((bs) =>
+        bs.map((b) => ({ text: b.textContent, ...b.getBoundingClientRect().toJSON() }))
+          .filter((b) => b.height < 40 || b.width < 40));
+      assert.deepEqual(small, [], `${id} ${width}`);
+    }
+  }
+  await page.setViewportSize({ width: 1024, height: 768 });
+});

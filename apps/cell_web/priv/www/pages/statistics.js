@@ -168,7 +168,10 @@
         frame('Products out per hour', 'chart-hourly', hourly(d.hourly)),
         frame(`Cycle times (${d.cycles.n} between products out)`, 'chart-cycles', cycles(d.cycles)),
         frame('OEE per shift', 'chart-oee', oee(d.shifts),
-              `ideal cycle time ${duration(d.ideal_cycle_ms)} (settings: oee)`)),
+              `ideal cycle time ${duration(d.ideal_cycle_ms)} (settings: oee)` +
+              (d.shifts.some((s) => s.oee.performance > 1)
+                ? ' · a performance above 100 % says the ideal cycle time is longer than the cell\'s real cycles: check the setting'
+                : ''))),
       el('div', { class: 'definitions', testid: 'oee-definitions' },
         el('h3', { text: 'How the figures are made' }),
         el('p', { text: 'Time in each state: every task\'s time in each IPC-2541 state, counted by the cell; the time since the last write (at most a second) is not in yet.' }),
