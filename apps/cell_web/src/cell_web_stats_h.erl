@@ -13,7 +13,8 @@
 %% `?to=', milliseconds or RFC 3339, at most 31 days: the shifts it overlaps): each
 %% shift's summary as `/api/statistics' has it with its OEE (see
 %% {@link cell_web_charts:oee/2}), their sum, products out per hour of the clock and
-%% the spread of the cell's cycle times, from the products that left in that time.
+%% the spread of the cell's cycle times, from the products that left in that time (of
+%% a longer span, its last 31 days, from `hourly_from').
 -module(cell_web_stats_h).
 -behaviour(cowboy_handler).
 
@@ -80,7 +81,10 @@ charts(Req) ->
                      #{from := null} -> {0, -1};
                      #{from := F, to := T} -> {F, T}
                  end,
-    Exits = exits(From, To),
+    %% Products out of at most the last 31 days: the total of a year would be thousands
+    %% of hours and every product kept.
+    Since = max(From, To - 31 * ?DAY_MS),
+    Exits = exits(Since, To),
     Cycles = cell_web_charts:cycles(Exits),
     {json, 200,
      cell_web_json:term(
@@ -90,7 +94,8 @@ charts(Req) ->
          ideal_cycle_ms => Ideal,
          shifts => [S#{oee => cell_web_charts:oee(S, Ideal)} || S <- Summaries],
          sum => Sum#{oee => cell_web_charts:oee(Sum, Ideal)},
-         hourly => cell_web_charts:hourly(Exits, From, To),
+         hourly_from => Since,
+         hourly => cell_web_charts:hourly(Exits, Since, To),
          cycles => #{n => length(Cycles), histogram => cell_web_charts:histogram(Cycles, ?BINS)}})}.
 
 %% What the query asks for: a period, a day or a range.

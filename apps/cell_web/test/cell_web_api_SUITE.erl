@@ -662,7 +662,10 @@ statistics_charts(Config) ->
     {200, #{<<"selection">> := #{<<"kind">> := <<"period">>, <<"label">> := Label},
             <<"shifts">> := [Shift], <<"sum">> := Sum, <<"hourly">> := Hours,
             <<"cycles">> := #{<<"n">> := N, <<"histogram">> := Bins},
-            <<"ideal_cycle_ms">> := Ideal}, _} = req(A, get, "/api/statistics/charts"),
+            <<"hourly_from">> := HourlyFrom, <<"ideal_cycle_ms">> := Ideal}, _} =
+        req(A, get, "/api/statistics/charts"),
+    %% A shift is shorter than 31 days: its products out are counted from its start.
+    ?assertMatch(#{<<"from">> := HourlyFrom}, Sum),
     ?assertEqual(maps:get(<<"period">>, Prod), Label),
     %% The shift is /api/statistics's with its OEE. The tasks are all OFF: that time,
     %% and the span with it, grows with every write (once a second) and may have grown

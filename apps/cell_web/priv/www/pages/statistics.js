@@ -85,8 +85,8 @@
     if (items.length === 0) return el('p', { class: 'quiet', text: 'Nothing in this time.' });
     const max = Math.max(1, ...items.map(value));
     const bottom = H - 30;
-    const gap = 4;
-    const bw = Math.max(4, (W - 30) / items.length - gap);
+    const gap = items.length > 60 ? 0 : 4;
+    const bw = Math.max(0.5, (W - 30) / items.length - gap);
     const step = Math.ceil(items.length / 12);
     return svg('svg', { viewBox: `0 0 ${W} ${H}`, class: 'chart-svg', role: 'img' },
       svg('line', { x1: 20, y1: bottom, x2: W - 5, y2: bottom, class: 'axis-line' }),
@@ -101,9 +101,22 @@
       }));
   }
 
+  // Per hour; over two days of hours, per day (the hours added up).
   function hourly(rows) {
-    return columns(rows, (r) => clock(r.start), (r) => r.out,
-                   (r) => ({ 'data-hour': r.start, 'data-out': r.out, 'data-good': r.good }), 'bar-out');
+    if (rows.length <= 48) {
+      return columns(rows, (r) => clock(r.start), (r) => r.out,
+                     (r) => ({ 'data-hour': r.start, 'data-out': r.out, 'data-good': r.good }), 'bar-out');
+    }
+    const days = new Map();
+    for (const r of rows) {
+      const day = time(r.start).slice(0, 10);
+      const d = days.get(day) || { day, out: 0, good: 0 };
+      d.out += r.out;
+      d.good += r.good;
+      days.set(day, d);
+    }
+    return columns([...days.values()], (d) => d.day.slice(5), (d) => d.out,
+                   (d) => ({ 'data-day': d.day, 'data-out': d.out, 'data-good': d.good }), 'bar-out');
   }
 
   function cycles(c) {
@@ -165,7 +178,8 @@
       figures(d.sum),
       el('div', { class: 'charts' },
         frame('Time in each state per task', 'chart-states', stateBars(d.sum.tasks)),
-        frame('Products out per hour', 'chart-hourly', hourly(d.hourly)),
+        frame(d.hourly.length > 48 ? 'Products out per day' : 'Products out per hour', 'chart-hourly',
+              hourly(d.hourly), d.hourly_from > (d.sum.from ?? 0) ? `since ${time(d.hourly_from)}` : null),
         frame(`Cycle times (${d.cycles.n} between products out)`, 'chart-cycles', cycles(d.cycles)),
         frame('OEE per shift', 'chart-oee', oee(d.shifts),
               `ideal cycle time ${duration(d.ideal_cycle_ms)} (settings: oee)` +
