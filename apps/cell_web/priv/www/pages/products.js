@@ -57,6 +57,20 @@
     }
   }
 
+  // The inspection blocks' records of the part, where the cell runs them: each
+  // inspection and override as its fields.
+  function inspection(parts) {
+    if (!parts) return null;
+    const rows = [...(parts.inspections || []).map((r) => ['inspection', r]),
+                  ...(parts.overrides || []).map((r) => ['override', r])];
+    if (rows.length === 0) return null;
+    const words = (v) => (typeof v === 'object' && v !== null ? JSON.stringify(v) : String(v));
+    return el('div', { class: 'inspection', testid: 'product-inspection' },
+      el('h3', { text: 'Inspection' }),
+      el('ul', {}, rows.map(([k, r]) => el('li', { data: { kind: k } }, el('b', { text: `${k}: ` }),
+        Object.entries(r).map(([f, v]) => `${f} ${words(v)}`).join(' · ')))));
+  }
+
   function timeline(h, parts) {
     const events = h.events || [];
     const first = events.length ? events[0].time : h.entered;
@@ -71,8 +85,7 @@
     ];
     return el('div', { class: 'product', testid: 'product-history', data: { serial: h.serial } },
       el('dl', { class: 'facts' }, facts.map(([k, v]) => [el('dt', { text: k }), el('dd', { text: v, data: { fact: k } })])),
-      parts ? el('div', { class: 'inspection', testid: 'product-inspection' },
-        el('h3', { text: 'Inspection' }), el('pre', { text: JSON.stringify(parts, null, 2) })) : null,
+      inspection(parts),
       el('ol', { class: 'timeline', testid: 'product-timeline' }, events.map((e) => {
         const [k, words] = kind(e);
         return el('li', { class: `ev ev-${k}`, data: { kind: k, event: e.event } },
