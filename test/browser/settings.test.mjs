@@ -75,6 +75,23 @@ test('the difference between two revisions, and a restore of the older', async (
   assert.equal(after[0].who, 'service');
 });
 
+test('a change waits for the next Start, and the page says so until it is in force', async () => {
+  const cmd = (c) => page.evaluate((x) => window.cellPanel.api('POST', `/api/cell/${x}`), c);
+  await cmd('start');
+  await page.click('[data-testid=settings-machine]');
+  await page.fill('#set-speed_override', '70');
+  await page.click('[data-testid=settings-save]');
+  await page.waitForSelector('[data-testid=settings-pending]:visible');
+  await page.waitForSelector('[data-testid=settings-machine] .pending');
+  // The cell started again (the websocket tells the page): in force, no longer waiting.
+  await cmd('stop');
+  await cmd('start');
+  await page.waitForSelector('[data-testid=settings-pending]', { state: 'hidden' });
+  await page.waitForSelector('[data-testid=settings-machine] .pending', { state: 'detached' });
+  assert.equal((await fetchJson(page, '/api/settings/machine')).in_force.speed_override, 70);
+  await cmd('stop');
+});
+
 test('a list field: a row added; a wrong entry is shown at the list, then the plan saved', async () => {
   await page.click('[data-testid=settings-statistics]');
   const field = page.locator('[data-testid="field-shifts"]');

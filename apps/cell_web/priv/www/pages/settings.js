@@ -237,6 +237,24 @@
     loadRevisions();
   }
 
+  // A Start takes the saved changes into force: the marks of changes waiting are
+  // brought again (the form keeps what is being typed).
+  let request = null;
+  let visible = false;
+  async function started(msg) {
+    const was = request;
+    request = msg.cell && msg.cell.request;
+    if (!visible || was === request || !object) return;
+    loadList();
+    const name = object.name;
+    const obj = await attempt(panel, () => panel.api('GET', `/api/settings/${encodeURIComponent(name)}`));
+    if (!obj || !object || object.name !== name) return;
+    object.pending = obj.pending;
+    object.in_force = obj.in_force;
+    const note = root.querySelector('[data-testid=settings-pending]');
+    if (note) note.classList.toggle('hidden', !obj.pending);
+  }
+
   window.cellPanel.register({
     id: 'settings', title: 'Settings', minRole: 'service',
     mount(section, p) {
@@ -257,7 +275,10 @@
             el('label', {}, 'to ', el('select', { class: 'diff-to', testid: 'diff-to' })),
             el('button', { type: 'submit', class: 'small', testid: 'settings-diff-show', text: 'Differences' })),
           el('div', { class: 'diff' })));
+      p.on('cell', started);
+      p.on('snapshot', started);
     },
-    show() { chosen = null; loadList(); },
+    show() { visible = true; chosen = null; loadList(); },
+    hide() { visible = false; },
   });
 })();
