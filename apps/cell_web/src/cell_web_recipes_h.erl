@@ -9,6 +9,14 @@
 %%     is written; `?replace=true' to overwrite. 201 new, 200 replaced.</li>
 %% <li>`DELETE /api/recipes/:name'; `POST /api/recipes/:name/rename' and `/copy' with
 %%     `{"to": "new name"}' (an existing recipe is never overwritten).</li>
+%% <li>`GET /api/recipes/:name/drawing' — the recipe's drawing tree in drawing
+%%     coordinates (every `Transform' applied, as {@link
+%%     cell_recipe_drawing:apply_transform/2} does), in the JSON form of the recipe's
+%%     `drawing.json', for the panel's preview.</li>
+%% <li>`PUT /api/recipes/:name/dxf' — a DXF file (ASCII) made the recipe's drawing: a
+%%     new recipe with it, or, with `?replace=true', the drawing of an existing one
+%%     replaced and its settings kept. Answers the recipe and what was imported and
+%%     left out.</li>
 %% </ul>
 %%
 %% Reading needs `view'; changes need `service'. The recipe buffer is emptied at the
@@ -51,6 +59,41 @@ handle(file, Req, Caller) ->
     {done, cowboy_req:reply(200, #{<<"content-type">> => <<"application/zip">>,
                                    <<"content-disposition">> => disposition(Name),
                                    <<"cache-control">> => <<"no-store">>}, Bin, Req)};
+handle(drawing, Req, Caller) ->
+    _ = method(Req, [<<"GET">>]),
+    _ = cell_web_req:require(Caller, view),
+    #{drawing := Drawing} = ok(cell_recipe:load(name(Req))),
+    Flat = cell_recipe_drawing:apply_transform(cell_recipe_drawing:identity(), Drawing),
+    {json, 200, jsx:decode(iolist_to_binary(cell_recipe_drawing:to_json(Flat)),
+                           [return_maps])};
+handle(dxf, Req, Caller) ->
+    _ = method(Req, [<<"PUT">>]),
+    Who = cell_web_req:who_name(cell_web_req:require(Caller, service)),
+    Name = name(Req),
+    Replace = replace(Req),
+    Existed = lists:member(Name, cell_recipe:list()),
+    Existed andalso not Replace
+        andalso cell_web_req:fail(409, exists, cell_web_words:recipe_error({exists, Name})),
+    Max = application:get_env(cell_web, upload_body_max, 64 * 1024 * 1024),
+    {Bin, _} = cell_web_req:read_body(Req, Max, [<<"application/dxf">>, <<"image/vnd.dxf">>,
+                                                 <<"application/octet-stream">>,
+                                                 <<"text/plain">>]),
+    Bin =:= <<>> andalso cell_web_req:fail(400, bad_request, "the body must be a DXF file"),
+    {Drawing, #{imported := N, skipped := Skipped}} =
+        case cell_recipe_dxf:import(Bin) of
+            {ok, D, Report} -> {D, Report};
+            {error, Why} -> cell_web_req:fail(422, invalid_dxf, cell_recipe_dxf:format_error(Why))
+        end,
+    Recipe = case Existed of
+                 true -> maps:with([description, settings, files], ok(cell_recipe:load(Name)));
+                 false -> #{description => <<"imported from DXF">>}
+             end,
+    ok = ok(cell_recipe:save(Name, Recipe#{drawing => cell_recipe_drawing:new([Drawing])}, Who)),
+    Status = case Existed of true -> 200; false -> 201 end,
+    {json, Status, #{<<"recipe">> => ok(cell_recipe:info(Name)),
+                     <<"imported">> => N, <<"skipped">> => Skipped},
+     iolist_to_binary(["recipe ", Name, " drawing imported from DXF (", integer_to_binary(N),
+                       " items)"])};
 handle(Op, Req, Caller) when Op =:= rename; Op =:= copy ->
     _ = method(Req, [<<"POST">>]),
     _ = cell_web_req:require(Caller, service),
@@ -69,11 +112,7 @@ handle(Op, Req, Caller) when Op =:= rename; Op =:= copy ->
 
 upload(Name, Req) ->
     Max = application:get_env(cell_web, upload_body_max, 64 * 1024 * 1024),
-    Replace = case maps:get(<<"replace">>, cell_web_req:qs(Req), <<"false">>) of
-                  <<"true">> -> true;
-                  <<"false">> -> false;
-                  _ -> cell_web_req:fail(400, bad_query, "replace must be true or false")
-              end,
+    Replace = replace(Req),
     Existed = lists:member(Name, cell_recipe:list()),
     {Bin, _} = cell_web_req:read_body(Req, Max, [<<"application/zip">>,
                                                  <<"application/octet-stream">>]),
@@ -83,6 +122,13 @@ upload(Name, Req) ->
     {json, Status, ok(cell_recipe:info(Name)),
      iolist_to_binary(["recipe ", Name, " uploaded (", integer_to_binary(byte_size(Bin)),
                        " bytes)"])}.
+
+replace(Req) ->
+    case maps:get(<<"replace">>, cell_web_req:qs(Req), <<"false">>) of
+        <<"true">> -> true;
+        <<"false">> -> false;
+        _ -> cell_web_req:fail(400, bad_query, "replace must be true or false")
+    end.
 
 method(Req, Allowed) ->
     M = cowboy_req:method(Req),

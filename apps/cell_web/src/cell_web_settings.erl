@@ -1,7 +1,7 @@
 %% @doc The panel's own settings object `web' (`Settings/web.json'), and how this app
 %% reads its settings objects.
 %%
-%% The objects of this app (`web', `web_users') are registered with `cell_settings'
+%% The objects of this app (`web', `web_users', `oee') are registered with `cell_settings'
 %% when the app starts. `cell_settings' runs inside the cell's supervisor and forgets
 %% them if it restarts; {@link current/1} registers them again on the first read that
 %% finds them gone, so a restarted cell never leaves the panel without its users.
@@ -28,7 +28,7 @@ fields() ->
 
 %% @doc The schema modules of this app.
 -spec schemas() -> [module()].
-schemas() -> [?MODULE, cell_web_users].
+schemas() -> [?MODULE, cell_web_users, cell_web_oee_settings].
 
 %% @doc Registers this app's settings objects.
 -spec register() -> ok | {error, term()}.

@@ -166,7 +166,11 @@ value(_, V) -> V.
 fields(Mod) ->
     [maps:merge(#{<<"name">> => atom_to_binary(N, utf8),
                   <<"doc">> => maps:get(doc, F, <<>>),
-                  <<"unit">> => maps:get(unit, F, <<>>)},
+                  <<"unit">> => maps:get(unit, F, <<>>),
+                  <<"default">> => case F of
+                                       #{default := D} -> value(T, D);
+                                       _ -> null
+                                   end},
                 type(T))
      || #{name := N, type := T} = F <- Mod:fields()].
 

@@ -16,8 +16,8 @@ all() ->
      log_is_queried,
      %% After log_is_queried: its errors are in the log that case reads.
      answer_refused_for_a_product_held_twice,
-     settings_are_edited, recipes_up_and_down, users_are_managed, password_is_changed,
-     statistics_and_history, audit_trail_is_kept, audit_flood_is_bounded,
+     settings_are_edited, recipes_up_and_down, recipe_drawing_and_dxf, users_are_managed,
+     password_is_changed, statistics_and_history, statistics_charts, audit_trail_is_kept, audit_flood_is_bounded,
      audit_files_rotate_and_expire, websocket_snapshot_and_live,
      websocket_refusals, websocket_resyncs_when_behind, websocket_closes_when_session_ends,
      anonymous_view_can_be_switched_off, login_attempts_are_braked, login_brake_is_per_account,
@@ -153,6 +153,8 @@ roles_are_enforced(Config) ->
               {put, "/api/recipes/r1", {"application/zip", <<"PK">>}, service},
               {delete, "/api/recipes/r1", none, service},
               {post, "/api/recipes/r1/rename", #{to => <<"r2">>}, service},
+              {put, "/api/recipes/r1/dxf", {"application/dxf", <<"0\nEOF\n">>}, service},
+              {put, "/api/settings/oee", #{ideal_cycle_s => 5}, service},
               {get, "/api/users", none, admin},
               {put, "/api/users/x", #{role => <<"operator">>}, admin},
               {delete, "/api/users/operator", none, admin},
@@ -177,8 +179,8 @@ roles_are_enforced(Config) ->
     %% Reading is open to anyone while anonymous viewing is on.
     [?assertEqual({P, 200}, {P, status(anon(Config), get, P)})
      || P <- ["/api/cell", "/api/tasks", "/api/alarms", "/api/alarms/history", "/api/log",
-              "/api/products", "/api/statistics", "/api/settings", "/api/settings/machine",
-              "/api/recipes"]].
+              "/api/products", "/api/statistics", "/api/statistics/charts", "/api/settings",
+              "/api/settings/machine", "/api/recipes"]].
 
 csrf_and_origin_are_checked(Config) ->
     Op = as(operator, Config),
@@ -482,12 +484,16 @@ log_is_queried(Config) ->
 settings_are_edited(Config) ->
     Sv = as(service, Config),
     {200, Names, _} = req(Sv, get, "/api/settings"),
-    ?assertEqual([<<"machine">>, <<"statistics">>, <<"web">>],
+    ?assertEqual([<<"machine">>, <<"oee">>, <<"statistics">>, <<"web">>],
                  lists:sort([N || #{<<"name">> := N} <- Names])),
     {200, #{<<"values">> := #{<<"speed_override">> := Old}, <<"fields">> := Fields}, _} =
         req(Sv, get, "/api/settings/machine"),
-    [#{<<"type">> := <<"integer">>, <<"min">> := 1, <<"max">> := 100, <<"unit">> := <<"%">>}] =
+    [#{<<"type">> := <<"integer">>, <<"min">> := 1, <<"max">> := 100, <<"unit">> := <<"%">>,
+       <<"default">> := 50}] =
         [F || #{<<"name">> := <<"speed_override">>} = F <- Fields],
+    %% A refused value names its field, for the form to show it there.
+    {422, #{<<"error">> := <<"invalid">>, <<"field">> := <<"speed_override">>}, _} =
+        req(Sv, put, "/api/settings/machine", #{speed_override => 101}),
     ok = cell_controller:start(), ok = cell_controller:sync(),
     New = Old rem 100 + 1,
     {200, #{<<"values">> := #{<<"speed_override">> := New}, <<"pending">> := true,
@@ -541,6 +547,45 @@ recipes_up_and_down(Config) ->
     assert_error(404, <<"not_found">>, req(Sv, delete, "/api/recipes/Board%20C")),
     assert_error(404, <<"not_found">>, req(Sv, get, "/api/recipes/Nothing")),
     {200, _, _} = req(Sv, delete, "/api/recipes/Board%20A").
+
+recipe_drawing_and_dxf(Config) ->
+    Sv = as(service, Config),
+    %% A drawing whose cut sits in a moved container: the tree comes in drawing
+    %% coordinates, the move applied.
+    D = cell_recipe_drawing,
+    Cut = D:container(#{<<"ItemType">> => <<"Cut">>, <<"ExecOrder">> => <<"1">>,
+                        <<"Transform">> => D:matrix_to_text(D:translation(100, 0, 0))},
+                      [D:line({0, 0}, {0, 10})]),
+    ok = cell_recipe:save(<<"Drawn">>, #{drawing => D:new([Cut])}, <<"t">>),
+    {200, #{<<"kind">> := <<"container">>,
+            <<"children">> := [#{<<"attributes">> := Attrs,
+                                 <<"children">> := [#{<<"kind">> := <<"line">>,
+                                                      <<"from">> := [100.0, 0.0, 0.0],
+                                                      <<"to">> := [100.0, 10.0, 0.0]}]}]}, _} =
+        req(Sv, get, "/api/recipes/Drawn/drawing"),
+    ?assertEqual(#{<<"ItemType">> => <<"Cut">>, <<"ExecOrder">> => <<"1">>}, Attrs),
+    assert_error(404, <<"not_found">>, req(Sv, get, "/api/recipes/Nothing/drawing")),
+    %% A DXF made a recipe; what it cannot hold is counted.
+    Dxf = <<"0\nSECTION\n2\nENTITIES\n0\nLINE\n8\nA\n10\n0\n20\n0\n30\n0\n11\n5\n21\n0\n31\n0\n"
+            "0\nTEXT\n8\nA\n10\n0\n20\n0\n30\n0\n40\n1\n1\nx\n0\nENDSEC\n0\nEOF\n">>,
+    {201, #{<<"imported">> := 1, <<"skipped">> := #{<<"TEXT">> := 1},
+            <<"recipe">> := #{<<"name">> := <<"From CAD">>, <<"author">> := <<"service">>}}, _} =
+        req(Sv, put, "/api/recipes/From%20CAD/dxf", {"application/dxf", Dxf}),
+    {ok, #{drawing := Drawn}} = cell_recipe:load(<<"From CAD">>),
+    ?assertEqual(1, D:count(Drawn)),
+    %% Not over an existing recipe unless asked; then its settings are kept.
+    assert_error(409, <<"exists">>, req(Sv, put, "/api/recipes/Drawn/dxf", {"application/dxf", Dxf})),
+    {ok, #{settings := Settings}} = cell_recipe:load(<<"Drawn">>),
+    {200, #{<<"imported">> := 1}, _} =
+        req(Sv, put, "/api/recipes/Drawn/dxf?replace=true", {"text/plain", Dxf}),
+    ?assertMatch({ok, #{settings := Settings}}, cell_recipe:load(<<"Drawn">>)),
+    %% A file that is no DXF: refused with its line, nothing written.
+    assert_error(422, <<"invalid_dxf">>,
+                 req(Sv, put, "/api/recipes/Bad/dxf", {"application/dxf", <<"0\nSECTION\n2\nENTITIES\n">>})),
+    assert_error(415, <<"unsupported_media_type">>,
+                 req(Sv, put, "/api/recipes/Bad/dxf", {"application/json", Dxf})),
+    ?assertEqual([<<"Drawn">>, <<"From CAD">>], cell_recipe:list()),
+    [ok = cell_recipe:delete(N) || N <- cell_recipe:list()].
 
 users_are_managed(Config) ->
     Ad = as(admin, Config),
@@ -603,6 +648,70 @@ statistics_and_history(Config) ->
     {200, #{<<"production">> := #{<<"cell">> := #{<<"in">> := _}}}, _} =
         req(A, get, "/api/statistics"),
     assert_error(404, <<"not_found">>, req(A, get, "/api/statistics?period=1999-01-01/1")).
+
+statistics_charts(Config) ->
+    A = anon(Config),
+    Op = started(Config),
+    %% Two products through the cell.
+    [begin cmd(Config, router, {product, S}), cmd(Config, router, {product, undefined}) end
+     || S <- [<<"C-1">>, <<"C-2">>]],
+    {200, _, _} = req(Op, post, "/api/cell/stop"),
+    ok = cell_controller:sync(),
+    ok = cell_stats:flush(),
+    {200, #{<<"production">> := Prod}, _} = req(A, get, "/api/statistics?period=shift"),
+    {200, #{<<"selection">> := #{<<"kind">> := <<"period">>, <<"label">> := Label},
+            <<"shifts">> := [Shift], <<"sum">> := Sum, <<"hourly">> := Hours,
+            <<"cycles">> := #{<<"n">> := N, <<"histogram">> := Bins},
+            <<"hourly_from">> := HourlyFrom, <<"ideal_cycle_ms">> := Ideal}, _} =
+        req(A, get, "/api/statistics/charts"),
+    %% A shift is shorter than 31 days: its products out are counted from its start.
+    ?assertMatch(#{<<"from">> := HourlyFrom}, Sum),
+    ?assertEqual(maps:get(<<"period">>, Prod), Label),
+    %% The shift is /api/statistics's with its OEE. The tasks are all OFF: that time,
+    %% and the span with it, grows with every write (once a second) and may have grown
+    %% between the two reads; the rest was written before them.
+    ?assertEqual(steady(Prod), steady(maps:remove(<<"oee">>, Shift))),
+    #{<<"cell">> := #{<<"out">> := Out, <<"good">> := Good}} = Prod,
+    ?assert(Out >= 2),
+    ?assertEqual(Out, lists:sum([O || #{<<"out">> := O} <- Hours])),
+    ?assertEqual(N, lists:sum([C || #{<<"count">> := C} <- Bins])),
+    ?assertEqual(Out - 1, N),
+    ?assertMatch(#{<<"quality">> := Q} when Q == Good / Out, maps:get(<<"oee">>, Shift)),
+    ?assertMatch(#{<<"cell">> := #{<<"out">> := Out}}, Sum),
+    %% The ideal cycle time is a setting.
+    Sv = as(service, Config),
+    {200, _, _} = req(Sv, put, "/api/settings/oee", #{ideal_cycle_s => 2.5}),
+    {200, #{<<"ideal_cycle_ms">> := 2500.0}, _} = req(A, get, "/api/statistics/charts"),
+    ?assert(Ideal =/= 2500.0),
+    %% A day and a range hold the shift.
+    {{Y, M, D}, _} = calendar:local_time(),
+    Day = io_lib:format("~4..0b-~2..0b-~2..0b", [Y, M, D]),
+    {200, #{<<"selection">> := #{<<"kind">> := <<"day">>}, <<"shifts">> := Days}, _} =
+        req(A, get, "/api/statistics/charts?day=" ++ Day),
+    ?assert(lists:any(fun(#{<<"period">> := P}) -> P =:= Label end, Days)),
+    Now = os:system_time(millisecond),
+    {200, #{<<"selection">> := #{<<"kind">> := <<"range">>}, <<"shifts">> := Ranged}, _} =
+        req(A, get, io_lib:format("/api/statistics/charts?from=~b&to=~b", [Now - 60000, Now])),
+    ?assert(lists:any(fun(#{<<"period">> := P}) -> P =:= Label end, Ranged)),
+    %% Bad choices are refused.
+    assert_error(400, <<"bad_query">>, req(A, get, "/api/statistics/charts?day=2024-02-30")),
+    assert_error(400, <<"bad_query">>, req(A, get, "/api/statistics/charts?day=yesterday")),
+    assert_error(400, <<"bad_query">>,
+                 req(A, get, io_lib:format("/api/statistics/charts?from=~b&to=~b", [Now, Now - 1]))),
+    assert_error(400, <<"bad_query">>,
+                 req(A, get, io_lib:format("/api/statistics/charts?from=~b&to=~b",
+                                           [Now - 32 * 86400000, Now]))),
+    assert_error(404, <<"not_found">>, req(A, get, "/api/statistics/charts?period=1999-01-01/1")),
+    {200, _, _} = req(Sv, put, "/api/settings/oee", #{ideal_cycle_s => 60}).
+
+%% A summary without what grows while nothing happens.
+steady(#{<<"cell">> := Cell, <<"tasks">> := Tasks} = S) ->
+    (maps:without([<<"to">>], S))#{
+      <<"cell">> := maps:remove(<<"throughput_per_hour">>, Cell),
+      <<"tasks">> := maps:map(fun(_, #{<<"time_ms">> := T} = Task) ->
+                                      (maps:without([<<"total_ms">>, <<"share">>], Task))#{
+                                        <<"time_ms">> := maps:remove(<<"off">>, T)}
+                              end, Tasks)}.
 
 audit_trail_is_kept(Config) ->
     Op = as(operator, Config),

@@ -3,7 +3,9 @@
 %% answered `OK ...' (or `ERR ...') on standard output once the cell has taken it.
 %%
 %% Commands: `error TASK retry,reset' · `warning TASK ID CAPTION...' · `event TASK FUN'
-%% · `product TASK SERIAL|none' · `log TASK TEXT...' · `sync' · `quit'.
+%% · `product TASK SERIAL|none' · `log TASK TEXT...' · `recipe NAME' (a recipe whose
+%% drawing has three cuts with their ExecOrder) · `flush' (the statistics written) ·
+%% `sync' · `quit'.
 -module(cell_web_demo).
 
 -export([main/0]).
@@ -54,6 +56,8 @@ loop(Tasks) ->
 
 run([<<"sync">>], _Tasks) ->
     ok;
+run([<<"flush">>], _Tasks) ->
+    cell_stats:flush();
 run([<<"error">>, Task, Sols], Tasks) ->
     Solutions = [S || B <- binary:split(Sols, <<",">>, [global]),
                       S <- cell_alarms:solutions(), atom_to_binary(S, utf8) =:= B],
@@ -70,6 +74,17 @@ run([<<"product">>, Task, <<"none">>], Tasks) ->
     send(Task, {product, undefined}, Tasks);
 run([<<"product">>, Task, Serial], Tasks) ->
     send(Task, {product, Serial}, Tasks);
+run([<<"recipe">>, Name], _Tasks) ->
+    D = cell_recipe_drawing,
+    Cut = fun(N, X) -> D:container(#{<<"ItemType">> => <<"Cut">>,
+                                     <<"ExecOrder">> => integer_to_binary(N)},
+                                   [D:line({X, 10}, {X, 90})])
+          end,
+    Panel = D:container(#{<<"ItemType">> => <<"PanelDrawing">>},
+                        [D:polyline([{0, 0}, {200, 0}, {200, 100}, {0, 100}], true),
+                         D:circle({15, 50}, 4, #{<<"ItemType">> => <<"Fiducial">>})]),
+    Drawing = D:new([Panel, Cut(2, 120), Cut(1, 50), Cut(3, 180)]),
+    cell_recipe:save(Name, #{description => <<"three cuts">>, drawing => Drawing}, <<"demo">>);
 run([<<"log">>, Task | Text], Tasks) ->
     send(Task, {log, iolist_to_binary(lists:join(" ", Text))}, Tasks);
 run(Other, _Tasks) ->

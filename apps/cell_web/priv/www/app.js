@@ -38,6 +38,7 @@ async function api(method, path, body) {
     const err = new Error(data.message || res.statusText);
     err.status = res.status;
     err.code = data.error;
+    err.field = data.field;   // the settings field a refused value is at
     throw err;
   }
   return data;
@@ -603,3 +604,100 @@ loadSession().then(() => {
   if (!model.session.user && !model.session.anonymous_view) openLogin();
   else connect();
 }, later);
+
+// ---------------------------------------------------------------------------------
+// cellPanel: page registry
+//
+// The pages in /pages/<id>.js register themselves here: each gets a tab and a section,
+// shown to the roles at or above its minRole, and the websocket's messages.
+
+(() => {
+  const pages = new Map();
+  const listeners = new Map();   // type -> Set of fn
+  let current = null;            // the id of the page shown, or null for a view of app.js
+
+  const session = () => ({
+    user: model.session.user, role: model.session.role || 'anonymous',
+    csrf: model.session.csrf, service: !!(model.cell && model.cell.service_mode),
+  });
+  const rank = (role) => RANK[role] ?? 0;
+
+  function leave() {
+    if (current === null) return;
+    const p = pages.get(current);
+    current = null;
+    p.section.classList.add('hidden');
+    p.tab.classList.remove('active');
+    if (p.page.hide) p.page.hide();
+  }
+
+  function select(id) {
+    if (current === id) return;
+    leave();
+    for (const v of document.querySelectorAll('main > .view')) v.classList.add('hidden');
+    for (const t of document.querySelectorAll('nav.tabs .tab')) t.classList.remove('active');
+    const p = pages.get(id);
+    current = id;
+    p.section.classList.remove('hidden');
+    p.tab.classList.add('active');
+    if (p.page.show) p.page.show();
+  }
+
+  function applyRoles() {
+    const r = rank(session().role);
+    for (const [id, p] of pages) {
+      const allowed = r >= rank(p.page.minRole || 'anonymous');
+      p.tab.classList.toggle('hidden', !allowed);
+      if (!allowed && current === id) { leave(); show('line'); }
+    }
+  }
+
+  // A view of app.js chosen: the page shown is left.
+  for (const t of document.querySelectorAll('nav.tabs .tab')) t.addEventListener('click', leave);
+
+  const baseRenderSession = renderSession;
+  renderSession = () => { baseRenderSession(); applyRoles(); };
+
+  const baseApply = apply;
+  apply = (msg) => {
+    baseApply(msg);
+    if (msg.type === 'snapshot' || msg.type === 'cell') applyRoles();
+    for (const fn of listeners.get(msg.type) || []) {
+      try { fn(msg); } catch (e) { console.error(e); }
+    }
+    for (const p of pages.values()) {
+      if (p.page.onEvent) {
+        try { p.page.onEvent(msg); } catch (e) { console.error(e); }
+      }
+    }
+  };
+
+  window.cellPanel = {
+    api,
+    register(page) {
+      const tab = document.createElement('button');
+      tab.className = 'tab';
+      tab.dataset.view = page.id;
+      tab.id = `tab-${page.id}`;
+      tab.dataset.testid = `tab-${page.id}`;
+      tab.textContent = page.title;
+      const section = document.createElement('section');
+      section.className = 'view hidden';
+      section.id = `view-${page.id}`;
+      document.querySelector('nav.tabs').append(tab);
+      document.querySelector('main').append(section);
+      pages.set(page.id, { page, tab, section });
+      tab.addEventListener('click', () => select(page.id));
+      page.mount(section, window.cellPanel);
+      applyRoles();
+    },
+    session,
+    on(type, fn) {
+      if (!listeners.has(type)) listeners.set(type, new Set());
+      listeners.get(type).add(fn);
+      return () => listeners.get(type).delete(fn);
+    },
+    toast,
+    rank,
+  };
+})();
