@@ -56,6 +56,22 @@
 %% is answered, at the latest when its timeout passes (`{error, timeout}'), unless the
 %% client exits (the caller's monitor, set up by `send_request', says so).
 %%
+%% == Modules ==
+%% This module is the connection: the socket, the requests in flight and their
+%% deadlines, the states above. What it decides with is pure and kept apart:
+%% <ul>
+%% <li>{@link cell_hal_ads_opts} and {@link cell_hal_ads_args}: options and call
+%%     arguments, checked (arguments in the caller);</li>
+%% <li>{@link cell_hal_ads_resolve}, {@link cell_hal_ads_vars} and
+%%     {@link cell_hal_ads_symbols}: resolving variables against the PLC's symbols and
+%%     the cache of their handles;</li>
+%% <li>{@link cell_hal_ads_batch}: reads and writes of many variables as sum
+%%     commands;</li>
+%% <li>{@link cell_hal_ads_subs}: subscriptions, their notifications and the samples
+%%     they bring;</li>
+%% <li>{@link cell_hal_ads_errors}: reasons in words.</li>
+%% </ul>
+%%
 %% == Messages ==
 %% <ul>
 %% <li>`{cell_hal_ads, Client, up}', `{cell_hal_ads, Client, {down, Reason}}' and
@@ -156,17 +172,6 @@
 %% Frames the socket delivers before it asks to be read on: the connection keeps up
 %% with its PLC without a setopts call on every frame.
 -define(ACTIVE, 64).
--define(DEFAULTS, #{port => ?ADS_TCP_PORT, target_port => 851, source_net_id => auto,
-                    source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
-                    backoff => {500, 30000}, sum_commands => true, max_sum => 500,
-                    max_in_flight => 64, access => handle, symbol_version => watch,
-                    handle_idle => 5000, link_check => 5000, max_frame => 16#1000000,
-                    reconnect => true, log_variables => true}).
-%% Room for a symbol entry asked for by name: header, name, type, comment and the
-%% extra information TwinCAT 3 appends.
--define(SYMBOL_INFO_LENGTH, 2048).
-
-
 -record(data, {opts :: map(),
                log :: binary(),
                target :: cell_hal_ads_codec:ams_addr(),
@@ -183,8 +188,7 @@
                job_seq = 0 :: non_neg_integer(),
                generation = 0 :: non_neg_integer(),
                vars = cell_hal_ads_vars:new() :: cell_hal_ads_vars:vars(),
-               subs = #{} :: #{reference() => map()},
-               notes = #{} :: #{u32() => reference() | symbol_version},
+               subs = cell_hal_ads_subs:new() :: cell_hal_ads_subs:subs(),
                monitors = #{} :: #{pid() => reference()},
                watchers = #{} :: #{pid() => true},
                version :: byte() | undefined,
@@ -253,66 +257,8 @@ stop(Client) ->
 
 %% @doc The options with their defaults, or the first bad one.
 -spec check_opts(term()) -> {ok, map()} | {error, {bad_option, atom()}}.
-check_opts(Opts) when is_map(Opts) ->
-    Full = maps:merge(?DEFAULTS, Opts),
-    Keys = [host, target_net_id | maps:keys(?DEFAULTS)] ++ [name],
-    case [K || K <- maps:keys(Opts), not lists:member(K, Keys)] ++
-             [K || K <- [host, target_net_id], not maps:is_key(K, Opts)] of
-        [Bad | _] -> {error, {bad_option, Bad}};
-        [] -> check_each(lists:sort(maps:to_list(Full)), #{})
-    end;
-check_opts(_) ->
-    {error, {bad_option, opts}}.
-
-check_each([], Acc) ->
-    {ok, Acc};
-check_each([{K, V} | Rest], Acc) ->
-    case check_opt(K, V) of
-        {ok, V1} -> check_each(Rest, Acc#{K => V1});
-        error -> {error, {bad_option, K}}
-    end.
-
-check_opt(host, H) when is_binary(H), byte_size(H) > 0 -> {ok, binary_to_list(H)};
-check_opt(host, H) when is_list(H), H =/= [] ->
-    case io_lib:printable_latin1_list(H) of
-        true -> {ok, H};
-        false -> error
-    end;
-check_opt(host, H) when is_tuple(H) ->
-    case inet:ntoa(H) of
-        {error, _} -> error;
-        _ -> {ok, H}
-    end;
-check_opt(K, P) when K =:= port; K =:= target_port; K =:= source_port ->
-    ok_if(is_integer(P) andalso P >= 1 andalso P =< 65535, P);
-check_opt(target_net_id, Id) -> net_id(Id);
-check_opt(source_net_id, auto) -> {ok, auto};
-check_opt(source_net_id, Id) -> net_id(Id);
-check_opt(name, N) when is_atom(N) -> {ok, atom_to_binary(N, utf8)};
-check_opt(name, N) when is_binary(N), byte_size(N) > 0 -> {ok, N};
-check_opt(K, T) when K =:= request_timeout; K =:= connect_timeout; K =:= max_sum;
-                     K =:= max_in_flight ->
-    ok_if(is_integer(T) andalso T >= 1, T);
-check_opt(backoff, {Min, Max} = B) ->
-    ok_if(is_integer(Min) andalso is_integer(Max) andalso Min >= 1 andalso Min =< Max, B);
-check_opt(K, B) when K =:= sum_commands; K =:= reconnect; K =:= log_variables ->
-    ok_if(is_boolean(B), B);
-check_opt(access, A) -> ok_if(A =:= handle orelse A =:= address, A);
-check_opt(symbol_version, S) -> ok_if(lists:member(S, [watch, read, ignore]), S);
-check_opt(handle_idle, T) -> ok_if(is_integer(T) andalso T >= 0, T);
-check_opt(link_check, infinity) -> {ok, infinity};
-check_opt(link_check, T) -> ok_if(is_integer(T) andalso T >= 1, T);
-check_opt(max_frame, N) -> ok_if(is_integer(N) andalso N >= 1024, N);
-check_opt(_, _) -> error.
-
-ok_if(true, V) -> {ok, V};
-ok_if(false, _) -> error.
-
-net_id(Id) ->
-    case cell_hal_ads_codec:parse_net_id(Id) of
-        {ok, NetId} -> {ok, NetId};
-        error -> error
-    end.
+check_opts(Opts) ->
+    cell_hal_ads_opts:check(Opts).
 
 %%====================================================================
 %% Status
@@ -462,7 +408,7 @@ resolve(Client, Vars) ->
 -spec resolve(client(), [var()], timeout()) ->
           {ok, [{ok, var_info()} | {error, reason()}]} | {error, reason()}.
 resolve(Client, Vars, Timeout) ->
-    case check_vars(Vars) of
+    case cell_hal_ads_args:vars(Vars) of
         ok -> call(Client, {resolve, Vars}, Timeout);
         Error -> Error
     end.
@@ -471,7 +417,7 @@ resolve(Client, Vars, Timeout) ->
 %% uses goes back to the PLC after `handle_idle' ms.
 -spec release(client(), [var()]) -> ok | {error, reason()}.
 release(Client, Vars) ->
-    case check_shapes(Vars) of
+    case cell_hal_ads_args:shapes(Vars) of
         ok -> gen_statem:call(Client, {release, Vars});
         Error -> Error
     end.
@@ -491,7 +437,7 @@ read_vars(Client, Vars, Timeout) ->
     %% cannot read so goes through the client's process, checked first.
     case cell_hal_ads_direct:read_vars(Client, Vars, Timeout) of
         {slow, Left} ->
-            case check_shapes(Vars) of
+            case cell_hal_ads_args:shapes(Vars) of
                 ok -> call(Client, {read_vars, Vars}, Left);
                 Error -> Error
             end;
@@ -511,18 +457,11 @@ write_vars(Client, Pairs) ->
 %% @doc As {@link write_vars/2}, waiting at most `Timeout' ms.
 -spec write_vars(client(), [{var(), cell_hal_ads_types:value()}], timeout()) ->
           {ok, [ok | {error, reason()}]} | {error, reason()}.
-write_vars(Client, Pairs, Timeout) when is_list(Pairs) ->
-    case lists:all(fun({_, _}) -> true; (_) -> false end, Pairs) of
-        true ->
-            case check_shapes([V || {V, _} <- Pairs]) of
-                ok -> call(Client, {write_vars, Pairs}, Timeout);
-                Error -> Error
-            end;
-        false ->
-            {error, {bad_argument, Pairs}}
-    end;
-write_vars(_, Pairs, _) ->
-    {error, {bad_argument, Pairs}}.
+write_vars(Client, Pairs, Timeout) ->
+    case cell_hal_ads_args:pairs(Pairs) of
+        ok -> call(Client, {write_vars, Pairs}, Timeout);
+        Error -> Error
+    end.
 
 %% @doc Reads one variable by name: resolved (the handle stays cached for a while),
 %% read, released.
@@ -587,23 +526,19 @@ subscribe(Client, Subs) ->
 %% @doc As {@link subscribe/2}, waiting at most `Timeout' ms.
 -spec subscribe(client(), [{var(), sub_opts()}], timeout()) ->
           {ok, [{ok, reference()} | {error, reason()}]} | {error, reason()}.
-subscribe(Client, Subs, Timeout) when is_list(Subs) ->
-    case check_subs(Subs) of
+subscribe(Client, Subs, Timeout) ->
+    case cell_hal_ads_args:subs(Subs) of
         {ok, Checked} -> call(Client, {subscribe, Checked}, Timeout);
         Error -> Error
-    end;
-subscribe(_, Subs, _) ->
-    {error, {bad_argument, Subs}}.
+    end.
 
 %% @doc Ends subscriptions of the caller.
 -spec unsubscribe(client(), [reference()]) -> ok | {error, reason()}.
-unsubscribe(Client, Refs) when is_list(Refs) ->
-    case lists:all(fun is_reference/1, Refs) of
-        true -> gen_statem:call(Client, {unsubscribe, Refs});
-        false -> {error, {bad_argument, Refs}}
-    end;
-unsubscribe(_, Refs) ->
-    {error, {bad_argument, Refs}}.
+unsubscribe(Client, Refs) ->
+    case cell_hal_ads_args:refs(Refs) of
+        ok -> gen_statem:call(Client, {unsubscribe, Refs});
+        Error -> Error
+    end.
 
 %% @doc The PLC's symbol table (top-level symbols, as uploaded), sorted by name.
 -spec symbols(client()) -> {ok, [cell_hal_ads_codec:symbol()]} | {error, reason()}.
@@ -627,34 +562,32 @@ send_request(Client, Request, Timeout, Label, ReqIds) ->
         {error, _} = E -> E
     end.
 
-async_message({resolve, Vars}, T) -> checked(check_vars(Vars), {resolve, Vars}, T);
-async_message({read_vars, Vars}, T) -> checked(check_shapes(Vars), {read_vars, Vars}, T);
-async_message({write_vars, Pairs}, T) when is_list(Pairs) ->
-    case lists:all(fun({_, _}) -> true; (_) -> false end, Pairs) of
-        true -> checked(check_shapes([V || {V, _} <- Pairs]), {write_vars, Pairs}, T);
-        false -> {error, {bad_argument, Pairs}}
-    end;
-async_message({subscribe, Subs}, T) when is_list(Subs) ->
-    case check_subs(Subs) of
+async_message({resolve, Vars}, T) -> checked(cell_hal_ads_args:vars(Vars), {resolve, Vars}, T);
+async_message({read_vars, Vars}, T) ->
+    checked(cell_hal_ads_args:shapes(Vars), {read_vars, Vars}, T);
+async_message({write_vars, Pairs}, T) ->
+    checked(cell_hal_ads_args:pairs(Pairs), {write_vars, Pairs}, T);
+async_message({subscribe, Subs}, T) ->
+    case cell_hal_ads_args:subs(Subs) of
         {ok, Checked} -> {ok, {req, {subscribe, Checked}, deadline(T)}};
         Error -> Error
     end;
 async_message({release, Vars}, _) ->
-    case check_shapes(Vars) of
+    case cell_hal_ads_args:shapes(Vars) of
         ok -> {ok, {release, Vars}};
         Error -> Error
     end;
-async_message({unsubscribe, Refs}, _) when is_list(Refs) ->
-    case lists:all(fun is_reference/1, Refs) of
-        true -> {ok, {unsubscribe, Refs}};
-        false -> {error, {bad_argument, Refs}}
+async_message({unsubscribe, Refs}, _) ->
+    case cell_hal_ads_args:refs(Refs) of
+        ok -> {ok, {unsubscribe, Refs}};
+        Error -> Error
     end;
 async_message(subscribe_status, _) ->
     {ok, subscribe_status};
 async_message(symbols, T) ->
     {ok, {req, symbols, deadline(T)}};
 async_message(Request, T) ->
-    case valid_request(Request) of
+    case cell_hal_ads_args:request(Request) of
         true -> {ok, {req, {request, Request}, deadline(T)}};
         false -> {error, {bad_argument, Request}}
     end.
@@ -677,65 +610,9 @@ check_response(Msg, ReqIds) ->
 
 %% A request is checked in the caller: a bad argument never reaches the client.
 request(Client, Request, Timeout) ->
-    case valid_request(Request) of
+    case cell_hal_ads_args:request(Request) of
         true -> call(Client, {request, Request}, Timeout);
         false -> {error, {bad_argument, Request}}
-    end.
-
-valid_request(read_device_info) -> true;
-valid_request(read_state) -> true;
-valid_request({read, G, O, L}) -> u32s([G, O, L]);
-valid_request({write, G, O, Data}) -> u32s([G, O]) andalso is_iodata(Data);
-valid_request({read_write, G, O, L, Data}) -> u32s([G, O, L]) andalso is_iodata(Data);
-valid_request({write_control, State, Dev, Data}) ->
-    cell_hal_ads_codec:is_ads_state(State) andalso is_integer(Dev) andalso Dev >= 0
-        andalso Dev =< 16#FFFF andalso is_iodata(Data);
-valid_request(_) -> false.
-
-%% Variables to resolve are checked in full; variables to read, write or release only
-%% for their shape (what was not resolved is answered `{not_resolved, Name}'), which
-%% keeps a group read cheap.
-check_vars(Vars) ->
-    check_vars(Vars, fun is_var/1).
-
-check_shapes(Vars) ->
-    check_vars(Vars, fun({Name, _}) -> is_binary(Name);
-                        (_) -> false
-                     end).
-
-check_vars(Vars, Valid) when is_list(Vars) ->
-    case [V || V <- Vars, not Valid(V)] of
-        [] -> ok;
-        [Bad | _] -> {error, {bad_variable, Bad}}
-    end;
-check_vars(Vars, _) ->
-    {error, {bad_argument, Vars}}.
-
-is_var({Name, Type}) ->
-    cell_hal_ads_symbols:check_name(Name) =:= ok andalso cell_hal_ads_types:is_type(Type);
-is_var(_) ->
-    false.
-
-check_subs(Subs) ->
-    Checked = [{V, sub_opts(O)} || {V, O} <- Subs, is_var(V), is_map(O)],
-    case length(Checked) =:= length(Subs) andalso [B || {_, {error, _} = B} <- Checked] of
-        false -> {error, {bad_argument, Subs}};
-        [] -> {ok, Checked};
-        [{error, Bad} | _] -> {error, Bad}
-    end.
-
--define(MAX_US, (16#FFFFFFFF div 10)).
-sub_opts(O) ->
-    Mode = maps:get(mode, O, on_change),
-    Cycle = maps:get(cycle_us, O, 10000),
-    Delay = maps:get(max_delay_us, O, 0),
-    Valid = (Mode =:= on_change orelse Mode =:= cyclic) andalso
-        is_integer(Cycle) andalso Cycle >= 0 andalso Cycle =< ?MAX_US andalso
-        is_integer(Delay) andalso Delay >= 0 andalso Delay =< ?MAX_US andalso
-        maps:size(maps:without([mode, cycle_us, max_delay_us], O)) =:= 0,
-    case Valid of
-        true -> #{mode => Mode, cycle => Cycle * 10, max_delay => Delay * 10};
-        false -> {error, {bad_sub_opts, O}}
     end.
 
 call(Client, Request, Timeout) ->
@@ -762,55 +639,7 @@ now_ms() ->
 %% @doc Any reason this client gives, in words for the people running the machine.
 -spec format_error(reason()) -> binary().
 format_error(Reason) ->
-    iolist_to_binary(text(Reason)).
-
-text(timeout) -> "the PLC did not answer in time";
-text(starting) -> "the connection is being set up";
-text(disconnected) -> "not connected to the PLC";
-text(no_answer) -> "the PLC stopped answering";
-text(closed) -> "the PLC closed the connection";
-text({connect, R}) -> ["cannot connect: ", inet_text(R)];
-text({socket, timeout}) -> "the PLC stopped taking what is sent to it";
-text({socket, R}) -> ["network error: ", inet_text(R)];
-text({ads_error, Code, _}) ->
-    io_lib:format("~ts (ADS error 0x~.16B)", [cell_hal_ads_codec:error_text(Code), Code]);
-text({unknown_symbol, Name}) -> ["the PLC has no symbol ", Name];
-text({ambiguous_symbol, Pattern, Names}) ->
-    ["the name ", Pattern, " matches several symbols: ", lists:join(", ", Names)];
-text({type_mismatch, Name, #{expected := E, plc_type := T, size := S}}) ->
-    io_lib:format("symbol ~ts is ~ts (~b bytes) in the PLC, but the configuration "
-                  "expects ~ts", [Name, T, S, E]);
-text({bad_name, Name}) -> io_lib:format("~tp is not a valid symbol name", [Name]);
-text({bad_variable, V}) -> io_lib:format("~tp is not a variable ({Name, Type})", [V]);
-text({bad_value, Type, V}) -> io_lib:format("~tp is not a valid ~tp value", [V, Type]);
-text({bad_size, Type, N}) -> io_lib:format("the PLC sent ~b bytes for a ~tp value", [N, Type]);
-text({not_resolved, Name}) -> ["variable ", Name, " is not resolved on this connection"];
-text({symbol_table, R}) -> ["the symbol table could not be read: ", text(R)];
-text({symbol_error, Name, R}) -> ["symbol ", Name, ": ", text(R)];
-text({bad_response, What}) -> ["the PLC sent a malformed answer (", words(What), ")"];
-text({bad_frame, What}) -> ["the PLC sent a malformed frame (", words(What), ")"];
-text({bad_notification, What}) -> ["the PLC sent a malformed notification (", words(What), ")"];
-text({bad_symbol, What}) -> ["the PLC sent a malformed symbol entry (", words(What), ")"];
-text({frame_too_long, N}) ->
-    io_lib:format("the PLC announced a frame of ~b bytes, more than allowed", [N]);
-text({unexpected_answer, Cmd, Expected}) ->
-    io_lib:format("the PLC answered a ~p request with a ~p answer", [Expected, Cmd]);
-text(symbols_changed) -> "the PLC program changed during the request; try again";
-text({bad_sub_opts, O}) -> io_lib:format("~tp are not valid notification options", [O]);
-text({bad_argument, A}) -> io_lib:format("bad argument ~tp", [A]);
-text({restore, R}) -> ["the connection could not be set up: ", text(R)];
-text(Other) -> io_lib:format("~tp", [Other]).
-
-%% What the codec found wrong: `shorter_than_ams_header' reads "shorter than ams
-%% header".
-words(What) when is_atom(What) -> string:replace(atom_to_list(What), "_", " ", all);
-words(What) -> io_lib:format("~tp", [What]).
-
-inet_text(R) ->
-    case inet:format_error(R) of
-        "unknown POSIX error" ++ _ -> io_lib:format("~tp", [R]);
-        Text -> Text
-    end.
+    cell_hal_ads_errors:format_error(Reason).
 
 %%====================================================================
 %% gen_statem
@@ -986,7 +815,7 @@ handle_event({call, {Pid, _} = From}, {release, Vars}, _, D) ->
     {D1, Actions} = unuse_keys(Keys, Pid, D),
     {keep_state, D1, [{reply, From, ok} | Actions]};
 handle_event({call, {Pid, _} = From}, {unsubscribe, Refs}, State, D) ->
-    {D1, Actions} = drop_subs([R || R <- Refs, is_owner(R, Pid, D)], State, D),
+    {D1, Actions} = drop_subs(cell_hal_ads_subs:owned(Refs, Pid, D#data.subs), State, D),
     {keep_state, D1, [{reply, From, ok} | Actions]};
 handle_event({call, From}, {req, _, _}, _, _) ->
     {keep_state_and_data, [{reply, From, {error, disconnected}}]};
@@ -995,7 +824,7 @@ handle_event({timeout, {release, K}}, release, State, D) ->
 handle_event(info, {'DOWN', _, process, Pid, _}, State, D) ->
     D1 = D#data{monitors = maps:remove(Pid, D#data.monitors),
                 watchers = maps:remove(Pid, D#data.watchers)},
-    Refs = [R || {R, #{pid := P}} <- maps:to_list(D1#data.subs), P =:= Pid],
+    Refs = cell_hal_ads_subs:of_pid(Pid, D1#data.subs),
     {D2, A1} = drop_subs(Refs, State, D1),
     {Vars, Unused} = cell_hal_ads_vars:drop_user(Pid, D2#data.vars),
     {keep_state, D2#data{vars = Vars}, A1 ++ idle_timers(Unused, D2)};
@@ -1036,7 +865,7 @@ handle_event(internal, {fail, _}, _, _) ->
 terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
     ok = retract_direct(D),
     %% Leave the PLC tidy: its notifications and handles are ours to give back.
-    Notes = [{delete_notification, N} || N <- maps:keys(D#data.notes)],
+    Notes = [{delete_notification, N} || N <- cell_hal_ads_subs:notes(D#data.subs)],
     Handles = [{write, ?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
                || K <- cell_hal_ads_vars:keys(D#data.vars),
                   {ok, {handle, H}, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
@@ -1083,7 +912,8 @@ connected(Socket, D) ->
             D1 = D#data{socket = Socket, source = {NetId, SPort}, buffer = <<>>,
                         counters = cell_hal_ads_direct:counters(),
                         last_rx = erlang:monotonic_time(), generation = D#data.generation + 1,
-                        vars = cell_hal_ads_vars:reset(D#data.vars), notes = #{},
+                        vars = cell_hal_ads_vars:reset(D#data.vars),
+                        subs = cell_hal_ads_subs:detach(D#data.subs),
                         checking_version = false, refresh_again = false},
             {D2, Actions} = restore(D1),
             {next_state, {connected, restoring}, D2, Actions};
@@ -1119,11 +949,10 @@ disconnect(Reason, D0) ->
     Replies = [{reply, From, {error, disconnected}}
                || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
     Cancels = [{{timeout, deadline}, cancel}],
-    Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D#data.subs),
     {next_state, disconnected,
      D#data{socket = undefined, counters = undefined, buffer = <<>>, inflight = #{},
-            waiting = queue:new(),
-            jobs = #{}, notes = #{}, subs = Subs, vars = cell_hal_ads_vars:reset(D#data.vars),
+            waiting = queue:new(), jobs = #{}, subs = cell_hal_ads_subs:detach(D#data.subs),
+            vars = cell_hal_ads_vars:reset(D#data.vars),
             down = Reason, timer_at = infinity},
      Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
 
@@ -1186,7 +1015,7 @@ retract_direct(#data{announced = true}) -> cell_hal_ads_direct:retract(self());
 retract_direct(_) -> ok.
 
 readable(Keyed, Vars) ->
-    [{N, T, K, item(Access, Size)} || {K, N, T} <- Keyed,
+    [{N, T, K, cell_hal_ads_batch:item(Access, Size)} || {K, N, T} <- Keyed,
                                       {ok, Access, Size, _} <- [cell_hal_ads_vars:ready(K, Vars)]].
 
 notify_watchers(Event, D) ->
@@ -1236,7 +1065,7 @@ watch_version(#data{opts = #{symbol_version := watch}} = D) ->
     job([{add_notification, ?IG_SYM_VERSION, 0, 1, on_change, 0, 0}], undefined,
         deadline(request_timeout(D)),
         fun([{ok, Note}], Dx) ->
-                restore_vars(Dx#data{notes = (Dx#data.notes)#{Note => symbol_version}});
+                restore_vars(Dx#data{subs = cell_hal_ads_subs:watch_version(Note, Dx#data.subs)});
            ([{error, timeout}], Dx) ->
                 fail({restore, timeout}, Dx);
            ([{error, R}], Dx) ->
@@ -1258,41 +1087,25 @@ restore_vars(D) ->
                              true ->
                                  fail({restore, timeout}, Dx);
                              false ->
-                                 {Dy, Gone} = apply_resolved(Results, Dx),
+                                 {Vars, Gone, Failed} =
+                                     cell_hal_ads_resolve:refreshed(Results, Dx#data.vars),
+                                 Dy = Dx#data{vars = Vars},
+                                 log_variables(error, Failed, Dy),
                                  {Dz, A1} = release_handles(Gone, Dy),
                                  {Dw, A2} = restore_subs(Dz),
                                  {Dw, A1 ++ A2}
                          end
                  end, D).
 
-%% Variables released while they were being resolved are left out (their new handles
-%% go back).
-apply_resolved(Results, D) ->
-    lists:foldl(
-      fun({K, Result}, {Dx, Gone}) ->
-              case {cell_hal_ads_vars:find(K, Dx#data.vars), Result} of
-                  {error, {ok, _, Access}} ->
-                      {Dx, [Access | Gone]};
-                  {error, {error, _}} ->
-                      {Dx, Gone};
-                  {{ok, _}, {ok, Symbol, Access}} ->
-                      {Dx#data{vars = cell_hal_ads_vars:resolved(K, Symbol, Access,
-                                                                 Dx#data.vars)}, Gone};
-                  {{ok, #{name := Name, type := Type}}, {error, Reason}} ->
-                      log_variable(error, Name, Type, Reason, Dx),
-                      {Dx#data{vars = cell_hal_ads_vars:failed(K, Reason, Dx#data.vars)}, Gone}
-              end
-      end, {D, []}, Results).
-
 restore_subs(D) ->
-    Subs = maps:to_list(D#data.subs),
+    Subs = cell_hal_ads_subs:to_list(D#data.subs),
     {Ready, Failed} = lists:partition(
                         fun({_, #{key := K}}) ->
                                 cell_hal_ads_vars:state(K, D#data.vars) =:= ready
                         end, Subs),
     _ = [Pid ! {cell_hal_ads, Ref, {error, failure(K, D)}}
          || {Ref, #{pid := Pid, key := K}} <- Failed],
-    Requests = [note_request(S, D) || {_, S} <- Ready],
+    Requests = [cell_hal_ads_subs:note_request(S, D#data.vars) || {_, S} <- Ready],
     job(Requests, undefined, deadline(request_timeout(D)),
         fun(Answers, Dx) ->
                 case lists:member({error, timeout}, Answers) of
@@ -1309,12 +1122,9 @@ restore_subs(D) ->
 
 %% A subscription ended while it was being added again: its new notification goes.
 add_note({{Ref, _}, {ok, Note}}, {D, Orphans}) ->
-    case maps:find(Ref, D#data.subs) of
-        {ok, Sub} ->
-            {D#data{subs = (D#data.subs)#{Ref := Sub#{note => Note}},
-                    notes = (D#data.notes)#{Note => Ref}}, Orphans};
-        error ->
-            {D, [{delete_notification, Note} | Orphans]}
+    case cell_hal_ads_subs:attach(Ref, Note, D#data.subs) of
+        {ok, Subs} -> {D#data{subs = Subs}, Orphans};
+        gone -> {D, [{delete_notification, Note} | Orphans]}
     end;
 add_note({{Ref, #{pid := Pid}}, {error, Reason}}, {D, Orphans}) ->
     Pid ! {cell_hal_ads, Ref, {error, Reason}},
@@ -1344,17 +1154,15 @@ refresh_version(V, D) ->
 refresh(D0) ->
     %% Withdrawn before the handles go back.
     D = close_direct(D0),
-    Releases = [{?IG_SYM_RELEASEHND, 0, <<H:32/little>>}
-                || K <- cell_hal_ads_vars:keys(D#data.vars),
-                   {ok, {handle, H}, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
-    Deletes = [{delete_notification, N} || {N, Ref} <- maps:to_list(D#data.notes),
-                                           is_reference(Ref)],
-    {Requests, _} = cell_hal_ads_batch:writes(Releases, batch_mode(D)),
-    {D1, A1} = job(Requests ++ Deletes, undefined, deadline(request_timeout(D)), fun ignore/2,
-                   D),
-    Notes = maps:filter(fun(_, V) -> V =:= symbol_version end, D1#data.notes),
-    Subs = maps:map(fun(_, S) -> maps:remove(note, S) end, D1#data.subs),
-    D2 = D1#data{vars = cell_hal_ads_vars:reset(D1#data.vars), notes = Notes, subs = Subs,
+    Releases = cell_hal_ads_resolve:release_requests(
+                 [A || K <- cell_hal_ads_vars:keys(D#data.vars),
+                       {ok, A, _, _} <- [cell_hal_ads_vars:ready(K, D#data.vars)]],
+                 batch_mode(D)),
+    {Notes, Subs} = cell_hal_ads_subs:refresh(D#data.subs),
+    Deletes = [{delete_notification, N} || N <- Notes],
+    {D1, A1} = job(Releases ++ Deletes, undefined, deadline(request_timeout(D)), fun ignore/2,
+                   D#data{subs = Subs}),
+    D2 = D1#data{vars = cell_hal_ads_vars:reset(D1#data.vars),
                  table = undefined, generation = D1#data.generation + 1},
     {D3, A2} = restore_vars(D2),
     {next_state, {connected, restoring}, D3, A1 ++ A2}.
@@ -1389,7 +1197,7 @@ serve({request, Request}, From, Deadline, D) ->
     job([Request], From, Deadline,
         fun([Answer], Dx) -> {Dx, [{reply, From, plain_reply(Request, Answer)}]} end, D);
 serve({batch, Kind, Items}, From, Deadline, D) ->
-    case valid_items(Kind, Items) of
+    case cell_hal_ads_args:items(Kind, Items) of
         true ->
             {Requests, Assemble} = batch(Kind, Items, batch_mode(D)),
             job(Requests, From, Deadline,
@@ -1400,7 +1208,7 @@ serve({batch, Kind, Items}, From, Deadline, D) ->
 serve(symbols, From, Deadline, D) ->
     with_table(true, From, Deadline,
                fun({ok, Table}, Dx) ->
-                       {Dx, [{reply, From, {ok, table_list(Table)}}]};
+                       {Dx, [{reply, From, {ok, cell_hal_ads_resolve:table_list(Table)}}]};
                   ({error, R}, Dx) ->
                        {Dx, [{reply, From, {error, R}}]}
                end, D);
@@ -1408,25 +1216,27 @@ serve({resolve, Vars}, {Pid, _} = From, Deadline, D) ->
     resolve_for(Vars, Pid, From, Deadline,
                 fun(Results, Dx) -> {Dx, [{reply, From, {ok, Results}}]} end, D);
 serve({read_vars, Vars}, From, Deadline, D) ->
-    Plan = [plan_read(V, D) || V <- Vars],
+    Plan = [cell_hal_ads_batch:plan_read(V, D#data.vars) || V <- Vars],
     Items = [I || {read, I, _} <- Plan],
     {Requests, Assemble} = cell_hal_ads_batch:reads(Items, batch_mode(D)),
     job(Requests, From, Deadline,
         fun(Answers, Dx) ->
                 Results = Assemble(Answers),
-                Values = merge(Plan, Results, fun decode_value/2),
+                Values = cell_hal_ads_batch:merge(Plan, Results,
+                                                  fun cell_hal_ads_batch:decode_value/2),
                 {Dy, Actions} = check_version(Results, Dx),
                 {Dy, [{reply, From, {ok, Values}} | Actions]}
         end, D);
 serve({write_vars, Pairs}, From, Deadline, D) ->
-    Plan = [plan_write(V, Value, D) || {V, Value} <- Pairs],
+    Plan = [cell_hal_ads_batch:plan_write(V, Value, D#data.vars) || {V, Value} <- Pairs],
     Items = [I || {write, I, _} <- Plan],
     {Requests, Assemble} = cell_hal_ads_batch:writes(Items, batch_mode(D)),
     job(Requests, From, Deadline,
         fun(Answers, Dx) ->
                 Results = Assemble(Answers),
                 {Dy, Actions} = check_version(Results, Dx),
-                {Dy, [{reply, From, {ok, merge(Plan, Results, fun(_, R) -> R end)}}
+                {Dy, [{reply, From, {ok, cell_hal_ads_batch:merge(Plan, Results,
+                                                                  fun(_, R) -> R end)}}
                       | Actions]}
         end, D);
 serve({subscribe, Subs}, {Pid, _} = From, Deadline, D) ->
@@ -1444,63 +1254,8 @@ plain_reply({read, _, _, _}, {ok, Bin}) -> {ok, Bin};
 plain_reply({read_write, _, _, _, _}, {ok, Bin}) -> {ok, Bin};
 plain_reply(_, {ok, ok}) -> ok.
 
-valid_items(reads, Items) ->
-    is_list(Items) andalso lists:all(fun({G, O, L}) -> u32s([G, O, L]); (_) -> false end, Items);
-valid_items(writes, Items) ->
-    is_list(Items) andalso
-        lists:all(fun({G, O, Data}) -> u32s([G, O]) andalso is_iodata(Data);
-                     (_) -> false
-                  end, Items);
-valid_items(read_writes, Items) ->
-    is_list(Items) andalso
-        lists:all(fun({G, O, L, Data}) -> u32s([G, O, L]) andalso is_iodata(Data);
-                     (_) -> false
-                  end, Items).
-
-u32s(Ns) -> lists:all(fun(N) -> is_integer(N) andalso N >= 0 andalso N =< 16#FFFFFFFF end, Ns).
-
-is_iodata(Data) ->
-    try iolist_size(Data) of
-        _ -> true
-    catch
-        error:badarg -> false
-    end.
-
 batch_mode(#data{opts = #{sum_commands := Sum, max_sum := Max}}) ->
     #{sum => Sum, max_sum => Max}.
-
-%% What one variable of a read needs: a read item, or an error given without asking.
-plan_read({Name, Type}, D) ->
-    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
-        {ok, Access, Size, _} -> {read, item(Access, Size), Type};
-        {error, not_resolved} -> {error, {not_resolved, Name}};
-        {error, _} = E -> E
-    end.
-
-plan_write({Name, Type}, Value, D) ->
-    case cell_hal_ads_vars:ready(cell_hal_ads_vars:key_of(Name, Type, D#data.vars), D#data.vars) of
-        {ok, Access, Size, _} ->
-            case cell_hal_ads_types:encode(Type, Value, Size) of
-                {ok, Bin} -> {write, item(Access, Bin), Type};
-                {error, _} = E -> E
-            end;
-        {error, not_resolved} -> {error, {not_resolved, Name}};
-        {error, _} = E -> E
-    end.
-
-item({handle, H}, X) -> {?IG_SYM_VALBYHND, H, X};
-item({address, G, O}, X) -> {G, O, X}.
-
-%% The planned items' results back in the caller's order, errors given at once kept.
-merge([], [], _) ->
-    [];
-merge([{error, _} = E | Plan], Results, F) ->
-    [E | merge(Plan, Results, F)];
-merge([{_, _, Type} | Plan], [R | Results], F) ->
-    [F(Type, R) | merge(Plan, Results, F)].
-
-decode_value(Type, {ok, Bin}) -> cell_hal_ads_types:decode(Type, Bin);
-decode_value(_, {error, _} = E) -> E.
 
 %%====================================================================
 %% Resolving variables
@@ -1524,18 +1279,20 @@ resolve_for(Vars, Pid, From, Deadline, Then, D) ->
 
 finish_resolve(Keyed, Found, Pid, Then, D) ->
     Names = maps:from_list([{K, {N, T}} || {K, N, T} <- Keyed]),
-    {D1, Extra} = lists:foldl(fun(F, Acc) -> register_found(F, Names, Acc) end, {D, []},
-                              Found),
+    {Vars, Extra, Failed} = cell_hal_ads_resolve:registered(Found, Names, D#data.vars),
+    D1 = D#data{vars = Vars},
+    log_variables(warning, Failed, D1),
     {Results, D2} = lists:mapfoldl(
                       fun({K, N, T}, Dx) ->
                               case cell_hal_ads_vars:find(K, Dx#data.vars) of
                                   {ok, #{state := ready, symbol := S}} ->
                                       %% this spelling is remembered for the reads to come
                                       Vs = cell_hal_ads_vars:declare(N, T, Dx#data.vars),
-                                      {{ok, info(S)},
+                                      {{ok, cell_hal_ads_resolve:info(S)},
                                        Dx#data{vars = cell_hal_ads_vars:use(K, Pid, Vs)}};
                                   _ ->
-                                      {{error, find_error(K, Found, Names)}, Dx}
+                                      {{error, cell_hal_ads_resolve:find_error(K, Found,
+                                                                               Names)}, Dx}
                               end
                       end, D1, Keyed),
     D3 = case [ok || {ok, _} <- Results] of
@@ -1547,48 +1304,22 @@ finish_resolve(Keyed, Found, Pid, Then, D) ->
     {D5, A2} = Then(Results, D4),
     {D5, A1 ++ A2}.
 
-%% A variable found: registered, unless another caller registered it meanwhile (then
-%% the second handle goes back).
-register_found({K, {ok, Symbol, Access}}, Names, {D, Extra}) ->
-    case cell_hal_ads_vars:state(K, D#data.vars) of
-        ready ->
-            {D, [Access | Extra]};
-        _ ->
-            {Name, Type} = maps:get(K, Names),
-            Vars = cell_hal_ads_vars:declare(Name, Type, D#data.vars),
-            {D#data{vars = cell_hal_ads_vars:resolved(K, Symbol, Access, Vars)}, Extra}
-    end;
-register_found({K, {error, Reason}}, Names, {D, Extra}) ->
-    {Name, Type} = maps:get(K, Names),
-    log_variable(warning, Name, Type, Reason, D),
-    {D, Extra}.
-
 %% A host that names the variable in its own words (the HAL names the point) turns
 %% these lines off.
-log_variable(Level, Name, Type, Reason, #data{opts = #{log_variables := true}} = D) ->
-    cell_log:log(Level, D#data.log, "variable ~ts (~ts) cannot be used: ~ts",
-                 [Name, cell_hal_ads_types:plc_name(Type), format_error(Reason)]);
-log_variable(_, _, _, _, _) ->
+log_variables(Level, Failed, #data{opts = #{log_variables := true}} = D) ->
+    lists:foreach(fun({Name, Type, Reason}) ->
+                          cell_log:log(Level, D#data.log, "variable ~ts (~ts) cannot be used: ~ts",
+                                       [Name, cell_hal_ads_types:plc_name(Type),
+                                        format_error(Reason)])
+                  end, Failed);
+log_variables(_, _, _) ->
     ok.
-
-find_error(K, Found, Names) ->
-    case lists:keyfind(K, 1, Found) of
-        {_, {error, Reason}} ->
-            Reason;
-        _ ->
-            {Name, _} = maps:get(K, Names),
-            {not_resolved, Name}
-    end.
-
-info(#{name := Name, type := Type, size := Size, group := G, offset := O}) ->
-    #{symbol => Name, plc_type => Type, size => Size, group => G, offset => O}.
 
 release_found(Found, D) ->
     release_handles([A || {_, {ok, _, A}} <- Found], D).
 
 release_handles(Accesses, D) ->
-    Items = [{?IG_SYM_RELEASEHND, 0, <<H:32/little>>} || {handle, H} <- Accesses],
-    {Requests, _} = cell_hal_ads_batch:writes(Items, batch_mode(D)),
+    Requests = cell_hal_ads_resolve:release_requests(Accesses, batch_mode(D)),
     job(Requests, undefined, deadline(request_timeout(D)), fun ignore/2, D).
 
 %% Resolves `[{Key, Name, Type}]': `Cont([{Key, {ok, Symbol, Access} | {error, Reason}}])'.
@@ -1601,25 +1332,15 @@ resolve_keys(Items, From, Deadline, Cont, D) ->
                                     Items),
     with_table(Wild =/= [], From, Deadline,
                fun(Table, D1) ->
-                       FoundWild = [{I, lookup_wild(N, Table)} || {_, N, _} = I <- Wild],
+                       FoundWild = [{I, cell_hal_ads_resolve:lookup_wild(N, Table)}
+                                    || {_, N, _} = I <- Wild],
                        symbol_infos(Plain, From, Deadline,
                                     fun(FoundPlain, D2) ->
-                                            Checked = [{I, check(I, R)}
+                                            Checked = [{I, cell_hal_ads_resolve:check(I, R)}
                                                        || {I, R} <- FoundWild ++ FoundPlain],
                                             acquire(Checked, From, Deadline, Cont, D2)
                                     end, D1)
                end, D).
-
-lookup_wild(Name, {ok, Table}) -> cell_hal_ads_symbols:lookup(Name, Table);
-lookup_wild(_, {error, Reason}) -> {error, {symbol_table, Reason}}.
-
-check({_, Name, Type}, {ok, Symbol}) ->
-    case cell_hal_ads_symbols:check_type(Name, Type, Symbol) of
-        ok -> {ok, Symbol};
-        Error -> Error
-    end;
-check(_, {error, _} = E) ->
-    E.
 
 %% The symbol table of the present program, uploaded once per symbol version.
 with_table(false, _From, _Deadline, Cont, D) ->
@@ -1628,14 +1349,13 @@ with_table(true, _From, _Deadline, Cont, #data{table = {V, Table}, version = V} 
   when V =/= undefined ->
     Cont({ok, Table}, D);
 with_table(true, From, Deadline, Cont, D) ->
-    job([{read, ?IG_SYM_UPLOADINFO, 0, 8}], From, Deadline,
+    job([cell_hal_ads_resolve:upload_info_request()], From, Deadline,
         fun([{ok, InfoBin}], D1) ->
-                case cell_hal_ads_codec:decode_upload_info(InfoBin) of
-                    {ok, #{size := Size}} ->
-                        job([{read, ?IG_SYM_UPLOAD, 0, Size}], From, Deadline,
+                case cell_hal_ads_resolve:upload_request(InfoBin) of
+                    {ok, Upload} ->
+                        job([Upload], From, Deadline,
                             fun([{ok, TableBin}], D2) ->
-                                    upload_done(cell_hal_ads_codec:decode_symbol_table(TableBin),
-                                                Cont, D2);
+                                    upload_done(cell_hal_ads_resolve:table(TableBin), Cont, D2);
                                ([{error, R}], D2) ->
                                     Cont({error, R}, D2)
                             end, D1);
@@ -1646,75 +1366,33 @@ with_table(true, From, Deadline, Cont, D) ->
                 Cont({error, R}, D1)
         end, D).
 
-upload_done({ok, Symbols}, Cont, D) ->
-    Table = cell_hal_ads_symbols:new(Symbols),
+upload_done({ok, Table}, Cont, D) ->
     cell_log:debug(D#data.log, "symbol table uploaded: ~b symbols",
                    [cell_hal_ads_symbols:count(Table)]),
     Cont({ok, Table}, D#data{table = {D#data.version, Table}});
 upload_done({error, R}, Cont, D) ->
     Cont({error, R}, D).
 
-table_list(Table) ->
-    lists:sort(fun(#{name := A}, #{name := B}) -> A =< B end,
-               cell_hal_ads_symbols:to_list(Table)).
-
 %% Symbol info by name (0xF009) for each plain name, in one round trip.
 symbol_infos([], _From, _Deadline, Cont, D) ->
     Cont([], D);
 symbol_infos(Items, From, Deadline, Cont, D) ->
-    Asks = [{?IG_SYM_INFOBYNAMEEX, 0, ?SYMBOL_INFO_LENGTH, <<Name/binary, 0>>}
-            || {_, Name, _} <- Items],
-    {Requests, Assemble} = cell_hal_ads_batch:read_writes(Asks, batch_mode(D)),
+    {Requests, Assemble} = cell_hal_ads_resolve:info_requests(Items, batch_mode(D)),
     job(Requests, From, Deadline,
-        fun(Answers, Dx) ->
-                Found = lists:zipwith(fun({_, Name, _} = I, R) -> {I, symbol_info(Name, R)} end,
-                                      Items, Assemble(Answers)),
-                Cont(Found, Dx)
-        end, D).
-
-symbol_info(Name, {ok, Bin}) ->
-    case cell_hal_ads_codec:decode_symbol(Bin) of
-        {ok, Symbol} -> {ok, Symbol};
-        {error, Reason} -> {error, {symbol_error, Name, Reason}}
-    end;
-symbol_info(Name, {error, Reason}) ->
-    {error, symbol_error(Name, Reason)}.
-
-symbol_error(Name, {ads_error, 16#710, _}) -> {unknown_symbol, Name};
-symbol_error(_, timeout) -> timeout;
-symbol_error(_, disconnected) -> disconnected;
-symbol_error(Name, Reason) -> {symbol_error, Name, Reason}.
+        fun(Answers, Dx) -> Cont(cell_hal_ads_resolve:infos(Items, Assemble(Answers)), Dx) end,
+        D).
 
 %% Handles (0xF003) for the checked symbols, in one round trip; with `access =>
 %% address' the symbol's own index group and offset.
 acquire(Checked, _From, _Deadline, Cont, #data{opts = #{access := address}} = D) ->
-    Cont([{K, case R of
-                  {ok, #{group := G, offset := O} = S} -> {ok, S, {address, G, O}};
-                  {error, _} = E -> E
-              end} || {{K, _, _}, R} <- Checked], D);
+    Cont(cell_hal_ads_resolve:by_address(Checked), D);
 acquire(Checked, From, Deadline, Cont, D) ->
     Ok = [{I, S} || {I, {ok, S}} <- Checked],
-    Asks = [{?IG_SYM_HNDBYNAME, 0, 4, <<(handle_name(N, S))/binary, 0>>}
-            || {{_, N, _}, S} <- Ok],
-    {Requests, Assemble} = cell_hal_ads_batch:read_writes(Asks, batch_mode(D)),
+    {Requests, Assemble} = cell_hal_ads_resolve:handle_requests(Ok, batch_mode(D)),
     job(Requests, From, Deadline,
         fun(Answers, Dx) ->
-                Handles = lists:zipwith(fun({{K, N, _}, S}, R) -> {K, handle(N, S, R)} end,
-                                        Ok, Assemble(Answers)),
-                Failed = [{K, E} || {{K, _, _}, {error, _} = E} <- Checked],
-                Cont(Handles ++ Failed, Dx)
+                Cont(cell_hal_ads_resolve:handles(Ok, Assemble(Answers), Checked), Dx)
         end, D).
-
-%% A "*" name is asked for by the full name it matched.
-handle_name(Name, #{name := Full}) ->
-    case cell_hal_ads_symbols:is_wildcard(Name) of
-        true -> Full;
-        false -> Name
-    end.
-
-handle(_, S, {ok, <<H:32/little>>}) -> {ok, S, {handle, H}};
-handle(N, _, {ok, _}) -> {error, {symbol_error, N, {bad_response, handle_size}}};
-handle(N, _, {error, Reason}) -> {error, symbol_error(N, Reason)}.
 
 %%====================================================================
 %% Releasing variables
@@ -1758,14 +1436,13 @@ add_subs(Subs, Resolved, Pid, From, Deadline, D) ->
     Ready = [{Var, Opts} || {{Var, Opts}, {ok, _}} <- Pairs],
     New = [{make_ref(), #{pid => Pid, var => Var, key => cell_hal_ads_vars:key(N, T),
                           opts => Opts}} || {{N, T} = Var, Opts} <- Ready],
-    Requests = [note_request(S, D) || {_, S} <- New],
+    Requests = [cell_hal_ads_subs:note_request(S, D#data.vars) || {_, S} <- New],
     job(Requests, From, Deadline,
         fun(Answers, Dx) ->
                 Added = lists:zip(New, Answers),
                 Dy = lists:foldl(fun({{Ref, Sub}, {ok, Note}}, Acc) ->
-                                         Added1 = (Acc#data.subs)#{Ref => Sub#{note => Note}},
-                                         Acc#data{subs = Added1,
-                                                  notes = (Acc#data.notes)#{Note => Ref}};
+                                         Acc#data{subs = cell_hal_ads_subs:add(
+                                                           Ref, Sub, Note, Acc#data.subs)};
                                     ({{_, #{key := K}}, {error, _}}, Acc) ->
                                          {V, _} = cell_hal_ads_vars:unuse(K, Pid, Acc#data.vars),
                                          Acc#data{vars = V}
@@ -1785,17 +1462,6 @@ sub_results([{_, {ok, _}} | Pairs], [{{Ref, _}, {ok, _}} | Added]) ->
 sub_results([{_, {ok, _}} | Pairs], [{_, {error, _} = E} | Added]) ->
     [E | sub_results(Pairs, Added)].
 
-note_request(#{key := K, opts := #{mode := Mode, cycle := Cycle, max_delay := Delay}}, D) ->
-    {ok, Access, Size, _} = cell_hal_ads_vars:ready(K, D#data.vars),
-    {G, O, _} = item(Access, Size),
-    {add_notification, G, O, Size, Mode, Delay, Cycle}.
-
-is_owner(Ref, Pid, D) ->
-    case maps:find(Ref, D#data.subs) of
-        {ok, #{pid := Pid}} -> true;
-        _ -> false
-    end.
-
 %% Ends subscriptions: the PLC's notifications are deleted, the variables released.
 drop_subs([], _State, D) ->
     {D, []};
@@ -1811,58 +1477,25 @@ drop_subs(Refs, State, D) ->
     {D2, A ++ idle_timers(Unused, D2)}.
 
 drop_sub(Ref, {D, Notes, Unused}) ->
-    {#{pid := Pid, key := K} = Sub, Subs} = maps:take(Ref, D#data.subs),
+    {#{pid := Pid, key := K}, Note, Subs} = cell_hal_ads_subs:take(Ref, D#data.subs),
     {Vars, Use} = cell_hal_ads_vars:unuse(K, Pid, D#data.vars),
-    D1 = D#data{subs = Subs, vars = Vars},
-    {D2, Notes1} = case Sub of
-                       #{note := N} -> {D1#data{notes = maps:remove(N, D1#data.notes)},
-                                        [N | Notes]};
-                       _ -> {D1, Notes}
-                   end,
-    {D2, Notes1, [K || Use =:= unused] ++ Unused}.
+    {D#data{subs = Subs, vars = Vars}, Note ++ Notes, [K || Use =:= unused] ++ Unused}.
 
 %% A device notification: samples to their subscribers, one message per subscription
 %% and frame; a symbol version sample may start a refresh.
 notification(Payload, D) ->
-    case cell_hal_ads_codec:decode_notification(Payload) of
-        {ok, Stamps} ->
-            {PerRef, Actions} =
-                lists:foldl(fun({Time, Samples}, Acc) ->
-                                    Ns = cell_hal_ads_codec:filetime_to_ns(Time),
-                                    lists:foldl(fun(S, Acc1) -> sample(Ns, S, Acc1, D) end,
-                                                Acc, Samples)
-                            end, {#{}, []}, Stamps),
-            maps:foreach(fun(Ref, Rev) ->
-                                 #{pid := Pid} = maps:get(Ref, D#data.subs),
-                                 Pid ! {cell_hal_ads, Ref, {samples, lists:reverse(Rev)}}
-                         end, PerRef),
-            {D, lists:reverse(Actions)};
+    case cell_hal_ads_subs:samples(Payload, D#data.subs) of
+        {ok, Deliveries, Versions, Dropped} ->
+            lists:foreach(fun({Name, Reason}) ->
+                                  cell_log:warning(D#data.log, "sample of ~ts dropped: ~ts",
+                                                   [Name, format_error(Reason)])
+                          end, Dropped),
+            _ = [Pid ! {cell_hal_ads, Ref, {samples, Samples}}
+                 || {Pid, Ref, Samples} <- Deliveries],
+            {D, [{next_event, internal, {version, V}} || V <- Versions]};
         {error, Reason} ->
             cell_log:warning(D#data.log, "notification dropped: ~ts", [format_error(Reason)]),
             {D, []}
-    end.
-
-sample(Ns, {Note, Bin}, {PerRef, Actions} = Acc, D) ->
-    case maps:find(Note, D#data.notes) of
-        {ok, symbol_version} ->
-            case Bin of
-                <<V, _/binary>> -> {PerRef, [{next_event, internal, {version, V}} | Actions]};
-                _ -> Acc
-            end;
-        {ok, Ref} ->
-            #{key := {_, Type}, var := {Name, _}} = maps:get(Ref, D#data.subs),
-            case cell_hal_ads_types:decode(Type, Bin) of
-                {ok, Value} ->
-                    {maps:update_with(Ref, fun(L) -> [{Ns, Value} | L] end, [{Ns, Value}],
-                                      PerRef), Actions};
-                {error, Reason} ->
-                    cell_log:warning(D#data.log, "sample of ~ts dropped: ~ts",
-                                     [Name, format_error(Reason)]),
-                    Acc
-            end;
-        error ->
-            %% A notification deleted a moment ago may still send once.
-            Acc
     end.
 
 %%====================================================================
@@ -2095,7 +1728,7 @@ status_map(State, D) ->
                        end,
              symbol_version => D#data.version,
              variables => length(Keys), failed => lists:sort(Failed),
-             subscriptions => map_size(D#data.subs),
+             subscriptions => cell_hal_ads_subs:count(D#data.subs),
              in_flight => case D#data.counters of
                               undefined -> 0;
                               Counters -> cell_hal_ads_direct:in_flight(Counters)
