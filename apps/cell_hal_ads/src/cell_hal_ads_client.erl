@@ -57,9 +57,11 @@
 %% client exits (the caller's monitor, set up by `send_request', says so).
 %%
 %% == Modules ==
-%% This module is the connection: the socket, the requests in flight and their
-%% deadlines, the states above. What it decides with is pure and kept apart:
+%% This module is the connection: the socket, the frames in and out, the states
+%% above. What it decides with is pure and kept apart:
 %% <ul>
+%% <li>{@link cell_hal_ads_jobs}: the requests queued and in flight, in groups answered
+%%     together, and their deadlines;</li>
 %% <li>{@link cell_hal_ads_opts} and {@link cell_hal_ads_args}: options and call
 %%     arguments, checked (arguments in the caller);</li>
 %% <li>{@link cell_hal_ads_resolve}, {@link cell_hal_ads_vars} and
@@ -179,13 +181,8 @@
                socket :: gen_tcp:socket() | undefined,
                connector :: pid() | undefined,
                buffer = <<>> :: binary(),
-               invoke = 0 :: u32(),
-               inflight = #{} :: #{u32() => {pos_integer(), pos_integer(),
-                                             cell_hal_ads_codec:command()}},
-               waiting = queue:new() :: queue:queue({pos_integer(), pos_integer(),
-                                                     cell_hal_ads_codec:request()}),
-               jobs = #{} :: #{pos_integer() => tuple()},
-               job_seq = 0 :: non_neg_integer(),
+               %% the requests queued and in flight, in jobs
+               jobs = cell_hal_ads_jobs:new() :: cell_hal_ads_jobs:jobs(),
                generation = 0 :: non_neg_integer(),
                vars = cell_hal_ads_vars:new() :: cell_hal_ads_vars:vars(),
                subs = cell_hal_ads_subs:new() :: cell_hal_ads_subs:subs(),
@@ -210,23 +207,8 @@
                %% the socket's requests in flight, direct reads included, and the
                %% direct reads' invoke ids
                counters :: cell_hal_ads_direct:counters() | undefined,
-               %% when the one deadline timer fires (no later than the earliest job's
-               %% deadline; a job that ends leaves it armed, so a round trip costs no
-               %% timer operation)
-               timer_at = infinity :: integer() | infinity,
+               %% packets received on the connection
                received = 0 :: non_neg_integer()}).
-
--type answer() :: cell_hal_ads_batch:answer().
--type action() :: gen_statem:action().
--type cont() :: fun(([answer()], #data{}) -> {#data{}, [action()]}).
-
--record(job, {from :: gen_statem:from() | undefined,
-              deadline :: integer() | infinity,   % monotonic ms
-              n :: pos_integer(),
-              left :: non_neg_integer(),
-              answers = #{} :: #{pos_integer() => answer()},
-              received :: non_neg_integer(),   % packets received when it started
-              cont :: cont()}).
 
 %%====================================================================
 %% Starting and stopping
@@ -759,7 +741,7 @@ handle_event(info, {tcp_error, Socket, Reason}, {connected, _}, #data{socket = S
 handle_event(internal, {fail, Reason}, {connected, _}, D) ->
     disconnect(Reason, D);
 handle_event({timeout, deadline}, _, {connected, _}, D) ->
-    act(expire(D#data{timer_at = infinity}));
+    act(expire(D#data{jobs = cell_hal_ads_jobs:fired(D#data.jobs)}));
 handle_event({timeout, link_check}, _, {connected, _}, D) ->
     #data{opts = #{link_check := Check}, last_rx = Last} = D,
     %% slots that callers gone left behind may be what queued requests wait for
@@ -768,7 +750,7 @@ handle_event({timeout, link_check}, _, {connected, _}, D) ->
                    _ -> pump(D)
                end,
     Quiet = erlang:convert_time_unit(erlang:monotonic_time() - Last, native, millisecond),
-    case Quiet >= Check andalso map_size(D1#data.inflight) =:= 0 of
+    case Quiet >= Check andalso cell_hal_ads_jobs:in_flight(D1#data.jobs) =:= 0 of
         true ->
             {D2, A2} = job([read_state], undefined, deadline(request_timeout(D1)),
                            fun ignore/2, D1),
@@ -852,7 +834,7 @@ handle_event(cast, {cell_hal_ads_direct, _, _, _}, _, _) ->
 handle_event(cast, {cell_hal_ads_direct, _, _}, _, _) ->
     keep_state_and_data;
 handle_event({timeout, deadline}, _, _, D) ->
-    {keep_state, D#data{timer_at = infinity}};
+    {keep_state, D#data{jobs = cell_hal_ads_jobs:fired(D#data.jobs)}};
 handle_event({timeout, link_check}, _, _, _) ->
     keep_state_and_data;
 handle_event(internal, {version, _}, _, _) ->
@@ -946,14 +928,14 @@ disconnect(Reason, D0) ->
     %% Closed first: a direct read that still finds the socket cannot send any more.
     D = close_direct(D0),
     ok = cell_hal_ads_direct:fail_all(D#data.direct, disconnected),
-    Replies = [{reply, From, {error, disconnected}}
-               || #job{from = From} <- maps:values(D#data.jobs), From =/= undefined],
+    {Waiting, Jobs} = cell_hal_ads_jobs:abandon(D#data.jobs),
+    Replies = [{reply, From, {error, disconnected}} || From <- Waiting],
     Cancels = [{{timeout, deadline}, cancel}],
     {next_state, disconnected,
-     D#data{socket = undefined, counters = undefined, buffer = <<>>, inflight = #{},
-            waiting = queue:new(), jobs = #{}, subs = cell_hal_ads_subs:detach(D#data.subs),
+     D#data{socket = undefined, counters = undefined, buffer = <<>>, jobs = Jobs,
+            subs = cell_hal_ads_subs:detach(D#data.subs),
             vars = cell_hal_ads_vars:reset(D#data.vars),
-            down = Reason, timer_at = infinity},
+            down = Reason},
      Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
 
 log_down(OldState, Delay, D) ->
@@ -1507,37 +1489,28 @@ notification(Payload, D) ->
 job([], _From, _Deadline, Cont, D) ->
     Cont([], D);
 job(Requests, From, Deadline, Cont, D) ->
-    Id = D#data.job_seq + 1,
-    N = length(Requests),
-    Job = #job{from = From, deadline = Deadline, n = N, left = N,
-               received = D#data.received, cont = Cont},
-    {D1, Actions} = pump(D#data{job_seq = Id, jobs = (D#data.jobs)#{Id => Job},
-                                waiting = enqueue(Requests, Id, 1, D#data.waiting)}),
+    Jobs = cell_hal_ads_jobs:add(Requests, From, Deadline, Cont, D#data.received, D#data.jobs),
+    {D1, Actions} = pump(D#data{jobs = Jobs}),
     arm(Deadline, D1, Actions).
 
-enqueue([], _, _, Q) -> Q;
-enqueue([R | Rs], Id, I, Q) -> enqueue(Rs, Id, I + 1, queue:in({Id, I, R}, Q)).
-
 %% The deadline timer fires no later than `Deadline'.
-arm(Deadline, #data{timer_at = At} = D, Actions) when At =< Deadline ->
-    {D, Actions};
 arm(Deadline, D, Actions) ->
-    {D#data{timer_at = Deadline}, [{{timeout, deadline}, Deadline, check, [{abs, true}]}
-                                   | Actions]}.
+    case cell_hal_ads_jobs:arm(Deadline, D#data.jobs) of
+        keep -> {D, Actions};
+        {set, Jobs} -> {D#data{jobs = Jobs},
+                        [{{timeout, deadline}, Deadline, check, [{abs, true}]} | Actions]}
+    end.
 
 %% The timer fired: jobs past their deadline end, and it is armed again for the
 %% earliest one left.
 expire(D) ->
-    Now = now_ms(),
-    Due = lists:sort([{Dl, Id} || {Id, #job{deadline = Dl}} <- maps:to_list(D#data.jobs),
-                                  Dl =/= infinity, Dl =< Now]),
-    {D1, Actions} = lists:foldl(fun({_, Id}, {Dx, Ax}) ->
+    {D1, Actions} = lists:foldl(fun(Id, {Dx, Ax}) ->
                                         {Dy, Ay} = job_timeout(Id, Dx),
                                         {Dy, Ax ++ Ay}
-                                end, {D, []}, Due),
-    case [Dl || #job{deadline = Dl} <- maps:values(D1#data.jobs), Dl =/= infinity] of
-        [] -> {D1, Actions};
-        Left -> arm(lists:min(Left), D1, Actions)
+                                end, {D, []}, cell_hal_ads_jobs:due(now_ms(), D#data.jobs)),
+    case cell_hal_ads_jobs:earliest(D1#data.jobs) of
+        infinity -> {D1, Actions};
+        Earliest -> arm(Earliest, D1, Actions)
     end.
 
 %% Sends queued requests while there is room (a slot of `max_in_flight', which direct
@@ -1545,16 +1518,14 @@ expire(D) ->
 pump(D) ->
     pump(D, []).
 
-pump(#data{opts = #{max_in_flight := Max}, inflight = In, waiting = W} = D, Frames) ->
-    case queue:peek(W) =/= empty andalso cell_hal_ads_direct:take_slot(D#data.counters, Max) of
+pump(#data{opts = #{max_in_flight := Max}, jobs = Jobs} = D, Frames) ->
+    case cell_hal_ads_jobs:waiting(Jobs) andalso
+        cell_hal_ads_direct:take_slot(D#data.counters, Max) of
         true ->
-            {{value, {Id, I, Request}}, W1} = queue:out(W),
-            Invoke = next_invoke(D#data.invoke, In),
+            {Invoke, Request, Jobs1} = cell_hal_ads_jobs:next(Jobs),
             Frame = cell_hal_ads_codec:encode_frame(D#data.target, D#data.source, Invoke,
                                                     Request),
-            Cmd = cell_hal_ads_codec:request_command(Request),
-            pump(D#data{invoke = Invoke, inflight = In#{Invoke => {Id, I, Cmd}}, waiting = W1},
-                 [Frame | Frames]);
+            pump(D#data{jobs = Jobs1}, [Frame | Frames]);
         false ->
             send(lists:reverse(Frames), D)
     end.
@@ -1567,50 +1538,25 @@ send(Frames, D) ->
         {error, Reason} -> {D, [{next_event, internal, {fail, {socket, Reason}}}]}
     end.
 
-%% Odd: even invoke ids are the direct reads' (cell_hal_ads_direct).
-next_invoke(Last, In) ->
-    Next = ((Last + 2) band 16#FFFFFFFF) bor 1,
-    case maps:is_key(Next, In) of
-        true -> next_invoke(Next, In);
-        false -> Next
-    end.
-
 %% One answer in; the job completes with its last answer.
 deliver(Id, I, Answer, D) ->
-    case maps:find(Id, D#data.jobs) of
-        {ok, #job{left = 1} = Job} ->
-            complete(Id, Job#job{answers = (Job#job.answers)#{I => Answer}, left = 0},
-                     D#data{jobs = maps:remove(Id, D#data.jobs)});
-        {ok, #job{left = Left, answers = As} = Job} ->
-            Job1 = Job#job{left = Left - 1, answers = As#{I => Answer}},
-            {D#data{jobs = (D#data.jobs)#{Id := Job1}}, []};
-        error ->
-            {D, []}
+    case cell_hal_ads_jobs:deliver(Id, I, Answer, D#data.jobs) of
+        {done, Cont, Answers, Jobs} -> Cont(Answers, D#data{jobs = Jobs});
+        {pending, Jobs} -> {D#data{jobs = Jobs}, []}
     end.
-
-complete(_Id, #job{n = N, answers = As, cont = Cont}, D) ->
-    Cont(answers(N, As, []), D).
-
-answers(0, _, Acc) -> Acc;
-answers(I, As, Acc) -> answers(I - 1, As, [maps:get(I, As, {error, timeout}) | Acc]).
 
 %% The deadline passed: what is missing is a timeout. If nothing at all came from the
 %% PLC since the job was sent, the connection is dead (a pulled cable is noticed here,
 %% long before TCP would).
 job_timeout(Id, D) ->
-    case maps:take(Id, D#data.jobs) of
-        {Job, Jobs} ->
-            Inflight = maps:filter(fun(_, {J, _, _}) -> J =/= Id end, D#data.inflight),
-            ok = cell_hal_ads_direct:free_slots(D#data.counters,
-                                                map_size(D#data.inflight) - map_size(Inflight)),
-            Waiting = queue:filter(fun({J, _, _}) -> J =/= Id end, D#data.waiting),
-            Dead = D#data.received =:= Job#job.received,
-            {D1, A1} = complete(Id, Job, D#data{jobs = Jobs, inflight = Inflight,
-                                                waiting = Waiting}),
+    case cell_hal_ads_jobs:time_out(Id, D#data.received, D#data.jobs) of
+        {Cont, Answers, Freed, Dead, Jobs} ->
+            ok = cell_hal_ads_direct:free_slots(D#data.counters, Freed),
+            {D1, A1} = Cont(Answers, D#data{jobs = Jobs}),
             {D2, A2} = pump(D1),
             Fail = [{next_event, internal, {fail, no_answer}} || Dead],
             {D2, A1 ++ A2 ++ Fail};
-        error ->
+        none ->
             {D, []}
     end.
 
@@ -1657,19 +1603,19 @@ frame(Body, D) ->
             cell_log:debug(D#data.log, "request from the PLC skipped", []),
             {D, []};
         {ok, #{invoke := Invoke, command := Cmd, error := Err}, Payload} ->
-            case maps:take(Invoke, D#data.inflight) of
-                {{Id, I, Cmd}, In} ->
+            case cell_hal_ads_jobs:answered(Invoke, Cmd, D#data.jobs) of
+                {ok, Id, I, Jobs} ->
                     ok = cell_hal_ads_direct:free_slots(D#data.counters, 1),
                     Answer = case Err of
                                  0 -> cell_hal_ads_codec:decode_response(Cmd, Payload);
                                  _ -> {error, cell_hal_ads_codec:ads_error(Err)}
                              end,
-                    {D1, A1} = deliver(Id, I, Answer, D#data{inflight = In}),
+                    {D1, A1} = deliver(Id, I, Answer, D#data{jobs = Jobs}),
                     {D2, A2} = pump(D1),
                     {D2, A1 ++ A2};
-                {{_, _, Expected}, _} ->
+                {unexpected, Expected} ->
                     {D, [{next_event, internal, {fail, {unexpected_answer, Cmd, Expected}}}]};
-                error ->
+                unknown ->
                     direct_answer(Invoke, Cmd, Err, Payload, D)
             end;
         {error, Reason} ->
