@@ -22,6 +22,11 @@ stdout, written as an Erlang term:
                                               -> ok      (a program change: the symbol
                                                           version moves on, handles of
                                                           changed symbols die)
+    restart        -> ok   (the PLC runtime restarted, its program loaded again:
+                            every handle and every notification on a symbol dies,
+                            values go back to their initial ones, the symbol
+                            version moves on; the connections and the notification
+                            on the symbol version stay, as the router serves them)
     limit N        -> ok   (sum commands of more sub-commands are refused)
     frames         -> {ok, [<<...>>, ...]}  (every frame received since `clear')
     stats          -> {ok, #{...}}
@@ -115,6 +120,7 @@ class Symbol:
         self.ads_type = ads_type
         self.size = size
         self.value = bytearray(value.ljust(max(size, 1), b"\0")[: max(size, 1)])
+        self.initial = bytes(self.value)
         self.group = group
         self.offset = offset
         self.nested = nested
@@ -144,7 +150,8 @@ class Note:
 
 
 class Plc:
-    def __init__(self, handle_base):
+    def __init__(self, handle_base, task_cycle=0.01):
+        self.task_cycle = task_cycle    # s, the PLC task that looks at notifications
         self.symbols = {}
         self.by_addr = {}
         self.handles = {}              # handle -> (symbol, connection that took it)
@@ -197,6 +204,15 @@ class Plc:
         for conn in self.conns:
             for nh in [nh for nh, n in conn.notes.items() if n.target is sym]:
                 conn.drop_note(nh)
+
+    def restart(self):
+        self.handles = {}
+        for conn in self.conns:
+            for nh in [nh for nh, n in conn.notes.items() if n.target is not VERSION]:
+                conn.drop_note(nh)
+        for sym in self.symbols.values():
+            sym.value[:] = sym.initial
+        self.program_changed()
 
     def program_changed(self):
         self.version = (self.version + 1) % 256
@@ -492,7 +508,7 @@ class Conn(asyncio.Protocol):
             return 0, nh, None
         # TwinCAT sends the present value of an on-change notification in the first
         # cycle after adding it (not before the answer: AdsLib must know the handle).
-        delay = max(cycle / 1e7, 0.01)
+        delay = max(cycle / 1e7, plc.task_cycle)
         return 0, nh, lambda: asyncio.get_running_loop().call_later(delay, self.send_first, nh)
 
     def drop_note(self, nh):
@@ -512,7 +528,7 @@ class Conn(asyncio.Protocol):
         return bytes(note.target.value[: note.length])
 
     async def cyclic(self, nh, note):
-        period = max(note.cycle / 1e7, 0.01)
+        period = max(note.cycle / 1e7, self.plc.task_cycle)
         while True:
             self.send_samples([(filetime_now(), [(nh, note, self.value_of(note))])])
             await asyncio.sleep(period)
@@ -602,6 +618,9 @@ def control(plc, line, loop, answer):
             plc.add(args[0], args[1], int(args[2]), int(args[3]), bytes.fromhex(args[4]))
             plc.program_changed()
             return "ok"
+        if cmd == "restart":
+            plc.restart()
+            return "ok"
         if cmd == "bump":
             plc.program_changed()
             return "ok"
@@ -688,8 +707,10 @@ def main():
     parser.add_argument("--handle-base", type=int, default=0x1000)
     # Accept connections but answer nothing until `unmute': a PLC still starting up.
     parser.add_argument("--muted", action="store_true")
+    # The cycle of the PLC task that serves notifications, in ms.
+    parser.add_argument("--task-ms", type=float, default=10)
     args = parser.parse_args()
-    plc = Plc(args.handle_base)
+    plc = Plc(args.handle_base, args.task_ms / 1000)
     plc.muted = args.muted
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
