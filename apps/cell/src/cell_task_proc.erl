@@ -59,10 +59,8 @@
 
 -export_type([estop_barrier/0]).
 
-%% The controller's emergency stop: an atomics array with a slot per task of the fan-out
-%% and a count after them, the task's slot, the number of tasks, and whom the last to
-%% secure its outputs tells.
--type estop_barrier() :: {atomics:atomics_ref(), pos_integer(), pos_integer(), pid()}.
+%% The controller's emergency stop (see cell_member).
+-type estop_barrier() :: cell_member:estop_barrier().
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
 -type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
@@ -133,8 +131,7 @@ child_spec(#{id := Id} = Spec) ->
 %% `settings' (the snapshot for the next start).
 -spec control(pid(), request | estop | estop_settled | service_mode | settings, term()) -> ok.
 control(Pid, Key, Value) ->
-    Pid ! {control, Key, Value},
-    ok.
+    cell_member:control(Pid, Key, Value).
 
 %% @doc The pid of a running task.
 -spec whereis(atom()) -> pid() | undefined.
@@ -208,7 +205,7 @@ handle_event(Type, Msg, _State, #data{held = Held} = D) when Held =/= undefined,
 handle_event(internal, boot, off, D) ->
     boot(D);
 handle_event(info, {control, request, start}, off, D) ->
-    start_from_off(D#data{request = start});
+    start_from_off(member(request, start, D));
 
 %% --------------------------------------------------------------------------------------
 %% setup: init runs within the event that entered the state
@@ -263,15 +260,15 @@ handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
     end;
 handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
   when Request =:= pause; Request =:= stop ->
-    hold_or_pause(S, D#data{request = Request});
+    hold_or_pause(S, member(request, Request, D));
 handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
-    hold_or_pause(S, (service_flag(true, D))#data{deferred = service});
+    hold_or_pause(S, (member(service_mode, true, D))#data{deferred = service});
 %% A Start, or service mode ending, cancels a pause a transfer was still holding back.
 handle_event(info, {control, request, start}, {ready, _, _}, D) ->
-    {keep_state, D#data{request = start, deferred = undefined}};
+    {keep_state, (member(request, start, D))#data{deferred = undefined}};
 handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred = Deferred} = D) ->
     D1 = case Deferred of service -> D#data{deferred = undefined}; _ -> D end,
-    {keep_state, service_flag(false, D1)};
+    {keep_state, member(service_mode, false, D1)};
 
 %% --------------------------------------------------------------------------------------
 %% down: paused, or an error waiting for the operator
@@ -279,9 +276,9 @@ handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred
 handle_event(internal, stop, down, D) ->
     stop_to_off(D);
 handle_event(info, {control, request, stop}, down, D) ->
-    stop_to_off(D#data{request = stop});
+    stop_to_off(member(request, stop, D));
 handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
-    resume(D#data{request = start});
+    resume(member(request, start, D));
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
              #data{down = {error, Id, Origin}, task = T} = D) ->
     %% A copy found older than another task's record (the registry's word may still be
@@ -303,19 +300,17 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
 %% --------------------------------------------------------------------------------------
 %% every state
 %% --------------------------------------------------------------------------------------
-handle_event(info, {control, estop, {true, Barrier}}, State, D) ->
-    estop(State, D#data{estop = true, request = stop}, Barrier);
+handle_event(info, {control, estop, {true, Barrier} = Estop}, State, D) ->
+    estop(State, member(estop, Estop, D), Barrier);
 handle_event(info, {control, estop_settled, _}, _State, _D) ->
     %% The end of a barrier this task did not hold at (it was OFF already).
     keep_state_and_data;
-handle_event(info, {control, estop, false}, _State, D) ->
-    {keep_state, D#data{estop = false}};
-handle_event(info, {control, service_mode, On}, _State, D) ->
-    {keep_state, service_flag(On, D)};
-handle_event(info, {control, request, Request}, _State, D) ->
-    {keep_state, D#data{request = Request}};
 handle_event(info, {control, settings, Settings}, _State, D) ->
-    {keep_state, D#data{settings = Settings}};
+    {keep_state, (member(settings, Settings, D))#data{settings = Settings}};
+handle_event(info, {control, Key, Value}, _State, D) ->
+    %% The request, the emergency stop's release, service mode: kept for the next
+    %% state that acts on them.
+    {keep_state, member(Key, Value, D)};
 handle_event(info, ?STEP(_), _State, _D) ->
     keep_state_and_data;
 handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
@@ -368,25 +363,15 @@ handle_event({call, From}, info, State, D) ->
 terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
     %% Whatever ended the task, its outputs are left safe.
     _ = uninit(D),
-    case Reason of
-        normal -> cell_registry:unregister_task(Id);
-        shutdown -> cell_registry:unregister_task(Id);
-        {shutdown, _} -> cell_registry:unregister_task(Id);
-        _ -> ok
-    end.
+    cell_member:leave(Id, Reason).
 
 %% --------------------------------------------------------------------------------------
 %% Boot, start and init
 %% --------------------------------------------------------------------------------------
 
-boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
-    Previous = cell_registry:register_task(Id, #{module => Mod, zone => Z, lane => L,
-                                                 state => off, serial => undefined,
-                                                 settings_key => settings_key(D0),
-                                                 work => maps:get(work, D0#data.spec, true)}),
-    D1 = D0#data{request = cell_registry:control(request),
-                 estop = cell_registry:control(estop)},
-    D2 = retained(service_flag(cell_registry:control(service_mode), D1)),
+boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
+    {Previous, Controls} = cell_member:join(Spec, #{}),
+    D2 = retained(joined(Controls, D0)),
     %% A product's own fields may name atoms only the task's module holds: loaded
     %% before its file is read, on a node just started too (cell_product names its
     %% own), whatever read the retained data first.
@@ -402,8 +387,7 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
         end,
     case Previous of
         {crashed, Why} ->
-            cell_log:error(Id, "task restarted after a crash: ~ts", [crash_text(Why)]),
-            ok = cell_task:publish(T, task_crashed, #{reason => crash_text(Why)}),
+            ok = cell_member:crashed(T, "task", "", Why),
             Ask = ask_after_crash(Id),
             _ = Ask orelse crash_warning(Why, D),
             %% The outputs of the crashed incarnation may still be set: read as it
@@ -449,7 +433,7 @@ crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
                     "against its sensors: where they agree it goes on by itself, where "
                     "they do not it asks you with an error of its own.~nNothing else is "
                     "needed. If this warning comes back, report it to maintenance with the "
-                    "log. Close it once read.", [crash_text(Why), serial_text(P)])).
+                    "log. Close it once read.", [cell_member:crash_text(Why), serial_text(P)])).
 
 start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) ->
     cell_log:warning(Id, "not started: the emergency stop is active", []),
@@ -1019,12 +1003,8 @@ secure(#data{down = Down} = D0) ->
 %% @doc Marks the caller's slot of the emergency stop's barrier: its outputs are
 %% secured. The last of the fan-out tells the controller.
 -spec estop_secured(estop_barrier()) -> ok.
-estop_secured({Ref, Slot, Total, Controller}) ->
-    ok = atomics:put(Ref, Slot, 1),
-    case atomics:add_get(Ref, Total + 1, 1) of
-        Total -> Controller ! {estop_secured, Ref}, ok;
-        _ -> ok
-    end.
+estop_secured(Barrier) ->
+    cell_member:estop_secured(Barrier).
 
 announce_off(D) ->
     goto(off, estop, disarm(D#data{held = undefined}), []).
@@ -1067,14 +1047,16 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
 goto(To, Cause, #data{task = T} = D, Actions) ->
     {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
 
-settings_key(#data{spec = Spec}) ->
-    case maps:get(settings, Spec, #{}) of
-        Name when is_atom(Name) -> Name;
-        _ -> undefined
-    end.
+%% The controller's commands as the task joined the cell.
+joined(#{request := Request, estop := Estop, service_mode := Service}, #data{task = T} = D) ->
+    D#data{request = Request, estop = Estop, task = T#task{service_mode = Service}}.
 
-service_flag(On, #data{task = T} = D) ->
-    D#data{task = T#task{service_mode = On}}.
+%% A command of the controller, kept as every member keeps it (see cell_member).
+member(Key, Value, #data{request = Request, estop = Estop, task = T} = D) ->
+    #{request := Request1, estop := Estop1, service_mode := Service} =
+        cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
+                                             service_mode => T#task.service_mode}),
+    D#data{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
 
 stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
     case erlang:function_exported(Mod, handle_info, 2) of
@@ -1328,7 +1310,7 @@ crash_error(Why, #data{task = #task{product = P}}) ->
                     "Its product (~ts) was restored from its file and its outputs were "
                     "secured.~nCheck the machine, then select RETRY to continue with the "
                     "product as saved, or RESET to forget the product and start empty.",
-                    [crash_text(Why), serial_text(P)]),
+                    [cell_member:crash_text(Why), serial_text(P)]),
       [retry, reset]).
 
 damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
@@ -1361,19 +1343,6 @@ transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
                     "the task forgets it (take it out of the machine by hand).",
                     [serial_text(P), Link]),
       [ignore, reset]).
-
-crash_text({{product_not_saved, {Path, Reason}}, _}) ->
-    io_lib:format("the product could not be saved to ~ts (~tp)", [Path, Reason]);
-crash_text({{retained_not_saved, {Path, Reason}}, _}) ->
-    io_lib:format("its retained data could not be saved to ~ts (~tp)", [Path, Reason]);
-crash_text({{bad_retained, _, _} = Refused, _}) ->
-    ["the task's code tried to retain what cannot be retained: ", cell_retain:text(Refused)];
-crash_text({Reason, Stack}) when is_list(Stack) ->
-    io_lib:format("~tP", [Reason, 12]);
-crash_text(killed) ->
-    "it was killed";
-crash_text(Reason) ->
-    io_lib:format("~tP", [Reason, 12]).
 
 serial_text(undefined) -> "none";
 serial_text(#{serial := S}) -> S.
