@@ -256,7 +256,7 @@ handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
   when is_reference(Ref) ->
     case lists:member({reply, Ref}, Armed) of
         true -> wake({reply, Ref, Term}, D);
-        false -> stray({Ref, Term}, D)
+        false -> late_reply({Ref, Term}, D)
     end;
 handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
   when Request =:= pause; Request =:= stop ->
@@ -291,10 +291,10 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
         {waits, Waits} ->
             case lists:member({reply, Ref}, Waits) of
                 true -> {keep_state_and_data, [postpone]};
-                false -> stray(Msg, D)
+                false -> late_reply(Msg, D)
             end;
         _ ->
-            stray(Msg, D)
+            late_reply(Msg, D)
     end;
 
 %% --------------------------------------------------------------------------------------
@@ -348,9 +348,16 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
     end;
 handle_event(info, {cell_registry, forget, Serial, Who}, State, D) ->
     forget(State, Serial, Who, D);
-handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
-    {stop, Reason};
+handle_event(info, {Ref, _} = Msg, _State, D) when is_reference(Ref) ->
+    late_reply(Msg, D);
+handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) ->
+    case cell_member:exit_signal(Reason) of
+        ignore -> keep_state_and_data;
+        Stop -> Stop
+    end;
 handle_event(info, Msg, _State, D) ->
+    %% HAL news of a point the task's code subscribed to, a hardware object's message:
+    %% the task module's, if it takes them; anything else is a bug.
     stray(Msg, D);
 handle_event({call, From}, state, State, _D) ->
     {keep_state_and_data, [{reply, From, State}]};
@@ -1058,13 +1065,27 @@ member(Key, Value, #data{request = Request, estop = Estop, task = T} = D) ->
                                              service_mode => T#task.service_mode}),
     D#data{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
 
+%% A message the engine does not know goes to the task module's handle_info/2; a task
+%% module without one expects none, and the task crashes (it is restarted, and the
+%% operator told, as after any crash).
 stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
     case erlang:function_exported(Mod, handle_info, 2) of
         true ->
             {ok, T1} = Mod:handle_info(Msg, T),
             {keep_state, D#data{task = T1}};
         false ->
-            cell_log:trace(Id, "ignored a message the task does not expect: ~tp", [Msg]),
+            cell_member:unexpected(Id, Msg)
+    end.
+
+%% A reply the task no longer waits for: it came after a timer of the same wait, or
+%% after the task left the wait (Pause, Stop, an error, the emergency stop). The task
+%% module may want it (handle_info/2); otherwise it is dropped, being late, not wrong.
+late_reply(Msg, #data{task = #task{module = Mod, id = Id}} = D) ->
+    case erlang:function_exported(Mod, handle_info, 2) of
+        true ->
+            stray(Msg, D);
+        false ->
+            cell_log:trace(Id, "dropped a reply it no longer waits for: ~tp", [Msg]),
             keep_state_and_data
     end.
 

@@ -198,7 +198,7 @@ handle_event(info, {cell_hal_unavailable, Ref, Why}, State, #data{refs = Refs, w
 handle_event(info, {Ref, Term} = Msg, State, #data{seq = Seq} = D) when is_reference(Ref) ->
     case cell_sequence_runner:expects(Seq, Ref) of
         true -> run(State, fun(S) -> cell_sequence_runner:event(S, {reply, Ref, Term}, now_ms()) end, D);
-        false -> stray(Msg, D)
+        false -> late_reply(Msg, D)
     end;
 handle_event(info, {cell_hal_conn, Conn, Status}, State, D) ->
     connection(Conn, Status, State, D);
@@ -208,6 +208,9 @@ handle_event(info, {cell_hal_back, Ref}, State, #data{id = Id, back = Ref, away 
                        [C, maps:get(C, D#data.conns)])
          || C <- Away, not lists:member(C, D#data.away)],
     keep(State, D);
+handle_event(info, {cell_hal_back, _Ref}, _State, _D) ->
+    %% The HAL's word for a wait the unit has since given up (it asks once at a time).
+    keep_state_and_data;
 
 %% --------------------------------------------------------------------------------------
 %% every state: the operator's answer to the unit's error
@@ -241,10 +244,15 @@ handle_event({call, From}, sync, _State, _D) ->
     {keep_state_and_data, [{reply, From, ok}]};
 handle_event({call, From}, info, State, D) ->
     {keep_state_and_data, [{reply, From, describe(State, D)}]};
-handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
-    {stop, Reason};
-handle_event(info, Msg, _State, D) ->
-    stray(Msg, D).
+handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) ->
+    case cell_member:exit_signal(Reason) of
+        ignore -> keep_state_and_data;
+        Stop -> Stop
+    end;
+handle_event(info, Msg, _State, #data{id = Id}) ->
+    %% Nothing else is sent to a unit: the engine subscribes to no point (it watches),
+    %% and its sequences' steps run here. A message of another kind is a bug.
+    cell_member:unexpected(Id, Msg).
 
 -spec terminate(term(), cell_unit_fsm:state(), #data{}) -> ok.
 terminate(Reason, _State, #data{id = Id} = D) ->
@@ -871,8 +879,10 @@ describe(State, #data{id = Id, ipc = Ipc, error = Error, fault = Fault, seq = Se
       step => D#data.step, sequence => cell_sequence_runner:describe(Seq),
       product => undefined, settings => D#data.in_force}.
 
-stray(Msg, #data{id = Id}) ->
-    cell_log:trace(Id, "ignored a message the unit does not expect: ~tp", [Msg]),
+%% A reply no sequence waits for any more: it came after the step that asked was
+%% interrupted or timed out. Late, not wrong: dropped.
+late_reply(Msg, #data{id = Id}) ->
+    cell_log:trace(Id, "dropped a reply it no longer waits for: ~tp", [Msg]),
     keep_state_and_data.
 
 now_ms() ->
