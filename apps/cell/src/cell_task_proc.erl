@@ -63,12 +63,9 @@
 -type estop_barrier() :: cell_member:estop_barrier().
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
+-type origin() :: cell_task_core:origin().
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
--type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
-               | {reply, reference()}
-               | {io, reference(), atom(), atom()}
-               | {handshake, reference(), atom(), atom(), term()}.
+-type armed() :: cell_task_core:armed().
 
 -record(data, {
     task :: #task{},
@@ -463,22 +460,15 @@ start_from_off(D) ->
 %% What setup does first: the operator's question about a file the task's record cannot
 %% be read from (retained data first: nothing runs without them), an interrupted
 %% transfer or a crash, or init.
-setup_event(#data{retain_error = Why} = D) when Why =/= undefined ->
-    {retain_damaged, D};
-setup_event(D) ->
-    case D of
-        #data{crash = undefined, load_error = undefined,
-              task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
-        #data{crash = undefined, load_error = undefined} -> {run_init, D};
-        #data{crash = undefined} -> {product_damaged, D};
-        #data{crash = Why, crash_ask = true} ->
-            {{crashed, Why}, D#data{crash = undefined, crash_ask = false}};
-        #data{crash = _, load_error = undefined} ->
-            %% The task's reconcile decides (an interrupted transfer's mark included),
-            %% as after the operator's Retry.
-            {run_init, go_on_after_crash(D)};
-        #data{crash = _} ->
-            {product_damaged, go_on_after_crash(D)}
+setup_event(#data{task = T} = D) ->
+    case cell_task_core:setup(#{retain_error => D#data.retain_error, crash => D#data.crash,
+                                crash_ask => D#data.crash_ask, load_error => D#data.load_error,
+                                in_transit => cell_handshake:in_transit(T)}) of
+        {Event, none} -> {Event, D};
+        {Event, asked} -> {Event, D#data{crash = undefined, crash_ask = false}};
+        %% The task's reconcile decides (an interrupted transfer's mark included), as
+        %% after the operator's Retry.
+        {Event, go_on} -> {Event, go_on_after_crash(D)}
     end.
 
 %% Going on by itself after a crash: the registry remembers it until the task first
@@ -575,11 +565,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
 %% Arrow 1 (or 5 when an init error was ignored): READY-PROCESSING-ACTIVE with a
 %% product, READY-IDLE-STARVED without; the task's first events say more.
 ready_after_init(Woken, #data{task = T} = D) ->
-    Ready = case T#task.product of
-                undefined -> {ready, idle, starved};
-                _ -> {ready, processing, active}
-            end,
-    Arrow = case T#task.ipc of setup -> 1; down -> 5 end,
+    {Ready, Arrow} = cell_task_core:ready(T#task.product, T#task.ipc),
     ok = headroom(),
     goto(Ready, {arrow, Arrow}, D#data{pending = {step, Woken}, resume = undefined},
          [{next_event, internal, step}]).
@@ -608,7 +594,7 @@ run_step(State, D0) ->
 do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
     T = woken_by(Woken, T0),
     try Mod:step(T) of
-        Result -> after_step(Result, D)
+        Result -> after_step(cell_task_core:step_result(Mod, Result), D)
     catch
         %% The step read or wrote a point whose connection is down: the step's work is
         %% dropped and runs again, as it was woken, after Retry; what it commanded
@@ -627,11 +613,7 @@ after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
         Ipc -> {keep_state, D1, Next};
         New -> {next_state, New, D1, Next}
     end;
-after_step({wait, Wait, T}, D) ->
-    Waits = case Wait of
-                L when is_list(L) -> L;
-                W -> [W]
-            end,
+after_step({wait, Waits, T}, D) ->
     case arm(Waits, waited(D#data{task = clean(T), pending = {waits, Waits}})) of
         {ok, D1} ->
             State = (D1#data.task)#task.ipc,
@@ -648,9 +630,7 @@ after_step({reset, T}, D) ->
     goto(setup, {arrow, 2}, uninit(D#data{task = clean(T), cause = reset}),
          [{next_event, internal, run_init}]);
 after_step({error, Spec, T}, D) ->
-    raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
-after_step(Other, #data{task = #task{module = Mod}}) ->
-    erlang:error({bad_step_result, Mod, Other}).
+    raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc}).
 
 %% The first wait after going on by itself from a crash: a crash from here on is the
 %% task's reconcile's to decide again.
@@ -722,11 +702,10 @@ arm_one(Other, _Gen, _T) ->
 
 arm_watch(Ref, Link, Signal, Value, T0) ->
     %% Seed 000 §2.3.4: a downstream task waiting for an offer is starved.
-    T = case {Signal, Value, cell_handshake:available(T0, Link), T0#task.ipc} of
-            {available, true, false, {ready, _, _} = S} when S =/= {ready, idle, starved} ->
-                cell_task:starved(T0);
-            _ ->
-                T0
+    T = case cell_task_core:starves(Signal, Value, cell_handshake:available(T0, Link),
+                                    T0#task.ipc) of
+            true -> cell_task:starved(T0);
+            false -> T0
         end,
     {{handshake, Ref, Link, Signal, Value}, T}.
 
@@ -757,27 +736,27 @@ hold_or_pause(State, D) ->
         {hold, D1} -> {keep_state, D1}
     end.
 
+%% The decisions are cell_task_core's; the calls to the links (TryAbortOffering) are
+%% made here, between them.
 try_pause(State, #data{request = Request, deferred = Deferred, task = T0} = D) ->
-    Why = case Deferred of undefined -> pause; W -> W end,
-    case Request =/= start orelse Deferred =/= undefined of
+    case cell_task_core:pause_asked(Request, Deferred) of
         false ->
             {hold, D};
-        true ->
-            case cell_handshake:holding(T0) of
-                true ->
+        {true, Why} ->
+            case cell_task_core:pause_plan(cell_handshake:holding(T0),
+                                           cell_handshake:active_offers(T0), Why) of
+                {hold, Why} ->
                     {hold, D#data{deferred = Why}};
-                false ->
-                    Offers = cell_handshake:active_offers(T0),
+                {withdraw, Offers} ->
                     {Withdrawn, T} = lists:foldl(
                                        fun(L, {Acc, TAcc}) ->
                                                {Ok, TAcc1} = cell_handshake:try_abort_offering(TAcc, L),
                                                {[{L, Ok} | Acc], TAcc1}
                                        end, {[], T0}, Offers),
-                    case lists:all(fun({_, Ok}) -> Ok end, Withdrawn) of
-                        true ->
-                            {paused, pause(State, Why,
-                                           D#data{task = T, reoffer = [L || {L, _} <- Withdrawn]})};
-                        false ->
+                    case cell_task_core:withdrawn(Withdrawn, Why) of
+                        {pause, Why, Reoffer} ->
+                            {paused, pause(State, Why, D#data{task = T, reoffer = Reoffer})};
+                        {hold, Why} ->
                             {hold, D#data{task = T, deferred = Why}}
                     end
             end
@@ -882,59 +861,50 @@ io_lost(State, Group, D) ->
 
 raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
-    Arrow = case State of setup -> 7; {ready, _, _} -> 6 end,
+    Arrow = cell_task_core:down_arrow(State),
     goto(down, {arrow, Arrow}, (disarm(D))#data{down = {error, AlarmId, Origin}}, []).
 
-%% The operator answered an error.
-answered(step, Reset, _Who, D) when Reset =:= reset ->
+%% The operator answered an error: cell_task_core decides what follows, carried out
+%% here.
+answered(Origin, Solution, Who, D) ->
+    Context = #{request => D#data.request, deferred => D#data.deferred,
+                resume => D#data.resume},
+    act(cell_task_core:answer(Origin, Solution, Context), Who, D).
+
+act(reinit, _Who, D) ->
     reinit(D);
-answered(step, Solution, _Who, #data{request = start} = D) ->
-    resume(D#data{pending = {step, {answer, Solution}}});
-answered(step, Solution, _Who, #data{deferred = Deferred} = D) when Deferred =/= undefined ->
-    %% The error came while a transfer held a Pause or Stop back: the transfer goes on,
-    %% and the request applies once it has ended, as it would have without the error.
-    resume(D#data{pending = {step, {answer, Solution}}});
-answered(step, Solution, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}, pending = {step, {answer, Solution}}}};
-answered(init, retry, _Who, D) ->
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(init, reset, _Who, D) ->
-    reinit(D);
-answered(init, Solution, _Who, D) ->
-    %% Ignore (or Close): go on as if init had succeeded, reconciled first.
-    run_reconcile(undefined, {answer, Solution}, D);
-answered(reconcile, Solution, _Who, D) ->
-    %% Every answer, Reset too, is the task's to act on: the question was its own.
-    goto(setup, {arrow, 8}, D, [{next_event, internal, {reconcile, {answer, Solution}}}]);
-answered(crash, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+act({resume, Pending}, _Who, D) ->
+    resume(D#data{pending = Pending});
+act(resume, _Who, D) ->
+    resume(D);
+act({paused, Pending}, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}, pending = Pending}};
+act(paused, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}}};
+act({setup, Event}, _Who, D) ->
+    goto(setup, {arrow, 8}, D, [{next_event, internal, Event}]);
+act({reconcile, Then}, _Who, D) ->
+    run_reconcile(undefined, Then, D);
+act(forget_then_reinit, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
                     [Who, serial_text(P)]),
     reinit(D#data{task = cell_task:clear_product(T)});
-answered(crash, _Retry, _Who, D) ->
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(transit, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+act({forget, Event}, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
                     [Who, serial_text(P)]),
     goto(setup, {arrow, 8}, D#data{task = cell_task:clear_product(T)},
-         [{next_event, internal, run_init}]);
-answered(transit, _Ignore, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
+         [{next_event, internal, Event}]);
+act({confirm_here, Event}, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
     goto(setup, {arrow, 8}, D#data{task = cell_task:store(T, P, G, undefined, #{})},
-         [{next_event, internal, run_init}]);
-answered(io, _Retry, _Who, #data{resume = undefined} = D) ->
-    %% Lost while initialising: initialise again (arrow 8); init checks the IO first.
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(io, _Retry, _Who, #data{request = start} = D) ->
-    resume(D);
-answered(io, _Retry, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}}};
-answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
+         [{next_event, internal, Event}]);
+act(set_aside_product, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
     goto(setup, {arrow, 8}, D#data{load_error = undefined}, [{next_event, internal, run_init}]);
-answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T} = D) ->
+act(reload_product, _Who, #data{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
             %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
@@ -946,7 +916,7 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
             D1 = D#data{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
     end;
-answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
+act(set_aside_retained, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     case file:rename(Path, Aside) of
         ok ->
@@ -959,7 +929,7 @@ answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path
                            "~ts", [Path, file:format_error(Why)])
     end,
     retained_again(D);
-answered(retain_file, _Retry, _Who, D) ->
+act(reload_retained, _Who, D) ->
     retained_again(D).
 
 %% The retained data read again (mended, restored or set aside meanwhile): the task
@@ -1100,7 +1070,8 @@ handshake(Msg, State, #data{task = T0} = D0) ->
     D = D0#data{task = T},
     case State of
         {ready, _, _} ->
-            case woken(Wakes, D#data.armed, T) of
+            Signal = fun(Link, S) -> cell_handshake:signal(T, Link, S) end,
+            case cell_task_core:woken(Wakes, D#data.armed, Signal) of
                 undefined ->
                     %% A transfer that ended may free a Pause it held back.
                     case try_pause(State, D) of
@@ -1116,48 +1087,15 @@ handshake(Msg, State, #data{task = T0} = D0) ->
             %% Paused (or stopped): a transfer on a link the task will wait on again
             %% has ended, so at resume its step runs and sees that, instead of waiting
             %% for something the link can no longer send.
-            {keep_state, D#data{pending = ended_while_down(Wakes, D#data.pending)}}
+            {keep_state, D#data{pending = cell_task_core:ended_while_down(Wakes, D#data.pending)}}
     end.
 
-ended_while_down([], Pending) ->
-    Pending;
-ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when is_atom(Outcome) ->
-    case [W || {handshake, L, _, _} = W <- Waits, L =:= Link] of
-        [_ | _] -> {step, {handshake, Link, Outcome}};
-        [] -> ended_while_down(Rest, Pending)
-    end;
-ended_while_down([_ | Rest], Pending) ->
-    ended_while_down(Rest, Pending).
-
-woken([], _Armed, _T) ->
-    undefined;
-woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed, T) ->
-    case lists:keymember(Ref, 2, [A || {handshake, _, _, _, _} = A <- Armed]) of
-        true -> {handshake, Link, Signal, Value};
-        false -> woken(Rest, Armed, T)
-    end;
-woken([{wake, Link, {signals, _Seq}} | Rest], Armed, T) ->
-    %% The link's signals changed: a wait on one of them that holds now ends.
-    case [{S, V} || {handshake, _, L, S, V} <- Armed, L =:= Link,
-                    cell_handshake:signal(T, Link, S) =:= V] of
-        [{Signal, Value} | _] -> {handshake, Link, Signal, Value};
-        [] -> woken(Rest, Armed, T)
-    end;
-woken([{wake, Link, Outcome} | Rest], Armed, T) ->
-    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
-        ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
-        [_ | _] -> {handshake, Link, Outcome};
-        [] -> woken(Rest, Armed, T)
+wake_events(Woken, #task{ipc = State} = T) ->
+    case cell_task_core:wake_event(Woken, State) of
+        unblocked -> cell_task:unblocked(T);
+        unstarved -> cell_task:unstarved(T);
+        none -> T
     end.
-
-%% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
-%% seeing Available is unstarved.
-wake_events({handshake, _Link, not_busy, true}, #task{ipc = {ready, idle, blocked}} = T) ->
-    cell_task:unblocked(T);
-wake_events({handshake, _Link, available, true}, #task{ipc = {ready, idle, starved}} = T) ->
-    cell_task:unstarved(T);
-wake_events(_, T) ->
-    T.
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
