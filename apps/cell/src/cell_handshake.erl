@@ -477,9 +477,9 @@ after_interruption(up, released, T, Link) ->
                     %% beside it.)
                     T1 = store(T, P, G, #{link => Link, from => downstream,
                                           phase => in_transit}, #{}),
-                    case [O || {O, G2} <- cell_registry:holders(S), O =/= Id, G2 > G] of
-                        [] -> T1;
-                        _ -> store(T1, undefined, 0, undefined, #{sync => false})
+                    case cell_task_core:newer_holder(Id, G, cell_registry:holders(S)) of
+                        none -> T1;
+                        {ok, _} -> store(T1, undefined, 0, undefined, #{sync => false})
                     end;
                 _ ->
                     T

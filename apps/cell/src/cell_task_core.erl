@@ -10,13 +10,17 @@
 %%     downstream commits, so a transfer under way holds the request back, and open
 %%     offers are withdrawn first (TryAbortOffering) unless downstream has just begun
 %%     to take one.</li>
-%% <li>What a step returned ({@link step_result/2}).</li>
+%% <li>What a step returned ({@link step_result/2}), and what it is told woke it
+%%     ({@link woken_by/2}, {@link clean/1}).</li>
 %% <li>Errors: the arrow into DOWN ({@link down_arrow/1}); what setup does first
-%%     ({@link setup/1}); what the operator's answer leads to ({@link answer/3}).</li>
+%%     ({@link setup/1}); whether a crash is the operator's question
+%%     ({@link ask_after_crash/1}); what the operator's answer leads to
+%%     ({@link answer/3}).</li>
 %% <li>Transfers: which armed wait a link's news ends ({@link woken/3}), what a
 %%     transfer that ended while the task was DOWN changes ({@link ended_while_down/2}),
 %%     the IPC-2541 events the seed raises when a wait on a link ends
-%%     ({@link wake_event/2}) or starts ({@link starves/4}).</li>
+%%     ({@link wake_event/2}) or starts ({@link starves/4}); a copy of a product
+%%     another task holds in a newer record ({@link newer_holder/3}).</li>
 %% </ul>
 %%
 %% It also gives {@link cell_handshake} the task's fields the handshake keeps
@@ -26,9 +30,9 @@
 
 -include("cell_task.hrl").
 
--export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, down_arrow/1,
-         ready/2, setup/1, answer/3, woken/3, ended_while_down/2, wake_event/2,
-         starves/4]).
+-export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, woken_by/2, clean/1,
+         down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
+         ended_while_down/2, wake_event/2, starves/4, newer_holder/3]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
@@ -101,6 +105,18 @@ step_result(_Mod, {reset, #task{}} = R) -> R;
 step_result(_Mod, {error, _Spec, #task{}} = R) -> R;
 step_result(Mod, Other) -> erlang:error({bad_step_result, Mod, Other}).
 
+%% @doc The task as its step sees it: what woke it and, if that was the operator, the
+%% answer. (A step that follows a continue finds the task as it left it.)
+-spec woken_by(term(), cell_task:task()) -> cell_task:task().
+woken_by(undefined, #task{woken_by = undefined, answer = undefined} = T) -> T;
+woken_by({answer, A} = Woken, T) -> T#task{woken_by = Woken, answer = A};
+woken_by(Woken, T) -> T#task{woken_by = Woken, answer = undefined}.
+
+%% @doc The task after its step or reconcile: what woke it is spent.
+-spec clean(cell_task:task()) -> cell_task:task().
+clean(#task{answer = undefined, woken_by = undefined} = T) -> T;
+clean(T) -> T#task{answer = undefined, woken_by = undefined}.
+
 %% -------------------------------------------------------------------------------------
 %% Errors and setup
 %% -------------------------------------------------------------------------------------
@@ -143,6 +159,16 @@ setup(#{load_error := undefined}) ->
     {run_init, go_on};
 setup(#{}) ->
     {product_damaged, go_on}.
+
+%% @doc Whether the operator is asked about a crash rather than the task's reconcile,
+%% from the crashed task's registry row: it died where reconcile cannot decide (in
+%% init or reconcile itself: in setup), or died again after it had gone on by itself
+%% from a crash, before its first wait (a fault that restarting does not cure: it
+%% would loop).
+-spec ask_after_crash(map()) -> boolean().
+ask_after_crash(#{crashed_in := setup}) -> true;
+ask_after_crash(#{resumed := true}) -> true;
+ask_after_crash(#{}) -> false.
 
 %% @doc What the operator's answer to the task's error leads to, by where the error
 %% came from. `Request' is the controller's, `Deferred' a pause a transfer held back
@@ -232,6 +258,16 @@ wake_event(_Woken, _State) -> none.
 -spec starves(available | not_busy, term(), boolean(), cell_ipc:state()) -> boolean().
 starves(available, true, false, {ready, _, _} = S) -> S =/= {ready, idle, starved};
 starves(_Signal, _Value, _Available, _State) -> false.
+
+%% @doc Another task holding the product `Serial' (of generation `Gen' here) in a newer
+%% record, from the registry's holders of the serial: this task's copy is then stale.
+-spec newer_holder(atom(), non_neg_integer(), [{atom(), non_neg_integer()}]) ->
+          {ok, atom()} | none.
+newer_holder(Id, Gen, Holders) ->
+    case [Other || {Other, G2} <- Holders, Other =/= Id, G2 > Gen] of
+        [] -> none;
+        [Other | _] -> {ok, Other}
+    end.
 
 %% -------------------------------------------------------------------------------------
 %% The task's handshake fields
@@ -377,6 +413,27 @@ events_test_() ->
      ?_assertNot(starves(available, true, true, {ready, processing, active})),
      ?_assertNot(starves(not_busy, true, false, {ready, processing, active})),
      ?_assertNot(starves(available, true, false, setup))].
+
+woken_by_test_() ->
+    T = #task{},
+    Woken = woken_by({answer, retry}, T),
+    Timer = woken_by({timer, 5}, Woken),
+    [?_assertEqual(T, woken_by(undefined, T)),
+     ?_assertEqual({{answer, retry}, retry}, {Woken#task.woken_by, Woken#task.answer}),
+     ?_assertEqual({{timer, 5}, undefined}, {Timer#task.woken_by, Timer#task.answer}),
+     ?_assertEqual(T, clean(Woken)),
+     ?_assertEqual(T, clean(T))].
+
+crash_test_() ->
+    [?_assert(ask_after_crash(#{crashed_in => setup})),
+     ?_assert(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => true})),
+     ?_assertNot(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => false})),
+     ?_assertNot(ask_after_crash(#{}))].
+
+newer_holder_test_() ->
+    [?_assertEqual(none, newer_holder(a, 3, [])),
+     ?_assertEqual(none, newer_holder(a, 3, [{a, 5}, {b, 3}, {c, 2}])),
+     ?_assertEqual({ok, b}, newer_holder(a, 3, [{a, 3}, {b, 4}]))].
 
 fields_test() ->
     T = take(#task{}, #{serial => <<"S">>}, 3, #{phase => in_transit}),

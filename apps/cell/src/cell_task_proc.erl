@@ -422,8 +422,7 @@ retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
 %% that restarting does not cure: it would loop).
 ask_after_crash(Id) ->
     case cell_registry:task(Id) of
-        {ok, #{crashed_in := setup}} -> true;
-        {ok, #{resumed := true}} -> true;
+        {ok, Row} -> cell_task_core:ask_after_crash(Row);
         _ -> false
     end.
 
@@ -539,7 +538,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
         true ->
             estop(setup, D#data{estop = true});
         false ->
-            T = woken_by(Woken, T0),
+            T = cell_task_core:woken_by(Woken, T0),
             try Mod:reconcile(Held, T) of
                 {ok, T1} ->
                     %% Agreed: what the predecessor left is settled.
@@ -547,11 +546,11 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
                         cell_log:notice(T#task.id, "after the crash its record and its "
                                         "sensors agree: it goes on (product ~ts)",
                                         [serial_text(T1#task.product)]),
-                    ready_after_init(Then, D#data{task = clean(T1), predecessor = undefined,
-                                                       cause = start,
-                                                       crash_outputs = undefined});
+                    ready_after_init(Then, D#data{task = cell_task_core:clean(T1),
+                                                  predecessor = undefined, cause = start,
+                                                  crash_outputs = undefined});
                 {error, Spec, T1} ->
-                    raise(setup, Spec, reconcile, D#data{task = clean(T1)});
+                    raise(setup, Spec, reconcile, D#data{task = cell_task_core:clean(T1)});
                 Other ->
                     erlang:error({bad_reconcile_result, Mod, Other})
             catch
@@ -592,7 +591,7 @@ run_step(State, D0) ->
     end.
 
 do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
-    T = woken_by(Woken, T0),
+    T = cell_task_core:woken_by(Woken, T0),
     try Mod:step(T) of
         Result -> after_step(cell_task_core:step_result(Mod, Result), D)
     catch
@@ -607,14 +606,14 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
     end.
 
 after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
-    D1 = D#data{task = clean(T), pending = {step, undefined}},
+    D1 = D#data{task = cell_task_core:clean(T), pending = {step, undefined}},
     Next = next_step(D1),
     case T#task.ipc of
         Ipc -> {keep_state, D1, Next};
         New -> {next_state, New, D1, Next}
     end;
 after_step({wait, Waits, T}, D) ->
-    case arm(Waits, waited(D#data{task = clean(T), pending = {waits, Waits}})) of
+    case arm(Waits, waited(D#data{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
         {ok, D1} ->
             State = (D1#data.task)#task.ipc,
             case try_pause(State, D1) of
@@ -627,10 +626,10 @@ after_step({wait, Waits, T}, D) ->
     end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
-    goto(setup, {arrow, 2}, uninit(D#data{task = clean(T), cause = reset}),
+    goto(setup, {arrow, 2}, uninit(D#data{task = cell_task_core:clean(T), cause = reset}),
          [{next_event, internal, run_init}]);
 after_step({error, Spec, T}, D) ->
-    raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc}).
+    raise(T#task.ipc, Spec, step, D#data{task = cell_task_core:clean(T), resume = T#task.ipc}).
 
 %% The first wait after going on by itself from a crash: a crash from here on is the
 %% task's reconcile's to decide again.
@@ -648,17 +647,6 @@ next_step(#data{gen = Gen}) ->
         {message_queue_len, 0} -> [{next_event, internal, step}];
         _ -> self() ! ?STEP(Gen), []
     end.
-
-%% What woke the step, and the operator's answer if that was it. (A step that follows
-%% a continue finds the task as it left it: nothing to change.)
-woken_by(undefined, #task{woken_by = undefined, answer = undefined} = T) -> T;
-woken_by({answer, A} = Woken, T) -> T#task{woken_by = Woken, answer = A};
-woken_by(Woken, T) -> T#task{woken_by = Woken, answer = undefined}.
-
-clean(#task{answer = undefined, woken_by = undefined} = T) ->
-    T;
-clean(T) ->
-    T#task{answer = undefined, woken_by = undefined}.
 
 %% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
 %% connections): what was armed before it is in `D', for the disarm that follows.
@@ -1126,9 +1114,9 @@ dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
 
 %% The product's copy is dropped if another task holds it in a newer record.
 drop_if_older(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
-    case [Other || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
-        [] -> T;
-        [Other | _] -> drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
+    case cell_task_core:newer_holder(Id, G, cell_registry:holders(S)) of
+        none -> T;
+        {ok, Other} -> drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
     end;
 drop_if_older(T) ->
     T.
