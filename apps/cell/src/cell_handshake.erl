@@ -32,7 +32,6 @@
 %% one side, marked, and the operator confirms where it is before that task goes on.
 -module(cell_handshake).
 
--include("cell_task.hrl").
 
 -export([offer/2, try_abort_offering/2, release/2, finish/2,
          available/2, not_busy/2, phase/2, peek/2, commit/2, complete/2, abort/2,
@@ -58,15 +57,19 @@
 %% @doc Phase 1: offers the task's product on a link (Data and Available).
 %% EquipmentBlocked.
 -spec offer(cell_task:task(), atom()) -> cell_task:task().
-offer(#task{product = undefined, id = Id}, Link) ->
-    erlang:error({no_product_to_offer, Id, Link});
-offer(#task{product = P, gen = G} = T0, Link) ->
+offer(T0, Link) ->
+    case cell_task:product(T0) of
+        undefined -> erlang:error({no_product_to_offer, cell_task:id(T0), Link});
+        P -> offer(T0, Link, P, cell_task_core:gen(T0))
+    end.
+
+offer(T0, Link, P, G) ->
     {T, Reply} = call(T0, Link, {offer, self(), P, G}),
     case Reply of
         ok ->
             T1 = view(T, Link, #{phase => offered, available => true, outcome => undefined,
                                  link_down => false}),
-            case T1#task.ipc of
+            case cell_task:state(T1) of
                 {ready, idle, blocked} -> T1;
                 _ -> cell_task:blocked(T1)
             end;
@@ -96,20 +99,21 @@ try_abort_offering(T0, Link) ->
 %% @doc Phase 3: the product has left this task (Available off). Downstream owns it
 %% from here; this task holds none.
 -spec release(cell_task:task(), atom()) -> cell_task:task().
-release(#task{id = Id} = T0, Link) ->
+release(T0, Link) ->
+    Id = cell_task:id(T0),
     %% Out of the registry's holders before downstream takes the product in: its
     %% newer record then finds no older holder to tell. (After a crash in between, the
     %% restarted task holds the product again from its file.)
     ok = cell_registry:hold(Id, undefined, 0),
-    {#task{product = P, gen = G} = T, Reply} = call(T0, Link, {release, self()}),
+    {T, Reply} = call(T0, Link, {release, self()}),
+    {P, G} = {cell_task:product(T), cell_task_core:gen(T)},
     case Reply of
         ok ->
             %% The file stays until downstream owns the product on disk.
             ok = cell_registry:update(Id, #{serial => undefined, product => undefined}),
             ok = cell_task:publish(T, product_saved, #{item => undefined, product => undefined,
                                                        in_transit => false}),
-            view(T#task{product = undefined, gen = 0, marker = undefined, traced = undefined},
-                 Link,
+            view(cell_task_core:released(T), Link,
                  #{phase => released, available => false, owned => false});
         {error, _} ->
             %% Downstream stopped while the product was being moved out: it stays with
@@ -168,7 +172,7 @@ peek(T, Link) ->
 commit(T0, Link) ->
     case call(T0, Link, {commit, self()}) of
         {T, {ok, Product, Gen}} ->
-            {ok, view(T#task{product = Product, gen = Gen, marker = undefined}, Link,
+            {ok, view(cell_task_core:take(T, Product, Gen, undefined), Link,
                       #{phase => committed, not_busy => true, from_gen => Gen})};
         {T, {error, _}} ->
             {not_available, T}
@@ -176,7 +180,9 @@ commit(T0, Link) ->
 
 %% @doc Phase 4: the product has arrived (NotBusy off). ItemTransferIn.
 -spec complete(cell_task:task(), atom()) -> cell_task:task().
-complete(#task{product = #{serial := S} = P, gen = G} = T0, Link) ->
+complete(T0, Link) ->
+    #{serial := S} = P = cell_task:product(T0),
+    G = cell_task_core:gen(T0),
     %% After an interruption the link has moved on; the product arrived all the same.
     {T, _} = call(T0, Link, {complete, self()}),
     %% The owner is already this task on disk; clearing the in-transit mark may be lost
@@ -187,11 +193,12 @@ complete(#task{product = #{serial := S} = P, gen = G} = T0, Link) ->
 %% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
 %% product. If upstream is gone the task keeps it, still marked in transit.
 -spec abort(cell_task:task(), atom()) -> cell_task:task().
-abort(#task{} = T0, Link) ->
+abort(T0, Link) ->
     {T, Reply} = call(T0, Link, {abort, self()}),
     case Reply of
         kept_by_upstream ->
-            view(T#task{product = undefined, gen = 0}, Link, #{phase => idle});
+            view(cell_task_core:take(T, undefined, 0, cell_task_core:marker(T)), Link,
+                 #{phase => idle});
         given_back ->
             view(store(T, undefined, 0, undefined, #{sync => false}), Link, #{phase => idle});
         _KeptOrNoLink ->
@@ -201,25 +208,28 @@ abort(#task{} = T0, Link) ->
 %% @doc Whether the task's product is marked in transit: a transfer was interrupted
 %% while it moved, and the operator must say where it is.
 -spec in_transit(cell_task:task()) -> boolean().
-in_transit(#task{marker = #{phase := in_transit}}) -> true;
-in_transit(_) -> false.
+in_transit(T) ->
+    case cell_task_core:marker(T) of
+        #{phase := in_transit} -> true;
+        _ -> false
+    end.
 
 %% @doc The product of an interrupted transfer is here (the operator said so): the
 %% in-transit mark is cleared, durably.
 -spec confirm_here(cell_task:task()) -> cell_task:task().
-confirm_here(#task{product = undefined} = T) ->
-    T;
-confirm_here(#task{product = P, gen = G} = T) ->
-    store(T, P, G, undefined, #{}).
+confirm_here(T) ->
+    case cell_task:product(T) of
+        undefined -> T;
+        P -> store(T, P, cell_task_core:gen(T), undefined, #{})
+    end.
 
 %% @doc Connects the task to a link at run time as its upstream or downstream end
 %% (seed: a master task choosing one of several feeders).
 -spec connect(cell_task:task(), atom(), cell_handshake_link:role()) ->
           {ok, cell_task:task()} | {error, term()}.
-connect(#task{id = Id} = T, Link, Role) ->
-    case plain_call(Link, {attach, Role, Id, self(), holding(T, x)}) of
-        {{ok, Status}, _} -> {ok, T#task{links = maps:put(Link, from_status(Role, Status),
-                                                            T#task.links)}};
+connect(T, Link, Role) ->
+    case plain_call(Link, {attach, Role, cell_task:id(T), self(), holding(T, x)}) of
+        {{ok, Status}, _} -> {ok, put_view(T, Link, from_status(Role, Status))};
         {{error, _} = Error, _} -> Error
     end.
 
@@ -228,7 +238,7 @@ connect(#task{id = Id} = T, Link, Role) ->
 disconnect(T, Link) ->
     #{role := Role} = link_view(T, Link),
     case plain_call(Link, {detach, Role, self()}) of
-        {ok, _} -> {ok, T#task{links = maps:remove(Link, T#task.links)}};
+        {ok, _} -> {ok, cell_task_core:set_links(T, maps:remove(Link, links(T)))};
         {{error, _} = Error, _} -> Error
     end.
 
@@ -239,15 +249,16 @@ disconnect(T, Link) ->
 %% @private Attaches the task to the links of its spec (at boot, and again when a link
 %% says hello after a restart).
 -spec attach_all(cell_task:task()) -> cell_task:task().
-attach_all(#task{links = Links} = T) ->
-    maps:fold(fun(Link, #{role := Role}, Acc) -> attach(Acc, Link, Role) end, T, Links).
+attach_all(T) ->
+    maps:fold(fun(Link, #{role := Role}, Acc) -> attach(Acc, Link, Role) end, T, links(T)).
 
-attach(#task{id = Id} = T, Link, Role) ->
+attach(T, Link, Role) ->
+    Id = cell_task:id(T),
     case cell_handshake_link:whereis(Link) of
         undefined ->
             T;
         Pid ->
-            Old0 = maps:get(Link, T#task.links, #{}),
+            Old0 = maps:get(Link, links(T), #{}),
             _ = case maps:find(mref, Old0) of
                     {ok, OldRef} -> erlang:demonitor(OldRef, [flush]);
                     error -> true
@@ -261,7 +272,7 @@ attach(#task{id = Id} = T, Link, Role) ->
                 {ok, Status} ->
                     Old = link_view(T, Link),
                     New = (from_status(Role, Status))#{mref => MRef, link_down => false},
-                    T1 = T#task{links = maps:put(Link, maps:merge(Old, New), T#task.links)},
+                    T1 = put_view(T, Link, maps:merge(Old, New)),
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
                         true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
@@ -274,14 +285,17 @@ attach(#task{id = Id} = T, Link, Role) ->
 
 %% What the task holds, told to its partners when it attaches: a partner on another
 %% node with an older copy of the same product drops it.
-holding(#task{product = undefined}, _) -> none;
-holding(#task{product = #{serial := S}, gen = G}, _) -> {S, G}.
+holding(T, _) ->
+    case cell_task:product(T) of
+        undefined -> none;
+        #{serial := S} -> {S, cell_task_core:gen(T)}
+    end.
 
 %% @private Whether a transfer holds the task's Pause and Stop (the seed allows them
 %% only before downstream commits).
 -spec holding(cell_task:task()) -> boolean().
-holding(#task{links = Links}) ->
-    lists:any(fun was_active/1, maps:values(Links)).
+holding(T) ->
+    lists:any(fun was_active/1, maps:values(links(T))).
 
 was_active(#{role := up, phase := P}) -> lists:member(P, [committed, released, aborting]);
 was_active(#{role := down, phase := P}) -> lists:member(P, [committed, released]);
@@ -289,14 +303,14 @@ was_active(_) -> false.
 
 %% @private Links on which the task has an open offer.
 -spec active_offers(cell_task:task()) -> [atom()].
-active_offers(#task{links = Links}) ->
-    [L || {L, #{role := up, phase := offered}} <- maps:to_list(Links)].
+active_offers(T) ->
+    [L || {L, #{role := up, phase := offered}} <- maps:to_list(links(T))].
 
 %% @private Offers again what a Pause withdrew.
 -spec reoffer(cell_task:task(), [atom()]) -> cell_task:task().
 reoffer(T, Links) ->
     lists:foldl(fun(L, Acc) ->
-                        case Acc#task.product of
+                        case cell_task:product(Acc) of
                             undefined -> Acc;
                             _ -> offer(Acc, L)
                         end
@@ -305,7 +319,8 @@ reoffer(T, Links) ->
 %% @private The task stops (emergency stop, Stop while an error waits): every transfer
 %% it is in ends, for its partners too.
 -spec interrupt_all(cell_task:task()) -> cell_task:task().
-interrupt_all(#task{links = Links} = T) ->
+interrupt_all(T) ->
+    Links = links(T),
     maps:fold(fun(Link, View, Acc) ->
                       case was_active(View) orelse maps:get(phase, View) =:= offered of
                           true ->
@@ -324,7 +339,7 @@ interrupt_all(#task{links = Links} = T) ->
 %% status messages, so a wait needs no call: it holds now, or a later status message
 %% ends it (see {@link handle/2}).
 arm(T, Link, {Signal, Value}) ->
-    case maps:get(link_down, maps:get(Link, T#task.links, #{}), false) of
+    case maps:get(link_down, maps:get(Link, links(T), #{}), false) of
         true ->
             %% The link is restarting: what the task waits for may never come from
             %% the link that replaces it.
@@ -359,10 +374,10 @@ hello(Task, Link) ->
 %% Seq}}' when the signals changed and a wait on them may end.
 -spec handle(term(), cell_task:task()) -> {cell_task:task(), [{wake, atom(), term()}]}.
 handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T) ->
-    case maps:find(Link, T#task.links) of
+    case maps:find(Link, links(T)) of
         {ok, #{role := Role, lpid := LPid, seq := Seen} = Old} when Seq > Seen ->
             New = maps:merge(Old, from_status(Role, Status)),
-            {T#task{links = maps:put(Link, New, T#task.links)}, [{wake, Link, {signals, Seq}}]};
+            {put_view(T, Link, New), [{wake, Link, {signals, Seq}}]};
         _ ->
             %% Older than what the task already knows (an answer overtook it), or of
             %% an incarnation of the link the task is no longer attached to.
@@ -373,11 +388,13 @@ handle({cell_handshake, Link, Step, #{} = Status}, T) ->
     {T1, Wakes} = handle({cell_handshake, Link, Step}, T),
     {T2, More} = handle({cell_handshake, Link, signals, Status}, T1),
     {T2, Wakes ++ More};
-handle({cell_handshake, _Link, {holder, Serial, Gen}}, #task{product = #{serial := Serial},
-                                                          gen = G} = T) when G < Gen ->
-    {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};
-handle({cell_handshake, _Link, {holder, _Serial, _Gen}}, T) ->
-    {T, []};
+handle({cell_handshake, _Link, {holder, Serial, Gen}}, T) ->
+    case {cell_task:product(T), cell_task_core:gen(T)} of
+        {#{serial := Serial}, G} when G < Gen ->
+            {cell_task:store(T, undefined, 0, undefined, #{sync => false}), []};
+        _ ->
+            {T, []}
+    end;
 handle({cell_handshake, Link, recheck}, T) ->
     {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
@@ -385,7 +402,7 @@ handle({cell_handshake, Link, hello}, T) ->
     {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
-handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
+handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
     Marker = #{link => Link, from => upstream, phase => in_transit},
     T1 = store(T, Product, Gen + 1, Marker, #{}),
     %% If the link is gone meanwhile, upstream keeps a stale copy the generations
@@ -396,10 +413,9 @@ handle({cell_handshake, Link, {released, Product, Gen}}, #task{} = T) ->
         end,
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
-handle({cell_handshake, Link, owned}, #task{product = undefined, product_file = File} = T) ->
-    _ = cell_product:delete(File, #{sync => false}),
-    {view(T, Link, #{owned => true}), []};
 handle({cell_handshake, Link, owned}, T) ->
+    _ = cell_task:product(T) =:= undefined
+        andalso cell_product:delete(cell_task_core:product_file(T), #{sync => false}),
     {view(T, Link, #{owned => true}), []};
 handle({cell_handshake, Link, completed}, T) ->
     {view(T, Link, #{outcome => completed, phase => idle}), [{wake, Link, completed}]};
@@ -427,8 +443,8 @@ handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T0) ->
     end.
 
 %% A transfer ended before its end. Who owns the product follows from where it was.
-interrupted(#task{links = Links} = T, Link, Phase) ->
-    case maps:get(Link, Links, undefined) of
+interrupted(T, Link, Phase) ->
+    case maps:get(Link, links(T), undefined) of
         undefined ->
             {T, []};
         #{role := Role} ->
@@ -440,18 +456,19 @@ interrupted(#task{links = Links} = T, Link, Phase) ->
 
 %% Downstream before release: the product never left upstream; this task forgets it.
 after_interruption(down, committed, T, _Link) ->
-    T#task{product = undefined, gen = 0, marker = undefined};
+    cell_task_core:take(T, undefined, 0, undefined);
 %% Downstream after release: this task owns it, marked in transit.
 after_interruption(down, _Phase, T, _Link) ->
     T;
 %% Upstream after release: if downstream never confirmed owning it, this task's copy
 %% is still the owner; the product has left, so it is marked in transit.
-after_interruption(up, released, #task{product = undefined, id = Id} = T, Link) ->
-    case maps:get(owned, link_view(T, Link), false) of
+after_interruption(up, released, T, Link) ->
+    Id = cell_task:id(T),
+    case cell_task:product(T) =/= undefined orelse maps:get(owned, link_view(T, Link), false) of
         true ->
             T;
         false ->
-            case cell_product:load(T#task.product_path) of
+            case cell_product:load(cell_task_core:product_path(T)) of
                 {ok, #{product := #{serial := S} = P, gen := G}} ->
                     %% Held first, looked at after: downstream holds its newer record
                     %% first and looks after too, so of two tasks doing this at once
@@ -460,9 +477,9 @@ after_interruption(up, released, #task{product = undefined, id = Id} = T, Link) 
                     %% beside it.)
                     T1 = store(T, P, G, #{link => Link, from => downstream,
                                           phase => in_transit}, #{}),
-                    case [O || {O, G2} <- cell_registry:holders(S), O =/= Id, G2 > G] of
-                        [] -> T1;
-                        _ -> store(T1, undefined, 0, undefined, #{sync => false})
+                    case cell_task_core:newer_holder(Id, G, cell_registry:holders(S)) of
+                        none -> T1;
+                        {ok, _} -> store(T1, undefined, 0, undefined, #{sync => false})
                     end;
                 _ ->
                     T
@@ -474,19 +491,25 @@ after_interruption(up, _Phase, T, _Link) ->
 
 %% -------------------------------------------------------------------------------------
 
-link_view(#task{links = Links, id = Id}, Link) ->
-    case maps:find(Link, Links) of
+link_view(T, Link) ->
+    case maps:find(Link, links(T)) of
         {ok, V} -> V;
-        error -> erlang:error({not_a_link_of_this_task, Id, Link})
+        error -> erlang:error({not_a_link_of_this_task, cell_task:id(T), Link})
     end.
 
-view(#task{links = Links} = T, Link, Fields) ->
-    Old = maps:get(Link, Links, #{}),
-    Last = case T#task.product of
+view(T, Link, Fields) ->
+    Old = maps:get(Link, links(T), #{}),
+    Last = case cell_task:product(T) of
                undefined -> maps:get(last_product, Old, undefined);
                P -> P
            end,
-    T#task{links = maps:put(Link, maps:merge(Old, Fields#{last_product => Last}), Links)}.
+    put_view(T, Link, maps:merge(Old, Fields#{last_product => Last})).
+
+links(T) ->
+    cell_task_core:links(T).
+
+put_view(T, Link, View) ->
+    cell_task_core:set_links(T, maps:put(Link, View, links(T))).
 
 from_status(Role, #{phase := P, available := A, not_busy := N, seq := Seq, link := LPid}) ->
     #{role => Role, phase => P, available => A, not_busy => N, seq => Seq, lpid => LPid}.
@@ -508,11 +531,10 @@ call(T, Link, Request) ->
             seen(T, Link, Answer)
     end.
 
-seen(#task{links = Links} = T, Link, {Reply, #{seq := Seq, link := LPid} = Status, LPid}) ->
-    case maps:find(Link, Links) of
+seen(T, Link, {Reply, #{seq := Seq, link := LPid} = Status, LPid}) ->
+    case maps:find(Link, links(T)) of
         {ok, #{role := Role, lpid := LPid, seq := Seen} = View} when Seq > Seen ->
-            {T#task{links = maps:put(Link, maps:merge(View, from_status(Role, Status)), Links)},
-             Reply};
+            {put_view(T, Link, maps:merge(View, from_status(Role, Status))), Reply};
         _ ->
             {T, Reply}
     end;
@@ -537,8 +559,8 @@ request(T, Link, Request) ->
         {{Reply1, Status}, LPid} -> {Reply1, Status, LPid}
     end.
 
-link_pid(#task{links = Links}, Link) ->
-    case maps:get(Link, Links, #{}) of
+link_pid(T, Link) ->
+    case maps:get(Link, links(T), #{}) of
         #{lpid := Pid, link_down := false} when is_pid(Pid) -> Pid;
         #{lpid := Pid} = View when is_pid(Pid), not is_map_key(link_down, View) -> Pid;
         _ -> undefined

@@ -137,7 +137,9 @@
 -callback reconcile(held(), task()) -> {ok, task()} | {error, cell_alarms:spec(), task()}.
 -callback step(task()) -> step_result().
 -callback uninit(task()) -> task().
-%% Messages the engine does not know (an unsolicited message of a hardware object).
+%% Messages the engine does not know (an unsolicited message of a hardware object, a
+%% reply the task no longer waits for). A module without it expects none: such a
+%% message crashes the task (a late reply is dropped).
 -callback handle_info(term(), task()) -> {ok, task()}.
 -optional_callbacks([handle_info/2]).
 

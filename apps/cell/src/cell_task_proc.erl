@@ -59,18 +59,13 @@
 
 -export_type([estop_barrier/0]).
 
-%% The controller's emergency stop: an atomics array with a slot per task of the fan-out
-%% and a count after them, the task's slot, the number of tasks, and whom the last to
-%% secure its outputs tells.
--type estop_barrier() :: {atomics:atomics_ref(), pos_integer(), pos_integer(), pid()}.
+%% The controller's emergency stop (see cell_member).
+-type estop_barrier() :: cell_member:estop_barrier().
 -type down_reason() :: {paused, pause | service}
                      | {error, binary(), origin()}.
--type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
+-type origin() :: cell_task_core:origin().
 -type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
--type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
-               | {reply, reference()}
-               | {io, reference(), atom(), atom()}
-               | {handshake, reference(), atom(), atom(), term()}.
+-type armed() :: cell_task_core:armed().
 
 -record(data, {
     task :: #task{},
@@ -133,8 +128,7 @@ child_spec(#{id := Id} = Spec) ->
 %% `settings' (the snapshot for the next start).
 -spec control(pid(), request | estop | estop_settled | service_mode | settings, term()) -> ok.
 control(Pid, Key, Value) ->
-    Pid ! {control, Key, Value},
-    ok.
+    cell_member:control(Pid, Key, Value).
 
 %% @doc The pid of a running task.
 -spec whereis(atom()) -> pid() | undefined.
@@ -208,7 +202,7 @@ handle_event(Type, Msg, _State, #data{held = Held} = D) when Held =/= undefined,
 handle_event(internal, boot, off, D) ->
     boot(D);
 handle_event(info, {control, request, start}, off, D) ->
-    start_from_off(D#data{request = start});
+    start_from_off(member(request, start, D));
 
 %% --------------------------------------------------------------------------------------
 %% setup: init runs within the event that entered the state
@@ -259,19 +253,19 @@ handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
   when is_reference(Ref) ->
     case lists:member({reply, Ref}, Armed) of
         true -> wake({reply, Ref, Term}, D);
-        false -> stray({Ref, Term}, D)
+        false -> late_reply({Ref, Term}, D)
     end;
 handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
   when Request =:= pause; Request =:= stop ->
-    hold_or_pause(S, D#data{request = Request});
+    hold_or_pause(S, member(request, Request, D));
 handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
-    hold_or_pause(S, (service_flag(true, D))#data{deferred = service});
+    hold_or_pause(S, (member(service_mode, true, D))#data{deferred = service});
 %% A Start, or service mode ending, cancels a pause a transfer was still holding back.
 handle_event(info, {control, request, start}, {ready, _, _}, D) ->
-    {keep_state, D#data{request = start, deferred = undefined}};
+    {keep_state, (member(request, start, D))#data{deferred = undefined}};
 handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred = Deferred} = D) ->
     D1 = case Deferred of service -> D#data{deferred = undefined}; _ -> D end,
-    {keep_state, service_flag(false, D1)};
+    {keep_state, member(service_mode, false, D1)};
 
 %% --------------------------------------------------------------------------------------
 %% down: paused, or an error waiting for the operator
@@ -279,9 +273,9 @@ handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred
 handle_event(internal, stop, down, D) ->
     stop_to_off(D);
 handle_event(info, {control, request, stop}, down, D) ->
-    stop_to_off(D#data{request = stop});
+    stop_to_off(member(request, stop, D));
 handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
-    resume(D#data{request = start});
+    resume(member(request, start, D));
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
              #data{down = {error, Id, Origin}, task = T} = D) ->
     %% A copy found older than another task's record (the registry's word may still be
@@ -294,28 +288,26 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
         {waits, Waits} ->
             case lists:member({reply, Ref}, Waits) of
                 true -> {keep_state_and_data, [postpone]};
-                false -> stray(Msg, D)
+                false -> late_reply(Msg, D)
             end;
         _ ->
-            stray(Msg, D)
+            late_reply(Msg, D)
     end;
 
 %% --------------------------------------------------------------------------------------
 %% every state
 %% --------------------------------------------------------------------------------------
-handle_event(info, {control, estop, {true, Barrier}}, State, D) ->
-    estop(State, D#data{estop = true, request = stop}, Barrier);
+handle_event(info, {control, estop, {true, Barrier} = Estop}, State, D) ->
+    estop(State, member(estop, Estop, D), Barrier);
 handle_event(info, {control, estop_settled, _}, _State, _D) ->
     %% The end of a barrier this task did not hold at (it was OFF already).
     keep_state_and_data;
-handle_event(info, {control, estop, false}, _State, D) ->
-    {keep_state, D#data{estop = false}};
-handle_event(info, {control, service_mode, On}, _State, D) ->
-    {keep_state, service_flag(On, D)};
-handle_event(info, {control, request, Request}, _State, D) ->
-    {keep_state, D#data{request = Request}};
 handle_event(info, {control, settings, Settings}, _State, D) ->
-    {keep_state, D#data{settings = Settings}};
+    {keep_state, (member(settings, Settings, D))#data{settings = Settings}};
+handle_event(info, {control, Key, Value}, _State, D) ->
+    %% The request, the emergency stop's release, service mode: kept for the next
+    %% state that acts on them.
+    {keep_state, member(Key, Value, D)};
 handle_event(info, ?STEP(_), _State, _D) ->
     keep_state_and_data;
 handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
@@ -353,9 +345,16 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
     end;
 handle_event(info, {cell_registry, forget, Serial, Who}, State, D) ->
     forget(State, Serial, Who, D);
-handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
-    {stop, Reason};
+handle_event(info, {Ref, _} = Msg, _State, D) when is_reference(Ref) ->
+    late_reply(Msg, D);
+handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) ->
+    case cell_member:exit_signal(Reason) of
+        ignore -> keep_state_and_data;
+        Stop -> Stop
+    end;
 handle_event(info, Msg, _State, D) ->
+    %% HAL news of a point the task's code subscribed to, a hardware object's message:
+    %% the task module's, if it takes them; anything else is a bug.
     stray(Msg, D);
 handle_event({call, From}, state, State, _D) ->
     {keep_state_and_data, [{reply, From, State}]};
@@ -368,25 +367,15 @@ handle_event({call, From}, info, State, D) ->
 terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
     %% Whatever ended the task, its outputs are left safe.
     _ = uninit(D),
-    case Reason of
-        normal -> cell_registry:unregister_task(Id);
-        shutdown -> cell_registry:unregister_task(Id);
-        {shutdown, _} -> cell_registry:unregister_task(Id);
-        _ -> ok
-    end.
+    cell_member:leave(Id, Reason).
 
 %% --------------------------------------------------------------------------------------
 %% Boot, start and init
 %% --------------------------------------------------------------------------------------
 
-boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
-    Previous = cell_registry:register_task(Id, #{module => Mod, zone => Z, lane => L,
-                                                 state => off, serial => undefined,
-                                                 settings_key => settings_key(D0),
-                                                 work => maps:get(work, D0#data.spec, true)}),
-    D1 = D0#data{request = cell_registry:control(request),
-                 estop = cell_registry:control(estop)},
-    D2 = retained(service_flag(cell_registry:control(service_mode), D1)),
+boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
+    {Previous, Controls} = cell_member:join(Spec, #{}),
+    D2 = retained(joined(Controls, D0)),
     %% A product's own fields may name atoms only the task's module holds: loaded
     %% before its file is read, on a node just started too (cell_product names its
     %% own), whatever read the retained data first.
@@ -402,8 +391,7 @@ boot(#data{task = #task{id = Id, module = Mod, zone = Z, lane = L} = T} = D0) ->
         end,
     case Previous of
         {crashed, Why} ->
-            cell_log:error(Id, "task restarted after a crash: ~ts", [crash_text(Why)]),
-            ok = cell_task:publish(T, task_crashed, #{reason => crash_text(Why)}),
+            ok = cell_member:crashed(T, "task", "", Why),
             Ask = ask_after_crash(Id),
             _ = Ask orelse crash_warning(Why, D),
             %% The outputs of the crashed incarnation may still be set: read as it
@@ -434,8 +422,7 @@ retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
 %% that restarting does not cure: it would loop).
 ask_after_crash(Id) ->
     case cell_registry:task(Id) of
-        {ok, #{crashed_in := setup}} -> true;
-        {ok, #{resumed := true}} -> true;
+        {ok, Row} -> cell_task_core:ask_after_crash(Row);
         _ -> false
     end.
 
@@ -449,7 +436,7 @@ crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
                     "against its sensors: where they agree it goes on by itself, where "
                     "they do not it asks you with an error of its own.~nNothing else is "
                     "needed. If this warning comes back, report it to maintenance with the "
-                    "log. Close it once read.", [crash_text(Why), serial_text(P)])).
+                    "log. Close it once read.", [cell_member:crash_text(Why), serial_text(P)])).
 
 start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) ->
     cell_log:warning(Id, "not started: the emergency stop is active", []),
@@ -472,22 +459,15 @@ start_from_off(D) ->
 %% What setup does first: the operator's question about a file the task's record cannot
 %% be read from (retained data first: nothing runs without them), an interrupted
 %% transfer or a crash, or init.
-setup_event(#data{retain_error = Why} = D) when Why =/= undefined ->
-    {retain_damaged, D};
-setup_event(D) ->
-    case D of
-        #data{crash = undefined, load_error = undefined,
-              task = #task{marker = #{phase := in_transit}}} -> {in_transit, D};
-        #data{crash = undefined, load_error = undefined} -> {run_init, D};
-        #data{crash = undefined} -> {product_damaged, D};
-        #data{crash = Why, crash_ask = true} ->
-            {{crashed, Why}, D#data{crash = undefined, crash_ask = false}};
-        #data{crash = _, load_error = undefined} ->
-            %% The task's reconcile decides (an interrupted transfer's mark included),
-            %% as after the operator's Retry.
-            {run_init, go_on_after_crash(D)};
-        #data{crash = _} ->
-            {product_damaged, go_on_after_crash(D)}
+setup_event(#data{task = T} = D) ->
+    case cell_task_core:setup(#{retain_error => D#data.retain_error, crash => D#data.crash,
+                                crash_ask => D#data.crash_ask, load_error => D#data.load_error,
+                                in_transit => cell_handshake:in_transit(T)}) of
+        {Event, none} -> {Event, D};
+        {Event, asked} -> {Event, D#data{crash = undefined, crash_ask = false}};
+        %% The task's reconcile decides (an interrupted transfer's mark included), as
+        %% after the operator's Retry.
+        {Event, go_on} -> {Event, go_on_after_crash(D)}
     end.
 
 %% Going on by itself after a crash: the registry remembers it until the task first
@@ -558,7 +538,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
         true ->
             estop(setup, D#data{estop = true});
         false ->
-            T = woken_by(Woken, T0),
+            T = cell_task_core:woken_by(Woken, T0),
             try Mod:reconcile(Held, T) of
                 {ok, T1} ->
                     %% Agreed: what the predecessor left is settled.
@@ -566,11 +546,11 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
                         cell_log:notice(T#task.id, "after the crash its record and its "
                                         "sensors agree: it goes on (product ~ts)",
                                         [serial_text(T1#task.product)]),
-                    ready_after_init(Then, D#data{task = clean(T1), predecessor = undefined,
-                                                       cause = start,
-                                                       crash_outputs = undefined});
+                    ready_after_init(Then, D#data{task = cell_task_core:clean(T1),
+                                                  predecessor = undefined, cause = start,
+                                                  crash_outputs = undefined});
                 {error, Spec, T1} ->
-                    raise(setup, Spec, reconcile, D#data{task = clean(T1)});
+                    raise(setup, Spec, reconcile, D#data{task = cell_task_core:clean(T1)});
                 Other ->
                     erlang:error({bad_reconcile_result, Mod, Other})
             catch
@@ -584,11 +564,7 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
 %% Arrow 1 (or 5 when an init error was ignored): READY-PROCESSING-ACTIVE with a
 %% product, READY-IDLE-STARVED without; the task's first events say more.
 ready_after_init(Woken, #data{task = T} = D) ->
-    Ready = case T#task.product of
-                undefined -> {ready, idle, starved};
-                _ -> {ready, processing, active}
-            end,
-    Arrow = case T#task.ipc of setup -> 1; down -> 5 end,
+    {Ready, Arrow} = cell_task_core:ready(T#task.product, T#task.ipc),
     ok = headroom(),
     goto(Ready, {arrow, Arrow}, D#data{pending = {step, Woken}, resume = undefined},
          [{next_event, internal, step}]).
@@ -615,9 +591,9 @@ run_step(State, D0) ->
     end.
 
 do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
-    T = woken_by(Woken, T0),
+    T = cell_task_core:woken_by(Woken, T0),
     try Mod:step(T) of
-        Result -> after_step(Result, D)
+        Result -> after_step(cell_task_core:step_result(Mod, Result), D)
     catch
         %% The step read or wrote a point whose connection is down: the step's work is
         %% dropped and runs again, as it was woken, after Retry; what it commanded
@@ -630,18 +606,14 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
     end.
 
 after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
-    D1 = D#data{task = clean(T), pending = {step, undefined}},
+    D1 = D#data{task = cell_task_core:clean(T), pending = {step, undefined}},
     Next = next_step(D1),
     case T#task.ipc of
         Ipc -> {keep_state, D1, Next};
         New -> {next_state, New, D1, Next}
     end;
-after_step({wait, Wait, T}, D) ->
-    Waits = case Wait of
-                L when is_list(L) -> L;
-                W -> [W]
-            end,
-    case arm(Waits, waited(D#data{task = clean(T), pending = {waits, Waits}})) of
+after_step({wait, Waits, T}, D) ->
+    case arm(Waits, waited(D#data{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
         {ok, D1} ->
             State = (D1#data.task)#task.ipc,
             case try_pause(State, D1) of
@@ -654,12 +626,10 @@ after_step({wait, Wait, T}, D) ->
     end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
-    goto(setup, {arrow, 2}, uninit(D#data{task = clean(T), cause = reset}),
+    goto(setup, {arrow, 2}, uninit(D#data{task = cell_task_core:clean(T), cause = reset}),
          [{next_event, internal, run_init}]);
 after_step({error, Spec, T}, D) ->
-    raise(T#task.ipc, Spec, step, D#data{task = clean(T), resume = T#task.ipc});
-after_step(Other, #data{task = #task{module = Mod}}) ->
-    erlang:error({bad_step_result, Mod, Other}).
+    raise(T#task.ipc, Spec, step, D#data{task = cell_task_core:clean(T), resume = T#task.ipc}).
 
 %% The first wait after going on by itself from a crash: a crash from here on is the
 %% task's reconcile's to decide again.
@@ -677,17 +647,6 @@ next_step(#data{gen = Gen}) ->
         {message_queue_len, 0} -> [{next_event, internal, step}];
         _ -> self() ! ?STEP(Gen), []
     end.
-
-%% What woke the step, and the operator's answer if that was it. (A step that follows
-%% a continue finds the task as it left it: nothing to change.)
-woken_by(undefined, #task{woken_by = undefined, answer = undefined} = T) -> T;
-woken_by({answer, A} = Woken, T) -> T#task{woken_by = Woken, answer = A};
-woken_by(Woken, T) -> T#task{woken_by = Woken, answer = undefined}.
-
-clean(#task{answer = undefined, woken_by = undefined} = T) ->
-    T;
-clean(T) ->
-    T#task{answer = undefined, woken_by = undefined}.
 
 %% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
 %% connections): what was armed before it is in `D', for the disarm that follows.
@@ -731,11 +690,10 @@ arm_one(Other, _Gen, _T) ->
 
 arm_watch(Ref, Link, Signal, Value, T0) ->
     %% Seed 000 §2.3.4: a downstream task waiting for an offer is starved.
-    T = case {Signal, Value, cell_handshake:available(T0, Link), T0#task.ipc} of
-            {available, true, false, {ready, _, _} = S} when S =/= {ready, idle, starved} ->
-                cell_task:starved(T0);
-            _ ->
-                T0
+    T = case cell_task_core:starves(Signal, Value, cell_handshake:available(T0, Link),
+                                    T0#task.ipc) of
+            true -> cell_task:starved(T0);
+            false -> T0
         end,
     {{handshake, Ref, Link, Signal, Value}, T}.
 
@@ -766,27 +724,27 @@ hold_or_pause(State, D) ->
         {hold, D1} -> {keep_state, D1}
     end.
 
+%% The decisions are cell_task_core's; the calls to the links (TryAbortOffering) are
+%% made here, between them.
 try_pause(State, #data{request = Request, deferred = Deferred, task = T0} = D) ->
-    Why = case Deferred of undefined -> pause; W -> W end,
-    case Request =/= start orelse Deferred =/= undefined of
+    case cell_task_core:pause_asked(Request, Deferred) of
         false ->
             {hold, D};
-        true ->
-            case cell_handshake:holding(T0) of
-                true ->
+        {true, Why} ->
+            case cell_task_core:pause_plan(cell_handshake:holding(T0),
+                                           cell_handshake:active_offers(T0), Why) of
+                {hold, Why} ->
                     {hold, D#data{deferred = Why}};
-                false ->
-                    Offers = cell_handshake:active_offers(T0),
+                {withdraw, Offers} ->
                     {Withdrawn, T} = lists:foldl(
                                        fun(L, {Acc, TAcc}) ->
                                                {Ok, TAcc1} = cell_handshake:try_abort_offering(TAcc, L),
                                                {[{L, Ok} | Acc], TAcc1}
                                        end, {[], T0}, Offers),
-                    case lists:all(fun({_, Ok}) -> Ok end, Withdrawn) of
-                        true ->
-                            {paused, pause(State, Why,
-                                           D#data{task = T, reoffer = [L || {L, _} <- Withdrawn]})};
-                        false ->
+                    case cell_task_core:withdrawn(Withdrawn, Why) of
+                        {pause, Why, Reoffer} ->
+                            {paused, pause(State, Why, D#data{task = T, reoffer = Reoffer})};
+                        {hold, Why} ->
                             {hold, D#data{task = T, deferred = Why}}
                     end
             end
@@ -891,59 +849,50 @@ io_lost(State, Group, D) ->
 
 raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
-    Arrow = case State of setup -> 7; {ready, _, _} -> 6 end,
+    Arrow = cell_task_core:down_arrow(State),
     goto(down, {arrow, Arrow}, (disarm(D))#data{down = {error, AlarmId, Origin}}, []).
 
-%% The operator answered an error.
-answered(step, Reset, _Who, D) when Reset =:= reset ->
+%% The operator answered an error: cell_task_core decides what follows, carried out
+%% here.
+answered(Origin, Solution, Who, D) ->
+    Context = #{request => D#data.request, deferred => D#data.deferred,
+                resume => D#data.resume},
+    act(cell_task_core:answer(Origin, Solution, Context), Who, D).
+
+act(reinit, _Who, D) ->
     reinit(D);
-answered(step, Solution, _Who, #data{request = start} = D) ->
-    resume(D#data{pending = {step, {answer, Solution}}});
-answered(step, Solution, _Who, #data{deferred = Deferred} = D) when Deferred =/= undefined ->
-    %% The error came while a transfer held a Pause or Stop back: the transfer goes on,
-    %% and the request applies once it has ended, as it would have without the error.
-    resume(D#data{pending = {step, {answer, Solution}}});
-answered(step, Solution, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}, pending = {step, {answer, Solution}}}};
-answered(init, retry, _Who, D) ->
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(init, reset, _Who, D) ->
-    reinit(D);
-answered(init, Solution, _Who, D) ->
-    %% Ignore (or Close): go on as if init had succeeded, reconciled first.
-    run_reconcile(undefined, {answer, Solution}, D);
-answered(reconcile, Solution, _Who, D) ->
-    %% Every answer, Reset too, is the task's to act on: the question was its own.
-    goto(setup, {arrow, 8}, D, [{next_event, internal, {reconcile, {answer, Solution}}}]);
-answered(crash, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+act({resume, Pending}, _Who, D) ->
+    resume(D#data{pending = Pending});
+act(resume, _Who, D) ->
+    resume(D);
+act({paused, Pending}, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}, pending = Pending}};
+act(paused, _Who, D) ->
+    {keep_state, D#data{down = {paused, pause}}};
+act({setup, Event}, _Who, D) ->
+    goto(setup, {arrow, 8}, D, [{next_event, internal, Event}]);
+act({reconcile, Then}, _Who, D) ->
+    run_reconcile(undefined, Then, D);
+act(forget_then_reinit, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
                     [Who, serial_text(P)]),
     reinit(D#data{task = cell_task:clear_product(T)});
-answered(crash, _Retry, _Who, D) ->
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(transit, reset, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+act({forget, Event}, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
                     [Who, serial_text(P)]),
     goto(setup, {arrow, 8}, D#data{task = cell_task:clear_product(T)},
-         [{next_event, internal, run_init}]);
-answered(transit, _Ignore, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
+         [{next_event, internal, Event}]);
+act({confirm_here, Event}, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
     goto(setup, {arrow, 8}, D#data{task = cell_task:store(T, P, G, undefined, #{})},
-         [{next_event, internal, run_init}]);
-answered(io, _Retry, _Who, #data{resume = undefined} = D) ->
-    %% Lost while initialising: initialise again (arrow 8); init checks the IO first.
-    goto(setup, {arrow, 8}, D, [{next_event, internal, run_init}]);
-answered(io, _Retry, _Who, #data{request = start} = D) ->
-    resume(D);
-answered(io, _Retry, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}}};
-answered(product_file, reset, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
+         [{next_event, internal, Event}]);
+act(set_aside_product, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
     goto(setup, {arrow, 8}, D#data{load_error = undefined}, [{next_event, internal, run_init}]);
-answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T} = D) ->
+act(reload_product, _Who, #data{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
             %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
@@ -955,7 +904,7 @@ answered(product_file, _Retry, _Who, #data{task = #task{product_path = Path} = T
             D1 = D#data{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
     end;
-answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
+act(set_aside_retained, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     case file:rename(Path, Aside) of
         ok ->
@@ -968,7 +917,7 @@ answered(retain_file, reset, Who, #data{task = #task{id = Id, retain_path = Path
                            "~ts", [Path, file:format_error(Why)])
     end,
     retained_again(D);
-answered(retain_file, _Retry, _Who, D) ->
+act(reload_retained, _Who, D) ->
     retained_again(D).
 
 %% The retained data read again (mended, restored or set aside meanwhile): the task
@@ -1019,12 +968,8 @@ secure(#data{down = Down} = D0) ->
 %% @doc Marks the caller's slot of the emergency stop's barrier: its outputs are
 %% secured. The last of the fan-out tells the controller.
 -spec estop_secured(estop_barrier()) -> ok.
-estop_secured({Ref, Slot, Total, Controller}) ->
-    ok = atomics:put(Ref, Slot, 1),
-    case atomics:add_get(Ref, Total + 1, 1) of
-        Total -> Controller ! {estop_secured, Ref}, ok;
-        _ -> ok
-    end.
+estop_secured(Barrier) ->
+    cell_member:estop_secured(Barrier).
 
 announce_off(D) ->
     goto(off, estop, disarm(D#data{held = undefined}), []).
@@ -1067,22 +1012,38 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
 goto(To, Cause, #data{task = T} = D, Actions) ->
     {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
 
-settings_key(#data{spec = Spec}) ->
-    case maps:get(settings, Spec, #{}) of
-        Name when is_atom(Name) -> Name;
-        _ -> undefined
-    end.
+%% The controller's commands as the task joined the cell.
+joined(#{request := Request, estop := Estop, service_mode := Service}, #data{task = T} = D) ->
+    D#data{request = Request, estop = Estop, task = T#task{service_mode = Service}}.
 
-service_flag(On, #data{task = T} = D) ->
-    D#data{task = T#task{service_mode = On}}.
+%% A command of the controller, kept as every member keeps it (see cell_member).
+member(Key, Value, #data{request = Request, estop = Estop, task = T} = D) ->
+    #{request := Request1, estop := Estop1, service_mode := Service} =
+        cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
+                                             service_mode => T#task.service_mode}),
+    D#data{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
 
+%% A message the engine does not know goes to the task module's handle_info/2; a task
+%% module without one expects none, and the task crashes (it is restarted, and the
+%% operator told, as after any crash).
 stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
     case erlang:function_exported(Mod, handle_info, 2) of
         true ->
             {ok, T1} = Mod:handle_info(Msg, T),
             {keep_state, D#data{task = T1}};
         false ->
-            cell_log:trace(Id, "ignored a message the task does not expect: ~tp", [Msg]),
+            cell_member:unexpected(Id, Msg)
+    end.
+
+%% A reply the task no longer waits for: it came after a timer of the same wait, or
+%% after the task left the wait (Pause, Stop, an error, the emergency stop). The task
+%% module may want it (handle_info/2); otherwise it is dropped, being late, not wrong.
+late_reply(Msg, #data{task = #task{module = Mod, id = Id}} = D) ->
+    case erlang:function_exported(Mod, handle_info, 2) of
+        true ->
+            stray(Msg, D);
+        false ->
+            cell_log:trace(Id, "dropped a reply it no longer waits for: ~tp", [Msg]),
             keep_state_and_data
     end.
 
@@ -1097,7 +1058,8 @@ handshake(Msg, State, #data{task = T0} = D0) ->
     D = D0#data{task = T},
     case State of
         {ready, _, _} ->
-            case woken(Wakes, D#data.armed, T) of
+            Signal = fun(Link, S) -> cell_handshake:signal(T, Link, S) end,
+            case cell_task_core:woken(Wakes, D#data.armed, Signal) of
                 undefined ->
                     %% A transfer that ended may free a Pause it held back.
                     case try_pause(State, D) of
@@ -1113,48 +1075,15 @@ handshake(Msg, State, #data{task = T0} = D0) ->
             %% Paused (or stopped): a transfer on a link the task will wait on again
             %% has ended, so at resume its step runs and sees that, instead of waiting
             %% for something the link can no longer send.
-            {keep_state, D#data{pending = ended_while_down(Wakes, D#data.pending)}}
+            {keep_state, D#data{pending = cell_task_core:ended_while_down(Wakes, D#data.pending)}}
     end.
 
-ended_while_down([], Pending) ->
-    Pending;
-ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when is_atom(Outcome) ->
-    case [W || {handshake, L, _, _} = W <- Waits, L =:= Link] of
-        [_ | _] -> {step, {handshake, Link, Outcome}};
-        [] -> ended_while_down(Rest, Pending)
-    end;
-ended_while_down([_ | Rest], Pending) ->
-    ended_while_down(Rest, Pending).
-
-woken([], _Armed, _T) ->
-    undefined;
-woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed, T) ->
-    case lists:keymember(Ref, 2, [A || {handshake, _, _, _, _} = A <- Armed]) of
-        true -> {handshake, Link, Signal, Value};
-        false -> woken(Rest, Armed, T)
-    end;
-woken([{wake, Link, {signals, _Seq}} | Rest], Armed, T) ->
-    %% The link's signals changed: a wait on one of them that holds now ends.
-    case [{S, V} || {handshake, _, L, S, V} <- Armed, L =:= Link,
-                    cell_handshake:signal(T, Link, S) =:= V] of
-        [{Signal, Value} | _] -> {handshake, Link, Signal, Value};
-        [] -> woken(Rest, Armed, T)
-    end;
-woken([{wake, Link, Outcome} | Rest], Armed, T) ->
-    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
-        ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
-        [_ | _] -> {handshake, Link, Outcome};
-        [] -> woken(Rest, Armed, T)
+wake_events(Woken, #task{ipc = State} = T) ->
+    case cell_task_core:wake_event(Woken, State) of
+        unblocked -> cell_task:unblocked(T);
+        unstarved -> cell_task:unstarved(T);
+        none -> T
     end.
-
-%% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
-%% seeing Available is unstarved.
-wake_events({handshake, _Link, not_busy, true}, #task{ipc = {ready, idle, blocked}} = T) ->
-    cell_task:unblocked(T);
-wake_events({handshake, _Link, available, true}, #task{ipc = {ready, idle, starved}} = T) ->
-    cell_task:unstarved(T);
-wake_events(_, T) ->
-    T.
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
 %% Retry after the file was damaged).
@@ -1185,9 +1114,9 @@ dedupe(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
 
 %% The product's copy is dropped if another task holds it in a newer record.
 drop_if_older(#task{id = Id, product = #{serial := S}, gen = G} = T) ->
-    case [Other || {Other, G2} <- cell_registry:holders(S), Other =/= Id, G2 > G] of
-        [] -> T;
-        [Other | _] -> drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
+    case cell_task_core:newer_holder(Id, G, cell_registry:holders(S)) of
+        none -> T;
+        {ok, Other} -> drop(T, io_lib:format("task ~ts holds it in a newer record", [Other]))
     end;
 drop_if_older(T) ->
     T.
@@ -1328,7 +1257,7 @@ crash_error(Why, #data{task = #task{product = P}}) ->
                     "Its product (~ts) was restored from its file and its outputs were "
                     "secured.~nCheck the machine, then select RETRY to continue with the "
                     "product as saved, or RESET to forget the product and start empty.",
-                    [crash_text(Why), serial_text(P)]),
+                    [cell_member:crash_text(Why), serial_text(P)]),
       [retry, reset]).
 
 damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
@@ -1361,19 +1290,6 @@ transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
                     "the task forgets it (take it out of the machine by hand).",
                     [serial_text(P), Link]),
       [ignore, reset]).
-
-crash_text({{product_not_saved, {Path, Reason}}, _}) ->
-    io_lib:format("the product could not be saved to ~ts (~tp)", [Path, Reason]);
-crash_text({{retained_not_saved, {Path, Reason}}, _}) ->
-    io_lib:format("its retained data could not be saved to ~ts (~tp)", [Path, Reason]);
-crash_text({{bad_retained, _, _} = Refused, _}) ->
-    ["the task's code tried to retain what cannot be retained: ", cell_retain:text(Refused)];
-crash_text({Reason, Stack}) when is_list(Stack) ->
-    io_lib:format("~tP", [Reason, 12]);
-crash_text(killed) ->
-    "it was killed";
-crash_text(Reason) ->
-    io_lib:format("~tP", [Reason, 12]).
 
 serial_text(undefined) -> "none";
 serial_text(#{serial := S}) -> S.

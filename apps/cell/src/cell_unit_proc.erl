@@ -198,7 +198,7 @@ handle_event(info, {cell_hal_unavailable, Ref, Why}, State, #data{refs = Refs, w
 handle_event(info, {Ref, Term} = Msg, State, #data{seq = Seq} = D) when is_reference(Ref) ->
     case cell_sequence_runner:expects(Seq, Ref) of
         true -> run(State, fun(S) -> cell_sequence_runner:event(S, {reply, Ref, Term}, now_ms()) end, D);
-        false -> stray(Msg, D)
+        false -> late_reply(Msg, D)
     end;
 handle_event(info, {cell_hal_conn, Conn, Status}, State, D) ->
     connection(Conn, Status, State, D);
@@ -208,6 +208,9 @@ handle_event(info, {cell_hal_back, Ref}, State, #data{id = Id, back = Ref, away 
                        [C, maps:get(C, D#data.conns)])
          || C <- Away, not lists:member(C, D#data.away)],
     keep(State, D);
+handle_event(info, {cell_hal_back, _Ref}, _State, _D) ->
+    %% The HAL's word for a wait the unit has since given up (it asks once at a time).
+    keep_state_and_data;
 
 %% --------------------------------------------------------------------------------------
 %% every state: the operator's answer to the unit's error
@@ -241,43 +244,37 @@ handle_event({call, From}, sync, _State, _D) ->
     {keep_state_and_data, [{reply, From, ok}]};
 handle_event({call, From}, info, State, D) ->
     {keep_state_and_data, [{reply, From, describe(State, D)}]};
-handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) when Reason =/= normal ->
-    {stop, Reason};
-handle_event(info, Msg, _State, D) ->
-    stray(Msg, D).
+handle_event(info, {'EXIT', _Pid, Reason}, _State, _D) ->
+    case cell_member:exit_signal(Reason) of
+        ignore -> keep_state_and_data;
+        Stop -> Stop
+    end;
+handle_event(info, Msg, _State, #data{id = Id}) ->
+    %% Nothing else is sent to a unit: the engine subscribes to no point (it watches),
+    %% and its sequences' steps run here. A message of another kind is a bug.
+    cell_member:unexpected(Id, Msg).
 
 -spec terminate(term(), cell_unit_fsm:state(), #data{}) -> ok.
 terminate(Reason, _State, #data{id = Id} = D) ->
     %% Whatever ended the unit, its outputs are left safe.
     secure(D),
-    case Reason of
-        normal -> cell_registry:unregister_task(Id);
-        shutdown -> cell_registry:unregister_task(Id);
-        {shutdown, _} -> cell_registry:unregister_task(Id);
-        _ -> ok
-    end.
+    cell_member:leave(Id, Reason).
 
 %% -------------------------------------------------------------------------------------
 %% Boot
 %% -------------------------------------------------------------------------------------
 
-boot(#data{id = Id, spec = Spec} = D0) ->
-    Previous = cell_registry:register_task(
-                 Id, #{module => maps:get(module, Spec), zone => maps:get(zone, Spec),
-                       lane => maps:get(lane, Spec), state => off, serial => undefined,
-                       settings_key => settings_key(Spec), kind => unit,
-                       unit_state => booting, work => maps:get(work, Spec, true)}),
-    Request = cell_registry:control(request),
-    Service = cell_registry:control(service_mode),
-    D1 = subscribe_io(D0#data{request = Request, estop = cell_registry:control(estop),
+boot(#data{spec = Spec} = D0) ->
+    {Previous, #{request := Request, estop := Estop, service_mode := Service}} =
+        cell_member:join(Spec, #{kind => unit, unit_state => booting}),
+    D1 = subscribe_io(D0#data{request = Request, estop = Estop,
                               service = Service, halt = Request =:= pause orelse Service,
                               seq = cell_sequence_runner:set_service(D0#data.seq, Service),
                               trigger = boot}),
     D = case Previous of
             {crashed, Why} ->
-                cell_log:error(Id, "unit restarted after a crash: ~ts; its outputs are made "
-                               "safe, its position is unknown", [crash_text(Why)]),
-                ok = cell_task:publish(D1#data.task, task_crashed, #{reason => crash_text(Why)}),
+                ok = cell_member:crashed(D1#data.task, "unit", "; its outputs are made safe, "
+                                         "its position is unknown", Why),
                 secure(D1),
                 D1#data{crash = Why};
             _ ->
@@ -285,12 +282,6 @@ boot(#data{id = Id, spec = Spec} = D0) ->
                 D1#data{auto = Request =:= start}
         end,
     {keep_state, report(undefined, booting, D), [{next_event, internal, entered}]}.
-
-settings_key(Spec) ->
-    case maps:get(settings, Spec, #{}) of
-        Name when is_atom(Name) -> Name;
-        _ -> undefined
-    end.
 
 %% -------------------------------------------------------------------------------------
 %% Transitions and sequences
@@ -480,7 +471,7 @@ halt_flag(On, State, #data{seq = Seq} = D) ->
 
 control(request, start, State, #data{estop = false} = D) ->
     %% Halt released; then referenced where needed, and on to Automatic.
-    case halt_flag(false, State, D#data{request = start, auto = true}) of
+    case halt_flag(false, State, (member(request, start, D))#data{auto = true}) of
         {Quiet, D1} when Quiet =:= wait; Quiet =:= idle ->
             case cell_unit_fsm:is_non_active(State) andalso arrive(State, D1) of
                 {go, Trigger} -> transition(Trigger, State, D1);
@@ -493,10 +484,10 @@ control(request, start, State, D) ->
     %% The controller refuses Start during the emergency stop; nothing moves.
     keep(State, D);
 control(request, pause, State, D) ->
-    {Outcome, D1} = halt_flag(true, State, D#data{request = pause}),
+    {Outcome, D1} = halt_flag(true, State, member(request, pause, D)),
     outcome(Outcome, State, D1);
 control(request, stop, State, D0) ->
-    D = D0#data{request = stop, auto = false},
+    D = (member(request, stop, D0))#data{auto = false},
     case cell_unit_fsm:next(State, stop) of
         {ok, _} ->
             transition(stop, State, D#data{halt = false});
@@ -504,22 +495,22 @@ control(request, stop, State, D0) ->
             {Outcome, D1} = halt_flag(false, State, D),
             outcome(Outcome, State, D1)
     end;
-control(estop, {true, Barrier}, State, D) ->
+control(estop, {true, Barrier} = Estop, State, D) ->
     %% Secured at once, and counted in the controller's barrier; a unit announces its
     %% state at once, it holds nothing back.
-    Result = estop(State, D#data{estop = true, request = stop, auto = false, halt = false}),
-    ok = cell_task_proc:estop_secured(Barrier),
+    Result = estop(State, (member(estop, Estop, D))#data{auto = false, halt = false}),
+    ok = cell_member:estop_secured(Barrier),
     Result;
 control(estop_settled, _, _State, _D) ->
     keep_state_and_data;
 control(estop, false, booting, #data{estop = true, error = undefined} = D) ->
     %% The booting sequence was interrupted: it runs again from its start.
-    {keep_state, report(booting, booting, D#data{estop = false}),
+    {keep_state, report(booting, booting, member(estop, false, D)),
      [{next_event, internal, entered}]};
 control(estop, false, State, D) ->
-    keep(State, D#data{estop = false});
-control(service_mode, On, State, #data{seq = Seq} = D0) when is_boolean(On) ->
-    D = D0#data{service = On, seq = cell_sequence_runner:set_service(Seq, On)},
+    keep(State, member(estop, false, D));
+control(service_mode, On, State, #data{seq = Seq} = D0) ->
+    D = (member(service_mode, On, D0))#data{seq = cell_sequence_runner:set_service(Seq, On)},
     case On of
         true ->
             %% The seed: DOWN after the current motion, speeds limited afterwards.
@@ -530,7 +521,14 @@ control(service_mode, On, State, #data{seq = Seq} = D0) when is_boolean(On) ->
     end;
 control(settings, Settings, State, D) when is_map(Settings) ->
     %% In force from the next GoHome, when the unit starts over.
-    keep(State, D#data{settings = Settings}).
+    keep(State, (member(settings, Settings, D))#data{settings = Settings}).
+
+%% A command of the controller, kept as every member keeps it (see cell_member).
+member(Key, Value, #data{request = Request, estop = Estop, service = Service} = D) ->
+    #{request := Request1, estop := Estop1, service_mode := Service1} =
+        cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
+                                             service_mode => Service}),
+    D#data{request = Request1, estop = Estop1, service = Service1}.
 
 %% The emergency stop: everything stops at once and the outputs are made safe.
 estop(State, D0) ->
@@ -645,7 +643,7 @@ crash_error(Why) ->
       io_lib:format("The unit stopped unexpectedly and was restarted: ~ts.~nIts outputs "
                     "were made safe; where its actuators are is not known.~nCheck the "
                     "machine, then select RESET: the unit references itself (GoHome) when "
-                    "the cell runs.", [crash_text(Why)]),
+                    "the cell runs.", [cell_member:crash_text(Why)]),
       [reset]).
 
 where_text(#{module := undefined}) -> "";
@@ -654,10 +652,6 @@ where_text(#{module := Mod, step := Step}) ->
 
 step_text(S) when is_atom(S) -> atom_to_list(S);
 step_text(S) -> io_lib:format("~tp", [S]).
-
-crash_text({Reason, Stack}) when is_list(Stack) -> io_lib:format("~tP", [Reason, 12]);
-crash_text(killed) -> "it was killed";
-crash_text(Reason) -> io_lib:format("~tP", [Reason, 12]).
 
 %% -------------------------------------------------------------------------------------
 %% IO
@@ -885,8 +879,10 @@ describe(State, #data{id = Id, ipc = Ipc, error = Error, fault = Fault, seq = Se
       step => D#data.step, sequence => cell_sequence_runner:describe(Seq),
       product => undefined, settings => D#data.in_force}.
 
-stray(Msg, #data{id = Id}) ->
-    cell_log:trace(Id, "ignored a message the unit does not expect: ~tp", [Msg]),
+%% A reply no sequence waits for any more: it came after the step that asked was
+%% interrupted or timed out. Late, not wrong: dropped.
+late_reply(Msg, #data{id = Id}) ->
+    cell_log:trace(Id, "dropped a reply it no longer waits for: ~tp", [Msg]),
     keep_state_and_data.
 
 now_ms() ->

@@ -16,7 +16,7 @@
          cell_state_follows_tasks/1, cell_state_settles_under_races/1,
          bad_spec_is_refused/1, settings_snapshot_at_start/1,
          recipe_buffer_cleared_at_start/1, estop_secures_all_before_any_announces/1,
-         estop_deadline_kills_a_stuck_task/1]).
+         estop_deadline_kills_a_stuck_task/1, unexpected_message_crashes_a_task/1]).
 
 -define(IDS, [load, work, unload, robot]).
 
@@ -30,7 +30,7 @@ all() ->
      cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused,
      settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
-     estop_deadline_kills_a_stuck_task].
+     estop_deadline_kills_a_stuck_task, unexpected_message_crashes_a_task].
 
 -define(MANY, 200).
 
@@ -221,6 +221,30 @@ crash_restores_product(Config) ->
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
     ?assertMatch([#{kind := warning}], cell_alarms:list()).
+
+%% A message the engine does not know crashes a task whose module takes none
+%% (handle_info/2): it is restarted, and the crash says why in words. A reply the task
+%% no longer waits for is late, not wrong: dropped, the task goes on.
+unexpected_message_crashes_a_task(_Config) ->
+    ok = cell_events:subscribe([task_crashed]),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    Load = cell_task_proc:whereis(load),
+    Load ! {make_ref(), late},
+    ok = cell_task_proc:sync(load),
+    ?assertEqual(Load, cell_task_proc:whereis(load)),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(load)),
+    Work = cell_task_proc:whereis(work),
+    Work ! {no_such_message, 1},
+    Crash = receive
+                {cell_event, #{type := task_crashed, task := work, reason := R}} -> R
+            after 5000 -> ct:fail(no_restart)
+            end,
+    ?assertNotEqual(nomatch, string:find(Crash, "does not expect")),
+    ?assertNotEqual(nomatch, string:find(Crash, "no_such_message")),
+    ok = cell_controller:sync(),
+    ?assertNotEqual(Work, cell_task_proc:whereis(work)),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)).
 
 %% Where reconcile cannot decide, the operator is asked about the crash: here a task
 %% that crashes again after going on by itself, before it first waited (its init

@@ -16,7 +16,7 @@
          an_action_from_fault_returns_there/1, a_crashed_unit_waits_for_the_operator/1,
          units_and_tasks_side_by_side/1, specs_name_what_is_wrong/1,
          ready_events_outside_ready_are_a_fault/1, hal_server_away_is_lost_io/1,
-         a_watched_point_unavailable_is_a_fault/1]).
+         a_watched_point_unavailable_is_a_fault/1, unexpected_message_crashes_a_unit/1]).
 
 -define(WAIT, 10000).
 -define(U, picker).
@@ -37,7 +37,7 @@ all() ->
      an_action_from_fault_returns_there, a_crashed_unit_waits_for_the_operator,
      units_and_tasks_side_by_side, specs_name_what_is_wrong,
      ready_events_outside_ready_are_a_fault, hal_server_away_is_lost_io,
-     a_watched_point_unavailable_is_a_fault].
+     a_watched_point_unavailable_is_a_fault, unexpected_message_crashes_a_unit].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -506,6 +506,22 @@ a_crashed_unit_waits_for_the_operator(_Config) ->
     ?assertEqual(init, cell_unit:state(?U)),                %% nothing moves by itself
     ok = cell_alarms:answer(Id, reset, <<"ct">>),
     await_state(automatic).
+
+%% A message the unit's engine does not know crashes it: it comes back in Init with the
+%% crash, in words, for the operator. A reply no sequence waits for is dropped.
+unexpected_message_crashes_a_unit(_Config) ->
+    start_cell(#{}),
+    run(),
+    Old = cell_unit:whereis(?U),
+    Old ! {make_ref(), late},
+    ok = cell_unit:settle(?U),
+    ?assertEqual(Old, cell_unit:whereis(?U)),
+    Old ! {no_such_message, 1},
+    _ = await_event(fun(#{type := T, task := ?U}) -> T =:= task_crashed; (_) -> false end),
+    await_state(init),
+    ?assertNotEqual(Old, cell_unit:whereis(?U)),
+    #{local_id := <<"crashed">>, description := Text} = error_of(?U),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"does not expect">>)).
 
 %% The HAL's server is away (it restarts) as the unit starts again after a crash: the
 %% unit does not crash again; its connection, which it could not subscribe to, is lost

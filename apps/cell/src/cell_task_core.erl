@@ -1,0 +1,446 @@
+%% @doc The decisions of a device task's engine, without a process: what the task does
+%% next, given where it is and what happened. {@link cell_task_proc} asks these
+%% functions and carries out what they decide (calls to the task's links and module,
+%% file writes, the HAL, timers, replies); everything here is a function of its
+%% arguments and tested without processes.
+%%
+%% <ul>
+%% <li>Pause, Stop and service mode at a step boundary ({@link pause_asked/2},
+%%     {@link pause_plan/3}, {@link withdrawn/2}): the seed allows stopping only before
+%%     downstream commits, so a transfer under way holds the request back, and open
+%%     offers are withdrawn first (TryAbortOffering) unless downstream has just begun
+%%     to take one.</li>
+%% <li>What a step returned ({@link step_result/2}), and what it is told woke it
+%%     ({@link woken_by/2}, {@link clean/1}).</li>
+%% <li>Errors: the arrow into DOWN ({@link down_arrow/1}); what setup does first
+%%     ({@link setup/1}); whether a crash is the operator's question
+%%     ({@link ask_after_crash/1}); what the operator's answer leads to
+%%     ({@link answer/3}).</li>
+%% <li>Transfers: which armed wait a link's news ends ({@link woken/3}), what a
+%%     transfer that ended while the task was DOWN changes ({@link ended_while_down/2}),
+%%     the IPC-2541 events the seed raises when a wait on a link ends
+%%     ({@link wake_event/2}) or starts ({@link starves/4}); a copy of a product
+%%     another task holds in a newer record ({@link newer_holder/3}).</li>
+%% </ul>
+%%
+%% It also gives {@link cell_handshake} the task's fields the handshake keeps
+%% (product, generation, in-transit mark, links' views), so that only the engine's
+%% modules know the task record.
+-module(cell_task_core).
+
+-include("cell_task.hrl").
+
+-export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, woken_by/2, clean/1,
+         down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
+         ended_while_down/2, wake_event/2, starves/4, newer_holder/3]).
+%% The task's handshake fields, for cell_handshake.
+-export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
+         take/4, released/1]).
+
+-export_type([why/0, origin/0, answer_action/0, setup_event/0, armed/0]).
+
+-type why() :: pause | service.
+%% Where an error the operator answers came from.
+-type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
+-type setup_event() :: retain_damaged | in_transit | run_init | product_damaged
+                     | {crashed, term()}.
+%% What the engine does with the operator's answer.
+-type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
+                       | {resume, term()}          %% READY where it was, woken thus
+                       | resume                    %% READY where it was, as it was
+                       | {paused, term()}          %% stays DOWN, paused, woken thus later
+                       | paused                    %% stays DOWN, paused
+                       | {setup, term()}           %% setup again with this event (arrow 8)
+                       | {reconcile, term()}       %% reconcile at once, woken thus
+                       | forget_then_reinit        %% forget the product, then reinit
+                       | {forget, term()}          %% forget the product, setup again
+                       | {confirm_here, term()}    %% the product is here, setup again
+                       | set_aside_product | reload_product
+                       | set_aside_retained | reload_retained.
+-type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
+               | {reply, reference()}
+               | {io, reference(), atom(), atom()}
+               | {handshake, reference(), atom(), atom(), term()}.
+
+%% -------------------------------------------------------------------------------------
+%% Pause, Stop, service mode
+%% -------------------------------------------------------------------------------------
+
+%% @doc Whether a Pause, Stop or service mode is to be honoured at this step
+%% boundary: the request is not Start, or a transfer held one back (`Deferred').
+-spec pause_asked(start | pause | stop, why() | undefined) -> false | {true, why()}.
+pause_asked(start, undefined) -> false;
+pause_asked(_Request, undefined) -> {true, pause};
+pause_asked(_Request, Deferred) -> {true, Deferred}.
+
+%% @doc A pause asked for: held back while a transfer is under way (`Holding'), else
+%% the open offers (`Offers', maybe none) are to be withdrawn first.
+-spec pause_plan(boolean(), [atom()], why()) -> {hold, why()} | {withdraw, [atom()]}.
+pause_plan(true, _Offers, Why) -> {hold, Why};
+pause_plan(false, Offers, _Why) -> {withdraw, Offers}.
+
+%% @doc The offers' withdrawal, link by link (`true': withdrawn): the task pauses, to
+%% offer again at resume what it withdrew, or, if downstream began to take one, the
+%% transfer goes on and holds the pause back.
+-spec withdrawn([{atom(), boolean()}], why()) -> {pause, why(), [atom()]} | {hold, why()}.
+withdrawn(Results, Why) ->
+    case lists:all(fun({_, Ok}) -> Ok end, Results) of
+        true -> {pause, Why, [L || {L, _} <- Results]};
+        false -> {hold, Why}
+    end.
+
+%% -------------------------------------------------------------------------------------
+%% Steps
+%% -------------------------------------------------------------------------------------
+
+%% @doc What a step of `Mod' returned, its waits as a list; anything else is the
+%% module's bug.
+-spec step_result(module(), term()) ->
+          {continue, cell_task:task()} | {wait, [cell_task:wait()], cell_task:task()}
+        | {reset, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}.
+step_result(_Mod, {continue, #task{}} = R) -> R;
+step_result(_Mod, {wait, Waits, #task{} = T}) when is_list(Waits) -> {wait, Waits, T};
+step_result(_Mod, {wait, Wait, #task{} = T}) -> {wait, [Wait], T};
+step_result(_Mod, {reset, #task{}} = R) -> R;
+step_result(_Mod, {error, _Spec, #task{}} = R) -> R;
+step_result(Mod, Other) -> erlang:error({bad_step_result, Mod, Other}).
+
+%% @doc The task as its step sees it: what woke it and, if that was the operator, the
+%% answer. (A step that follows a continue finds the task as it left it.)
+-spec woken_by(term(), cell_task:task()) -> cell_task:task().
+woken_by(undefined, #task{woken_by = undefined, answer = undefined} = T) -> T;
+woken_by({answer, A} = Woken, T) -> T#task{woken_by = Woken, answer = A};
+woken_by(Woken, T) -> T#task{woken_by = Woken, answer = undefined}.
+
+%% @doc The task after its step or reconcile: what woke it is spent.
+-spec clean(cell_task:task()) -> cell_task:task().
+clean(#task{answer = undefined, woken_by = undefined} = T) -> T;
+clean(T) -> T#task{answer = undefined, woken_by = undefined}.
+
+%% -------------------------------------------------------------------------------------
+%% Errors and setup
+%% -------------------------------------------------------------------------------------
+
+%% @doc The arrow of seed 000 §2.2 an error takes into DOWN.
+-spec down_arrow(setup | cell_ipc:ready()) -> 6 | 7.
+down_arrow(setup) -> 7;
+down_arrow({ready, _, _}) -> 6.
+
+%% @doc The READY state a task enters after init and reconcile (with a product it
+%% processes, without one it is starved), and the arrow: 1 from setup, 5 from DOWN
+%% (init's error ignored).
+-spec ready(cell_product:product() | undefined, setup | down) -> {cell_ipc:ready(), 1 | 5}.
+ready(Product, From) ->
+    Ready = case Product of
+                undefined -> {ready, idle, starved};
+                _ -> {ready, processing, active}
+            end,
+    {Ready, case From of setup -> 1; down -> 5 end}.
+
+%% @doc What setup does first: the operator's question about a file the task's record
+%% cannot be read from (retained data first: nothing runs without them), an
+%% interrupted transfer, a crash only the operator can settle; else init. `go_on':
+%% the task goes on by itself after a crash (its reconcile decides); `asked': the
+%% crash is the operator's question now.
+-spec setup(#{retain_error := term(), crash := term(), crash_ask := boolean(),
+              load_error := term(), in_transit := boolean()}) ->
+          {setup_event(), none | go_on | asked}.
+setup(#{retain_error := Why}) when Why =/= undefined ->
+    {retain_damaged, none};
+setup(#{crash := undefined, load_error := undefined, in_transit := true}) ->
+    {in_transit, none};
+setup(#{crash := undefined, load_error := undefined}) ->
+    {run_init, none};
+setup(#{crash := undefined}) ->
+    {product_damaged, none};
+setup(#{crash := Why, crash_ask := true}) ->
+    {{crashed, Why}, asked};
+setup(#{load_error := undefined}) ->
+    {run_init, go_on};
+setup(#{}) ->
+    {product_damaged, go_on}.
+
+%% @doc Whether the operator is asked about a crash rather than the task's reconcile,
+%% from the crashed task's registry row: it died where reconcile cannot decide (in
+%% init or reconcile itself: in setup), or died again after it had gone on by itself
+%% from a crash, before its first wait (a fault that restarting does not cure: it
+%% would loop).
+-spec ask_after_crash(map()) -> boolean().
+ask_after_crash(#{crashed_in := setup}) -> true;
+ask_after_crash(#{resumed := true}) -> true;
+ask_after_crash(#{}) -> false.
+
+%% @doc What the operator's answer to the task's error leads to, by where the error
+%% came from. `Request' is the controller's, `Deferred' a pause a transfer held back
+%% when the error came, `Resume' the READY state to go back to (`undefined' when the
+%% error came in setup).
+-spec answer(origin(), cell_alarms:solution(),
+             #{request := start | pause | stop, deferred := why() | undefined,
+               resume := cell_ipc:ready() | undefined}) -> answer_action().
+answer(step, reset, _) -> reinit;
+answer(step, Solution, #{request := start}) -> {resume, {step, {answer, Solution}}};
+answer(step, Solution, #{deferred := Deferred}) when Deferred =/= undefined ->
+    %% The error came while a transfer held a Pause or Stop back: the transfer goes on,
+    %% and the request applies once it has ended, as it would have without the error.
+    {resume, {step, {answer, Solution}}};
+answer(step, Solution, _) -> {paused, {step, {answer, Solution}}};
+answer(init, retry, _) -> {setup, run_init};
+answer(init, reset, _) -> reinit;
+%% Ignore (or Close): go on as if init had succeeded, reconciled first.
+answer(init, Solution, _) -> {reconcile, {answer, Solution}};
+%% Every answer, Reset too, is the task's to act on: the question was its own.
+answer(reconcile, Solution, _) -> {setup, {reconcile, {answer, Solution}}};
+answer(crash, reset, _) -> forget_then_reinit;
+answer(crash, _Retry, _) -> {setup, run_init};
+answer(transit, reset, _) -> {forget, run_init};
+answer(transit, _Ignore, _) -> {confirm_here, run_init};
+%% Lost while initialising: initialise again; init checks the IO first.
+answer(io, _Retry, #{resume := undefined}) -> {setup, run_init};
+answer(io, _Retry, #{request := start}) -> resume;
+answer(io, _Retry, _) -> paused;
+answer(product_file, reset, _) -> set_aside_product;
+answer(product_file, _Retry, _) -> reload_product;
+answer(retain_file, reset, _) -> set_aside_retained;
+answer(retain_file, _Retry, _) -> reload_retained.
+
+%% -------------------------------------------------------------------------------------
+%% Transfers
+%% -------------------------------------------------------------------------------------
+
+%% @doc Which armed wait the news of a link ends (`Wakes', from cell_handshake:handle/2),
+%% and what the step is told woke it; `undefined' if none. `Signal' gives a link's
+%% signal as the task sees it now.
+-spec woken([{wake, atom(), term()}], [armed()],
+            fun((atom(), available | not_busy) -> boolean())) -> term() | undefined.
+woken([], _Armed, _Signal) ->
+    undefined;
+woken([{wake, Link, {watch, Ref, Signal, Value}} | Rest], Armed, Sig) ->
+    case [A || {handshake, R, _, _, _} = A <- Armed, R =:= Ref] of
+        [_ | _] -> {handshake, Link, Signal, Value};
+        [] -> woken(Rest, Armed, Sig)
+    end;
+woken([{wake, Link, {signals, _Seq}} | Rest], Armed, Sig) ->
+    %% The link's signals changed: a wait on one of them that holds now ends.
+    case [{S, V} || {handshake, _, L, S, V} <- Armed, L =:= Link, Sig(Link, S) =:= V] of
+        [{Signal, Value} | _] -> {handshake, Link, Signal, Value};
+        [] -> woken(Rest, Armed, Sig)
+    end;
+woken([{wake, Link, Outcome} | Rest], Armed, Sig) ->
+    case [A || {handshake, _, L, _, _} = A <- Armed, L =:= Link]
+        ++ [A || {timer, _, {link_down, L}} = A <- Armed, L =:= Link] of
+        [_ | _] -> {handshake, Link, Outcome};
+        [] -> woken(Rest, Armed, Sig)
+    end.
+
+%% @doc Paused (or stopped), a transfer on a link the task will wait on again has
+%% ended: at resume its step runs and sees that, instead of waiting for something the
+%% link can no longer send.
+-spec ended_while_down([{wake, atom(), term()}], term()) -> term().
+ended_while_down([], Pending) ->
+    Pending;
+ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when is_atom(Outcome) ->
+    case [W || {handshake, L, _, _} = W <- Waits, L =:= Link] of
+        [_ | _] -> {step, {handshake, Link, Outcome}};
+        [] -> ended_while_down(Rest, Pending)
+    end;
+ended_while_down([_ | Rest], Pending) ->
+    ended_while_down(Rest, Pending).
+
+%% @doc Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
+%% seeing Available is unstarved.
+-spec wake_event(term(), cell_ipc:state()) -> unblocked | unstarved | none.
+wake_event({handshake, _Link, not_busy, true}, {ready, idle, blocked}) -> unblocked;
+wake_event({handshake, _Link, available, true}, {ready, idle, starved}) -> unstarved;
+wake_event(_Woken, _State) -> none.
+
+%% @doc Seed 000 §2.3.4: a READY downstream task that waits for an offer while none
+%% stands is starved.
+-spec starves(available | not_busy, term(), boolean(), cell_ipc:state()) -> boolean().
+starves(available, true, false, {ready, _, _} = S) -> S =/= {ready, idle, starved};
+starves(_Signal, _Value, _Available, _State) -> false.
+
+%% @doc Another task holding the product `Serial' (of generation `Gen' here) in a newer
+%% record, from the registry's holders of the serial: this task's copy is then stale.
+-spec newer_holder(atom(), non_neg_integer(), [{atom(), non_neg_integer()}]) ->
+          {ok, atom()} | none.
+newer_holder(Id, Gen, Holders) ->
+    case [Other || {Other, G2} <- Holders, Other =/= Id, G2 > Gen] of
+        [] -> none;
+        [Other | _] -> {ok, Other}
+    end.
+
+%% -------------------------------------------------------------------------------------
+%% The task's handshake fields
+%% -------------------------------------------------------------------------------------
+
+%% @doc The task's views of its handshake links.
+-spec links(cell_task:task()) -> #{atom() => map()}.
+links(#task{links = L}) -> L.
+
+%% @doc The task with new views of its links.
+-spec set_links(cell_task:task(), #{atom() => map()}) -> cell_task:task().
+set_links(T, L) when is_map(L) -> T#task{links = L}.
+
+%% @doc The generation of the task's product's record (see cell_product).
+-spec gen(cell_task:task()) -> non_neg_integer().
+gen(#task{gen = G}) -> G.
+
+%% @doc The product's in-transit mark, if a transfer moves it.
+-spec marker(cell_task:task()) -> cell_product:marker().
+marker(#task{marker = M}) -> M.
+
+%% @doc The task's product file.
+-spec product_path(cell_task:task()) -> binary().
+product_path(#task{product_path = P}) -> P.
+
+%% @doc The task's product file, as kept open for its writes.
+-spec product_file(cell_task:task()) -> cell_file:record_file().
+product_file(#task{product_file = F}) -> F.
+
+%% @doc The task holds `Product' (of generation `Gen', with `Marker') in memory only:
+%% its file is written by whoever owns the product on disk (a transfer's rules).
+-spec take(cell_task:task(), cell_product:product() | undefined, non_neg_integer(),
+           cell_product:marker()) -> cell_task:task().
+take(T, Product, Gen, Marker) ->
+    T#task{product = Product, gen = Gen, marker = Marker}.
+
+%% @doc The product has left the task (released downstream): it holds none, and its
+%% serial is no longer the one it traced.
+-spec released(cell_task:task()) -> cell_task:task().
+released(T) ->
+    T#task{product = undefined, gen = 0, marker = undefined, traced = undefined}.
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+pause_test_() ->
+    [?_assertEqual(false, pause_asked(start, undefined)),
+     ?_assertEqual({true, pause}, pause_asked(pause, undefined)),
+     ?_assertEqual({true, pause}, pause_asked(stop, undefined)),
+     ?_assertEqual({true, service}, pause_asked(start, service)),
+     ?_assertEqual({true, service}, pause_asked(pause, service)),
+     ?_assertEqual({hold, pause}, pause_plan(true, [out], pause)),
+     ?_assertEqual({withdraw, [out]}, pause_plan(false, [out], pause)),
+     ?_assertEqual({withdraw, []}, pause_plan(false, [], service)),
+     ?_assertEqual({pause, pause, []}, withdrawn([], pause)),
+     ?_assertEqual({pause, service, [a, b]}, withdrawn([{a, true}, {b, true}], service)),
+     ?_assertEqual({hold, pause}, withdrawn([{a, true}, {b, false}], pause))].
+
+step_result_test_() ->
+    T = #task{},
+    [?_assertEqual({continue, T}, step_result(m, {continue, T})),
+     ?_assertEqual({wait, [{timer, 5}], T}, step_result(m, {wait, {timer, 5}, T})),
+     ?_assertEqual({wait, [{timer, 5}, {reply, r}], T},
+                   step_result(m, {wait, [{timer, 5}, {reply, r}], T})),
+     ?_assertEqual({reset, T}, step_result(m, {reset, T})),
+     ?_assertEqual({error, #{}, T}, step_result(m, {error, #{}, T})),
+     ?_assertError({bad_step_result, m, ok}, step_result(m, ok)),
+     ?_assertError({bad_step_result, m, {continue, x}}, step_result(m, {continue, x}))].
+
+arrows_test_() ->
+    [?_assertEqual(7, down_arrow(setup)),
+     ?_assertEqual(6, down_arrow({ready, idle, starved})),
+     ?_assertEqual({{ready, idle, starved}, 1}, ready(undefined, setup)),
+     ?_assertEqual({{ready, processing, active}, 5}, ready(#{serial => <<"S">>}, down))].
+
+setup_test_() ->
+    Base = #{retain_error => undefined, crash => undefined, crash_ask => false,
+             load_error => undefined, in_transit => false},
+    [?_assertEqual({run_init, none}, setup(Base)),
+     ?_assertEqual({retain_damaged, none}, setup(Base#{retain_error := bad, crash := c})),
+     ?_assertEqual({in_transit, none}, setup(Base#{in_transit := true})),
+     ?_assertEqual({product_damaged, none}, setup(Base#{load_error := bad, in_transit := true})),
+     ?_assertEqual({{crashed, c}, asked}, setup(Base#{crash := c, crash_ask := true})),
+     %% After a crash the task's reconcile decides, an in-transit mark included.
+     ?_assertEqual({run_init, go_on}, setup(Base#{crash := c, in_transit := true})),
+     ?_assertEqual({product_damaged, go_on}, setup(Base#{crash := c, load_error := bad}))].
+
+answer_test_() ->
+    Running = #{request => start, deferred => undefined, resume => {ready, idle, starved}},
+    Paused = Running#{request := pause},
+    [?_assertEqual(reinit, answer(step, reset, Running)),
+     ?_assertEqual({resume, {step, {answer, retry}}}, answer(step, retry, Running)),
+     ?_assertEqual({resume, {step, {answer, ignore}}},
+                   answer(step, ignore, Paused#{deferred := pause})),
+     ?_assertEqual({paused, {step, {answer, retry}}}, answer(step, retry, Paused)),
+     ?_assertEqual({setup, run_init}, answer(init, retry, Running)),
+     ?_assertEqual(reinit, answer(init, reset, Running)),
+     ?_assertEqual({reconcile, {answer, ignore}}, answer(init, ignore, Running)),
+     ?_assertEqual({setup, {reconcile, {answer, reset}}}, answer(reconcile, reset, Running)),
+     ?_assertEqual(forget_then_reinit, answer(crash, reset, Running)),
+     ?_assertEqual({setup, run_init}, answer(crash, retry, Paused)),
+     ?_assertEqual({forget, run_init}, answer(transit, reset, Running)),
+     ?_assertEqual({confirm_here, run_init}, answer(transit, ignore, Running)),
+     ?_assertEqual({setup, run_init}, answer(io, retry, Running#{resume := undefined})),
+     ?_assertEqual(resume, answer(io, retry, Running)),
+     ?_assertEqual(paused, answer(io, retry, Paused)),
+     ?_assertEqual(set_aside_product, answer(product_file, reset, Running)),
+     ?_assertEqual(reload_product, answer(product_file, retry, Running)),
+     ?_assertEqual(set_aside_retained, answer(retain_file, reset, Paused)),
+     ?_assertEqual(reload_retained, answer(retain_file, retry, Paused))].
+
+woken_test_() ->
+    R = make_ref(),
+    Armed = [{handshake, R, in, available, true}, {timer, make_ref(), {link_down, out}}],
+    Sig = fun(in, available) -> true; (_, _) -> false end,
+    [?_assertEqual(undefined, woken([], Armed, Sig)),
+     ?_assertEqual({handshake, in, available, true},
+                   woken([{wake, in, {watch, R, available, true}}], Armed, Sig)),
+     ?_assertEqual(undefined, woken([{wake, in, {watch, make_ref(), available, true}}], Armed, Sig)),
+     ?_assertEqual({handshake, in, available, true},
+                   woken([{wake, in, {signals, 3}}], Armed, Sig)),
+     ?_assertEqual(undefined,
+                   woken([{wake, in, {signals, 3}}], Armed, fun(_, _) -> false end)),
+     ?_assertEqual({handshake, out, interrupted}, woken([{wake, out, interrupted}], Armed, Sig)),
+     ?_assertEqual({handshake, in, completed},
+                   woken([{wake, other, aborted}, {wake, in, completed}], Armed, Sig))].
+
+ended_while_down_test_() ->
+    Waits = {waits, [{handshake, in, available, true}]},
+    [?_assertEqual(Waits, ended_while_down([], Waits)),
+     ?_assertEqual({step, {handshake, in, interrupted}},
+                   ended_while_down([{wake, in, interrupted}], Waits)),
+     ?_assertEqual(Waits, ended_while_down([{wake, in, {signals, 1}}, {wake, out, aborted}], Waits)),
+     ?_assertEqual({step, x}, ended_while_down([{wake, in, aborted}], {step, x}))].
+
+events_test_() ->
+    [?_assertEqual(unblocked, wake_event({handshake, l, not_busy, true}, {ready, idle, blocked})),
+     ?_assertEqual(none, wake_event({handshake, l, not_busy, true}, {ready, idle, starved})),
+     ?_assertEqual(unstarved, wake_event({handshake, l, available, true}, {ready, idle, starved})),
+     ?_assertEqual(none, wake_event({handshake, l, interrupted}, {ready, idle, starved})),
+     ?_assert(starves(available, true, false, {ready, processing, active})),
+     ?_assertNot(starves(available, true, false, {ready, idle, starved})),
+     ?_assertNot(starves(available, true, true, {ready, processing, active})),
+     ?_assertNot(starves(not_busy, true, false, {ready, processing, active})),
+     ?_assertNot(starves(available, true, false, setup))].
+
+woken_by_test_() ->
+    T = #task{},
+    Woken = woken_by({answer, retry}, T),
+    Timer = woken_by({timer, 5}, Woken),
+    [?_assertEqual(T, woken_by(undefined, T)),
+     ?_assertEqual({{answer, retry}, retry}, {Woken#task.woken_by, Woken#task.answer}),
+     ?_assertEqual({{timer, 5}, undefined}, {Timer#task.woken_by, Timer#task.answer}),
+     ?_assertEqual(T, clean(Woken)),
+     ?_assertEqual(T, clean(T))].
+
+crash_test_() ->
+    [?_assert(ask_after_crash(#{crashed_in => setup})),
+     ?_assert(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => true})),
+     ?_assertNot(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => false})),
+     ?_assertNot(ask_after_crash(#{}))].
+
+newer_holder_test_() ->
+    [?_assertEqual(none, newer_holder(a, 3, [])),
+     ?_assertEqual(none, newer_holder(a, 3, [{a, 5}, {b, 3}, {c, 2}])),
+     ?_assertEqual({ok, b}, newer_holder(a, 3, [{a, 3}, {b, 4}]))].
+
+fields_test() ->
+    T = take(#task{}, #{serial => <<"S">>}, 3, #{phase => in_transit}),
+    ?assertEqual(3, gen(T)),
+    ?assertEqual(#{phase => in_transit}, marker(T)),
+    T1 = released(T#task{traced = <<"S">>}),
+    ?assertEqual({undefined, 0, undefined, undefined},
+                 {T1#task.product, gen(T1), marker(T1), T1#task.traced}),
+    ?assertEqual(#{l => #{}}, links(set_links(T, #{l => #{}}))).
+-endif.
