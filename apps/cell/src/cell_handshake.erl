@@ -368,6 +368,14 @@ handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T)
             %% an incarnation of the link the task is no longer attached to.
             {T, []}
     end;
+handle({cell_handshake, Link, {released, _, _}, #{seq := Seq, link := LPid}}, T)
+  when is_map_key(Link, T#task.links),
+       map_get(lpid, map_get(Link, T#task.links)) =:= LPid,
+       map_get(seq, map_get(Link, T#task.links)) > Seq ->
+    %% Downstream's own abort crossed the release and its answer (upstream has taken
+    %% the product back) came first: that transfer is over, and storing the product
+    %% now would make a second holder of it.
+    {T, []};
 handle({cell_handshake, Link, Step, #{} = Status}, T) ->
     %% A step of the protocol and the signals it left, in one message.
     {T1, Wakes} = handle({cell_handshake, Link, Step}, T),
