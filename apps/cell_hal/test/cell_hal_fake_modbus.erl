@@ -7,7 +7,7 @@
 %% `ir' (input registers); a bit is a boolean, a register a word. Unset reads as zero.
 -module(cell_hal_fake_modbus).
 
--export([start/0, stop/1, port/1, set/3, get/2, refuse/4, fail_every/3]).
+-export([start/0, stop/1, port/1, set/3, get/2, refuse/4, fail_every/3, requests/1]).
 
 -define(C, cell_hal_modbus_codec).
 
@@ -74,6 +74,12 @@ refuse(#dev{tab = Tab}, T, A, Code) ->
 fail_every(#dev{tab = Tab}, N, Code) ->
     true = ets:insert(Tab, [{fail_every, N, Code}, {requests, 0}]),
     ok.
+
+%% @doc How many requests the device has been asked since it started or since its
+%% last fail_every/3.
+-spec requests(#dev{}) -> non_neg_integer().
+requests(#dev{tab = Tab}) ->
+    ets:lookup_element(Tab, requests, 2).
 
 %%--------------------------------------------------------------------
 
