@@ -261,7 +261,8 @@ attach(#task{id = Id} = T, Link, Role) ->
                 {ok, Status} ->
                     Old = link_view(T, Link),
                     New = (from_status(Role, Status))#{mref => MRef, link_down => false},
-                    T1 = T#task{links = maps:put(Link, maps:merge(Old, New), T#task.links)},
+                    T1 = drop_stale(Status, T#task{links = maps:put(Link, maps:merge(Old, New),
+                                                                    T#task.links)}),
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
                         true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
@@ -271,6 +272,15 @@ attach(#task{id = Id} = T, Link, Role) ->
                     T
             end
     end.
+
+%% The link says the copy this task holds is the one it handed on (the task restarted
+%% before it forgot it): downstream owns the product, or has sent it out.
+drop_stale(#{stale := true}, #task{id = Id, product = #{serial := S}} = T) ->
+    cell_log:notice(Id, "dropped an old copy of product ~ts: it had been handed on before "
+                    "this task restarted", [S]),
+    store(T, undefined, 0, undefined, #{sync => false});
+drop_stale(_Status, T) ->
+    T.
 
 %% What the task holds, told to its partners when it attaches: a partner on another
 %% node with an older copy of the same product drops it.
