@@ -185,9 +185,11 @@ complete(#task{product = #{serial := S} = P, gen = G} = T0, Link) ->
     cell_task:transfer_in(view(T1, Link, #{phase => idle, not_busy => false}), S).
 
 %% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
-%% product. If upstream is gone the task keeps it, still marked in transit.
+%% product. If upstream is gone (or the link restarting) the task keeps it when it had
+%% been released, still marked in transit; before release it never had it.
 -spec abort(cell_task:task(), atom()) -> cell_task:task().
 abort(#task{} = T0, Link) ->
+    Phase = phase(T0, Link),
     {T, Reply} = call(T0, Link, {abort, self()}),
     case Reply of
         kept_by_upstream ->
@@ -195,7 +197,11 @@ abort(#task{} = T0, Link) ->
         given_back ->
             view(store(T, undefined, 0, undefined, #{sync => false}), Link, #{phase => idle});
         _KeptOrNoLink ->
-            view(T, Link, #{phase => idle})
+            %% Nobody took it back (upstream stopped, or the link is restarting): as
+            %% for a transfer interrupted in the phase this task saw, before release
+            %% the product never left upstream and the reference taken at the commit
+            %% goes; after, this task keeps it.
+            view(after_interruption(down, Phase, T, Link), Link, #{phase => idle})
     end.
 
 %% @doc Whether the task's product is marked in transit: a transfer was interrupted
