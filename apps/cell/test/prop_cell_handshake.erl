@@ -466,6 +466,7 @@ cleanup(Root) ->
     ok = gen_server:stop(?SUP),
     ok = application:stop(cell),
     _ = application:stop(mnesia),
+    ok = application:unset_env(cell, cell_spec),
     _ = os:cmd("rm -rf '" ++ Root ++ "'"),
     ok.
 
