@@ -191,9 +191,11 @@ complete(T0, Link) ->
     cell_task:transfer_in(view(T1, Link, #{phase => idle, not_busy => false}), S).
 
 %% @doc Aborts the transfer (the seed's Abort): upstream keeps, or takes back, the
-%% product. If upstream is gone the task keeps it, still marked in transit.
+%% product. If upstream is gone (or the link restarting) the task keeps it when it had
+%% been released, still marked in transit; before release it never had it.
 -spec abort(cell_task:task(), atom()) -> cell_task:task().
 abort(T0, Link) ->
+    Phase = phase(T0, Link),
     {T, Reply} = call(T0, Link, {abort, self()}),
     case Reply of
         kept_by_upstream ->
@@ -202,7 +204,11 @@ abort(T0, Link) ->
         given_back ->
             view(store(T, undefined, 0, undefined, #{sync => false}), Link, #{phase => idle});
         _KeptOrNoLink ->
-            view(T, Link, #{phase => idle})
+            %% Nobody took it back (upstream stopped, or the link is restarting): as
+            %% for a transfer interrupted in the phase this task saw, before release
+            %% the product never left upstream and the reference taken at the commit
+            %% goes; after, this task keeps it.
+            view(after_interruption(down, Phase, T, Link), Link, #{phase => idle})
     end.
 
 %% @doc Whether the task's product is marked in transit: a transfer was interrupted
@@ -272,7 +278,7 @@ attach(T, Link, Role) ->
                 {ok, Status} ->
                     Old = link_view(T, Link),
                     New = (from_status(Role, Status))#{mref => MRef, link_down => false},
-                    T1 = put_view(T, Link, maps:merge(Old, New)),
+                    T1 = drop_stale(Status, put_view(T, Link, maps:merge(Old, New))),
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
                         true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
@@ -282,6 +288,20 @@ attach(T, Link, Role) ->
                     T
             end
     end.
+
+%% The link says the copy this task holds is the one it handed on (the task restarted
+%% before it forgot it): downstream owns the product, or has sent it out.
+drop_stale(#{stale := true}, T) ->
+    case cell_task:product(T) of
+        #{serial := S} ->
+            cell_log:notice(cell_task:id(T), "dropped an old copy of product ~ts: it had "
+                            "been handed on before this task restarted", [S]),
+            store(T, undefined, 0, undefined, #{sync => false});
+        undefined ->
+            T
+    end;
+drop_stale(_Status, T) ->
+    T.
 
 %% What the task holds, told to its partners when it attaches: a partner on another
 %% node with an older copy of the same product drops it.
@@ -383,11 +403,19 @@ handle({cell_handshake, Link, signals, #{seq := Seq, link := LPid} = Status}, T)
             %% an incarnation of the link the task is no longer attached to.
             {T, []}
     end;
+handle({cell_handshake, Link, {released, _, _} = Step, #{seq := Seq, link := LPid} = Status},
+       T) ->
+    case maps:find(Link, links(T)) of
+        {ok, #{lpid := LPid, seq := Seen}} when Seen > Seq ->
+            %% Downstream's own abort crossed the release and its answer (upstream has
+            %% taken the product back) came first: that transfer is over, and storing
+            %% the product now would make a second holder of it.
+            {T, []};
+        _ ->
+            step_and_signals(Link, Step, Status, T)
+    end;
 handle({cell_handshake, Link, Step, #{} = Status}, T) ->
-    %% A step of the protocol and the signals it left, in one message.
-    {T1, Wakes} = handle({cell_handshake, Link, Step}, T),
-    {T2, More} = handle({cell_handshake, Link, signals, Status}, T1),
-    {T2, Wakes ++ More};
+    step_and_signals(Link, Step, Status, T);
 handle({cell_handshake, _Link, {holder, Serial, Gen}}, T) ->
     case {cell_task:product(T), cell_task_core:gen(T)} of
         {#{serial := Serial}, G} when G < Gen ->
@@ -490,6 +518,12 @@ after_interruption(up, _Phase, T, _Link) ->
     T.
 
 %% -------------------------------------------------------------------------------------
+
+%% A step of the protocol and the signals it left, in one message.
+step_and_signals(Link, Step, Status, T) ->
+    {T1, Wakes} = handle({cell_handshake, Link, Step}, T),
+    {T2, More} = handle({cell_handshake, Link, signals, Status}, T1),
+    {T2, Wakes ++ More}.
 
 link_view(T, Link) ->
     case maps:find(Link, links(T)) of

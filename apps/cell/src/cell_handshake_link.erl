@@ -50,7 +50,10 @@
                 gen = 0 :: non_neg_integer(),
                 abort = false :: boolean(),
                 seq = 0 :: non_neg_integer(),
-                waiter :: gen_server:from() | undefined}).
+                waiter :: gen_server:from() | undefined,
+                %% The copy upstream last handed on: downstream owns the product in a
+                %% newer record (it said so), so this one is stale wherever it is.
+                handed = none :: {binary(), non_neg_integer()} | none}).
 
 %% @doc Starts a link; it registers globally, so a partner on another node finds it.
 -spec start_link(spec()) -> {ok, pid()} | {error, term()}.
@@ -90,7 +93,16 @@ handle_call({attach, Role, Task, Pid, Holding}, _From, State) ->
         {Serial, Gen} -> tell(other(Role), {holder, Serial, Gen}, State);
         none -> ok
     end,
-    attach(Role, Task, Pid, State);
+    case attach(Role, Task, Pid, State) of
+        %% An upstream task restarted before it forgot the copy it handed on: its
+        %% record is stale, though downstream may have sent the product out since and
+        %% hold no newer record for anyone to compare.
+        {reply, {ok, Status}, State1} when Role =:= up, Holding =/= none,
+                                           Holding =:= State#state.handed ->
+            {reply, {ok, Status#{stale => true}}, State1};
+        Reply ->
+            Reply
+    end;
 handle_call({detach, Role, Pid}, _From, State) ->
     detach(Role, Pid, State);
 handle_call(status, _From, State) ->
@@ -114,12 +126,14 @@ handle_call({offer, Pid, Product, Gen}, _From, State) ->
 %% Downstream owns the released product on disk: upstream may forget its copy. A
 %% message, not a call: nothing downstream does next depends on it.
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast({owned, Pid}, #state{phase = released} = State) ->
+handle_cast({owned, Pid}, #state{phase = released, product = #{serial := S}, gen = G} = State) ->
     case role_of(Pid, State) of
-        down -> tell(up, owned, State);
-        _ -> ok
-    end,
-    {noreply, State};
+        down ->
+            tell(up, owned, State),
+            {noreply, State#state{handed = {S, G}}};
+        _ ->
+            {noreply, State}
+    end;
 handle_cast({owned, _Pid}, State) ->
     %% The transfer ended meanwhile (interrupted): upstream keeps a stale copy, which
     %% the generations recognise.

@@ -2,6 +2,9 @@
 -module(cell_monitor_core_tests).
 -include_lib("eunit/include/eunit.hrl").
 
+%% The spec, for prop_cell_monitor too.
+-export([spec/0]).
+
 -define(ESTOP, {general, estop_voltage}).
 -define(KEY, {general, service_key}).
 -define(DOOR, {general, door_locked}).

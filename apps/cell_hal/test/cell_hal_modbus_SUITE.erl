@@ -547,8 +547,11 @@ refused_address_faults_its_request(Config) ->
     {ok, #{status := up, faults := []}} = cell_hal:info(plc),
     never_down().
 
-%% A PLC that refuses every fifth request (busy) still lets the connection come up, and
-%% every point keeps being read: a refused request only costs its points one read.
+%% A PLC that refuses each request every fifth time it is asked (busy) still lets the
+%% connection come up, and every point keeps being read: a refused request only costs
+%% its points one read. (Counted across requests, the refusals could land on the same
+%% request at every ask: the HAL asks a refused request again one poll later, and with
+%% three requests a poll that cycle is five requests long.)
 exception_every_fifth_request(Config) ->
     Peer = ?config(peer, Config),
     [] = cmd(Peer, "fail_every 5 6", []),

@@ -15,7 +15,8 @@
  *   reject FC                  answer function FC with exception 1 (illegal function)
  *   refuse co|di|hr|ir ADDR C  answer every request that touches ADDR of that table
  *                              with exception C (0: answer it again)
- *   fail_every N C             answer every Nth request with exception C (0: stop)
+ *   fail_every N C             answer each request (its table and first address) with
+ *                              exception C every Nth time it is asked (0: stop)
  *   count co|di|hr|ir ADDR     "ok N": how many requests touched ADDR of that table
  *   notify_after co|di|hr|ir ADDR N
  *                              "ok", then "reached" once N requests have touched it
@@ -44,8 +45,12 @@ static int silent = 0;
 static int rejected[256];
 static char mangle[16] = "";
 static uint8_t refused[4][SIZE];     /* exception code per table and address, 0 none */
-static int fail_every = 0, fail_code = 0, requests = 0;
+static int fail_every = 0, fail_code = 0;
 static unsigned asked[4][SIZE];       /* requests that touched each address */
+/* Requests since fail_every, by table and first address: counted per request, not
+   across them, so that a client that asks a refused request again one poll later is
+   not refused at the same place of its cycle every time. */
+static unsigned fail_seen[4][SIZE], fail_other;
 static int notify_table = -1, notify_addr = 0;
 static unsigned notify_count = 0;
 
@@ -77,6 +82,19 @@ static int refusal(const uint8_t *q) {
         fflush(stdout);
     }
     return code;
+}
+
+/* The counter of fail_every for a request: its table and first address. */
+static unsigned *fail_counter(const uint8_t *q) {
+    int fc = q[7], addr = q[8] << 8 | q[9], table;
+    switch (fc) {
+    case 1: case 5: case 15: table = 0; break;
+    case 2: table = 1; break;
+    case 3: case 6: case 16: case 22: case 23: table = 2; break;
+    case 4: table = 3; break;
+    default: return &fail_other;
+    }
+    return addr < SIZE ? &fail_seen[table][addr] : &fail_other;
 }
 
 static void reply(const char *fmt, const char *extra) {
@@ -139,7 +157,8 @@ static void command(char *line, fd_set *clients, int *fdmax, int listener) {
     } else if (!strcmp(argv[0], "fail_every") && argc == 3) {
         fail_every = atoi(argv[1]);
         fail_code = atoi(argv[2]);
-        requests = 0;
+        memset(fail_seen, 0, sizeof fail_seen);
+        fail_other = 0;
         reply("ok%s\n", "");
     } else if (!strcmp(argv[0], "mangle") && argc == 2) {
         snprintf(mangle, sizeof mangle, "%s", argv[1]);
@@ -248,7 +267,7 @@ int main(int argc, char **argv) {
                 }
                 if (rc > 0 && !silent) {
                     int unit = query[6], fc = query[7], refuse = refusal(query);
-                    int nth = fail_every > 0 && ++requests % fail_every == 0;
+                    int nth = fail_every > 0 && ++*fail_counter(query) % fail_every == 0;
                     if (mangle[0]) send_mangled(fd, query);
                     else if (nth)
                         modbus_reply_exception(ctx, query, fail_code);
