@@ -130,8 +130,7 @@
               kicked = false :: boolean()}).
 
 %% Options of the client the driver sets itself.
--define(OWN_CLIENT_OPTS, [name, backoff, reconnect, log_variables, request_timeout,
-                          connect_timeout]).
+-define(OWN_CLIENT_OPTS, [name, log_variables, request_timeout, connect_timeout]).
 -define(DEFAULT_TIMEOUT_MS, 1000).
 %% A read waits for resolving, the sum read and first samples: each within the
 %% client's deadline, this only bounds what the client cannot (a sample that never
@@ -223,7 +222,7 @@ init(Id, Opts) ->
     {Timeout, ClientOpts} = maps:take(timeout_ms, Opts),
     #ads{id = Id, timeout = Timeout,
          client_opts = ClientOpts#{name => <<"hal/", (atom_to_binary(Id))/binary>>,
-                                   reconnect => false, log_variables => false,
+                                   log_variables => false,
                                    request_timeout => Timeout}}.
 
 %% @private

@@ -1,16 +1,17 @@
 %% @doc One AMS/TCP connection to a Beckhoff TwinCAT ADS server (a PLC runtime, or an
 %% IO device's image server), with what a cell needs on top of the bare commands:
 %% symbols resolved by name and checked, handles cached and renewed, whole IO groups in
-%% one sum command, device notifications with the PLC's time stamps, reconnection.
+%% one sum command, device notifications with the PLC's time stamps.
 %%
 %% No local AMS router is needed: the client speaks AMS/TCP to the PLC's router on port
 %% 48898 with its own AMS Net ID and port (the PLC needs a route for that Net ID and
 %% this machine's address, as for any ADS client).
 %%
-%% The connection is a process of {@link cell_hal_ads_conn}: its states, what
-%% it does when the PLC restarts or the connection is lost, and with `reconnect =>
-%% false' (how the HAL's worker starts it) its end, are told there. This module is
-%% its interface: the calls, their arguments checked in the caller.
+%% The connection is a process of {@link cell_hal_ads_conn}: its states, what it does
+%% after a program change, and its end when the connection cannot be made or is lost,
+%% are told there. A client is one connection: it does not connect again by itself;
+%% its owner starts a new one (the HAL's worker, with its back-off). This module is its
+%% interface: the calls, their arguments checked in the caller.
 %%
 %% == Variables ==
 %% A variable is `{Name, Type}': a PLC symbol name ("MAIN.GeneralInputs.StartButton",
@@ -40,7 +41,7 @@
 %%     being the PLC's time stamp in nanoseconds since the Unix epoch (exact: the
 %%     PLC's 100 ns FILETIME times 100), samples in the PLC's order.</li>
 %% <li>`{cell_hal_ads, SubRef, {error, Reason}}' when a subscription could not be added
-%%     again after a reconnect or program change; it is tried again at the next one.</li>
+%%     again after a program change; it is tried again at the next one.</li>
 %% </ul>
 -module(cell_hal_ads_client).
 
@@ -71,7 +72,6 @@
                   name => binary() | atom(),            %% log source
                   request_timeout => pos_integer(),     %% ms, the client's own requests
                   connect_timeout => pos_integer(),     %% ms
-                  backoff => {pos_integer(), pos_integer()},  %% ms, min and max
                   sum_commands => boolean(),            %% true
                   max_sum => pos_integer(),             %% 500 sub-commands per sum
                   max_in_flight => pos_integer(),       %% 64 requests, direct reads too
@@ -80,7 +80,6 @@
                   handle_idle => non_neg_integer(),     %% ms, 5000
                   link_check => pos_integer() | infinity,   %% ms, 5000
                   max_frame => pos_integer(),           %% bytes, 16 MiB
-                  reconnect => boolean(),               %% true
                   log_variables => boolean()}.          %% true
 
 -type var() :: {Name :: binary(), cell_hal_ads_types:type()}.
@@ -111,7 +110,7 @@
 
 -type request_ids() :: gen_statem:request_id_collection().
 
--type status() :: #{state := up | restoring | connecting | down,
+-type status() :: #{state := up | restoring | connecting,
                     name := binary(), peer := binary(), target := binary(),
                     source := binary() | undefined,
                     device => #{name := binary(), version := {byte(), byte(), 0..65535}},
@@ -129,7 +128,9 @@
 
 %% @doc Starts a client linked to the caller; it connects at once. Options are checked
 %% first: `{error, {bad_option, Key}}' names the first one that is missing, unknown or
-%% malformed.
+%% malformed (`reconnect' and `backoff' too: a client does not connect again by
+%% itself, see {@link cell_hal_ads_opts}). It ends with `{shutdown, Reason}' when the
+%% connection cannot be made or is lost.
 -spec start_link(opts()) -> {ok, pid()} | {error, {bad_option, atom()} | term()}.
 start_link(Opts) ->
     case check_opts(Opts) of

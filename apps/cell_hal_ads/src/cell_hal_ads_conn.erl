@@ -7,30 +7,30 @@
 %% <tr><th>state</th><th>what happens</th><th>next</th></tr>
 %% <tr><td>`connecting'</td><td>a connector process opens the TCP connection, so the client
 %%   never blocks; calls get `{error, disconnected}'</td>
-%%   <td>`{connected, restoring}', or `disconnected' on failure</td></tr>
+%%   <td>`{connected, restoring}', or the end on failure</td></tr>
 %% <tr><td>`{connected, restoring}'</td><td>device info, ADS state and symbol version are
-%%   read, the symbol version is watched, every variable in use is resolved again
-%%   (new handles), every subscription added again; calls wait (postponed) until this is
-%%   done or their timeout passes</td><td>`{connected, ready}', or `disconnected'</td></tr>
+%%   read, the symbol version is watched; after a program change every variable in
+%%   use is resolved again (new handles), every subscription added again; calls wait
+%%   (postponed) until this is done or their timeout passes</td>
+%%   <td>`{connected, ready}', or the end</td></tr>
 %% <tr><td>`{connected, ready}'</td><td>calls are served, several requests in flight;
 %%   a change of the symbol version (program download or online change) goes back to
-%%   restoring</td><td>`{connected, restoring}', `disconnected'</td></tr>
-%% <tr><td>`disconnected'</td><td>waits the back-off (doubling from its minimum up to its
-%%   maximum, back to the minimum once the connection was ready); calls get
-%%   `{error, disconnected}'</td><td>`connecting'</td></tr>
+%%   restoring</td><td>`{connected, restoring}', or the end</td></tr>
 %% </table>
 %%
-%% With `reconnect => false' the client is one connection and no more: when the
-%% connection cannot be made or is lost it stops with `{shutdown, Reason}' instead of
-%% waiting in `disconnected', logging nothing, for a host that keeps its own back-off
-%% and says in its own words what happened (the HAL's worker, through
-%% {@link cell_hal_ads}).
+%% A client is one connection and no more: when the connection cannot be made or is
+%% lost, callers waiting are answered `{error, disconnected}', processes that called
+%% `subscribe_status' get `{down, Reason}' if it had been up, and the process stops
+%% with `{shutdown, Reason}', logging nothing of its own. Connecting again, with a
+%% back-off, and saying in words what happened are its owner's (the HAL's worker,
+%% through {@link cell_hal_ads}), which starts a new client: a second way of
+%% reconnecting inside the client would only be a second set of states to keep right.
 %%
-%% The connection is given up, logged in words for the operator, and tried again when
-%% the PLC closes it, sends a frame that cannot be read, or stops answering (a request
-%% timed out with nothing at all received since it was sent; when the connection is
-%% idle a ReadState is sent every `link_check' ms to find this out). A bad frame never
-%% takes more than the connection down.
+%% The connection is given up when the PLC closes it, sends a frame that cannot be
+%% read, or stops answering (a request timed out with nothing at all received since it
+%% was sent; when the connection is idle a ReadState is sent every `link_check' ms to
+%% find this out). A bad frame never takes more than the connection down: the process
+%% ends with the reason, nothing else.
 %%
 %% == Modules ==
 %% This module is the connection's process: the socket, the frames in and out, the
@@ -56,7 +56,7 @@
 
 -export([callback_mode/0, init/1, handle_event/4, terminate/3, code_change/4]).
 
--type state() :: connecting | {connected, restoring | ready} | disconnected.
+-type state() :: connecting | {connected, restoring | ready}.
 
 %% Frames the socket delivers before it asks to be read on: the connection keeps up
 %% with its PLC without a setopts call on every frame.
@@ -81,10 +81,8 @@
                refresh_again = false :: false | byte(),
                table :: {byte() | undefined, cell_hal_ads_symbols:table()} | undefined,
                device = #{} :: map(),
-               backoff :: pos_integer(),
                was_up = false :: boolean(),
                down :: term(),
-               logged :: term(),
                %% native monotonic time of the last bytes from the PLC
                last_rx = 0 :: integer(),
                %% what callers need to read without calling (cell_hal_ads_direct), and
@@ -109,15 +107,14 @@ callback_mode() ->
 -spec init(map()) -> gen_statem:init_result(state()).
 init(Opts) ->
     process_flag(trap_exit, true),
-    #{host := Host, port := Port, target_net_id := Net, target_port := TPort,
-      backoff := {Min, _}} = Opts,
+    #{host := Host, port := Port, target_net_id := Net, target_port := TPort} = Opts,
     Peer = iolist_to_binary([host_text(Host), ":", integer_to_list(Port)]),
     Log = case Opts of
               #{name := Name} -> Name;
               _ -> <<"ads/", Peer/binary>>
           end,
     {ok, connecting, #data{opts = Opts#{peer => Peer}, log = Log, target = {Net, TPort},
-                           backoff = Min, down = starting,
+                           down = starting,
                            direct = cell_hal_ads_direct:new()}}.
 
 host_text(H) when is_tuple(H) -> inet:ntoa(H);
@@ -137,8 +134,7 @@ handle_event(enter, _, connecting, D) ->
 handle_event(info, {connected, Pid, Result}, connecting, #data{connector = Pid} = D) ->
     case Result of
         {ok, Socket} -> connected(Socket, D#data{connector = undefined});
-        {error, Reason} -> {next_state, disconnected,
-                            D#data{connector = undefined, down = {connect, Reason}}}
+        {error, Reason} -> give_up({connect, Reason}, D#data{connector = undefined}, [])
     end;
 
 %%--------------------------------------------------------------------
@@ -160,14 +156,14 @@ handle_event(internal, restored, {connected, restoring}, D) ->
 %% {connected, ready}: calls are served.
 %%--------------------------------------------------------------------
 handle_event(enter, OldState, {connected, ready}, D) ->
-    #data{opts = #{backoff := {Min, _}, link_check := Check}} = D,
+    #data{opts = #{link_check := Check}} = D,
     Event = case OldState of
                 {connected, restoring} when D#data.was_up -> symbols_changed;
                 _ -> up
             end,
     notify_watchers(Event, D),
     D1 = open_direct(D),
-    {keep_state, D1#data{backoff = Min, was_up = true, down = undefined, logged = undefined},
+    {keep_state, D1#data{was_up = true, down = undefined},
      link_check_timer(Check)};
 handle_event({call, From}, {req, Request, Deadline}, {connected, ready}, D) ->
     case expired(Deadline) of
@@ -176,22 +172,6 @@ handle_event({call, From}, {req, Request, Deadline}, {connected, ready}, D) ->
         true -> {keep_state_and_data, [{reply, From, {error, timeout}}]};
         false -> act(serve(Request, From, Deadline, D))
     end;
-
-%%--------------------------------------------------------------------
-%% disconnected: waits the back-off, then connects again.
-%%--------------------------------------------------------------------
-handle_event(enter, _, disconnected, #data{opts = #{reconnect := false}} = D) ->
-    D#data.was_up andalso notify_watchers({down, D#data.down}, D),
-    {stop, {shutdown, D#data.down}};
-handle_event(enter, OldState, disconnected, D) ->
-    #data{backoff = Backoff, opts = #{backoff := {_, Max}}} = D,
-    Delay = jitter(Backoff),
-    log_down(OldState, Delay, D),
-    D#data.was_up andalso notify_watchers({down, D#data.down}, D),
-    {keep_state, D#data{backoff = min(Backoff * 2, Max), was_up = false, logged = D#data.down},
-     [{state_timeout, Delay, reconnect}]};
-handle_event(state_timeout, reconnect, disconnected, D) ->
-    {next_state, connecting, D};
 
 %%--------------------------------------------------------------------
 %% Events common to the connected states.
@@ -282,40 +262,13 @@ handle_event(info, {'DOWN', _, process, Pid, _}, State, D) ->
     {D2, A1} = drop_subs(Refs, State, D1),
     {Vars, Unused} = cell_hal_ads_vars:drop_user(Pid, D2#data.vars),
     {keep_state, D2#data{vars = Vars}, A1 ++ idle_timers(Unused, D2)};
-handle_event(info, {connected, _Stale, {ok, Socket}}, _, _) ->
-    _ = gen_tcp:close(Socket),
-    keep_state_and_data;
-handle_event(info, {connected, _Stale, {error, _}}, _, _) ->
-    keep_state_and_data;
 handle_event(info, {'EXIT', _, normal}, _, _) ->
     keep_state_and_data;
 handle_event(info, {'EXIT', _, Reason}, _, _) ->
-    {stop, Reason};
-%% Leftovers of an earlier connection: its socket's messages, its timeouts.
-handle_event(info, {tcp, _, _}, _, _) ->
-    keep_state_and_data;
-handle_event(info, {tcp_closed, _}, _, _) ->
-    keep_state_and_data;
-handle_event(info, {tcp_error, _, _}, _, _) ->
-    keep_state_and_data;
-handle_event(info, {tcp_passive, _}, _, _) ->
-    keep_state_and_data;
-%% A direct read's news of a connection that is gone, or that answered after all.
-handle_event(cast, {cell_hal_ads_direct, _, _, _}, _, _) ->
-    keep_state_and_data;
-handle_event(cast, {cell_hal_ads_direct, _, _}, _, _) ->
-    keep_state_and_data;
-handle_event({timeout, deadline}, _, _, D) ->
-    {keep_state, D#data{jobs = cell_hal_ads_jobs:fired(D#data.jobs)}};
-handle_event({timeout, link_check}, _, _, _) ->
-    keep_state_and_data;
-handle_event(internal, {version, _}, _, _) ->
-    keep_state_and_data;
-handle_event(internal, {fail, _}, _, _) ->
-    keep_state_and_data.
+    {stop, Reason}.
 
 -spec terminate(term(), state(), #data{}) -> ok.
-terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
+terminate(_Reason, {connected, _}, #data{socket = Socket} = D) when Socket =/= undefined ->
     ok = retract_direct(D),
     %% Leave the PLC tidy: its notifications and handles are ours to give back.
     Notes = [{delete_notification, N} || N <- cell_hal_ads_subs:notes(D#data.subs)],
@@ -330,6 +283,7 @@ terminate(_Reason, {connected, _}, #data{socket = Socket} = D) ->
     _ = gen_tcp:close(Socket),
     ok;
 terminate(_Reason, _State, D) ->
+    %% not connected yet, or the connection given up (its socket closed already)
     retract_direct(D).
 
 -spec code_change(term(), state(), #data{}, term()) -> {ok, state(), #data{}}.
@@ -363,15 +317,12 @@ connected(Socket, D) ->
         {ok, NetId} ->
             D1 = D#data{socket = Socket, source = {NetId, SPort}, buffer = <<>>,
                         counters = cell_hal_ads_direct:counters(),
-                        last_rx = erlang:monotonic_time(), generation = D#data.generation + 1,
-                        vars = cell_hal_ads_vars:reset(D#data.vars),
-                        subs = cell_hal_ads_subs:detach(D#data.subs),
-                        checking_version = false, refresh_again = false},
+                        last_rx = erlang:monotonic_time(), generation = D#data.generation + 1},
             {D2, Actions} = restore(D1),
             {next_state, {connected, restoring}, D2, Actions};
         {error, Reason} ->
             _ = gen_tcp:close(Socket),
-            {next_state, disconnected, D#data{down = {socket, Reason}}}
+            give_up({socket, Reason}, D, [])
     end.
 
 %% `auto': the usual convention, this machine's address on the PLC's network and ".1.1".
@@ -399,35 +350,16 @@ disconnect(Reason, D0) ->
     D = close_direct(D0),
     ok = cell_hal_ads_direct:fail_all(D#data.direct, disconnected),
     {Waiting, Jobs} = cell_hal_ads_jobs:abandon(D#data.jobs),
-    Replies = [{reply, From, {error, disconnected}} || From <- Waiting],
-    Cancels = [{{timeout, deadline}, cancel}],
-    {next_state, disconnected,
-     D#data{socket = undefined, counters = undefined, buffer = <<>>, jobs = Jobs,
-            subs = cell_hal_ads_subs:detach(D#data.subs),
-            vars = cell_hal_ads_vars:reset(D#data.vars),
-            down = Reason},
-     Replies ++ Cancels ++ [{{timeout, link_check}, cancel}]}.
+    give_up(Reason, D#data{socket = undefined, counters = undefined, buffer = <<>>,
+                           jobs = Jobs}, Waiting).
 
-log_down(OldState, Delay, D) ->
-    Retry = io_lib:format("; retrying in ~.1f s", [Delay / 1000]),
-    #data{opts = #{peer := Peer}, down = Reason} = D,
-    case OldState of
-        {connected, _} ->
-            cell_log:warning(D#data.log, "connection to ~ts lost: ~ts~ts",
-                             [Peer, format_error(Reason), Retry]);
-        _ ->
-            %% The same failure again and again is news once, then detail.
-            Level = case D#data.logged of
-                        Reason -> verbose;
-                        _ -> warning
-                    end,
-            cell_log:log(Level, D#data.log, "cannot connect to ~ts: ~ts~ts",
-                         [Peer, format_error(Reason), Retry])
-    end.
-
-jitter(Ms) ->
-    %% Spread reconnects of many cells after a network outage by up to a fifth.
-    Ms - Ms div 10 + rand:uniform(max(1, Ms div 5)) - 1.
+%% The end of the client: it is one connection. Callers waiting are answered first,
+%% then watchers told `{down, Reason}' if it had been up; its owner, told by the exit
+%% reason, connects again if it wants to.
+give_up(Reason, D, Waiting) ->
+    _ = [gen_statem:reply(From, {error, disconnected}) || From <- Waiting],
+    D#data.was_up andalso notify_watchers({down, Reason}, D),
+    {stop, {shutdown, Reason}, D#data{down = Reason}}.
 
 link_check_timer(infinity) -> [];
 link_check_timer(Ms) -> [{{timeout, link_check}, Ms, check}].
@@ -1130,8 +1062,7 @@ status_map(State, D) ->
     Base = #{state => case State of
                           {connected, ready} -> up;
                           {connected, restoring} -> restoring;
-                          connecting -> connecting;
-                          disconnected -> down
+                          connecting -> connecting
                       end,
              name => D#data.log, peer => Peer,
              target => iolist_to_binary([cell_hal_ads_codec:format_net_id(Net), ":",

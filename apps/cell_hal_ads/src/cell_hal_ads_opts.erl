@@ -1,5 +1,9 @@
 %% @doc The options of an ADS connection ({@link cell_hal_ads_client}): their defaults
 %% and their check. Pure.
+%%
+%% `reconnect' and `backoff' are refused like any unknown option: a client is one
+%% connection and ends when it is lost; connecting again, with a back-off, is its
+%% owner's job (the HAL's worker, whose `reconnect_ms' and `max_reconnect_ms' set it).
 -module(cell_hal_ads_opts).
 
 -include("cell_hal_ads.hrl").
@@ -8,10 +12,10 @@
 
 -define(DEFAULTS, #{port => ?ADS_TCP_PORT, target_port => 851, source_net_id => auto,
                     source_port => 32905, request_timeout => 5000, connect_timeout => 5000,
-                    backoff => {500, 30000}, sum_commands => true, max_sum => 500,
+                    sum_commands => true, max_sum => 500,
                     max_in_flight => 64, access => handle, symbol_version => watch,
                     handle_idle => 5000, link_check => 5000, max_frame => 16#1000000,
-                    reconnect => true, log_variables => true}).
+                    log_variables => true}).
 
 %% @doc Every option that has a default, with it.
 -spec defaults() -> map().
@@ -61,9 +65,7 @@ check_opt(name, N) when is_binary(N), byte_size(N) > 0 -> {ok, N};
 check_opt(K, T) when K =:= request_timeout; K =:= connect_timeout; K =:= max_sum;
                      K =:= max_in_flight ->
     ok_if(is_integer(T) andalso T >= 1, T);
-check_opt(backoff, {Min, Max} = B) ->
-    ok_if(is_integer(Min) andalso is_integer(Max) andalso Min >= 1 andalso Min =< Max, B);
-check_opt(K, B) when K =:= sum_commands; K =:= reconnect; K =:= log_variables ->
+check_opt(K, B) when K =:= sum_commands; K =:= log_variables ->
     ok_if(is_boolean(B), B);
 check_opt(access, A) -> ok_if(A =:= handle orelse A =:= address, A);
 check_opt(symbol_version, S) -> ok_if(lists:member(S, [watch, read, ignore]), S);

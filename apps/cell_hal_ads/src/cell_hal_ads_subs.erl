@@ -3,15 +3,16 @@
 %% the present connection, and the notification on the PLC's symbol version. Pure: the
 %% connection's process sends what this module decides.
 %%
-%% A subscription outlives the notification that serves it: when the connection is
-%% lost, or the PLC program changes, its notification is forgotten ({@link detach/1},
-%% {@link refresh/1}) and the connection adds a new one for it ({@link attach/3}).
+%% A subscription outlives the notification that serves it: when the PLC program
+%% changes, its notification is forgotten ({@link refresh/1}) and the connection adds
+%% a new one for it ({@link attach/3}). The subscriptions end with the connection (a
+%% client is one connection).
 %% Device notifications ({@link samples/2}) are decoded here into one message per
 %% subscriber and frame, samples in the PLC's order.
 -module(cell_hal_ads_subs).
 
 -export([new/0, count/1, to_list/1, add/4, attach/3, take/2, owned/3, of_pid/2,
-         watch_version/2, detach/1, refresh/1, notes/1, note_request/2, samples/2]).
+         watch_version/2, refresh/1, notes/1, note_request/2, samples/2]).
 
 -export_type([subs/0, sub/0, note_opts/0, delivery/0]).
 
@@ -87,11 +88,6 @@ of_pid(Pid, #subs{subs = S}) ->
 -spec watch_version(u32(), subs()) -> subs().
 watch_version(Note, #subs{notes = N} = T) ->
     T#subs{notes = N#{Note => symbol_version}}.
-
-%% @doc The connection is gone, and every notification with it.
--spec detach(subs()) -> subs().
-detach(#subs{subs = S}) ->
-    #subs{subs = maps:map(fun(_, Sub) -> maps:remove(note, Sub) end, S)}.
 
 %% @doc The PLC program changed: the subscriptions' notifications (to delete) are
 %% forgotten, the one on the symbol version stays.

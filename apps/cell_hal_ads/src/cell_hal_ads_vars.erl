@@ -5,8 +5,9 @@
 %% A variable is a PLC symbol name read as a point type (`{Name, Type}'). Processes
 %% that resolved it are its users, counted per process; when the last one releases it
 %% (or exits) the variable is unused and its handle can go back to the PLC. A handle
-%% is valid for one connection and one symbol version only: after a reconnect or a
-%% program change every variable in use is resolved again.
+%% is valid for one connection and one symbol version only: after a program change
+%% every variable in use is resolved again (a new connection is a new client, with a
+%% table of its own).
 %%
 %% Names are looked up on every read of a group, so each spelling callers use is
 %% remembered with its key (the case-folded key is not computed again).

@@ -14,7 +14,7 @@ accepted_test_() ->
     Base = #{host => {192, 168, 0, 5}, target_net_id => {5, 23, 1, 7, 1, 1}},
     [?_assertMatch({ok, _}, ?C:check_opts(maps:merge(Base, O)))
      || O <- [#{}, #{source_net_id => "10.0.0.2.1.1", source_port => 30000},
-              #{name => plc1}, #{name => <<"hal/plc1">>}, #{backoff => {10, 10}},
+              #{name => plc1}, #{name => <<"hal/plc1">>},
               #{link_check => infinity}, #{handle_idle => 0}, #{access => address},
               #{symbol_version => ignore}, #{max_in_flight => 1}, #{max_frame => 1024}]].
 
@@ -24,8 +24,7 @@ refused_test_() ->
      || {K, V} <- [{host, ""}, {host, {1, 2, 3}}, {host, 42}, {host, [300]},
                    {port, 65536}, {source_port, 0}, {request_timeout, 0},
                    {connect_timeout, -1}, {max_in_flight, 0}, {handle_idle, -1},
-                   {max_frame, 1023}, {name, ""}, {name, <<>>}, {backoff, {0, 10}},
-                   {backoff, 10}, {unknown, 1}]] ++
+                   {max_frame, 1023}, {name, ""}, {name, <<>>}, {unknown, 1}]] ++
     [?_assertEqual({error, {bad_option, opts}}, ?C:check_opts(nil))].
 
 %% Every reason the client gives reads as words.
@@ -51,13 +50,26 @@ format_error_test_() ->
      ?_assertEqual(<<"the PLC sent a malformed frame (shorter than ams header)">>,
                    ?C:format_error({bad_frame, shorter_than_ams_header}))].
 
-%% The HAL's driver sets these itself; a host may too.
+%% The HAL's driver sets this itself; a host may too.
 host_options_test_() ->
     Base = #{host => "plc1", target_net_id => "5.23.1.7.1.1"},
-    [?_assertMatch({ok, #{reconnect := true, log_variables := true}}, ?C:check_opts(Base)),
-     ?_assertMatch({ok, #{reconnect := false, log_variables := false}},
-                   ?C:check_opts(Base#{reconnect => false, log_variables => false})),
-     ?_assertEqual({error, {bad_option, reconnect}}, ?C:check_opts(Base#{reconnect => no}))].
+    [?_assertMatch({ok, #{log_variables := true}}, ?C:check_opts(Base)),
+     ?_assertMatch({ok, #{log_variables := false}},
+                   ?C:check_opts(Base#{log_variables => false})),
+     ?_assertEqual({error, {bad_option, log_variables}},
+                   ?C:check_opts(Base#{log_variables => no}))].
+
+%% A client is one connection: connecting again, and its back-off, are its owner's.
+%% Options for a reconnecting client are refused, whatever their value, rather than
+%% taken and not acted on.
+no_reconnect_options_test_() ->
+    Base = #{host => "plc1", target_net_id => "5.23.1.7.1.1"},
+    {ok, Full} = ?C:check_opts(Base),
+    [?_assertNot(maps:is_key(reconnect, Full)),
+     ?_assertNot(maps:is_key(backoff, Full))] ++
+    [?_assertEqual({error, {bad_option, K}}, ?C:check_opts(Base#{K => V}))
+     || {K, V} <- [{reconnect, true}, {reconnect, false}, {reconnect, no},
+                   {backoff, {10, 10}}, {backoff, {500, 30000}}]].
 
 %% Calls without waiting are checked in the caller too.
 send_request_arguments_test_() ->

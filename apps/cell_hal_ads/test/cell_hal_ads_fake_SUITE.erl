@@ -31,7 +31,6 @@
 -export([reads_skip_the_connection/1, read_across_program_change/1,
          caller_killed_mid_read/1, connection_lost_mid_read/1, silent_plc_ends_direct_read/1]).
 -export([frames_match_adslib/1]).
--export([reconnect_after_plc_restart/1, connection_refused_then_up/1]).
 
 -define(NET, "127.0.0.1.1.1").
 -define(ADSLIB_NET, "10.11.12.13.1.1").
@@ -39,7 +38,7 @@
 -define(FILETIME_UNIX_EPOCH, 116444736000000000).
 
 all() ->
-    [{group, proof}, {group, client}, {group, direct}, {group, crosscheck}, {group, restart}].
+    [{group, proof}, {group, client}, {group, direct}, {group, crosscheck}].
 
 groups() ->
     [{proof, [sequence], [adslib_reads_and_writes, adslib_symbol_info, adslib_sum_reads,
@@ -60,8 +59,7 @@ groups() ->
      {direct, [], [reads_skip_the_connection, read_across_program_change,
                    caller_killed_mid_read, connection_lost_mid_read,
                    silent_plc_ends_direct_read]},
-     {crosscheck, [], [frames_match_adslib]},
-     {restart, [], [reconnect_after_plc_restart, connection_refused_then_up]}].
+     {crosscheck, [], [frames_match_adslib]}].
 
 %%--------------------------------------------------------------------
 %% Setup
@@ -183,7 +181,7 @@ client(Config) ->
 
 client(Config, Extra) ->
     Opts = maps:merge(#{host => "127.0.0.1", port => ?config(port, Config),
-                        target_net_id => ?NET, backoff => {50, 1000}, handle_idle => 0},
+                        target_net_id => ?NET, handle_idle => 0},
                       Extra),
     {ok, C} = cell_hal_ads_client:start(Opts),
     stop_with_test(C),
@@ -781,11 +779,13 @@ several_requests_in_flight(Config) ->
      || P <- Pids].
 
 %% No caller waits past its timeout; a PLC that answers nothing at all is a dead
-%% connection (a pulled cable): closed, logged, tried again.
+%% connection (a pulled cable): closed, the client ending with the reason. Logging it
+%% and connecting again are the owner's (cell_hal_ads_hal_SUITE).
 timeout_never_blocks_caller(Config) ->
     Fake = ?config(fake, Config),
     %% Nothing else may come from the PLC meanwhile, not even its symbol version.
     C = client(Config, #{link_check => infinity, symbol_version => read}),
+    Mon = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(Fake, "mute"),
     T0 = erlang:monotonic_time(millisecond),
     {error, timeout} = cell_hal_ads_client:read_state(C, 300),
@@ -794,9 +794,17 @@ timeout_never_blocks_caller(Config) ->
     ?assert(Took >= 300),
     ?assert(Took < 2000),
     {down, no_answer} = receive_down(C),
+    ?assertEqual({shutdown, no_answer}, await_exit(Mon, C)),
     ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
-    ok = await_status(C, up),
-    {ok, _} = cell_hal_ads_client:read_state(C).
+    %% the PLC itself is fine: a new connection is served
+    C2 = client(Config),
+    {ok, _} = cell_hal_ads_client:read_state(C2).
+
+%% The reason a client ended with, by the monitor set before it could end.
+await_exit(Mon, C) ->
+    receive {'DOWN', Mon, process, C, Why} -> Why
+    after ?WAIT -> ct:fail("client ~p still running", [C])
+    end.
 
 receive_down(C) ->
     {ok, Down} = cell_hal_ads_peer:await(fun({cell_hal_ads, P, {down, _} = D}) when P =:= C ->
@@ -805,31 +813,35 @@ receive_down(C) ->
                                          end, ?WAIT),
     Down.
 
-%% A frame that cannot be read closes that connection only: logged for the operator,
-%% connected again; the client process is the same, nothing crashed.
+%% A frame that cannot be read closes that connection only: the client ends with a
+%% reason that reads as words (its owner logs it and connects again, the HAL group
+%% coming back up: cell_hal_ads_hal_SUITE), the caller is told, and nothing else
+%% goes: the PLC serves a new client, its subscriptions included.
 garbage_closes_only_the_connection(Config) ->
     C = client(Config),
     {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.sb">>, sbyte}, #{}}]),
     {ok, [_]} = await_samples(Ref, 1),
-    ok = cell_log:subscribe(),
+    Mon = monitor(process, C),
     %% AMS/TCP length 4: shorter than an AMS header
     ok = cell_hal_ads_peer:cmd(?config(fake, Config), "garbage 000004000000deadbeef"),
     {down, {bad_frame, shorter_than_ams_header}} = receive_down(C),
-    {ok, Line} = await_log(<<"malformed frame">>),
-    ct:log("operator sees: ~ts", [Line]),
-    ok = cell_log:unsubscribe(),
-    ok = await_status(C, up),
-    %% the subscription came back with the connection
-    {ok, [{_, -5}]} = await_samples(Ref, 1),
-    ?assert(is_process_alive(C)).
+    {shutdown, Why} = await_exit(Mon, C),
+    ?assertEqual({bad_frame, shorter_than_ams_header}, Why),
+    ?assertEqual(<<"the PLC sent a malformed frame (shorter than ams header)">>,
+                 cell_hal_ads_client:format_error(Why)),
+    C2 = client(Config),
+    {ok, [{ok, Ref2}]} = cell_hal_ads_client:subscribe(C2, [{{<<"MAIN.sb">>, sbyte}, #{}}]),
+    {ok, [{_, -5}]} = await_samples(Ref2, 1).
 
 oversized_frame_closes_only_the_connection(Config) ->
     C = client(Config, #{max_frame => 65536}),
+    Mon = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(?config(fake, Config), "garbage 0000ffffff7f"),
     {down, {frame_too_long, 16#7FFFFFFF}} = receive_down(C),
-    ok = await_status(C, up),
-    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [{<<"MAIN.counter">>, int32}]),
-    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [{<<"MAIN.counter">>, int32}]).
+    ?assertEqual({shutdown, {frame_too_long, 16#7FFFFFFF}}, await_exit(Mon, C)),
+    C2 = client(Config, #{max_frame => 65536}),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C2, [{<<"MAIN.counter">>, int32}]),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C2, [{<<"MAIN.counter">>, int32}]).
 
 bad_options(_Config) ->
     Good = #{host => "127.0.0.1", target_net_id => ?NET},
@@ -839,7 +851,10 @@ bad_options(_Config) ->
                      {port, #{port => 0}},
                      {target_port, #{target_port => 70000}},
                      {source_net_id, #{source_net_id => "x"}},
-                     {backoff, #{backoff => {100, 10}}},
+                     %% a client does not connect again by itself: its owner does
+                     {backoff, #{backoff => {50, 1000}}},
+                     {reconnect, #{reconnect => true}},
+                     {reconnect, #{reconnect => false}},
                      {max_sum, #{max_sum => 0}},
                      {sum_commands, #{sum_commands => yes}},
                      {access, #{access => symbol}},
@@ -919,12 +934,12 @@ response(Ids) ->
     after ?WAIT -> ct:fail(no_answer)
     end.
 
-%% `reconnect => false': one connection, no more. A lost connection or one that cannot
-%% be made ends the client with the reason; it logs nothing of its own (its host does).
+%% A client is one connection, no more. A lost connection or one that cannot be made
+%% ends the client with the reason; it logs nothing of its own (its owner does).
 one_connection_without_reconnecting(Config) ->
     Fake = ?config(fake, Config),
     ok = cell_log:subscribe(),
-    C = client(Config, #{reconnect => false, name => <<"hal/one">>}),
+    C = client(Config, #{name => <<"hal/one">>}),
     Ref = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(Fake, "drop"),
     receive {'DOWN', Ref, process, C, Why} -> ?assertEqual({shutdown, closed}, Why)
@@ -937,7 +952,7 @@ one_connection_without_reconnecting(Config) ->
     %% monitor could be set.
     Trap = process_flag(trap_exit, true),
     {ok, C2} = cell_hal_ads_client:start_link(#{host => {127, 0, 0, 1}, port => Port,
-                                               target_net_id => ?NET, reconnect => false,
+                                               target_net_id => ?NET,
                                                name => <<"hal/one">>}),
     receive {'EXIT', C2, Why2} ->
             ?assertEqual({shutdown, {connect, econnrefused}}, Why2)
@@ -966,7 +981,7 @@ collect_lines(Source, Acc) ->
 %% A PLC that hangs with its network stack alive takes nothing more: the socket's
 %% queue fills. A reader is not held past its timeout, and the client, which cannot
 %% hand over its writes, gives the connection up after its request timeout instead of
-%% waiting for the PLC for ever.
+%% waiting for the PLC for ever: it ends with the reason.
 stalled_plc_blocks_nobody(Config) ->
     Fake = ?config(fake, Config),
     C = client(Config, #{request_timeout => 500, link_check => infinity,
@@ -975,6 +990,7 @@ stalled_plc_blocks_nobody(Config) ->
     Name = {<<"MAIN.name">>, {string, 20}},
     {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, [Counter, Name]),
     #{<<"MAIN.name">> := {G, O, _}} = ?config(symbols, Config),
+    Mon = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(Fake, "stall"),
     Big = binary:copy(<<0>>, 4 bsl 20),
     _ = lists:foldl(fun(I, Ids) ->
@@ -990,9 +1006,11 @@ stalled_plc_blocks_nobody(Config) ->
     {down, Why} = receive_down(C),
     ct:log("given up: ~ts", [cell_hal_ads_client:format_error(Why)]),
     ?assertEqual({socket, timeout}, Why),
+    ?assertEqual({shutdown, {socket, timeout}}, await_exit(Mon, C)),
     ok = cell_hal_ads_peer:cmd(Fake, "unstall"),
-    ok = await_status(C, up),
-    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [Counter]).
+    C2 = client(Config),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C2, [Counter]),
+    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C2, [Counter]).
 
 %%--------------------------------------------------------------------
 %% direct: reads that skip the client's process (cell_hal_ads_direct)
@@ -1109,24 +1127,30 @@ caller_killed_mid_read(Config) ->
         calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [Counter]) end).
 
 %% The connection is lost with a direct read in flight: the read is answered
-%% `disconnected'; once connected again, reads skip the process again.
+%% `disconnected', the client ends with the reason; the next connection's reads skip
+%% its process again.
 connection_lost_mid_read(Config) ->
-    %% the read's answer is held until the client has connected again
+    %% the read's answer is held until the next connection's requests come
     {C, Reader} = held_read(Config, #{}),
+    Mon = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(?config(fake, Config), "drop"),
     ?assertEqual({error, disconnected}, read_result(Reader)),
     {down, closed} = receive_down(C),
-    ok = await_status(C, up),
+    ?assertEqual({shutdown, closed}, await_exit(Mon, C)),
+    C2 = client(Config),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C2, [counter()]),
     {[], {ok, [{ok, 42}]}} =
-        calls_to(C, fun() -> cell_hal_ads_client:read_vars(C, [counter()]) end).
+        calls_to(C2, fun() -> cell_hal_ads_client:read_vars(C2, [counter()]) end).
 
 %% A PLC that answers nothing: the direct read returns at its timeout, and the client,
-%% told that nothing at all came since the read was sent, gives the connection up.
+%% told that nothing at all came since the read was sent, gives the connection up: it
+%% ends with the reason.
 silent_plc_ends_direct_read(Config) ->
     Fake = ?config(fake, Config),
     C = client(Config, #{link_check => infinity, symbol_version => read}),
     Counter = {<<"MAIN.counter">>, int32},
     {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C, [Counter]),
+    Mon = monitor(process, C),
     ok = cell_hal_ads_peer:cmd(Fake, "mute"),
     T0 = erlang:monotonic_time(millisecond),
     {error, timeout} = cell_hal_ads_client:read_vars(C, [Counter], 300),
@@ -1134,9 +1158,12 @@ silent_plc_ends_direct_read(Config) ->
     ct:log("a 300 ms direct read returned after ~b ms", [Took]),
     ?assert(Took >= 300 andalso Took < 2000),
     {down, no_answer} = receive_down(C),
+    ?assertEqual({shutdown, no_answer}, await_exit(Mon, C)),
     ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
-    ok = await_status(C, up),
-    {ok, [{ok, 42}]} = cell_hal_ads_client:read_vars(C, [Counter]).
+    C2 = client(Config),
+    {ok, [{ok, _}]} = cell_hal_ads_client:resolve(C2, [Counter]),
+    {[], {ok, [{ok, 42}]}} =
+        calls_to(C2, fun() -> cell_hal_ads_client:read_vars(C2, [Counter]) end).
 
 %%--------------------------------------------------------------------
 %% crosscheck: our frames beside AdsLib's, byte for byte
@@ -1238,57 +1265,6 @@ command(<<_:22/binary, Cmd:16/little, _/binary>>) -> Cmd.
 without_handle(Frame, At) ->
     <<Head:At/binary, _:32, Tail/binary>> = normal(Frame),
     <<Head/binary, 0:32, Tail/binary>>.
-
-%%--------------------------------------------------------------------
-%% restart: the PLC goes away and comes back
-%%--------------------------------------------------------------------
-
-%% A restarted PLC knows no handles or notifications: the client takes new handles,
-%% adds its notifications again, and the callers never resolve anything again.
-reconnect_after_plc_restart(Config) ->
-    {ok, Fake1, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--handle-base", "5000"]),
-    Small = [{"MAIN.counter", "DINT", 3, <<42:32/little>>}, {"MAIN.flag", "BOOL", 33, <<0>>}],
-    [add(Fake1, N, T, A, V, "") || {N, T, A, V} <- Small],
-    C = client([{port, Port} | Config]),
-    Vars = [{<<"MAIN.counter">>, int32}, {<<"MAIN.flag">>, bool}],
-    {ok, [{ok, _}, {ok, _}]} = cell_hal_ads_client:resolve(C, Vars),
-    {ok, [{ok, Ref}]} = cell_hal_ads_client:subscribe(C, [{{<<"MAIN.flag">>, bool}, #{}}]),
-    {ok, [{_, false}]} = await_samples(Ref, 1),
-    ok = cell_hal_ads_peer:stop(Fake1),
-    {down, closed} = receive_down(C),
-    {error, disconnected} = cell_hal_ads_client:read_vars(C, Vars),
-    {ok, Fake2, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--port", integer_to_list(Port),
-                                                                           "--handle-base", "9000"]),
-    [add(Fake2, N, T, A, V, "") || {N, T, A, V} <- Small],
-    ok = await_status(C, up),
-    {ok, #{acquired := 2, notes := 2}} = cell_hal_ads_peer:cmd(Fake2, "stats"),
-    {ok, [{ok, 42}, {ok, false}]} = cell_hal_ads_client:read_vars(C, Vars),
-    {ok, [{_, false}]} = await_samples(Ref, 1),
-    ok = cell_hal_ads_peer:cmd(Fake2, ["set MAIN.flag 01"]),
-    {ok, [{_, true}]} = await_samples(Ref, 1),
-    ok = cell_hal_ads_client:stop(C),
-    ok = cell_hal_ads_peer:stop(Fake2).
-
-%% Nothing listens yet: the client keeps trying with back-off, then connects.
-connection_refused_then_up(_Config) ->
-    {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
-    {ok, Port} = inet:port(Probe),
-    ok = gen_tcp:close(Probe),
-    {ok, C} = cell_hal_ads_client:start(#{host => {127, 0, 0, 1}, port => Port,
-                                         target_net_id => ?NET, backoff => {50, 200}}),
-    stop_with_test(C),
-    ok = cell_hal_ads_client:subscribe_status(C),
-    {ok, {down, _}} = cell_hal_ads_peer:await(fun({cell_hal_ads, P, S}) when P =:= C -> {true, S};
-                                                 (_) -> false
-                                              end, ?WAIT),
-    {error, disconnected} = cell_hal_ads_client:read_state(C),
-    #{state := S, reason := Why} = cell_hal_ads_client:status(C),
-    ct:log("while nothing listens: ~p, ~ts", [S, Why]),
-    {ok, Fake, {ready, Port, _}} = cell_hal_ads_peer:start("fake_plc.py", ["--port", integer_to_list(Port)]),
-    ok = await_status(C, up),
-    {ok, #{ads_state := run}} = cell_hal_ads_client:read_state(C),
-    ok = cell_hal_ads_client:stop(C),
-    ok = cell_hal_ads_peer:stop(Fake).
 
 %%--------------------------------------------------------------------
 %% Helpers

@@ -1,48 +1,97 @@
-%% Random garbage from the network, at the level of the client process: a peer that
-%% answers the client's first request with random bytes (or a frame whose AMS/TCP
-%% header is right and whose content is random). Whatever it sends, the client closes
-%% that connection (or waits for an answer that never comes, and then closes it) and
-%% connects again; the client process never crashes.
+%% Random garbage from the network: a peer that answers the client's first request
+%% with random bytes (or a frame whose AMS/TCP header is right and whose content is
+%% random). Whatever it sends, the client closes that connection (or waits for an
+%% answer that never comes, and then closes it) and ends with the reason, never with
+%% a crash; the HAL's worker, whose job connecting again is, takes each new connection
+%% and its garbage and stays the same process.
 -module(cell_hal_ads_garbage_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1]).
--export([garbage_never_crashes_the_client/1]).
+-export([garbage_never_crashes_the_client/1, hal_worker_reconnects_through_garbage/1]).
 
 -define(WAIT, 10000).
+-define(NET, "127.0.0.1.1.1").
 
 all() ->
-    [garbage_never_crashes_the_client].
+    [garbage_never_crashes_the_client, hal_worker_reconnects_through_garbage].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
     ok = application:set_env(cell_base, root, filename:join(?config(priv_dir, Config), "root")),
-    {ok, _} = application:ensure_all_started(cell_base),
-    Config.
+    {ok, Apps} = application:ensure_all_started(cell_hal),
+    [{apps, Apps} | Config].
 
 end_per_suite(Config) ->
-    Config.
+    [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
+    ok.
 
+%% A client is one connection: each garbage gets a new one, which ends with
+%% `{shutdown, Reason}' (a reason that reads as words), never with a crash.
 garbage_never_crashes_the_client(_Config) ->
+    {Listen, Port} = listen(),
+    Property = ?FORALL(Garbage, garbage(), client_ends_cleanly(Listen, Port, Garbage)),
+    ?assert(proper:quickcheck(Property, [{to_file, user}, {numtests, 60}])),
+    ok = gen_tcp:close(Listen).
+
+client_ends_cleanly(Listen, Port, Garbage) ->
+    {ok, C} = cell_hal_ads_client:start(#{host => "127.0.0.1", port => Port,
+                                          target_net_id => ?NET, request_timeout => 200,
+                                          link_check => infinity}),
+    %% set before the client has its garbage: it cannot have ended yet
+    Mon = monitor(process, C),
+    Closed = answered_with(Listen, Garbage),
+    receive
+        {'DOWN', Mon, process, C, {shutdown, Why}} ->
+            ct:log("~ts", [cell_hal_ads_client:format_error(Why)]),
+            Closed andalso byte_size(cell_hal_ads_client:format_error(Why)) > 0;
+        {'DOWN', Mon, process, C, Crash} ->
+            ct:log("the client crashed: ~p", [Crash]),
+            false
+    after ?WAIT ->
+            ct:log("the client still runs after closing its connection"),
+            false
+    end.
+
+%% Through the HAL: its worker starts a client for each connection, and whatever
+%% garbage ends it, connects again after its back-off with a new one. The worker is
+%% the same process all along, and no client ended otherwise than with a reason.
+hal_worker_reconnects_through_garbage(_Config) ->
+    {Listen, Port} = listen(),
+    ok = cell_log:subscribe(),
+    ok = cell_hal:add_connection(#{id => garbage, driver => cell_hal_ads,
+                                   opts => #{host => "127.0.0.1", port => Port,
+                                             target_net_id => ?NET, timeout_ms => 200,
+                                             link_check => infinity, reconnect_ms => 1,
+                                             max_reconnect_ms => 5}}),
+    Worker = worker(garbage),
+    Property = ?FORALL(Garbage, garbage(), answered_with(Listen, Garbage)),
+    ?assert(proper:quickcheck(Property, [{to_file, user}, {numtests, 60}])),
+    ?assertEqual(Worker, worker(garbage)),
+    ?assertEqual(down, cell_hal:status(garbage)),
+    ok = cell_hal:remove_connection(garbage),
+    ok = cell_log:unsubscribe(),
+    Crashes = [T || {cell_log, #{text := T}} <- lines(),
+                    binary:match(T, <<"ended unexpectedly">>) =/= nomatch],
+    ?assertEqual([], Crashes),
+    ok = gen_tcp:close(Listen).
+
+listen() ->
     {ok, Listen} = gen_tcp:listen(0, [binary, {ip, {127, 0, 0, 1}}, {active, false},
                                       {reuseaddr, true}]),
     {ok, Port} = inet:port(Listen),
-    {ok, C} = cell_hal_ads_client:start(#{host => "127.0.0.1", port => Port,
-                                          target_net_id => "127.0.0.1.1.1",
-                                          backoff => {1, 5}, request_timeout => 200,
-                                          link_check => infinity}),
-    Ref = monitor(process, C),
-    Property = ?FORALL(Garbage, garbage(), answered_with(Listen, Garbage, C)),
-    ?assert(proper:quickcheck(Property, [{to_file, user}, {numtests, 60}])),
-    receive {'DOWN', Ref, process, C, Why} -> ct:fail("the client died: ~p", [Why])
-    after 0 -> ok
-    end,
-    #{state := State} = cell_hal_ads_client:status(C),
-    ct:log("after the garbage the client is ~p", [State]),
-    ok = cell_hal_ads_client:stop(C),
-    ok = gen_tcp:close(Listen).
+    {Listen, Port}.
+
+worker(Conn) ->
+    [Pid] = [P || {Id, P, _, _} <- supervisor:which_children(cell_hal_conn_sup), Id =:= Conn],
+    Pid.
+
+lines() ->
+    receive {cell_log, _} = L -> [L | lines()]
+    after 0 -> []
+    end.
 
 garbage() ->
     oneof([binary(),
@@ -61,15 +110,15 @@ frame(Cmd, Flags, Err, Invoke, Data) ->
              Invoke:32/little, Data/binary>>,
     <<0:16, (byte_size(Body)):32/little, Body/binary>>.
 
-%% The client connects, sends its first request and gets the garbage; whatever it
-%% makes of it, it closes the connection within its request timeout and stays alive.
-answered_with(Listen, Garbage, C) ->
+%% A client connects, sends its first request and gets the garbage; whatever it makes
+%% of it, it closes the connection within its request timeout.
+answered_with(Listen, Garbage) ->
     {ok, S} = gen_tcp:accept(Listen, ?WAIT),
     {ok, _First} = gen_tcp:recv(S, 0, ?WAIT),
     ok = gen_tcp:send(S, Garbage),
     Closed = drain(S, erlang:monotonic_time(millisecond) + ?WAIT),
     _ = gen_tcp:close(S),
-    Closed andalso is_process_alive(C).
+    Closed.
 
 %% Reads whatever else the client sends until it closes the connection.
 drain(S, Deadline) ->

@@ -16,7 +16,7 @@
          missing_symbol_in_a_group/1, symbol_version_change_retries/1,
          retyped_symbol/1, raw_requests/1, bad_configuration/1,
          garbage_closes_only_the_connection/1, group_added_again/1]).
--export([plc_restart/1]).
+-export([plc_restart/1, connection_refused_then_up/1]).
 -export([pyads_group/1]).
 
 -define(NET, "127.0.0.1.1.1").
@@ -35,7 +35,7 @@ groups() ->
                  missing_symbol_in_a_group, symbol_version_change_retries,
                  retyped_symbol, raw_requests, bad_configuration,
                  garbage_closes_only_the_connection, group_added_again]},
-     {restart, [], [plc_restart]},
+     {restart, [], [plc_restart, connection_refused_then_up]},
      {pyads, [], [pyads_group]}].
 
 %%--------------------------------------------------------------------
@@ -650,6 +650,16 @@ garbage_closes_only_the_connection(Config) ->
     ok = await_status(up),
     {ok, 42} = cell_hal:read(io, counter),
     ?assertEqual(Worker, worker(plc)),
+    %% a frame longer than allowed: the same, the worker connecting again
+    flush(),
+    ok = cell_hal_ads_peer:cmd(fake(Config), "garbage 0000ffffff7f"),
+    receive {cell_hal_conn, plc, down} -> ok after ?WAIT -> ct:fail(not_down) end,
+    Line2 = await_log(<<"lost">>),
+    ct:log("operator sees: ~ts", [Line2]),
+    ?assertNotEqual(nomatch, binary:match(Line2, <<"more than allowed">>)),
+    ok = await_status(up),
+    {ok, 42} = cell_hal:read(io, counter),
+    ?assertEqual(Worker, worker(plc)),
     ok = cell_log:unsubscribe().
 
 %% A group removed and added again under its name, its point now on another symbol:
@@ -739,6 +749,33 @@ plc_restart(Config) ->
     ok = cell_hal:remove_group(line),
     ok = cell_hal:remove_connection(plc),
     ok = cell_hal_ads_peer:stop(Fake2).
+
+%% Nothing listens yet: the connection is down with the reason, its inputs read
+%% `disconnected', and the worker keeps trying with its back-off; once the PLC listens
+%% the back-off reaches it, and the group is read.
+connection_refused_then_up(Config) ->
+    {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(Probe),
+    ok = gen_tcp:close(Probe),
+    ok = cell_log:subscribe(),
+    ok = connect([{port, Port} | Config]),
+    ok = group(line, #{kind => list, input_struct => <<"MAIN">>,
+                       points => [{counter, in, int32, <<".counter">>}]}),
+    Line = await_log(<<"connection refused">>),
+    ct:log("operator sees: ~ts", [Line]),
+    ?assertEqual(down, cell_hal:status(plc)),
+    {error, disconnected} = cell_hal:read(line, counter),
+    %% it answers once its program is loaded
+    {ok, Fake, {ready, Port, _}} = cell_hal_ads_peer:start(
+                                     "fake_plc.py", ["--port", integer_to_list(Port), "--muted"]),
+    ok = add(Fake, "MAIN.counter", "DINT", 3, <<42:32/little>>, ""),
+    ok = cell_hal_ads_peer:cmd(Fake, "unmute"),
+    ok = up([line]),
+    {ok, 42} = cell_hal:read(line, counter),
+    ok = cell_log:unsubscribe(),
+    ok = cell_hal:remove_group(line),
+    ok = cell_hal:remove_connection(plc),
+    ok = cell_hal_ads_peer:stop(Fake).
 
 %%--------------------------------------------------------------------
 %% pyads: the HAL over pyads' own test server

@@ -59,7 +59,7 @@ client(Config) ->
 client(Config, Extra) ->
     Opts = maps:merge(#{host => "127.0.0.1", port => ?config(port, Config),
                         target_net_id => ?NET, max_in_flight => 1, sum_commands => false,
-                        handle_idle => 0, backoff => {50, 1000}}, Extra),
+                        handle_idle => 0}, Extra),
     {ok, C} = cell_hal_ads_client:start(Opts),
     Test = self(),
     _ = spawn(fun() ->

@@ -194,7 +194,7 @@ connect() ->
     end,
     [{port, Port}] = ets:lookup(?TAB, port),
     {ok, C} = cell_hal_ads_client:start(#{host => {127, 0, 0, 1}, port => Port,
-                                          target_net_id => ?NET, reconnect => false,
+                                          target_net_id => ?NET,
                                           log_variables => false, name => <<"ads_model">>,
                                           handle_idle => 1000, request_timeout => ?WAIT}),
     true = ets:insert(?TAB, {client, C}),
