@@ -17,6 +17,7 @@ routes() ->
                                  [{mimetypes, {<<"text">>, <<"javascript">>, []}}]}},
      {"/style.css", cowboy_static, {priv_file, cell_web, "www/style.css"}},
      {"/favicon.svg", cowboy_static, {priv_file, cell_web, "www/favicon.svg"}},
+     {"/pages/[...]", cowboy_static, {priv_dir, cell_web, "www/pages", [{mimetypes, cow_mimetypes, all}]}},
      {"/api/session", cell_web_session_h, #{what => session}},
      {"/api/session/password", cell_web_session_h, #{what => password}},
      {"/api/cell", cell_web_cell_h, #{}},
@@ -50,5 +51,10 @@ routes() ->
      {"/api/inspect/messages", cell_web_inspect_h, #{what => messages}},
      {"/api/inspect/messages/answer", cell_web_inspect_h, #{what => answer}},
      {"/api/inspect/parts/:serial", cell_web_inspect_h, #{what => part}},
+     {"/api/layout", cell_web_layout_h, #{}},
+     {"/api/io", cell_web_io_h, #{what => all}},
+     {"/api/io/hardware/:id/image", cell_web_io_h, #{what => image}},
+     {"/api/forces", cell_web_forces_h, #{what => all}},
+     {"/api/forces/:group/:point", cell_web_forces_h, #{what => one}},
      {"/api/ws", cell_web_ws_h, #{}},
      {'_', cell_web_notfound_h, #{}}].
