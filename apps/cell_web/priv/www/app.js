@@ -16,8 +16,12 @@ const model = {
   alarms: new Map(),
   log: [],
   plcMessages: [],
+  forces: [],
   connected: false,
 };
+// Pages added by files of pages/ (see cellPanel.register), by id, in the order added.
+const pages = new Map();
+const listeners = new Map();
 let socket = null;
 let attempts = 0;
 let logMode = { live: true, offset: 0, limit: 100, query: null };
@@ -41,6 +45,14 @@ async function api(method, path, body) {
     throw err;
   }
   return data;
+}
+
+async function releaseAll() {
+  try {
+    await api('DELETE', '/api/forces');
+  } catch (e) {
+    toast(e.message);
+  }
 }
 
 async function command(name) {
@@ -113,13 +125,29 @@ function reconnect() {
 }
 
 function apply(msg) {
+  builtIn(msg);
+  for (const fn of [...(listeners.get(msg.type) || [])]) {
+    try { fn(msg); } catch (e) { console.error(e); }
+  }
+  for (const p of pages.values()) {
+    if (!p.onEvent) continue;
+    try { p.onEvent(msg); } catch (e) { console.error(e); }
+  }
+}
+
+function builtIn(msg) {
   switch (msg.type) {
     case 'snapshot':
       model.cell = msg.cell;
       model.tasks = new Map(msg.tasks.map((t) => [t.id, t]));
       model.alarms = new Map(msg.alarms.map((a) => [a.id, a]));
       model.log = msg.log.slice(-LIVE_LINES);
+      model.forces = msg.forces || [];
       renderAll();
+      break;
+    case 'forces':
+      model.forces = msg.forces;
+      renderForces();
       break;
     case 'cell':
       model.cell = msg.cell;
@@ -170,7 +198,18 @@ function renderAll() {
   renderAlarms();
   renderTicker();
   renderTaskOptions();
+  renderForces();
   if (logMode.live) renderLogLines(liveLines());
+}
+
+// While any point is forced a banner says so on every page, with Release all for
+// those who may (the server decides; a refusal is shown as a toast).
+function renderForces() {
+  const n = model.forces.length;
+  $('force-banner').classList.toggle('hidden', n === 0);
+  $('force-text').textContent = n === 0 ? '' : `${n} IO point${n === 1 ? '' : 's'} forced: ` +
+    model.forces.map((f) => `${f.group}.${f.point} = ${JSON.stringify(f.value)} (${f.who})`).join(', ');
+  $('force-release-all').disabled = RANK[model.session.role] < RANK.service;
 }
 
 function renderCell() {
@@ -212,13 +251,25 @@ function fillTile(tile, t) {
   tile.className = 'task ' + stateClass(t.state) + (t.running ? '' : ' gone');
   tile.dataset.state = t.state;
   tile.replaceChildren(
-    div('id', t.id),
+    taskName(t.id),
     div('where', `${t.zone} · ${t.lane}`),
     div('serial', t.serial ? t.serial : '—'),
     div('state', stateLabel(t.state)),
   );
   tile.querySelector('.serial').dataset.testid = 'serial';
   tile.querySelector('.state').dataset.testid = 'state';
+}
+
+// A task's name broken only where its words meet (after an underscore, a dash or a
+// dot), never inside a word: "loading_<wbr>front".
+function taskName(id) {
+  const e = document.createElement('div');
+  e.className = 'id';
+  for (const part of String(id).split(/(?<=[_.-])/)) {
+    if (e.childNodes.length) e.append(document.createElement('wbr'));
+    e.append(part);
+  }
+  return e;
 }
 
 function renderTask(t) {
@@ -342,9 +393,15 @@ function renderSession() {
   renderCommands();
   renderAlarms();
   renderPlcMessages();
+  renderForces();
   const admin = RANK[s.role] >= RANK.admin;
   $('tab-users').classList.toggle('hidden', !admin);
   if (!admin && !$('view-users').classList.contains('hidden')) show('line');
+  for (const p of pages.values()) {
+    const may = RANK[s.role] >= RANK[p.minRole];
+    $(`tab-${p.id}`).classList.toggle('hidden', !may);
+    if (!may && current === p.id) show('line');
+  }
 }
 
 function setLink(up) {
@@ -559,17 +616,67 @@ function time(ms, full) {
 // ---------------------------------------------------------------------------------
 // Start
 
+let current = 'line';
+
 function show(view) {
-  for (const v of ['line', 'log', 'users']) {
+  const was = current;
+  current = view;
+  for (const v of ['line', 'log', 'users', ...pages.keys()]) {
     $(`view-${v}`).classList.toggle('hidden', v !== view);
     $(`tab-${v}`).classList.toggle('active', v === view);
   }
+  if (was !== view && pages.has(was) && pages.get(was).hide) pages.get(was).hide();
+  if (was !== view && pages.has(view) && pages.get(view).show) pages.get(view).show();
 }
+
+// ---------------------------------------------------------------------------------
+// Pages of their own (pages/<id>.js): the contract they are written against.
+
+function register(page) {
+  if (!page || !page.id || pages.has(page.id) || ['line', 'log', 'users'].includes(page.id)) {
+    throw new Error(`cannot register the page ${page && page.id}`);
+  }
+  const p = { minRole: 'anonymous', ...page };
+  if (!(p.minRole in RANK)) throw new Error(`page ${p.id}: unknown role ${p.minRole}`);
+  const tab = document.createElement('button');
+  tab.className = 'tab';
+  tab.dataset.view = p.id;
+  tab.id = `tab-${p.id}`;
+  tab.dataset.testid = `tab-${p.id}`;
+  tab.textContent = p.title;
+  tab.classList.toggle('hidden', RANK[model.session.role] < RANK[p.minRole]);
+  tab.addEventListener('click', () => show(p.id));
+  document.querySelector('nav.tabs').append(tab);
+  const section = document.createElement('section');
+  section.className = 'view hidden';
+  section.id = `view-${p.id}`;
+  document.querySelector('main').append(section);
+  pages.set(p.id, p);
+  p.mount(section, window.cellPanel);
+}
+
+function on(type, fn) {
+  if (!listeners.has(type)) listeners.set(type, new Set());
+  listeners.get(type).add(fn);
+  return () => listeners.get(type).delete(fn);
+}
+
+window.cellPanel = {
+  api,
+  register,
+  session: () => ({ user: model.session.user, role: model.session.role,
+                    csrf: model.session.csrf,
+                    service: !!(model.cell && model.cell.service_mode) }),
+  on,
+  toast,
+  rank: (role) => RANK[role] ?? 0,
+};
 
 function wire() {
   $('cmd-start').addEventListener('click', () => command('start'));
   $('cmd-pause').addEventListener('click', () => command('pause'));
   $('cmd-stop').addEventListener('click', () => command('stop'));
+  $('force-release-all').addEventListener('click', releaseAll);
   $('tab-line').addEventListener('click', () => show('line'));
   $('tab-log').addEventListener('click', () => show('log'));
   $('tab-users').addEventListener('click', () => { show('users'); loadUsers(); });
