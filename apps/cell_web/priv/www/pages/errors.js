@@ -58,8 +58,9 @@
     const list = [...active.values()].sort((a, b) => ORDER[a.kind] - ORDER[b.kind] || a.raised - b.raised);
     box.replaceChildren(...list.map((a) => {
       const item = html('div', 'alarm ' + (a.kind === 'alarm' ? 'alarm-kind' : a.kind));
-      item.dataset.alarm = a.id;
-      item.dataset.kind = a.kind;
+      // Named apart from the Line view's error items, which are in the page too.
+      item.dataset.errorId = a.id;
+      item.dataset.errorKind = a.kind;
       const head = html('div', 'head');
       head.append(html('span', 'caption', a.caption), html('span', 'who', `${a.kind} · ${a.task} · ${when(a.raised)}`));
       item.append(head, html('div', 'description', a.description));
