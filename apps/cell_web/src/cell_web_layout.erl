@@ -18,7 +18,8 @@
 -export_type([layout/0]).
 
 -type layout() :: #{name := binary(), zones := [map()], lanes := [map()],
-                    tasks := [map()], links := [map()], beacon := [map()]}.
+                    rows := pos_integer(), tasks := [map()], links := [map()],
+                    beacon := [map()]}.
 
 %% @doc The layout of a (validated) cell spec.
 -spec layout(map()) -> layout().
