@@ -66,7 +66,7 @@ init([]) ->
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call({force, #{role := Role} = Caller, Key, Value}, _From, State) ->
-    Reply = case cell_web_force_rules:may_force(Role, cell_controller:flags()) of
+    Reply = case may_force(Role) of
                 ok ->
                     case cell_hal_force:force(Key, Value, cell_web_req:who_name(Caller)) of
                         ok -> ok = changed(), ok;
@@ -120,20 +120,45 @@ handle_info({timeout, TRef, cell_attach}, #state{retry = TRef, backoff = B} = St
     {noreply, attach(State#state{retry = undefined, backoff = cell_attach:next(B)})}.
 
 %% Subscribes to the cell's service mode and emergency stop; once attached (again),
-%% the flags as they are now end what they would have ended.
+%% the flags as they are now end what they would have ended. While the cell's
+%% services restart the flags cannot be read: tried again later, as the subscription.
 attach(#state{retry = undefined, backoff = B} = State) ->
     Subscribe = fun() -> cell_events:subscribe([service_mode, estop]) end,
     case cell_attach:watch([cell_events], Subscribe) of
         {ok, Watch} ->
-            Flags = cell_controller:flags(),
-            ok = ended({estop, maps:get(estop, Flags, false)}),
-            ok = ended({service_mode, maps:get(service_mode, Flags, false)}),
-            State#state{watch = Watch, backoff = cell_attach:first()};
+            case flags() of
+                {ok, Flags} ->
+                    ok = ended({estop, maps:get(estop, Flags, false)}),
+                    ok = ended({service_mode, maps:get(service_mode, Flags, false)}),
+                    State#state{watch = Watch, backoff = cell_attach:first()};
+                restarting ->
+                    ok = cell_attach:unwatch(Watch),
+                    State#state{retry = cell_attach:retry_after(B)}
+            end;
         retry ->
             State#state{retry = cell_attach:retry_after(B)}
     end;
 attach(State) ->
     State.
+
+%% The cell's flags, unless its services are restarting (their tables gone, the
+%% controller not there).
+flags() ->
+    try {ok, cell_controller:flags()}
+    catch
+        error:badarg -> restarting;
+        exit:{Why, _} when Why =:= noproc; Why =:= normal; Why =:= shutdown;
+                           Why =:= killed; element(1, Why) =:= shutdown -> restarting
+    end.
+
+may_force(Role) ->
+    case flags() of
+        {ok, Flags} ->
+            cell_web_force_rules:may_force(Role, Flags);
+        restarting ->
+            {error, 503, cell_restarting,
+             <<"the cell's services are starting again; force in a moment">>}
+    end.
 
 %% Ends the forces a cause ends, each recorded in the audit trail with why.
 ended(Cause) ->
