@@ -101,13 +101,8 @@ point(P) -> list_to_atom("p" ++ integer_to_list(P)).
 %% shown the last tick's marker (a negative value).
 
 client(Port, Path, Parent, T0) ->
-    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {nodelay, true}]),
-    ok = gen_tcp:send(S, ["GET ", Path, " HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
-                          "Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
-                          "Sec-WebSocket-Key: ", base64:encode(crypto:strong_rand_bytes(16)),
-                          "\r\n\r\n"]),
-    Rest = upgraded(S, <<>>),
-    {_, Rest1} = frame(S, Rest),
+    {S, Rest} = cell_web_bench:ws_open(Port, Path),
+    {_, Rest1} = cell_web_bench:frame(S, Rest),
     Parent ! {ready, self()},
     Delays = collect(S, Rest1, T0, ?GROUPS * ?PER_GROUP, []),
     Parent ! {done, self(), Delays},
@@ -116,31 +111,12 @@ client(Port, Path, Parent, T0) ->
 collect(_S, _Buf, _T0, 0, Acc) ->
     Acc;
 collect(S, Buf, T0, Left, Acc) ->
-    {Payload, Rest} = frame(S, Buf),
+    {Payload, Rest} = cell_web_bench:frame(S, Buf),
     Now = erlang:monotonic_time(millisecond) - T0,
     Values = [V || #{<<"type">> := <<"io">>, <<"points">> := Ps} <- jsx:decode(Payload, [return_maps]),
                    #{<<"value">> := V} <- Ps, is_integer(V)],
     Done = length([V || V <- Values, V < 0]),
     collect(S, Rest, T0, Left - Done, [Now - abs(V) || V <- Values] ++ Acc).
-
-upgraded(S, Buf) ->
-    case binary:split(Buf, <<"\r\n\r\n">>) of
-        [<<"HTTP/1.1 101", _/binary>>, Rest] -> Rest;
-        [_] -> {ok, More} = gen_tcp:recv(S, 0, 10000), upgraded(S, <<Buf/binary, More/binary>>)
-    end.
-
-frame(S, Buf) ->
-    case Buf of
-        <<_:4, Op:4, 0:1, 127:7, Len:64, P:Len/binary, Rest/binary>> -> text(S, Op, P, Rest);
-        <<_:4, Op:4, 0:1, 126:7, Len:16, P:Len/binary, Rest/binary>> -> text(S, Op, P, Rest);
-        <<_:4, Op:4, 0:1, Len:7, P:Len/binary, Rest/binary>> when Len < 126 -> text(S, Op, P, Rest);
-        _ ->
-            {ok, More} = gen_tcp:recv(S, 0, 30000),
-            frame(S, <<Buf/binary, More/binary>>)
-    end.
-
-text(_S, 1, Payload, Rest) -> {Payload, Rest};
-text(S, _Op, _Payload, Rest) -> frame(S, Rest).
 
 %% -------------------------------------------------------------------------------------
 %% The peer: a bare cowboy websocket that sends each of the feed's messages as it comes

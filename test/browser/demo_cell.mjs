@@ -1,7 +1,8 @@
-// What the browser tests of the panel's pages share: the demo cell (the Erlang module
-// cell_web_demo, driven through its standard input, each command answered once the
-// cell has taken it), Debian's headless chromium at 1024x768 with touch, and logging
-// in. Every wait has a deadline; nothing sleeps.
+// What the browser tests of the panel share: a demo cell (an Erlang module's main/0,
+// cell_web_demo by default, driven through its standard input, each command answered
+// once the cell has taken it), Debian's headless chromium at 1024x768 with touch, and
+// logging in. Every wait has a deadline; nothing sleeps.
+import { before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
 import { createInterface } from 'node:readline';
@@ -15,14 +16,22 @@ export const artifacts = join(top, 'test', 'browser', 'artifacts');
 export const docs = join(top, 'docs', 'panel');
 export const WAIT = 15000;          // generous: the machine is shared with other builds
 
+// main: the demo's entry point; root: its cell root folder (default a new temporary
+// one, removed at the end); cmdWait: how long a command may take.
 export class DemoCell {
+  constructor({ main = 'cell_web_demo:main()', root, cmdWait = WAIT } = {}) {
+    this.main = main;
+    this.fixedRoot = root;
+    this.cmdWait = cmdWait;
+  }
+
   async start() {
     const libs = join(top, '_build', 'default', 'lib');
     const paths = readdirSync(libs).map((a) => join(libs, a, 'ebin'));
     paths.push(process.env.CELLRT_BROWSER_EBIN);
-    this.root = mkdtempSync(join(tmpdir(), 'cellrt-pages-'));
+    this.root = this.fixedRoot || mkdtempSync(join(tmpdir(), 'cellrt-pages-'));
     this.proc = spawn('erl', ['-noshell', ...paths.flatMap((p) => ['-pa', p]),
-                              '-eval', 'cell_web_demo:main()'],
+                              '-eval', this.main],
                       { env: { ...process.env, CELLRT_ROOT: this.root },
                         stdio: ['pipe', 'pipe', 'inherit'] });
     this.waiters = [];
@@ -32,7 +41,8 @@ export class DemoCell {
       if (i >= 0) this.waiters.splice(i, 1)[0].resolve(line);
     });
     const first = await this.expect((l) => l.startsWith('PORT '), 60000);
-    this.url = `http://127.0.0.1:${Number(first.split(' ')[1])}/`;
+    this.port = Number(first.split(' ')[1]);
+    this.url = `http://127.0.0.1:${this.port}/`;
   }
 
   expect(match, ms = WAIT) {
@@ -43,7 +53,7 @@ export class DemoCell {
   }
 
   async cmd(text) {
-    const answer = this.expect((l) => l.endsWith(' ' + text) && /^(OK|ERR) /.test(l));
+    const answer = this.expect((l) => l.endsWith(' ' + text) && /^(OK|ERR) /.test(l), this.cmdWait);
     this.proc.stdin.write(text + '\n');
     const line = await answer;
     assert.ok(line.startsWith('OK '), line);
@@ -54,8 +64,23 @@ export class DemoCell {
     const exited = new Promise((resolve) => this.proc.once('exit', resolve));
     this.proc.stdin.end('quit\n');
     await exited;
-    rmSync(this.root, { recursive: true, force: true });
+    if (!this.fixedRoot) rmSync(this.root, { recursive: true, force: true });
   }
+}
+
+// The cell started and a browser opened before the file's tests, both closed after;
+// `ready(page)' is given the page.
+export function openPages(cell, ready) {
+  let b;
+  before(async () => {
+    await cell.start();
+    b = await browser();
+    ready(b.page);
+  });
+  after(async () => {
+    if (b) await b.close();
+    await cell.stop();
+  });
 }
 
 // A browser with one page, and how to close it.

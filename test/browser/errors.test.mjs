@@ -1,23 +1,12 @@
 // The Errors page: the active errors with their own solutions, and the history of
 // answers (who answered what, when), filterable.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { DemoCell, browser, login, shot } from './demo_cell.mjs';
+import { DemoCell, openPages, login, shot } from './demo_cell.mjs';
 
 const cell = new DemoCell();
-let b;
 let page;
-
-before(async () => {
-  await cell.start();
-  b = await browser();
-  page = b.page;
-});
-
-after(async () => {
-  if (b) await b.close();
-  await cell.stop();
-});
+openPages(cell, (p) => { page = p; });
 
 const active = () => page.locator('[data-testid=errors-active] .alarm');
 const history = () => page.locator('[data-testid=history] tr[data-id]');

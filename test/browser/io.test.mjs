@@ -1,24 +1,13 @@
 // The IO page and forcing: every point live, who may force and when, a forced point
 // marked on every page with a banner, forces audited and ended by an emergency stop,
 // the end of service mode and the logout of whoever set them.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { DemoCell, browser, login, logout, shot, call } from './demo_cell.mjs';
+import { DemoCell, openPages, login, logout, shot, call } from './demo_cell.mjs';
 
 const cell = new DemoCell();
-let b;
 let page;
-
-before(async () => {
-  await cell.start();
-  b = await browser();
-  page = b.page;
-});
-
-after(async () => {
-  if (b) await b.close();
-  await cell.stop();
-});
+openPages(cell, (p) => { page = p; });
 
 const row = (key) => page.locator(`tr[data-point="${key}"]`);
 

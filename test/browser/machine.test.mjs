@@ -1,24 +1,13 @@
 // The Machine page: the picture of the cell drawn from its spec alone (zones in flow
 // order, lanes, links), each task in its IPC-2541 colour with its product, the phase
 // of each handshake link, the beacon and the shift's counters, all live.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { DemoCell, browser, login, shot } from './demo_cell.mjs';
+import { DemoCell, openPages, login, shot } from './demo_cell.mjs';
 
 const cell = new DemoCell();
-let b;
 let page;
-
-before(async () => {
-  await cell.start();
-  b = await browser();
-  page = b.page;
-});
-
-after(async () => {
-  if (b) await b.close();
-  await cell.stop();
-});
+openPages(cell, (p) => { page = p; });
 
 const node = (id) => page.locator(`[data-testid=machine-svg] g.node[data-node="${id}"]`);
 
