@@ -124,7 +124,10 @@ function reconnect() {
   connect();
 }
 
+let snapshotSeen = false;
+
 function apply(msg) {
+  if (msg.type === 'snapshot') snapshotSeen = true;
   builtIn(msg);
   for (const fn of [...(listeners.get(msg.type) || [])]) {
     try { fn(msg); } catch (e) { console.error(e); }
@@ -655,9 +658,17 @@ function register(page) {
   p.mount(section, window.cellPanel);
 }
 
+// A snapshot listener added after the snapshot came (a page's script run late) gets
+// one made of what the page holds now, so no page waits for the next resync.
 function on(type, fn) {
   if (!listeners.has(type)) listeners.set(type, new Set());
   listeners.get(type).add(fn);
+  if (type === 'snapshot' && snapshotSeen) {
+    queueMicrotask(() => fn({
+      type: 'snapshot', resync: false, cell: model.cell, tasks: [...model.tasks.values()],
+      alarms: [...model.alarms.values()], log: [...model.log], forces: model.forces,
+    }));
+  }
   return () => listeners.get(type).delete(fn);
 }
 
