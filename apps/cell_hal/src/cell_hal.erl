@@ -140,11 +140,12 @@ connections() ->
 groups() ->
     lists:sort([Id || #hal_group{id = Id} <- cell_hal_store:groups()]).
 
-%% @doc A group's points as its IO page shows them.
+%% @doc A group's points as its IO page shows them: in the order its module lists them.
 -spec points(atom()) -> {ok, [point_info()]} | error(unknown_group).
 points(Group) ->
     case cell_hal_store:group(Group) of
-        {ok, _} -> {ok, [info_of(P) || P <- cell_hal_store:points_of_group(Group)]};
+        {ok, _} -> {ok, [info_of(P) || P <- lists:keysort(#hal_point.seq,
+                                                          cell_hal_store:points_of_group(Group))]};
         error -> {error, unknown_group}
     end.
 

@@ -132,7 +132,11 @@ io_points_and_connections(Config) ->
       <<"forces">> := []} = Io,
     ?assertMatch(#{<<"id">> := <<"plc">>, <<"status">> := <<"up">>, <<"reconnects">> := 0}, Conn),
     ?assertEqual([<<"general">>, <<"line">>], [G || #{<<"id">> := G} <- Groups]),
-    [Line] = [G || #{<<"id">> := <<"line">>} = G <- Groups],
+    [General, Line] = Groups,
+    %% In the order the group's module lists them.
+    ?assertEqual([<<"beacon_red">>, <<"beacon_yellow">>, <<"beacon_green">>, <<"beacon_blue">>,
+                  <<"service_key">>, <<"air_pressure">>],
+                 [P || #{<<"point">> := P} <- maps:get(<<"points">>, General)]),
     [Speed] = [P || #{<<"point">> := <<"conveyor_speed">>} = P <- maps:get(<<"points">>, Line)],
     ?assertMatch(#{<<"dir">> := <<"out">>, <<"type">> := <<"INT">>, <<"unit">> := <<"mm/s">>,
                    <<"address">> := <<"A2.40.01">>, <<"caption">> := <<"Conveyor speed">>,
