@@ -81,3 +81,23 @@ test('task cards break names between words, never inside one', async () => {
     assert.equal(lines, 1, id);
   }
 });
+
+test('the Machine and Errors pages fit 1024x768 and 1280x800 touch panels', async () => {
+  for (const [width, height] of [[1024, 768], [1280, 800]]) {
+    await page.setViewportSize({ width, height });
+    for (const tab of ['machine', 'errors']) {
+      await page.click(`[data-testid=tab-${tab}]`);
+      await page.waitForSelector(`#view-${tab}:not(.hidden)`);
+      const size = await page.evaluate(() => ({
+        width: document.documentElement.scrollWidth, height: document.documentElement.scrollHeight,
+      }));
+      assert.ok(size.width <= width && size.height <= height, `${tab} ${JSON.stringify(size)}`);
+      const box = await page.locator(`[data-testid=tab-${tab}]`).boundingBox();
+      assert.ok(box.height >= 40, JSON.stringify(box));
+    }
+    await page.click('[data-testid=tab-machine]');
+    const svg = await page.locator('[data-testid=machine-svg]').boundingBox();
+    assert.ok(svg.width > width / 2, `the picture is ${svg.width} wide`);
+  }
+  await page.setViewportSize({ width: 1024, height: 768 });
+});
