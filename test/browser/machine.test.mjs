@@ -24,7 +24,8 @@ test('anyone sees the picture of the cell, drawn from its spec', async () => {
   for (const id of ['loader', 'router', 'unloader']) xs.push((await node(id).boundingBox()).x);
   assert.ok(xs[0] < xs[1] && xs[1] < xs[2], JSON.stringify(xs));
   for (const l of ['load_route', 'route_unload']) {
-    await page.waitForSelector(`g.link[data-link="${l}"][data-phase="idle"]`);
+    // A straight arrow has no height: attached, not "visible".
+    await page.waitForSelector(`g.link[data-link="${l}"][data-phase="idle"]`, { state: 'attached' });
   }
   assert.equal(await page.locator('[data-testid=beacon] .lamp').count(), 4);
   assert.equal(await page.textContent('[data-counter="in"]'), '0');
@@ -54,8 +55,8 @@ test('states, products and link phases change live, in the IPC-2541 colours', as
   // The loader offers its product to the router: the link shows it.
   await cell.cmd('product loader P-2002');
   await cell.cmd('offer loader load_route');
-  await page.waitForSelector('g.link[data-link="load_route"][data-phase="offered"]');
-  assert.deepEqual(await page.locator('g.link[data-link="load_route"] text.phase').allTextContents(),
+  await page.waitForSelector('g.link[data-link="load_route"][data-phase="offered"]', { state: 'attached' });
+  assert.deepEqual(await page.locator('[data-testid=machine-svg] text.phase[data-link="load_route"]').allTextContents(),
                    ['offered', 'P-2002']);
   await page.waitForSelector('g.node[data-node="loader"][data-state="READY-IDLE-BLOCKED"]');
   // The counters follow the items that came in.

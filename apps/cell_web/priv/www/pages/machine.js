@@ -6,7 +6,9 @@
 'use strict';
 (() => {
   const SVG = 'http://www.w3.org/2000/svg';
-  const COL = 170, GAP = 100, ROW = 130, TOP = 40, LEFT = 90;
+  // Sizes in the picture's own units; the picture is scaled to the page's width, so a
+// line of five zones stays readable on a 1024-pixel screen.
+const COL = 150, GAP = 64, ROW = 150, TOP = 40, LEFT = 64;
   const LAMPS = { beacon_red: 'red', beacon_yellow: 'yellow', beacon_green: 'green', beacon_blue: 'blue' };
   let panel, root, svg, layout = null;
   const tasks = new Map();      // id -> task as the websocket sends it
@@ -92,7 +94,8 @@
     svg.setAttribute('viewBox', `0 0 ${width} ${height}`);
     const defs = el('defs');
     const marker = el('marker', { id: 'arrow', viewBox: '0 0 10 10', refX: '9', refY: '5',
-                                  markerWidth: '7', markerHeight: '7', orient: 'auto-start-reverse' });
+                                  markerWidth: '16', markerHeight: '16', markerUnits: 'userSpaceOnUse',
+                                  orient: 'auto-start-reverse' });
     marker.append(el('path', { d: 'M0,0 L10,5 L0,10 z', class: 'arrow-head' }));
     defs.append(marker);
     svg.append(defs);
@@ -103,6 +106,7 @@
       svg.append(el('text', { x: 8, y: TOP + l.row * ROW + ROW / 2 - 8, class: 'lane' }, l.name));
     }
     const byId = new Map(layout.tasks.map((t) => [t.id, t]));
+    const labels = [];
     for (const l of layout.links) {
       const from = byId.get(l.from), to = byId.get(l.to);
       const g = el('g', { class: 'link', 'data-link': l.id });
@@ -114,9 +118,11 @@
       g.append(el('path', { d: `M${x1},${y1} C${(x1 + x2) / 2},${y1} ${(x1 + x2) / 2},${y2} ${x2},${y2}`,
                             'marker-end': 'url(#arrow)' }));
       g.append(el('title', {}, l.id));
-      g.append(el('text', { x: (x1 + x2) / 2, y: (y1 + y2) / 2 + 24, class: 'phase' }));
-      g.append(el('text', { x: (x1 + x2) / 2, y: (y1 + y2) / 2 + 42, class: 'phase serial' }));
       svg.append(g);
+      // The phase is written over the tasks (drawn last), with a halo, so a label wider
+      // than the gap between two zones stays readable.
+      labels.push(el('text', { x: (x1 + x2) / 2, y: (y1 + y2) / 2 + 24, class: 'phase', 'data-link': l.id }),
+                  el('text', { x: (x1 + x2) / 2, y: (y1 + y2) / 2 + 42, class: 'phase serial', 'data-link': l.id }));
     }
     for (const t of layout.tasks) {
       const b = box(t);
@@ -126,13 +132,24 @@
         // A robot shared by the lanes: its arm drawn in the corner.
         g.append(el('path', { class: 'robot', d: `M${b.x + b.w - 30},${b.y + b.h - 10} l8,-22 l14,8 l4,-10` }));
       }
-      g.append(el('text', { x: b.x + 8, y: b.y + 22, class: 'name' }, t.id));
-      g.append(el('text', { x: b.x + 8, y: b.y + 44, class: 'serial', 'data-testid': 'node-serial' }));
-      g.append(el('text', { x: b.x + 8, y: b.y + 66, class: 'state', 'data-testid': 'node-state' }));
+      g.append(el('text', { x: b.x + 8, y: b.y + 24, class: 'name' }, t.id));
+      g.append(el('text', { x: b.x + 8, y: b.y + 48, class: 'serial', 'data-testid': 'node-serial' }));
+      g.append(el('text', { x: b.x + 8, y: b.y + 72, class: 'state', 'data-testid': 'node-state' }));
       svg.append(g);
+      fit(g.querySelector('.name'), b.w - 16);
     }
+    svg.append(...labels);
     for (const id of byId.keys()) paintTask(id);
     for (const id of links.keys()) paintLink(id);
+  }
+
+  // A text longer than its box is narrowed to fit it, never cut or broken.
+  function fit(text, width) {
+    text.removeAttribute('textLength');
+    if (text.getComputedTextLength() > width) {
+      text.setAttribute('textLength', width);
+      text.setAttribute('lengthAdjust', 'spacingAndGlyphs');
+    }
   }
 
   function paintTask(id) {
@@ -143,6 +160,7 @@
     g.setAttribute('class', `node st-${stateOf(t.state)}${t.running ? '' : ' gone'}`);
     g.dataset.state = t.state;
     g.querySelector('.serial').textContent = t.serial || '—';
+    fit(g.querySelector('.serial'), Number(g.querySelector('rect').getAttribute('width')) - 16);
     g.querySelector('.state').textContent = stateOf(t.state);
     g.querySelector('.state').append(el('title', {}, label(t.state)));
   }
@@ -154,8 +172,10 @@
     if (!g || !l) return;
     g.dataset.phase = l.phase;
     g.setAttribute('class', `link ph-${l.phase}`);
-    g.querySelector('.phase').textContent = l.phase;
-    g.querySelector('.phase.serial').textContent = l.serial || '';
+    const [phase, serial] = svg.querySelectorAll(`text.phase[data-link="${CSS.escape(id)}"]`);
+    phase.textContent = l.phase === 'idle' ? '' : l.phase;
+    serial.textContent = l.serial || '';
+    for (const t of [phase, serial]) t.classList.toggle('moving', !['idle', 'unknown'].includes(l.phase));
   }
 
   function paintBeacon() {
