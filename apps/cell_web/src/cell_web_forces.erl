@@ -68,8 +68,14 @@ init([]) ->
 handle_call({force, #{role := Role} = Caller, Key, Value}, _From, State) ->
     Reply = case may_force(Role) of
                 ok ->
-                    case cell_hal_force:force(Key, Value, cell_web_req:who_name(Caller)) of
-                        ok -> ok = changed(), ok;
+                    Who = cell_web_req:who_name(Caller),
+                    case cell_hal_force:force(Key, Value, Who) of
+                        ok ->
+                            {G, P} = Key,
+                            cell_log:warning(web, "~s.~s forced to ~ts by ~ts (service mode); "
+                                             "the cell's own value is held until it is released",
+                                             [G, P, cell_web_json:encode(Value), Who]),
+                            ok = changed();
                         {error, Why} -> refused(Why)
                     end;
                 {error, _, _, _} = E ->
@@ -80,7 +86,11 @@ handle_call({release, Caller, Key}, _From, State) ->
     Reply = case may_release(Caller) of
                 ok ->
                     case cell_hal_force:release(Key) of
-                        ok -> ok = changed(), ok;
+                        ok ->
+                            {G, P} = Key,
+                            cell_log:notice(web, "~s.~s released by ~ts",
+                                            [G, P, cell_web_req:who_name(Caller)]),
+                            ok = changed();
                         {error, not_forced} -> {error, 404, not_forced,
                                                 <<"this point is not forced">>}
                     end;
@@ -93,6 +103,8 @@ handle_call({release_all, Caller}, _From, State) ->
                 ok ->
                     Forces = cell_hal_force:forces(),
                     _ = [cell_hal_force:release({G, P}) || #{group := G, point := P} <- Forces],
+                    cell_log:notice(web, "~b forced IO point(s) released by ~ts",
+                                    [length(Forces), cell_web_req:who_name(Caller)]),
                     ok = changed(),
                     {ok, length(Forces)};
                 E ->
