@@ -1,22 +1,15 @@
 // The Audit page: only an admin sees it; the audit trail filtered by user, action
 // and time.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { Cell, open, login, logout, shot } from './cell.mjs';
+import { DemoCell, openPages, openPanel, login, logout, shot } from './demo_cell.mjs';
 
-const cell = new Cell();
-let browser;
+const cell = new DemoCell();
 let page;
 
-before(async () => {
-  await cell.start();
-  browser = await open(cell);
-  page = browser.page;
-});
-
-after(async () => {
-  if (browser) await browser.close();
-  await cell.stop();
+openPages(cell, async (p) => {
+  page = p;
+  await openPanel(page, cell);
 });
 
 test('an operator and a service user do not see the Audit page', async () => {
@@ -63,5 +56,5 @@ test('an admin filters the audit trail by user, action and time', async () => {
   }));
   await page.click('[data-testid=audit-search]');
   await page.waitForSelector('[data-testid=audit-lines] tr td.text:has-text("/api/cell/stop")');
-  await shot(page, 'audit', true);
+  await shot(page, 'audit', 'audit');
 });

@@ -1,7 +1,8 @@
 // What the browser tests of the panel share: a demo cell (an Erlang module's main/0,
 // cell_web_demo by default, driven through its standard input, each command answered
-// once the cell has taken it), Debian's headless chromium at 1024x768 with touch, and
-// logging in. Every wait has a deadline; nothing sleeps.
+// once the cell has taken it), Debian's headless chromium at 1024x768 with touch,
+// logging in and out, screenshots, the REST API as the page calls it. Every wait has
+// a deadline; nothing sleeps.
 import { before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawn } from 'node:child_process';
@@ -69,13 +70,13 @@ export class DemoCell {
 }
 
 // The cell started and a browser opened before the file's tests, both closed after;
-// `ready(page)' is given the page.
+// `ready(page)' is given the page (and awaited, when it returns a promise).
 export function openPages(cell, ready) {
   let b;
   before(async () => {
     await cell.start();
     b = await browser();
-    ready(b.page);
+    await ready(b.page);
   });
   after(async () => {
     if (b) await b.close();
@@ -93,6 +94,7 @@ export async function browser() {
            '--disable-component-update', '--disable-sync', '--no-first-run'],
     viewport: { width: 1024, height: 768 },
     hasTouch: true,
+    acceptDownloads: true,
   });
   const page = context.pages()[0] || await context.newPage();
   page.setDefaultTimeout(WAIT);
@@ -103,7 +105,14 @@ export async function browser() {
   return { context, page, close };
 }
 
-export async function login(page, user, password) {
+// The cell's panel loaded in the page, connected live.
+export async function openPanel(page, cell) {
+  await page.goto(cell.url);
+  await page.waitForSelector('#link.up');
+}
+
+// A user logs in (the demo accounts' passwords are their names).
+export async function login(page, user, password = user) {
   await page.click('#user-button');
   await page.fill('#login-user', user);
   await page.fill('#login-password', password);
@@ -119,6 +128,7 @@ export async function logout(page) {
 
 // A screenshot for the run's artifacts, and the page's picture in docs/panel/.
 export async function shot(page, name, docName) {
+  mkdirSync(artifacts, { recursive: true });
   await page.screenshot({ path: join(artifacts, `${name}.png`) });
   if (docName) {
     mkdirSync(docs, { recursive: true });
@@ -137,3 +147,7 @@ export function call(page, method, path, body) {
     }
   }, [method, path, body]);
 }
+
+// What the page's own session may fetch, as JSON.
+export const fetchJson = (page, path) =>
+  page.evaluate((p) => fetch(p).then((r) => r.json()), path);
