@@ -11,11 +11,13 @@
 %% Its IO is a simulated PLC (`demo_plc') with two groups of this module's points
 %% (`general': the beacon the monitor drives, a service key, a pressure; `line': the
 %% conveyor's motor, clamps and sensors) and a simulated camera; its tasks are linked
-%% loader -> router -> unloader.
+%% loader -> router -> unloader, so that only the unloader's products leave the cell.
+%% `main(#{links => false})' starts it without the links: each task then takes its
+%% products in from outside the cell and sends them out of it.
 -module(cell_web_demo).
 -behaviour(cell_hal_group).
 
--export([main/0, points/1]).
+-export([main/0, main/1, points/1]).
 
 -define(TASKS, [{loader, <<"Loading">>, <<"Front">>}, {router, <<"Routing">>, <<"Front">>},
                 {unloader, <<"Unloading">>, <<"Front">>}]).
@@ -24,19 +26,26 @@
 
 -spec main() -> no_return().
 main() ->
+    main(#{}).
+
+-spec main(#{links => boolean()}) -> no_return().
+main(Opts) ->
     _ = application:load(lager),
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     ok = application:set_env(lager, error_logger_redirect, false),
     Specs = [cell_web_demo_task:spec(Id, Z, L, self()) || {Id, Z, L} <- ?TASKS],
     _ = [application:load(A) || A <- [cell_base, cell, cell_web]],
     ok = application:set_env(cell, cell_spec, #{name => <<"demo">>, tasks => Specs,
-                                                links => ?LINKS, hal => hal(),
+                                                links => links(Opts), hal => hal(),
                                                 monitor => monitor()}),
     ok = application:set_env(cell_web, port, 0),
     {ok, _} = application:ensure_all_started(cell_web),
     ok = cell_settings:put(machine, #{cell_name => <<"Demo router">>}, <<"demo">>),
     io:format("PORT ~p~n", [cell_web:port()]),
     loop(maps:from_list([{atom_to_binary(Id, utf8), {Id, S}} || #{id := Id} = S <- Specs])).
+
+links(#{links := false}) -> [];
+links(_) -> ?LINKS.
 
 hal() ->
     #{connections => [#{id => demo_plc, driver => cell_hal_sim, opts => #{}}],
@@ -138,7 +147,8 @@ run([<<"recipe">>, Name], _Tasks) ->
 run([<<"log">>, Task | Text], Tasks) ->
     send(Task, {log, iolist_to_binary(lists:join(" ", Text))}, Tasks);
 run([<<"offer">>, Task, Link], Tasks) ->
-    case [L || #{id := L} <- ?LINKS, atom_to_binary(L, utf8) =:= Link] of
+    {ok, #{links := Links}} = application:get_env(cell, cell_spec),
+    case [L || #{id := L} <- Links, atom_to_binary(L, utf8) =:= Link] of
         [L] -> send(Task, {offer, L}, Tasks);
         [] -> {error, {unknown_link, Link}}
     end;
