@@ -224,8 +224,9 @@ function renderCell() {
   const badge = $('cell-state');
   badge.className = 'badge ' + stateClass(c.state);
   badge.textContent = stateLabel(c.state);
-  $('cell-request').textContent =
-    `request: ${c.request}` + (c.service_mode ? ' · service mode' : '');
+  const request = `request: ${c.request}` + (c.service_mode ? ' · service mode' : '');
+  $('cell-request').textContent = request;
+  $('cell-request').title = request;   // the whole of it where the header cuts it short
   $('estop-banner').classList.toggle('hidden', !c.estop);
   renderCommands();
 }
@@ -629,6 +630,8 @@ function show(view) {
     $(`view-${v}`).classList.toggle('hidden', v !== view);
     $(`tab-${v}`).classList.toggle('active', v === view);
   }
+  // A tab chosen other than by a touch (a role's page left) is brought into the row's view.
+  $(`tab-${view}`).scrollIntoView({ block: 'nearest', inline: 'nearest' });
   if (was !== view && pages.has(was) && pages.get(was).hide) pages.get(was).hide();
   if (was !== view && pages.has(view) && pages.get(view).show) pages.get(view).show();
 }
