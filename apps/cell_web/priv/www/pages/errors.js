@@ -91,12 +91,9 @@
   }
 
   async function load() {
-    try {
-      history = await panel.api('GET', '/api/alarms/history');
-    } catch (e) {
-      panel.toast(e.message);
-      return;
-    }
+    const got = await window.cellUi.attempt(panel, () => panel.api('GET', '/api/alarms/history'));
+    if (!got) return;
+    history = got;
     options('task', history.map((r) => r.task));
     options('what', history.map((r) => r.what));
     renderHistory();

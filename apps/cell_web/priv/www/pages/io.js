@@ -37,12 +37,9 @@
   const keys = (forces) => new Set(forces.map((f) => `${f.group}.${f.point}`));
 
   async function load() {
-    try {
-      data = await panel.api('GET', '/api/io');
-    } catch (e) {
-      panel.toast(e.message);
-      return;
-    }
+    const got = await window.cellUi.attempt(panel, () => panel.api('GET', '/api/io'));
+    if (!got) return;
+    data = got;
     forced = keys(data.forces);
     renderConns();
     renderHardware();

@@ -65,12 +65,9 @@ const COL = 150, GAP = 64, ROW = 150, TOP = 40, LEFT = 64;
 
   // Read once at each snapshot (connect, resync): what the websocket does not carry.
   async function load() {
-    try {
-      layout = await panel.api('GET', '/api/layout');
-    } catch (e) {
-      panel.toast(e.message);
-      return;
-    }
+    const got = await window.cellUi.attempt(panel, () => panel.api('GET', '/api/layout'));
+    if (!got) return;
+    layout = got;
     links.clear();
     for (const l of layout.links) links.set(l.id, { link: l.id, phase: l.phase, serial: l.serial });
     lamps.clear();
