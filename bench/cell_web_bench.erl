@@ -11,7 +11,7 @@
 -module(cell_web_bench).
 -behaviour(cowboy_handler).
 
--export([run/0]).
+-export([run/0, ws_open/2, frame/2]).
 -export([init/2, websocket_init/1, websocket_handle/2, websocket_info/2]).
 
 -define(CLIENTS, 100).
@@ -134,18 +134,23 @@ publish(N, Burst, Spent) ->
     publish(max(0, N - Burst), Burst, Spent + T1 - T0).
 
 ws_client(Port, Path, Parent, Events) ->
-    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {nodelay, true}]),
-    ok = gen_tcp:send(S, ["GET ", Path, " HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
-                          "Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
-                          "Sec-WebSocket-Key: ", base64:encode(crypto:strong_rand_bytes(16)),
-                          "\r\n\r\n"]),
-    Rest = upgraded(S, <<>>),
+    {S, Rest} = ws_open(Port, Path),
     %% The first frame (our snapshot, or the peer's hello) says the socket is live.
     {_, Rest1} = frame(S, Rest),
     Parent ! {ready, self()},
     Delays = collect(S, Rest1, Events, []),
     Parent ! {done, self(), Delays},
     gen_tcp:close(S).
+
+%% @doc A websocket client's socket once upgraded, and what came after the answer's head.
+-spec ws_open(inet:port_number(), iodata()) -> {gen_tcp:socket(), binary()}.
+ws_open(Port, Path) ->
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {nodelay, true}]),
+    ok = gen_tcp:send(S, ["GET ", Path, " HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
+                          "Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
+                          "Sec-WebSocket-Key: ", base64:encode(crypto:strong_rand_bytes(16)),
+                          "\r\n\r\n"]),
+    {S, upgraded(S, <<>>)}.
 
 upgraded(S, Buf) ->
     case binary:split(Buf, <<"\r\n\r\n">>) of
@@ -170,6 +175,8 @@ sent_times(#{<<"item">> := I}) ->
 sent_times(_) ->
     [].
 
+%% @doc The payload of the next text frame (others skipped), and what follows it.
+-spec frame(gen_tcp:socket(), binary()) -> {binary(), binary()}.
 frame(S, Buf) ->
     case Buf of
         <<_:4, Op:4, 0:1, 127:7, Len:64, P:Len/binary, Rest/binary>> -> text(S, Op, P, Rest);

@@ -4,88 +4,15 @@
 // Debian's headless chromium. The PLC sends a message; the page shows it with the
 // answers it offers; an operator answers; the PLC reads MessageStatus and
 // MessageResult. Every wait has a deadline; nothing sleeps.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { spawn } from 'node:child_process';
-import { createInterface } from 'node:readline';
-import { mkdtempSync, readdirSync, rmSync } from 'node:fs';
-import { tmpdir } from 'node:os';
 import { join } from 'node:path';
-import { chromium } from 'playwright-core';
+import { DemoCell, openPages, artifacts, WAIT } from './demo_cell.mjs';
 
-const top = process.env.CELLRT_TOP;
-const artifacts = join(top, 'test', 'browser', 'artifacts');
-const WAIT = 15000;
-
-class Cell {
-  async start() {
-    const libs = join(top, '_build', 'default', 'lib');
-    const paths = readdirSync(libs).map((a) => join(libs, a, 'ebin'));
-    paths.push(process.env.CELLRT_BROWSER_EBIN);
-    this.root = mkdtempSync(join(tmpdir(), 'cellrt-inspect-'));
-    this.proc = spawn('erl', ['-noshell', ...paths.flatMap((p) => ['-pa', p]),
-                              '-eval', 'cell_inspect_demo:main()'],
-                      { env: { ...process.env, CELLRT_ROOT: this.root },
-                        stdio: ['pipe', 'pipe', 'inherit'] });
-    this.waiters = [];
-    this.lines = createInterface({ input: this.proc.stdout });
-    this.lines.on('line', (line) => {
-      const i = this.waiters.findIndex((w) => w.match(line));
-      if (i >= 0) this.waiters.splice(i, 1)[0].resolve(line);
-    });
-    const first = await this.expect((l) => l.startsWith('PORT '), 60000);
-    this.url = `http://127.0.0.1:${Number(first.split(' ')[1])}/`;
-  }
-
-  expect(match, ms = WAIT) {
-    return new Promise((resolve, reject) => {
-      const timer = setTimeout(() => reject(new Error('the cell did not answer in time')), ms);
-      this.waiters.push({ match, resolve: (l) => { clearTimeout(timer); resolve(l); } });
-    });
-  }
-
-  // A command; its answer comes once done (the demo waits with its own deadline).
-  async cmd(text) {
-    const answer = this.expect((l) => l.endsWith(' ' + text) && /^(OK|ERR) /.test(l), WAIT + 5000);
-    this.proc.stdin.write(text + '\n');
-    const line = await answer;
-    assert.ok(line.startsWith('OK '), line);
-  }
-
-  async stop() {
-    if (!this.proc) return;
-    const exited = new Promise((resolve) => this.proc.once('exit', resolve));
-    this.proc.stdin.end('quit\n');
-    await exited;
-    rmSync(this.root, { recursive: true, force: true });
-  }
-}
-
-const cell = new Cell();
-let context;
+// A command's answer comes once done (the demo waits with its own deadline).
+const cell = new DemoCell({ main: 'cell_inspect_demo:main()', cmdWait: WAIT + 5000 });
 let page;
-let profile;
-
-before(async () => {
-  await cell.start();
-  profile = mkdtempSync(join(tmpdir(), 'cellrt-chromium-'));
-  context = await chromium.launchPersistentContext(profile, {
-    executablePath: '/usr/bin/chromium',
-    headless: true,
-    args: ['--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--disable-sync', '--no-first-run'],
-    viewport: { width: 1024, height: 768 },
-    hasTouch: true,
-  });
-  page = context.pages()[0] || await context.newPage();
-  page.setDefaultTimeout(WAIT);
-});
-
-after(async () => {
-  if (context) await context.close();
-  await cell.stop();
-  if (profile) rmSync(profile, { recursive: true, force: true });
-});
+openPages(cell, (p) => { page = p; });
 
 const shot = (name) => page.screenshot({ path: join(artifacts, `${name}.png`) });
 const message = (id) => page.locator(`.plc-message[data-block="line1"]`, { hasText: id });

@@ -1,91 +1,14 @@
 // End-to-end tests of the operator panel: a cell of scripted tasks (the Erlang module
 // cell_web_demo, driven through its standard input) and the page in Debian's headless
 // chromium. Every wait has a deadline; nothing sleeps. Screenshots go to artifacts/.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { spawn } from 'node:child_process';
-import { createInterface } from 'node:readline';
-import { mkdtempSync, readdirSync, rmSync } from 'node:fs';
-import { tmpdir } from 'node:os';
 import { join } from 'node:path';
-import { chromium } from 'playwright-core';
+import { DemoCell, openPages, artifacts } from './demo_cell.mjs';
 
-const top = process.env.CELLRT_TOP;
-const artifacts = join(top, 'test', 'browser', 'artifacts');
-const WAIT = 15000;          // generous: the machine is shared with other builds
-
-// ---------------------------------------------------------------------------------
-// The cell: an Erlang node running cell_web_demo
-
-class Cell {
-  async start() {
-    const libs = join(top, '_build', 'default', 'lib');
-    const paths = readdirSync(libs).map((a) => join(libs, a, 'ebin'));
-    paths.push(process.env.CELLRT_BROWSER_EBIN);
-    this.proc = spawn('erl', ['-noshell', ...paths.flatMap((p) => ['-pa', p]),
-                              '-eval', 'cell_web_demo:main()'],
-                      { env: { ...process.env, CELLRT_ROOT: process.env.CELLRT_BROWSER_ROOT },
-                        stdio: ['pipe', 'pipe', 'inherit'] });
-    this.waiters = [];
-    this.lines = createInterface({ input: this.proc.stdout });
-    this.lines.on('line', (line) => {
-      const i = this.waiters.findIndex((w) => w.match(line));
-      if (i >= 0) this.waiters.splice(i, 1)[0].resolve(line);
-    });
-    const first = await this.expect((l) => l.startsWith('PORT '), 60000);
-    this.port = Number(first.split(' ')[1]);
-    this.url = `http://127.0.0.1:${this.port}/`;
-  }
-
-  expect(match, ms = WAIT) {
-    return new Promise((resolve, reject) => {
-      const timer = setTimeout(() => reject(new Error('the cell did not answer in time')), ms);
-      this.waiters.push({ match, resolve: (l) => { clearTimeout(timer); resolve(l); } });
-    });
-  }
-
-  async cmd(text) {
-    const answer = this.expect((l) => l.endsWith(' ' + text) && /^(OK|ERR) /.test(l));
-    this.proc.stdin.write(text + '\n');
-    const line = await answer;
-    assert.ok(line.startsWith('OK '), line);
-  }
-
-  async stop() {
-    if (!this.proc) return;
-    const exited = new Promise((resolve) => this.proc.once('exit', resolve));
-    this.proc.stdin.end('quit\n');
-    await exited;
-  }
-}
-
-// ---------------------------------------------------------------------------------
-
-const cell = new Cell();
-let context;
+const cell = new DemoCell({ root: process.env.CELLRT_BROWSER_ROOT });
 let page;
-let profile;
-
-before(async () => {
-  await cell.start();
-  profile = mkdtempSync(join(tmpdir(), 'cellrt-chromium-'));
-  context = await chromium.launchPersistentContext(profile, {
-    executablePath: '/usr/bin/chromium',
-    headless: true,
-    args: ['--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--disable-sync', '--no-first-run'],
-    viewport: { width: 1024, height: 768 },
-    hasTouch: true,
-  });
-  page = context.pages()[0] || await context.newPage();
-  page.setDefaultTimeout(WAIT);
-});
-
-after(async () => {
-  if (context) await context.close();
-  await cell.stop();
-  if (profile) rmSync(profile, { recursive: true, force: true });
-});
+openPages(cell, (p) => { page = p; });
 
 const tile = (id) => page.locator(`[data-task="${id}"]`);
 const shot = (name) => page.screenshot({ path: join(artifacts, `${name}.png`) });

@@ -1,23 +1,18 @@
 // The Products page: a product found by its serial and its history as a timeline —
 // entry with its recipe, transfers, an error and the answer given, exit; the products
 // in the cell followed live; anyone sees it.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { Cell, open, login, shot, fetchJson } from './cell.mjs';
+import { DemoCell, openPages, openPanel, login, shot, fetchJson } from './demo_cell.mjs';
 
-const cell = new Cell();
-let browser;
+// The demo cell without its links: every task takes products in from outside the
+// cell and sends them out of it, so each product set and cleared enters and leaves.
+const cell = new DemoCell({ main: 'cell_web_demo:main(#{links => false})' });
 let page;
 
-before(async () => {
-  await cell.start();
-  browser = await open(cell);
-  page = browser.page;
-});
-
-after(async () => {
-  if (browser) await browser.close();
-  await cell.stop();
+openPages(cell, async (p) => {
+  page = p;
+  await openPanel(page, cell);
 });
 
 test('an unknown serial is said to be unknown', async () => {
@@ -57,7 +52,7 @@ test('a product is followed live while in the cell, and its whole way is told af
   }
   assert.match(await page.textContent('dd[data-fact=recipe]'), /demo/);
   assert.match(await page.textContent('dd[data-fact=status]'), /left the cell good/);
-  await shot(page, 'products', true);
+  await shot(page, 'products', 'products');
   await page.click('#tab-line');
   await page.click('[data-testid=cmd-stop]');
 });

@@ -1,12 +1,11 @@
 // The Recipes page: a recipe's drawing drawn from its tree with the cut order, a
 // recipe file uploaded, copied, renamed, deleted, a DXF drawing imported; only
 // service and admin see the page.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { Cell, open, login, logout, shot, fetchJson } from './cell.mjs';
+import { DemoCell, openPages, openPanel, login, logout, shot, fetchJson } from './demo_cell.mjs';
 
-const cell = new Cell();
-let browser;
+const cell = new DemoCell();
 let page;
 
 // A DXF of a 100 x 50 panel with a hole: four LINEs and a CIRCLE, and a TEXT the
@@ -18,16 +17,10 @@ const DXF = ['0', 'SECTION', '2', 'ENTITIES',
   '0', 'TEXT', '8', 'Notes', '10', '1', '20', '1', '30', '0', '40', '2', '1', 'hello',
   '0', 'ENDSEC', '0', 'EOF'].join('\n') + '\n';
 
-before(async () => {
-  await cell.start();
+openPages(cell, async (p) => {
+  page = p;
   await cell.cmd('recipe Board');
-  browser = await open(cell);
-  page = browser.page;
-});
-
-after(async () => {
-  if (browser) await browser.close();
-  await cell.stop();
+  await openPanel(page, cell);
 });
 
 test('an operator does not see the Recipes page nor may change a recipe', async () => {
@@ -54,7 +47,7 @@ test('a service user sees a recipe\'s drawing with its cuts numbered in their or
   assert.deepEqual(marks.map((m) => m.n), ['1', '2', '3']);
   assert.deepEqual(marks.map((m) => m.x), [50, 120, 180]);
   await page.waitForSelector('figcaption:has-text("worked in order 1 → 2 → 3")');
-  await shot(page, 'recipes', true);
+  await shot(page, 'recipes', 'recipes');
 });
 
 test('a recipe file downloaded is uploaded again under a new name, copied, renamed, deleted', async () => {

@@ -1,23 +1,16 @@
 // The Settings page: a form made from each object's schema, a refused value shown at
 // its field, revisions, differences and restore; only service and admin see it, and
 // the panel's own object is an admin's.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { Cell, open, login, logout, shot, fetchJson } from './cell.mjs';
+import { DemoCell, openPages, openPanel, login, logout, shot, fetchJson } from './demo_cell.mjs';
 
-const cell = new Cell();
-let browser;
+const cell = new DemoCell();
 let page;
 
-before(async () => {
-  await cell.start();
-  browser = await open(cell);
-  page = browser.page;
-});
-
-after(async () => {
-  if (browser) await browser.close();
-  await cell.stop();
+openPages(cell, async (p) => {
+  page = p;
+  await openPanel(page, cell);
 });
 
 test('anyone and an operator do not see the Settings tab', async () => {
@@ -52,7 +45,7 @@ test('a service user changes a setting; a value out of range is shown at its fie
   await page.waitForSelector('[data-testid=settings-revisions] tbody tr:nth-child(2)');
   const first = await page.locator('[data-testid=settings-revisions] tbody tr').first().locator('td').nth(2).textContent();
   assert.equal(first, 'service');
-  await shot(page, 'settings', true);
+  await shot(page, 'settings', 'settings');
 });
 
 test('the difference between two revisions, and a restore of the older', async () => {

@@ -1,23 +1,18 @@
 // The Statistics page: charts whose numbers are the API's (time in each state per
 // task, products out per hour, cycle times, OEE), for this shift, a day, a range;
 // anyone sees it.
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { Cell, open, login, shot, fetchJson } from './cell.mjs';
+import { DemoCell, openPages, openPanel, login, shot, fetchJson } from './demo_cell.mjs';
 
-const cell = new Cell();
-let browser;
+// The demo cell without its links: every task takes products in from outside the
+// cell and sends them out of it, so each product set and cleared enters and leaves.
+const cell = new DemoCell({ main: 'cell_web_demo:main(#{links => false})' });
 let page;
 
-before(async () => {
-  await cell.start();
-  browser = await open(cell);
-  page = browser.page;
-});
-
-after(async () => {
-  if (browser) await browser.close();
-  await cell.stop();
+openPages(cell, async (p) => {
+  page = p;
+  await openPanel(page, cell);
 });
 
 // Charts brought by a click, once the cell's answer to it is drawn.
@@ -87,7 +82,7 @@ test('a shift\'s charts show the numbers of /api/statistics', async () => {
   assert.ok(near(await factor('availability'), run / planned));
   assert.ok(near(await factor('performance'), (ideal * prod.cell.out) / run));
   assert.ok(near(await factor('quality'), prod.cell.good / prod.cell.out));
-  await shot(page, 'statistics', true);
+  await shot(page, 'statistics', 'statistics');
 });
 
 test('a day and a range hold this shift', async () => {

@@ -80,7 +80,8 @@
                         opts => map()}.
 -type point_info() :: #{name := atom(), group := atom(), connection := atom(),
                         dir := in | out, type := cell_hal_type:type(),
-                        address := binary(), caption := binary(), field := term()}.
+                        address := binary(), caption := binary(), unit := binary(),
+                        field := term()}.
 -type conn_info() :: #{status := up | down, driver := module(), endpoint := binary(),
                        since := integer() | undefined, reason := binary(),
                        groups := [atom()],
@@ -139,11 +140,12 @@ connections() ->
 groups() ->
     lists:sort([Id || #hal_group{id = Id} <- cell_hal_store:groups()]).
 
-%% @doc A group's points as its IO page shows them.
+%% @doc A group's points as its IO page shows them: in the order its module lists them.
 -spec points(atom()) -> {ok, [point_info()]} | error(unknown_group).
 points(Group) ->
     case cell_hal_store:group(Group) of
-        {ok, _} -> {ok, [info_of(P) || P <- cell_hal_store:points_of_group(Group)]};
+        {ok, _} -> {ok, [info_of(P) || P <- lists:keysort(#hal_point.seq,
+                                                          cell_hal_store:points_of_group(Group))]};
         error -> {error, unknown_group}
     end.
 
@@ -164,9 +166,9 @@ connection_of(Group) ->
     end.
 
 info_of(#hal_point{key = {G, N}, conn = C, dir = D, type = T, declared = F, address = A,
-                   caption = Cap}) ->
+                   caption = Cap, unit = U}) ->
     #{name => N, group => G, connection => C, dir => D, type => T, address => A,
-      caption => Cap, field => F}.
+      caption => Cap, unit => U, field => F}.
 
 %%====================================================================
 %% IO
@@ -210,7 +212,10 @@ command(Key, Value, Mode) ->
         {ok, #hal_value{dir = out, type = T, conn = C}} ->
             case cell_hal_type:check(T, Value) of
                 {ok, V} ->
-                    case up_worker(C) of
+                    %% A forced output keeps the value for its release.
+                    case cell_hal_force:held(Key, V) orelse up_worker(C) of
+                        true ->
+                            ok;
                         {ok, Pid} ->
                             Lapse = case Mode of
                                         {async, _} -> disconnected;

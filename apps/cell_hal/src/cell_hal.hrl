@@ -25,7 +25,9 @@
                     field :: term(),                 %% as the driver resolved it
                     declared :: term(),              %% as the group module declared it
                     address :: binary(),
-                    caption :: binary()}).
+                    caption :: binary(),
+                    unit = <<>> :: binary(),             %% of the value, for the IO page
+                    seq = 0 :: non_neg_integer()}).      %% its place in its group's list
 
 %% A point's value, read without a process hop. `none' until first read or commanded.
 %% `fault' says, in words, why the driver cannot read or write the point (a symbol

@@ -47,6 +47,7 @@
                        type := cell_hal_type:type(),
                        address := binary(),
                        caption := binary(),
+                       unit => binary(),
                        field := term()}.
 -type ads_symbol() :: {symbol, binary()} | {image, binary()}.
 
@@ -85,7 +86,8 @@ check_def(Def) ->
               {field, fun(_) -> true end}],
     case [K || {K, Ok} <- Checks, not (maps:is_key(K, Def) andalso Ok(maps:get(K, Def)))] of
         [] ->
-            case maps:keys(maps:without([name | [K || {K, _} <- Checks]], Def)) of
+            case maps:keys(maps:without([name, unit | [K || {K, _} <- Checks]], Def)) of
+                [] when is_map_key(unit, Def), not is_binary(map_get(unit, Def)) -> {error, unit};
                 [] -> ok;
                 [Unknown | _] -> {error, Unknown}
             end;

@@ -243,7 +243,8 @@ resolve(Driver, COpts, Conn, Id, Opts, [#{name := Name} = Def | Defs], Acc) ->
               field := Declared} = Def,
             P = #hal_point{key = {Id, Name}, conn = Conn,
                            dir = Dir, type = Type, field = Field, declared = Declared,
-                           address = Addr, caption = Caption},
+                           address = Addr, caption = Caption,
+                           unit = maps:get(unit, Def, <<>>), seq = length(Acc)},
             resolve(Driver, COpts, Conn, Id, Opts, Defs, [P | Acc]);
         {error, Why} ->
             {error, {bad_point, Name, {field, Why}}}

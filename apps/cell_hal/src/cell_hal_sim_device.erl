@@ -317,6 +317,13 @@ bad_action(Name, Key, Action) ->
 %% A point as the image holds it; a preset value that does not fit the point's type
 %% reads as zero, reported (the HAL never publishes a value outside its type).
 value(Key, Type, #state{image = Img, name = Name}) ->
+    %% A forced input answers its forced value (see cell_hal_force).
+    case cell_hal_force:input_value(Key) of
+        {ok, V} -> V;
+        none -> image_value(Key, Type, Img, Name)
+    end.
+
+image_value(Key, Type, Img, Name) ->
     case maps:find(Key, Img) of
         {ok, V} ->
             case cell_hal_type:check(Type, V) of

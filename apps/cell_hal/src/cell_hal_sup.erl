@@ -18,6 +18,7 @@ start_link() ->
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
     ok = cell_hal_store:create_tables(),
+    ok = cell_hal_force:create_table(),
     %% Each child restarts on its own terms below; five escalations a minute mean the
     %% HAL cannot run: stop it so the node reports it rather than spin.
     Flags = #{strategy => rest_for_one, intensity => 5, period => 60},

@@ -18,15 +18,19 @@
 -module(cell_web_feed).
 -behaviour(gen_server).
 
--export([start_link/0, join/1]).
+-export([start_link/0, join/1, publish/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {pages = #{} :: #{pid() => reference()},
+                counters :: reference() | undefined,
                 watch = #{} :: cell_attach:watch(),
                 retry :: reference() | undefined,
                 backoff = cell_attach:first() :: pos_integer()}).
 
 -define(SERVICES, [cell_events, cell_log_server]).
+%% How long after an item's event the shift's counters are read again (the statistics
+%% write what they counted every second).
+-define(COUNTERS_MS, 1500).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
 start_link() ->
@@ -36,6 +40,12 @@ start_link() ->
 -spec join(pid()) -> ok.
 join(Page) ->
     gen_server:call(?MODULE, {join, Page}).
+
+%% @doc Sends messages made elsewhere in the panel (forces, IO values, counters) to
+%% every page, encoded once; never waits.
+-spec publish([map()]) -> ok.
+publish(Messages) ->
+    gen_server:cast(?MODULE, {publish, Messages}).
 
 -spec init([]) -> {ok, #state{}}.
 init([]) ->
@@ -50,13 +60,19 @@ handle_call({join, Page}, _From, #state{pages = Pages} = State) ->
         false -> {reply, ok, State#state{pages = Pages#{Page => monitor(process, Page)}}}
     end.
 
--spec handle_cast(term(), #state{}) -> no_return().
+-spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({publish, Messages}, State) ->
+    {noreply, send_json(Messages, State)};
 handle_cast(Msg, _State) ->
     erlang:error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({cell_event, _} = Msg, State) ->
-    {noreply, send(Msg, State)};
+handle_info({cell_event, #{type := Type}} = Msg, State) ->
+    {noreply, counters_later(Type, send(Msg, State))};
+handle_info({timeout, TRef, counters}, #state{counters = TRef} = State) ->
+    Counters = #{<<"type">> => <<"counters">>,
+                 <<"counters">> => cell_web_json:term(cell_web_layout_h:counters())},
+    {noreply, send_json([Counters], State#state{counters = undefined})};
 handle_info({cell_log, _} = Msg, State) ->
     {noreply, send(Msg, State)};
 handle_info({'DOWN', Ref, process, _, Reason}, #state{watch = W} = State)
@@ -69,6 +85,18 @@ handle_info({'DOWN', _Ref, process, Page, _Reason}, #state{pages = Pages} = Stat
     {noreply, State#state{pages = maps:remove(Page, Pages)}};
 handle_info({timeout, TRef, cell_attach}, #state{retry = TRef, backoff = B} = State) ->
     {noreply, attach(State#state{retry = undefined, backoff = cell_attach:next(B)})}.
+
+%% The shift's counters change with the items that come, go and are worked; the
+%% statistics write them within a second, so the pages get them anew then, once for a
+%% burst of events.
+counters_later(_Type, #state{pages = Pages} = State) when map_size(Pages) =:= 0 ->
+    State;
+counters_later(Type, #state{counters = undefined} = State)
+  when Type =:= item_transfer_in; Type =:= item_transfer_out; Type =:= item_work_complete;
+       Type =:= item_work_abort; Type =:= task_state ->
+    State#state{counters = erlang:start_timer(?COUNTERS_MS, self(), counters)};
+counters_later(_Type, State) ->
+    State.
 
 %% Subscribes to the events and the log lines; when both are back after a loss, every
 %% page reads a fresh snapshot (at the first attach there is no page yet).
@@ -98,10 +126,15 @@ send(Msg, #state{pages = Pages} = State) ->
             ok = resync(Pages),
             State;
         Messages ->
-            Json = iolist_to_binary(lists:join($,, [jsx:encode(M) || M <- Messages])),
-            _ = maps:fold(fun(Page, _, ok) -> Page ! {cell_web_feed, Json}, ok end, ok, Pages),
-            State
+            send_json(Messages, State)
     end.
+
+send_json(_Messages, #state{pages = Pages} = State) when map_size(Pages) =:= 0 ->
+    State;
+send_json(Messages, #state{pages = Pages} = State) ->
+    Json = iolist_to_binary(lists:join($,, [jsx:encode(M) || M <- Messages])),
+    _ = maps:fold(fun(Page, _, ok) -> Page ! {cell_web_feed, Json}, ok end, ok, Pages),
+    State.
 
 %% A message is made from the cell's tables as they are now. An event that comes while
 %% the services owning them restart (the tables gone, the owner not there) cannot be

@@ -51,6 +51,11 @@ routes() ->
      {"/api/users", cell_web_users_h, #{}},
      {"/api/users/:name", cell_web_users_h, #{}},
      {"/api/audit", cell_web_audit_h, #{}},
+     {"/api/layout", cell_web_layout_h, #{}},
+     {"/api/io", cell_web_io_h, #{what => all}},
+     {"/api/io/hardware/:id/image", cell_web_io_h, #{what => image}},
+     {"/api/forces", cell_web_forces_h, #{what => all}},
+     {"/api/forces/:group/:point", cell_web_forces_h, #{what => one}},
      {"/api/ws", cell_web_ws_h, #{}}]
         ++ cell_web_extension:routes()
         ++ [{'_', cell_web_notfound_h, #{}}].

@@ -9,7 +9,7 @@
 %%     the same answer for both. Too many failures for that account from this
 %%     address, or from this address for accounts not known there: 429 with
 %%     `Retry-After', before the password is checked.</li>
-%% <li>`DELETE' — log out.</li>
+%% <li>`DELETE' — log out (the IO points the user forced are released).</li>
 %% <li>`POST /api/session/password' with `{"old": P, "new": Q}' — change one's own
 %%     password; the session is renewed.</li>
 %% </ul>
@@ -94,8 +94,13 @@ new_session(User, Demo, Req) ->
                                         secure => cell_web_listener:https(), path => <<"/">>}),
     {Req1, session(#{user => U, role => R, session => Id, csrf => Csrf})}.
 
-logout(Req, #{session := Id}) ->
+logout(Req, #{session := Id, user := User}) ->
     _ = Id =/= undefined andalso cell_web_sessions:delete(Id),
+    %% The IO points this user forced are released with the logout.
+    ok = case User of
+             null -> ok;
+             _ -> cell_web_forces:user_left(User)
+         end,
     Req1 = cowboy_req:set_resp_cookie(cell_web_req:session_cookie(), <<>>, Req,
                                       #{http_only => true, same_site => strict,
                                         secure => cell_web_listener:https(),

@@ -2,7 +2,9 @@
 %%
 %% rest_for_one, in dependency order: the sessions table and the audit trail are used
 %% by every request; the password hasher by logins; the listener serves the requests;
-%% the recent log lines feed new websockets, the feed every connected one. The feed and
+%% the recent log lines feed new websockets, the feed every connected one, the IO
+%% watcher and the forces keeper send through the feed (last: a fault of theirs
+%% restarts nothing else). The feed and
 %% the recent lines stay when the cell's services restart: they attach again (see
 %% {@link cell_attach}), so a burst of restarts in the cell costs this supervisor
 %% nothing. Ten restarts a minute of the panel's own processes is a fault that will not
@@ -28,5 +30,7 @@ init([]) ->
                 #{id => cell_web_hasher, start => {cell_web_hasher, start_link, []}},
                 #{id => cell_web_listener, start => {cell_web_listener, start_link, []}},
                 #{id => cell_web_recent, start => {cell_web_recent, start_link, []}},
-                #{id => cell_web_feed, start => {cell_web_feed, start_link, []}}],
+                #{id => cell_web_feed, start => {cell_web_feed, start_link, []}},
+                #{id => cell_web_io, start => {cell_web_io, start_link, []}},
+                #{id => cell_web_forces, start => {cell_web_forces, start_link, []}}],
     {ok, {Flags, Children}}.

@@ -5,7 +5,8 @@
 %% frame is a JSON array of messages:
 %%
 %% <ul>
-%% <li>`{"type": "snapshot", "cell", "tasks", "alarms", "log", "session", "resync"}'</li>
+%% <li>`{"type": "snapshot", "cell", "tasks", "alarms", "log", "forces", "session",
+%%     "resync"}'</li>
 %% <li>`{"type": "cell", "cell": Cell}' — state or flags changed</li>
 %% <li>`{"type": "task", "task": Task}' — a task's state (or product serial) changed</li>
 %% <li>`{"type": "alarm", "alarm": Alarm}' — an error, alarm or warning raised or updated</li>
@@ -13,6 +14,13 @@
 %%     withdrawn (`cleared' and `who' say which and by whom)</li>
 %% <li>`{"type": "event", "event": Event}' — an IPC-2541 item event and the like</li>
 %% <li>`{"type": "log", "line": Line}' — a task log line</li>
+%% <li>`{"type": "link", "link": {"link", "phase", "serial"}}' — a handshake link's
+%%     phase changed</li>
+%% <li>`{"type": "counters", "counters": Counters}' — this shift's counters, read again
+%%     after items came, went or were worked</li>
+%% <li>`{"type": "forces", "forces": [Force]}' — the forced IO points, at every change</li>
+%% <li>`{"type": "io", "points": [Point]}' and `{"type": "io_conn", ...}' — IO values
+%%     and PLC connections changed (see `cell_web_io')</li>
 %% <li>the messages of the extensions' feeds (`cell_web_extension'), as
 %%     `{"type": "inspect_messages", "messages": [Message]}' of the inspection blocks</li>
 %% </ul>
@@ -70,6 +78,7 @@ websocket_init(#state{caller = Caller} = State) ->
     %% missed (a change seen twice is harmless, the page applies it again).
     Feed = monitor(process, cell_web_feed),
     ok = cell_web_feed:join(self()),
+    ok = cell_web_io:watch(),
     ok = cell_web_sessions:attach(case Caller of
                                       #{session := undefined} -> anonymous;
                                       #{session := Id} -> Id
@@ -178,6 +187,9 @@ messages({cell_event, #{type := Type} = E}) ->
         task_state -> task(E);
         T when T =:= cell_state; T =:= request; T =:= estop; T =:= service_mode ->
             [cell()];
+        link_phase ->
+            [#{<<"type">> => <<"link">>,
+               <<"link">> => cell_web_json:term(maps:with([link, phase, serial], E))}];
         alarm_raised ->
             [#{<<"type">> => <<"alarm">>, <<"alarm">> => cell_web_json:alarm(maps:get(alarm, E))},
              cell()];
@@ -216,5 +228,6 @@ snapshot(Resync, #state{caller = #{user := User, role := Role}}) ->
                 <<"tasks">> => [cell_web_json:task(T) || T <- cell_controller:tasks()],
                 <<"alarms">> => [cell_web_json:alarm(A) || A <- cell_alarms:list()],
                 <<"log">> => [cell_web_json:line(L) || L <- cell_web_recent:lines()],
+                <<"forces">> => cell_web_forces:json(),
                 <<"session">> => #{<<"user">> => User,
                                    <<"role">> => atom_to_binary(Role, utf8)}}])}.

@@ -2,7 +2,8 @@
 %% command `{Ref, Command}' (Ref is the task's `ref' argument) and does it:
 %% `{event, Fun}' (a cell_task event function of arity 1), `{error, Solutions}' (an
 %% error for the operator), `{warning, Id, Caption}', `{product, Serial | undefined}',
-%% `{log, Text}', `{retain, Key, Value}' and `{forget_retained, Key}' (retained data).
+%% `{log, Text}', `{retain, Key, Value}' and `{forget_retained, Key}' (retained data),
+%% `{offer, Link}' (connects to the link as its upstream end and offers its product).
 %% The answers its errors receive are sent to `notify' as
 %% `{cell_web_demo_task, Id, answered, Solution}'.
 -module(cell_web_demo_task).
@@ -73,6 +74,9 @@ do({product, undefined}, T, Ref) ->
 do({product, Serial}, T, Ref) ->
     T1 = cell_task:set_product(T, cell_product:new(Serial, <<"demo">>)),
     {wait, {reply, Ref}, cell_task:transfer_in(T1, Serial)};
+do({offer, Link}, T, Ref) ->
+    {ok, T1} = cell_handshake:connect(T, Link, up),
+    {wait, {reply, Ref}, cell_handshake:offer(T1, Link)};
 do({log, Text}, T, Ref) ->
     ok = cell_task:log(T, brief, "~ts", [Text]),
     {wait, {reply, Ref}, T}.

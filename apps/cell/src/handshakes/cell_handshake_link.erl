@@ -24,7 +24,8 @@
 %% when the step changes the signals: one message for both); every answer to a partner
 %% carries the status it leaves. The
 %% partners are monitored, across nodes too, and a partner that stops in any phase
-%% ends the transfer on the other side, never leaves it waiting.
+%% ends the transfer on the other side, never leaves it waiting. Every change is
+%% published as a `link_phase' event (`link', `phase', `serial') for the panel.
 -module(cell_handshake_link).
 -behaviour(gen_server).
 
@@ -296,7 +297,14 @@ change(Caller, Step, #state{seq = Seq} = State0) ->
     Status = status(State),
     _ = [send(get_end(Role, State), {cell_handshake, State#state.id, Step, Status})
          || Role <- [up, down], Role =/= Caller],
+    %% The panel draws the link in its phase (free when nobody watches).
+    ok = cell_events:publish(link_phase, cell, #{link => State#state.id,
+                                                 phase => State#state.phase,
+                                                 serial => serial(State#state.product)}),
     State.
+
+serial(#{serial := S}) -> S;
+serial(_) -> undefined.
 
 tell(Role, Msg, State) ->
     send(get_end(Role, State), {cell_handshake, State#state.id, Msg}).

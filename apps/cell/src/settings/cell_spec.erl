@@ -48,7 +48,7 @@
 %% real IO, the monitor's IO, tasks, units and hardware objects).
 -module(cell_spec).
 
--export([load/0, validate/1, empty/0, hosted_links/1]).
+-export([load/0, validate/1, empty/0, hosted_links/1, keep/1, running/0]).
 
 -export_type([spec/0]).
 
@@ -61,6 +61,17 @@
 empty() ->
     #{name => <<"cell">>, tasks => [], settings => [], links => [],
       hal => cell_monitor_spec:empty_hal(), monitor => cell_monitor_spec:empty_monitor()}.
+
+%% @doc Keeps the spec the controller was built from, for those who show the cell
+%% (the panel's picture of the machine): one write a start of the controller.
+-spec keep(spec()) -> ok.
+keep(Spec) ->
+    persistent_term:put({?MODULE, running}, Spec).
+
+%% @doc The spec the controller was last built from; the empty cell before that.
+-spec running() -> spec().
+running() ->
+    persistent_term:get({?MODULE, running}, empty()).
 
 %% @doc The links this node runs.
 -spec hosted_links(spec()) -> [cell_handshake_link:spec()].

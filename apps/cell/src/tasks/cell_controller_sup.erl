@@ -39,7 +39,9 @@ start_link(Starts) ->
                             "are OFF: check the machine and press Start", [ordinal(N - 1)])
     end,
     case cell_spec:load() of
-        {ok, Spec} -> supervisor:start_link({local, ?MODULE}, ?MODULE, Spec);
+        {ok, Spec} ->
+            ok = cell_spec:keep(Spec),
+            supervisor:start_link({local, ?MODULE}, ?MODULE, Spec);
         {error, Reason} -> {error, {bad_cell_spec, Reason}}
     end.
 

@@ -21,7 +21,7 @@
 
 -type type() :: cell_ipc:event() | task_state | cell_state | alarm_raised
               | alarm_cleared | request | estop | service_mode | task_crashed
-              | product_saved.
+              | product_saved | link_phase.
 -type event() :: #{type := type(), task := atom(), time := integer(), mono := integer(),
                    atom() => term()}.
 
@@ -45,7 +45,7 @@ types() ->
      item_identifier_read, item_transfer_in, item_work_start, item_work_pause,
      item_work_resume, item_work_complete, item_work_abort, item_transfer_out,
      task_state, cell_state, alarm_raised, alarm_cleared, request, estop, service_mode,
-     task_crashed, product_saved].
+     task_crashed, product_saved, link_phase].
 
 %% @doc Subscribes the caller to every event.
 -spec subscribe() -> ok.

@@ -16,8 +16,12 @@ const model = {
   alarms: new Map(),
   log: [],
   plcMessages: [],
+  forces: [],
   connected: false,
 };
+// Pages added by files of pages/ (see cellPanel.register), by id, in the order added.
+const pages = new Map();
+const listeners = new Map();
 let socket = null;
 let attempts = 0;
 let logMode = { live: true, offset: 0, limit: 100, query: null };
@@ -42,6 +46,14 @@ async function api(method, path, body) {
     throw err;
   }
   return data;
+}
+
+async function releaseAll() {
+  try {
+    await api('DELETE', '/api/forces');
+  } catch (e) {
+    toast(e.message);
+  }
 }
 
 async function command(name) {
@@ -113,14 +125,33 @@ function reconnect() {
   connect();
 }
 
+let snapshotSeen = false;
+
 function apply(msg) {
+  if (msg.type === 'snapshot') snapshotSeen = true;
+  builtIn(msg);
+  for (const fn of [...(listeners.get(msg.type) || [])]) {
+    try { fn(msg); } catch (e) { console.error(e); }
+  }
+  for (const p of pages.values()) {
+    if (!p.onEvent) continue;
+    try { p.onEvent(msg); } catch (e) { console.error(e); }
+  }
+}
+
+function builtIn(msg) {
   switch (msg.type) {
     case 'snapshot':
       model.cell = msg.cell;
       model.tasks = new Map(msg.tasks.map((t) => [t.id, t]));
       model.alarms = new Map(msg.alarms.map((a) => [a.id, a]));
       model.log = msg.log.slice(-LIVE_LINES);
+      model.forces = msg.forces || [];
       renderAll();
+      break;
+    case 'forces':
+      model.forces = msg.forces;
+      renderForces();
       break;
     case 'cell':
       model.cell = msg.cell;
@@ -171,7 +202,18 @@ function renderAll() {
   renderAlarms();
   renderTicker();
   renderTaskOptions();
+  renderForces();
   if (logMode.live) renderLogLines(liveLines());
+}
+
+// While any point is forced a banner says so on every page, with Release all for
+// those who may (the server decides; a refusal is shown as a toast).
+function renderForces() {
+  const n = model.forces.length;
+  $('force-banner').classList.toggle('hidden', n === 0);
+  $('force-text').textContent = n === 0 ? '' : `${n} IO point${n === 1 ? '' : 's'} forced: ` +
+    model.forces.map((f) => `${f.group}.${f.point} = ${JSON.stringify(f.value)} (${f.who})`).join(', ');
+  $('force-release-all').disabled = RANK[model.session.role] < RANK.service;
 }
 
 function renderCell() {
@@ -182,8 +224,9 @@ function renderCell() {
   const badge = $('cell-state');
   badge.className = 'badge ' + stateClass(c.state);
   badge.textContent = stateLabel(c.state);
-  $('cell-request').textContent =
-    `request: ${c.request}` + (c.service_mode ? ' · service mode' : '');
+  const request = `request: ${c.request}` + (c.service_mode ? ' · service mode' : '');
+  $('cell-request').textContent = request;
+  $('cell-request').title = request;   // the whole of it where the header cuts it short
   $('estop-banner').classList.toggle('hidden', !c.estop);
   renderCommands();
 }
@@ -213,13 +256,25 @@ function fillTile(tile, t) {
   tile.className = 'task ' + stateClass(t.state) + (t.running ? '' : ' gone');
   tile.dataset.state = t.state;
   tile.replaceChildren(
-    div('id', t.id),
+    taskName(t.id),
     div('where', `${t.zone} · ${t.lane}`),
     div('serial', t.serial ? t.serial : '—'),
     div('state', stateLabel(t.state)),
   );
   tile.querySelector('.serial').dataset.testid = 'serial';
   tile.querySelector('.state').dataset.testid = 'state';
+}
+
+// A task's name broken only where its words meet (after an underscore, a dash or a
+// dot), never inside a word: "loading_<wbr>front".
+function taskName(id) {
+  const e = document.createElement('div');
+  e.className = 'id';
+  for (const part of String(id).split(/(?<=[_.-])/)) {
+    if (e.childNodes.length) e.append(document.createElement('wbr'));
+    e.append(part);
+  }
+  return e;
 }
 
 function renderTask(t) {
@@ -343,9 +398,15 @@ function renderSession() {
   renderCommands();
   renderAlarms();
   renderPlcMessages();
+  renderForces();
   const admin = RANK[s.role] >= RANK.admin;
   $('tab-users').classList.toggle('hidden', !admin);
   if (!admin && !$('view-users').classList.contains('hidden')) show('line');
+  for (const p of pages.values()) {
+    const may = RANK[s.role] >= RANK[p.minRole];
+    $(`tab-${p.id}`).classList.toggle('hidden', !may);
+    if (!may && current === p.id) show('line');
+  }
 }
 
 function setLink(up) {
@@ -560,17 +621,77 @@ function time(ms, full) {
 // ---------------------------------------------------------------------------------
 // Start
 
+let current = 'line';
+
 function show(view) {
-  for (const v of ['line', 'log', 'users']) {
+  const was = current;
+  current = view;
+  for (const v of ['line', 'log', 'users', ...pages.keys()]) {
     $(`view-${v}`).classList.toggle('hidden', v !== view);
     $(`tab-${v}`).classList.toggle('active', v === view);
   }
+  // A tab chosen other than by a touch (a role's page left) is brought into the row's view.
+  $(`tab-${view}`).scrollIntoView({ block: 'nearest', inline: 'nearest' });
+  if (was !== view && pages.has(was) && pages.get(was).hide) pages.get(was).hide();
+  if (was !== view && pages.has(view) && pages.get(view).show) pages.get(view).show();
 }
+
+// ---------------------------------------------------------------------------------
+// Pages of their own (pages/<id>.js): the contract they are written against.
+
+function register(page) {
+  if (!page || !page.id || pages.has(page.id) || ['line', 'log', 'users'].includes(page.id)) {
+    throw new Error(`cannot register the page ${page && page.id}`);
+  }
+  const p = { minRole: 'anonymous', ...page };
+  if (!(p.minRole in RANK)) throw new Error(`page ${p.id}: unknown role ${p.minRole}`);
+  const tab = document.createElement('button');
+  tab.className = 'tab';
+  tab.dataset.view = p.id;
+  tab.id = `tab-${p.id}`;
+  tab.dataset.testid = `tab-${p.id}`;
+  tab.textContent = p.title;
+  tab.classList.toggle('hidden', RANK[model.session.role] < RANK[p.minRole]);
+  tab.addEventListener('click', () => show(p.id));
+  document.querySelector('nav.tabs').append(tab);
+  const section = document.createElement('section');
+  section.className = 'view hidden';
+  section.id = `view-${p.id}`;
+  document.querySelector('main').append(section);
+  pages.set(p.id, p);
+  p.mount(section, window.cellPanel);
+}
+
+// A snapshot listener added after the snapshot came (a page's script run late) gets
+// one made of what the page holds now, so no page waits for the next resync.
+function on(type, fn) {
+  if (!listeners.has(type)) listeners.set(type, new Set());
+  listeners.get(type).add(fn);
+  if (type === 'snapshot' && snapshotSeen) {
+    queueMicrotask(() => fn({
+      type: 'snapshot', resync: false, cell: model.cell, tasks: [...model.tasks.values()],
+      alarms: [...model.alarms.values()], log: [...model.log], forces: model.forces,
+    }));
+  }
+  return () => listeners.get(type).delete(fn);
+}
+
+window.cellPanel = {
+  api,
+  register,
+  session: () => ({ user: model.session.user, role: model.session.role,
+                    csrf: model.session.csrf,
+                    service: !!(model.cell && model.cell.service_mode) }),
+  on,
+  toast,
+  rank: (role) => RANK[role] ?? 0,
+};
 
 function wire() {
   $('cmd-start').addEventListener('click', () => command('start'));
   $('cmd-pause').addEventListener('click', () => command('pause'));
   $('cmd-stop').addEventListener('click', () => command('stop'));
+  $('force-release-all').addEventListener('click', releaseAll);
   $('tab-line').addEventListener('click', () => show('line'));
   $('tab-log').addEventListener('click', () => show('log'));
   $('tab-users').addEventListener('click', () => { show('users'); loadUsers(); });
@@ -604,100 +725,3 @@ loadSession().then(() => {
   if (!model.session.user && !model.session.anonymous_view) openLogin();
   else connect();
 }, later);
-
-// ---------------------------------------------------------------------------------
-// cellPanel: page registry
-//
-// The pages in /pages/<id>.js register themselves here: each gets a tab and a section,
-// shown to the roles at or above its minRole, and the websocket's messages.
-
-(() => {
-  const pages = new Map();
-  const listeners = new Map();   // type -> Set of fn
-  let current = null;            // the id of the page shown, or null for a view of app.js
-
-  const session = () => ({
-    user: model.session.user, role: model.session.role || 'anonymous',
-    csrf: model.session.csrf, service: !!(model.cell && model.cell.service_mode),
-  });
-  const rank = (role) => RANK[role] ?? 0;
-
-  function leave() {
-    if (current === null) return;
-    const p = pages.get(current);
-    current = null;
-    p.section.classList.add('hidden');
-    p.tab.classList.remove('active');
-    if (p.page.hide) p.page.hide();
-  }
-
-  function select(id) {
-    if (current === id) return;
-    leave();
-    for (const v of document.querySelectorAll('main > .view')) v.classList.add('hidden');
-    for (const t of document.querySelectorAll('nav.tabs .tab')) t.classList.remove('active');
-    const p = pages.get(id);
-    current = id;
-    p.section.classList.remove('hidden');
-    p.tab.classList.add('active');
-    if (p.page.show) p.page.show();
-  }
-
-  function applyRoles() {
-    const r = rank(session().role);
-    for (const [id, p] of pages) {
-      const allowed = r >= rank(p.page.minRole || 'anonymous');
-      p.tab.classList.toggle('hidden', !allowed);
-      if (!allowed && current === id) { leave(); show('line'); }
-    }
-  }
-
-  // A view of app.js chosen: the page shown is left.
-  for (const t of document.querySelectorAll('nav.tabs .tab')) t.addEventListener('click', leave);
-
-  const baseRenderSession = renderSession;
-  renderSession = () => { baseRenderSession(); applyRoles(); };
-
-  const baseApply = apply;
-  apply = (msg) => {
-    baseApply(msg);
-    if (msg.type === 'snapshot' || msg.type === 'cell') applyRoles();
-    for (const fn of listeners.get(msg.type) || []) {
-      try { fn(msg); } catch (e) { console.error(e); }
-    }
-    for (const p of pages.values()) {
-      if (p.page.onEvent) {
-        try { p.page.onEvent(msg); } catch (e) { console.error(e); }
-      }
-    }
-  };
-
-  window.cellPanel = {
-    api,
-    register(page) {
-      const tab = document.createElement('button');
-      tab.className = 'tab';
-      tab.dataset.view = page.id;
-      tab.id = `tab-${page.id}`;
-      tab.dataset.testid = `tab-${page.id}`;
-      tab.textContent = page.title;
-      const section = document.createElement('section');
-      section.className = 'view hidden';
-      section.id = `view-${page.id}`;
-      document.querySelector('nav.tabs').append(tab);
-      document.querySelector('main').append(section);
-      pages.set(page.id, { page, tab, section });
-      tab.addEventListener('click', () => select(page.id));
-      page.mount(section, window.cellPanel);
-      applyRoles();
-    },
-    session,
-    on(type, fn) {
-      if (!listeners.has(type)) listeners.set(type, new Set());
-      listeners.get(type).add(fn);
-      return () => listeners.get(type).delete(fn);
-    },
-    toast,
-    rank,
-  };
-})();

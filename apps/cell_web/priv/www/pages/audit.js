@@ -9,7 +9,10 @@
   let panel;
   let root;
   let offset = 0;
+  let asked = 0;   // the latest search: the answer of an older one is not drawn
 
+  // The rows shown no longer answer a new search: they go at once, and only the
+  // latest search's answer takes their place.
   async function load(at) {
     const f = root.querySelector('.audit-form');
     const q = new URLSearchParams();
@@ -23,8 +26,12 @@
     if (to !== undefined) q.set('to', String(to));
     q.set('limit', String(LIMIT));
     q.set('offset', String(at));
+    const n = ++asked;
+    root.querySelector('.audit-lines').replaceChildren();
+    root.querySelector('.audit-range').textContent = 'searching…';
     const page = await attempt(panel, () => panel.api('GET', `/api/audit?${q}`));
-    if (!page) return;
+    if (n !== asked) return;
+    if (!page) { root.querySelector('.audit-range').textContent = ''; return; }
     offset = at;
     root.querySelector('.audit-lines').replaceChildren(...page.entries.map((e) => el('tr', { data: { who: e.who, action: e.action } },
       el('td', { class: 'time', text: time(e.time) }), el('td', { class: 'who', text: e.who }), el('td', { text: e.role }),

@@ -11,6 +11,8 @@
   let chosen = null;     // the object's name
   let object = null;     // as GET /api/settings/:name answers
   let inputs = new Map(); // path -> {read(), box}
+  let opening = null;    // the name of the object being read to be shown
+  let writes = 0;        // how many times the form was made or saved: older answers are dropped
 
   const NUMERIC = { integer: true, float: true };
 
@@ -138,14 +140,36 @@
     if (!chosen && list.length) open(list[0].name);
   }
 
+  // The object chosen again while its form is shown (or on its way) keeps the form
+  // and what is typed in it: its marks of changes waiting are brought again.
   async function open(name) {
+    if (name === chosen && (opening === name || (object && object.name === name))) {
+      if (opening !== name) refresh();
+      return;
+    }
     chosen = name;
+    opening = name;
     for (const b of root.querySelectorAll('.objects .object')) b.classList.toggle('active', b.dataset.name === name);
     const obj = await attempt(panel, () => panel.api('GET', `/api/settings/${encodeURIComponent(name)}`));
+    if (opening === name) opening = null;
     if (!obj || chosen !== name) return;
     object = obj;
     renderForm();
     loadRevisions();
+  }
+
+  // The marks of changes waiting, read again; an answer read before the form last
+  // changed (a save, a restore, the form made anew) is older than what it shows.
+  async function refresh() {
+    if (!object) return;
+    const name = object.name;
+    const seen = writes;
+    const obj = await attempt(panel, () => panel.api('GET', `/api/settings/${encodeURIComponent(name)}`));
+    if (!obj || !object || object.name !== name || seen !== writes) return;
+    object.pending = obj.pending;
+    object.in_force = obj.in_force;
+    const note = root.querySelector('[data-testid=settings-pending]');
+    if (note) note.classList.toggle('hidden', !obj.pending);
   }
 
   function mayEdit() {
@@ -153,6 +177,7 @@
   }
 
   function renderForm() {
+    writes += 1;
     inputs = new Map();
     const disabled = !mayEdit();
     const form = root.querySelector('.settings-form');
@@ -175,6 +200,7 @@
       if (JSON.stringify(v) !== JSON.stringify(object.values[k])) changed[k] = v;
     }
     if (Object.keys(changed).length === 0) { panel.toast('Nothing changed.'); return; }
+    writes += 1;
     try {
       object = await panel.api('PUT', `/api/settings/${encodeURIComponent(object.name)}`, changed);
       renderForm();
@@ -228,6 +254,7 @@
 
   async function restore(rev) {
     if (!window.confirm(`Make revision ${rev} of ${object.name} current again?`)) return;
+    writes += 1;
     const obj = await attempt(panel, () =>
       panel.api('POST', `/api/settings/${encodeURIComponent(object.name)}/restore`, { rev }));
     if (!obj) return;
@@ -246,13 +273,7 @@
     request = msg.cell && msg.cell.request;
     if (!visible || was === request || !object) return;
     loadList();
-    const name = object.name;
-    const obj = await attempt(panel, () => panel.api('GET', `/api/settings/${encodeURIComponent(name)}`));
-    if (!obj || !object || object.name !== name) return;
-    object.pending = obj.pending;
-    object.in_force = obj.in_force;
-    const note = root.querySelector('[data-testid=settings-pending]');
-    if (note) note.classList.toggle('hidden', !obj.pending);
+    refresh();
   }
 
   window.cellPanel.register({
