@@ -1,0 +1,308 @@
+%% The handshake link's decisions, without processes: the seed's phases 1-4,
+%% TryAbortOffering, PeekBoardAvailable, Abort before and after release, partners
+%% attaching, detaching, restarting and stopping in each phase.
+-module(cell_handshake_link_core_tests).
+
+-include_lib("eunit/include/eunit.hrl").
+
+-define(P, #{serial => <<"S1">>}).
+
+%% The link's process, upstream's, downstream's, upstream's next incarnation: the core
+%% only compares and addresses them.
+pid(link) -> list_to_pid("<0.900.0>");
+pid(up) -> list_to_pid("<0.901.0>");
+pid(down) -> list_to_pid("<0.902.0>");
+pid(up_restarted) -> list_to_pid("<0.903.0>").
+
+new() ->
+    L = pid(link),
+    {C, _} = cell_handshake_link_core:new(#{id => l, from => u, to => d}, L),
+    C.
+
+%% Both partners attached, nothing held.
+attached() ->
+    U = pid(up), D = pid(down),
+    {reply, {ok, _}, C1, _} = call({attach, up, u, U, none}, new()),
+    {reply, {ok, _}, C2, _} = call({attach, down, d, D, none}, C1),
+    C2.
+
+%% The effects of a call, without the phase published for the panel (checked on its
+%% own in phases_are_published_for_the_panel_test).
+call(Req, C) -> call_as(Req, from, C).
+
+call_as(Req, From, C) ->
+    case cell_handshake_link_core:call(Req, From, C) of
+        {reply, R, C1, Effects} -> {reply, R, C1, unpublished(Effects)};
+        {noreply, C1, Effects} -> {noreply, C1, unpublished(Effects)}
+    end.
+
+partner_down(Role, Why, C) ->
+    {C1, Effects} = cell_handshake_link_core:partner_down(Role, Why, C),
+    {C1, unpublished(Effects)}.
+
+unpublished(Effects) ->
+    [E || E <- Effects, element(1, E) =/= phase].
+
+%% A partner's step: its answer, the status it leaves, the core, the effects.
+step(Req, C) ->
+    {reply, {Reply, Status}, C1, Effects} = call(Req, C),
+    {Reply, Status, C1, Effects}.
+
+offered() ->
+    P = ?P,
+    U = pid(up),
+    {ok, _, C, _} = step({offer, U, P, 3}, attached()),
+    C.
+
+committed() ->
+    P = ?P,
+    D = pid(down),
+    {{ok, P, 3}, _, C, _} = step({commit, D}, offered()),
+    C.
+
+released() ->
+    U = pid(up),
+    {ok, _, C, _} = step({release, U}, committed()),
+    C.
+
+phase(C) -> maps:get(phase, element(2, call(status, C))).
+
+%% -------------------------------------------------------------------------------------
+
+phases_are_published_for_the_panel_test() ->
+    U = pid(up), D = pid(down),
+    Phases = fun(Req, C) ->
+                     {reply, _, C1, Effects} = cell_handshake_link_core:call(Req, from, C),
+                     {[E || {phase, _, _, _} = E <- Effects], C1}
+             end,
+    {E1, C1} = Phases({offer, U, ?P, 3}, attached()),
+    ?assertEqual([{phase, l, offered, <<"S1">>}], E1),
+    {E2, C2} = Phases({commit, D}, C1),
+    ?assertEqual([{phase, l, committed, <<"S1">>}], E2),
+    {E3, C3} = Phases({release, U}, C2),
+    ?assertEqual([{phase, l, released, <<"S1">>}], E3),
+    {E4, _} = Phases({complete, D}, C3),
+    ?assertEqual([{phase, l, idle, undefined}], E4),
+    %% A peek changes nothing, so nothing is published.
+    ?assertMatch({[], _}, Phases({peek, D}, C1)).
+
+new_says_hello_to_its_partners_test() ->
+    L = pid(link),
+    ?assertMatch({_, [{hello, u, l}, {hello, {d, n@h}, l}]},
+                 cell_handshake_link_core:new(#{id => l, from => u, to => {d, n@h}}, L)),
+    ?assertMatch({_, [{hello, d, l}]},
+                 cell_handshake_link_core:new(#{id => l, from => undefined, to => d}, L)).
+
+attach_monitors_and_answers_the_status_test() ->
+    L = pid(link), U = pid(up),
+    {reply, {ok, S}, C, Effects} = call({attach, up, u, U, none}, new()),
+    ?assertEqual([{monitor, up, U}], Effects),
+    ?assertMatch(#{phase := idle, available := false, not_busy := false, seq := 0,
+                   link := _}, S),
+    ?assertEqual(L, maps:get(link, S)),
+    %% Attaching again is harmless.
+    ?assertMatch({reply, {ok, _}, _, []}, call({attach, up, u, U, none}, C)).
+
+attach_tells_the_other_side_what_it_holds_test() ->
+    U = pid(up), D = pid(down),
+    C = attached(),
+    ?assertMatch({reply, {ok, _}, _, [{send, U, {cell_handshake, l, {holder, <<"S">>, 2}}}]},
+                 call({attach, down, d, D, {<<"S">>, 2}}, C)).
+
+another_task_cannot_take_an_end_test() ->
+    U2 = pid(up_restarted),
+    C = attached(),
+    ?assertMatch({reply, {error, {attached, u}}, _, []}, call({attach, up, x, U2, none}, C)).
+
+a_restarted_task_replaces_its_predecessor_test() ->
+    P = ?P,
+    U = pid(up), D = pid(down), U2 = pid(up_restarted),
+    C = committed(),
+    {reply, {ok, S}, C1, Effects} = call({attach, up, u, U2, none}, C),
+    %% The old incarnation is no longer watched, downstream hears the transfer ended,
+    %% the new one is watched.
+    ?assertMatch([{demonitor, up},
+                  {send, D, {cell_handshake, l, {interrupted, partner_restarted, committed}}},
+                  {send, U, {cell_handshake, l, signals, #{phase := idle}}},
+                  {send, D, {cell_handshake, l, signals, #{phase := idle}}},
+                  {monitor, up, U2}], Effects),
+    ?assertMatch(#{phase := idle}, S),
+    ?assertMatch({ok, _, _, _}, step({offer, U2, P, 4}, C1)).
+
+%% -------------------------------------------------------------------------------------
+%% Phases 1-4
+
+a_transfer_through_phases_1_to_4_test() ->
+    P = ?P,
+    U = pid(up), D = pid(down),
+    C0 = attached(),
+    {ok, S1, C1, E1} = step({offer, U, P, 3}, C0),
+    ?assertMatch(#{phase := offered, available := true, not_busy := false, seq := 1,
+                   product := P, gen := 3}, S1),
+    %% Only downstream is told by message; upstream learns it from its answer.
+    ?assertMatch([{send, D, {cell_handshake, l, signals, #{seq := 1}}}], E1),
+    {{ok, P, 3}, S2, C2, E2} = step({commit, D}, C1),
+    ?assertMatch(#{phase := committed, available := true, not_busy := true, seq := 2}, S2),
+    ?assertMatch([{send, U, {cell_handshake, l, signals, #{seq := 2}}}], E2),
+    {ok, S3, C3, E3} = step({release, U}, C2),
+    ?assertMatch(#{phase := released, available := false, not_busy := true}, S3),
+    ?assertMatch([{send, D, {cell_handshake, l, {released, P, 3}, #{seq := 3}}}], E3),
+    {ok, S4, C4, E4} = step({complete, D}, C3),
+    ?assertMatch(#{phase := idle, product := undefined, gen := 0, seq := 4}, S4),
+    ?assertMatch([{send, U, {cell_handshake, l, completed, #{phase := idle}}}], E4),
+    ?assertEqual(idle, phase(C4)).
+
+steps_out_of_turn_are_refused_test() ->
+    P = ?P,
+    U = pid(up), D = pid(down), U2 = pid(up_restarted),
+    C = attached(),
+    ?assertMatch({{error, not_available}, #{phase := idle}, _, []}, step({commit, D}, C)),
+    ?assertMatch({{error, {not_now, release, idle}}, _, _, []}, step({release, U}, C)),
+    ?assertMatch({{error, {not_released, committed}}, _, _, []},
+                 step({complete, D}, committed())),
+    ?assertMatch({{error, {busy, offered}}, #{gen := 3}, _, []},
+                 step({offer, U, P, 4}, offered())),
+    %% Downstream cannot offer, a stranger cannot do anything.
+    ?assertMatch({{error, not_attached}, #{phase := idle}, _, []}, step({offer, D, P, 1}, C)),
+    ?assertMatch({reply, {{error, not_attached}, #{phase := idle}}, _, []},
+                 call({commit, U2}, C)).
+
+%% -------------------------------------------------------------------------------------
+%% TryAbortOffering and PeekBoardAvailable
+
+try_abort_offering_withdraws_until_downstream_commits_test() ->
+    U = pid(up), D = pid(down),
+    {true, S, C, E} = step({try_abort_offering, U}, offered()),
+    ?assertMatch(#{phase := idle, product := undefined, available := false}, S),
+    ?assertMatch([{send, D, {cell_handshake, l, signals, #{phase := idle}}}], E),
+    %% Nothing offered: nothing to withdraw, and nothing changes.
+    ?assertMatch({true, #{seq := 2}, _, []}, step({try_abort_offering, U}, C)),
+    %% Downstream has begun to take it: too late.
+    ?assertMatch({false, #{phase := committed}, _, []},
+                 step({try_abort_offering, U}, committed())),
+    ?assertMatch({false, #{phase := released}, _, []},
+                 step({try_abort_offering, U}, released())).
+
+peek_looks_without_locking_test() ->
+    P = ?P,
+    U = pid(up), D = pid(down),
+    C = offered(),
+    {{ok, P}, S, C1, []} = step({peek, D}, C),
+    %% Nothing changed: upstream may still withdraw, downstream still commit.
+    ?assertMatch(#{phase := offered, seq := 1}, S),
+    ?assertMatch({true, _, _, _}, step({try_abort_offering, U}, C1)),
+    ?assertMatch({{ok, P, 3}, _, _, _}, step({commit, D}, C1)),
+    ?assertMatch({none, _, _, []}, step({peek, D}, attached())),
+    ?assertMatch({none, _, _, []}, step({peek, D}, committed())).
+
+%% -------------------------------------------------------------------------------------
+%% Abort
+
+abort_before_release_leaves_the_product_upstream_test() ->
+    U = pid(up), D = pid(down),
+    {kept_by_upstream, S, _, E} = step({abort, D}, committed()),
+    ?assertMatch(#{phase := idle, abort := true, product := undefined}, S),
+    ?assertMatch([{send, U, {cell_handshake, l, aborted, #{abort := true}}}], E).
+
+abort_after_release_waits_for_upstream_to_take_it_back_test() ->
+    P = ?P,
+    U = pid(up), D = pid(down),
+    {noreply, C, E} = call_as({abort, D}, waiter, released()),
+    ?assertMatch([{send, U, {cell_handshake, l, {take_back, P, 3}}},
+                  {send, U, {cell_handshake, l, signals, #{phase := aborting}}},
+                  {send, D, {cell_handshake, l, signals, #{phase := aborting}}}], E),
+    ?assertEqual(aborting, phase(C)),
+    {ok, S, C1, E1} = step({taken_back, U}, C),
+    ?assertMatch(#{phase := idle}, S),
+    ?assertMatch([{send, D, {cell_handshake, l, signals, #{phase := idle}}},
+                  {reply, waiter, {given_back, #{phase := idle}}}], E1),
+    ?assertEqual(idle, phase(C1)).
+
+abort_after_release_without_upstream_keeps_it_downstream_test() ->
+    D = pid(down),
+    {C, _} = partner_down(up, killed, released()),
+    ?assertMatch({kept, #{phase := idle}, _, []}, step({abort, D}, C)).
+
+upstream_stopping_while_taking_back_leaves_it_downstream_test() ->
+    U = pid(up), D = pid(down),
+    {noreply, C, _} = call_as({abort, D}, waiter, released()),
+    {C1, E} = partner_down(up, noconnection, C),
+    ?assertMatch([{demonitor, up},
+                  {send, D, {cell_handshake, l, {interrupted, node_down}}},
+                  {send, U, {cell_handshake, l, signals, #{phase := idle}}},
+                  {send, D, {cell_handshake, l, signals, #{phase := idle}}},
+                  {reply, waiter, {kept, #{phase := idle}}}], E),
+    ?assertEqual(idle, phase(C1)).
+
+%% -------------------------------------------------------------------------------------
+%% Partners stopping, interrupts, detaching
+
+a_stopped_upstream_withdraws_its_offer_test() ->
+    U = pid(up), D = pid(down),
+    {C, E} = partner_down(up, killed, offered()),
+    ?assertMatch([{demonitor, up}, {send, U, _},
+                  {send, D, {cell_handshake, l, signals, #{phase := idle}}}], E),
+    ?assertEqual(idle, phase(C)),
+    %% It is no longer attached.
+    ?assertMatch({reply, {{error, not_attached}, _}, _, []}, call({release, U}, C)).
+
+a_stopped_downstream_leaves_an_offer_open_test() ->
+    {C, E} = partner_down(down, killed, offered()),
+    ?assertEqual([{demonitor, down}], E),
+    ?assertEqual(offered, phase(C)).
+
+a_partner_stopping_mid_transfer_ends_it_for_the_other_test() ->
+    U = pid(up), D = pid(down),
+    [begin
+         {C, E} = partner_down(Role, shutdown, Core),
+         ?assertMatch([{demonitor, Role},
+                       {send, Other, {cell_handshake, l, {interrupted, partner_stopped, Phase}}}
+                       | _], E),
+         ?assertEqual(idle, phase(C))
+     end || {Role, Other} <- [{up, D}, {down, U}],
+            {Phase, Core} <- [{committed, committed()}, {released, released()}]],
+    %% Idle: nothing to end.
+    ?assertMatch({_, [{demonitor, down}]},
+                 partner_down(down, killed, attached())).
+
+interrupt_ends_the_transfer_test() ->
+    U = pid(up), D = pid(down),
+    ?assertMatch({ok, #{phase := idle}, _,
+                  [{send, U, {cell_handshake, l, {interrupted, stopped, committed}}},
+                   {send, U, {cell_handshake, l, signals, _}},
+                   {send, D, {cell_handshake, l, signals, _}}]},
+                 step({interrupt, D}, committed())),
+    ?assertMatch({ok, #{phase := idle, seq := 0}, _, []}, step({interrupt, U}, attached())).
+
+detach_only_when_free_test() ->
+    U = pid(up), D = pid(down), U2 = pid(up_restarted),
+    ?assertMatch({reply, {error, {busy, offered}}, _, []}, call({detach, up, U}, offered())),
+    {reply, ok, C, E} = call({detach, down, D}, offered()),
+    ?assertEqual([{demonitor, down}], E),
+    ?assertEqual(offered, phase(C)),
+    ?assertMatch({reply, {error, {busy, committed}}, _, []},
+                 call({detach, down, D}, committed())),
+    ?assertMatch({reply, {error, not_attached}, _, []}, call({detach, down, U2}, attached())),
+    ?assertMatch({reply, ok, _, [{demonitor, up}]}, call({detach, up, U}, attached())).
+
+%% -------------------------------------------------------------------------------------
+%% The copy handed on
+
+owned_tells_upstream_and_marks_its_copy_stale_test() ->
+    U = pid(up), D = pid(down), U2 = pid(up_restarted),
+    {C, E} = cell_handshake_link_core:cast({owned, D}, released()),
+    ?assertEqual([{send, U, {cell_handshake, l, owned}}], E),
+    %% Only downstream may say so, and only while the product is released.
+    ?assertMatch({_, []}, cell_handshake_link_core:cast({owned, U}, released())),
+    ?assertMatch({_, []}, cell_handshake_link_core:cast({owned, D}, committed())),
+    {ok, _, C1, _} = step({complete, D}, C),
+    %% Upstream restarted, still holding that copy: told it is stale.
+    {reply, {ok, S}, _, _} = call({attach, up, u, U2, {<<"S1">>, 3}}, C1),
+    ?assertMatch(#{stale := true}, S),
+    %% Another copy is not.
+    {reply, {ok, S2}, _, _} = call({attach, up, u, U2, {<<"S1">>, 4}}, C1),
+    ?assertNot(maps:is_key(stale, S2)).
+
+unknown_requests_crash_test() ->
+    ?assertError(function_clause, call({what, 1, 2}, attached())),
+    ?assertError(function_clause, cell_handshake_link_core:cast(hello, attached())).
