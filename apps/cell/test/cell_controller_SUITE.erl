@@ -220,6 +220,8 @@ crash_restores_product(Config) ->
     end,
     ok = cell_controller:sync(),
     ?assertEqual({ready, processing, active}, cell_task_proc:state(work)),
+    %% The warning is set without waiting, as it booted: listed once the alarms took it.
+    ok = cell_alarms:sync(),
     ?assertMatch([#{kind := warning}], cell_alarms:list()).
 
 %% A message the engine does not know crashes a task whose module takes none

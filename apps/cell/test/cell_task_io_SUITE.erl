@@ -443,8 +443,13 @@ await_state(Task, State) ->
         ct:fail({state_not_reached, Task, State})
     end.
 
-%% Subscribing answers the current status, then every change comes as a message.
+%% Subscribing answers the current status, then every change comes as a message. A
+%% change while the HAL takes a subscription is both in its answer and in a message, so
+%% an earlier subscription (every case's set-up has one) may have left an `up' in the
+%% mailbox that is old news: the connection's messages before this subscription are
+%% dropped, its answer says where the connection is now.
 await_conn(Conn, Want) ->
+    flush_conn(Conn),
     case cell_hal:subscribe_connection(Conn) of
         {ok, Want} ->
             {ok, Want};
