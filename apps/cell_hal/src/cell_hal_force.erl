@@ -14,8 +14,14 @@
 %% </ul>
 %%
 %% Who may force, and when forces end, is the caller's decision (the panel's,
-%% `cell_web_forces'); this module only keeps them. One row a forced point in a
-%% table owned by `cell_hal_sup' (so a restart of a HAL process keeps them): forces
+%% `cell_web_forces'); this module only keeps them, with one exception: a force lasts
+%% as long as the HAL's server it was set under. When that server restarts (and with
+%% it, `rest_for_one', every connection's worker) the forces end: none is reported
+%% any more, and each connection's new worker, once up, writes every output of its
+%% own that was forced back to the value the cell wants ({@link take_ended/1}),
+%% before any read back or task write, and logs it. A worker's own restart, alone,
+%% keeps the forces: they stay visible and releasable. One row a forced point in a
+%% table owned by `cell_hal_sup' (so the restart of a HAL process loses no row): forces
 %% are added and released by one process, the panel's; a task's write to a forced
 %% output only updates the value kept in its row (an atomic update of one element).
 %% A release writes the kept value and removes the row only if no task wrote since
@@ -26,7 +32,7 @@
 -include("cell_hal.hrl").
 
 -export([create_table/0, force/3, release/1, forces/0, forced/2, forceable/2, held/2,
-         input_value/1]).
+         input_value/1, take_ended/1, forget_ended_inputs/0]).
 
 -export_type([force/0]).
 
@@ -36,8 +42,9 @@
 
 -define(TAB, cell_hal_forces).
 -define(WRITE_TIMEOUT, 5000).
-%% {Key, Dir, Value, Who, Since, Kept}: Kept is the value the cell wants the output to
-%% have once released ({ok, V}), or none.
+%% {Key, Dir, Value, Who, Since, Kept, Server}: Kept is the value the cell wants the
+%% output to have once released ({ok, V}), or none; Server the HAL's server the force
+%% was set under, the force active only while that process lives.
 -define(KEPT, 6).
 
 %% @doc Creates the table in the calling process (`cell_hal_sup').
@@ -70,19 +77,26 @@ force(Key, Value, Who) when is_binary(Who) ->
                 {{error, _} = E, _} -> E;
                 {ok, error} -> {error, {bad_value, Value}};
                 {ok, {ok, _}} when Dir =:= out, is_binary(Fault) -> {error, {unavailable, Fault}};
-                {ok, {ok, V}} -> put_force(Key, Dir, Conn, V, Who, Now)
+                {ok, {ok, V}} ->
+                    case whereis(cell_hal_server) of
+                        undefined -> {error, disconnected};
+                        Server -> put_force(Key, Dir, Conn, V, Who, Now, Server)
+                    end
             end;
         error ->
             {error, unknown_point}
     end.
 
-put_force(Key, in, _Conn, V, Who, _Now) ->
-    true = ets:insert(?TAB, {Key, in, V, Who, os:system_time(millisecond), none}),
+put_force(Key, in, _Conn, V, Who, _Now, Server) ->
+    true = ets:insert(?TAB, {Key, in, V, Who, os:system_time(millisecond), none, Server}),
     ok;
-put_force(Key, out, Conn, V, Who, Now) ->
+put_force(Key, out, Conn, V, Who, Now, Server) ->
+    %% A force ended by a restart and not yet written back keeps what the cell wants.
     Row = case ets:lookup(?TAB, Key) of
-              [{Key, out, _, _, Since, Kept}] -> {Key, out, V, Who, Since, Kept};
-              [] -> {Key, out, V, Who, os:system_time(millisecond), Now}
+              [{Key, out, _, _, Since, Kept, Server}] -> {Key, out, V, Who, Since, Kept, Server};
+              [{Key, out, _, _, _, Kept, _}] -> {Key, out, V, Who, os:system_time(millisecond),
+                                                 Kept, Server};
+              _ -> {Key, out, V, Who, os:system_time(millisecond), Now, Server}
           end,
     %% Recorded first: from here a task's write is kept, not sent over the force.
     true = ets:insert(?TAB, Row),
@@ -101,15 +115,15 @@ put_force(Key, out, Conn, V, Who, Now) ->
 release(Key) ->
     case ets:lookup(?TAB, Key) of
         [] -> {error, not_forced};
-        [{Key, in, _, _, _, _}] -> true = ets:delete(?TAB, Key), ok;
-        [{Key, out, _, _, _, _}] -> restore(Key)
+        [{Key, in, _, _, _, _, _}] -> true = ets:delete(?TAB, Key), ok;
+        [{Key, out, _, _, _, _, _}] -> restore(Key)
     end.
 
 restore(Key) ->
     case ets:lookup(?TAB, Key) of
         [] ->
             ok;
-        [{Key, out, _, _, _, Kept} = Row] ->
+        [{Key, out, _, _, _, Kept, _} = Row] ->
             _ = case {Kept, cell_hal_store:value(Key)} of
                     {{ok, V}, {ok, #hal_value{conn = Conn}}} -> write(Conn, Key, V);
                     _ -> ok
@@ -119,17 +133,59 @@ restore(Key) ->
             restore(Key)
     end.
 
-%% @doc Every force now, oldest first.
+%% @doc Every force now, oldest first (not those a restart of the HAL's server ended).
 -spec forces() -> [force()].
 forces() ->
     Rows = try ets:tab2list(?TAB) catch error:badarg -> [] end,
     [#{group => G, point => P, dir => Dir, value => V, who => Who, since => Since}
-     || {{G, P}, Dir, V, Who, Since, _} <- lists:keysort(5, Rows)].
+     || {{G, P}, Dir, V, Who, Since, _, Server} <- lists:keysort(5, Rows), active(Server)].
 
 %% @doc Whether a point is forced.
 -spec forced(atom(), atom()) -> boolean().
 forced(Group, Point) ->
-    try ets:member(?TAB, {Group, Point}) catch error:badarg -> false end.
+    try ets:lookup(?TAB, {Group, Point}) of
+        [{_, _, _, _, _, _, Server}] -> active(Server);
+        [] -> false
+    catch
+        error:badarg -> false
+    end.
+
+%% A force is active while the HAL's server it was set under runs.
+active(Server) ->
+    whereis(cell_hal_server) =:= Server andalso is_process_alive(Server).
+
+%% @doc For a connection's worker coming up: if a restart of the HAL's server ended
+%% the force of this output, the row is taken away and the value the cell wants for
+%% the output returned (`{ok, Kept}', Kept `none' when no value is known), for the
+%% worker to write before anything else. A task's write racing with this is kept in
+%% the row, which is then taken again, so the value returned is the task's last.
+-spec take_ended(key()) -> {ok, {ok, cell_hal_type:value()} | none} | no.
+take_ended(Key) ->
+    try ets:lookup(?TAB, Key) of
+        [{Key, out, _, _, _, Kept, Server} = Row] ->
+            case active(Server) of
+                true ->
+                    no;
+                false ->
+                    true = ets:delete_object(?TAB, Row),
+                    case ets:lookup(?TAB, Key) of
+                        [{Key, out, _, _, _, _, Server}] -> take_ended(Key);
+                        _ -> {ok, Kept}
+                    end
+            end;
+        _ ->
+            no
+    catch
+        error:badarg -> no
+    end.
+
+%% @doc For the HAL's server starting: the forced inputs of the server before it end
+%% (a simulated PLC answers its own value again; nothing to write).
+-spec forget_ended_inputs() -> ok.
+forget_ended_inputs() ->
+    _ = [ets:delete_object(?TAB, Row)
+         || {_, in, _, _, _, _, Server} = Row <- ets:tab2list(?TAB), not active(Server)],
+    ok.
 
 %% @doc For `cell_hal:write/3': true when the output is forced, the value then kept
 %% for its release instead of being written.
@@ -143,7 +199,11 @@ held(Key, V) ->
 -spec input_value(key()) -> {ok, cell_hal_type:value()} | none.
 input_value(Key) ->
     try ets:lookup(?TAB, Key) of
-        [{Key, in, V, _, _, _}] -> {ok, V};
+        [{Key, in, V, _, _, _, Server}] ->
+            case active(Server) of
+                true -> {ok, V};
+                false -> none
+            end;
         _ -> none
     catch
         error:badarg -> none
@@ -170,4 +230,34 @@ forceable_test() ->
     ?assertEqual(ok, forceable(in, cell_hal_sim)),
     ?assertEqual({error, not_forceable}, forceable(in, cell_hal_modbus)),
     ?assertEqual({error, not_forceable}, forceable(in, undefined)).
+
+%% A force lives as long as the HAL's server it was set under: the rows of a server
+%% gone are not reported, and are taken once, with the value the cell wants.
+ended_by_the_server_test() ->
+    Old = spawn(fun() -> ok end),
+    Ref = monitor(process, Old),
+    receive {'DOWN', Ref, process, Old, _} -> ok end,
+    true = register(cell_hal_server, self()),
+    ok = create_table(),
+    try
+        true = ets:insert(?TAB, [{{g, out1}, out, 9, <<"ann">>, 1, {ok, 5}, Old},
+                                 {{g, out2}, out, 9, <<"ann">>, 2, none, Old},
+                                 {{g, in1}, in, true, <<"ann">>, 3, none, Old},
+                                 {{g, out3}, out, 7, <<"ben">>, 4, {ok, 1}, self()}]),
+        ?assertEqual([{g, out3}], [{G, P} || #{group := G, point := P} <- forces()]),
+        ?assertNot(forced(g, out1)),
+        ?assert(forced(g, out3)),
+        ?assertEqual(none, input_value({g, in1})),
+        %% A task's write to an ended force is still kept, for the write back.
+        ?assert(held({g, out1}, 6)),
+        ?assertEqual({ok, {ok, 6}}, take_ended({g, out1})),
+        ?assertEqual(no, take_ended({g, out1})),
+        ?assertEqual({ok, none}, take_ended({g, out2})),
+        ?assertEqual(no, take_ended({g, out3})),
+        ok = forget_ended_inputs(),
+        ?assertEqual([{g, out3}], [K || {K, _, _, _, _, _, _} <- ets:tab2list(?TAB)])
+    after
+        true = ets:delete(?TAB),
+        true = unregister(cell_hal_server)
+    end.
 -endif.

@@ -41,6 +41,9 @@ init([]) ->
     %% this wait until init/1 has returned. The name is registered before init/1
     %% runs, so a waiter that did not find it recorded itself before this look.
     _ = [back(Ref, Pid) || {Ref, Pid} <- cell_hal_store:take_waiters()],
+    %% The forces set under the server before end with it (cell_hal_force): its inputs
+    %% here, its outputs written back by each connection's worker once up.
+    ok = cell_hal_force:forget_ended_inputs(),
     {ok, #state{monitors = Monitors}}.
 
 %% @private

@@ -362,9 +362,33 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
     cell_log:notice(D#data.source, "connection to ~s (~s) up: ~s, ~s a poll~s",
                     [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
                      plural(D#data.requests, "request"), Pushed]),
+    D2 = release_ended(D1),
     %% A group added while the first read was on its way: its outputs are read now.
-    start_readback(D1#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
+    start_readback(D2#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
                            logged = undefined, unread = #{}}).
+
+%% The outputs whose force a restart of the HAL's server ended are written back to
+%% the value the cell wants, first of all (see cell_hal_force), and said so.
+release_ended(#data{points = Pts} = D) ->
+    maps:fold(fun(Key, #pt{dir = out}, Acc) ->
+                      release_ended(Key, cell_hal_force:take_ended(Key), Acc);
+                 (_, #pt{}, Acc) ->
+                      Acc
+              end, D, Pts).
+
+release_ended(_Key, no, D) ->
+    D;
+release_ended(Key, {ok, {ok, V}}, D) ->
+    cell_log:warning(D#data.source, "force of ~s ended: the IO service restarted; written "
+                     "back to ~s, the value the cell wants", [point_name(Key), value_text(Key, V, D)]),
+    case queue_write(Key, V, async, undefined, D) of
+        {ok, D1} -> D1;
+        {error, _} -> D
+    end;
+release_ended(Key, {ok, none}, D) ->
+    cell_log:warning(D#data.source, "force of ~s ended: the IO service restarted; no value "
+                     "of the cell's is known for it, so it keeps the one it has", [point_name(Key)]),
+    D.
 
 start_poll(#data{requests = 0} = D) ->
     %% Device notifications feed every input: nothing to poll, but inputs never read

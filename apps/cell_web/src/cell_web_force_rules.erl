@@ -3,7 +3,8 @@
 %%
 %% A force needs the cell in service mode, a user of the role `service' or higher,
 %% and no emergency stop (which ends every force). Every force ends when service mode
-%% ends and on an emergency stop; a user's forces end when that user logs out.
+%% ends and on an emergency stop; a user's forces end when that user logs out; the HAL
+%% ends every force when its server restarts (`io_restarted').
 -module(cell_web_force_rules).
 
 -export([may_force/2, ending/2]).
@@ -12,7 +13,7 @@
 
 
 -type cause() :: {service_mode, boolean()} | {estop, boolean()} | {logout, binary()}
-               | restarted.
+               | restarted | io_restarted.
 
 %% @doc Whether a caller of this role may force now, given the cell's flags
 %% (`service_mode', `estop'): `ok', or the HTTP status, code and words of the refusal.
@@ -47,6 +48,7 @@ ending({estop, true}, Forces) -> {Forces, <<"emergency stop">>};
 ending({logout, User}, Forces) ->
     {[F || #{who := W} = F <- Forces, W =:= User], <<User/binary, " logged out">>};
 ending(restarted, Forces) -> {Forces, <<"the panel's force keeper started again">>};
+ending(io_restarted, Forces) -> {Forces, <<"forces ended: the IO service restarted">>};
 ending(_, _Forces) -> {[], <<>>}.
 
 -ifdef(TEST).
@@ -73,5 +75,6 @@ ending_test_() ->
      ?_assertEqual({[], <<>>}, ending({estop, false}, Fs)),
      ?_assertEqual({[hd(Fs)], <<"anna logged out">>}, ending({logout, <<"anna">>}, Fs)),
      ?_assertEqual({[], <<"carl logged out">>}, ending({logout, <<"carl">>}, Fs)),
-     ?_assertMatch({Fs, _}, ending(restarted, Fs))].
+     ?_assertMatch({Fs, _}, ending(restarted, Fs)),
+     ?_assertEqual({Fs, <<"forces ended: the IO service restarted">>}, ending(io_restarted, Fs))].
 -endif.

@@ -12,6 +12,10 @@
 %% If the events restart, this process attaches again (see {@link cell_attach}) and
 %% then looks at the cell's flags, since an end may have come meanwhile. When this
 %% process starts (again) it ends the forces it finds: nobody watches them any more.
+%% It watches the HAL's server too: when that restarts, the HAL ends every force (and
+%% its connections write the forced outputs back, see {@link cell_hal_force}); this
+%% process records the end of each force it knew of in the audit trail, "the IO
+%% service restarted", and tells the pages.
 -module(cell_web_forces).
 -behaviour(gen_server).
 
@@ -20,7 +24,11 @@
 
 -record(state, {watch = #{} :: cell_attach:watch(),
                 retry :: reference() | undefined,
-                backoff = cell_attach:first() :: pos_integer()}).
+                backoff = cell_attach:first() :: pos_integer(),
+                %% the HAL's server watched, and the forces as last set through here
+                hal :: reference() | undefined,
+                hal_retry :: reference() | undefined,
+                known = [] :: [cell_hal_force:force()]}).
 
 -define(CALL_TIMEOUT, 15000).
 
@@ -62,10 +70,14 @@ json() ->
 init([]) ->
     State = attach(#state{}),
     ok = ended(restarted),
-    {ok, State}.
+    {ok, known(watch_hal(State))}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
-handle_call({force, #{role := Role} = Caller, Key, Value}, _From, State) ->
+handle_call(Request, From, State) ->
+    {reply, Reply, State1} = call(Request, From, State),
+    {reply, Reply, known(State1)}.
+
+call({force, #{role := Role} = Caller, Key, Value}, _From, State) ->
     Reply = case may_force(Role) of
                 ok ->
                     Who = cell_web_req:who_name(Caller),
@@ -82,7 +94,7 @@ handle_call({force, #{role := Role} = Caller, Key, Value}, _From, State) ->
                     E
             end,
     {reply, Reply, State};
-handle_call({release, Caller, Key}, _From, State) ->
+call({release, Caller, Key}, _From, State) ->
     Reply = case may_release(Caller) of
                 ok ->
                     case cell_hal_force:release(Key) of
@@ -98,7 +110,7 @@ handle_call({release, Caller, Key}, _From, State) ->
                     E
             end,
     {reply, Reply, State};
-handle_call({release_all, Caller}, _From, State) ->
+call({release_all, Caller}, _From, State) ->
     Reply = case may_release(Caller) of
                 ok ->
                     Forces = cell_hal_force:forces(),
@@ -111,7 +123,7 @@ handle_call({release_all, Caller}, _From, State) ->
                     E
             end,
     {reply, Reply, State};
-handle_call({ended, Cause}, _From, State) ->
+call({ended, Cause}, _From, State) ->
     {reply, ended(Cause), State}.
 
 -spec handle_cast(term(), #state{}) -> no_return().
@@ -121,15 +133,45 @@ handle_cast(Msg, _State) ->
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info({cell_event, #{type := service_mode, active := On}}, State) ->
     ok = ended({service_mode, On}),
-    {noreply, State};
+    {noreply, known(State)};
 handle_info({cell_event, #{type := estop, active := On}}, State) ->
     ok = ended({estop, On}),
-    {noreply, State};
+    {noreply, known(State)};
+handle_info({'DOWN', Ref, process, _, _}, #state{hal = Ref, known = Known} = State) ->
+    %% The HAL ended these forces as its server went (see cell_hal_force).
+    ok = lost(Known),
+    {noreply, known(watch_hal(State#state{hal = undefined}))};
+handle_info({timeout, TRef, cell_attach}, #state{hal_retry = TRef} = State) ->
+    {noreply, known(watch_hal(State#state{hal_retry = undefined}))};
 handle_info({'DOWN', Ref, process, _, _}, #state{watch = W} = State) when is_map_key(Ref, W) ->
     ok = cell_attach:unwatch(W),
     {noreply, attach(State#state{watch = #{}})};
 handle_info({timeout, TRef, cell_attach}, #state{retry = TRef, backoff = B} = State) ->
     {noreply, attach(State#state{retry = undefined, backoff = cell_attach:next(B)})}.
+
+%% Monitors the HAL's server; while it restarts, tried again a moment later.
+watch_hal(#state{hal = undefined, hal_retry = undefined} = State) ->
+    case whereis(cell_hal_server) of
+        undefined -> State#state{hal_retry = cell_attach:retry_after(cell_attach:first())};
+        Pid -> State#state{hal = erlang:monitor(process, Pid)}
+    end;
+watch_hal(State) ->
+    State.
+
+%% The forces as they are after a change made here.
+known(State) ->
+    State#state{known = cell_hal_force:forces()}.
+
+%% Forces the HAL ended on its own: recorded, said, and shown.
+lost([]) ->
+    ok;
+lost(Forces) ->
+    {Ending, Why} = cell_web_force_rules:ending(io_restarted, Forces),
+    _ = [audit(G, P, Why) || #{group := G, point := P} <- Ending],
+    cell_log:warning(web, "~b forced IO point(s) released: the IO service restarted, and its "
+                     "connections wrote the outputs back to the values the cell wants",
+                     [length(Ending)]),
+    changed().
 
 %% Subscribes to the cell's service mode and emergency stop; once attached (again),
 %% the flags as they are now end what they would have ended. While the cell's

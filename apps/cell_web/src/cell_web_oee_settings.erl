@@ -11,7 +11,7 @@ name() -> oee.
 
 -spec fields() -> [cell_settings_schema:field()].
 fields() ->
-    [#{name => ideal_cycle_s, type => {float, 0.1, 86400.0}, default => 60.0, unit => <<"s">>,
+    [#{name => ideal_cycle_s, type => {float, 0.01, 86400.0}, default => 60.0, unit => <<"s">>,
        doc => <<"The shortest time between two products leaving the cell when nothing "
                 "holds it up: the performance of the OEE is this time times the products "
                 "out, divided by the run time.">>}].

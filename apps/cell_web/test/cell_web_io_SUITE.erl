@@ -14,6 +14,7 @@ all() ->
     [layout_from_the_spec, io_points_and_connections, force_needs_role_and_service_mode,
      bad_force_requests_change_nothing, forced_output_keeps_task_writes,
      forced_simulated_input, forces_end_on_estop_service_mode_and_logout,
+     forces_end_when_the_io_service_restarts,
      camera_image, websocket_carries_forces_io_and_links].
 
 init_per_suite(Config) ->
@@ -253,6 +254,68 @@ forces_end_on_estop_service_mode_and_logout(Config) ->
                   {<<"/api/forces/line/clamp">>, <<"service mode ended">>},
                   {<<"/api/forces/line/clamp">>, <<"service logged out">>},
                   {<<"/api/forces/line/conveyor_motor">>, <<"admin logged out">>}], Released).
+
+%% The HAL's server crashes (and with it, rest_for_one, every connection's worker): the
+%% forces end with it. The forced output is written back to the task's last value as
+%% its connection comes up again, and a forced simulated input answers the PLC's own
+%% value; no force is reported, the keeper records each end in the audit trail.
+forces_end_when_the_io_service_restarts(Config) ->
+    Svc = as(service, Config),
+    ok = cell_controller:service_mode(true),
+    ok = cell_hal:write_sync(line, conveyor_speed, 100, 5000),
+    {200, _, _} = force(Svc, line, conveyor_speed, 250),
+    ok = cell_hal_sim:set({line, board_present}, false),
+    {200, _, _} = force(Svc, line, board_present, true),
+    ok = value_becomes(line, board_present, true),
+    ?assertEqual(250, device(line, conveyor_speed)),
+    %% The task writes while forced: kept, not sent.
+    ok = cell_hal:write(line, conveyor_speed, 140),
+    ?assertEqual(250, device(line, conveyor_speed)),
+    ok = cell_log:subscribe(),
+    {ok, up} = cell_hal:subscribe_connection(plc),
+    exit(whereis(cell_hal_server), kill),
+    receive {cell_hal_conn, plc, down} -> ok after 10000 -> ct:fail(no_down) end,
+    receive {cell_hal_conn, plc, up} -> ok after 10000 -> ct:fail(no_up) end,
+    ok = cell_hal:unsubscribe_connection(plc),
+    %% The worker, once up, wrote the output back before taking any other write: one
+    %% confirmed behind it means the simulated PLC holds it.
+    {ok, Clamp} = cell_hal:read(line, clamp),
+    ok = cell_hal:write_sync(line, clamp, Clamp, 5000),
+    ?assertEqual(140, device(line, conveyor_speed)),
+    ?assertEqual({ok, 140}, cell_hal:read(line, conveyor_speed)),
+    ok = value_becomes(line, board_present, false),
+    ?assertEqual([], cell_hal_force:forces()),
+    ?assertNot(cell_hal_force:forced(line, conveyor_speed)),
+    ?assertNot(cell_hal_force:forced(line, board_present)),
+    {200, [], _} = req(anon(Config), get, "/api/forces"),
+    %% Said by the connection and by the keeper (which has audited by then).
+    ok = logged([<<"force of line.conveyor_speed ended: the IO service restarted">>,
+                 <<"2 forced IO point(s) released: the IO service restarted">>]),
+    ok = cell_log:unsubscribe(),
+    Released = [T || #{<<"action">> := <<"RELEASE">>, <<"who">> := <<"cell">>, <<"target">> := T,
+                       <<"detail">> := <<"forces ended: the IO service restarted">>}
+                         <- audit(as(admin, Config))],
+    ?assertEqual([<<"/api/forces/line/board_present">>, <<"/api/forces/line/conveyor_speed">>],
+                 lists:sort(Released)),
+    %% The new server's forces are forces again.
+    {200, _, _} = force(Svc, line, conveyor_speed, 77),
+    ?assert(cell_hal_force:forced(line, conveyor_speed)),
+    ?assertEqual(77, device(line, conveyor_speed)),
+    {200, _, _} = req(Svc, delete, "/api/forces"),
+    ?assertEqual(140, device(line, conveyor_speed)).
+
+%% Log lines (as cell_log sends them) holding each of these words, in any order.
+logged([]) ->
+    ok;
+logged(Words) ->
+    receive
+        {cell_log, #{text := T}} when is_binary(T) ->
+            logged([W || W <- Words, binary:match(T, W) =:= nomatch]);
+        {cell_log, _} ->
+            logged(Words)
+    after 10000 ->
+        ct:fail({not_logged, Words})
+    end.
 
 %% The forces keeper has taken the cell's event (a call behind it is answered after).
 released() ->
