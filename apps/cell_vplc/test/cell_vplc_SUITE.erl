@@ -13,7 +13,7 @@
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 -export([outputs_move_the_physics/1, killed_and_started_again/1, bad_input/1,
-         pymodbus_reads_the_same_registers/1]).
+         pymodbus_reads_the_same_registers/1, the_physics_settings_of_its_root/1]).
 
 %% A node's start on a busy machine.
 -define(WAIT, 60000).
@@ -21,7 +21,7 @@
 
 all() ->
     [outputs_move_the_physics, killed_and_started_again, bad_input,
-     pymodbus_reads_the_same_registers].
+     pymodbus_reads_the_same_registers, the_physics_settings_of_its_root].
 
 init_per_suite(Config) ->
     Priv = ?config(priv_dir, Config),
@@ -36,6 +36,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    ok = settings(Case, filename:join(Root, "Settings")),
     Vplc = start_vplc(Root, 0),
     ok = connect(maps:get(tcp, Vplc)),
     [{vplc, Vplc}, {root, Root} | Config].
@@ -123,9 +124,24 @@ pymodbus_reads_the_same_registers(Config) ->
     ?assertEqual([<<"target_x -3.5">>, <<"command 42">>, <<"spindle_run 1">>,
                   <<"done 42">>, <<"end">>], Lines).
 
+%% The physics runs on the settings saved in the virtual PLC's root: a panel always
+%% waiting at the previous machine (arrival_ms 0) is offered before the first read,
+%% where the default rhythm offers the first one some ten seconds after the start.
+the_physics_settings_of_its_root(_Config) ->
+    ?assertEqual({ok, true}, cell_hal:read(loading_front_io, upstream_available)).
+
 %%--------------------------------------------------------------------
 %% Helpers
 %%--------------------------------------------------------------------
+
+settings(the_physics_settings_of_its_root, Dir) ->
+    Sim = maps:merge(cell_settings_schema:defaults(router_sim_settings),
+                     #{arrival_ms => 0, magazine_low_s => 0}),
+    ok = filelib:ensure_dir(filename:join(Dir, ".")),
+    file:write_file(filename:join(Dir, "router_sim.json"),
+                    cell_settings_schema:to_json(router_sim_settings, Sim));
+settings(_, _) ->
+    ok.
 
 %% The router's HAL in real mode, as router_cell builds it, on the virtual PLC's port.
 connect(Port) ->
