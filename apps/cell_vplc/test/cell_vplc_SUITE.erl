@@ -13,7 +13,8 @@
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 -export([outputs_move_the_physics/1, killed_and_started_again/1, bad_input/1,
-         pymodbus_reads_the_same_registers/1, the_physics_settings_of_its_root/1]).
+         pymodbus_reads_the_same_registers/1, the_physics_settings_of_its_root/1,
+         the_router_cell_in_real_mode/1]).
 
 %% A node's start on a busy machine.
 -define(WAIT, 60000).
@@ -21,7 +22,9 @@
 
 all() ->
     [outputs_move_the_physics, killed_and_started_again, bad_input,
-     pymodbus_reads_the_same_registers, the_physics_settings_of_its_root].
+     pymodbus_reads_the_same_registers, the_physics_settings_of_its_root,
+     %% Last: it starts the whole cell in this node.
+     the_router_cell_in_real_mode].
 
 init_per_suite(Config) ->
     Priv = ?config(priv_dir, Config),
@@ -34,13 +37,37 @@ end_per_suite(Config) ->
     [application:stop(A) || A <- lists:reverse(?config(apps, Config))],
     ok.
 
+init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    VplcRoot = filename:join(Root, "vplc"),
+    ok = cell_testkit:write_settings(VplcRoot, #{router_sim => #{time_scale => 0.02,
+                                                                 arrival_ms => 0,
+                                                                 product_lost_rate => 0.0,
+                                                                 jam_rate => 0.0,
+                                                                 magazine_low_s => 0}}),
+    #{tcp := Port} = Vplc = start_vplc(VplcRoot, 0),
+    CellRoot = filename:join(Root, "cell"),
+    ok = cell_testkit:write_settings(CellRoot, #{machine => #{simulation_mode => false},
+                                                 router => #{plc_host => <<"127.0.0.1">>,
+                                                             plc_port => Port,
+                                                             hal_poll_ms => 5,
+                                                             transfer_timeout_ms => 5000,
+                                                             motion_timeout_ms => 5000}}),
+    ok = application:set_env(cell, shutdown_wait_ms, 10000),
+    ok = cell_testkit:start(CellRoot, router_cell, router_cell),
+    ok = cell_testkit:await_connection(?CONN, ?WAIT),
+    [{vplc, Vplc}, {root, Root} | Config];
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
-    ok = settings(Case, filename:join(Root, "Settings")),
+    ok = settings(Case, Root),
     Vplc = start_vplc(Root, 0),
     ok = connect(maps:get(tcp, Vplc)),
     [{vplc, Vplc}, {root, Root} | Config].
 
+end_per_testcase(the_router_cell_in_real_mode, Config) ->
+    ok = cell_testkit:stop(router_cell, []),
+    _ = application:unset_env(cell, shutdown_wait_ms),
+    stop_vplc(?config(vplc, Config));
 end_per_testcase(_Case, Config) ->
     _ = cell_hal:unsubscribe_connection(?CONN),
     [ok = cell_hal:remove_group(G) || G <- cell_hal:groups()],
@@ -130,16 +157,28 @@ pymodbus_reads_the_same_registers(Config) ->
 the_physics_settings_of_its_root(_Config) ->
     ?assertEqual({ok, true}, cell_hal:read(loading_front_io, upstream_available)).
 
+%% The router cell itself with simulation_mode off, its HAL on the Modbus driver: panels
+%% pass the whole line through the virtual PLC, each serial once, no error raised.
+the_router_cell_in_real_mode(_Config) ->
+    {ok, #{driver := cell_hal_modbus}} = cell_hal:info(?CONN),
+    ok = cell_events:subscribe([item_transfer_out, alarm_raised, cell_state]),
+    ok = cell_controller:start(<<"suite">>),
+    Out = cell_testkit:collect(5, fun(#{type := item_transfer_out, task := unloading_front,
+                                        item := S}) -> {true, S};
+                                     (_) -> false
+                                  end, fun never_answer/1, ?WAIT),
+    ?assertEqual(5, length(lists:usort(Out))),
+    ok = cell_testkit:stop_cell(fun never_answer/1, ?WAIT).
+
+never_answer(Alarm) ->
+    ct:fail({unexpected_error, Alarm}).
+
 %%--------------------------------------------------------------------
 %% Helpers
 %%--------------------------------------------------------------------
 
-settings(the_physics_settings_of_its_root, Dir) ->
-    Sim = maps:merge(cell_settings_schema:defaults(router_sim_settings),
-                     #{arrival_ms => 0, magazine_low_s => 0}),
-    ok = filelib:ensure_dir(filename:join(Dir, ".")),
-    file:write_file(filename:join(Dir, "router_sim.json"),
-                    cell_settings_schema:to_json(router_sim_settings, Sim));
+settings(the_physics_settings_of_its_root, Root) ->
+    cell_testkit:write_settings(Root, #{router_sim => #{arrival_ms => 0, magazine_low_s => 0}});
 settings(_, _) ->
     ok.
 
