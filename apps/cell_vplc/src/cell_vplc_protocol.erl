@@ -63,8 +63,7 @@ handle_info({tcp, S, Data}, #conn{socket = S, buf = Buf} = C) ->
                              [C#conn.peer, Why]),
             {stop, normal, C}
     end;
-handle_info({Closed, S}, #conn{socket = S, peer = Peer} = C)
-  when Closed =:= tcp_closed; Closed =:= tcp_error ->
+handle_info({tcp_closed, S}, #conn{socket = S, peer = Peer} = C) ->
     cell_log:info(vplc, "virtual PLC: ~s disconnected", [Peer]),
     {stop, normal, C};
 handle_info({tcp_error, S, _}, #conn{socket = S, peer = Peer} = C) ->
