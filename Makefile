@@ -6,7 +6,7 @@ REBAR ?= rebar3
 export ERL_LIBS := $(CURDIR)/_debdeps
 export CELLRT_TOP := $(CURDIR)
 
-.PHONY: all setup setup-test compile release run test bench soak chaos dist clean
+.PHONY: all setup setup-test compile release run vplc test bench soak chaos dist clean
 
 all: compile
 
@@ -25,6 +25,11 @@ release: setup
 ## Builds the release and starts the default cell in the foreground; Ctrl-C stops it.
 run: release
 	@scripts/run
+
+## A virtual PLC: the default cell's simulated machine over Modbus TCP (port 1502), for
+## the cell in real mode, an HMI or a SCADA; VPLC_ARGS for scripts/vplc's options.
+vplc: compile
+	@scripts/vplc $(VPLC_ARGS)
 
 ## eunit (with PropEr properties), common_test suites, xref, dialyzer, system tests.
 test: setup-test

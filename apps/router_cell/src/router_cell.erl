@@ -24,7 +24,8 @@
 %% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, router_settings/0]).
+-export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, router_settings/0,
+         simulation/1]).
 
 -define(CONN, router_plc).
 
@@ -99,6 +100,14 @@ hal(Machine, Router) ->
             #{id => upper_io, module => router_upper_io, connection => ?CONN,
               opts => #{base => 260}}],
     #{connections => [Conn], groups => Groups}.
+
+%% @doc The machine's physics, for a virtual PLC that serves this cell's IO over Modbus
+%% TCP ({@link cell_vplc}): the same physics simulation mode runs behind the in-VM
+%% simulated PLC.
+-spec simulation(map()) -> [supervisor:child_spec()].
+simulation(Machine) ->
+    [#{id => router_sim, start => {router_sim, start_link, [#{lanes => lanes(Machine)}]},
+       shutdown => 5000}].
 
 %% @doc The lanes of the machine.
 -spec lanes(map()) -> [front | rear].

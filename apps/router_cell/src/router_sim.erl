@@ -816,15 +816,16 @@ scale(S) ->
 setting(Key, #{settings := Settings}) ->
     maps:get(Key, Settings).
 
-%% The settings as saved now (they apply at once); their defaults until the settings
-%% owner has them (the physics starts before the cell does).
+%% The settings as saved now (they apply at once); as the file holds them while the
+%% settings owner does not run: the physics starts before the cell does, and a virtual
+%% PLC ({@link cell_vplc}) runs it without the cell.
 settings() ->
     Defaults = cell_settings_schema:defaults(router_sim_settings),
     try cell_settings:get(router_sim) of
         Now -> maps:merge(Defaults, Now)
     catch
-        error:_ -> Defaults;
-        exit:_ -> Defaults
+        error:_ -> cell_spec_helpers:saved_settings(router_sim_settings);
+        exit:_ -> cell_spec_helpers:saved_settings(router_sim_settings)
     end.
 
 zero(bool) -> false;
