@@ -19,7 +19,9 @@ all() ->
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
-    Root = filename:join(?config(priv_dir, Config), "root"),
+    %% A root of its own: in a run of the whole folder the suites share one priv_dir,
+    %% and the API suite's root holds its users' changed passwords and its products.
+    Root = filename:join(?config(priv_dir, Config), "cell_web_io_root"),
     _ = application:load(lager),
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     _ = [application:stop(A) || A <- [cell_web, cell, cell_hal, mnesia, cell_base]],
