@@ -172,6 +172,12 @@
       : `${time(sel.from)} to ${time(sel.to)}`;
     const what = sel.kind === 'period' ? (sel.label === 'total' ? 'Since the cell was first counted' : `Shift ${sel.label}`)
       : sel.kind === 'day' ? `Day ${sel.label} (${d.shifts.length} shifts)` : `Range (${d.shifts.length} shifts)`;
+    // The day offered is the one the shift shown is named for (the day it began), so
+    // just after midnight a night shift's day is still the one it belongs to; once the
+    // user picks a day, it is theirs.
+    const named = sel.kind === 'period' && /^(\d{4}-\d{2}-\d{2})\//.exec(sel.label);
+    const dayInput = root.querySelector('[data-testid=stats-day]');
+    if (named && !dayInput.dataset.chosen) dayInput.value = named[1];
     root.querySelector('.selection').textContent = `${what}: ${span}`;
     root.querySelector('.selection').dataset.kind = sel.kind;
     root.querySelector('.stats-body').replaceChildren(
@@ -206,7 +212,8 @@
       root = section;
       section.classList.add('page', 'statistics-page');
       const now = Date.now();
-      const day = el('input', { type: 'date', class: 'day', testid: 'stats-day', value: localInput(now).slice(0, 10) });
+      const day = el('input', { type: 'date', class: 'day', testid: 'stats-day', value: localInput(now).slice(0, 10),
+                                on: { change: (e) => { e.target.dataset.chosen = 'yes'; } } });
       const from = el('input', { type: 'datetime-local', testid: 'stats-from', value: localInput(now - 86400000) });
       const to = el('input', { type: 'datetime-local', testid: 'stats-to', title: 'empty: now' });
       section.append(
