@@ -29,12 +29,10 @@
 %% started. A kill is left out while a drive is in error: what a new monitor owes a
 %% drive its predecessor was resetting the seed does not say.
 %%
-%% Not modelled, because the monitor gets it wrong today: the circuit closing while the
-%% monitor is away (killed, and its successor not yet reading). The successor's core
-%% starts knowing of no emergency stop it raised, so it never releases the one its
-%% predecessor raised: the cell stays stopped with the circuit closed and no alarm
-%% saying why (the seed has the EmergencyStop property follow the voltage). This
-%% model's set-up met it when the monitor was replaced just as the circuit closed.
+%% The circuit is also opened or closed while no monitor runs (between a kill and the
+%% restart): its successor releases an emergency stop its predecessor raised when it
+%% finds the circuit closed (the seed has the EmergencyStop property follow the
+%% voltage).
 %%
 %% Sequential only: the monitor's view is a function of the latest inputs, one PLC
 %% image; commands racing from two processes would leave the model no state to check
@@ -49,7 +47,7 @@
 -include_lib("eunit/include/eunit.hrl").
 
 -export([initial_state/0, command/1, precondition/2, postcondition/3, next_state/3]).
--export([circuit/1, key/1, door/1, air/1, drive_fault/1, retry/0, repair/0, kill/0]).
+-export([circuit/1, key/1, door/1, air/1, drive_fault/1, retry/0, repair/0, kill/1]).
 -export([prop_monitor/0]).
 
 -define(IDS, [load, work, unload]).
@@ -95,7 +93,7 @@ command(M) ->
                {2, {call, ?MODULE, key, [not M#m.key]}},
                {2, {call, ?MODULE, door, [not M#m.door]}},
                {2, {call, ?MODULE, air, [not M#m.air]}},
-               {2, {call, ?MODULE, kill, []}}]
+               {2, {call, ?MODULE, kill, [boolean()]}}]
               ++ [{2, {call, ?MODULE, drive_fault, [range(1, 5)]}} || M#m.drive =:= ok]
               ++ [{4, {call, ?MODULE, retry, []}} || M#m.drive =:= failed]
               ++ [{2, {call, ?MODULE, repair, []}} || M#m.drive =:= failed]).
@@ -105,7 +103,7 @@ command(M) ->
 precondition(M, {call, _, drive_fault, _}) -> M#m.drive =:= ok andalso M#m.circuit;
 precondition(M, {call, _, retry, []}) -> M#m.drive =:= failed andalso M#m.circuit;
 precondition(M, {call, _, repair, []}) -> M#m.drive =:= failed;
-precondition(M, {call, _, kill, []}) -> M#m.drive =:= ok;
+precondition(M, {call, _, kill, _}) -> M#m.drive =:= ok;
 precondition(_, _) -> true.
 
 next_state(M, _, {call, _, circuit, [In]}) ->
@@ -116,7 +114,7 @@ next_state(M, _, {call, _, air, [Ok]}) -> M#m{air = Ok};
 next_state(M, _, {call, _, drive_fault, [Heal]}) -> resets(M#m{heal = Heal, pulses = 0});
 next_state(M, _, {call, _, retry, []}) -> resets(M);
 next_state(M, _, {call, _, repair, []}) -> M#m{drive = ok};
-next_state(M, _, {call, _, kill, []}) -> M.
+next_state(M, _, {call, _, kill, [In]}) -> next_state(M, none, {call, ?MODULE, circuit, [In]}).
 
 %% Up to three pulses: the error clears at the pulse that heals it, or the drive is
 %% handed to the operator.
@@ -141,6 +139,8 @@ postcondition(M, {call, _, _, _} = Call, Res) ->
              {call, _, Drive, _} when Drive =:= drive_fault; Drive =:= retry ->
                  Res =:= {lists:duplicate(Pulses, pulse), view(M1), no_more};
              {call, _, circuit, [false]} ->
+                 Res =:= {view(M1), all_off};
+             {call, _, kill, [false]} ->
                  Res =:= {view(M1), all_off};
              _ ->
                  Res =:= view(M1)
@@ -244,16 +244,23 @@ await_or_pulse(Done, Deadline) ->
             end
     end.
 
-%% Killed: its successor starts under the test's supervisor, finds the HAL's pieces
-%% there and takes them over (it says so for each).
-kill() ->
+%% Killed, and the circuit set (opened, closed or left) while no monitor runs (its
+%% supervisor held suspended meanwhile): its successor starts under the test's
+%% supervisor, finds the HAL's pieces there and takes them over (it says so for each).
+kill(In) ->
     _ = drain(),
+    Sup = ets:lookup_element(?TAB, sup, 2),
     Old = whereis(cell_monitor),
+    ok = sys:suspend(Sup),
     Ref = monitor(process, Old),
     exit(Old, kill),
     receive {'DOWN', Ref, process, Old, _} -> ok end,
+    ok = cell_hal_sim:set({general, estop_voltage}, In),
+    ok = sys:resume(Sup),
     case taken_over() of
-        ok -> settled(#{});
+        ok when In -> settled(#{estop => false, estop_alarm => false});
+        ok -> {settled(#{estop => true, estop_alarm => true}),
+               await(fun() -> states() =:= [off, off, off] end, all_off)};
         Timeout -> Timeout
     end.
 
@@ -333,8 +340,10 @@ setup() ->
     ok = cell_settings:put(monitor, #{drive_reset_pulse_ms => 10, drive_reset_wait_ms => 100},
                            <<"model">>),
     %% A blank PLC opens the circuit and the monitor stops the cell: closed again, and
-    %% released by the monitor that raised it, before that monitor is replaced (a
-    %% successor does not know its predecessor's emergency stop: see the note above).
+    %% released, before the monitor is replaced. (Once, replaced by a shutdown while
+    %% the circuit was open and the circuit closed before its successor read it, the
+    %% cell stayed stopped, with no alarm: not explained yet; the kills above, with the
+    %% circuit closed while no monitor runs, release it.)
     ok = cell_events:subscribe(),
     [ok = cell_hal_sim:set({general, P}, true) || P <- [estop_voltage, door_locked, air_ok]],
     released = await(fun() -> not maps:get(estop, cell_controller:flags()) end, released),
@@ -344,6 +353,7 @@ setup() ->
     %% A kill is a restart: far more than the product's ten a minute, on purpose.
     {ok, Sup} = cell_test_sup:start_link([MonSpec], #{intensity => 1000, period => 1}),
     unlink(Sup),
+    true = ets:insert(?TAB, {sup, Sup}),
     ok = cell_log:set_level(monitor, verbose),
     {Root, Sup, Sink}.
 
