@@ -340,10 +340,11 @@ setup() ->
     ok = cell_settings:put(monitor, #{drive_reset_pulse_ms => 10, drive_reset_wait_ms => 100},
                            <<"model">>),
     %% A blank PLC opens the circuit and the monitor stops the cell: closed again, and
-    %% released, before the monitor is replaced. (Once, replaced by a shutdown while
-    %% the circuit was open and the circuit closed before its successor read it, the
-    %% cell stayed stopped, with no alarm: not explained yet; the kills above, with the
-    %% circuit closed while no monitor runs, release it.)
+    %% released, before the monitor is replaced. (Replaced at once, the cell once
+    %% stayed stopped with the circuit closed and no alarm. Likely: the first monitor
+    %% decided the stop before the controller ran, so cell_controller:estop/2 set the
+    %% flag and the call was kept for a retry, and the monitor went before the retry;
+    %% its successor, finding the circuit closed, knows of no stop of its own.)
     ok = cell_events:subscribe(),
     [ok = cell_hal_sim:set({general, P}, true) || P <- [estop_voltage, door_locked, air_ok]],
     released = await(fun() -> not maps:get(estop, cell_controller:flags()) end, released),
