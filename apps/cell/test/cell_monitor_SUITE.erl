@@ -71,34 +71,13 @@ end_per_testcase(_Case, _Config) ->
     ok = application:unset_env(cell, cell_spec),
     ok.
 
-hal(Case) ->
-    Conns = [#{id => plc1, driver => cell_hal_sim,
-               opts => #{poll_ms => 10, reconnect_ms => 50, max_reconnect_ms => 200,
-                         timeout_ms => 500}}]
-        ++ case Case of
-               hal_refusal_is_an_alarm ->
-                   [#{id => plc2, driver => cell_hal_sim, opts => #{timeout_ms => 0}}];
-               _ ->
-                   []
-           end,
-    #{connections => Conns,
-      groups => [#{id => general, module => cell_monitor_test_io, connection => plc1,
-                   opts => #{part => general}},
-                 #{id => axes, module => cell_monitor_test_io, connection => plc1,
-                   opts => #{part => axes}}],
-      hardware => [#{id => camera, kind => camera, type => sim, opts => #{exposure_ms => 1}},
-                   #{id => reader, kind => code_reader, type => none}]}.
+hal(hal_refusal_is_an_alarm) ->
+    cell_monitor_test_cell:hal([#{id => plc2, driver => cell_hal_sim, opts => #{timeout_ms => 0}}]);
+hal(_) ->
+    cell_monitor_test_cell:hal([]).
 
 monitor() ->
-    #{io => #{estop_ok => {general, estop_voltage}, service_key => {general, service_key},
-              door_locked => {general, door_locked}, air_ok => {general, air_ok},
-              beacon_red => {general, beacon_red}, beacon_yellow => {general, beacon_yellow},
-              beacon_green => {general, beacon_green}, beacon_blue => {general, beacon_blue}},
-      drives => [#{id => x_axis, caption => <<"X axis">>, error => {axes, x_error},
-                   warning => {axes, x_warning}, code => {axes, x_code},
-                   reset => {axes, x_reset}, override => {axes, x_override}},
-                 #{id => y_axis, caption => <<"Y axis">>, override => {axes, y_override},
-                   override_scale => 0.01}]}.
+    cell_monitor_test_cell:monitor().
 
 %% A blank simulated PLC reads all inputs false: the circuit open, doors unlocked, no
 %% air. The cell starts in an emergency stop; a healthy machine puts everything right.

@@ -6,7 +6,7 @@
 
 -include("cell_hal.hrl").
 
--export([start_link/0, start_worker/1, stop_worker/1]).
+-export([start_link/0, start_worker/1, stop_worker/1, child_spec/1]).
 -export([init/1]).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
@@ -35,6 +35,12 @@ init([]) ->
     %% connections means something is badly wrong: escalate so the node reports it.
     Flags = #{strategy => one_for_one, intensity => 10, period => 60},
     {ok, {Flags, [spec(Id) || #hal_conn{id = Id} <- cell_hal_store:conns()]}}.
+
+%% @doc The child spec of a connection's worker, as this supervisor runs it: for a
+%% supervisor of a test's own that kills workers more often than ten a minute.
+-spec child_spec(atom()) -> supervisor:child_spec().
+child_spec(Id) ->
+    spec(Id).
 
 spec(Id) ->
     %% A worker closes its connection in terminate/3; give it time to say goodbye.

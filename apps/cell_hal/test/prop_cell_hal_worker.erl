@@ -21,6 +21,14 @@
 %% <li>a watch fires exactly once, as soon as its condition holds while up (at once if
 %%   it holds when placed), never on an input while down, and is checked again after a
 %%   reconnect.</li>
+%% <li>the worker killed (its supervisor starts it again): a write in the moment it is
+%%   gone is refused with `disconnected' and never reaches the PLC later; if it was up,
+%%   connection subscribers are told of the loss and then of the connection again, the
+%%   outputs read what the PLC holds and every watch is checked again; while the cable
+%%   is out it stays down, its backoff not known to the model until the cable is back.
+%%   The worker runs under a supervisor of the run's own with the product's child spec
+%%   (cell_hal_test_worker_sup): a thousand runs kill it far more often than the
+%%   product's ten restarts a minute allow.</li>
 %% </ul>
 %% Parallel runs race the PLC's side against the HAL's; at the end the cable is in, the
 %% connection up, the inputs read the PLC's values and a reconnect reads its outputs.
@@ -30,7 +38,7 @@
 
 -export([initial_state/0, command/1, precondition/2, postcondition/3, next_state/3]).
 -export([set_input/2, plc_sets_output/2, write/2, read/1, watch/2, cable/1, drop/0,
-         attempts/1]).
+         attempts/1, kill/3]).
 -export([setup/0, cleanup/1, prop_sequential/0, prop_parallel/0, start_conn/1, stop_conn/1]).
 
 -define(WAIT, 5000).
@@ -46,7 +54,9 @@
             hal_out = #{} :: #{atom() => term()},
             watches = [] :: [{term(), atom(), term()}],   %% placed, not fired
             fired = [] :: [term()],
-            wait = ?RECONNECT_MS :: pos_integer(),          %% the next wait when down
+            %% the next wait when down; unknown after a kill while down (the new
+            %% worker's first attempt races the model's next command)
+            wait = ?RECONNECT_MS :: pos_integer() | unknown,
             mode = sequential :: sequential | parallel}).
 
 worker_test_() ->
@@ -97,21 +107,22 @@ zero(_) -> 0.
 value(P) when P =:= bool_in; P =:= bool_out -> boolean();
 value(_) -> integer(0, 3).
 
-command(#m{mode = Mode, cable = Cable, up = Up}) ->
+command(#m{mode = Mode, cable = Cable, up = Up} = M) ->
     frequency([{4, ?LET(P, oneof(?INPUTS), {call, ?MODULE, set_input, [P, value(P)]})},
                {2, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, plc_sets_output, [P, value(P)]})},
                {4, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, write, [P, value(P)]})},
                {3, {call, ?MODULE, read, [oneof(?INPUTS ++ ?OUTPUTS)]}},
                {3, ?LET(P, oneof(?INPUTS ++ ?OUTPUTS), {call, ?MODULE, watch, [P, value(P)]})},
                {case Cable of true -> 2; false -> 4 end, {call, ?MODULE, cable, [not Cable]}},
-               {1, {call, ?MODULE, drop, []}}]
+               {1, {call, ?MODULE, drop, []}},
+               {2, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, kill, [P, value(P), Cable]})}]
               ++ [{2, {call, ?MODULE, attempts, [range(1, 4)]}}
-                  || Mode =:= sequential, not Cable, not Up]).
+                  || Mode =:= sequential, not Cable, not Up, M#m.wait =/= unknown]).
 
 precondition(#m{mode = parallel}, {call, _, attempts, _}) -> false;
 precondition(#m{mode = parallel}, _) -> true;
 precondition(M, {call, _, drop, []}) -> M#m.cable;
-precondition(M, {call, _, attempts, _}) -> not M#m.cable;
+precondition(M, {call, _, attempts, _}) -> not M#m.cable andalso M#m.wait =/= unknown;
 precondition(_, _) -> true.
 
 next_state(#m{mode = parallel} = M, _, _) ->
@@ -137,6 +148,11 @@ next_state(M, _, {call, _, cable, [Cable]}) ->
     M#m{cable = Cable};
 next_state(M, _, {call, _, drop, []}) ->
     reconnected(M);
+next_state(#m{cable = true} = M, _, {call, _, kill, _}) ->
+    %% Killed while up (or coming up): down, then up again with a first complete read.
+    reconnected(M#m{up = false});
+next_state(M, _, {call, _, kill, _}) ->
+    M#m{wait = unknown};
 next_state(M, _, {call, _, attempts, [N]}) ->
     M#m{wait = lists:last(waits(M#m.wait, N + 1))};
 next_state(M, _, _) ->
@@ -203,6 +219,16 @@ check(_, M1, {call, _, cable, _}, Res) ->
     Res =:= ok andalso outputs_read(M1);
 check(_, M1, {call, _, drop, []}, Res) ->
     Res =:= ok andalso outputs_read(M1);
+check(M, M1, {call, _, kill, [P, _, _]}, {Write, Told, Plc, Reads}) ->
+    %% The write in the moment the worker was gone: refused, and not replayed once up
+    %% (the PLC holds what the model says, read after the reconnect).
+    Write =:= {error, disconnected}
+        andalso Plc =:= {ok, maps:get(P, M#m.plc)}
+        andalso Told =:= case M#m.cable of
+                             true -> [down, up];
+                             false -> []
+                         end
+        andalso (not M#m.cable orelse Reads =:= expected_reads(M1));
 check(M, _, {call, _, attempts, [N]}, Res) ->
     %% Every attempt failed: each logged the wait before the next, doubling.
     Res =:= waits(M#m.wait, N).
@@ -214,6 +240,9 @@ fired(Refs, M1) ->
                       after ?WAIT -> io:format(user, "~nwatch ~p not fired (~p)~n", [R, M1]), false
                       end
               end, Refs).
+
+expected_reads(#m{hal_out = Out} = M) ->
+    [{P, {ok, seen(P, M)}} || P <- ?INPUTS] ++ [{P, {ok, maps:get(P, Out)}} || P <- ?OUTPUTS].
 
 outputs_read(#m{hal_out = Out}) ->
     lists:all(fun(P) -> cell_hal:read(io, P) =:= {ok, maps:get(P, Out)} end, ?OUTPUTS).
@@ -235,6 +264,7 @@ allowed({call, _, write, _}, {{error, disconnected}, _, _}) -> true;
 allowed({call, _, read, _}, {ok, _}) -> true;
 allowed({call, _, read, _}, {error, disconnected}) -> true;
 allowed({call, _, watch, _}, Res) -> is_reference(Res);
+allowed({call, _, kill, _}, {Write, _, _, _}) -> Write =:= {error, disconnected};
 allowed(_, Res) -> Res =:= ok orelse element(1, Res) =:= ok.
 
 %% -------------------------------------------------------------------------------------
@@ -297,6 +327,41 @@ drop() ->
             up_and_quiet();
         parallel ->
             ok
+    end.
+
+%% Kills the worker and at once writes an output: a write the worker never confirmed
+%% (it is gone, or its successor is not up yet). Then, in a sequential run with the
+%% cable in (as the model knows it), the connection's news until it is up again, what the PLC holds of that
+%% output and what every point reads.
+kill(P, V, CableIn) ->
+    Sup = ets:lookup_element(?TAB, sup, 2),
+    Old = cell_hal_test_worker_sup:worker(Sup),
+    %% Its supervisor held back (suspended, it leaves the worker's exit in its mailbox),
+    %% so the write surely comes while no worker runs.
+    ok = sys:suspend(Sup),
+    Ref = monitor(process, Old),
+    exit(Old, kill),
+    receive {'DOWN', Ref, process, Old, _} -> ok end,
+    Write = cell_hal:write_sync(io, P, V, ?WAIT),
+    ok = sys:resume(Sup),
+    case mode() =:= sequential andalso CableIn of
+        true ->
+            Told = told_until_up([]),
+            forget_logs(),
+            Reads = [{Q, settled_read(Q, element(2, cell_hal_sim:get({io, Q})))}
+                     || Q <- ?INPUTS] ++ [{Q, cell_hal:read(io, Q)} || Q <- ?OUTPUTS],
+            {Write, Told, cell_hal_sim:get({io, P}), Reads};
+        _ ->
+            {Write, [], cell_hal_sim:get({io, P}), []}
+    end.
+
+%% The connection's news in order, until it is up.
+told_until_up(Acc) ->
+    Conn = conn(),
+    receive
+        {cell_hal_conn, Conn, up} -> lists:reverse([up | Acc]);
+        {cell_hal_conn, Conn, S} -> told_until_up([S | Acc])
+    after ?WAIT -> lists:reverse([timeout | Acc])
     end.
 
 %% The waits the worker logs after its next N failed attempts (it logs the wait before
@@ -412,6 +477,7 @@ start_conn(Mode) ->
                                              timeout_ms => 500}}),
     ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => Conn,
                               opts => #{only => ?INPUTS ++ ?OUTPUTS}}),
+    true = ets:insert(?TAB, {sup, cell_hal_test_worker_sup:adopt(Conn)}),
     ok = cell_hal_sim:preset(Conn, maps:from_list([{{io, P}, zero(P)} || P <- ?INPUTS ++ ?OUTPUTS])),
     %% Up, and the outputs read back from the PLC's preset image.
     ok = case cell_hal:subscribe_connection(Conn) of
@@ -429,6 +495,7 @@ start_conn(Mode) ->
 stop_conn(Conn) ->
     _ = cell_log:unsubscribe(),
     ok = cell_hal:unsubscribe_connection(Conn),
+    ok = cell_hal_test_worker_sup:release(ets:lookup_element(?TAB, sup, 2)),
     ok = cell_hal_sim:stop_device(Conn),
     ok = cell_hal:remove_group(io),
     ok = cell_hal:remove_connection(Conn),
