@@ -25,7 +25,7 @@
 -module(cell_vplc).
 -behaviour(gen_server).
 
--export([start_link/0, port/0, setup/2, main/0]).
+-export([start_link/0, port/0, setup/2, main/0, merge_settings/2]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, terminate/2]).
 
 -define(LISTENER, cell_vplc_listener).
@@ -52,6 +52,48 @@ main() ->
         {error, Why} ->
             io:format(standard_error, "the virtual PLC could not start: ~tp~n", [Why]),
             erlang:halt(1)
+    end.
+
+%% @doc Sets fields of settings objects saved in the cell root `Root' (`Settings/<name>.json'
+%% for each `Name => Fields'), keeping the fields already there: how `make run' points
+%% the default cell at its virtual PLC (`simulation_mode' off, the PLC's host and port)
+%% or back at the in-VM simulated PLC, before the cell starts there. A file that is
+%% not a JSON object is an error and is left as it is.
+-spec merge_settings(file:filename(), #{atom() => map()}) -> ok | {error, term()}.
+merge_settings(Root, Objects) ->
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:fold(fun(Name, Fields, ok) ->
+                      merge_file(filename:join(Dir, atom_to_list(Name) ++ ".json"), Fields);
+                 (_, _, Error) ->
+                      Error
+              end, ok, Objects).
+
+merge_file(Path, Fields) ->
+    case saved_object(Path) of
+        {ok, Saved} ->
+            New = maps:fold(fun(K, V, Acc) -> Acc#{atom_to_binary(K) => V} end, Saved, Fields),
+            case cell_file:write(Path, jsx:encode(New)) of
+                ok -> ok;
+                {error, Why} -> {error, {cannot_write, Path, Why}}
+            end;
+        Error ->
+            Error
+    end.
+
+saved_object(Path) ->
+    case file:read_file(Path) of
+        {ok, Bin} ->
+            try jsx:decode(Bin, [return_maps]) of
+                Saved when is_map(Saved) -> {ok, Saved};
+                _ -> {error, {not_a_json_object, Path}}
+            catch
+                error:_ -> {error, {not_a_json_object, Path}}
+            end;
+        {error, enoent} ->
+            {ok, #{}};
+        {error, Why} ->
+            {error, {cannot_read, Path, Why}}
     end.
 
 %% @doc What a cell spec's HAL serves over Modbus: the connection (`Conn', or the
