@@ -169,6 +169,10 @@ real_mode_vplc_killed(Config) ->
         try
             ok = erpc:call(Node, cell_testkit, await_connection, [router_plc, ?WAIT_MS],
                            ?WAIT_MS + 5000),
+            %% The monitor withdraws its error of the lost PLC once it is back: not
+            %% one for the operator to answer then.
+            ok = erpc:call(Node, router_release_probe, await_gone,
+                           [<<"cell:connection.router_plc">>, ?WAIT_MS], ?WAIT_MS + 5000),
             #{total := #{cell := #{out := Out0}}} =
                 erpc:call(Node, router_release_probe, books, []),
             %% The operator's Retry to each error; the line goes on.

@@ -3,7 +3,7 @@
 -module(router_release_probe).
 
 -export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0,
-         await_left/2, await_committed/1, await_alarm/2, books/0]).
+         await_left/2, await_committed/1, await_alarm/2, await_gone/2, books/0]).
 
 %% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
 %% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
@@ -133,6 +133,21 @@ await_alarm(Caption, Timeout) ->
         [] ->
             receive
                 {cell_event, #{type := alarm_raised}} -> await_alarm(Caption, Timeout)
+            after Timeout ->
+                timeout
+            end
+    end.
+
+%% Returns once no active alarm has the id `Id' (answered, cleared or withdrawn).
+-spec await_gone(binary(), pos_integer()) -> ok | timeout.
+await_gone(Id, Timeout) ->
+    ok = cell_events:subscribe([alarm_cleared]),
+    case lists:any(fun(#{id := I}) -> I =:= Id end, cell_alarms:list()) of
+        false ->
+            ok;
+        true ->
+            receive
+                {cell_event, #{type := alarm_cleared}} -> await_gone(Id, Timeout)
             after Timeout ->
                 timeout
             end
