@@ -44,15 +44,32 @@ port() ->
     ranch:get_port(?LISTENER).
 
 %% @doc What `scripts/vplc' runs: starts the application, or stops the node saying why.
+%% A virtual PLC that cannot go on (its port taken, its cell's spec refused: its
+%% supervisor gives up) ends its node too, so whoever started it sees the process end.
 -spec main() -> ok.
 main() ->
     case application:ensure_all_started(cell_vplc) of
         {ok, _} ->
+            Sup = whereis(cell_vplc_sup),
+            _ = spawn(fun() ->
+                              Ref = monitor(process, Sup),
+                              receive
+                                  {'DOWN', Ref, process, _, Why} ->
+                                      stopped(init:get_status(), Why)
+                              end
+                      end),
             ok;
         {error, Why} ->
             io:format(standard_error, "the virtual PLC could not start: ~tp~n", [Why]),
             erlang:halt(1)
     end.
+
+%% The node stopping (SIGTERM) stops the application too: that is no failure.
+stopped({stopping, _}, _Why) ->
+    ok;
+stopped(_, Why) ->
+    io:format(standard_error, "the virtual PLC stopped: ~tp~n", [Why]),
+    erlang:halt(1).
 
 %% @doc Sets fields of settings objects saved in the cell root `Root' (`Settings/<name>.json'
 %% for each `Name => Fields'), keeping the fields already there: how `make run' points
