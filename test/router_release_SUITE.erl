@@ -12,13 +12,13 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1]).
--export([run_answer_stop_restart/1, real_mode_vplc_killed/1]).
+-export([run_answer_stop_restart/1, real_mode_vplc_killed/1, make_run_with_vplc/1]).
 
 -define(COOKIE, cellrt_ct_router).
 -define(WAIT_MS, 120000).
 
 all() ->
-    [run_answer_stop_restart, real_mode_vplc_killed].
+    [run_answer_stop_restart, real_mode_vplc_killed, make_run_with_vplc].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -265,6 +265,67 @@ await_exit(P) ->
         {P, {data, _}} -> await_exit(P)
     after ?WAIT_MS ->
         ct:fail(vplc_not_killed)
+    end.
+
+%% `make run' (scripts/run) as a user starts it: a virtual PLC, then the cell in real
+%% mode connected to it over Modbus TCP; told to stop, the script stops the cell, then
+%% the virtual PLC: neither is left running.
+make_run_with_vplc(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "router_release_SUITE.run"),
+    NodeName = "cellrt_ct_router_run_" ++ os:getpid(),
+    Node = list_to_atom(NodeName ++ "@localhost"),
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
+           {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
+           {"CELLRT_SHDR_PORT", "0"}, {"CELLRT_VPLC_PORT", "0"}, {"CELLRT_SIM", false}],
+    true = erlang:set_cookie(Node, ?COOKIE),
+    Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
+    Run = open_port({spawn_executable, Script},
+                    [{env, Env}, {line, 4096}, exit_status, stderr_to_stdout, binary]),
+    try
+        Port = await_line(Run, <<"cellrt: the cell in real mode over Modbus TCP, its PLC the "
+                                 "virtual PLC at 127.0.0.1 port ">>,
+                          erlang:monotonic_time(millisecond) + ?WAIT_MS),
+        %% The node's own line once its panel listens: it is up.
+        _ = await_line(Run, <<"operator panel on http">>,
+                       erlang:monotonic_time(millisecond) + ?WAIT_MS),
+        ok = cellrt_rel:await_boot(Node, ?WAIT_MS),
+        ?assertMatch(#{simulation_mode := false},
+                     erpc:call(Node, cell_spec_helpers, machine_settings, [])),
+        ok = erpc:call(Node, cell_testkit, await_connection, [router_plc, ?WAIT_MS],
+                       ?WAIT_MS + 5000),
+        {ok, #{endpoint := Endpoint}} = erpc:call(Node, cell_hal, info, [router_plc]),
+        ct:log("the cell's PLC: ~ts", [Endpoint]),
+        {os_pid, Pid} = erlang:port_info(Run, os_pid),
+        _ = os:cmd("kill -TERM " ++ integer_to_list(Pid)),
+        ?assertEqual(0, await_exit_status(Run)),
+        ok = await_down(Node),
+        ?assertEqual({error, econnrefused},
+                     gen_tcp:connect({127, 0, 0, 1}, binary_to_integer(Port), []))
+    after
+        cellrt(cellrt_rel:bin(), ["stop"], Env)
+    end.
+
+%% What follows `Part' in the first line of the port `P' that holds it.
+await_line(P, Part, Deadline) ->
+    receive
+        {P, {data, {_, Line}}} ->
+            ct:log("run: ~ts", [Line]),
+            case binary:split(Line, Part) of
+                [_, Rest] -> Rest;
+                [_] -> await_line(P, Part, Deadline)
+            end;
+        {P, {exit_status, S}} ->
+            ct:fail({run_exited, S})
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({no_line, Part})
+    end.
+
+await_exit_status(P) ->
+    receive
+        {P, {exit_status, S}} -> S;
+        {P, {data, {_, Line}}} -> ct:log("run: ~ts", [Line]), await_exit_status(P)
+    after ?WAIT_MS ->
+        ct:fail(run_not_stopped)
     end.
 
 %% The lines an MTConnect agent receives when it connects, up to the answer to a PING.
