@@ -302,7 +302,14 @@ make_run_with_vplc(Config) ->
         ?assertEqual({error, econnrefused},
                      gen_tcp:connect({127, 0, 0, 1}, binary_to_integer(Port), []))
     after
-        cellrt(cellrt_rel:bin(), ["stop"], Env)
+        %% A case that failed midway stops the script, which stops what it started.
+        case erlang:port_info(Run, os_pid) of
+            {os_pid, Left} ->
+                _ = os:cmd("kill -TERM " ++ integer_to_list(Left)),
+                _ = await_exit_status(Run);
+            undefined ->
+                ok
+        end
     end.
 
 %% What follows `Part' in the first line of the port `P' that holds it.
