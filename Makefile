@@ -22,7 +22,9 @@ compile: setup
 release: setup
 	@$(REBAR) release
 
-## Builds the release and starts the default cell in the foreground; Ctrl-C stops it.
+## Builds the release and starts the default cell in the foreground, in real mode over
+## Modbus TCP against a virtual PLC of its own (scripts/vplc, stopped with the cell);
+## CELLRT_SIM=vm for the in-VM simulated PLC instead. Ctrl-C stops it.
 run: release
 	@scripts/run
 

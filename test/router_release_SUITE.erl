@@ -12,13 +12,13 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_suite/1, end_per_suite/1]).
--export([run_answer_stop_restart/1]).
+-export([run_answer_stop_restart/1, real_mode_vplc_killed/1, make_run_with_vplc/1]).
 
 -define(COOKIE, cellrt_ct_router).
 -define(WAIT_MS, 120000).
 
 all() ->
-    [run_answer_stop_restart].
+    [run_answer_stop_restart, real_mode_vplc_killed, make_run_with_vplc].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -108,10 +108,236 @@ run_answer_stop_restart(Config) ->
         cellrt(Bin, ["stop"], Env)
     end.
 
-%% The lines an MTConnect agent receives when it connects, up to the answer to a PING.
-shdr_snapshot(Node) ->
+%% The default cell as `make run' runs it: in real mode, over Modbus TCP, against a
+%% virtual PLC in an OS process of its own. Parts flow; the virtual PLC's process is
+%% killed while a product is on its way between two tasks: the cell shows the
+%% connection error (REST and SHDR) and holds its products; the virtual PLC is started
+%% again on the same port, the operator answers Retry, and the line goes on (the tasks
+%% write again the outputs the restarted PLC holds at zero). Every serial that entered
+%% is in the cell or has left, once.
+real_mode_vplc_killed(Config) ->
+    Priv = ?config(priv_dir, Config),
+    Root = filename:join(Priv, "router_release_SUITE.real"),
+    VRoot = filename:join(Priv, "router_release_SUITE.vplc"),
+    NodeName = "cellrt_ct_router_real_" ++ os:getpid(),
+    Node = list_to_atom(NodeName ++ "@localhost"),
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
+           {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
+           {"CELLRT_SHDR_PORT", "0"}],
+    %% A fast machine without mistakes of its own: the errors are the lost PLC's.
+    Sim = #{time_scale => 0.05, arrival_ms => 0},
+    Router = #{hal_poll_ms => 10},
+    ok = router_test_settings:write(VRoot, #{router_sim => Sim, router => Router}),
+    {Vplc, Port} = start_vplc(VRoot, 0),
+    ok = router_test_settings:write(Root, #{machine => #{simulation_mode => false},
+                                            router_sim => Sim,
+                                            router => Router#{plc_host => <<"127.0.0.1">>,
+                                                              plc_port => Port}}),
+    Bin = ?config(bin, Config),
+    true = erlang:set_cookie(Node, ?COOKIE),
+    try
+        Op = boot(Bin, Env, Node),
+        {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
+        Answers = run(Op, Node, await_left, 3, #{}),
+        %% The PLC goes while a product is between two tasks.
+        {committed, Link, Serial} =
+            erpc:call(Node, router_release_probe, await_committed, [?WAIT_MS], ?WAIT_MS + 5000),
+        %% Factory IT's view: an agent connected before the PLC goes.
+        Shdr = shdr_connect(Node),
+        ct:log("virtual PLC killed while ~s passes ~s", [Serial, Link]),
+        kill_vplc(Vplc),
+        {alarm, #{id := Id, kind := error}} =
+            erpc:call(Node, router_release_probe, await_alarm, [<<"IO connection lost">>, ?WAIT_MS],
+                      ?WAIT_MS + 5000),
+        {200, Alarms, _} = cell_web_client:req(Op, get, "/api/alarms"),
+        ct:log("alarms: ~p", [Alarms]),
+        ?assert(lists:any(fun(#{<<"caption">> := C}) -> C =:= <<"IO connection lost">>;
+                             (_) -> false
+                          end, Alarms), Alarms),
+        %% The same error as a FAULT condition over SHDR.
+        FaultLine = shdr_await(Shdr, [<<"|FAULT|">>, <<"IO connection lost">>],
+                               erlang:monotonic_time(millisecond) + ?WAIT_MS),
+        ct:log("SHDR: ~s", [FaultLine]),
+        ok = gen_tcp:close(Shdr),
+        %% The cell holds its products: each serial still in one task.
+        #{held := Held} = erpc:call(Node, router_release_probe, books, []),
+        ?assertNotEqual([], Held),
+        ?assertEqual(lists:usort(Held), lists:sort(Held)),
+        ct:log("held while the PLC is away: ~s (error ~s)", [lists:join(" ", Held), Id]),
+        %% The virtual PLC back on the same port; the connection comes up again.
+        {Vplc2, Port} = start_vplc(VRoot, Port),
+        try
+            ok = erpc:call(Node, cell_testkit, await_connection, [router_plc, ?WAIT_MS],
+                           ?WAIT_MS + 5000),
+            %% The monitor withdraws its error of the lost PLC once it is back: not
+            %% one for the operator to answer then.
+            ok = erpc:call(Node, router_release_probe, await_gone,
+                           [<<"cell:connection.router_plc">>, ?WAIT_MS], ?WAIT_MS + 5000),
+            #{total := #{cell := #{out := Out0}}} =
+                erpc:call(Node, router_release_probe, books, []),
+            %% The operator's Retry to each error; the line goes on.
+            Answers2 = run(Op, Node, await_left, Out0 + 3, Answers),
+            ?assert(maps:get(retry, Answers2, 0) >= 1),
+            %% Retry was enough: every error answered was the lost connection's (a
+            %% task's lost IO, the monitor's lost PLC), none a transfer or a move that
+            %% timed out because an output the restarted PLC held at zero was not
+            %% written again.
+            {200, History, _} = cell_web_client:req(Op, get, "/api/alarms/history"),
+            ct:log("answers:~n~ts", [[[I, " ", W, "\n"] || #{<<"id">> := I, <<"what">> := W} <- History]]),
+            [?assert(binary:longest_common_suffix([I, <<":io">>]) =:= 3 orelse
+                         binary:match(I, <<"connection.router_plc">>) =/= nomatch, I)
+             || #{<<"id">> := I, <<"what">> := W} <- History,
+                lists:member(W, [<<"retry">>, <<"ignore">>, <<"reset">>])],
+            {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
+            ok = stopped(Op, Node),
+            #{total := #{cell := #{in := In, out := Out, scrapped := Scrapped},
+                         in_cell := InCell},
+              held := HeldEnd} = erpc:call(Node, router_release_probe, books, []),
+            ?assertEqual(In, Out + Scrapped + InCell),
+            ?assertEqual(InCell, length(HeldEnd)),
+            Serials = lists:usort(lists:append(
+                                    [erpc:call(Node, mnesia, dirty_all_keys, [Tab])
+                                     || Tab <- [cell_trace_product, cell_trace_open]])),
+            ?assertEqual(In, length(Serials)),
+            [check_history(Op, S) || S <- Serials]
+        after
+            cellrt(Bin, ["stop"], Env),
+            kill_vplc(Vplc2)
+        end
+    after
+        cellrt(Bin, ["stop"], Env),
+        kill_vplc(Vplc)
+    end.
+
+shdr_connect(Node) ->
     Port = erpc:call(Node, cell_shdr, port, []),
     {ok, S} = gen_tcp:connect({127, 0, 0, 1}, Port, [binary, {active, false}, {packet, line}]),
+    S.
+
+%% Reads an SHDR connection's lines until one holds every one of `Parts'.
+shdr_await(S, Parts, Deadline) ->
+    case gen_tcp:recv(S, 0, max(0, Deadline - erlang:monotonic_time(millisecond))) of
+        {ok, Line} ->
+            case lists:all(fun(P) -> binary:match(Line, P) =/= nomatch end, Parts) of
+                true -> string:trim(Line, trailing, "\r\n");
+                false -> shdr_await(S, Parts, Deadline)
+            end;
+        {error, Why} ->
+            ct:fail({no_shdr_line, Parts, Why})
+    end.
+
+%% Starts scripts/vplc for the router on `Port' (0: one the OS picks), root `Root';
+%% returns once it listens: its port (of the OS process) and the port it listens on.
+start_vplc(Root, Port) ->
+    Script = filename:join([cellrt_rel:top(), "scripts", "vplc"]),
+    P = open_port({spawn_executable, Script},
+                  [{args, ["--port", integer_to_list(Port), "--root", Root]},
+                   {line, 4096}, exit_status, stderr_to_stdout, binary]),
+    {P, await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS)}.
+
+await_listening(P, Deadline) ->
+    receive
+        {P, {data, {eol, <<"virtual PLC of router_cell listening on ", Rest/binary>>}}} ->
+            [_, PortText] = binary:split(Rest, <<" port ">>),
+            binary_to_integer(PortText);
+        {P, {data, {_, Line}}} ->
+            ct:log("vplc: ~s", [Line]),
+            await_listening(P, Deadline);
+        {P, {exit_status, S}} ->
+            ct:fail({vplc_exited, S})
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail(vplc_not_listening)
+    end.
+
+%% Kills the virtual PLC's OS process outright, and waits for its end.
+kill_vplc(P) ->
+    case erlang:port_info(P, os_pid) of
+        {os_pid, Pid} ->
+            _ = os:cmd("kill -KILL " ++ integer_to_list(Pid)),
+            await_exit(P);
+        undefined ->
+            ok
+    end.
+
+await_exit(P) ->
+    receive
+        {P, {exit_status, _}} -> ok;
+        {P, {data, _}} -> await_exit(P)
+    after ?WAIT_MS ->
+        ct:fail(vplc_not_killed)
+    end.
+
+%% `make run' (scripts/run) as a user starts it: a virtual PLC, then the cell in real
+%% mode connected to it over Modbus TCP; told to stop, the script stops the cell, then
+%% the virtual PLC: neither is left running.
+make_run_with_vplc(Config) ->
+    Root = filename:join(?config(priv_dir, Config), "router_release_SUITE.run"),
+    NodeName = "cellrt_ct_router_run_" ++ os:getpid(),
+    Node = list_to_atom(NodeName ++ "@localhost"),
+    Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
+           {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
+           {"CELLRT_SHDR_PORT", "0"}, {"CELLRT_VPLC_PORT", "0"}, {"CELLRT_SIM", false}],
+    true = erlang:set_cookie(Node, ?COOKIE),
+    Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
+    Run = open_port({spawn_executable, Script},
+                    [{env, Env}, {line, 4096}, exit_status, stderr_to_stdout, binary]),
+    try
+        Port = await_line(Run, <<"cellrt: the cell in real mode over Modbus TCP, its PLC the "
+                                 "virtual PLC at 127.0.0.1 port ">>,
+                          erlang:monotonic_time(millisecond) + ?WAIT_MS),
+        %% The node's own line once its panel listens: it is up.
+        _ = await_line(Run, <<"operator panel on http">>,
+                       erlang:monotonic_time(millisecond) + ?WAIT_MS),
+        ok = cellrt_rel:await_boot(Node, ?WAIT_MS),
+        ?assertMatch(#{simulation_mode := false},
+                     erpc:call(Node, cell_spec_helpers, machine_settings, [])),
+        ok = erpc:call(Node, cell_testkit, await_connection, [router_plc, ?WAIT_MS],
+                       ?WAIT_MS + 5000),
+        {ok, #{endpoint := Endpoint}} = erpc:call(Node, cell_hal, info, [router_plc]),
+        ct:log("the cell's PLC: ~ts", [Endpoint]),
+        {os_pid, Pid} = erlang:port_info(Run, os_pid),
+        _ = os:cmd("kill -TERM " ++ integer_to_list(Pid)),
+        ?assertEqual(0, await_exit_status(Run)),
+        ok = await_down(Node),
+        ?assertEqual({error, econnrefused},
+                     gen_tcp:connect({127, 0, 0, 1}, binary_to_integer(Port), []))
+    after
+        %% A case that failed midway stops the script, which stops what it started.
+        case erlang:port_info(Run, os_pid) of
+            {os_pid, Left} ->
+                _ = os:cmd("kill -TERM " ++ integer_to_list(Left)),
+                _ = await_exit_status(Run);
+            undefined ->
+                ok
+        end
+    end.
+
+%% What follows `Part' in the first line of the port `P' that holds it.
+await_line(P, Part, Deadline) ->
+    receive
+        {P, {data, {_, Line}}} ->
+            ct:log("run: ~ts", [Line]),
+            case binary:split(Line, Part) of
+                [_, Rest] -> Rest;
+                [_] -> await_line(P, Part, Deadline)
+            end;
+        {P, {exit_status, S}} ->
+            ct:fail({run_exited, S})
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({no_line, Part})
+    end.
+
+await_exit_status(P) ->
+    receive
+        {P, {exit_status, S}} -> S;
+        {P, {data, {_, Line}}} -> ct:log("run: ~ts", [Line]), await_exit_status(P)
+    after ?WAIT_MS ->
+        ct:fail(run_not_stopped)
+    end.
+
+%% The lines an MTConnect agent receives when it connects, up to the answer to a PING.
+shdr_snapshot(Node) ->
+    S = shdr_connect(Node),
     ok = gen_tcp:send(S, <<"* PING\n">>),
     Lines = shdr_lines(S, []),
     ok = gen_tcp:close(S),
@@ -151,7 +377,12 @@ check_history(Op, Serial) ->
 %% Runs the line until `Target' products were delivered, answering every error
 %% through the API: Retry, Ignore, Reset in turn where offered, else the first offered.
 run(Op, Node, Target, Answers) ->
-    case erpc:call(Node, router_release_probe, await, [Target, ?WAIT_MS], ?WAIT_MS + 5000) of
+    run(Op, Node, await, Target, Answers).
+
+%% As run/4, with the probe's wait `Await' (await: the in-VM machine's count of
+%% delivered products; await_left: the cell's own count of products out).
+run(Op, Node, Await, Target, Answers) ->
+    case erpc:call(Node, router_release_probe, Await, [Target, ?WAIT_MS], ?WAIT_MS + 5000) of
         {out, _} ->
             Answers;
         timeout ->
@@ -166,7 +397,8 @@ run(Op, Node, Target, Answers) ->
                        end,
             Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(Id)) ++ "/answer",
             {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => Solution}),
-            run(Op, Node, Target, maps:update_with(Solution, fun(X) -> X + 1 end, 1, Answers))
+            run(Op, Node, Await, Target,
+                maps:update_with(Solution, fun(X) -> X + 1 end, 1, Answers))
     end.
 
 %% Waits for OFF after a Stop, answering Retry to an error a move that was finishing

@@ -2,7 +2,8 @@
 %% cell does: waiting is done on the cell's events, never by asking again and again.
 -module(router_release_probe).
 
--export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0]).
+-export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0,
+         await_left/2, await_committed/1, await_alarm/2, await_gone/2, books/0]).
 
 %% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
 %% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
@@ -81,3 +82,80 @@ time_check() ->
     Checks = cell_stats:time_check(),
     [begin {Sum, Span} = maps:get(T, Checks), {T, Sum, Span} end
      || #{id := T} <- cell_controller:tasks()].
+
+%% As await/2, for a cell whose machine is not in this node (real mode): returns as
+%% soon as an error waits for the operator, or `Target' products have left the cell by
+%% its own books (`{out, N}'), within `Timeout' ms.
+-spec await_left(non_neg_integer(), pos_integer()) ->
+          {error, map()} | {out, non_neg_integer()} | timeout.
+await_left(Target, Timeout) ->
+    ok = cell_events:subscribe([alarm_raised, item_transfer_out]),
+    left_loop(Target, erlang:monotonic_time(millisecond) + Timeout).
+
+left_loop(Target, Deadline) ->
+    case [A || #{kind := error} = A <- cell_alarms:list()] of
+        [A | _] ->
+            {error, maps:with([id, caption, solutions, task], A)};
+        [] ->
+            ok = cell_stats:flush(),
+            #{cell := #{out := N}} = cell_stats:summary(total),
+            case N >= Target of
+                true ->
+                    {out, N};
+                false ->
+                    receive
+                        {cell_event, _} -> left_loop(Target, Deadline)
+                    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+                        timeout
+                    end
+            end
+    end.
+
+%% Returns once a handshake link commits a transfer (the product on its way from one
+%% task to the next): `{committed, Link, Serial}', or `timeout'.
+-spec await_committed(pos_integer()) -> {committed, atom(), term()} | timeout.
+await_committed(Timeout) ->
+    ok = cell_events:subscribe([link_phase]),
+    receive
+        {cell_event, #{type := link_phase, phase := committed, link := Link, serial := S}} ->
+            {committed, Link, S}
+    after Timeout ->
+        timeout
+    end.
+
+%% Returns the first active alarm with the caption `Caption', as soon as there is one.
+-spec await_alarm(binary(), pos_integer()) -> {alarm, map()} | timeout.
+await_alarm(Caption, Timeout) ->
+    ok = cell_events:subscribe([alarm_raised]),
+    case [A || #{caption := C} = A <- cell_alarms:list(), iolist_to_binary(C) =:= Caption] of
+        [A | _] ->
+            {alarm, A};
+        [] ->
+            receive
+                {cell_event, #{type := alarm_raised}} -> await_alarm(Caption, Timeout)
+            after Timeout ->
+                timeout
+            end
+    end.
+
+%% Returns once no active alarm has the id `Id' (answered, cleared or withdrawn).
+-spec await_gone(binary(), pos_integer()) -> ok | timeout.
+await_gone(Id, Timeout) ->
+    ok = cell_events:subscribe([alarm_cleared]),
+    case lists:any(fun(#{id := I}) -> I =:= Id end, cell_alarms:list()) of
+        false ->
+            ok;
+        true ->
+            receive
+                {cell_event, #{type := alarm_cleared}} -> await_gone(Id, Timeout)
+            after Timeout ->
+                timeout
+            end
+    end.
+
+%% The cell's own books: its totals and the serials its tasks hold.
+-spec books() -> map().
+books() ->
+    ok = cell_stats:flush(),
+    #{total => cell_stats:summary(total),
+      held => lists:sort([S || #{serial := S} <- cell_controller:tasks(), is_binary(S)])}.

@@ -12,7 +12,7 @@ image() ->
 
 last_command_wins_test() ->
     ?assertEqual(#{{conv, motor} => true, {conv, lamp} => false, {robot, move} => 3,
-                   {robot, grip} => true}, image()).
+                   {robot, grip} => true}, maps:map(fun(_, {_, V}) -> V end, image())).
 
 nothing_to_write_when_the_device_holds_the_image_test() ->
     Now = #{{conv, motor} => true, {conv, lamp} => false},
@@ -27,9 +27,22 @@ only_the_lost_connections_groups_test() ->
     %% conv's connection was not lost: a difference there is not this path's to undo.
     Now = #{{conv, motor} => false, {conv, lamp} => false, {robot, move} => 0,
             {robot, grip} => false},
-    ?assertEqual([{robot, grip, true}, {robot, move, 3}], writes(image(), [robot], Now)),
-    ?assertEqual([{conv, motor, true}, {robot, grip, true}, {robot, move, 3}],
+    ?assertEqual([{robot, move, 3}, {robot, grip, true}], writes(image(), [robot], Now)),
+    ?assertEqual([{conv, motor, true}, {robot, move, 3}, {robot, grip, true}],
                  writes(image(), [conv, robot], Now)).
+
+%% A PLC restarted with every output at zero: the robot's target is written before the
+%% command that starts the move, as the task wrote them, or the robot would move to
+%% the stale target; an output commanded again takes the place of its last command.
+in_the_order_the_task_commanded_test() ->
+    I = lists:foldl(fun({G, P, V}, Acc) -> command(Acc, G, P, V) end, new(),
+                    [{robot, target, 1}, {robot, command, 7}, {robot, grip, true}]),
+    Zero = #{{robot, target} => 0, {robot, command} => 0, {robot, grip} => false},
+    ?assertEqual([{robot, target, 1}, {robot, command, 7}, {robot, grip, true}],
+                 writes(I, [robot], Zero)),
+    I2 = command(command(I, robot, target, 4), robot, command, 8),
+    ?assertEqual([{robot, grip, true}, {robot, target, 4}, {robot, command, 8}],
+                 writes(I2, [robot], Zero)).
 
 an_output_that_cannot_be_read_is_written_test() ->
     ?assertEqual([{conv, lamp, false}], writes(image(), [conv], #{{conv, motor} => true})).

@@ -25,7 +25,7 @@
 -module(cell_vplc).
 -behaviour(gen_server).
 
--export([start_link/0, port/0, setup/2, main/0]).
+-export([start_link/0, port/0, setup/2, main/0, merge_settings/2]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, terminate/2]).
 
 -define(LISTENER, cell_vplc_listener).
@@ -44,14 +44,73 @@ port() ->
     ranch:get_port(?LISTENER).
 
 %% @doc What `scripts/vplc' runs: starts the application, or stops the node saying why.
+%% A virtual PLC that cannot go on (its port taken, its cell's spec refused: its
+%% supervisor gives up) ends its node too, so whoever started it sees the process end.
 -spec main() -> ok.
 main() ->
     case application:ensure_all_started(cell_vplc) of
         {ok, _} ->
+            Sup = whereis(cell_vplc_sup),
+            _ = spawn(fun() ->
+                              Ref = monitor(process, Sup),
+                              receive
+                                  {'DOWN', Ref, process, _, Why} ->
+                                      stopped(init:get_status(), Why)
+                              end
+                      end),
             ok;
         {error, Why} ->
             io:format(standard_error, "the virtual PLC could not start: ~tp~n", [Why]),
             erlang:halt(1)
+    end.
+
+%% The node stopping (SIGTERM) stops the application too: that is no failure.
+stopped({stopping, _}, _Why) ->
+    ok;
+stopped(_, Why) ->
+    io:format(standard_error, "the virtual PLC stopped: ~tp~n", [Why]),
+    erlang:halt(1).
+
+%% @doc Sets fields of settings objects saved in the cell root `Root' (`Settings/<name>.json'
+%% for each `Name => Fields'), keeping the fields already there: how `make run' points
+%% the default cell at its virtual PLC (`simulation_mode' off, the PLC's host and port)
+%% or back at the in-VM simulated PLC, before the cell starts there. A file that is
+%% not a JSON object is an error and is left as it is.
+-spec merge_settings(file:filename(), #{atom() => map()}) -> ok | {error, term()}.
+merge_settings(Root, Objects) ->
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:fold(fun(Name, Fields, ok) ->
+                      merge_file(filename:join(Dir, atom_to_list(Name) ++ ".json"), Fields);
+                 (_, _, Error) ->
+                      Error
+              end, ok, Objects).
+
+merge_file(Path, Fields) ->
+    case saved_object(Path) of
+        {ok, Saved} ->
+            New = maps:fold(fun(K, V, Acc) -> Acc#{atom_to_binary(K) => V} end, Saved, Fields),
+            case cell_file:write(Path, jsx:encode(New)) of
+                ok -> ok;
+                {error, Why} -> {error, {cannot_write, Path, Why}}
+            end;
+        Error ->
+            Error
+    end.
+
+saved_object(Path) ->
+    case file:read_file(Path) of
+        {ok, Bin} ->
+            try jsx:decode(Bin, [return_maps]) of
+                Saved when is_map(Saved) -> {ok, Saved};
+                _ -> {error, {not_a_json_object, Path}}
+            catch
+                error:_ -> {error, {not_a_json_object, Path}}
+            end;
+        {error, enoent} ->
+            {ok, #{}};
+        {error, Why} ->
+            {error, {cannot_read, Path, Why}}
     end.
 
 %% @doc What a cell spec's HAL serves over Modbus: the connection (`Conn', or the

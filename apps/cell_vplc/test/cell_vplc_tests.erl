@@ -37,3 +37,30 @@ refused_test_() ->
                    cell_vplc:setup(Two, undefined)),
      ?_assertMatch({ok, #{conn := plc2, points := []}}, cell_vplc:setup(Two, plc2)),
      ?_assertEqual({error, no_hal}, cell_vplc:setup(#{tasks => []}, undefined))].
+
+%% How `make run' points the cell at its virtual PLC: the fields set, the others kept,
+%% a missing file made, a file that is no JSON object refused and left as it was.
+merge_settings_test() ->
+    Root = filename:join(os:getenv("TMPDIR", "/tmp"),
+                         "cell_vplc_merge_" ++ os:getpid() ++ "_"
+                         ++ integer_to_list(erlang:unique_integer([positive]))),
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    Machine = filename:join(Dir, "machine.json"),
+    ok = file:write_file(Machine, <<"{\"dual_lane\": true, \"simulation_mode\": true}">>),
+    try
+        ok = cell_vplc:merge_settings(Root, #{machine => #{simulation_mode => false},
+                                              router => #{plc_host => <<"127.0.0.1">>,
+                                                          plc_port => 1502}}),
+        ?assertEqual(#{<<"dual_lane">> => true, <<"simulation_mode">> => false},
+                     jsx:decode(element(2, file:read_file(Machine)), [return_maps])),
+        {ok, Router} = file:read_file(filename:join(Dir, "router.json")),
+        ?assertEqual(#{<<"plc_host">> => <<"127.0.0.1">>, <<"plc_port">> => 1502},
+                     jsx:decode(Router, [return_maps])),
+        ok = file:write_file(Machine, <<"[1,">>),
+        ?assertMatch({error, {not_a_json_object, _}},
+                     cell_vplc:merge_settings(Root, #{machine => #{simulation_mode => true}})),
+        ?assertEqual({ok, <<"[1,">>}, file:read_file(Machine))
+    after
+        _ = file:del_dir_r(Root)
+    end.

@@ -10,6 +10,10 @@
 %% the HAL now reads differently from the image (or cannot read) is written again, so
 %% the task goes on with its outputs as it last commanded them.
 %%
+%% The writes go in the order the task last commanded those outputs, as the task's own
+%% writes did: a robot's target before the command that starts the move to it, so that
+%% a PLC that lost both does not start a move to a stale target.
+%%
 %% The image holds only what the task wrote itself; securing (uninit: Stop, Reset,
 %% emergency stop) clears it, so a secured output is never set again by this path.
 -module(cell_task_outputs).
@@ -17,7 +21,8 @@
 -export([new/0, command/4, writes/3, text/1]).
 -export_type([image/0, write/0]).
 
--type image() :: #{{atom(), atom()} => cell_hal_type:value()}.
+%% Each output's last commanded value, with the rank of that command among the task's.
+-type image() :: #{{atom(), atom()} => {pos_integer(), cell_hal_type:value()}}.
 -type write() :: {atom(), atom(), cell_hal_type:value()}.
 
 %% @doc An empty image: the task has commanded nothing yet.
@@ -28,15 +33,17 @@ new() ->
 %% @doc The image after the task commanded `Point' of `Group' to `Value'.
 -spec command(image(), atom(), atom(), cell_hal_type:value()) -> image().
 command(Image, Group, Point, Value) ->
-    maps:put({Group, Point}, Value, Image).
+    Last = maps:fold(fun(_, {Rank, _}, Max) -> max(Rank, Max) end, 0, Image),
+    maps:put({Group, Point}, {Last + 1, Value}, Image).
 
 %% @doc The writes that bring the outputs of `Groups' back to the image: each output of
 %% those groups the task commanded whose value now (`Now', as the HAL reads it; an
 %% output missing there could not be read) differs from what the task commanded, in
-%% group and point order.
+%% the order the task last commanded them.
 -spec writes(image(), [atom()], #{{atom(), atom()} => cell_hal_type:value()}) -> [write()].
 writes(Image, Groups, Now) ->
-    [{G, P, V} || {{G, P} = Key, V} <- lists:sort(maps:to_list(Image)),
+    Ranked = lists:sort([{Rank, Key, V} || {Key, {Rank, V}} <- maps:to_list(Image)]),
+    [{G, P, V} || {_Rank, {G, P} = Key, V} <- Ranked,
                   lists:member(G, Groups),
                   not same(maps:find(Key, Now), V)].
 
