@@ -148,13 +148,14 @@ drop_air() -> poke({air, false}).
 restore_air() -> poke({air, true}).
 
 %% @doc A drive faults (see {@link fault_drive/2}); one reset clears it.
--spec fault_drive(drive()) -> ok | {error, not_running}.
+-spec fault_drive(drive()) -> ok | {error, not_running | no_such_drive}.
 fault_drive(Drive) -> fault_drive(Drive, 1).
 
 %% @doc A drive (`conveyor_front', `conveyor_rear', `lower', `upper') faults: its
 %% fault bit on with a fault code, its ready off (what it moves stops) until `Resets'
 %% pulses of its reset output have cleared it (`never': no reset clears it).
--spec fault_drive(drive(), pos_integer() | never) -> ok | {error, not_running}.
+%% `{error, no_such_drive}' for the rear conveyors of a machine with one lane.
+-spec fault_drive(drive(), pos_integer() | never) -> ok | {error, not_running | no_such_drive}.
 fault_drive(Drive, Resets) when (Drive =:= conveyor_front orelse Drive =:= conveyor_rear
                                  orelse Drive =:= lower orelse Drive =:= upper),
                                 (Resets =:= never orelse (is_integer(Resets) andalso Resets > 0)) ->
@@ -258,6 +259,7 @@ handle_call(world, _From, #{world := W} = S) ->
     {reply, W, S};
 handle_call({poke, Poke}, _From, #{attached := true} = S) ->
     try poked(Poke, S#{settings => settings()}) of
+        {error, _} = Error -> {reply, Error, S};
         S1 -> {reply, ok, maps:remove(settings, kick(S1))}
     catch
         throw:{hal_gone, Group} -> {reply, {error, not_running}, detach(Group, S)}
@@ -754,7 +756,7 @@ poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
             general(update_general(fun(#{faults := F} = G) -> G#{faults := F#{Drive => Resets}} end,
                                    S));
         false ->
-            S
+            {error, no_such_drive}
     end.
 
 %% @doc The general inputs of a machine at rest (the emergency-stop circuit closed,
@@ -1030,3 +1032,45 @@ zero(_) -> 0.
 
 now_ms() ->
     erlang:monotonic_time(millisecond).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+rest_image_test() ->
+    Rest = rest_image([front]),
+    ?assertMatch(#{{general_io, estop_ok} := true, {general_io, service_key} := false,
+                   {general_io, doors_locked} := true, {general_io, air_ok} := true,
+                   {general_io, air_pressure} := 6.0,
+                   {drives_io, conveyor_front_ready} := true, {drives_io, lower_ready} := true,
+                   {drives_io, upper_fault} := false, {drives_io, upper_fault_code} := 0},
+                 Rest),
+    ?assertNot(maps:is_key({drives_io, conveyor_rear_ready}, Rest)),
+    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))).
+
+general_image_test() ->
+    #{general := G} = W = empty_world([front]),
+    Image = fun(World, Outs) ->
+                    maps:from_list(general_image(World, fun(K) -> maps:get(K, Outs, false) end,
+                                                 [front]))
+            end,
+    %% The lock released: the doors closed but not locked.
+    ?assertMatch(#{{general_io, doors_locked} := false,
+                   {general_io, door_loading_closed} := true},
+                 Image(W, #{{general_io, door_unlock} => true})),
+    %% A door open.
+    ?assertMatch(#{{general_io, doors_locked} := false,
+                   {general_io, door_unloading_closed} := false},
+                 Image(W#{general := G#{doors := #{loading => closed, unloading => open}}}, #{})),
+    %% The e-stop pressed: no drive is ready, none faults.
+    Pressed = Image(W#{general := G#{estop := pressed}}, #{}),
+    ?assertMatch(#{{general_io, estop_ok} := false, {drives_io, lower_ready} := false,
+                   {drives_io, conveyor_front_ready} := false, {drives_io, lower_fault} := false},
+                 Pressed),
+    %% A fault: that drive not ready, its fault and code on; the others ready.
+    ?assertMatch(#{{drives_io, lower_ready} := false, {drives_io, lower_fault} := true,
+                   {drives_io, lower_fault_code} := 8611, {drives_io, upper_ready} := true},
+                 Image(W#{general := G#{faults := #{lower => 2}}}, #{})),
+    %% No air.
+    ?assertMatch(#{{general_io, air_ok} := false, {general_io, air_pressure} := 2.5},
+                 Image(W#{general := G#{air := false}}, #{})).
+-endif.

@@ -60,6 +60,8 @@ monitor_sees_the_machine(_Config) ->
     [?assertEqual({ok, true}, cell_hal:read(drives_io, P))
      || P <- [conveyor_front_ready, lower_ready, upper_ready]],
     ?assertEqual({ok, 6.0}, cell_hal:read(general_io, air_pressure)),
+    %% One lane: no rear conveyors to fault.
+    ?assertEqual({error, no_such_drive}, router_sim:fault_drive(conveyor_rear)),
     %% The beacon's lamps are outputs the monitor drives.
     #{outputs := Outs} = cell_monitor:info(),
     ?assert(maps:is_key({general_io, beacon_green}, Outs)),
