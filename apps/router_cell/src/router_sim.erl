@@ -268,7 +268,7 @@ handle_call({poke, _}, _From, S) ->
     {reply, {error, not_running}, S};
 handle_call({take_out, Where, L}, _From, #{attached := true} = S) ->
     try hand(Where, L, S#{settings => settings()}) of
-        {Reply, S1} -> {reply, Reply, kick(maps:remove(settings, S1))}
+        {Reply, S1} -> {reply, Reply, maps:remove(settings, kick(S1))}
     catch
         throw:{hal_gone, Group} -> {reply, {error, empty}, detach(Group, S)}
     end;
