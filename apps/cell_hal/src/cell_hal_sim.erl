@@ -5,7 +5,10 @@
 %%
 %% Connection options: `device' (the simulated PLC's name, default the connection's
 %% id), `timeout_ms' (how long a request may go unanswered before the connection counts
-%% as lost, default 1000), `latency_ms' (how long the PLC takes to answer, default 0).
+%% as lost, default 1000), `latency_ms' (how long the PLC takes to answer, default 0),
+%% `image' (`#{{Group, Point} => Value}': what a PLC started anew holds before the
+%% simulation sets anything, e.g. an emergency-stop circuit closed, as a machine at
+%% rest has it; default none, every point zero).
 %%
 %% A simulation sets inputs and reads what the HAL wrote, by point:
 %% ```
@@ -168,7 +171,12 @@ check_opts(Opts) ->
     Defaults = #{timeout_ms => 1000, latency_ms => 0},
     Checks = #{device => fun is_atom/1,
                timeout_ms => fun(V) -> is_integer(V) andalso V > 0 end,
-               latency_ms => fun(V) -> is_integer(V) andalso V >= 0 end},
+               latency_ms => fun(V) -> is_integer(V) andalso V >= 0 end,
+               image => fun(V) -> is_map(V) andalso
+                                      lists:all(fun({G, P}) -> is_atom(G) andalso is_atom(P);
+                                                   (_) -> false
+                                                end, maps:keys(V))
+                        end},
     case [K || {K, V} <- maps:to_list(Opts),
                not (maps:is_key(K, Checks) andalso (maps:get(K, Checks))(V))] of
         [] -> {ok, maps:merge(Defaults, Opts)};
@@ -185,7 +193,7 @@ check_point(_Opts, Group, _GroupOpts, #{name := Name}) ->
 -spec init(atom(), map()) -> #sim{}.
 init(Id, Opts) ->
     #sim{id = Id, device = maps:get(device, Opts, Id),
-         device_opts = maps:with([latency_ms], Opts),
+         device_opts = maps:with([latency_ms, image], Opts),
          timeout_ms = maps:get(timeout_ms, Opts, 1000)}.
 
 %% @private

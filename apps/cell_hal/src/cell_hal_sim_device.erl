@@ -110,14 +110,24 @@ replay(Image, Rules) ->
 
 %% @private
 %% The memory it had, if any; its rules run again on it before the first request.
--spec init({atom(), map()}) -> {ok, #state{}, {continue, replay}}.
+-spec init({atom(), map()}) -> {ok, #state{}} | {ok, #state{}, {continue, replay}}.
 init({Name, Opts}) ->
     true = ets:insert(?TAB, {Name, self()}),
     {Image, Rules, Link} = recall(Name, ets:match_object(?TAB, {{'_', Name, '_'}, '_'})
                                         ++ ets:match_object(?TAB, {{'_', Name}, '_'})),
-    {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0), image = Image,
-                rules = Rules, link = Link},
-     {continue, replay}}.
+    %% A PLC started anew holds its initial image (none unless given); one started
+    %% again, the image it had.
+    case map_size(Image) + map_size(Rules) of
+        0 ->
+            Initial = maps:get(image, Opts, #{}),
+            true = ets:insert(?TAB, [{{image, Name, K}, V} || {K, V} <- maps:to_list(Initial)]),
+            {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0),
+                        image = Initial, rules = Rules, link = Link}};
+        _ ->
+            {ok, #state{name = Name, latency_ms = maps:get(latency_ms, Opts, 0), image = Image,
+                        rules = Rules, link = Link},
+             {continue, replay}}
+    end.
 
 %% @private
 -spec handle_continue(replay, #state{}) -> {noreply, #state{}}.

@@ -21,7 +21,7 @@
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
          io_while_a_worker_restarts/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1,
-         device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1]).
+         device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1, initial_image/1]).
 
 -define(WAIT, 5000).
 
@@ -38,7 +38,7 @@ all() ->
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators,
      backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory,
-     told_when_the_server_is_back].
+     told_when_the_server_is_back, initial_image].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -448,6 +448,28 @@ write_sync_waits_for_the_device(_Config) ->
     ok = cell_hal:write(io, int16_out, 5),
     ?assert(erlang:monotonic_time(millisecond) - T2 < 150),
     ?assertEqual({ok, 5}, cell_hal:read(io, int16_out)).
+
+%% A simulated PLC started anew holds its `image' from the first read on (not the zeros
+%% of its type), until the simulation sets a point; the PLC's memory keeps it, and a
+%% value it was never given reads zero.
+initial_image(_Config) ->
+    ok = cell_hal:add_connection(#{id => s30, driver => cell_hal_sim,
+                                   opts => #{poll_ms => 10, reconnect_ms => 50,
+                                             image => #{{io, int16_in} => 42,
+                                                        {io, bool_in} => true}}}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => s30}),
+    {ok, _} = cell_hal:subscribe_connection(s30),
+    ok = await_status(s30, up),
+    42 = await_value(int16_in, 42),
+    ?assertEqual({ok, true}, cell_hal:read(io, bool_in)),
+    ?assertEqual({ok, 42}, cell_hal_sim:get({io, int16_in})),
+    ?assertEqual({error, not_set}, cell_hal_sim:get({io, int32_in})),
+    ok = cell_hal_sim:set({io, int16_in}, 7),
+    {ok, R} = cell_hal:watch(io, int16_in, {eq, 7}),
+    receive {cell_hal_watch, R, 7} -> ok after ?WAIT -> ct:fail(not_polled) end,
+    ?assertMatch({error, {bad_option, image}},
+                 cell_hal:add_connection(#{id => s31, driver => cell_hal_sim,
+                                           opts => #{image => #{not_a_point => 1}}})).
 
 group_added_while_up(_Config) ->
     ok = sim(s14),

@@ -11,8 +11,9 @@ router(Machine) ->
 router_test() ->
     {ok, #{conn := router_plc, points := Points, hal := Hal}} =
         cell_vplc:setup(router(#{dual_lane => false}), undefined),
-    %% Every point of the front lane's three segments and the two robots.
-    ?assertEqual(7 + 5 + 5 + 12 + 6, length(Points)),
+    %% Every point of the front lane's three segments, the two robots, the general IO
+    %% and the three drives (the front conveyors', the robots').
+    ?assertEqual(7 + 5 + 5 + 12 + 6 + 12 + 3 * 4, length(Points)),
     ?assertMatch({{lower_io, target_x}, lreal,
                   #{unit := 1, table := holding_register, address := 200, word_order := big}},
                  lists:keyfind({lower_io, target_x}, 1, Points)),
@@ -20,11 +21,16 @@ router_test() ->
                  lists:keyfind({upper_io, done}, 1, Points)),
     %% The same connection and groups, on the simulated PLC.
     ?assertMatch(#{connections := [#{id := router_plc, driver := cell_hal_sim}]}, Hal),
-    ?assertEqual(5, length(maps:get(groups, Hal))),
+    ?assertMatch({{general_io, estop_ok}, bool, #{table := discrete_input, address := 300}},
+                 lists:keyfind({general_io, estop_ok}, 1, Points)),
+    ?assertMatch({{drives_io, lower_reset}, bool, #{table := coil, address := 341}},
+                 lists:keyfind({drives_io, lower_reset}, 1, Points)),
+    ?assertEqual(7, length(maps:get(groups, Hal))),
     {ok, Image} = cell_vplc_image:new(Points),
     ?assertEqual([1], cell_vplc_image:units(Image)),
     {ok, #{points := Dual}} = cell_vplc:setup(router(#{dual_lane => true}), router_plc),
-    ?assertEqual(length(Points) + 17, length(Dual)).
+    %% The rear lane's three segments and its conveyors' drive.
+    ?assertEqual(length(Points) + 17 + 4, length(Dual)).
 
 refused_test_() ->
     Real = router(#{dual_lane => false}),

@@ -24,8 +24,8 @@
 %% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, lanes/1, group/2, task/2, router_settings/0,
-         simulation/1]).
+-export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2,
+         router_settings/0, simulation/1]).
 
 -define(CONN, router_plc).
 
@@ -61,7 +61,8 @@ cell_spec(Machine, Router) ->
       tasks => LaneTasks ++ Robots,
       links => Links,
       settings => [router_settings, router_sim_settings],
-      hal => hal(Machine, Router)}.
+      hal => hal(Machine, Router),
+      monitor => monitor(Machine)}.
 
 lane_tasks(L) ->
     Lane = lane_name(L),
@@ -88,6 +89,10 @@ hal(Machine, Router) ->
              #{real => {cell_hal_modbus, #{host => binary_to_list(maps:get(plc_host, Router)),
                                            port => maps:get(plc_port, Router),
                                            unit => maps:get(plc_unit, Router)}},
+               %% A simulated PLC started anew holds the machine at rest: the
+               %% emergency-stop circuit closed, the doors locked, the air on, the
+               %% drives ready, until the physics sets the world it saved.
+               sim => #{image => router_sim:rest_image(lanes(Machine))},
                opts => #{poll_ms => maps:get(hal_poll_ms, Router, 20)}}),
     %% Each lane's groups 100 addresses apart in the PLC's image.
     Groups = lists:append([[#{id => group(K, L), module => module(K), connection => ?CONN,
@@ -98,8 +103,31 @@ hal(Machine, Router) ->
         ++ [#{id => lower_io, module => router_lower_io, connection => ?CONN,
               opts => #{base => 200}},
             #{id => upper_io, module => router_upper_io, connection => ?CONN,
-              opts => #{base => 260}}],
+              opts => #{base => 260}},
+            #{id => general_io, module => router_general_io, connection => ?CONN,
+              opts => #{base => 300}},
+            #{id => drives_io, module => router_drives_io, connection => ?CONN,
+              opts => #{base => 340, lanes => lanes(Machine)}}],
     #{connections => [Conn], groups => Groups}.
+
+%% @doc What the cell's monitor ({@link cell_monitor}) watches and drives on this
+%% machine: its general IO (the emergency-stop circuit, the service key, the safety
+%% doors, the air, the beacon; {@link router_general_io}) and the servo drives of the
+%% conveyors and the robots ({@link router_drives_io}), each with its fault bit, fault
+%% code and reset.
+-spec monitor(map()) -> map().
+monitor(Machine) ->
+    #{io => cell_spec_helpers:general_io(
+              general_io, #{estop_ok => estop_ok, service_key => service_key,
+                            door_locked => doors_locked, air_ok => air_ok,
+                            beacon_red => beacon_red, beacon_yellow => beacon_yellow,
+                            beacon_green => beacon_green, beacon_blue => beacon_blue}),
+      drives => [cell_spec_helpers:drive(
+                   D, drives_io, #{error => router_drives_io:point(D, fault),
+                                   code => router_drives_io:point(D, code),
+                                   reset => router_drives_io:point(D, reset),
+                                   caption => router_drives_io:caption(D)})
+                 || D <- router_drives_io:drives(lanes(Machine))]}.
 
 %% @doc The machine's physics, for a virtual PLC that serves this cell's IO over Modbus
 %% TCP ({@link cell_vplc}): the same physics simulation mode runs behind the in-VM

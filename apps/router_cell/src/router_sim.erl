@@ -58,6 +58,9 @@
 -behaviour(gen_server).
 
 -export([start_link/1, world/0, ready/1, take_out/2]).
+-export([rest_image/1]).
+-export([press_estop/0, release_estop/0, service_key/1, open_door/1, close_door/1,
+         drop_air/0, restore_air/0, fault_drive/1, fault_drive/2]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -69,6 +72,11 @@
 -define(ATTACH_MAX, 5000).
 
 -type lane() :: front | rear.
+-type door() :: loading | unloading.
+-type drive() :: router_drives_io:drive().
+-type poke() :: {estop, pressed | released} | {service_key, boolean()}
+              | {door, door(), open | closed} | {air, boolean()}
+              | {fault, drive(), pos_integer() | never}.
 -type action() :: fun((map()) -> map()).
 
 -record(move, {steps :: [{non_neg_integer(), action()}],   %% offset (ms) and what happens
@@ -103,6 +111,59 @@ take_out(Where, Lane) when Where =:= loading; Where =:= work; Where =:= unloadin
                            Where =:= gripper ->
     gen_server:call(?MODULE, {take_out, Where, Lane}).
 
+%%--------------------------------------------------------------------
+%% The operator on the machine: the general IO the cell's monitor watches
+%%--------------------------------------------------------------------
+
+%% @doc Presses the emergency stop: its circuit opens (`estop_ok' off), every drive
+%% loses its ready (conveyors stop under their panels, the robots hold their moves)
+%% until it is released.
+-spec press_estop() -> ok | {error, not_running}.
+press_estop() -> poke({estop, pressed}).
+
+%% @doc Releases the emergency stop: the circuit closes, the drives without a fault
+%% are ready again and what they held goes on.
+-spec release_estop() -> ok | {error, not_running}.
+release_estop() -> poke({estop, released}).
+
+%% @doc Turns the service key switch: `true' to service, `false' back to production.
+-spec service_key(boolean()) -> ok | {error, not_running}.
+service_key(On) when is_boolean(On) -> poke({service_key, On}).
+
+%% @doc Opens a safety door (`loading' or `unloading' side): the doors no longer
+%% report closed and locked.
+-spec open_door(door()) -> ok | {error, not_running}.
+open_door(Door) when Door =:= loading; Door =:= unloading -> poke({door, Door, open}).
+
+%% @doc Closes a safety door; the lock holds it again unless `door_unlock' is on.
+-spec close_door(door()) -> ok | {error, not_running}.
+close_door(Door) when Door =:= loading; Door =:= unloading -> poke({door, Door, closed}).
+
+%% @doc The compressed air drops: the pressure falls below the switch's threshold.
+-spec drop_air() -> ok | {error, not_running}.
+drop_air() -> poke({air, false}).
+
+%% @doc The compressed air is back at its pressure.
+-spec restore_air() -> ok | {error, not_running}.
+restore_air() -> poke({air, true}).
+
+%% @doc A drive faults (see {@link fault_drive/2}); one reset clears it.
+-spec fault_drive(drive()) -> ok | {error, not_running | no_such_drive}.
+fault_drive(Drive) -> fault_drive(Drive, 1).
+
+%% @doc A drive (`conveyor_front', `conveyor_rear', `lower', `upper') faults: its
+%% fault bit on with a fault code, its ready off (what it moves stops) until `Resets'
+%% pulses of its reset output have cleared it (`never': no reset clears it).
+%% `{error, no_such_drive}' for the rear conveyors of a machine with one lane.
+-spec fault_drive(drive(), pos_integer() | never) -> ok | {error, not_running | no_such_drive}.
+fault_drive(Drive, Resets) when (Drive =:= conveyor_front orelse Drive =:= conveyor_rear
+                                 orelse Drive =:= lower orelse Drive =:= upper),
+                                (Resets =:= never orelse (is_integer(Resets) andalso Resets > 0)) ->
+    poke({fault, Drive, Resets}).
+
+poke(Poke) ->
+    gen_server:call(?MODULE, {poke, Poke}).
+
 %% @doc Returns once the physics runs and the HAL has read every input of the
 %% simulated PLC as the physics set it, so a Start from now on finds the machine as it
 %% is (a PLC just created reads zero everywhere until the physics has set it up).
@@ -133,12 +194,13 @@ ready(Timeout) ->
 init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
                                            || K <- [loading, work, unloading]] || L <- Lanes])
-                            ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}}]),
+                            ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}},
+                                {general_io, {general, none}}, {drives_io, {drives, none}}]),
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
-           epoch => 0},
+           epoch => 0, held => #{}},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -190,13 +252,23 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
                     "at the previous machine", [length(panels(World)), queued(World)]),
     maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
 
--spec handle_call(world | groups | {take_out, atom(), atom()}, gen_server:from(), map()) ->
+-spec handle_call(world | groups | {take_out, atom(), atom()} | {poke, poke()},
+                  gen_server:from(), map()) ->
           {reply, term(), map()} | {noreply, map()}.
 handle_call(world, _From, #{world := W} = S) ->
     {reply, W, S};
+handle_call({poke, Poke}, _From, #{attached := true} = S) ->
+    try poked(Poke, S#{settings => settings()}) of
+        {error, _} = Error -> {reply, Error, S};
+        S1 -> {reply, ok, maps:remove(settings, kick(S1))}
+    catch
+        throw:{hal_gone, Group} -> {reply, {error, not_running}, detach(Group, S)}
+    end;
+handle_call({poke, _}, _From, S) ->
+    {reply, {error, not_running}, S};
 handle_call({take_out, Where, L}, _From, #{attached := true} = S) ->
     try hand(Where, L, S#{settings => settings()}) of
-        {Reply, S1} -> {reply, Reply, kick(maps:remove(settings, S1))}
+        {Reply, S1} -> {reply, Reply, maps:remove(settings, kick(S1))}
     catch
         throw:{hal_gone, Group} -> {reply, {error, empty}, detach(Group, S)}
     end;
@@ -293,14 +365,28 @@ output({lower, _}, command, Command, _Old, #{outs := Outs} = S) ->
     Feed = max(maps:get({lower_io, feed}, Outs, 1.0), 0.001),
     Ms = round(Path / Feed * 1000 * scale(S)),
     later(Ms, fun(S1) ->
-                      S2 = set(set(S1, lower, none, pos_x, X), lower, none, pos_y, Y),
-                      set(S2, lower, none, done, Command)
+                      when_ready(lower,
+                                 fun(S2) ->
+                                         S3 = set(set(S2, lower, none, pos_x, X), lower, none,
+                                                  pos_y, Y),
+                                         set(S3, lower, none, done, Command)
+                                 end, S1)
               end, S);
 output({upper, _}, command, Command, _Old, #{outs := Outs} = S) ->
     To = position(maps:get({upper_io, target}, Outs, 0)),
-    later(delay(upper_move_ms, S), fun(S1) -> arrived(To, Command, S1) end, lift(S));
+    later(delay(upper_move_ms, S),
+          fun(S1) -> when_ready(upper, fun(S2) -> arrived(To, Command, S2) end, S1) end,
+          lift(S));
 output({upper, _}, gripper_close, V, _Old, S) ->
     later(delay(gripper_ms, S), fun(S1) -> gripper(V, S1) end, S);
+output({general, _}, door_unlock, _V, _Old, S) ->
+    general(S);
+output({drives, _}, Point, true, _Old, #{lanes := Lanes} = S) ->
+    %% A reset's rising edge: one reset more towards clearing the drive's fault.
+    case [D || D <- router_drives_io:drives(Lanes), router_drives_io:point(D, reset) =:= Point] of
+        [D] -> reset_drive(D, S);
+        [] -> S
+    end;
 output(_Where, _Point, _V, _Old, S) ->
     S.
 
@@ -552,11 +638,17 @@ gate(#{moves := Moves} = S) ->
                       end
               end, S, Moves).
 
-runs({intake, L}, S) -> out(S, loading, L, belt_run);
-runs({transfer, L}, S) -> out(S, loading, L, belt_run) andalso out(S, work, L, belt_run);
-runs({eject, L}, S) -> out(S, work, L, belt_run);
-runs({unload, L}, S) -> out(S, unloading, L, belt_run);
-runs({handout, L}, S) -> out(S, unloading, L, belt_run).
+runs({_, L} = Id, S) ->
+    drive_ready(conveyor(L), S) andalso belts(Id, S).
+
+belts({intake, L}, S) -> out(S, loading, L, belt_run);
+belts({transfer, L}, S) -> out(S, loading, L, belt_run) andalso out(S, work, L, belt_run);
+belts({eject, L}, S) -> out(S, work, L, belt_run);
+belts({unload, L}, S) -> out(S, unloading, L, belt_run);
+belts({handout, L}, S) -> out(S, unloading, L, belt_run).
+
+conveyor(front) -> conveyor_front;
+conveyor(rear) -> conveyor_rear.
 
 resume(Id, #move{steps = [{At, _} | _], done = Done} = M, #{moves := Moves} = S) ->
     Ref = erlang:start_timer(max(At - Done, 0), self(), {step, Id}),
@@ -646,6 +738,104 @@ magazine(#{lanes := Lanes} = S) ->
           end, S1).
 
 %%====================================================================
+%% The general IO: emergency stop, service key, doors, air, drives
+%%====================================================================
+
+%% What the operator did on the machine, in the world (saved: a restarted machine
+%% still has its e-stop pressed, its door open), then the inputs as they show it.
+poked({estop, How}, S) -> general(update_general(fun(G) -> G#{estop := How} end, S));
+poked({service_key, On}, S) -> general(update_general(fun(G) -> G#{service_key := On} end, S));
+poked({door, Door, How}, S) ->
+    general(update_general(fun(#{doors := D} = G) -> G#{doors := D#{Door := How}} end, S));
+poked({air, On}, S) -> general(update_general(fun(G) -> G#{air := On} end, S));
+poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
+    case lists:member(Drive, router_drives_io:drives(Lanes)) of
+        true ->
+            cell_log:info(router, "simulated router: the drive ~ts faults",
+                          [router_drives_io:caption(Drive)]),
+            general(update_general(fun(#{faults := F} = G) -> G#{faults := F#{Drive => Resets}} end,
+                                   S));
+        false ->
+            {error, no_such_drive}
+    end.
+
+%% @doc The general inputs of a machine at rest (the emergency-stop circuit closed,
+%% the doors closed and locked, the air on, every drive ready): what its simulated PLC
+%% holds before the physics sets the world it saved.
+-spec rest_image([lane()]) -> #{{atom(), atom()} => term()}.
+rest_image(Lanes) ->
+    maps:from_list(general_image(empty_world(Lanes), fun(_) -> false end, Lanes)).
+
+update_general(Fun, #{world := #{general := G} = W} = S) ->
+    S#{world := W#{general := Fun(G)}}.
+
+reset_drive(D, #{world := #{general := #{faults := F}}} = S) ->
+    case maps:get(D, F, none) of
+        none -> S;
+        never -> S;
+        1 ->
+            cell_log:info(router, "simulated router: the drive ~ts is reset",
+                          [router_drives_io:caption(D)]),
+            general(update_general(fun(G) -> G#{faults := maps:remove(D, F)} end, S));
+        N -> save(update_general(fun(G) -> G#{faults := F#{D := N - 1}} end, S))
+    end.
+
+%% The general inputs set as the world and the outputs say; the moves the drives
+%% held go on once their drive is ready.
+general(#{world := W, lanes := Lanes, outs := Outs} = S) ->
+    S1 = lists:foldl(fun({{_, P}, V}, Acc) -> set_general(Acc, P, V) end, save(S),
+                     general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)),
+    release_held(S1).
+
+set_general(S, P, V) ->
+    case lists:member(P, [estop_ok, service_key, door_loading_closed, door_unloading_closed,
+                          doors_locked, air_ok, air_pressure]) of
+        true -> set(S, general, none, P, V);
+        false -> set(S, drives, none, P, V)
+    end.
+
+general_image(#{general := G}, Out, Lanes) ->
+    #{estop := Estop, service_key := Key, doors := Doors, air := Air, faults := Faults} = G,
+    Closed = fun(D) -> maps:get(D, Doors) =:= closed end,
+    EstopOk = Estop =:= released,
+    [{{general_io, estop_ok}, EstopOk},
+     {{general_io, service_key}, Key},
+     {{general_io, door_loading_closed}, Closed(loading)},
+     {{general_io, door_unloading_closed}, Closed(unloading)},
+     {{general_io, doors_locked}, Closed(loading) andalso Closed(unloading)
+      andalso Out({general_io, door_unlock}) =/= true},
+     {{general_io, air_ok}, Air},
+     {{general_io, air_pressure}, case Air of true -> 6.0; false -> 2.5 end}]
+        ++ lists:append(
+             [[{{drives_io, router_drives_io:point(D, ready)},
+                EstopOk andalso not maps:is_key(D, Faults)},
+               {{drives_io, router_drives_io:point(D, fault)}, maps:is_key(D, Faults)},
+               {{drives_io, router_drives_io:point(D, code)},
+                case maps:is_key(D, Faults) of true -> fault_code(D); false -> 0 end}]
+              || D <- router_drives_io:drives(Lanes)]).
+
+%% A drive's fault code as its manufacturer numbers them: following error for the
+%% robots' axes, overcurrent for the conveyors' motors.
+fault_code(lower) -> 8611;
+fault_code(upper) -> 8611;
+fault_code(_) -> 2310.
+
+drive_ready(D, #{world := #{general := #{estop := Estop, faults := F}}}) ->
+    Estop =:= released andalso not maps:is_key(D, F).
+
+%% A robot's move arrives only while its drive is ready; held until it is again.
+when_ready(D, Fun, #{held := Held} = S) ->
+    case drive_ready(D, S) of
+        true -> Fun(S);
+        false -> S#{held := Held#{D => maps:get(D, Held, []) ++ [Fun]}}
+    end.
+
+release_held(#{held := Held} = S) ->
+    Ready = [D || D <- maps:keys(Held), drive_ready(D, S)],
+    lists:foldl(fun(D, Acc) -> lists:foldl(fun(F, A) -> F(A) end, Acc, maps:get(D, Held)) end,
+                S#{held := maps:without(Ready, Held)}, Ready).
+
+%%====================================================================
 %% The world
 %%====================================================================
 
@@ -653,6 +843,9 @@ empty_world(Lanes) ->
     Empty = maps:from_list([{L, empty} || L <- Lanes]),
     #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
       unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
+      general => #{estop => released, service_key => false,
+                   doors => #{loading => closed, unloading => closed}, air => true,
+                   faults => #{}},
       next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0,
                              removed => 0},
       ledger => []}.
@@ -709,7 +902,8 @@ image(W, Outs, Lanes) ->
           {{lower_io, done}, Out({lower_io, command})},
           {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
           {{lower_io, plunged}, Out({lower_io, plunge})},
-          {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]).
+          {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
+      ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)).
 
 is_at({_, Where}, Where) -> true;
 is_at(_, _) -> false.
@@ -784,6 +978,8 @@ set(S0, Kind, L, Point, V) ->
     Group = case Kind of
                 lower -> lower_io;
                 upper -> upper_io;
+                general -> general_io;
+                drives -> drives_io;
                 _ -> router_cell:group(Kind, L)
             end,
     case cell_hal_sim:set({Group, Point}, V) of
@@ -836,3 +1032,45 @@ zero(_) -> 0.
 
 now_ms() ->
     erlang:monotonic_time(millisecond).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+rest_image_test() ->
+    Rest = rest_image([front]),
+    ?assertMatch(#{{general_io, estop_ok} := true, {general_io, service_key} := false,
+                   {general_io, doors_locked} := true, {general_io, air_ok} := true,
+                   {general_io, air_pressure} := 6.0,
+                   {drives_io, conveyor_front_ready} := true, {drives_io, lower_ready} := true,
+                   {drives_io, upper_fault} := false, {drives_io, upper_fault_code} := 0},
+                 Rest),
+    ?assertNot(maps:is_key({drives_io, conveyor_rear_ready}, Rest)),
+    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))).
+
+general_image_test() ->
+    #{general := G} = W = empty_world([front]),
+    Image = fun(World, Outs) ->
+                    maps:from_list(general_image(World, fun(K) -> maps:get(K, Outs, false) end,
+                                                 [front]))
+            end,
+    %% The lock released: the doors closed but not locked.
+    ?assertMatch(#{{general_io, doors_locked} := false,
+                   {general_io, door_loading_closed} := true},
+                 Image(W, #{{general_io, door_unlock} => true})),
+    %% A door open.
+    ?assertMatch(#{{general_io, doors_locked} := false,
+                   {general_io, door_unloading_closed} := false},
+                 Image(W#{general := G#{doors := #{loading => closed, unloading => open}}}, #{})),
+    %% The e-stop pressed: no drive is ready, none faults.
+    Pressed = Image(W#{general := G#{estop := pressed}}, #{}),
+    ?assertMatch(#{{general_io, estop_ok} := false, {drives_io, lower_ready} := false,
+                   {drives_io, conveyor_front_ready} := false, {drives_io, lower_fault} := false},
+                 Pressed),
+    %% A fault: that drive not ready, its fault and code on; the others ready.
+    ?assertMatch(#{{drives_io, lower_ready} := false, {drives_io, lower_fault} := true,
+                   {drives_io, lower_fault_code} := 8611, {drives_io, upper_ready} := true},
+                 Image(W#{general := G#{faults := #{lower => 2}}}, #{})),
+    %% No air.
+    ?assertMatch(#{{general_io, air_ok} := false, {general_io, air_pressure} := 2.5},
+                 Image(W#{general := G#{air := false}}, #{})).
+-endif.
