@@ -84,7 +84,7 @@ charts(Req) ->
     %% Products out of at most the last 31 days: the total of a year would be thousands
     %% of hours and every product kept.
     Since = max(From, To - 31 * ?DAY_MS),
-    Exits = exits(Since, To),
+    Exits = cell_stats:products_out(Since, To),
     Cycles = cell_web_charts:cycles(Exits),
     {json, 200,
      cell_web_json:term(
@@ -154,15 +154,3 @@ local_date(Ms) ->
 add_days(Date, N) ->
     calendar:gregorian_days_to_date(calendar:date_to_gregorian_days(Date) + N).
 
-%% The products that left the cell between two times, from the summaries the
-%% statistics write of each (`cell_trace_product', see cell_stats), chosen in the table.
-exits(From, To) when To < From ->
-    [];
-exits(From, To) ->
-    Spec = [{{cell_trace_product, '_', #{status => out, left => '$1', failed => '$2'}},
-             [{is_integer, '$1'}, {'>=', '$1', From}, {'=<', '$1', To}],
-             [{{'$1', '$2'}}]}],
-    Rows = try mnesia:dirty_select(cell_trace_product, Spec)
-           catch exit:{aborted, _} -> []
-           end,
-    [{At, case Failed of true -> failed; false -> good end} || {At, Failed} <- Rows].

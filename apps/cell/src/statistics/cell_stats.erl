@@ -69,7 +69,7 @@
 
 -export([start_link/1, child_spec/1, exits/1]).
 -export([flush/0, record/3, summary/0, summary/1, counters/1, time_check/0, periods/0,
-         shift_now/0, product/1, in_cell/0, tables/0, node_restarts/0]).
+         shift_now/0, product/1, products_out/2, in_cell/0, tables/0, node_restarts/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -230,6 +230,12 @@ shift_now() ->
 -spec product(binary()) -> {ok, map()} | {error, not_found}.
 product(Serial) when is_binary(Serial) ->
     cell_stats_db:product(Serial).
+
+%% @doc The products that left the cell between two times (milliseconds since the
+%% epoch, both included), each as the time it left and whether it was good or failed.
+-spec products_out(integer(), integer()) -> [{integer(), good | failed}].
+products_out(From, To) ->
+    cell_stats_db:products_out(From, To).
 
 %% @doc How many products are in the cell.
 -spec in_cell() -> non_neg_integer().

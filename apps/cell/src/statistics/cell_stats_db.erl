@@ -13,7 +13,8 @@
 %% `cell_trace_event' (disc_only_copies, bag: the history by serial).
 -module(cell_stats_db).
 
--export([tables/0, summary/2, counters/2, time_check/0, periods/0, product/1, in_cell/0]).
+-export([tables/0, summary/2, counters/2, time_check/0, periods/0, product/1, products_out/2,
+         in_cell/0]).
 -export([at_open/0, journal_mark/0, open_products/0, left_summary/1, product_summary/4]).
 -export([write_counters/5, merge/3, sync_histories/0, write_history/4, delete_counter/1,
          forget/1, expired/3, over_limit/1, to_drop/4]).
@@ -428,6 +429,17 @@ to_drop(N, Max, Products, Left) ->
     lists:sublist(lists:sort(Left), ceil((N - Max * 0.9) * P / N)).
 
 %% Reads skip the process; while the database is not open they find nothing.
+%% The products that left between two times, from their summaries, chosen in the table.
+-spec products_out(integer(), integer()) -> [{integer(), good | failed}].
+products_out(From, To) when To < From ->
+    [];
+products_out(From, To) ->
+    Spec = [{{?PRODUCT, '_', #{status => out, left => '$1', failed => '$2'}},
+             [{is_integer, '$1'}, {'>=', '$1', From}, {'=<', '$1', To}],
+             [{{'$1', '$2'}}]}],
+    [{At, case Failed of true -> failed; false -> good end}
+     || {At, Failed} <- safe(fun() -> mnesia:dirty_select(?PRODUCT, Spec) end, [])].
+
 safe(Fun, Default) ->
     try Fun()
     catch exit:{aborted, _} -> Default
