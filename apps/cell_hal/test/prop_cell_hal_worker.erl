@@ -453,22 +453,10 @@ settled_read(P, V) ->
 %% -------------------------------------------------------------------------------------
 
 setup() ->
-    Root = filename:join(["/tmp", "prop_cell_hal_worker", os:getpid()]),
-    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
-    _ = application:load(cell_base),
-    ok = application:set_env(cell_base, root, Root),
-    _ = application:load(lager),
-    ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
-    {ok, Apps} = application:ensure_all_started(cell_hal),
-    _ = ets:new(?TAB, [named_table, public]),
-    true = ets:insert(?TAB, {run, 0}),
-    {Root, Apps}.
+    cell_hal_prop_env:start("prop_cell_hal_worker", ?TAB).
 
-cleanup({Root, Apps}) ->
-    ets:delete(?TAB),
-    [application:stop(A) || A <- lists:reverse(Apps)],
-    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
-    ok.
+cleanup(Env) ->
+    cell_hal_prop_env:stop(Env, ?TAB).
 
 start_conn(Mode) ->
     N = ets:update_counter(?TAB, run, 1),
