@@ -80,6 +80,9 @@ estop_stops_every_task(_Config) ->
     _ = collect_out(2),
     ok = router_sim:press_estop(),
     await(fun(#{type := estop, active := true}) -> true; (_) -> false end),
+    %% The event follows the barrier: every task has secured its outputs, and each is
+    %% told to announce OFF; sync waits until each has.
+    ok = cell_controller:sync(),
     ?assertEqual([], [T || #{id := T, state := St} <- cell_controller:tasks(), St =/= off]),
     ?assertMatch(#{estop := true}, cell_controller:flags()),
     ?assertEqual({error, estop_active}, cell_controller:start(<<"suite">>)),
