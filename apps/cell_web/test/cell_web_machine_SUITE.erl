@@ -16,7 +16,8 @@ all() ->
 
 groups() ->
     [{in_vm, [sequence], [roles_refused, lists_the_machine_actions, bad_actions_refused,
-                          estop_and_key_from_the_panel, drive_fault_from_the_panel]},
+                          estop_and_key_from_the_panel, drive_fault_from_the_panel,
+                          from_the_shell]},
      {vplc, [sequence], [actions_reach_the_virtual_plc]}].
 
 init_per_suite(Config) ->
@@ -206,6 +207,16 @@ await_alarm(How, Kind, Id) ->
                   T =:= Type andalso I =:= Id andalso K =:= Kind;
              (_) -> false
           end).
+
+%% The same actions from the remote shell, by their names.
+from_the_shell(_Config) ->
+    ok = cell_diag:machine(),
+    ok = cell_diag:machine(service_key, service),
+    service_mode(true),
+    ok = cell_diag:machine(<<"service_key">>, <<"production">>),
+    service_mode(false),
+    ?assertEqual({error, {unknown_action, <<"nope">>}}, cell_diag:machine(nope, x)),
+    ?assertEqual({error, {unknown_choice, <<"air">>, <<"x">>}}, cell_diag:machine(air, x)).
 
 %% The machine's physics in the virtual PLC's own OS process: the panel's action
 %% reaches it, and the cell reacts to what the PLC then shows over Modbus TCP. Once the
