@@ -31,6 +31,14 @@ test('a service user presses the emergency stop and sees the cell stop', async (
     await page.waitForSelector(`[data-testid=sim-${id}]`);
   }
   await shot(page, 'simulation-page', 'simulation');
+  // It fits a 1024x768 touch panel, every button touch-sized.
+  const size = await page.evaluate(() => ({
+    width: document.documentElement.scrollWidth, height: document.documentElement.scrollHeight }));
+  assert.ok(size.width <= 1024 && size.height <= 768, JSON.stringify(size));
+  const small = await page.locator('#view-simulation button:visible').evaluateAll((bs) =>
+    bs.map((b) => ({ text: b.textContent, ...b.getBoundingClientRect().toJSON() }))
+      .filter((b) => b.height < 44 || b.width < 44));
+  assert.deepEqual(small, []);
   await page.click('[data-testid=sim-estop-press]');
   // The cell reacts: its emergency stop, every task off, the banner on every page.
   await page.waitForSelector('[data-testid=sim-estop]:has-text("EMERGENCY STOP")');

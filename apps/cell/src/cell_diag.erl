@@ -51,8 +51,9 @@ help() ->
 machine() ->
     case cell_machine_actions:list() of
         {ok, none, _} ->
-            print("This machine has no simulation to act on (its PLC is a real one, or "
-                  "its cell lists no machine actions).\n");
+            print("This machine has no simulation to act on: its PLC is a real one.\n");
+        {ok, _, []} ->
+            print("The cell lists no actions on its simulated machine.\n");
         {ok, Where, Actions} ->
             print([case Where of
                        local -> "The machine's simulation runs in this node.\n";

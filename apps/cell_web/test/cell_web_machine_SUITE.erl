@@ -268,7 +268,12 @@ actions_reach_the_virtual_plc(Config0) ->
         receive {nodedown, VNode} -> ok after ?WAIT_MS -> ct:fail(vplc_node_not_down) end,
         T0 = erlang:monotonic_time(millisecond),
         assert_error(503, <<"unreachable">>, act(Svc, <<"estop">>, <<"press">>)),
-        ?assert(erlang:monotonic_time(millisecond) - T0 < 10000)
+        ?assert(erlang:monotonic_time(millisecond) - T0 < 10000),
+        %% A real PLC (no virtual PLC named): nothing to act on.
+        true = os:unsetenv("CELLRT_VPLC_NODE"),
+        {200, #{<<"where">> := #{<<"kind">> := <<"none">>}, <<"actions">> := []}, _} =
+            cell_web_client:req(Svc, get, "/api/machine/actions"),
+        assert_error(409, <<"no_simulation">>, act(Svc, <<"estop">>, <<"press">>))
     after
         _ = application:stop(cell_web),
         cell_testkit:stop(router_cell, []),

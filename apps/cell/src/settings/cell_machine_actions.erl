@@ -48,13 +48,14 @@
 %%====================================================================
 
 %% @doc The actions of the running cell, and where they would run: none (`[]') for a
-%% cell without a simulation to act on, or whose module lists none.
+%% cell without a simulation to act on (`none'), or whose module lists none (a spec
+%% given without a cell module has none either).
 -spec list() -> {ok, where(), [action()]} | {error, {bad_actions, term()}}.
 list() ->
     Where = where(cell_spec:running(), vplc_env()),
     case {Where, cell_module()} of
         {none, _} -> {ok, none, []};
-        {_, undefined} -> {ok, none, []};
+        {_, undefined} -> {ok, Where, []};
         {_, Cell} ->
             case actions(Cell, cell_spec_helpers:machine_settings()) of
                 {ok, Actions} -> {ok, Where, Actions};

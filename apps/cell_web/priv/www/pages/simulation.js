@@ -62,6 +62,9 @@
       : data.where.kind === 'vplc'
         ? `The machine's physics runs in the virtual PLC (${data.where.node}); the cell talks to it over Modbus TCP.`
         : 'This machine has a real PLC: there is nothing simulated to act on.';
+    if (data.where.kind !== 'none' && data.actions.length === 0) {
+      where.textContent += ' Its cell lists no actions on the machine.';
+    }
     const groups = new Map();
     for (const a of data.actions) {
       if (!groups.has(a.group)) groups.set(a.group, []);
