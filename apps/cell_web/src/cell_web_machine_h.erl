@@ -54,6 +54,7 @@ allowed(Role) ->
         {error, S, Code, Words} -> cell_web_req:fail(S, Code, Words)
     end.
 
+-spec fail(cell_machine_actions:failure()) -> no_return().
 fail(Why) ->
     {S, Code, Words} = cell_web_machine_rules:refusal(Why),
     cell_web_req:fail(S, Code, Words).

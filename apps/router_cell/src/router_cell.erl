@@ -216,3 +216,22 @@ lane_name(rear) -> <<"Rear">>.
 -spec router_settings() -> map().
 router_settings() ->
     cell_spec_helpers:saved_settings(router_settings).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+machine_actions_test_() ->
+    Ids = fun(Machine) ->
+                  {ok, As} = cell_machine_actions:check(machine_actions(Machine)),
+                  [Id || #{id := Id} <- As]
+          end,
+    [?_assertEqual([estop, service_key, door_loading, door_unloading, air,
+                    drive_conveyor_front, drive_lower, drive_upper],
+                   Ids(#{dual_lane => false})),
+     ?_assert(lists:member(drive_conveyor_rear, Ids(#{dual_lane => true}))),
+     %% Every choice runs an export of the physics.
+     ?_assertEqual({module, router_sim}, code:ensure_loaded(router_sim)),
+     ?_assertEqual([], [R || #{choices := Cs} <- machine_actions(#{dual_lane => true}),
+                             #{run := {M, F, A} = R} <- Cs,
+                             not erlang:function_exported(M, F, length(A))])].
+-endif.
