@@ -40,6 +40,14 @@ refusal({unreachable, Node}) ->
     {503, unreachable,
      <<"the virtual PLC (", (atom_to_binary(Node, utf8))/binary, ") does not answer: "
        "is it running? Nothing was done">>};
+refusal(not_distributed) ->
+    {503, not_distributed,
+     <<"this cell's node has no distribution name, so it cannot reach the virtual PLC: "
+       "start it as the release does (bin/cellrt)">>};
+refusal({bad_cookie, File}) ->
+    {503, bad_cookie,
+     iolist_to_binary(["the virtual PLC's cookie file ", File, " cannot be read or is not "
+                       "one word of letters and digits; scripts/vplc --node makes it"])};
 refusal(timeout) ->
     {504, timeout, <<"the machine did not answer in time; the action may still take place">>};
 refusal({refused, not_running}) ->
@@ -92,6 +100,8 @@ refusal_test_() ->
      ?_assertMatch({400, bad_request, _}, refusal({unknown_choice, <<"estop">>, <<"z">>})),
      ?_assertMatch({503, unreachable, _}, refusal({unreachable, 'v@localhost'})),
      ?_assertMatch({504, timeout, _}, refusal(timeout)),
+     ?_assertMatch({503, not_distributed, _}, refusal(not_distributed)),
+     ?_assertMatch({503, bad_cookie, _}, refusal({bad_cookie, "/r/Distribution/cookie"})),
      ?_assertMatch({409, not_running, _}, refusal({refused, not_running})),
      ?_assertMatch({409, no_such_drive, _}, refusal({refused, no_such_drive})),
      ?_assertEqual({409, refused, <<"the machine refused: door stuck">>},

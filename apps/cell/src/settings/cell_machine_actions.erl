@@ -36,7 +36,8 @@
                     choices := [choice(), ...]}.
 -type where() :: local | {vplc, node(), file:filename()} | none.
 -type failure() :: no_simulation | {unknown_action, binary()}
-               | {unknown_choice, binary(), binary()} | {unreachable, node()}
+               | {unknown_choice, binary(), binary()} | {unreachable, node()} | not_distributed
+               | {bad_cookie, file:filename()}
                | timeout | {refused, term()} | {failed, term()} | {bad_actions, term()}.
 -export_type([failure/0]).
 
@@ -90,12 +91,14 @@ remote(local, ActionId, ChoiceId, Timeout) ->
     call(node(), ?MODULE, carry_out,
          [cell_module(), cell_spec_helpers:machine_settings(), ActionId, ChoiceId], Timeout);
 remote({vplc, Node, CookieFile}, ActionId, ChoiceId, Timeout) ->
-    case cookie(CookieFile) of
-        {ok, Cookie} ->
+    case {is_alive(), cookie(CookieFile)} of
+        {false, _} ->
+            {error, not_distributed};
+        {true, {ok, Cookie}} ->
             true = erlang:set_cookie(Node, Cookie),
             call(Node, cell_vplc, machine_action, [cell_module(), ActionId, ChoiceId], Timeout);
-        {error, Why} ->
-            {error, {refused, Why}}
+        {true, error} ->
+            {error, {bad_cookie, CookieFile}}
     end.
 
 call(Node, M, F, A, Timeout) ->
@@ -242,10 +245,10 @@ cookie(File) ->
             case re:run(Word, "^[A-Za-z0-9]{1," ++ integer_to_list(?COOKIE_MAX) ++ "}$",
                         [{capture, none}]) of
                 match -> {ok, binary_to_atom(Word, latin1)};
-                nomatch -> {error, {bad_cookie_file, File}}
+                nomatch -> error
             end;
-        {error, Why} ->
-            {error, {cannot_read_cookie, File, Why}}
+        {error, _} ->
+            error
     end.
 
 cell_module() ->
@@ -315,6 +318,17 @@ node_name_test_() ->
      ?_assertEqual(error, node_name("no_host")),
      ?_assertEqual(error, node_name("a b@host")),
      ?_assertEqual(error, node_name(""))].
+
+cookie_test() ->
+    File = filename:join(os:getenv("TMPDIR", "/tmp"), "cellrt_eunit_cookie." ++ os:getpid()),
+    ok = file:write_file(File, <<"ab12CD\n">>),
+    ?assertEqual({ok, 'ab12CD'}, cookie(File)),
+    ok = file:write_file(File, <<"two words">>),
+    ?assertEqual(error, cookie(File)),
+    ok = file:write_file(File, <<>>),
+    ?assertEqual(error, cookie(File)),
+    ok = file:delete(File),
+    ?assertEqual(error, cookie(File)).
 
 carry_out_test_() ->
     %% This module as a cell without actions: nothing to carry out.
