@@ -268,7 +268,8 @@ await_exit(P) ->
     end.
 
 %% `make run' (scripts/run) as a user starts it: a virtual PLC, then the cell in real
-%% mode connected to it over Modbus TCP; told to stop, the script stops the cell, then
+%% mode connected to it over Modbus TCP; the operator's hand on the machine (the
+%% emergency stop pressed and released) reaches the virtual PLC's node; told to stop, the script stops the cell, then
 %% the virtual PLC: neither is left running.
 make_run_with_vplc(Config) ->
     Root = filename:join(?config(priv_dir, Config), "router_release_SUITE.run"),
@@ -295,6 +296,16 @@ make_run_with_vplc(Config) ->
                        ?WAIT_MS + 5000),
         {ok, #{endpoint := Endpoint}} = erpc:call(Node, cell_hal, info, [router_plc]),
         ct:log("the cell's PLC: ~ts", [Endpoint]),
+        %% The operator's hand reaches the machine in the virtual PLC's process: the
+        %% emergency stop pressed there comes back over Modbus TCP as the cell's own.
+        {Mod, Beam, File} = code:get_object_code(router_release_probe),
+        {module, Mod} = erpc:call(Node, code, load_binary, [Mod, File, Beam]),
+        ?assertMatch({ok, {vplc, _, _}, [_ | _]},
+                     erpc:call(Node, cell_machine_actions, list, [])),
+        ?assertEqual({estop, true}, erpc:call(Node, router_release_probe, estop_by_hand,
+                                              [<<"press">>, ?WAIT_MS], ?WAIT_MS + 5000)),
+        ?assertEqual({estop, false}, erpc:call(Node, router_release_probe, estop_by_hand,
+                                               [<<"release">>, ?WAIT_MS], ?WAIT_MS + 5000)),
         {os_pid, Pid} = erlang:port_info(Run, os_pid),
         _ = os:cmd("kill -TERM " ++ integer_to_list(Pid)),
         ?assertEqual(0, await_exit_status(Run)),

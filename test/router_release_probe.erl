@@ -3,7 +3,8 @@
 -module(router_release_probe).
 
 -export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0,
-         await_left/2, await_committed/1, await_alarm/2, await_gone/2, books/0]).
+         await_left/2, await_committed/1, await_alarm/2, await_gone/2, books/0,
+         estop_by_hand/2]).
 
 %% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
 %% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
@@ -151,6 +152,25 @@ await_gone(Id, Timeout) ->
             after Timeout ->
                 timeout
             end
+    end.
+
+%% The operator's hand on the machine's emergency stop (`<<"press">>' or
+%% `<<"release">>'), carried out where the machine's physics runs, as the panel's
+%% button does; returns once the cell's emergency stop follows (`{estop, Active}'), or
+%% why the action was not carried out, or `timeout'.
+-spec estop_by_hand(binary(), pos_integer()) -> {estop, boolean()} | {error, term()} | timeout.
+estop_by_hand(Choice, Timeout) ->
+    ok = cell_events:subscribe([estop]),
+    Want = Choice =:= <<"press">>,
+    case cell_machine_actions:run(<<"estop">>, Choice, Timeout) of
+        {ok, _, _} ->
+            receive
+                {cell_event, #{type := estop, active := Want}} -> {estop, Want}
+            after Timeout ->
+                timeout
+            end;
+        {error, _} = Error ->
+            Error
     end.
 
 %% The cell's own books: its totals and the serials its tasks hold.

@@ -14,7 +14,7 @@ openPages(cell, async (p) => {
 });
 
 const PAGES = ['line', 'log', 'users', 'machine', 'errors', 'io', 'settings', 'recipes',
-               'statistics', 'products', 'audit'];
+               'statistics', 'products', 'audit', 'simulation'];
 
 // The boxes of the header's items, and the size of the document.
 const header = () => page.evaluate(() => {

@@ -22,6 +22,7 @@ paths=()
 for d in "$top"/_build/default/lib/*/ebin; do paths+=(-pa "$d"); done
 if ! erlc "${paths[@]}" -o "$out/ebin" "$top"/apps/cell_web/test/cell_web_demo.erl \
         "$top"/apps/cell_web/test/cell_web_demo_task.erl \
+        "$top"/apps/cell_web/test/cell_web_router_demo.erl \
         "$top"/apps/cell_inspect/test/cell_inspect_demo.erl; then
     echo "the demo cell does not compile"; summary 0 1; exit 1
 fi

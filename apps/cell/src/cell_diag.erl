@@ -12,6 +12,8 @@
 %% cell_diag:stats().             % this shift: time per state, items, cycle times
 %% cell_diag:trace(work_front).   % one task's log at Verbose for a minute
 %% cell_diag:top().               % the processes with the longest queues and most memory
+%% cell_diag:machine().           % what can be done to the simulated machine
+%% cell_diag:machine(estop, press). % done: here the e-stop pressed (wherever it runs)
 %% '''
 %%
 %% For live views of the whole node the release carries recon
@@ -21,7 +23,7 @@
 -module(cell_diag).
 
 -export([help/0, status/0, tasks/0, waits/0, io/1, alarms/0, product/1, retained/0, stats/0,
-         stats/1, trace/1, trace/2, top/0]).
+         stats/1, trace/1, trace/2, top/0, machine/0, machine/2]).
 
 -define(TRACE_MS, 60000).
 
@@ -38,8 +40,50 @@ help() ->
            "cell_diag:stats()           this shift; stats(total) since the first start\n",
            "cell_diag:trace(Task)       a task's log at Verbose for a minute; trace(Task, Ms)\n",
            "cell_diag:top()             processes with the longest queues, the most memory\n",
+           "cell_diag:machine()         what can be done to the simulated machine\n",
+           "cell_diag:machine(A, C)     do it: machine(estop, press), machine(air, drop)\n",
            "observer_cli:start()        live view of the node (q to leave)\n",
            "Leave this shell with Ctrl-G then q (q(). stops the cell).\n"]).
+
+%% @doc The actions of the cell's simulated machine (see {@link cell_machine_actions}),
+%% and where they are carried out: in this VM, or on the virtual PLC's node.
+-spec machine() -> ok.
+machine() ->
+    case cell_machine_actions:list() of
+        {ok, none, _} ->
+            print("This machine has no simulation to act on: its PLC is a real one.\n");
+        {ok, _, []} ->
+            print("The cell lists no actions on its simulated machine.\n");
+        {ok, Where, Actions} ->
+            print([case Where of
+                       local -> "The machine's simulation runs in this node.\n";
+                       {vplc, Node, _} -> io_lib:format("The machine's simulation runs in the "
+                                                        "virtual PLC ~s.~n", [Node])
+                   end,
+                   [io_lib:format("  ~-22s ~ts (~ts): ~ts~n",
+                                  [Id, C, G, lists:join(" ", [atom_to_list(I) || #{id := I} <- Cs])])
+                    || #{id := Id, caption := C, group := G, choices := Cs} <- Actions],
+                   "Carry one out with cell_diag:machine(Action, Choice).\n"]);
+        {error, Why} ->
+            print(io_lib:format("The cell's list of machine actions is not well formed: ~tp~n",
+                                [Why]))
+    end.
+
+%% @doc Carries out a machine action, as a service user's button on the panel does
+%% (`machine(estop, press)', `machine(door_loading, open)'): `ok' once the machine has
+%% taken it, or why not.
+-spec machine(atom() | binary(), atom() | binary()) -> ok | {error, cell_machine_actions:failure()}.
+machine(Action, Choice) ->
+    case cell_machine_actions:run(text(Action), text(Choice), 5000) of
+        {ok, #{caption := A}, #{caption := C}} ->
+            cell_log:notice(diag, "~ts: ~ts (from the shell)", [A, C]),
+            ok;
+        {error, _} = Error ->
+            Error
+    end.
+
+text(A) when is_atom(A) -> atom_to_binary(A, utf8);
+text(B) when is_binary(B) -> B.
 
 %% @doc The cell at a glance.
 -spec status() -> ok.

@@ -25,7 +25,7 @@
 -module(cell_vplc).
 -behaviour(gen_server).
 
--export([start_link/0, port/0, setup/2, main/0, merge_settings/2]).
+-export([start_link/0, port/0, setup/2, main/0, merge_settings/2, machine_action/3]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, terminate/2]).
 
 -define(LISTENER, cell_vplc_listener).
@@ -42,6 +42,24 @@ start_link() ->
 -spec port() -> inet:port_number().
 port() ->
     ranch:get_port(?LISTENER).
+
+%% @doc Carries out one of the cell's machine actions on the machine served here (see
+%% {@link cell_machine_actions}): what the cell calls on this node, when `scripts/vplc'
+%% started it with a node name, for the operator's hand on the panel. `Cell' must be
+%% the cell served; the action and choice are looked up in its list again here.
+-spec machine_action(module(), binary(), binary()) -> ok | {error, term()}.
+machine_action(Cell, ActionId, ChoiceId) when is_binary(ActionId), is_binary(ChoiceId) ->
+    case {application:get_env(cell_vplc, cell), whereis(?MODULE)} of
+        {{ok, Cell}, Pid} when is_pid(Pid) ->
+            cell_machine_actions:carry_out(Cell, cell_spec_helpers:machine_settings(),
+                                           ActionId, ChoiceId);
+        {{ok, Cell}, undefined} ->
+            {error, {refused, not_running}};
+        {{ok, Other}, _} ->
+            {error, {refused, {serves_another_cell, Other}}};
+        {undefined, _} ->
+            {error, {refused, not_running}}
+    end.
 
 %% @doc What `scripts/vplc' runs: starts the application, or stops the node saying why.
 %% A virtual PLC that cannot go on (its port taken, its cell's spec refused: its

@@ -56,6 +56,7 @@ routes() ->
      {"/api/io/hardware/:id/image", cell_web_io_h, #{what => image}},
      {"/api/forces", cell_web_forces_h, #{what => all}},
      {"/api/forces/:group/:point", cell_web_forces_h, #{what => one}},
+     {"/api/machine/actions", cell_web_machine_h, #{}},
      {"/api/ws", cell_web_ws_h, #{}}]
         ++ cell_web_extension:routes()
         ++ [{'_', cell_web_notfound_h, #{}}].

@@ -25,7 +25,7 @@
 -module(router_cell).
 
 -export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2,
-         router_settings/0, simulation/1]).
+         router_settings/0, simulation/1, machine_actions/1]).
 
 -define(CONN, router_plc).
 
@@ -137,6 +137,40 @@ simulation(Machine) ->
     [#{id => router_sim, start => {router_sim, start_link, [#{lanes => lanes(Machine)}]},
        shutdown => 5000}].
 
+%% @doc What the operator can do to the simulated machine from the panel or the shell
+%% (see {@link cell_machine_actions}): the emergency stop, the service key, each safety
+%% door, the compressed air and each drive, carried out by the physics'
+%% ({@link router_sim}) functions wherever it runs.
+-spec machine_actions(map()) -> [cell_machine_actions:action()].
+machine_actions(Machine) ->
+    Choice = fun(Id, Caption, F, A) -> #{id => Id, caption => Caption, run => {router_sim, F, A}} end,
+    [#{id => estop, caption => <<"Emergency stop">>, group => <<"Safety">>,
+       choices => [Choice(press, <<"Press">>, press_estop, []),
+                   Choice(release, <<"Release">>, release_estop, [])]},
+     #{id => service_key, caption => <<"Service key switch">>, group => <<"Safety">>,
+       choices => [Choice(service, <<"Service">>, service_key, [true]),
+                   Choice(production, <<"Production">>, service_key, [false])]}]
+        ++ [#{id => Id, caption => Caption, group => <<"Safety doors">>,
+              choices => [Choice(open, <<"Open">>, open_door, [Door]),
+                          Choice(close, <<"Close">>, close_door, [Door])]}
+            || {Id, Door, Caption} <- [{door_loading, loading, <<"Loading side door">>},
+                                       {door_unloading, unloading, <<"Unloading side door">>}]]
+        ++ [#{id => air, caption => <<"Compressed air">>, group => <<"Air">>,
+              choices => [Choice(drop, <<"Drop">>, drop_air, []),
+                          Choice(restore, <<"Restore">>, restore_air, [])]}]
+        ++ [#{id => drive_action(D),
+              caption => <<(router_drives_io:caption(D))/binary, " drive">>,
+              group => <<"Drives">>,
+              choices => [Choice(fault, <<"Fault (a reset clears it)">>, fault_drive, [D, 1]),
+                          Choice(fault_stuck, <<"Fault (no reset clears it)">>, fault_drive,
+                                 [D, never])]}
+            || D <- router_drives_io:drives(lanes(Machine))].
+
+drive_action(conveyor_front) -> drive_conveyor_front;
+drive_action(conveyor_rear) -> drive_conveyor_rear;
+drive_action(lower) -> drive_lower;
+drive_action(upper) -> drive_upper.
+
 %% @doc The lanes of the machine.
 -spec lanes(map()) -> [front | rear].
 lanes(Machine) ->
@@ -182,3 +216,22 @@ lane_name(rear) -> <<"Rear">>.
 -spec router_settings() -> map().
 router_settings() ->
     cell_spec_helpers:saved_settings(router_settings).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+machine_actions_test_() ->
+    Ids = fun(Machine) ->
+                  {ok, As} = cell_machine_actions:check(machine_actions(Machine)),
+                  [Id || #{id := Id} <- As]
+          end,
+    [?_assertEqual([estop, service_key, door_loading, door_unloading, air,
+                    drive_conveyor_front, drive_lower, drive_upper],
+                   Ids(#{dual_lane => false})),
+     ?_assert(lists:member(drive_conveyor_rear, Ids(#{dual_lane => true}))),
+     %% Every choice runs an export of the physics.
+     ?_assertEqual({module, router_sim}, code:ensure_loaded(router_sim)),
+     ?_assertEqual([], [R || #{choices := Cs} <- machine_actions(#{dual_lane => true}),
+                             #{run := {M, F, A} = R} <- Cs,
+                             not erlang:function_exported(M, F, length(A))])].
+-endif.
