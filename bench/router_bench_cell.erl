@@ -10,8 +10,11 @@
 %% @doc Starts the router cell (and, with `with_panel', the SHDR adapter and the web
 %% panel on ports of their own) on the root folder `CELLRT_ROOT' names, emptied first,
 %% with these settings objects written to `Settings/'; returns when its PLC's points
-%% have been read.
--spec start(#{settings := #{atom() => map()}, with_panel => boolean()}) -> ok.
+%% have been read. With `plc => real' the settings put the cell in real mode (its PLC
+%% elsewhere, a virtual PLC say): no physics runs here, and the connection up is the
+%% PLC's points read.
+-spec start(#{settings := #{atom() => map()}, with_panel => boolean(),
+              plc => sim | real}) -> ok.
 start(#{settings := Objects} = Opts) ->
     quiet(),
     Root = os:getenv("CELLRT_ROOT"),
@@ -37,7 +40,10 @@ start(#{settings := Objects} = Opts) ->
         {ok, down} -> receive {cell_hal_conn, router_plc, up} -> ok end
     end,
     %% The tasks find the machine as it is at their first Start.
-    ok = router_sim:ready(60000).
+    case maps:get(plc, Opts, sim) of
+        sim -> ok = router_sim:ready(60000);
+        real -> ok
+    end.
 
 %% @doc Stops the cell, its physics and the database, as the node would.
 -spec stop() -> ok.

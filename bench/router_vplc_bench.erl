@@ -1,0 +1,135 @@
+%% @doc The cost of the real protocol path: panels per hour through the default cell in
+%% real mode (`simulation_mode' off), its PLC a virtual PLC (`scripts/vplc', the
+%% router's physics served over Modbus TCP on loopback, in an OS process of its own),
+%% beside the same cell on the in-VM simulated PLC, in the same run; one lane, a panel
+%% always waiting upstream, no faults, the same settings on both sides:
+%% <ul>
+%% <li>with every physical delay zero: the runtime's ceiling, where the protocol's cost
+%%     shows most (every poll and every output written is a Modbus round trip over
+%%     loopback to another OS process);</li>
+%% <li>with the real machine's delays, run at a quarter of their length and counted
+%%     back to machine time (as `router_bench' does): what a user of the machine sees.</li>
+%% </ul>
+%% The in-VM side runs first, then the real-mode side, each after a warm-up of a few
+%% panels, on a fresh cell root (and a fresh virtual PLC root: its machine starts
+%% empty).
+-module(router_vplc_bench).
+
+-export([run/0]).
+
+-define(WARMUP, 3).
+-define(ZERO_PANELS, 25).
+-define(REAL_PANELS, 6).
+-define(REAL_SCALE, 0.25).
+-define(TIMEOUT_MS, 120000).
+
+-spec run() -> [cell_bench:result()].
+run() ->
+    ZeroVm = measure(vm, 0.0, ?ZERO_PANELS),
+    ZeroReal = measure(vplc, 0.0, ?ZERO_PANELS),
+    RealVm = measure(vm, ?REAL_SCALE, ?REAL_PANELS) * ?REAL_SCALE,
+    RealReal = measure(vplc, ?REAL_SCALE, ?REAL_PANELS) * ?REAL_SCALE,
+    Peer = "the same cell on the in-VM simulated PLC",
+    Scale = float_to_list(?REAL_SCALE, [{decimals, 2}]),
+    [#{title => "Panels per hour, one lane, real mode over Modbus TCP to the virtual PLC, "
+                "physical delays zero (the runtime's ceiling)",
+       unit => "panels/h", ours => ZeroReal, peer => ZeroVm, peer_name => Peer,
+       better => higher},
+     #{title => ["Panels per hour, one lane, real mode over Modbus TCP to the virtual PLC, "
+                 "real delays (", Scale, " time scale, machine time)"],
+       unit => "panels/h", ours => RealReal, peer => RealVm, peer_name => Peer,
+       better => higher,
+       note => io_lib:format(
+                 "Real mode: the cell's HAL polls the virtual PLC over Modbus TCP on "
+                 "loopback every 20 ms (hal_poll_ms) and writes its outputs there; the "
+                 "virtual PLC answers each request from its simulated PLC's values, a "
+                 "write moving the physics at once. In-VM, the cell's HAL polls the "
+                 "simulated PLC in its own node at the same period. At zero delay a "
+                 "panel takes "
+                 "~.2f s through the virtual PLC and ~.2f s in-VM: the difference, "
+                 "~b ms a panel, is what the real protocol path costs. With the delays "
+                 "at ~s of the machine's, that time weighs ~b times what it would on the "
+                 "machine. Each side: ~b panels out after ~b of warm-up at zero delay, "
+                 "~b after ~b with the delays.",
+                 [3600 / ZeroReal, 3600 / ZeroVm, round(1000 * (3600 / ZeroReal - 3600 / ZeroVm)),
+                  Scale, round(1 / ?REAL_SCALE), ?ZERO_PANELS, ?WARMUP, ?REAL_PANELS,
+                  ?WARMUP])}].
+
+%% Panels per hour of wall-clock time through the cell on `Plc' at a time scale, after
+%% a warm-up.
+measure(Plc, Scale, Panels) ->
+    Settings = router_bench_cell:settings(#{scale => Scale, dual_lane => false}),
+    {Vplc, Cell} = case Plc of
+                       vm ->
+                           {none, #{settings => Settings}};
+                       vplc ->
+                           V = start_vplc(Settings),
+                           {V, #{settings => real_mode(Settings, maps:get(tcp, V)),
+                                 plc => real}}
+                   end,
+    try
+        ok = router_bench_cell:start(Cell),
+        try
+            ok = cell_events:subscribe([item_transfer_out]),
+            ok = cell_controller:start(<<"bench">>),
+            [T0 | _] = lists:reverse(router_bench_cell:await_out(?WARMUP, ?TIMEOUT_MS)),
+            Times = router_bench_cell:await_out(Panels, ?TIMEOUT_MS),
+            ok = cell_controller:stop(<<"bench">>),
+            Panels / ((lists:last(Times) - T0) / 3.6e9)
+        after
+            router_bench_cell:stop()
+        end
+    after
+        stop_vplc(Vplc)
+    end.
+
+%% The cell's settings pointed at the virtual PLC on loopback.
+real_mode(#{machine := Machine} = Settings, Port) ->
+    Settings#{machine => Machine#{simulation_mode => false},
+              router => #{plc_host => <<"127.0.0.1">>, plc_port => Port}}.
+
+%% Starts `scripts/vplc' for the router on a port the OS picks, on a fresh root of its
+%% own holding the same settings as the cell's; returns once it listens.
+start_vplc(Settings) ->
+    Top = os:getenv("CELLRT_TOP"),
+    Root = os:getenv("CELLRT_ROOT") ++ ".vplc",
+    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Settings),
+    P = open_port({spawn_executable, filename:join([Top, "scripts", "vplc"])},
+                  [{args, ["--port", "0", "--root", Root]}, {line, 4096}, exit_status,
+                   stderr_to_stdout, binary]),
+    #{port => P, tcp => await_listening(P, erlang:monotonic_time(millisecond) + ?TIMEOUT_MS)}.
+
+await_listening(P, Deadline) ->
+    receive
+        {P, {data, {eol, <<"virtual PLC of router_cell listening on ", Rest/binary>>}}} ->
+            [_, Port] = binary:split(Rest, <<" port ">>),
+            binary_to_integer(Port);
+        {P, {data, _}} ->
+            await_listening(P, Deadline);
+        {P, {exit_status, S}} ->
+            error({vplc_exited, S})
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        error(vplc_not_listening)
+    end.
+
+%% Stops the virtual PLC as `make run' does (SIGTERM), and waits for its end.
+stop_vplc(none) ->
+    ok;
+stop_vplc(#{port := P}) ->
+    {os_pid, Pid} = erlang:port_info(P, os_pid),
+    _ = os:cmd("kill -TERM " ++ integer_to_list(Pid)),
+    await_exit(P).
+
+await_exit(P) ->
+    receive
+        {P, {exit_status, _}} -> ok;
+        {P, {data, _}} -> await_exit(P)
+    after ?TIMEOUT_MS ->
+        error(vplc_not_stopped)
+    end.
