@@ -3,7 +3,7 @@
 %% the unloading segments hand out, waited for as events.
 -module(router_bench_cell).
 
--export([start/1, stop/0, await_out/2, settings/1]).
+-export([start/1, stop/0, await_out/2, settings/1, write_settings/2, panels_per_hour/2]).
 
 -define(APPS, [router_cell, cell_shdr, cell_web]).
 
@@ -18,13 +18,7 @@
 start(#{settings := Objects} = Opts) ->
     quiet(),
     Root = os:getenv("CELLRT_ROOT"),
-    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects),
+    ok = write_settings(Root, Objects),
     _ = [application:load(A) || A <- [cell_base, cell, cell_web, cell_shdr, router_cell]],
     ok = application:set_env(cell_base, root, Root),
     ok = application:set_env(cell, cell_module, router_cell),
@@ -43,6 +37,36 @@ start(#{settings := Objects} = Opts) ->
     case maps:get(plc, Opts, sim) of
         sim -> ok = router_sim:ready(60000);
         real -> ok
+    end.
+
+%% @doc Empties the root folder `Root' and writes these settings objects to its
+%% `Settings/', one JSON file each.
+-spec write_settings(file:filename(), #{atom() => map()}) -> ok.
+write_settings(Root, Objects) ->
+    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects).
+
+%% @doc Starts the cell as {@link start/1} does, lets it pass `Warmup' panels, then
+%% returns the panels per hour of wall-clock time of the next `Panels' (from the last
+%% of the warm-up out to the last of them out); the cell stopped again.
+-spec panels_per_hour(map(), #{warmup := pos_integer(), panels := pos_integer(),
+                               timeout := timeout()}) -> float().
+panels_per_hour(Opts, #{warmup := Warmup, panels := Panels, timeout := Timeout}) ->
+    ok = start(Opts),
+    try
+        ok = cell_events:subscribe([item_transfer_out]),
+        ok = cell_controller:start(<<"bench">>),
+        [T0 | _] = lists:reverse(await_out(Warmup, Timeout)),
+        Times = await_out(Panels, Timeout),
+        ok = cell_controller:stop(<<"bench">>),
+        Panels / ((lists:last(Times) - T0) / 3.6e9)
+    after
+        stop()
     end.
 
 %% @doc Stops the cell, its physics and the database, as the node would.

@@ -68,17 +68,8 @@ measure(Plc, Scale, Panels) ->
                                  plc => real}}
                    end,
     try
-        ok = router_bench_cell:start(Cell),
-        try
-            ok = cell_events:subscribe([item_transfer_out]),
-            ok = cell_controller:start(<<"bench">>),
-            [T0 | _] = lists:reverse(router_bench_cell:await_out(?WARMUP, ?TIMEOUT_MS)),
-            Times = router_bench_cell:await_out(Panels, ?TIMEOUT_MS),
-            ok = cell_controller:stop(<<"bench">>),
-            Panels / ((lists:last(Times) - T0) / 3.6e9)
-        after
-            router_bench_cell:stop()
-        end
+        router_bench_cell:panels_per_hour(Cell, #{warmup => ?WARMUP, panels => Panels,
+                                                  timeout => ?TIMEOUT_MS})
     after
         stop_vplc(Vplc)
     end.
@@ -93,13 +84,7 @@ real_mode(#{machine := Machine} = Settings, Port) ->
 start_vplc(Settings) ->
     Top = os:getenv("CELLRT_TOP"),
     Root = os:getenv("CELLRT_ROOT") ++ ".vplc",
-    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Settings),
+    ok = router_bench_cell:write_settings(Root, Settings),
     P = open_port({spawn_executable, filename:join([Top, "scripts", "vplc"])},
                   [{args, ["--port", "0", "--root", Root]}, {line, 4096}, exit_status,
                    stderr_to_stdout, binary]),
