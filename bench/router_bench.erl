@@ -57,18 +57,9 @@ lane(Dual) ->
 
 %% Panels per hour of wall-clock time at a time scale, after a warm-up.
 measure(Dual, Scale, Panels) ->
-    ok = router_bench_cell:start(#{settings => router_bench_cell:settings(#{scale => Scale,
-                                                                             dual_lane => Dual})}),
-    try
-        ok = cell_events:subscribe([item_transfer_out]),
-        ok = cell_controller:start(<<"bench">>),
-        [T0 | _] = lists:reverse(router_bench_cell:await_out(?WARMUP, ?TIMEOUT_MS)),
-        Times = router_bench_cell:await_out(Panels, ?TIMEOUT_MS),
-        ok = cell_controller:stop(<<"bench">>),
-        Panels / ((lists:last(Times) - T0) / 3.6e9)
-    after
-        router_bench_cell:stop()
-    end.
+    router_bench_cell:panels_per_hour(
+      #{settings => router_bench_cell:settings(#{scale => Scale, dual_lane => Dual})},
+      #{warmup => ?WARMUP, panels => Panels, timeout => ?TIMEOUT_MS}).
 
 %% The bottleneck's panels per hour, and its name.
 theoretical(Dual, Router, Sim) ->

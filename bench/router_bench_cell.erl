@@ -3,25 +3,22 @@
 %% the unloading segments hand out, waited for as events.
 -module(router_bench_cell).
 
--export([start/1, stop/0, await_out/2, settings/1]).
+-export([start/1, stop/0, await_out/2, settings/1, write_settings/2, panels_per_hour/2]).
 
 -define(APPS, [router_cell, cell_shdr, cell_web]).
 
 %% @doc Starts the router cell (and, with `with_panel', the SHDR adapter and the web
 %% panel on ports of their own) on the root folder `CELLRT_ROOT' names, emptied first,
 %% with these settings objects written to `Settings/'; returns when its PLC's points
-%% have been read.
--spec start(#{settings := #{atom() => map()}, with_panel => boolean()}) -> ok.
+%% have been read. With `plc => real' the settings put the cell in real mode (its PLC
+%% elsewhere, a virtual PLC say): no physics runs here, and the connection up is the
+%% PLC's points read.
+-spec start(#{settings := #{atom() => map()}, with_panel => boolean(),
+              plc => sim | real}) -> ok.
 start(#{settings := Objects} = Opts) ->
     quiet(),
     Root = os:getenv("CELLRT_ROOT"),
-    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
-    Dir = filename:join(Root, "Settings"),
-    ok = filelib:ensure_dir(filename:join(Dir, "x")),
-    maps:foreach(fun(Name, Fields) ->
-                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
-                                              jsx:encode(Fields))
-                 end, Objects),
+    ok = write_settings(Root, Objects),
     _ = [application:load(A) || A <- [cell_base, cell, cell_web, cell_shdr, router_cell]],
     ok = application:set_env(cell_base, root, Root),
     ok = application:set_env(cell, cell_module, router_cell),
@@ -37,7 +34,40 @@ start(#{settings := Objects} = Opts) ->
         {ok, down} -> receive {cell_hal_conn, router_plc, up} -> ok end
     end,
     %% The tasks find the machine as it is at their first Start.
-    ok = router_sim:ready(60000).
+    case maps:get(plc, Opts, sim) of
+        sim -> ok = router_sim:ready(60000);
+        real -> ok
+    end.
+
+%% @doc Empties the root folder `Root' and writes these settings objects to its
+%% `Settings/', one JSON file each.
+-spec write_settings(file:filename(), #{atom() => map()}) -> ok.
+write_settings(Root, Objects) ->
+    _ = os:cmd("rm -rf '" ++ Root ++ "'"),
+    Dir = filename:join(Root, "Settings"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    maps:foreach(fun(Name, Fields) ->
+                         ok = file:write_file(filename:join(Dir, atom_to_list(Name) ++ ".json"),
+                                              jsx:encode(Fields))
+                 end, Objects).
+
+%% @doc Starts the cell as {@link start/1} does, lets it pass `Warmup' panels, then
+%% returns the panels per hour of wall-clock time of the next `Panels' (from the last
+%% of the warm-up out to the last of them out); the cell stopped again.
+-spec panels_per_hour(map(), #{warmup := pos_integer(), panels := pos_integer(),
+                               timeout := timeout()}) -> float().
+panels_per_hour(Opts, #{warmup := Warmup, panels := Panels, timeout := Timeout}) ->
+    ok = start(Opts),
+    try
+        ok = cell_events:subscribe([item_transfer_out]),
+        ok = cell_controller:start(<<"bench">>),
+        [T0 | _] = lists:reverse(await_out(Warmup, Timeout)),
+        Times = await_out(Panels, Timeout),
+        ok = cell_controller:stop(<<"bench">>),
+        Panels / ((lists:last(Times) - T0) / 3.6e9)
+    after
+        stop()
+    end.
 
 %% @doc Stops the cell, its physics and the database, as the node would.
 -spec stop() -> ok.

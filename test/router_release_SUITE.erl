@@ -113,8 +113,13 @@ run_answer_stop_restart(Config) ->
 %% killed while a product is on its way between two tasks: the cell shows the
 %% connection error (REST and SHDR) and holds its products; the virtual PLC is started
 %% again on the same port, the operator answers Retry, and the line goes on (the tasks
-%% write again the outputs the restarted PLC holds at zero). Every serial that entered
-%% is in the cell or has left, once.
+%% write again the outputs the restarted PLC holds at zero). Then the machine is poked
+%% through the virtual PLC's physics (its node named for the suite, `--node', so the
+%% suite can call router_sim there) and the cell reacts through its IO over Modbus: the
+%% emergency-stop circuit opened stops every task and refuses Start, closed again the
+%% line starts again; a door opened is a warning the line runs on with; a drive fault
+%% is reset by the monitor. Every serial that entered is in the cell or has left, once,
+%% and the statistics of every task add up to the wall-clock time.
 real_mode_vplc_killed(Config) ->
     Priv = ?config(priv_dir, Config),
     Root = filename:join(Priv, "router_release_SUITE.real"),
@@ -124,11 +129,15 @@ real_mode_vplc_killed(Config) ->
     Env = [{"CELLRT_ROOT", Root}, {"CELLRT_NODE", NodeName ++ "@localhost"},
            {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
            {"CELLRT_SHDR_PORT", "0"}],
-    %% A fast machine without mistakes of its own: the errors are the lost PLC's.
-    Sim = #{time_scale => 0.05, arrival_ms => 0},
+    %% A fast machine without mistakes of its own: the errors are the lost PLC's (the
+    %% physics' own slips, jams and low magazine off: their defaults are not zero).
+    Sim = #{time_scale => 0.05, arrival_ms => 0, product_lost_rate => 0.0, jam_rate => 0.0,
+            magazine_low_s => 0},
     Router = #{hal_poll_ms => 10},
     ok = router_test_settings:write(VRoot, #{router_sim => Sim, router => Router}),
-    {Vplc, Port} = start_vplc(VRoot, 0),
+    %% The suite's own clock, for the statistics' span (system time, as theirs).
+    Began = erlang:system_time(microsecond),
+    {Vplc, Port} = start_vplc(VRoot, 0, vplc_node(1)),
     ok = router_test_settings:write(Root, #{machine => #{simulation_mode => false},
                                             router_sim => Sim,
                                             router => Router#{plc_host => <<"127.0.0.1">>,
@@ -139,6 +148,8 @@ real_mode_vplc_killed(Config) ->
         Op = boot(Bin, Env, Node),
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
         Answers = run(Op, Node, await_left, 3, #{}),
+        %% Every task has been seen by the statistics by now: products passed them all.
+        Flowing = erlang:system_time(microsecond),
         %% The PLC goes while a product is between two tasks.
         {committed, Link, Serial} =
             erpc:call(Node, router_release_probe, await_committed, [?WAIT_MS], ?WAIT_MS + 5000),
@@ -165,7 +176,7 @@ real_mode_vplc_killed(Config) ->
         ?assertEqual(lists:usort(Held), lists:sort(Held)),
         ct:log("held while the PLC is away: ~s (error ~s)", [lists:join(" ", Held), Id]),
         %% The virtual PLC back on the same port; the connection comes up again.
-        {Vplc2, Port} = start_vplc(VRoot, Port),
+        {Vplc2, Port} = start_vplc(VRoot, Port, vplc_node(2)),
         try
             ok = erpc:call(Node, cell_testkit, await_connection, [router_plc, ?WAIT_MS],
                            ?WAIT_MS + 5000),
@@ -188,8 +199,13 @@ real_mode_vplc_killed(Config) ->
                          binary:match(I, <<"connection.router_plc">>) =/= nomatch, I)
              || #{<<"id">> := I, <<"what">> := W} <- History,
                 lists:member(W, [<<"retry">>, <<"ignore">>, <<"reset">>])],
+            %% The machine poked through the virtual PLC's physics.
+            Answers3 = machine_events(Op, Node, vplc_node(2), Answers2),
+            %% A code reader's no-read, answered by the operator: its place, once the
+            %% demo machine has a code reader.
             {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
             ok = stopped(Op, Node),
+            ct:log("answers given: ~p", [Answers3]),
             #{total := #{cell := #{in := In, out := Out, scrapped := Scrapped},
                          in_cell := InCell},
               held := HeldEnd} = erpc:call(Node, router_release_probe, books, []),
@@ -199,7 +215,8 @@ real_mode_vplc_killed(Config) ->
                                     [erpc:call(Node, mnesia, dirty_all_keys, [Tab])
                                      || Tab <- [cell_trace_product, cell_trace_open]])),
             ?assertEqual(In, length(Serials)),
-            [check_history(Op, S) || S <- Serials]
+            [check_history(Op, S) || S <- Serials],
+            check_time(Node, Began, Flowing)
         after
             cellrt(Bin, ["stop"], Env),
             kill_vplc(Vplc2)
@@ -226,14 +243,110 @@ shdr_await(S, Parts, Deadline) ->
             ct:fail({no_shdr_line, Parts, Why})
     end.
 
-%% Starts scripts/vplc for the router on `Port' (0: one the OS picks), root `Root';
-%% returns once it listens: its port (of the OS process) and the port it listens on.
-start_vplc(Root, Port) ->
+%% Starts scripts/vplc for the router on `Port' (0: one the OS picks), root `Root',
+%% its node named `VNode' (for the suite's pokes); returns once it listens: its port
+%% (of the OS process) and the port it listens on.
+start_vplc(Root, Port, VNode) ->
     Script = filename:join([cellrt_rel:top(), "scripts", "vplc"]),
     P = open_port({spawn_executable, Script},
-                  [{args, ["--port", integer_to_list(Port), "--root", Root]},
+                  [{args, ["--port", integer_to_list(Port), "--root", Root,
+                           "--node", atom_to_list(VNode)]},
                    {line, 4096}, exit_status, stderr_to_stdout, binary]),
-    {P, await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS)}.
+    Listening = await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS),
+    %% Its cookie, made at its first start, in its root (as the cell under make run
+    %% reads it).
+    {ok, Cookie} = file:read_file(filename:join([Root, "Distribution", "cookie"])),
+    true = erlang:set_cookie(VNode, binary_to_atom(string:trim(Cookie))),
+    {P, Listening}.
+
+%% The virtual PLC's node: a name of its own for each start, so a restart never waits
+%% for the name of the one killed to be free.
+vplc_node(N) ->
+    list_to_atom("cellrt_ct_vplc_" ++ os:getpid() ++ "_" ++ integer_to_list(N) ++ "@localhost").
+
+%% The emergency-stop circuit opened and closed, a door opened and closed, a drive
+%% faulted and reset by the monitor: each poked in the virtual PLC's physics
+%% (router_sim in `VNode') and seen by the cell through its IO over Modbus TCP, as the
+%% machine's own would be. Every error meanwhile is answered as in run/5.
+machine_events(Op, Node, VNode, Answers0) ->
+    ok = erpc:call(Node, router_release_probe, forward, [[estop, alarm_raised, alarm_cleared],
+                                                         self()]),
+    Poke = fun(F, A) -> ok = erpc:call(VNode, router_sim, F, A) end,
+    %% The circuit opens: every task OFF at once, Start refused.
+    Poke(press_estop, []),
+    _ = await_probe(fun(#{type := estop, active := true}) -> true; (_) -> false end),
+    %% The event follows the barrier; sync waits until every task has announced OFF.
+    ok = erpc:call(Node, cell_controller, sync, []),
+    ?assertEqual([], [T || #{id := T, state := St} <- erpc:call(Node, cell_controller, tasks, []),
+                           St =/= off]),
+    {409, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
+    %% Closed again: the emergency stop released, the drives ready, Start.
+    Poke(release_estop, []),
+    _ = await_probe(fun(#{type := estop, active := false}) -> true; (_) -> false end),
+    ok = erpc:call(Node, router_release_probe, await_point, [drives_io, lower_ready, true,
+                                                             ?WAIT_MS], ?WAIT_MS + 5000),
+    {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
+    Answers1 = run(Op, Node, await_left, out(Node) + 2, Answers0),
+    %% A door opened: a warning; the line runs on with it.
+    Poke(open_door, [unloading]),
+    _ = await_probe(alarm(alarm_raised, warning, <<"cell:door">>)),
+    Answers2 = run(Op, Node, await_left, out(Node) + 1, Answers1),
+    ?assert(lists:any(fun(#{id := I}) -> I =:= <<"cell:door">> end,
+                      erpc:call(Node, cell_alarms, list, []))),
+    Poke(close_door, [unloading]),
+    _ = await_probe(alarm(alarm_cleared, warning, <<"cell:door">>)),
+    %% A drive faults: a warning while the monitor resets it, gone once it is reset.
+    Poke(fault_drive, [conveyor_front]),
+    _ = await_probe(alarm(alarm_raised, warning, <<"cell:drive.conveyor_front">>)),
+    _ = await_probe(alarm(alarm_cleared, warning, <<"cell:drive.conveyor_front">>)),
+    run(Op, Node, await_left, out(Node) + 2, Answers2).
+
+alarm(Type, Kind, Id) ->
+    fun(#{type := T, alarm := #{id := I, kind := K}}) -> {T, K, I} =:= {Type, Kind, Id};
+       (_) -> false
+    end.
+
+%% The first event the probe forwarded that `Match' takes, within ?WAIT_MS.
+await_probe(Match) ->
+    await_probe(Match, erlang:monotonic_time(millisecond) + ?WAIT_MS).
+
+await_probe(Match, Deadline) ->
+    receive
+        {probe_event, E} ->
+            case Match(E) of
+                true -> E;
+                false -> await_probe(Match, Deadline)
+            end
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail(no_event)
+    end.
+
+%% The products out by the cell's books.
+out(Node) ->
+    #{total := #{cell := #{out := Out}}} = erpc:call(Node, router_release_probe, books, []),
+    Out.
+
+%% The statistics add up to the wall-clock time: for every task the time counted in
+%% its states is the time from when it was first seen to the statistics' last write
+%% (exactly), and that span lies within the suite's own clock: at most the time since
+%% before the node started (`Began'), at least the time from when products had passed
+%% every task (`Flowing', by then each task seen) to the write this check asks for.
+%% The tolerance is thus what the clock cannot tell apart: the node's boot and the
+%% first products (logged).
+check_time(Node, Began, Flowing) ->
+    Asked = erlang:system_time(microsecond),
+    Checks = erpc:call(Node, router_release_probe, time_check, []),
+    Now = erlang:system_time(microsecond),
+    ct:log("statistics span per task (s): ~p; the suite's clock: ~.1f s since the node's "
+           "start, ~.1f s since products flowed",
+           [[{T, Span / 1.0e6} || {T, _, Span} <- Checks], (Now - Began) / 1.0e6,
+            (Asked - Flowing) / 1.0e6]),
+    ?assertEqual(5, length(Checks)),
+    [begin
+         ?assertEqual({T, Span}, {T, Sum}),
+         ?assert(Span =< Now - Began, {T, Span, Now - Began}),
+         ?assert(Span >= Asked - Flowing, {T, Span, Asked - Flowing})
+     end || {T, Sum, Span} <- Checks].
 
 await_listening(P, Deadline) ->
     receive

@@ -4,7 +4,7 @@
 
 -export([await/2, await_state/2, await_state_or_error/2, snapshot/0, time_check/0,
          await_left/2, await_committed/1, await_alarm/2, await_gone/2, books/0,
-         estop_by_hand/2]).
+         estop_by_hand/2, forward/2, await_point/4]).
 
 %% Returns as soon as an error waits for the operator (`{error, Alarm}'), or the
 %% simulated machine has delivered `Target' products (`{out, N}'), within `Timeout' ms.
@@ -179,3 +179,41 @@ books() ->
     ok = cell_stats:flush(),
     #{total => cell_stats:summary(total),
       held => lists:sort([S || #{serial := S} <- cell_controller:tasks(), is_binary(S)])}.
+
+%% @doc Forwards the cell's events of these types to `To' (a process of the suite's
+%% node) as `{probe_event, Event}', from a process subscribed before this returns, so
+%% that what the suite does next cannot be missed; the process ends when `To' does.
+-spec forward([atom()], pid()) -> ok.
+forward(Types, To) ->
+    Self = self(),
+    Ref = make_ref(),
+    {Pid, Started} = spawn_monitor(fun() ->
+                                           ok = cell_events:subscribe(Types),
+                                           Mon = monitor(process, To),
+                                           Self ! Ref,
+                                           forward_loop(To, Mon)
+                                   end),
+    receive
+        Ref -> demonitor(Started, [flush]), ok;
+        {'DOWN', Started, process, Pid, Why} -> error({no_forwarder, Why})
+    end.
+
+forward_loop(To, Mon) ->
+    receive
+        {cell_event, Event} ->
+            To ! {probe_event, Event},
+            forward_loop(To, Mon);
+        {'DOWN', Mon, process, _, _} ->
+            ok
+    end.
+
+%% @doc Returns once the HAL reads `Value' at the point `Point' of `Group' (or `timeout').
+-spec await_point(atom(), atom(), term(), pos_integer()) -> ok | timeout.
+await_point(Group, Point, Value, Timeout) ->
+    {ok, Ref} = cell_hal:watch(Group, Point, {eq, Value}),
+    receive
+        {cell_hal_watch, Ref, _} -> ok
+    after Timeout ->
+        _ = cell_hal:cancel_watch(Ref),
+        timeout
+    end.
