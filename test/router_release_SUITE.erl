@@ -146,6 +146,10 @@ real_mode_vplc_killed(Config) ->
     true = erlang:set_cookie(Node, ?COOKIE),
     try
         Op = boot(Bin, Env, Node),
+        %% The cell node knows the virtual PLC's cookie too: the suite's node is
+        %% connected to both, and global keeps the three fully connected.
+        Cookie = erlang:get_cookie(vplc_node(1)),
+        [true = erpc:call(Node, erlang, set_cookie, [vplc_node(N), Cookie]) || N <- [1, 2]],
         {200, _, _} = cell_web_client:req(Op, post, "/api/cell/start"),
         Answers = run(Op, Node, await_left, 3, #{}),
         %% Every task has been seen by the statistics by now: products passed them all.
