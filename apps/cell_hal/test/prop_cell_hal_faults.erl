@@ -153,11 +153,21 @@ postcondition(M, {call, _, set_input, [P, V]}, Res) ->
         %% on polling.
         {false, _} -> Res =:= {ok, V} orelse element(1, Res) =:= still_polling
     end andalso up();
-postcondition(_, {call, _, refuse, _}, Res) ->
-    %% Subscribers told, the point unreadable, the connection up.
+postcondition(M, {call, _, refuse, _}, Res) ->
+    %% Subscribers told, the point unreadable, the connection up. As for accept: where
+    %% every Nth request is refused, the point's request may meet that refusal at each
+    %% ask, so the subscribers are told the point's fault by that refusal (exception 6),
+    %% now or already before this command, and never by its own (exception 2); the
+    %% point is unreadable all the same.
     case Res of
-        {told, Why, Read} -> is_binary(Why) andalso match_unavailable(Read) andalso up();
-        _ -> false
+        {told, Why, Read} ->
+            is_binary(Why) andalso match_unavailable(Read) andalso up();
+        {told_every_nth, Why, Read} when M#m.every > 0 ->
+            every_nth(Why) andalso match_unavailable(Read) andalso up();
+        {not_told, {error, {unavailable, Why}}} when M#m.every > 0 ->
+            every_nth(Why) andalso up();
+        _ ->
+            false
     end;
 postcondition(M, {call, _, accept, [P]}, Res) ->
     V = maps:get(P, M#m.values),
@@ -181,9 +191,12 @@ postcondition(_, {call, _, fail_every, _}, Res) ->
     Res =:= ok.
 
 refused_every_nth({not_cleared, {error, {unavailable, Why}}}) ->
-    binary:match(Why, <<"exception 6)">>) =/= nomatch;
+    every_nth(Why);
 refused_every_nth(_) ->
     false.
+
+every_nth(Why) ->
+    is_binary(Why) andalso binary:match(Why, <<"exception 6)">>) =/= nomatch.
 
 match_unavailable({error, {unavailable, Why}}) -> is_binary(Why);
 match_unavailable(_) -> false.
@@ -247,18 +260,23 @@ refuse_and_wait(P, T, A, Code) ->
     Key = {io, P},
     forget(Key),
     ok = cell_hal_fake_modbus:refuse(dev(), T, A, Code),
-    await_fault(Key, <<"exception ", (integer_to_binary(Code))/binary, ")">>).
+    await_fault(Key, <<"exception ", (integer_to_binary(Code))/binary, ")">>, none).
 
 %% The fault of this refusal (where every Nth request is refused too, faults of those
-%% may come first).
-await_fault(Key, Code) ->
+%% may come first, and may be all there is: the last of them is then the answer).
+await_fault(Key, Code, Other) ->
     receive
         {cell_hal_fault, Key, Why} when is_binary(Why) ->
             case binary:match(Why, Code) of
-                nomatch -> await_fault(Key, Code);
+                nomatch -> await_fault(Key, Code, Why);
                 _ -> {told, Why, await_unavailable(element(2, Key))}
             end
-    after ?WAIT -> {not_told, cell_hal:read(element(1, Key), element(2, Key))}
+    after ?WAIT ->
+            Read = cell_hal:read(element(1, Key), element(2, Key)),
+            case Other of
+                none -> {not_told, Read};
+                _ -> {told_every_nth, Other, Read}
+            end
     end.
 
 %% What a subscriber was told of a point before now.
