@@ -196,15 +196,17 @@ peer(Name, ConfFile, Cookie, Node) ->
              io_lib:format("P = net_adm:ping(~p), "
                            "R = case P of pong -> erpc:call(~p, erlang, node, [], 30000); "
                            "pang -> none end, "
-                           "io:format(\"~~n~~p.~~n\", [{P, R}]), halt().", [Node, Node])),
+                           "io:format(\"~~nresult: ~~p.~~n\", [{P, R}]), halt().", [Node, Node])),
     Port = open_port({spawn_executable, Erl},
                      [{args, ["-sname", Self, "-setcookie", Cookie, "-proto_dist", "inet_tls",
                               "-ssl_dist_optfile", ConfFile, "-noshell", "-eval", Eval]},
                       exit_status, stderr_to_stdout, binary]),
     {0, Out} = cellrt_rel:collect(Port, 60000),
     ct:log("~s: ~s", [Name, Out]),
-    Last = lists:last(string:lexemes(Out, "\n")),
-    {ok, Tokens, _} = erl_scan:string(Last),
+    %% Its line of the output: the TLS handshake's own reports (an alert the refused
+    %% side logs) may come before or after it.
+    [Line] = [L || "result: " ++ L <- string:lexemes(Out, "\n")],
+    {ok, Tokens, _} = erl_scan:string(Line),
     {ok, Term} = erl_parse:parse_term(Tokens),
     Term.
 
