@@ -192,8 +192,11 @@ lines(Port, Acc, Deadline) ->
         {Port, {data, {noeol, L}}} -> lines(Port, [binary_to_list(L) | Acc], Deadline);
         {Port, {exit_status, S}} -> {S, lists:reverse(Acc)}
     after Left ->
+        %% Which of the scripts and VMs still run, for whoever reads the failure.
+        Ps = os:cmd("ps -eo pid,ppid,pgid,stat,args | grep -E 'scripts/run|priv/run|vplc|beam' "
+                    "| grep -v grep"),
         catch port_close(Port),
-        ct:fail("timed out; output so far: ~p", [lists:reverse(Acc)])
+        ct:fail("timed out; output so far: ~p~nprocesses: ~s", [lists:reverse(Acc), Ps])
     end.
 
 other_pid(Config, Pid) ->
