@@ -22,7 +22,7 @@
 
 -include("cell_sequence.hrl").
 
--export([new/1, start/4, cycle/2, event/3, set_halt/3, set_service/2, fail/2,
+-export([new/1, start/4, cycle/2, event/3, set_halt/3, set_service/2, set_order/4, fail/2,
          interrupt/1, secure/1, running/1, held/1, expects/2, describe/1, where/1]).
 
 -export_type([outcome/0, where/0, event/0]).
@@ -119,6 +119,15 @@ set_halt(Seq0, false, Now) ->
 %% @doc Service mode on or off, as the steps see it.
 -spec set_service(cell_sequence:seq(), boolean()) -> cell_sequence:seq().
 set_service(Seq, On) -> Seq#seq{service = On}.
+
+%% @doc A standing order of the unit given or changed (see `cell_unit:order/3'): kept
+%% for every sequence, and the waiting step runs again, as for an IO change.
+-spec set_order(cell_sequence:seq(), atom(), term(), integer()) -> ret().
+set_order(#seq{orders = Orders} = Seq, Key, Value, Now) ->
+    case maps:find(Key, Orders) of
+        {ok, Value} -> finish({quiet(Seq), Seq});
+        _ -> finish(rerun(Seq#seq{orders = Orders#{Key => Value}, now = Now}))
+    end.
 
 %% @doc Something the engine was to carry out failed (an output the HAL refused, a
 %% watch it could not place): the sequence is aborted with that reason.
@@ -321,9 +330,10 @@ hold_waiting(#seq{armed = Armed} = Seq) ->
                      end, Seq, Armed),
     Seq1#seq{armed = #{}, held = true}.
 
-%% Actuators, timers and answers are operations under way; IO conditions are not ours.
+%% Actuators, timers and answers are operations under way; IO conditions and orders
+%% are not ours.
 io_only(Pending) ->
-    lists:all(fun({io, _, _}) -> true; (_) -> false end, Pending).
+    lists:all(fun({io, _, _}) -> true; ({order, _, _}) -> true; (_) -> false end, Pending).
 
 %% -------------------------------------------------------------------------------------
 %% Events

@@ -44,6 +44,10 @@
 %%     references the unit again.</li>
 %% </ul>
 %%
+%% Standing orders ({@link cell_unit:order/3}), given by a device task or another unit,
+%% are kept in every state for the sequences to follow; they go with the process, so
+%% whoever gives one gives it again after the unit restarted.
+%%
 %% A connection of the unit's IO that the HAL's server could not subscribe it to (away,
 %% restarting) is down for the unit, as a lost one is, until the HAL's `{cell_hal_back,
 %% Ref}' ({@link cell_hal:notify_back/0}) subscribes it again.
@@ -229,6 +233,10 @@ handle_event(info, {control, Key, Value}, State, D) ->
     control(Key, Value, State, D);
 handle_event({call, From}, {button, Button}, State, D) ->
     button(Button, From, State, D);
+handle_event({call, From}, {order, Key, Value}, State, D) when is_atom(Key) ->
+    %% A standing order for the sequences, in any state: the one waiting for it runs.
+    with_reply(From, ok, run(State, fun(S) -> cell_sequence_runner:set_order(S, Key, Value,
+                                                                            now_ms()) end, D));
 handle_event({call, From}, {halt, On}, State, D) when is_boolean(On) ->
     {Outcome, D1} = halt_flag(On, State, D),
     with_reply(From, ok, outcome(Outcome, State, D1));
