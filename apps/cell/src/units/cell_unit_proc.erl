@@ -15,8 +15,10 @@
 %%  {action, A, From}    a service move → From when done
 %%  stop                 the Stop sequence → stopped (an abort in it: stopped, then
 %%                       fault_reaction)
-%%  stopped              waits: GoHome, Stop again, an action
-%%  fault_reaction       raises the fault's error (Reset), runs its sequence without
+%%  stopped              waits: GoHome, Stop again, an action; IO lost is no fault
+%%                       (OFF, as a device task)
+%%  fault_reaction       raises the fault's error (Reset; a lost connection's, `io',
+%%                       Retry or Reset, as a task's), runs its sequence without
 %%                       waiting for anything interrupted → fault (also if aborted)
 %%  fault                waits: GoHome (Reset), an action
 %%  any                  Halt holds the sequence at a resumable point; an actuator that
@@ -618,6 +620,9 @@ withdraw(D) ->
 
 answered(booting, retry, booting, D) ->
     {keep_state, D, [{next_event, internal, entered}]};
+answered(fault, retry, State, D) ->
+    %% Offered for a lost connection only: the same as Reset.
+    answered(fault, reset, State, D);
 answered(_Origin, reset, State, #data{request = Request} = D0) ->
     %% Reset: referenced (GoHome) now if the cell runs, else at the next Start.
     D = D0#data{auto = Request =:= start},
@@ -628,6 +633,15 @@ answered(_Origin, reset, State, #data{request = Request} = D0) ->
 answered(_Origin, _Solution, State, D) ->
     keep(State, D).
 
+fault_error(Where, {io_lost, _Conn} = Why) ->
+    %% As a device task's lost IO: answered once the connection is back.
+    Reason = cell_sequence:format_reason(Why),
+    cell_task:error_spec(
+      <<"io">>, Reason,
+      io_lib:format("The unit stopped on a fault~ts: ~ts.~nOnce the connection is back, "
+                    "select RETRY (or RESET): the unit references itself (GoHome) when "
+                    "the cell runs.", [where_text(Where), Reason]),
+      [retry, reset]);
 fault_error(Where, Why) ->
     Reason = cell_sequence:format_reason(Why),
     cell_task:error_spec(
@@ -699,7 +713,10 @@ resubscribe(Conns, D) ->
 
 connection(Conn, down, State, #data{conns = Conns} = D0) when is_map_key(Conn, Conns) ->
     D = D0#data{conns = Conns#{Conn => down}},
-    case cell_unit_fsm:is_active(State) orelse State =:= idle orelse State =:= stopped of
+    %% Stopped is OFF: as for a device task that is OFF, a connection lost is no fault
+    %% (the node stopping takes the HAL down before its units); GoHome, which leaves
+    %% it, checks the IO first.
+    case cell_unit_fsm:is_active(State) orelse State =:= idle of
         true ->
             case external_fault(State, {io_lost, Conn}, D) of
                 {ok, Result} -> Result;
