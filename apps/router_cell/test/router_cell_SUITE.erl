@@ -252,7 +252,8 @@ jams_and_magazine_warning(_Config) ->
 dual_lane(_Config) ->
     Tasks = [Id || #{id := Id} <- cell_controller:tasks()],
     ?assertEqual(lists:sort([loading_front, loading_rear, work_front, work_rear,
-                             unloading_front, unloading_rear, lower, upper]),
+                             unloading_front, unloading_rear, lower, upper,
+                             clamps_front, clamps_rear]),
                  lists:sort(Tasks)),
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
