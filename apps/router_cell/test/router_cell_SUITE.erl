@@ -410,7 +410,8 @@ real_mode_spec(_Config) ->
         router_cell:cell_spec(Machine, Router),
     ?assertMatch(#{driver := cell_hal_modbus, opts := #{host := "192.168.0.10", port := 502}},
                  Conn),
-    ?assertEqual(8, length(Tasks)),
+    %% Per lane three tasks and the clamps' unit, and the two robots.
+    ?assertEqual(10, length(Tasks)),
     {ok, _} = cell_spec:validate(router_cell:cell_spec(Machine, Router)),
     %% No PLC answers at this address; the configuration is checked all the same.
     Real = Conn#{id => router_plc_real, opts => (maps:get(opts, Conn))#{host => "127.0.0.1",
