@@ -634,14 +634,11 @@ answered(_Origin, _Solution, State, D) ->
     keep(State, D).
 
 fault_error(Where, {io_lost, _Conn} = Why) ->
-    %% As a device task's lost IO: answered once the connection is back.
-    Reason = cell_sequence:format_reason(Why),
-    cell_task:error_spec(
-      <<"io">>, Reason,
-      io_lib:format("The unit stopped on a fault~ts: ~ts.~nOnce the connection is back, "
-                    "select RETRY (or RESET): the unit references itself (GoHome) when "
-                    "the cell runs.", [where_text(Where), Reason]),
-      [retry, reset]);
+    io_error(Where, Why);
+fault_error(Where, {io, _Point, disconnected} = Why) ->
+    %% A point written or read while its connection was down, before the news of the
+    %% loss came: the same.
+    io_error(Where, Why);
 fault_error(Where, Why) ->
     Reason = cell_sequence:format_reason(Why),
     cell_task:error_spec(
@@ -650,6 +647,16 @@ fault_error(Where, Why) ->
                     "RESET: the unit references itself (GoHome) when the cell runs.",
                     [where_text(Where), Reason]),
       [reset]).
+
+%% As a device task's lost IO: answered once the connection is back.
+io_error(Where, Why) ->
+    Reason = cell_sequence:format_reason(Why),
+    cell_task:error_spec(
+      <<"io">>, Reason,
+      io_lib:format("The unit stopped on a fault~ts: ~ts.~nOnce the connection is back, "
+                    "select RETRY (or RESET): the unit references itself (GoHome) when "
+                    "the cell runs.", [where_text(Where), Reason]),
+      [retry, reset]).
 
 booting_error(Where, Why) ->
     cell_task:error_spec(
