@@ -160,14 +160,14 @@ await_reply_test() ->
 %% was. Orders outlive the sequence that read them.
 await_order_test() ->
     Steps = #{a => fun(S) -> cell_sequence:await(S, {order, clamp, {ne, undefined}}, b) end,
-              b => fun(S) ->
+              b => fun(S) -> cell_sequence:await(S, {order, clamp, {eq, false}}, c) end,
+              c => fun(S) ->
                            case cell_sequence:order(S, clamp, undefined) of
-                               true -> cell_sequence:await(S, {order, clamp, {eq, false}}, c);
+                               false -> cell_sequence:done(S);
                                Other -> cell_sequence:abort(S, {got, Other})
                            end
-                   end,
-              c => fun(S) -> cell_sequence:done(S) end},
-    {wait, S1, []} = start(runner(io()), Steps, a),
+                   end},
+    {wait, S1, _} = start(runner(io()), Steps, a),
     {wait, S2, E2} = cell_sequence_runner:set_order(S1, clamp, true, 1),
     ?assertEqual([b], steps(E2)),
     ?assertMatch({wait, _, []}, cell_sequence_runner:set_order(S2, clamp, true, 2)),
