@@ -27,16 +27,13 @@ all() ->
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
-    ok = router_test_settings:write(
-           Root, #{machine => #{},
-                   router_sim => #{time_scale => 0.02, arrival_ms => 0,
-                                   product_lost_rate => 0.0, jam_rate => 0.0,
-                                   magazine_low_s => 0},
+    %% Clamps that stick are seen within half a second (their travel is 8 ms here).
+    ok = router_test_settings:start_cell(
+           Root, #{router_sim => #{time_scale => 0.02, arrival_ms => 0, jam_rate => 0.0,
+                                   product_lost_rate => 0.0, magazine_low_s => 0},
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
-                               motion_timeout_ms => 3000, clamp_timeout_ms => 500}}),
-    ok = cell_testkit:start(Root, router_cell, router_cell),
-    ok = cell_testkit:await_connection(router_plc, ?DEADLINE_MS),
-    ok = router_sim:ready(?DEADLINE_MS),
+                               motion_timeout_ms => 3000, clamp_timeout_ms => 500}},
+           ?DEADLINE_MS),
     [{root, Root} | Config].
 
 end_per_testcase(_Case, _Config) ->
