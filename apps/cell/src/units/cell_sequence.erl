@@ -40,9 +40,9 @@
 %% IO point reached a condition, see `cell_hal:watch/3'; `Point' is a name in the
 %% unit's first IO group or `{Group, Name}'), or `{reply, Ref}' (the unit received
 %% `{Ref, Term}', an answer to a request the step made; {@link reply/2} gives it), or
-%% `{order, Key, Cond}' (the unit's standing order `Key', given from outside with
-%% `cell_unit:order/3', meets the condition, as an IO value would; {@link order/3}
-%% reads it).</li>
+%% `{order, Key, {eq | ne, Value}}' (the unit's standing order `Key', given from
+%% outside with `cell_unit:order/3', is, or is not, `Value'; none given is `undefined';
+%% {@link order/3} reads it).</li>
 %% <li>{@link done/1} — the sequence has finished (the seed's SetBusy(FALSE)): the unit's
 %% state is done.</li>
 %% <li>{@link abort/2} — Abort(Reason): the unit goes into FaultReaction, the reason
@@ -85,7 +85,7 @@
 -type seq() :: #seq{}.
 -type point() :: atom() | {atom(), atom()}.
 -type op() :: atom() | {io, point(), cell_hal_type:condition()} | {reply, reference()}
-            | {order, atom(), cell_hal_type:condition()}.
+            | {order, atom(), {eq | ne, term()}}.
 -type deadline() :: infinity | {integer(), non_neg_integer()}.
 -type result() :: {next, term(), seq()}
                 | {wait, [op()], deadline(), seq()}
@@ -264,9 +264,10 @@ status({reply, Ref}, #seq{replies = Replies} = Seq) when is_reference(Ref) ->
         {ok, {_Term}} -> {done, Seq};
         _ -> {pending, Seq#seq{replies = Replies#{Ref => expected}}}
     end;
-status({order, Key, Cond}, #seq{orders = Orders} = Seq) when is_atom(Key) ->
+status({order, Key, {Cmp, V}}, #seq{orders = Orders} = Seq)
+  when is_atom(Key), (Cmp =:= eq orelse Cmp =:= ne) ->
     %% No order given yet is `undefined': `{ne, undefined}' waits for the first.
-    case cell_hal_type:holds(Cond, maps:get(Key, Orders, undefined)) of
+    case (maps:get(Key, Orders, undefined) =:= V) =:= (Cmp =:= eq) of
         true -> {done, Seq};
         false -> {pending, Seq}
     end;
