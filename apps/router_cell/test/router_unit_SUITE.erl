@@ -58,6 +58,12 @@ panels_flow_with_the_clamps(_Config) ->
     ?assert(Closed >= 3),
     ?assert(Opened >= 3),
     ?assertEqual(automatic, cell_unit:state(?UNIT)),
+    %% The order the work segment gave, and the clamps where it put them, as the unit
+    %% shows them.
+    #{sequence := #{orders := #{clamp := Clamp}, actuators := #{clamp_a := A}}} =
+        cell_unit:info(?UNIT),
+    ?assert(is_boolean(Clamp)),
+    ?assertMatch(#{type := cylinder}, A),
     ok = cell_testkit:stop_cell(fun never_answer/1, ?DEADLINE_MS),
     %% Stopped with the cell; its sequences kept the order they were last given.
     ?assertEqual(stopped, cell_unit:state(?UNIT)),

@@ -161,17 +161,17 @@ held(#seq{held = H}) -> H.
 expects(#seq{replies = R}, Ref) -> maps:get(Ref, R, none) =:= expected.
 
 %% @doc The running sequences, outermost first, with their steps; what the running
-%% step waits for; the actuators.
+%% step waits for; the actuators; the standing orders the unit was given.
 -spec describe(cell_sequence:seq()) -> map().
 describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
-              actuators = Acts}) ->
+              actuators = Acts, orders = Orders}) ->
     #{sequences => [#{module => M, step => S, mode => Mode}
                     || #frame{module = M, step = S, mode = Mode} <- lists:reverse(Frames)],
       waiting => case Waiting of
                      undefined -> [];
                      {Ops, _} -> Ops
                  end,
-      halt => Halt, held => Held,
+      halt => Halt, held => Held, orders => Orders,
       actuators => maps:map(fun(_, {Mod, S}) -> Mod:describe(S) end, Acts)}.
 
 %% @doc Where the running sequence is.
