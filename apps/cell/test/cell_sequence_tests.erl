@@ -155,6 +155,41 @@ await_reply_test() ->
     ?assertMatch({{aborted, _, {got, 42}}, _, _},
                  cell_sequence_runner:event(S1, {reply, Ref, 42}, 1)).
 
+%% A standing order (cell_unit:order/3): read with a default, awaited as a condition;
+%% the waiting step runs again when it changes, and not when it is given again as it
+%% was. Orders outlive the sequence that read them.
+await_order_test() ->
+    Steps = #{a => fun(S) -> cell_sequence:await(S, {order, clamp, {ne, undefined}}, b) end,
+              b => fun(S) -> cell_sequence:await(S, {order, clamp, {eq, false}}, c) end,
+              c => fun(S) ->
+                           case cell_sequence:order(S, clamp, undefined) of
+                               false -> cell_sequence:done(S);
+                               Other -> cell_sequence:abort(S, {got, Other})
+                           end
+                   end},
+    {wait, S1, _} = start(runner(io()), Steps, a),
+    {wait, S2, E2} = cell_sequence_runner:set_order(S1, clamp, true, 1),
+    ?assertEqual([b], steps(E2)),
+    ?assertMatch({wait, _, []}, cell_sequence_runner:set_order(S2, clamp, true, 2)),
+    {done, S3, E3} = cell_sequence_runner:set_order(S2, clamp, false, 3),
+    ?assertEqual([c], steps(E3)),
+    ?assertEqual(false, cell_sequence:order(element(2, start(S3, Steps, c)), clamp, none)),
+    %% Given while no sequence runs: kept for the next.
+    {idle, S4, []} = cell_sequence_runner:set_order(S3, other, 1, 4),
+    {done, _, _} = start(S4, #{a => fun(S) -> cell_sequence:await(S, {order, other, {eq, 1}}, c) end,
+                               c => fun(S) -> cell_sequence:done(S) end}, a).
+
+%% Halt holds a step that waits only for an order (nothing of the unit's moves).
+halt_holds_where_only_an_order_is_awaited_test() ->
+    Steps = #{a => fun(S) -> cell_sequence:await(S, {order, go, {eq, true}}, b) end,
+              b => fun(S) -> cell_sequence:done(S) end},
+    {wait, S1, _} = start(runner(io()), Steps, a),
+    {wait, S2, _} = cell_sequence_runner:set_halt(S1, true, 10),
+    ?assert(cell_sequence_runner:held(S2)),
+    %% Held: the order is kept, the step does not run until Halt is released.
+    {wait, S3, []} = cell_sequence_runner:set_order(S2, go, true, 11),
+    ?assertMatch({done, _, _}, cell_sequence_runner:set_halt(S3, false, 12)).
+
 an_answer_can_come_before_it_is_awaited_test() ->
     Ref = make_ref(),
     Steps = #{a => fun(S0) ->

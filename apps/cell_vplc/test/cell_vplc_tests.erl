@@ -11,9 +11,15 @@ router(Machine) ->
 router_test() ->
     {ok, #{conn := router_plc, points := Points, hal := Hal}} =
         cell_vplc:setup(router(#{dual_lane => false}), undefined),
-    %% Every point of the front lane's three segments, the two robots, the general IO
-    %% and the three drives (the front conveyors', the robots').
-    ?assertEqual(7 + 5 + 5 + 12 + 6 + 12 + 3 * 4, length(Points)),
+    %% Every point of the front lane's three segments and its fixture's clamps, the
+    %% two robots, the general IO and the three drives (the front conveyors', the
+    %% robots').
+    ?assertEqual(7 + 3 + 5 + 8 + 12 + 6 + 12 + 3 * 4, length(Points)),
+    ?assertMatch({{clamps_front_io, a_is_closed}, bool,
+                  #{table := discrete_input, address := 440}},
+                 lists:keyfind({clamps_front_io, a_is_closed}, 1, Points)),
+    ?assertMatch({{clamps_front_io, b_open}, bool, #{table := coil, address := 443}},
+                 lists:keyfind({clamps_front_io, b_open}, 1, Points)),
     ?assertMatch({{lower_io, target_x}, lreal,
                   #{unit := 1, table := holding_register, address := 200, word_order := big}},
                  lists:keyfind({lower_io, target_x}, 1, Points)),
@@ -25,12 +31,14 @@ router_test() ->
                  lists:keyfind({general_io, estop_ok}, 1, Points)),
     ?assertMatch({{drives_io, lower_reset}, bool, #{table := coil, address := 341}},
                  lists:keyfind({drives_io, lower_reset}, 1, Points)),
-    ?assertEqual(7, length(maps:get(groups, Hal))),
+    ?assertEqual(8, length(maps:get(groups, Hal))),
     {ok, Image} = cell_vplc_image:new(Points),
     ?assertEqual([1], cell_vplc_image:units(Image)),
     {ok, #{points := Dual}} = cell_vplc:setup(router(#{dual_lane => true}), router_plc),
-    %% The rear lane's three segments and its conveyors' drive.
-    ?assertEqual(length(Points) + 17 + 4, length(Dual)).
+    %% The rear lane's three segments, its clamps (at 460) and its conveyors' drive.
+    ?assertEqual(length(Points) + 15 + 8 + 4, length(Dual)),
+    ?assertMatch({{clamps_rear_io, a_close}, bool, #{table := coil, address := 460}},
+                 lists:keyfind({clamps_rear_io, a_close}, 1, Dual)).
 
 refused_test_() ->
     Real = router(#{dual_lane => false}),

@@ -9,8 +9,9 @@
 %% '''
 %%
 %% Per lane (front, and rear when the machine settings say `dual_lane'): a loading
-%% conveyor segment, a work segment with the routing fixture, an unloading conveyor
-%% segment. Shared by the lanes: the lower routing robot, which routes the panel in
+%% conveyor segment, a work segment with the routing fixture, whose clamps are a unit
+%% (seed 001, {@link router_clamps_unit}) the work segment orders, an unloading
+%% conveyor segment. Shared by the lanes: the lower routing robot, which routes the panel in
 %% whichever fixture offers one, and the upper manipulator robot, which lifts the
 %% routed modules out of the nest and puts them on the unloading segment of their lane.
 %% Every arrow is a handshake link (seed §2.3.6); the panel's serial travels along them.
@@ -38,7 +39,7 @@ cell_spec() ->
 -spec cell_spec(map(), map()) -> map().
 cell_spec(Machine, Router) ->
     Lanes = lanes(Machine),
-    LaneTasks = lists:append([lane_tasks(L) || L <- Lanes]),
+    LaneTasks = lists:append([lane_tasks(L, Router) || L <- Lanes]),
     Robots = [#{id => lower, module => router_lower_task, zone => <<"Lower robot">>,
                 lane => <<"Shared">>, io => [lower_io], settings => router,
                 args => #{prevs => [link(work_route, L) || L <- Lanes], next => route_pick}},
@@ -64,16 +65,27 @@ cell_spec(Machine, Router) ->
       hal => hal(Machine, Router),
       monitor => monitor(Machine)}.
 
-lane_tasks(L) ->
+lane_tasks(L, Router) ->
     Lane = lane_name(L),
     [#{id => task(loading, L), module => router_loading_task, zone => <<"Loading">>,
        lane => Lane, io => [group(loading, L)], settings => router,
        args => #{lane => L, next => link(load_work, L)}},
      #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
        %% The loading stopper's and the gripper's sensors read too: they tell whose a
-       %% panel in the fixture that the segment holds no record of is.
-       io => [group(work, L), group(loading, L), upper_io], settings => router,
-       args => #{lane => L, prev => link(load_work, L), next => link(work_route, L)}},
+       %% panel in the fixture that the segment holds no record of is; and the clamps'
+       %% end sensors, to see its orders to their unit carried out.
+       io => [group(work, L), group(loading, L), upper_io, group(clamps, L)],
+       settings => router,
+       args => #{lane => L, prev => link(load_work, L), next => link(work_route, L),
+                 clamps => task(clamps, L)}},
+     %% The fixture's clamps: a unit (seed 001) the work segment orders to clamp and
+     %% to open. It counts no parts: the work segment does.
+     cell_spec_helpers:unit(task(clamps, L), router_clamps_unit,
+                            #{zone => <<"Clamps">>, lane => Lane,
+                              io => [group(clamps, L), group(work, L)], work => false,
+                              args => #{lane => L,
+                                        timeout_ms => maps:get(clamp_timeout_ms, Router,
+                                                               3000)}}),
      #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
        %% The gripper's sensor read too: modules in it are not on this conveyor.
        lane => Lane, io => [group(unloading, L), upper_io], settings => router,
@@ -100,6 +112,10 @@ hal(Machine, Router) ->
                             || {K, Off} <- [{loading, 0}, {work, 20}, {unloading, 40}]]
                            || {L, Base} <- [{front, 0}, {rear, 100}],
                               lists:member(L, lanes(Machine))])
+        %% The fixtures' clamps, 20 addresses per lane.
+        ++ [#{id => group(clamps, L), module => router_clamps_io, connection => ?CONN,
+              opts => #{base => Base}}
+            || {L, Base} <- [{front, 440}, {rear, 460}], lists:member(L, lanes(Machine))]
         ++ [#{id => lower_io, module => router_lower_io, connection => ?CONN,
               opts => #{base => 200}},
             #{id => upper_io, module => router_upper_io, connection => ?CONN,
@@ -179,27 +195,31 @@ lanes(Machine) ->
         false -> [front]
     end.
 
-%% @doc The IO group instance of a lane's segment.
--spec group(loading | work | unloading, front | rear) -> atom().
+%% @doc The IO group instance of a lane's segment (or of its fixture's clamps).
+-spec group(loading | work | unloading | clamps, front | rear) -> atom().
 group(loading, front) -> loading_front_io;
 group(loading, rear) -> loading_rear_io;
 group(work, front) -> work_front_io;
 group(work, rear) -> work_rear_io;
 group(unloading, front) -> unloading_front_io;
-group(unloading, rear) -> unloading_rear_io.
+group(unloading, rear) -> unloading_rear_io;
+group(clamps, front) -> clamps_front_io;
+group(clamps, rear) -> clamps_rear_io.
 
 module(loading) -> router_loading_io;
 module(work) -> router_work_io;
 module(unloading) -> router_unloading_io.
 
-%% @doc The device task of a lane's segment.
--spec task(loading | work | unloading, front | rear) -> atom().
+%% @doc The device task of a lane's segment, or the unit of its fixture's clamps.
+-spec task(loading | work | unloading | clamps, front | rear) -> atom().
 task(loading, front) -> loading_front;
 task(loading, rear) -> loading_rear;
 task(work, front) -> work_front;
 task(work, rear) -> work_rear;
 task(unloading, front) -> unloading_front;
-task(unloading, rear) -> unloading_rear.
+task(unloading, rear) -> unloading_rear;
+task(clamps, front) -> clamps_front;
+task(clamps, rear) -> clamps_rear.
 
 link(load_work, front) -> load_work_front;
 link(load_work, rear) -> load_work_rear;

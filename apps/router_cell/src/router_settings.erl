@@ -24,6 +24,10 @@ fields() ->
        unit => <<"ms">>,
        doc => <<"How long a robot move, a gripper or the clamps may take before the task "
                 "reports it.">>},
+     #{name => clamp_timeout_ms, type => {integer, 100, 60000}, default => 3000,
+       unit => <<"ms">>,
+       doc => <<"How long a fixture clamp may take to close or open before its unit stops "
+                "on a fault; read when the cell boots.">>},
      #{name => feed_rate, type => {float, 1.0, 500.0}, default => 25.0, unit => <<"mm/s">>,
        doc => <<"Routing feed for cut lines whose recipe gives none (attribute Feed).">>},
      #{name => rapid_speed, type => {float, 1.0, 2000.0}, default => 400.0, unit => <<"mm/s">>,

@@ -33,6 +33,13 @@
 %%   stops, and goes on when they run again.</li>
 %% <li>The routing robot's moves take their path length at their feed; the upper
 %%   robot's a fixed time; spindle, bit, clamps and gripper their own times.</li>
+%% <li>The fixture's clamps (two per lane, {@link router_clamps_io}): each a cylinder on
+%%   a bistable valve, which goes where its coil last put it (both coils off: it
+%%   holds). A clamp leaves its end (both its sensors off) when its valve changes and
+%%   reaches the other `clamp_ms' later; only an open clamp lets a frame out. A clamp
+%%   jammed from the shell ({@link jam_clamp/1}) stays where it is, or half-way if it
+%%   was moving, until freed ({@link free_clamp/1}), when it goes where its valve
+%%   says. Where each clamp and its valve are, and a jam, are in the world.</li>
 %% <li>Faults: a conveyor move may stick (`jam_rate'; free again after `jam_ms'); the
 %%   modules may slip in the gripper on a move (`product_lost_rate'; the gripper's
 %%   sensor loses them until the operator has seated them again, `reseat_ms'), or stay
@@ -60,7 +67,8 @@
 -export([start_link/1, world/0, ready/1, take_out/2]).
 -export([rest_image/1]).
 -export([press_estop/0, release_estop/0, service_key/1, open_door/1, close_door/1,
-         drop_air/0, restore_air/0, fault_drive/1, fault_drive/2]).
+         drop_air/0, restore_air/0, fault_drive/1, fault_drive/2, jam_clamp/1,
+         free_clamp/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -76,7 +84,9 @@
 -type drive() :: router_drives_io:drive().
 -type poke() :: {estop, pressed | released} | {service_key, boolean()}
               | {door, door(), open | closed} | {air, boolean()}
-              | {fault, drive(), pos_integer() | never}.
+              | {fault, drive(), pos_integer() | never}
+              | {clamp, lane(), clamp(), jammed | free}.
+-type clamp() :: a | b.
 -type action() :: fun((map()) -> map()).
 
 -record(move, {steps :: [{non_neg_integer(), action()}],   %% offset (ms) and what happens
@@ -161,6 +171,23 @@ fault_drive(Drive, Resets) when (Drive =:= conveyor_front orelse Drive =:= conve
                                 (Resets =:= never orelse (is_integer(Resets) andalso Resets > 0)) ->
     poke({fault, Drive, Resets}).
 
+%% @doc A fixture clamp sticks: clamp `a' of the lane's fixture (or `{Lane, a | b}')
+%% does not move when its valve changes (or stops half-way if it was moving), so its
+%% unit's move times out; until {@link free_clamp/1}. `{error, no_such_clamp}' for the
+%% rear lane of a machine with one lane.
+-spec jam_clamp(lane() | {lane(), clamp()}) -> ok | {error, not_running | no_such_clamp}.
+jam_clamp({Lane, C}) when (Lane =:= front orelse Lane =:= rear), (C =:= a orelse C =:= b) ->
+    poke({clamp, Lane, C, jammed});
+jam_clamp(Lane) when Lane =:= front; Lane =:= rear ->
+    jam_clamp({Lane, a}).
+
+%% @doc A jammed clamp is free again: it goes where its valve says.
+-spec free_clamp(lane() | {lane(), clamp()}) -> ok | {error, not_running | no_such_clamp}.
+free_clamp({Lane, C}) when (Lane =:= front orelse Lane =:= rear), (C =:= a orelse C =:= b) ->
+    poke({clamp, Lane, C, free});
+free_clamp(Lane) when Lane =:= front; Lane =:= rear ->
+    free_clamp({Lane, a}).
+
 poke(Poke) ->
     gen_server:call(?MODULE, {poke, Poke}).
 
@@ -193,14 +220,15 @@ ready(Timeout) ->
 -spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, attach}}.
 init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
-                                           || K <- [loading, work, unloading]] || L <- Lanes])
+                                           || K <- [loading, work, unloading, clamps]]
+                                          || L <- Lanes])
                             ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}},
                                 {general_io, {general, none}}, {drives_io, {drives, none}}]),
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
-           epoch => 0, held => #{}},
+           epoch => 0, held => #{}, clamp_moves => #{}},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -226,7 +254,9 @@ attach(#{groups := Groups, attach_ms := Ms} = S) ->
 %% The world as it was saved, its sensors set, and a rule on every output.
 restore(#{lanes := Lanes, groups := Groups} = S0) ->
     World = case cell_file:read_term(path()) of
-                {ok, #{counters := _} = W} -> settle(maps:merge(empty_world(Lanes), W), Lanes);
+                {ok, #{counters := _} = W} ->
+                    settle(maps:merge(empty_world(Lanes), W#{clamps => saved_clamps(W, Lanes)}),
+                           Lanes);
                 _ -> empty_world(Lanes)
             end,
     Outputs = [{{G, P}, Type} || G <- maps:keys(Groups), {ok, Points} <- [cell_hal:points(G)],
@@ -239,7 +269,7 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
          || {Key, _} <- Outputs],
     %% The outputs as the PLC holds them (after a restart of this process, what the
     %% tasks commanded), but the clamps and the gripper hold what the world says.
-    Holding = holding(World, Lanes),
+    Holding = holding(World),
     Outs = maps:merge(maps:from_list([{Key, case cell_hal_sim:get(Key) of
                                                 {ok, V} -> V;
                                                 {error, _} -> zero(Type)
@@ -250,7 +280,10 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
-    maps:remove(settings, kick(arrivals(magazine_timer(S#{armed := Armed})))).
+    %% A clamp that was moving when the physics stopped goes on to its valve's end.
+    S1 = lists:foldl(fun(Key, Acc) -> clamp_move(Key, Acc) end, S,
+                     lists:sort(maps:keys(maps:get(clamps, World)))),
+    maps:remove(settings, kick(arrivals(magazine_timer(S1#{armed := Armed})))).
 
 -spec handle_call(world | groups | {take_out, atom(), atom()} | {poke, poke()},
                   gen_server:from(), map()) ->
@@ -343,12 +376,12 @@ terminate(_Reason, S) ->
 %% Conveyors: a belt or SMEMA output only changes which moves can run (kick/1).
 output(_Where, _Point, Same, Same, S) ->
     S;
-output({work, L}, clamp, _V, _Old, S) ->
-    %% The clamps end where their valve is when the move ends: a command taken back
-    %% meanwhile (a close, then an open at once) leaves them open, whichever of the
-    %% two moves' ends comes first.
-    later(delay(clamp_ms, S), fun(S1) -> set(S1, work, L, clamped, out(S1, work, L, clamp)) end,
-          S);
+output({clamps, L}, Point, _V, _Old, S) ->
+    case [C || #{name := C, close := Close, open := Open} <- router_clamps_io:clamps(),
+               Point =:= Close orelse Point =:= Open] of
+        [C] -> valve(L, C, S);
+        [] -> S
+    end;
 output({lower, _}, spindle_run, V, _Old, S) ->
     Ms = case V of true -> delay(spindle_ramp_ms, S); false -> delay(spindle_ramp_ms, S) div 2 end,
     later(Ms, fun(S1) -> set(S1, lower, none, spindle_at_speed, V) end, S);
@@ -568,8 +601,7 @@ try_start(transfer, L, #{world := W} = S) ->
 try_start(eject, L, #{world := W} = S) ->
     %% Only a frame leaves: the fixture's end stop holds a whole panel, whatever the
     %% belt does, and lets the frame pass once the clamps are open.
-    case {slot(W, work, L), out(S, work, L, belt_run) andalso not out(S, work, L, clamp)
-          andalso not input(S, work, L, clamped)} of
+    case {slot(W, work, L), out(S, work, L, belt_run) andalso clamps_open(L, S)} of
         {{_Serial, frame}, true} ->
             conveyor({eject, L}, eject_ms,
                      [{1.0, fun(X) ->
@@ -671,6 +703,85 @@ run_move(Id, #move{t0 = T0, done = Done, steps = Steps} = M, #{moves := Moves} =
     end.
 
 %%====================================================================
+%% The fixture's clamps
+%%====================================================================
+
+%% A coil of a clamp's valve changed: a bistable valve goes to the end its one coil
+%% on says (both off, or both on: it stays), and the clamp follows it.
+valve(L, C, S) ->
+    #{close := Close, open := Open} = clamp_points(C),
+    case {out(S, clamps, L, Close), out(S, clamps, L, Open)} of
+        {true, false} -> clamp_move({L, C}, set_valve({L, C}, closed, S));
+        {false, true} -> clamp_move({L, C}, set_valve({L, C}, open, S));
+        _ -> S
+    end.
+
+set_valve(Key, End, S) ->
+    update_clamp(Key, fun(K) -> K#{valve := End} end, S).
+
+%% The clamp goes where its valve is, unless it is there, on its way there, or jammed.
+clamp_move(Key, #{world := W, clamp_moves := Moves} = S) ->
+    #{at := At, valve := Valve, jammed := Jammed} = maps:get(Key, maps:get(clamps, W)),
+    case {Jammed, At =:= Valve, maps:find(Key, Moves)} of
+        {true, _, _} -> S;
+        {false, true, error} -> S;
+        {false, _, {ok, {_, Valve}}} -> S;
+        {false, _, _} ->
+            Ref = make_ref(),
+            S1 = update_clamp(Key, fun(K) -> K#{at := between} end,
+                              S#{clamp_moves := Moves#{Key => {Ref, Valve}}}),
+            S2 = clamp_sensors(Key, save(S1)),
+            later(delay(clamp_ms, S2), fun(S3) -> clamp_arrived(Key, Ref, S3) end, S2)
+    end.
+
+%% The move's time is up: the clamp is at the end it was going to, unless it jammed
+%% on the way (it stays half-way) or another move replaced this one.
+clamp_arrived(Key, Ref, #{clamp_moves := Moves, world := W} = S) ->
+    case maps:find(Key, Moves) of
+        {ok, {Ref, End}} ->
+            S1 = S#{clamp_moves := maps:remove(Key, Moves)},
+            case maps:get(Key, maps:get(clamps, W)) of
+                #{jammed := true} -> S1;
+                _ -> clamp_sensors(Key, save(update_clamp(Key, fun(K) -> K#{at := End} end, S1)))
+            end;
+        _ ->
+            S
+    end.
+
+clamp_sensors({L, C} = Key, #{world := W} = S) ->
+    #{at := At} = maps:get(Key, maps:get(clamps, W)),
+    #{is_closed := IsClosed, is_open := IsOpen} = clamp_points(C),
+    set(set(S, clamps, L, IsClosed, At =:= closed), clamps, L, IsOpen, At =:= open).
+
+%% Only a fixture whose clamps are both open lets a frame out.
+clamps_open(L, #{world := W}) ->
+    lists:all(fun(#{name := C}) -> maps:get(at, maps:get({L, C}, maps:get(clamps, W))) =:= open
+              end, router_clamps_io:clamps()).
+
+update_clamp(Key, Fun, #{world := #{clamps := Clamps} = W} = S) ->
+    S#{world := W#{clamps := Clamps#{Key := Fun(maps:get(Key, Clamps))}}}.
+
+clamp_points(C) ->
+    [P] = [P || #{name := N} = P <- router_clamps_io:clamps(), N =:= C],
+    P.
+
+%% The clamps of a fixture at one end, their valves with them.
+clamps_at(L, End) ->
+    [{{L, C}, #{at => End, valve => End, jammed => false}}
+     || #{name := C} <- router_clamps_io:clamps()].
+
+%% The clamps as a world saved before they were in it: closed on a panel in the
+%% fixture (as the one valve did then), open on an empty one.
+saved_clamps(#{clamps := Clamps}, _Lanes) ->
+    Clamps;
+saved_clamps(W, Lanes) ->
+    Work = maps:get(work, W, #{}),
+    maps:from_list(lists:append([clamps_at(L, case maps:get(L, Work, empty) of
+                                                  empty -> open;
+                                                  _ -> closed
+                                              end) || L <- Lanes])).
+
+%%====================================================================
 %% The previous machine
 %%====================================================================
 
@@ -748,6 +859,19 @@ poked({service_key, On}, S) -> general(update_general(fun(G) -> G#{service_key :
 poked({door, Door, How}, S) ->
     general(update_general(fun(#{doors := D} = G) -> G#{doors := D#{Door := How}} end, S));
 poked({air, On}, S) -> general(update_general(fun(G) -> G#{air := On} end, S));
+poked({clamp, L, C, How}, #{lanes := Lanes} = S) ->
+    case lists:member(L, Lanes) of
+        true ->
+            cell_log:info(router, "simulated router: clamp ~ts of the ~ts fixture ~ts",
+                          [C, L, case How of jammed -> "jams"; free -> "is free again" end]),
+            S1 = update_clamp({L, C}, fun(K) -> K#{jammed := How =:= jammed} end, S),
+            case How of
+                jammed -> save(S1);
+                free -> clamp_move({L, C}, save(S1))
+            end;
+        false ->
+            {error, no_such_clamp}
+    end;
 poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
     case lists:member(Drive, router_drives_io:drives(Lanes)) of
         true ->
@@ -759,12 +883,16 @@ poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
             {error, no_such_drive}
     end.
 
-%% @doc The general inputs of a machine at rest (the emergency-stop circuit closed,
-%% the doors closed and locked, the air on, every drive ready): what its simulated PLC
-%% holds before the physics sets the world it saved.
+%% @doc The inputs of a machine at rest (the emergency-stop circuit closed, the doors
+%% closed and locked, the air on, every drive ready, the fixtures' clamps open) and
+%% the clamps' valves holding them open: what its simulated PLC holds before the
+%% physics sets the world it saved.
 -spec rest_image([lane()]) -> #{{atom(), atom()} => term()}.
 rest_image(Lanes) ->
-    maps:from_list(general_image(empty_world(Lanes), fun(_) -> false end, Lanes)).
+    W = empty_world(Lanes),
+    maps:merge(maps:from_list(general_image(W, fun(_) -> false end, Lanes)
+                              ++ clamps_image(W)),
+               holding(W)).
 
 update_general(Fun, #{world := #{general := G} = W} = S) ->
     S#{world := W#{general := Fun(G)}}.
@@ -843,6 +971,7 @@ empty_world(Lanes) ->
     Empty = maps:from_list([{L, empty} || L <- Lanes]),
     #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
       unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
+      clamps => maps:from_list(lists:append([clamps_at(L, open) || L <- Lanes])),
       general => #{estop => released, service_key => false,
                    doors => #{loading => closed, unloading => closed}, air => true,
                    faults => #{}},
@@ -865,15 +994,22 @@ settle(#{upstream := Up, loading := Lo} = W, Lanes) ->
                                   end} || L <- Lanes1]),
     Fill = fun(Key) -> maps:merge(maps:from_list([{L, empty} || L <- Lanes]),
                                   maps:with(Lanes, maps:get(Key, W))) end,
-    W#{upstream := maps:merge(maps:from_list([{L, []} || L <- Lanes]), Back),
+    Clamps = maps:merge(maps:from_list(lists:append([clamps_at(L, open) || L <- Lanes])),
+                        maps:filter(fun({L, _}, _) -> lists:member(L, Lanes) end,
+                                    maps:get(clamps, W))),
+    W#{clamps := Clamps,
+       upstream := maps:merge(maps:from_list([{L, []} || L <- Lanes]), Back),
        loading := maps:merge(maps:from_list([{L, empty} || L <- Lanes]), Loading),
        work := Fill(work), unloading := Fill(unloading)}.
 
-%% The outputs that hold what the world holds: the clamps on a panel in a fixture, the
-%% gripper on modules.
-holding(W, Lanes) ->
-    maps:from_list([{{router_cell:group(work, L), clamp}, slot(W, work, L) =/= empty}
-                    || L <- Lanes]
+%% The outputs that hold what the world holds: the clamps' valves where they are (a
+%% bistable valve keeps its position without power), the gripper on modules.
+holding(W) ->
+    maps:from_list(lists:append(
+                     [[{{router_cell:group(clamps, L), Close}, Valve =:= closed},
+                       {{router_cell:group(clamps, L), Open}, Valve =:= open}]
+                      || {{L, C}, #{valve := Valve}} <- maps:to_list(maps:get(clamps, W)),
+                         #{close := Close, open := Open} <- [clamp_points(C)]])
                    ++ [{{upper_io, gripper_close}, maps:get(gripper, W) =/= empty}]).
 
 %% Every input of the PLC for a world and the outputs as they are: what the sensors
@@ -890,12 +1026,12 @@ image(W, Outs, Lanes) ->
           {{router_cell:group(loading, L), code}, code(slot(W, loading, L))},
           {{router_cell:group(loading, L), magazine_low}, false},
           {{router_cell:group(work, L), panel_in_position}, slot(W, work, L) =/= empty},
-          {{router_cell:group(work, L), clamped}, Out({router_cell:group(work, L), clamp})},
           {{router_cell:group(work, L), nest_empty}, not is_at(slot(W, work, L), full)},
           {{router_cell:group(unloading, L), panel_at_entry}, is_at(slot(W, unloading, L), entry)},
           {{router_cell:group(unloading, L), panel_at_exit}, is_at(slot(W, unloading, L), exit)},
           {{router_cell:group(unloading, L), downstream_ready}, true}]
          || L <- Lanes])
+      ++ clamps_image(W)
       ++ [{{upper_io, gripper_closed}, Out({upper_io, gripper_close})},
           {{upper_io, product_present}, Holding},
           {{upper_io, done}, Out({upper_io, command})},
@@ -904,6 +1040,13 @@ image(W, Outs, Lanes) ->
           {{lower_io, plunged}, Out({lower_io, plunge})},
           {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
       ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)).
+
+%% The clamps' end sensors as the world has the clamps.
+clamps_image(W) ->
+    lists:append([[{{router_cell:group(clamps, L), IsClosed}, At =:= closed},
+                   {{router_cell:group(clamps, L), IsOpen}, At =:= open}]
+                  || {{L, C}, #{at := At}} <- maps:to_list(maps:get(clamps, W)),
+                     #{is_closed := IsClosed, is_open := IsOpen} <- [clamp_points(C)]]).
 
 is_at({_, Where}, Where) -> true;
 is_at(_, _) -> false.
@@ -992,9 +1135,6 @@ set(S0, Kind, L, Point, V) ->
 out(#{outs := Outs}, Kind, L, Point) ->
     maps:get({router_cell:group(Kind, L), Point}, Outs, false) =:= true.
 
-input(_S, Kind, L, Point) ->
-    cell_hal_sim:get({router_cell:group(Kind, L), Point}) =:= {ok, true}.
-
 later(Ms, Fun, #{epoch := Epoch} = S) ->
     _ = erlang:start_timer(Ms, self(), {later, Epoch, Fun}),
     S.
@@ -1045,7 +1185,22 @@ rest_image_test() ->
                    {drives_io, upper_fault} := false, {drives_io, upper_fault_code} := 0},
                  Rest),
     ?assertNot(maps:is_key({drives_io, conveyor_rear_ready}, Rest)),
-    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))).
+    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))),
+    %% The clamps open, held open by their valves.
+    ?assertMatch(#{{clamps_front_io, a_is_open} := true, {clamps_front_io, a_is_closed} := false,
+                   {clamps_front_io, b_is_open} := true, {clamps_front_io, b_close} := false,
+                   {clamps_front_io, a_open} := true},
+                 Rest),
+    ?assertNot(maps:is_key({clamps_rear_io, a_is_open}, Rest)).
+
+saved_clamps_test() ->
+    %% A world saved before the clamps were in it: closed on a panel, open without.
+    W = (empty_world([front, rear]))#{work => #{front => {<<"P1">>, full}, rear => empty}},
+    Clamps = saved_clamps(maps:remove(clamps, W), [front, rear]),
+    ?assertMatch(#{{front, a} := #{at := closed, valve := closed, jammed := false},
+                   {front, b} := #{at := closed}, {rear, a} := #{at := open},
+                   {rear, b} := #{at := open}}, Clamps),
+    ?assertEqual(Clamps, saved_clamps(W#{clamps => Clamps}, [front, rear])).
 
 general_image_test() ->
     #{general := G} = W = empty_world([front]),

@@ -1,7 +1,16 @@
 %% @doc The work segment (seed 000 §2.3): brings a panel from the loading segment into
-%% the routing fixture, clamps it, and hands it to the lower routing robot. Once the
-%% upper robot has lifted the routed modules out of the nest, it opens the clamps and
-%% runs the panel's frame out into the waste bin, and the fixture is free again.
+%% the routing fixture, has it clamped, and hands it to the lower routing robot. Once
+%% the upper robot has lifted the routed modules out of the nest, it has the clamps
+%% opened and runs the panel's frame out into the waste bin, and the fixture is free
+%% again.
+%%
+%% The clamps are a unit of their own ({@link router_clamps_unit}, the task's arg
+%% `clamps'): the task gives it the standing order `clamp' (`cell_unit:order/3',
+%% true to close, false to open) and waits for both clamps' end sensors. A clamp that
+%% sticks is the unit's fault, the error the operator answers there (RESET, once it is
+%% free); the task waits meanwhile, giving its order again each `motion_timeout_ms'
+%% (a unit that restarted has lost it), and goes on once the sensors show the clamps
+%% where it ordered them.
 %%
 %% <pre>
 %%  phase      waits for                                    then
@@ -11,15 +20,16 @@
 %%  moving_in  the panel off the loading segment            → arriving
 %%             (Available off, phase 3)
 %%  arriving   the panel in position, or the watchdog       belt off; complete (phase 4,
-%%                                                          ItemTransferIn); clamps → clamping
-%%  clamping   the clamps closed, or the watchdog           offer it to the routing robot
-%%                                                          (phase 1, BLOCKED) → offered
+%%                                                          ItemTransferIn) → clamping
+%%  clamping   both clamps closed (ordered; again at each   offer it to the routing robot
+%%             watchdog)                                    (phase 1, BLOCKED) → offered
 %%  offered    the robot's NotBusy                          release at once: the panel stays
 %%                                                          clamped, the robot takes charge → released
 %%  released   the robot's NotBusy off                      ItemTransferOut → emptying
-%%  emptying   the module nest empty (the upper robot       clamps open → unclamping
+%%  emptying   the module nest empty (the upper robot       → unclamping
 %%             lifted the modules)
-%%  unclamping the clamps open, or the watchdog             belt on → ejecting
+%%  unclamping both clamps open (ordered; again at each     belt on → ejecting
+%%             watchdog)
 %%  ejecting   the frame out of position, or the watchdog   belt off → idle
 %%  in_transit the operator, after a transfer was cut off   Ignore: here → clamping; Reset → idle
 %% </pre>
@@ -74,7 +84,7 @@ reconcile(_Held, T2) ->
                 Robot when Robot =:= frame; element(1, Robot) =:= robot ->
                     %% A panel a robot has, or its frame: the clamps hold it until the
                     %% modules are out.
-                    {ok, phase(cell_task:out(T2, clamp, true), emptying)};
+                    {ok, phase(order(T2, true), emptying)};
                 {arrived, S} ->
                     {ok, arrived(T2, S)};
                 {loading, _S} ->
@@ -133,20 +143,18 @@ step(arriving, _Woken, T) ->
                      released -> cell_handshake:complete(T1, prev(T1));
                      _ -> T1                   %% after a restart: it is here already
                  end,
-            watch(cell_task:out(T2, clamp, true), clamping, clamped, true, motion_timeout_ms);
+            {continue, phase(T2, clamping)};
         false ->
             watch(cell_task:out(T, belt_run, true), arriving, panel_in_position, true,
                   transfer_timeout_ms)
     end;
-step(clamping, {timer, _}, T) ->
-    fault(T, "could not be clamped", "Check the clamps and their air supply");
-step(clamping, _Woken, T) ->
-    case cell_task:in(T, clamped) of
+step(clamping, Woken, T) ->
+    case clamps_at(T, closed) of
         true ->
             T1 = cell_handshake:offer(T, next(T)),
             {wait, {handshake, next(T), not_busy, true}, phase(T1, offered)};
         false ->
-            watch(cell_task:out(T, clamp, true), clamping, clamped, true, motion_timeout_ms)
+            await_clamps(T, Woken, closed, clamping)
     end;
 %% -- full: the routing robot takes charge of the clamped panel -------------------------
 step(offered, {handshake, Next, not_busy, true}, T) ->
@@ -162,18 +170,14 @@ step(released, _Woken, T) ->
 %% -- the modules are out: the frame goes --------------------------------------------------
 step(emptying, _Woken, T) ->
     case cell_task:in(T, nest_empty) of
-        true -> watch(cell_task:out(T, clamp, false), unclamping, clamped, false,
-                      motion_timeout_ms);
+        true -> {continue, phase(T, unclamping)};
         false -> {wait, {io, nest_empty, {eq, true}}, phase(T, emptying)}
     end;
-step(unclamping, {timer, _}, T) ->
-    fault(T, "could not be unclamped", "Check the clamps and their air supply");
-step(unclamping, _Woken, T) ->
-    case cell_task:in(T, clamped) of
-        false -> watch(cell_task:out(T, belt_run, true), ejecting, panel_in_position, false,
-                       transfer_timeout_ms);
-        true -> watch(cell_task:out(T, clamp, false), unclamping, clamped, false,
-                      motion_timeout_ms)
+step(unclamping, Woken, T) ->
+    case clamps_at(T, open) of
+        true -> watch(cell_task:out(T, belt_run, true), ejecting, panel_in_position, false,
+                      transfer_timeout_ms);
+        false -> await_clamps(T, Woken, open, unclamping)
     end;
 step(ejecting, {timer, _}, T) ->
     fault(T, "did not leave the fixture", "Take the panel frame out of the fixture");
@@ -268,7 +272,7 @@ not_offered(S, T) ->
 %% looks again (reconcile, or the idle step).
 unheld_error(T) ->
     cell_handover:unheld_error(
-      phase(cell_task:out(cell_task:out(T, belt_run, false), clamp, false), idle),
+      phase(order(cell_task:out(T, belt_run, false), false), idle),
       "Panel in the fixture unknown", "A panel lies in the work fixture of lane ~ts",
       [router_task:lane(T)]).
 
@@ -285,6 +289,47 @@ fault(T, What, Check) ->
                             [Which, What, Check]),
               [retry]),
      cell_task:out(T, belt_run, false)}.
+
+%% -- the clamps' unit ---------------------------------------------------------------------
+
+%% The clamps' unit is ordered to close (true) or open (false) them. A unit without a
+%% process (it restarts) is ordered again at the next watchdog.
+order(T, Close) ->
+    Unit = clamps(T),
+    case cell_unit:order(Unit, clamp, Close) of
+        ok ->
+            T;
+        {error, not_running} ->
+            ok = cell_task:log(T, brief, "the clamps' unit ~ts is not running: ordered again "
+                               "later", [Unit]),
+            T
+    end.
+
+%% Whether both clamps' sensors show them at that end.
+clamps_at(T, End) ->
+    Group = router_cell:group(clamps, router_task:lane(T)),
+    lists:all(fun(P) -> cell_task:in(T, Group, P) end, sensors(End)).
+
+sensors(End) ->
+    [maps:get(Key, C) || C <- router_clamps_io:clamps(),
+                         Key <- [case End of closed -> is_closed; open -> is_open end]].
+
+%% The clamps ordered to an end, and their sensors awaited; the watchdog gives the
+%% order again (the unit's own timeout raises a stuck clamp to the operator).
+await_clamps(T, Woken, End, Phase) ->
+    case Woken of
+        {timer, _} ->
+            ok = cell_task:log(T, brief, "the clamps are not ~ts yet: waiting for their unit "
+                               "~ts (see its state and error), ordered again", [End, clamps(T)]);
+        _ ->
+            ok
+    end,
+    Group = router_cell:group(clamps, router_task:lane(T)),
+    {wait, [{io, Group, P, {eq, true}} || P <- sensors(End)]
+         ++ [router_task:watchdog(T, motion_timeout_ms, 30000)],
+     phase(order(T, End =:= closed), Phase)}.
+
+clamps(T) -> cell_task:arg(T, clamps, undefined).
 
 watch(T, Phase, Point, Value, Watchdog) ->
     router_task:watch(T, Phase, Point, Value, Watchdog).

@@ -252,7 +252,8 @@ jams_and_magazine_warning(_Config) ->
 dual_lane(_Config) ->
     Tasks = [Id || #{id := Id} <- cell_controller:tasks()],
     ?assertEqual(lists:sort([loading_front, loading_rear, work_front, work_rear,
-                             unloading_front, unloading_rear, lower, upper]),
+                             unloading_front, unloading_rear, lower, upper,
+                             clamps_front, clamps_rear]),
                  lists:sort(Tasks)),
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
@@ -409,7 +410,8 @@ real_mode_spec(_Config) ->
         router_cell:cell_spec(Machine, Router),
     ?assertMatch(#{driver := cell_hal_modbus, opts := #{host := "192.168.0.10", port := 502}},
                  Conn),
-    ?assertEqual(8, length(Tasks)),
+    %% Per lane three tasks and the clamps' unit, and the two robots.
+    ?assertEqual(10, length(Tasks)),
     {ok, _} = cell_spec:validate(router_cell:cell_spec(Machine, Router)),
     %% No PLC answers at this address; the configuration is checked all the same.
     Real = Conn#{id => router_plc_real, opts => (maps:get(opts, Conn))#{host => "127.0.0.1",

@@ -39,7 +39,10 @@
 %% actuator or timer by name (done when its last command is), `{io, Point, Cond}' (an
 %% IO point reached a condition, see `cell_hal:watch/3'; `Point' is a name in the
 %% unit's first IO group or `{Group, Name}'), or `{reply, Ref}' (the unit received
-%% `{Ref, Term}', an answer to a request the step made; {@link reply/2} gives it).</li>
+%% `{Ref, Term}', an answer to a request the step made; {@link reply/2} gives it), or
+%% `{order, Key, {eq | ne, Value}}' (the unit's standing order `Key', given from
+%% outside with `cell_unit:order/3', is, or is not, `Value'; none given is `undefined';
+%% {@link order/3} reads it).</li>
 %% <li>{@link done/1} — the sequence has finished (the seed's SetBusy(FALSE)): the unit's
 %% state is done.</li>
 %% <li>{@link abort/2} — Abort(Reason): the unit goes into FaultReaction, the reason
@@ -70,7 +73,8 @@
 -export([on_entry/1, on_entry/2, step/1, unit/1, args/1, arg/3, get/2, get/3, put/3, halted/1,
          service_mode/1, settings/1, setting/3]).
 -export([next/2, await/3, await/4, await2/4, done/1, abort/2, call/4]).
--export([in/2, read/2, out/3, command/3, local_actuator/4, reply/2, expect_reply/2]).
+-export([in/2, read/2, out/3, command/3, local_actuator/4, reply/2, expect_reply/2,
+         order/3]).
 -export([starved/1, unstarved/1, blocked/1, unblocked/1, work_start/1, work_complete/1]).
 -export([log/4, format_reason/1]).
 %% For the runner and actuators.
@@ -80,7 +84,8 @@
 
 -type seq() :: #seq{}.
 -type point() :: atom() | {atom(), atom()}.
--type op() :: atom() | {io, point(), cell_hal_type:condition()} | {reply, reference()}.
+-type op() :: atom() | {io, point(), cell_hal_type:condition()} | {reply, reference()}
+            | {order, atom(), {eq | ne, term()}}.
 -type deadline() :: infinity | {integer(), non_neg_integer()}.
 -type result() :: {next, term(), seq()}
                 | {wait, [op()], deadline(), seq()}
@@ -259,6 +264,13 @@ status({reply, Ref}, #seq{replies = Replies} = Seq) when is_reference(Ref) ->
         {ok, {_Term}} -> {done, Seq};
         _ -> {pending, Seq#seq{replies = Replies#{Ref => expected}}}
     end;
+status({order, Key, {Cmp, V}}, #seq{orders = Orders} = Seq)
+  when is_atom(Key), (Cmp =:= eq orelse Cmp =:= ne) ->
+    %% No order given yet is `undefined': `{ne, undefined}' waits for the first.
+    case (maps:get(Key, Orders, undefined) =:= V) =:= (Cmp =:= eq) of
+        true -> {done, Seq};
+        false -> {pending, Seq}
+    end;
 status(Op, Seq) ->
     {{error, {bad_operation, Op}}, Seq}.
 
@@ -350,6 +362,12 @@ reply(#seq{replies = R}, Ref) ->
     {Term} = maps:get(Ref, R),
     Term.
 
+%% @doc The unit's standing order `Key' as last given with `cell_unit:order/3' (the
+%% unit keeps it across its states, not across a restart of its process), or `Default'
+%% when none was given.
+-spec order(seq(), atom(), term()) -> term().
+order(#seq{orders = Orders}, Key, Default) -> maps:get(Key, Orders, Default).
+
 %% @doc Keeps the answer to a request made now for a later step to await (answers to
 %% requests nobody awaits or expects are dropped).
 -spec expect_reply(seq(), reference()) -> seq().
@@ -418,7 +436,7 @@ reason({unhandled_step, Step}) ->
 reason({no_io_group, P}) ->
     io_lib:format("IO point ~ts: the unit has no IO group", [P]);
 reason({bad_operation, Op}) ->
-    io_lib:format("cannot await ~tp: not an actuator, IO condition or reply", [Op]);
+    io_lib:format("cannot await ~tp: not an actuator, IO condition, reply or order", [Op]);
 reason({not_ready, Event, State}) ->
     io_lib:format("the sequence reported ~ts in ~ts; only Automatic and user states can",
                   [Event, cell_unit_fsm:name(State)]);
@@ -440,6 +458,7 @@ io_error(Why) -> io_lib:format("failed: ~tp", [Why]).
 op(Name) when is_atom(Name) -> atom_to_list(Name);
 op({io, Point, {Cmp, V}}) -> io_lib:format("~ts ~ts ~tp", [point(Point), cmp(Cmp), V]);
 op({reply, _}) -> "an answer";
+op({order, Key, {Cmp, V}}) -> io_lib:format("the order ~ts ~ts ~tp", [Key, cmp(Cmp), V]);
 op(Op) -> io_lib:format("~tp", [Op]).
 
 point({G, P}) -> [atom_to_list(G), ".", atom_to_list(P)];

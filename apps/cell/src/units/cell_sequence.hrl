@@ -29,6 +29,7 @@
     armed = #{} :: #{term() => term()},   %% IO watches and the deadline of this step
     latched = #{} :: #{term() => term()}, %% IO conditions seen to hold in this step
     replies = #{} :: #{reference() => expected | {term()}},
+    orders = #{} :: #{atom() => term()}, %% the standing orders given to the unit
     effects = [] :: [term()],             %% what the engine is to do, newest first
     read :: fun((atom(), atom()) -> {ok, term()} | {error, term()}),
     estop :: fun(() -> boolean()),

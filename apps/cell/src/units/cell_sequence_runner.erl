@@ -22,7 +22,7 @@
 
 -include("cell_sequence.hrl").
 
--export([new/1, start/4, cycle/2, event/3, set_halt/3, set_service/2, fail/2,
+-export([new/1, start/4, cycle/2, event/3, set_halt/3, set_service/2, set_order/4, fail/2,
          interrupt/1, secure/1, running/1, held/1, expects/2, describe/1, where/1]).
 
 -export_type([outcome/0, where/0, event/0]).
@@ -120,6 +120,15 @@ set_halt(Seq0, false, Now) ->
 -spec set_service(cell_sequence:seq(), boolean()) -> cell_sequence:seq().
 set_service(Seq, On) -> Seq#seq{service = On}.
 
+%% @doc A standing order of the unit given or changed (see `cell_unit:order/3'): kept
+%% for every sequence, and the waiting step runs again, as for an IO change.
+-spec set_order(cell_sequence:seq(), atom(), term(), integer()) -> ret().
+set_order(#seq{orders = Orders} = Seq, Key, Value, Now) ->
+    case maps:find(Key, Orders) of
+        {ok, Value} -> finish({quiet(Seq), Seq});
+        _ -> finish(rerun(Seq#seq{orders = Orders#{Key => Value}, now = Now}))
+    end.
+
 %% @doc Something the engine was to carry out failed (an output the HAL refused, a
 %% watch it could not place): the sequence is aborted with that reason.
 -spec fail(cell_sequence:seq(), term()) -> ret().
@@ -152,17 +161,17 @@ held(#seq{held = H}) -> H.
 expects(#seq{replies = R}, Ref) -> maps:get(Ref, R, none) =:= expected.
 
 %% @doc The running sequences, outermost first, with their steps; what the running
-%% step waits for; the actuators.
+%% step waits for; the actuators; the standing orders the unit was given.
 -spec describe(cell_sequence:seq()) -> map().
 describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
-              actuators = Acts}) ->
+              actuators = Acts, orders = Orders}) ->
     #{sequences => [#{module => M, step => S, mode => Mode}
                     || #frame{module = M, step = S, mode = Mode} <- lists:reverse(Frames)],
       waiting => case Waiting of
                      undefined -> [];
                      {Ops, _} -> Ops
                  end,
-      halt => Halt, held => Held,
+      halt => Halt, held => Held, orders => Orders,
       actuators => maps:map(fun(_, {Mod, S}) -> Mod:describe(S) end, Acts)}.
 
 %% @doc Where the running sequence is.
@@ -321,9 +330,10 @@ hold_waiting(#seq{armed = Armed} = Seq) ->
                      end, Seq, Armed),
     Seq1#seq{armed = #{}, held = true}.
 
-%% Actuators, timers and answers are operations under way; IO conditions are not ours.
+%% Actuators, timers and answers are operations under way; IO conditions and orders
+%% are not ours.
 io_only(Pending) ->
-    lists:all(fun({io, _, _}) -> true; (_) -> false end, Pending).
+    lists:all(fun({io, _, _}) -> true; ({order, _, _}) -> true; (_) -> false end, Pending).
 
 %% -------------------------------------------------------------------------------------
 %% Events

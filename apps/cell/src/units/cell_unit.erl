@@ -43,12 +43,16 @@
 %% `settings', `args'); the cell tells the two kinds apart by their callbacks. Its
 %% buttons: {@link go_home/1}, {@link start/1}, {@link stop/1}, {@link user_state/2},
 %% {@link action/2}, {@link abort/2} (a fault from outside: another unit, a monitor),
-%% {@link halt/1} and {@link resume/1}. The cell's Start, Pause, Stop, emergency stop
+%% {@link halt/1} and {@link resume/1}. A device task (or another unit) commands a
+%% unit with standing orders, {@link order/3}: `clamp => true', say, which the unit's
+%% sequences read (`cell_sequence:order/3') and await (`{order, clamp, {eq, true}}');
+%% the asker sees the result on the machine's sensors. The cell's Start, Pause, Stop, emergency stop
 %% and service mode reach it as they reach tasks (see {@link cell_unit_proc}).
 -module(cell_unit).
 
 -export([check/1, is_unit_module/1]).
 -export([go_home/1, start/1, stop/1, user_state/2, action/2, abort/2, halt/1, resume/1]).
+-export([order/3]).
 -export([state/1, info/1, settle/1, whereis/1]).
 
 -export_type([declaration/0, sequence_key/0, button/0]).
@@ -112,6 +116,27 @@ halt(U) -> gen_statem:call(pid(U), {halt, true}).
 resume(U) -> gen_statem:call(pid(U), {halt, false}).
 
 button(U, B) -> gen_statem:call(pid(U), {button, B}).
+
+%% @doc Gives the unit a standing order: `Key' is `Value' until a next order of that
+%% key. The unit keeps it in every state (a unit in Fault or Stopped follows it once
+%% back in Automatic) but not across a restart of its process, so the asker gives it
+%% again while it waits for the result; `{error, not_running}' when the unit has no
+%% process now (it restarts).
+-spec order(unit_ref(), atom(), term()) -> ok | {error, not_running}.
+order(U, Key, Value) when is_atom(Key) ->
+    case pid_of(U) of
+        undefined ->
+            {error, not_running};
+        Pid ->
+            try gen_statem:call(Pid, {order, Key, Value})
+            catch
+                %% Ended before or while it took the order: its successor has none.
+                exit:{_Why, {gen_statem, call, _}} -> {error, not_running}
+            end
+    end.
+
+pid_of(Pid) when is_pid(Pid) -> Pid;
+pid_of(Id) when is_atom(Id) -> ?MODULE:whereis(Id).
 
 %% -------------------------------------------------------------------------------------
 %% Looking at a unit

@@ -15,8 +15,10 @@
 %%  {action, A, From}    a service move → From when done
 %%  stop                 the Stop sequence → stopped (an abort in it: stopped, then
 %%                       fault_reaction)
-%%  stopped              waits: GoHome, Stop again, an action
-%%  fault_reaction       raises the fault's error (Reset), runs its sequence without
+%%  stopped              waits: GoHome, Stop again, an action; IO lost is no fault
+%%                       (OFF, as a device task)
+%%  fault_reaction       raises the fault's error (Reset; a lost connection's, `io',
+%%                       Retry or Reset, as a task's), runs its sequence without
 %%                       waiting for anything interrupted → fault (also if aborted)
 %%  fault                waits: GoHome (Reset), an action
 %%  any                  Halt holds the sequence at a resumable point; an actuator that
@@ -43,6 +45,10 @@
 %%     FaultReaction → Fault. It reports OFF until the release. Start afterwards
 %%     references the unit again.</li>
 %% </ul>
+%%
+%% Standing orders ({@link cell_unit:order/3}), given by a device task or another unit,
+%% are kept in every state for the sequences to follow; they go with the process, so
+%% whoever gives one gives it again after the unit restarted.
 %%
 %% A connection of the unit's IO that the HAL's server could not subscribe it to (away,
 %% restarting) is down for the unit, as a lost one is, until the HAL's `{cell_hal_back,
@@ -229,6 +235,10 @@ handle_event(info, {control, Key, Value}, State, D) ->
     control(Key, Value, State, D);
 handle_event({call, From}, {button, Button}, State, D) ->
     button(Button, From, State, D);
+handle_event({call, From}, {order, Key, Value}, State, D) when is_atom(Key) ->
+    %% A standing order for the sequences, in any state: the one waiting for it runs.
+    with_reply(From, ok, run(State, fun(S) -> cell_sequence_runner:set_order(S, Key, Value,
+                                                                            now_ms()) end, D));
 handle_event({call, From}, {halt, On}, State, D) when is_boolean(On) ->
     {Outcome, D1} = halt_flag(On, State, D),
     with_reply(From, ok, outcome(Outcome, State, D1));
@@ -610,6 +620,9 @@ withdraw(D) ->
 
 answered(booting, retry, booting, D) ->
     {keep_state, D, [{next_event, internal, entered}]};
+answered(fault, retry, State, D) ->
+    %% Offered for a lost connection only: the same as Reset.
+    answered(fault, reset, State, D);
 answered(_Origin, reset, State, #data{request = Request} = D0) ->
     %% Reset: referenced (GoHome) now if the cell runs, else at the next Start.
     D = D0#data{auto = Request =:= start},
@@ -620,6 +633,12 @@ answered(_Origin, reset, State, #data{request = Request} = D0) ->
 answered(_Origin, _Solution, State, D) ->
     keep(State, D).
 
+fault_error(Where, {io_lost, _Conn} = Why) ->
+    io_error(Where, Why);
+fault_error(Where, {io, _Point, disconnected} = Why) ->
+    %% A point written or read while its connection was down, before the news of the
+    %% loss came: the same.
+    io_error(Where, Why);
 fault_error(Where, Why) ->
     Reason = cell_sequence:format_reason(Why),
     cell_task:error_spec(
@@ -628,6 +647,16 @@ fault_error(Where, Why) ->
                     "RESET: the unit references itself (GoHome) when the cell runs.",
                     [where_text(Where), Reason]),
       [reset]).
+
+%% As a device task's lost IO: answered once the connection is back.
+io_error(Where, Why) ->
+    Reason = cell_sequence:format_reason(Why),
+    cell_task:error_spec(
+      <<"io">>, Reason,
+      io_lib:format("The unit stopped on a fault~ts: ~ts.~nOnce the connection is back, "
+                    "select RETRY (or RESET): the unit references itself (GoHome) when "
+                    "the cell runs.", [where_text(Where), Reason]),
+      [retry, reset]).
 
 booting_error(Where, Why) ->
     cell_task:error_spec(
@@ -691,7 +720,10 @@ resubscribe(Conns, D) ->
 
 connection(Conn, down, State, #data{conns = Conns} = D0) when is_map_key(Conn, Conns) ->
     D = D0#data{conns = Conns#{Conn => down}},
-    case cell_unit_fsm:is_active(State) orelse State =:= idle orelse State =:= stopped of
+    %% Stopped is OFF: as for a device task that is OFF, a connection lost is no fault
+    %% (the node stopping takes the HAL down before its units); GoHome, which leaves
+    %% it, checks the IO first.
+    case cell_unit_fsm:is_active(State) orelse State =:= idle of
         true ->
             case external_fault(State, {io_lost, Conn}, D) of
                 {ok, Result} -> Result;
