@@ -870,7 +870,7 @@ clients(S, State, #data{id = Id, source = Src} = D) ->
               [case cell_inspect_client:module(Type) of
                    {ok, Mod} ->
                        [#{id => C, block => Id, module => Mod,
-                          opts => maps:with([delay_ms, manual, scene], Cl)}];
+                          opts => maps:with([delay_ms, manual, scene, fail_rate], Cl)}];
                    error ->
                        cell_log:error(Src, "camera client ~ts has an unknown type \"~ts\"",
                                       [C, Type]),

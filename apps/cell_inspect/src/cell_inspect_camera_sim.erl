@@ -4,18 +4,22 @@
 %% told an answer. For demo cells without cameras, and for tests.
 %%
 %% Options from the client's settings: `delay_ms' (0), `manual' (false), `scene'
-%% (`<<"PASS">>'; `<<"FAIL">>', `<<"PASS OCR 12">>', anything else is unreadable). Set
+%% (`<<"PASS">>'; `<<"FAIL">>', `<<"PASS OCR 12">>', anything else is unreadable),
+%% `fail_rate' (0.0: the chance that an image shows a bad part, read FAIL whatever the
+%% scene; a demo's bad parts now and then). Set
 %% with {@link set/2} only: `image_data' (true: the image travels with the answer;
 %% false: the camera keeps it and sends a reference).
 %%
 %% Controls, through {@link cell_inspect_client:call/2} or the functions below:
 %% `connect', `disconnect', `shoot' (manual mode), `answer', `set' (options),
+%% `fail_next' (the next image shows a bad part, once),
 %% `pending', `subscribe' (the caller receives `{cell_inspect_camera_sim, Id, Event}'
 %% for every request, cancel, message and withdrawal).
 -module(cell_inspect_camera_sim).
 -behaviour(cell_inspect_client).
 
--export([connect/1, disconnect/1, shoot/1, answer/2, set/2, pending/1, subscribe/1]).
+-export([connect/1, disconnect/1, shoot/1, answer/2, set/2, pending/1, subscribe/1,
+         fail_next/1]).
 -export([init/2, request_image/2, cancel/2, show_message/2, withdraw_message/2,
          handle_call/2, handle_info/2]).
 
@@ -25,7 +29,9 @@
               requests = [] :: [map()],
               messages = [] :: [map()],
               subscribers = [] :: [pid()],
-              shots = 0 :: non_neg_integer()}).
+              shots = 0 :: non_neg_integer(),
+              fail_next = false :: boolean(),
+              rand :: rand:state()}).
 
 %%====================================================================
 %% Controls
@@ -49,6 +55,10 @@ answer(Id, A) -> cell_inspect_client:call(Id, {answer, A}).
 -spec set(binary(), map()) -> ok | {error, term()}.
 set(Id, Opts) -> cell_inspect_client:call(Id, {set, Opts}).
 
+%% @doc The next image shows a bad part (its scene read FAIL), once.
+-spec fail_next(binary()) -> ok | {error, term()}.
+fail_next(Id) -> cell_inspect_client:call(Id, fail_next).
+
 -spec pending(binary()) -> #{requests := [map()], messages := [map()]} | {error, term()}.
 pending(Id) -> cell_inspect_client:call(Id, pending).
 
@@ -62,9 +72,9 @@ subscribe(Id) -> cell_inspect_client:call(Id, {subscribe, self()}).
 
 -spec init(binary(), map()) -> {ok, boolean(), #sim{}}.
 init(Id, Opts) ->
-    O = maps:merge(#{delay_ms => 0, manual => false, scene => <<"PASS">>, image_data => true},
-                   Opts),
-    {ok, true, #sim{id = Id, opts = O, connected = true}}.
+    O = maps:merge(#{delay_ms => 0, manual => false, scene => <<"PASS">>, image_data => true,
+                     fail_rate => 0.0}, Opts),
+    {ok, true, #sim{id = Id, opts = O, connected = true, rand = rand:seed_s(exsss)}}.
 
 -spec request_image(map(), #sim{}) -> {ok, [cell_inspect_client:event()], #sim{}}.
 request_image(Req, #sim{opts = O} = S) ->
@@ -107,6 +117,8 @@ handle_call({answer, _}, S) ->
     {reply, {error, no_message}, [], S};
 handle_call({set, Opts}, #sim{opts = O} = S) when is_map(Opts) ->
     {reply, ok, [], S#sim{opts = maps:merge(O, Opts)}};
+handle_call(fail_next, S) ->
+    {reply, ok, [], S#sim{fail_next = true}};
 handle_call(pending, #sim{requests = Rs, messages = Ms} = S) ->
     {reply, #{requests => Rs, messages => Ms}, [], S};
 handle_call({subscribe, Pid}, #sim{subscribers = Subs} = S) ->
@@ -122,8 +134,13 @@ handle_info({answer_refused, Ref, Why}, S) ->
     {ok, [], notify({answer_refused, Ref, Why}, S)}.
 
 %% The image of the scene for a request.
-take(#{ref := Ref}, #sim{opts = O, requests = Rs, shots = N, id = Id} = S) ->
-    Scene = maps:get(scene, O),
+take(#{ref := Ref}, #sim{opts = O, requests = Rs, shots = N, id = Id} = S0) ->
+    {Bad, Rand} = rand:uniform_s(S0#sim.rand),
+    Scene = case S0#sim.fail_next orelse Bad < maps:get(fail_rate, O) of
+                true -> <<"FAIL">>;
+                false -> maps:get(scene, O)
+            end,
+    S = S0#sim{fail_next = false, rand = Rand},
     Image = case maps:get(image_data, O) of
                 true -> #{data => cell_inspect_sim_ipm:image(Scene, 32, 24),
                           format => <<"pgm">>};

@@ -25,4 +25,7 @@ fields() ->
        doc => <<"Simulated cameras: take an image only when told to.">>},
      #{name => scene, type => {string, 64}, default => <<"PASS">>,
        doc => <<"Simulated cameras: what the simulated processing reads (PASS, FAIL, "
-                "PASS text).">>}].
+                "PASS text).">>},
+     #{name => fail_rate, type => {float, 0.0, 1.0}, default => 0.0,
+       doc => <<"Simulated cameras: chance that an image shows a bad part (the "
+                "simulated processing reads FAIL whatever the scene).">>}].

@@ -171,6 +171,7 @@ points(Groups, Field) ->
 point(#{id := G} = Group, Field, #{name := Name, type := Type} = Def) ->
     case cell_hal_modbus:check_point(Field, G, maps:get(opts, Group, #{}), Def) of
         {ok, #{bit := none} = F} -> {{G, Name}, Type, F};
+        {ok, #{table := holding_register} = F} when Type =:= bool -> {{G, Name}, Type, F};
         {ok, _} -> throw({bit_of_register_not_served, {G, Name}});
         {error, Why} -> throw({bad_point, {G, Name}, Why})
     end.

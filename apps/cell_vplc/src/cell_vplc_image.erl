@@ -25,15 +25,18 @@
 -type table() :: coil | discrete_input | holding_register | input_register.
 %% A point of the served connection: its HAL key, type and resolved Modbus field.
 -type point() :: {key(), cell_hal_type:type(),
-                  #{unit := 0..255, table := table(), address := 0..65535, bit := none,
-                    word_order := big | little, atom() => term()}}.
--type slot() :: {key(), cell_hal_type:type(), Word :: non_neg_integer(), big | little}.
+                  #{unit := 0..255, table := table(), address := 0..65535,
+                    bit := none | 0..15, word_order := big | little, atom() => term()}}.
+%% A register holds one word of a value, or booleans packed into its bits.
+-type slot() :: {key(), cell_hal_type:type(), Word :: non_neg_integer(), big | little}
+              | {bits, #{0..15 => key()}}.
 -opaque image() :: #{{0..255, table(), 0..65535} => slot()}.
 %% The value a point holds in the simulation; `undefined' before anything set it (it
 %% reads as zero, as a PLC's fresh memory does).
 -type read_fun() :: fun((key()) -> cell_hal_type:value() | undefined).
 
-%% @doc The map of these points; two points on one address are refused.
+%% @doc The map of these points; two points on one address are refused, except
+%% booleans on distinct bits of one holding register (an S7 UDT's BOOLs).
 -spec new([point()]) -> {ok, image()} | {error, {overlap, key(), key()}}.
 new(Points) ->
     try
@@ -42,6 +45,15 @@ new(Points) ->
         throw:{overlap, _, _} = Overlap -> {error, Overlap}
     end.
 
+add({Key, bool, #{unit := U, table := holding_register, address := A, bit := B}}, Map)
+  when is_integer(B) ->
+    case Map of
+        #{{U, holding_register, A} := {bits, #{B := Other}}} -> throw({overlap, Other, Key});
+        #{{U, holding_register, A} := {bits, Bits}} ->
+            Map#{{U, holding_register, A} := {bits, Bits#{B => Key}}};
+        #{{U, holding_register, A} := {Other, _, _, _}} -> throw({overlap, Other, Key});
+        _ -> Map#{{U, holding_register, A} => {bits, #{B => Key}}}
+    end;
 add({Key, Type, #{unit := U, table := T, address := A, word_order := O}}, Map) ->
     N = case T of
             coil -> 1;
@@ -51,6 +63,8 @@ add({Key, Type, #{unit := U, table := T, address := A, word_order := O}}, Map) -
     lists:foldl(fun(W, M) ->
                         case M of
                             #{{U, T, A + W} := {Other, _, _, _}} -> throw({overlap, Other, Key});
+                            #{{U, T, A + W} := {bits, Bits}} ->
+                                throw({overlap, hd(lists:sort(maps:values(Bits))), Key});
                             _ -> M#{{U, T, A + W} => {Key, Type, W, O}}
                         end
                 end, Map, lists:seq(0, N - 1)).
@@ -136,7 +150,11 @@ bits(U, T, A, N, Map, Read) ->
 registers(U, T, A, N, Map, Read) ->
     Slots = [slot(U, T, I, Map) || I <- lists:seq(A, A + N - 1)],
     {Words, _} = lists:mapfoldl(
-                   fun({Key, Type, W, O}, Cache) ->
+                   fun({bits, Bits}, Cache) ->
+                           Word = lists:sum([1 bsl B || {B, Key} <- maps:to_list(Bits),
+                                                        Read(Key) =:= true]),
+                           {<<Word:16>>, Cache};
+                      ({Key, Type, W, O}, Cache) ->
                            Regs = maps:get(Key, Cache, encode(Type, Read(Key), O)),
                            {binary:part(Regs, 2 * W, 2), Cache#{Key => Regs}}
                    end, #{}, Slots),
@@ -150,8 +168,15 @@ set_bits(U, A, Bits, Map) ->
 %% Each point the written registers touch gets its registers as they were with the
 %% written words put in: a value of several registers written in part keeps the rest.
 set_registers(U, A, Regs, Map, Read) ->
-    Words = [{slot(U, holding_register, A + I, Map), <<W:16>>}
-             || {I, W} <- lists:enumerate(0, [W || <<W:16>> <= Regs])],
+    All = [{slot(U, holding_register, A + I, Map), <<W:16>>}
+           || {I, W} <- lists:enumerate(0, [W || <<W:16>> <= Regs])],
+    %% A register of packed booleans sets each of them from its bit.
+    BitWrites = [{Key, (W bsr B) band 1 =:= 1}
+                 || {{bits, Bits}, <<W:16>>} <- All, {B, Key} <- lists:sort(maps:to_list(Bits))],
+    Words = [Wd || {{_, _, _, _}, _} = Wd <- All],
+    BitWrites ++ set_words(Words, Read).
+
+set_words(Words, Read) ->
     Keys = lists:foldl(fun({{K, T, _, O}, _}, Acc) ->
                                case lists:keymember(K, 1, Acc) of
                                    true -> Acc;

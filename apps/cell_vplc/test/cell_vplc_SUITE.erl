@@ -56,6 +56,12 @@ init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
     ok = cell_testkit:start(CellRoot, router_cell, router_cell),
     ok = cell_testkit:await_connection(?CONN, ?WAIT),
+    %% The inspection block on the virtual PLC's UDT, its camera showing no bad part.
+    ok = cell_settings:put(inspect, #{blocks => [B#{clients => [C#{fail_rate => 0.0} || C <- Cs]}
+                                                 || #{clients := Cs} = B
+                                                        <- cell_settings:get(inspect, blocks)]},
+                           <<"suite">>),
+    {ok, _} = application:ensure_all_started(cell_inspect),
     [{vplc, Vplc}, {root, Root} | Config];
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -65,6 +71,8 @@ init_per_testcase(Case, Config) ->
     [{vplc, Vplc}, {root, Root} | Config].
 
 end_per_testcase(the_router_cell_in_real_mode, Config) ->
+    _ = application:stop(cell_inspect),
+    _ = application:unset_env(cell_inspect, blocks),
     ok = cell_testkit:stop(router_cell, []),
     _ = application:unset_env(cell, shutdown_wait_ms),
     stop_vplc(?config(vplc, Config));
@@ -158,7 +166,9 @@ the_physics_settings_of_its_root(_Config) ->
     ?assertEqual({ok, true}, cell_hal:read(loading_front_io, upstream_available)).
 
 %% The router cell itself with simulation_mode off, its HAL on the Modbus driver: panels
-%% pass the whole line through the virtual PLC, each serial once, no error raised.
+%% pass the whole line through the virtual PLC, each serial once, no error raised; each
+%% inspected at the unloading exit by its inspection block, whose UDT (booleans packed in
+%% holding registers) the virtual PLC serves and maps onto the PLC program's tags.
 the_router_cell_in_real_mode(_Config) ->
     {ok, #{driver := cell_hal_modbus}} = cell_hal:info(?CONN),
     ok = cell_events:subscribe([item_transfer_out, alarm_raised, cell_state]),
@@ -168,6 +178,9 @@ the_router_cell_in_real_mode(_Config) ->
                                      (_) -> false
                                   end, fun never_answer/1, ?WAIT),
     ?assertEqual(5, length(lists:usort(Out))),
+    %% Each inspected at the exit through the block's tags on the virtual PLC.
+    [?assertMatch({ok, #{inspections := [#{result := pass}]}}, cell_inspect:traceability(S))
+     || S <- Out],
     ok = cell_testkit:stop_cell(fun never_answer/1, ?WAIT).
 
 never_answer(Alarm) ->

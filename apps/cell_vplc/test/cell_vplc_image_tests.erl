@@ -89,3 +89,26 @@ write_test_() ->
      ?_assertEqual({reply, <<6, 0:16, 65535:16>>, [{{h, other}, -1}]},
                    ask(2, <<6, 0:16, 65535:16>>)),
      ?_assertEqual({reply, <<16#85, 3>>, []}, ask(1, <<5, 10:16, 16#1234:16>>))].
+
+%% Booleans packed into the bits of a holding register (an S7 UDT's BOOLs): read as one
+%% word, a write sets each from its bit; a bit taken twice, or a register shared with a
+%% value, is refused.
+packed_bits_test_() ->
+    Bit = fun(A, B) -> (f(1, holding_register, A))#{bit => B} end,
+    {ok, I} = cell_vplc_image:new([{{u, hb}, bool, Bit(5, 8)}, {{u, echo}, bool, Bit(5, 9)},
+                                   {{u, pass}, bool, Bit(5, 0)},
+                                   {{u, status}, int16, f(1, holding_register, 6)}]),
+    Values = #{{u, hb} => true, {u, pass} => true, {u, status} => 2},
+    Ask = fun(Pdu) -> cell_vplc_image:answer(1, Pdu, {I, fun(K) -> maps:get(K, Values, undefined) end}) end,
+    [?_assertEqual({reply, <<3, 4, 16#01, 16#01, 0, 2>>, []}, Ask(<<3, 5:16, 2:16>>)),
+     ?_assertEqual({reply, <<6, 5:16, 16#0200:16>>,
+                    [{{u, pass}, false}, {{u, hb}, false}, {{u, echo}, true}]},
+                   Ask(<<6, 5:16, 16#0200:16>>)),
+     ?_assertEqual({error, {overlap, {u, a}, {u, b}}},
+                   cell_vplc_image:new([{{u, a}, bool, Bit(5, 1)}, {{u, b}, bool, Bit(5, 1)}])),
+     ?_assertEqual({error, {overlap, {u, a}, {u, b}}},
+                   cell_vplc_image:new([{{u, a}, int16, f(1, holding_register, 5)},
+                                        {{u, b}, bool, Bit(5, 1)}])),
+     ?_assertEqual({error, {overlap, {u, a}, {u, b}}},
+                   cell_vplc_image:new([{{u, a}, bool, Bit(5, 1)},
+                                        {{u, b}, int16, f(1, holding_register, 5)}]))].

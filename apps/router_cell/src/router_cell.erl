@@ -26,7 +26,7 @@
 -module(router_cell).
 
 -export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2,
-         router_settings/0, simulation/1, machine_actions/1]).
+         router_settings/0, simulation/1, machine_actions/1, inspect_blocks/1]).
 
 -define(CONN, router_plc).
 
@@ -87,8 +87,10 @@ lane_tasks(L, Router) ->
                                         timeout_ms => maps:get(clamp_timeout_ms, Router,
                                                                3000)}}),
      #{id => task(unloading, L), module => router_unloading_task, zone => <<"Unloading">>,
-       %% The gripper's sensor read too: modules in it are not on this conveyor.
-       lane => Lane, io => [group(unloading, L), upper_io], settings => router,
+       %% The gripper's sensor read too: modules in it are not on this conveyor. The
+       %% inspection block's tags as the PLC program sees them: the camera at the exit.
+       lane => Lane, io => [group(unloading, L), upper_io, group(inspect, L)],
+       settings => router,
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
@@ -123,8 +125,27 @@ hal(Machine, Router) ->
             #{id => general_io, module => router_general_io, connection => ?CONN,
               opts => #{base => 300}},
             #{id => drives_io, module => router_drives_io, connection => ?CONN,
-              opts => #{base => 340, lanes => lanes(Machine)}}],
+              opts => #{base => 340, lanes => lanes(Machine)}}]
+        %% Per lane an inspection block's UDT (seed 004, 174 holding registers) and the
+        %% PLC program's side of it, which the PLC maps onto the UDT.
+        ++ lists:append([[#{id => Block, module => cell_inspect_io, connection => ?CONN,
+                            opts => router_inspect_io:block_opts(Base)},
+                          #{id => group(inspect, L), module => router_inspect_io,
+                            connection => ?CONN, opts => #{base => Mirror, block => Base}}]
+                         || #{id := Block, lane := L, base := Base, mirror := Mirror}
+                                <- inspect_layout(lanes(Machine))]),
     #{connections => [Conn], groups => Groups}.
+
+%% @doc The inspection blocks of the machine (seed 004, {@link cell_inspect}), one per
+%% lane, on the router's PLC: for the `cell_inspect' application's `blocks'.
+-spec inspect_blocks([front | rear]) -> [#{id := atom(), connection := atom(), io := map()}].
+inspect_blocks(Lanes) ->
+    [#{id => Id, connection => ?CONN, io => #{layout => s7, base => Base}}
+     || #{id := Id, base := Base} <- inspect_layout(Lanes)].
+
+inspect_layout(Lanes) ->
+    [#{id => group(inspection_block, L), lane => L, base => Base, mirror => Mirror}
+     || {L, Base, Mirror} <- [{front, 480, 840}, {rear, 660, 940}], lists:member(L, Lanes)].
 
 %% @doc What the cell's monitor ({@link cell_monitor}) watches and drives on this
 %% machine: its general IO (the emergency-stop circuit, the service key, the safety
@@ -195,8 +216,11 @@ lanes(Machine) ->
         false -> [front]
     end.
 
-%% @doc The IO group instance of a lane's segment (or of its fixture's clamps).
--spec group(loading | work | unloading | clamps, front | rear) -> atom().
+%% @doc The IO group instance of a lane's segment (`clamps': its fixture's clamps;
+%% `inspect': the PLC program's side of the lane's inspection block;
+%% `inspection_block': the block's own, its id in the inspection application).
+-spec group(loading | work | unloading | clamps | inspect | inspection_block,
+            front | rear) -> atom().
 group(loading, front) -> loading_front_io;
 group(loading, rear) -> loading_rear_io;
 group(work, front) -> work_front_io;
@@ -204,7 +228,11 @@ group(work, rear) -> work_rear_io;
 group(unloading, front) -> unloading_front_io;
 group(unloading, rear) -> unloading_rear_io;
 group(clamps, front) -> clamps_front_io;
-group(clamps, rear) -> clamps_rear_io.
+group(clamps, rear) -> clamps_rear_io;
+group(inspect, front) -> inspect_front_io;
+group(inspect, rear) -> inspect_rear_io;
+group(inspection_block, front) -> inspect_front;
+group(inspection_block, rear) -> inspect_rear.
 
 module(loading) -> router_loading_io;
 module(work) -> router_work_io;

@@ -1,6 +1,7 @@
 %% @doc The router cell's application: when the router is the cell the runtime runs
 %% (the `cell' application's `cell_module'), it puts the demo recipes in place if they
-%% are missing and, in simulation mode, starts the machine's physics behind the
+%% are missing, declares the machine's inspection blocks and cameras ({@link
+%% router_camera}) and, in simulation mode, starts the machine's physics behind the
 %% simulated PLC. Otherwise it starts and does nothing.
 %%
 %% It starts after the `cell' application, whose monitor connects the HAL of the cell
@@ -17,6 +18,7 @@ start(_Type, _Args) ->
         true ->
             ok = router_recipes:ensure_demo(),
             Machine = cell_spec_helpers:machine_settings(),
+            ok = router_camera:configure(router_cell:lanes(Machine)),
             router_cell_sup:start_link(cell_spec_helpers:simulated(Machine),
                                        router_cell:lanes(Machine));
         false ->

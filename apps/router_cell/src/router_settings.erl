@@ -28,6 +28,13 @@ fields() ->
        unit => <<"ms">>,
        doc => <<"How long a fixture clamp may take to close or open before its unit stops "
                 "on a fault; read when the cell boots.">>},
+     #{name => inspection, type => boolean, default => true,
+       doc => <<"The modules are inspected by the camera at each unloading exit (the "
+                "lane's inspection block) before they leave; off: they leave uninspected.">>},
+     #{name => inspection_timeout_ms, type => {integer, 500, 600000}, default => 10000,
+       unit => <<"ms">>,
+       doc => <<"How long the inspection block may take to answer one step of an "
+                "inspection; longer: the modules leave marked failed, not inspected.">>},
      #{name => feed_rate, type => {float, 1.0, 500.0}, default => 25.0, unit => <<"mm/s">>,
        doc => <<"Routing feed for cut lines whose recipe gives none (attribute Feed).">>},
      #{name => rapid_speed, type => {float, 1.0, 2000.0}, default => 400.0, unit => <<"mm/s">>,

@@ -222,9 +222,12 @@ init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
                                            || K <- [loading, work, unloading, clamps]]
                                           || L <- Lanes])
+                            ++ [{router_cell:group(inspect, L), {inspect, L}} || L <- Lanes]
                             ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}},
                                 {general_io, {general, none}}, {drives_io, {drives, none}}]),
-    {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
+    %% The inspection blocks' UDTs: the inspection application's, not needed to run.
+    Blocks = maps:from_list([{router_cell:group(inspection_block, L), L} || L <- Lanes]),
+    {ok, #{lanes => Lanes, groups => Groups, blocks => Blocks, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
@@ -252,14 +255,15 @@ attach(#{groups := Groups, attach_ms := Ms} = S) ->
     end.
 
 %% The world as it was saved, its sensors set, and a rule on every output.
-restore(#{lanes := Lanes, groups := Groups} = S0) ->
+restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
     World = case cell_file:read_term(path()) of
                 {ok, #{counters := _} = W} ->
                     settle(maps:merge(empty_world(Lanes), W#{clamps => saved_clamps(W, Lanes)}),
                            Lanes);
                 _ -> empty_world(Lanes)
             end,
-    Outputs = [{{G, P}, Type} || G <- maps:keys(Groups), {ok, Points} <- [cell_hal:points(G)],
+    Outputs = [{{G, P}, Type} || G <- maps:keys(Groups) ++ maps:keys(Blocks),
+                                 {ok, Points} <- [cell_hal:points(G)],
                                  #{name := P, dir := out, type := Type} <- Points],
     %% A rule on every output first, then the outputs read: a write the tasks make
     %% meanwhile is in the read, or in a message, or both; never in neither.
@@ -341,6 +345,13 @@ detach(Group, #{lanes := Lanes, epoch := Epoch} = S) ->
     {ok, Fresh, _} = init(#{lanes => Lanes}),
     attach(Fresh#{epoch := Epoch + 1}).
 
+info({out, {G, P} = Key, V}, #{outs := Outs, blocks := Blocks} = S) when is_map_key(G, Blocks) ->
+    %% The block wrote a tag of its UDT: the PLC program reads it.
+    S1 = S#{outs := Outs#{Key => V}},
+    case lists:member(P, router_inspect_io:mapped()) of
+        true -> {noreply, set(S1, inspect, maps:get(G, Blocks), P, V)};
+        false -> {noreply, S1}
+    end;
 info({out, Key, V}, #{outs := Outs, groups := Groups} = S) ->
     {G, P} = Key,
     S1 = S#{outs := Outs#{Key => V}},
@@ -414,6 +425,14 @@ output({upper, _}, gripper_close, V, _Old, S) ->
     later(delay(gripper_ms, S), fun(S1) -> gripper(V, S1) end, S);
 output({general, _}, door_unlock, _V, _Old, S) ->
     general(S);
+output({inspect, L}, Point, V, _Old, S) ->
+    %% The PLC program wrote a tag of the lane's inspection block: the block reads it.
+    %% Without the inspection application its UDT is not in the HAL: nobody reads it.
+    case cell_hal_sim:set({router_cell:group(inspection_block, L), Point}, V) of
+        ok -> S;
+        {error, Gone} when Gone =:= unknown_point; Gone =:= unknown_group -> S;
+        {error, Why} -> erlang:error({cannot_set, inspection_block, L, Point, V, Why})
+    end;
 output({drives, _}, Point, true, _Old, #{lanes := Lanes} = S) ->
     %% A reset's rising edge: one reset more towards clearing the drive's fault.
     case [D || D <- router_drives_io:drives(Lanes), router_drives_io:point(D, reset) =:= Point] of
@@ -1039,7 +1058,19 @@ image(W, Outs, Lanes) ->
           {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
           {{lower_io, plunged}, Out({lower_io, plunge})},
           {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
-      ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)).
+      ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)
+      ++ inspect_image(Outs, Lanes)).
+
+%% Each side of an inspection block reads what the other wrote: the PLC maps the PLC
+%% program's tags onto the block's UDT. Outputs nobody has written read zero.
+inspect_image(Outs, Lanes) ->
+    lists:append([[{{To, P}, V} || {{From1, P}, V} <- maps:to_list(Outs), From1 =:= From,
+                                   lists:member(P, router_inspect_io:mapped())]
+                  || L <- Lanes,
+                     {From, To} <- [{router_cell:group(inspection_block, L),
+                                     router_cell:group(inspect, L)},
+                                    {router_cell:group(inspect, L),
+                                     router_cell:group(inspection_block, L)}]]).
 
 %% The clamps' end sensors as the world has the clamps.
 clamps_image(W) ->

@@ -10,8 +10,13 @@
 %%                                                             belt on → conveying. Put down
 %%                                                             before a restart and seen by
 %%                                                             neither sensor: belt on → conveying
-%%  conveying  the modules at the exit, or the watchdog        belt off; board available to the
+%%  conveying  the modules at the exit, or the watchdog        belt off → prepare (the
+%%                                                             inspection), or when it is off
+%%                                                             or done: board available to the
 %%                                                             next machine → waiting
+%%  prepare,   the inspection block's tags, phase by phase     the verdict in the product
+%%  cleared,   ({@link router_inspection}), or the watchdog    (FAIL, Error or no answer:
+%%  triggered  (`inspection_timeout_ms': not answered)         failed); board available → waiting
 %%  waiting    the next machine ready (BLOCKED)                saved as handed out; belt on → leaving
 %%  leaving    the modules gone from the exit, or the watchdog belt off, board available off;
 %%                                                             ItemTransferOut → idle
@@ -20,7 +25,8 @@
 %% Restarted (reconcile), the record is held against the exit sensor: modules handed
 %% out and gone from the exit have left (ItemTransferOut → idle); still there, the
 %% hand-out goes on with both signals it needs, belt and board available (leaving);
-%% modules not yet handed out at the exit wait for the next machine again (waiting);
+%% modules not yet handed out at the exit wait for the next machine again (waiting),
+%% inspected first if they were not (prepare);
 %% elsewhere they are conveyed (landing).
 %%
 %% Modules at the entry or the exit that no record holds (this task holds no product,
@@ -53,8 +59,13 @@ reconcile(_Held, T) ->
         %% Still at the exit: the hand-out goes on, the next machine told again.
         {#{handing_out := true}, true} ->
             {ok, phase(outputs(T, true, true), leaving)};
-        {_, true} ->
-            {ok, phase(outputs(T, false, true), waiting)};
+        {P, true} ->
+            case to_inspect(T, P) of
+                %% Not inspected yet: the inspection from its start, the commands a
+                %% predecessor left raised dropped (prepare waits for their echoes).
+                true -> {ok, phase(drop_commands(outputs(T, false, false)), prepare)};
+                false -> {ok, phase(outputs(T, false, true), waiting)}
+            end;
         {_, false} ->
             {ok, phase(outputs(T, false, false), landing)}
     end.
@@ -105,10 +116,30 @@ step(conveying, {timer, _}, T) ->
 step(conveying, _Woken, T) ->
     case cell_task:in(T, panel_at_exit) of
         true ->
-            T1 = cell_task:out(cell_task:out(T, belt_run, false), board_available, true),
-            {continue, phase(router_task:blocked(T1), waiting)};
+            inspect(cell_task:out(T, belt_run, false));
         false ->
             watch(cell_task:out(T, belt_run, true), conveying, panel_at_exit, true)
+    end;
+%% -- at the exit: the camera's inspection, as the PLC program drives it ---------------
+step(Phase, {timer, _}, T) when Phase =:= prepare; Phase =:= cleared; Phase =:= triggered ->
+    inspected(not_answered, T);
+step(Phase, _Woken, T) when Phase =:= prepare; Phase =:= cleared; Phase =:= triggered ->
+    G = router_cell:group(inspect, router_task:lane(T)),
+    #{serial := S} = cell_task:product(T),
+    Ids = [{P, V} || {_, P, V} <- router_inspect_io:string(G, inspection_point_id,
+                                                            router_inspection:point())
+                                      ++ router_inspect_io:string(G, part_serial, S)],
+    Facts = maps:from_list([{P, V} || P <- router_inspect_io:mapped(),
+                                      {ok, V} <- [cell_task:read(T, G, P)]]),
+    case router_inspection:next(Phase, Facts, Ids) of
+        {wait, Point, Cond} ->
+            {wait, [{io, G, Point, Cond},
+                    router_task:watchdog(T, inspection_timeout_ms, 10000)], phase(T, Phase)};
+        {write, Writes, Next} ->
+            {continue, phase(lists:foldl(fun({P, V}, Ti) -> cell_task:out(Ti, G, P, V) end,
+                                         T, Writes), Next)};
+        {done, Verdict} ->
+            inspected(Verdict, T)
     end;
 %% -- full: the next machine takes them -----------------------------------------------------
 step(waiting, _Woken, T) ->
@@ -135,6 +166,44 @@ step(leaving, _Woken, T) ->
     end;
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), landing)}.
+
+%% At the exit, before the next machine is told: the inspection unless it is done or
+%% switched off.
+inspect(T) ->
+    case to_inspect(T, cell_task:product(T)) of
+        true -> {continue, phase(cell_task:out(T, board_available, false), prepare)};
+        false -> offer(T)
+    end.
+
+%% The inspection on, and no verdict saved with the product yet.
+to_inspect(T, P) ->
+    cell_task:setting(T, inspection, true) andalso not maps:is_key(inspection, P).
+
+%% The PLC program's commands to the lane's inspection block dropped.
+drop_commands(T) ->
+    G = router_cell:group(inspect, router_task:lane(T)),
+    lists:foldl(fun(Pt, Ti) -> cell_task:out(Ti, G, Pt, false) end, T,
+                [trigger_inspection, clear_results]).
+
+offer(T) ->
+    T1 = cell_task:out(cell_task:out(T, belt_run, false), board_available, true),
+    {continue, phase(router_task:blocked(T1), waiting)}.
+
+%% The verdict in the product (saved), the PLC's commands dropped, then the offer.
+inspected(Verdict, T) ->
+    #{serial := S} = P = cell_task:product(T),
+    {P1, Warning} = router_inspection:product(Verdict, P),
+    T2 = drop_commands(cell_task:set_product(T, P1)),
+    T3 = case Warning of
+             none ->
+                 cell_task:log(T2, brief, "modules of panel ~ts inspected: ~ts",
+                               [S, maps:get(inspection, P1)]),
+                 cell_task:reset_warning(T2, <<"not_inspected">>);
+             {Id, Text} ->
+                 cell_task:log(T2, brief, "~ts", [Text]),
+                 cell_task:warning(T2, Id, "Modules not inspected", Text)
+         end,
+    offer(T3).
 
 handed_out(T) ->
     #{serial := S} = cell_task:product(T),

@@ -39,9 +39,11 @@ init_per_testcase(Case, Config) ->
                      sim_settings(Case)),
     Machine = #{dual_lane => Case =:= dual_lane},
     ok = router_test_settings:write(Root, #{machine => Machine, router_sim => Sim,
+                                            %% The inspection: router_inspect_SUITE's.
                                             router => #{hal_poll_ms => 5,
                                                         transfer_timeout_ms => 3000,
-                                                        motion_timeout_ms => 3000},
+                                                        motion_timeout_ms => 3000,
+                                                        inspection => false},
                                             statistics => stats_settings(Case)}),
     ok = start(Root),
     [{root, Root} | Config].

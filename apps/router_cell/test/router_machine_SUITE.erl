@@ -23,19 +23,11 @@ all() ->
      drive_fault_reset, drive_fault_to_operator].
 
 init_per_testcase(Case, Config) ->
-    ok = application:set_env(cell, shutdown_wait_ms, 10000),
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
-    ok = router_test_settings:write(
-           Root, #{machine => #{},
-                   router_sim => #{time_scale => 0.02, arrival_ms => 0,
-                                   product_lost_rate => 0.0, jam_rate => 0.0,
-                                   magazine_low_s => 0},
-                   router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
-                               motion_timeout_ms => 3000},
-                   monitor => #{drive_reset_pulse_ms => 20, drive_reset_wait_ms => 100}}),
-    ok = cell_testkit:start(Root, router_cell, router_cell),
-    ok = cell_testkit:await_connection(router_plc, ?DEADLINE_MS),
-    ok = router_sim:ready(?DEADLINE_MS),
+    %% The inspection: router_inspect_SUITE's.
+    ok = router_test_settings:start_quiet(
+           Root, #{inspection => false},
+           #{monitor => #{drive_reset_pulse_ms => 20, drive_reset_wait_ms => 100}}),
     [{root, Root} | Config].
 
 end_per_testcase(_Case, _Config) ->
@@ -159,13 +151,10 @@ faults() ->
     F.
 
 collect_out(N) ->
-    cell_testkit:collect(N, fun(#{type := item_transfer_out, task := unloading_front,
-                                  item := S}) -> {true, S};
-                               (_) -> false
-                            end, fun never_answer/1, ?DEADLINE_MS).
+    router_test_settings:collect_out(N, ?DEADLINE_MS).
 
-never_answer(#{kind := error} = A) -> ct:fail({unexpected_error, A});
-never_answer(_) -> ok.
+never_answer(A) ->
+    router_test_settings:never_answer(A).
 
 await(Match) ->
     cell_testkit:await_event(Match, ?DEADLINE_MS).

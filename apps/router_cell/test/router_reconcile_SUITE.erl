@@ -43,8 +43,9 @@ init_per_testcase(Case, Config) ->
                    router_sim => maps:merge(#{time_scale => 0.02, arrival_ms => 0,
                                               product_lost_rate => 0.0, jam_rate => 0.0,
                                               magazine_low_s => 0}, sim_faults(Case)),
+                   %% The inspection: router_inspect_SUITE's.
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
-                               motion_timeout_ms => 3000}}),
+                               motion_timeout_ms => 3000, inspection => false}}),
     _ = [application:load(A) || A <- [cell_base, cell_hal, cell, router_cell]],
     ok = application:set_env(cell_base, root, Root),
     ok = application:unset_env(cell, cell_spec),
