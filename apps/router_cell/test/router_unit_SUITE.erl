@@ -32,7 +32,9 @@ init_per_testcase(Case, Config) ->
            Root, #{router_sim => #{time_scale => 0.02, arrival_ms => 0, jam_rate => 0.0,
                                    product_lost_rate => 0.0, magazine_low_s => 0},
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
-                               motion_timeout_ms => 3000, clamp_timeout_ms => 500}},
+                               motion_timeout_ms => 3000, clamp_timeout_ms => 500,
+                               %% The inspection application is not started here.
+                               inspection => false}},
            ?DEADLINE_MS),
     [{root, Root} | Config].
 
