@@ -43,7 +43,7 @@ init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
     ok = cell_testkit:write_settings(VplcRoot, #{router_sim => #{time_scale => 0.02,
                                                                  arrival_ms => 0,
                                                                  product_lost_rate => 0.0,
-                                                                 jam_rate => 0.0,
+                                                                 jam_rate => 0.0, no_read_rate => 0.0,
                                                                  magazine_low_s => 0}}),
     #{tcp := Port} = Vplc = start_vplc(VplcRoot, 0),
     CellRoot = filename:join(Root, "cell"),

@@ -9,7 +9,8 @@
 %% '''
 %%
 %% Per lane (front, and rear when the machine settings say `dual_lane'): a loading
-%% conveyor segment, a work segment with the routing fixture, an unloading conveyor
+%% conveyor segment with a code reader above its stopper (a hardware object wired
+%% through the PLC's IO, {@link cell_hal_code_reader_io}), a work segment with the routing fixture, an unloading conveyor
 %% segment. Shared by the lanes: the lower routing robot, which routes the panel in
 %% whichever fixture offers one, and the upper manipulator robot, which lifts the
 %% routed modules out of the nest and puts them on the unloading segment of their lane.
@@ -24,7 +25,7 @@
 %% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2,
+-export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2, reader/1,
          router_settings/0, simulation/1]).
 
 -define(CONN, router_plc).
@@ -68,7 +69,7 @@ lane_tasks(L) ->
     Lane = lane_name(L),
     [#{id => task(loading, L), module => router_loading_task, zone => <<"Loading">>,
        lane => Lane, io => [group(loading, L)], settings => router,
-       args => #{lane => L, next => link(load_work, L)}},
+       args => #{lane => L, next => link(load_work, L), reader => reader(L)}},
      #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
        %% The loading stopper's and the gripper's sensors read too: they tell whose a
        %% panel in the fixture that the segment holds no record of is.
@@ -80,9 +81,11 @@ lane_tasks(L) ->
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
-%% TCP) and the IO group instances bound to it.
+%% TCP), the IO group instances bound to it, and the code readers, wired through the
+%% PLC's IO in simulation and on the real machine alike.
 -spec hal(map(), map()) -> #{connections := [cell_hal:connection_spec()],
-                             groups := [cell_hal:group_spec()]}.
+                             groups := [cell_hal:group_spec()],
+                             hardware := [cell_hal_hw:spec()]}.
 hal(Machine, Router) ->
     Conn = cell_spec_helpers:connection(
              ?CONN, Machine,
@@ -107,8 +110,15 @@ hal(Machine, Router) ->
             #{id => general_io, module => router_general_io, connection => ?CONN,
               opts => #{base => 300}},
             #{id => drives_io, module => router_drives_io, connection => ?CONN,
-              opts => #{base => 340, lanes => lanes(Machine)}}],
-    #{connections => [Conn], groups => Groups}.
+              opts => #{base => 340, lanes => lanes(Machine)}}]
+        ++ [#{id => group(reader, L), module => router_reader_io, connection => ?CONN,
+              opts => #{base => Base}}
+            || {L, Base} <- [{front, 400}, {rear, 420}], lists:member(L, lanes(Machine))],
+    Readers = [#{id => reader(L), kind => code_reader, type => io,
+                 opts => #{group => group(reader, L), count => read_count,
+                           deadline_ms => maps:get(reader_deadline_ms, Router, 2000)}}
+               || L <- lanes(Machine)],
+    #{connections => [Conn], groups => Groups, hardware => Readers}.
 
 %% @doc What the cell's monitor ({@link cell_monitor}) watches and drives on this
 %% machine: its general IO (the emergency-stop circuit, the service key, the safety
@@ -145,14 +155,21 @@ lanes(Machine) ->
         false -> [front]
     end.
 
-%% @doc The IO group instance of a lane's segment.
--spec group(loading | work | unloading, front | rear) -> atom().
+%% @doc The IO group instance of a lane's segment (or of its code reader).
+-spec group(loading | work | unloading | reader, front | rear) -> atom().
 group(loading, front) -> loading_front_io;
 group(loading, rear) -> loading_rear_io;
 group(work, front) -> work_front_io;
 group(work, rear) -> work_rear_io;
 group(unloading, front) -> unloading_front_io;
-group(unloading, rear) -> unloading_rear_io.
+group(unloading, rear) -> unloading_rear_io;
+group(reader, front) -> reader_front_io;
+group(reader, rear) -> reader_rear_io.
+
+%% @doc The code reader above a lane's loading stopper (a hardware object).
+-spec reader(front | rear) -> atom().
+reader(front) -> reader_front;
+reader(rear) -> reader_rear.
 
 module(loading) -> router_loading_io;
 module(work) -> router_work_io;

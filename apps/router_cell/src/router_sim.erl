@@ -40,6 +40,11 @@
 %%   (`nest_stick_rate'); the
 %%   previous machine's magazine runs low now and then (`magazine_low_s',
 %%   `magazine_refill_s').</li>
+%% <li>The code reader above each loading stopper answers its trigger after `read_ms'
+%%   with the serial of the panel at the stopper, counting its reads; it finds no code
+%%   now and then (`no_read_rate'), on an empty stopper, and on the next read
+%%   {@link no_read_next/1} asks for. A trigger taken back before the answer gets
+%%   none; its fall clears the answer.</li>
 %% </ul>
 %%
 %% Every duration is multiplied by the settings' `time_scale' (0: none), which the
@@ -61,6 +66,7 @@
 -export([rest_image/1]).
 -export([press_estop/0, release_estop/0, service_key/1, open_door/1, close_door/1,
          drop_air/0, restore_air/0, fault_drive/1, fault_drive/2]).
+-export([no_read_next/0, no_read_next/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -76,7 +82,7 @@
 -type drive() :: router_drives_io:drive().
 -type poke() :: {estop, pressed | released} | {service_key, boolean()}
               | {door, door(), open | closed} | {air, boolean()}
-              | {fault, drive(), pos_integer() | never}.
+              | {fault, drive(), pos_integer() | never} | {no_read, lane()}.
 -type action() :: fun((map()) -> map()).
 
 -record(move, {steps :: [{non_neg_integer(), action()}],   %% offset (ms) and what happens
@@ -161,6 +167,17 @@ fault_drive(Drive, Resets) when (Drive =:= conveyor_front orelse Drive =:= conve
                                 (Resets =:= never orelse (is_integer(Resets) andalso Resets > 0)) ->
     poke({fault, Drive, Resets}).
 
+%% @doc The front lane's code reader finds no code on its next read (see {@link
+%% no_read_next/1}).
+-spec no_read_next() -> ok | {error, not_running | no_such_lane}.
+no_read_next() -> no_read_next(front).
+
+%% @doc A lane's code reader finds no code on its next read, whatever the label (a
+%% smudged label, a reader out of focus): the "Code not read" error the operator
+%% answers. `{error, no_such_lane}' for the rear lane of a machine with one.
+-spec no_read_next(lane()) -> ok | {error, not_running | no_such_lane}.
+no_read_next(Lane) when Lane =:= front; Lane =:= rear -> poke({no_read, Lane}).
+
 poke(Poke) ->
     gen_server:call(?MODULE, {poke, Poke}).
 
@@ -193,14 +210,15 @@ ready(Timeout) ->
 -spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, attach}}.
 init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
-                                           || K <- [loading, work, unloading]] || L <- Lanes])
+                                           || K <- [loading, work, unloading, reader]]
+                                          || L <- Lanes])
                             ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}},
                                 {general_io, {general, none}}, {drives_io, {drives, none}}]),
     {ok, #{lanes => Lanes, groups => Groups, outs => #{}, moves => #{},
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
-           epoch => 0, held => #{}},
+           epoch => 0, held => #{}, no_read => #{}},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -246,7 +264,15 @@ restore(#{lanes := Lanes, groups := Groups} = S0) ->
                                             end} || {Key, Type} <- Outputs]),
                       Holding),
     ok = cell_hal_sim:preset(?CONN, maps:merge(Holding, image(World, Outs, Lanes))),
-    S = S0#{world := World, outs := Outs, settings => settings()},
+    S1 = S0#{world := World, outs := Outs, settings => settings()},
+    %% A trigger on when the physics stopped is answered now (its answer, if the
+    %% reader had given one, went with the image).
+    S = lists:foldl(fun(L, Acc) ->
+                            case out(Acc, reader, L, trigger) of
+                                true -> read_label(L, Acc);
+                                false -> Acc
+                            end
+                    end, S1, Lanes),
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
@@ -381,6 +407,10 @@ output({upper, _}, gripper_close, V, _Old, S) ->
     later(delay(gripper_ms, S), fun(S1) -> gripper(V, S1) end, S);
 output({general, _}, door_unlock, _V, _Old, S) ->
     general(S);
+output({reader, L}, trigger, true, _Old, S) ->
+    read_label(L, S);
+output({reader, L}, trigger, false, _Old, S) ->
+    set(S, reader, L, done, false);
 output({drives, _}, Point, true, _Old, #{lanes := Lanes} = S) ->
     %% A reset's rising edge: one reset more towards clearing the drive's fault.
     case [D || D <- router_drives_io:drives(Lanes), router_drives_io:point(D, reset) =:= Point] of
@@ -470,6 +500,40 @@ gripper(false, #{world := #{gripper := Serial, upper_at := At} = W} = S) ->
          end).
 
 %%====================================================================
+%% The code reader
+%%====================================================================
+
+%% The reader decodes the label of the panel at the stopper: the code, or none (an
+%% empty stopper, a label it cannot read, a no-read asked for); the result and the
+%% counter before done, as a reader maps its answer. A trigger taken back meanwhile
+%% gets no answer.
+read_label(L, S) ->
+    later(delay(read_ms, S),
+          fun(S1) ->
+                  case out(S1, reader, L, trigger) of
+                      true -> answer_read(L, S1);
+                      false -> S1
+                  end
+          end, S).
+
+answer_read(L, #{world := W, no_read := Forced} = S0) ->
+    {Unreadable, S} = case maps:get(L, Forced, false) of
+                          true -> {true, S0#{no_read := maps:remove(L, Forced)}};
+                          false -> chance(no_read_rate, S0)
+                      end,
+    Code = case {slot(W, loading, L), Unreadable} of
+               {{Serial, stop}, false} -> Serial;
+               _ -> <<>>
+           end,
+    Count = (maps:get(L, maps:get(reads, W, #{}), 0) + 1) rem 65536,
+    Unreadable andalso
+        cell_log:info(router, "simulated router: the ~ts code reader finds no code",
+                      [L]),
+    S1 = S#{world := W#{reads => (maps:get(reads, W, #{}))#{L => Count}}},
+    S2 = set(set(S1, reader, L, result, Code), reader, L, no_read, Code =:= <<>>),
+    set(set(S2, reader, L, read_count, Count), reader, L, done, true).
+
+%%====================================================================
 %% The operator's hand
 %%====================================================================
 
@@ -509,8 +573,7 @@ stop_moves(Where, L, #{moves := Moves} = S) ->
 
 %% The sensors of a station emptied by hand.
 sensors(loading, L, S) ->
-    S1 = set(set(S, loading, L, panel_at_entry, false), loading, L, panel_at_stop, false),
-    set(S1, loading, L, code, <<>>);
+    set(set(S, loading, L, panel_at_entry, false), loading, L, panel_at_stop, false);
 sensors(work, L, S) ->
     set(set(S, work, L, nest_empty, true), work, L, panel_in_position, false);
 sensors(unloading, L, S) ->
@@ -543,8 +606,7 @@ try_start(intake, L, #{world := W} = S) ->
                      loading, L, panel_at_entry, true),
             conveyor({intake, L}, intake_ms,
                      [{1.0, fun(X) ->
-                                    X1 = set(set(X, loading, L, panel_at_entry, false),
-                                             loading, L, code, Serial),
+                                    X1 = set(X, loading, L, panel_at_entry, false),
                                     save(set(world(X1, loading, L, {Serial, stop}),
                                              loading, L, panel_at_stop, true))
                             end}], S3);
@@ -748,6 +810,11 @@ poked({service_key, On}, S) -> general(update_general(fun(G) -> G#{service_key :
 poked({door, Door, How}, S) ->
     general(update_general(fun(#{doors := D} = G) -> G#{doors := D#{Door := How}} end, S));
 poked({air, On}, S) -> general(update_general(fun(G) -> G#{air := On} end, S));
+poked({no_read, L}, #{lanes := Lanes, no_read := Forced} = S) ->
+    case lists:member(L, Lanes) of
+        true -> S#{no_read := Forced#{L => true}};
+        false -> {error, no_such_lane}
+    end;
 poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
     case lists:member(Drive, router_drives_io:drives(Lanes)) of
         true ->
@@ -764,7 +831,16 @@ poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
 %% holds before the physics sets the world it saved.
 -spec rest_image([lane()]) -> #{{atom(), atom()} => term()}.
 rest_image(Lanes) ->
-    maps:from_list(general_image(empty_world(Lanes), fun(_) -> false end, Lanes)).
+    W = empty_world(Lanes),
+    maps:from_list(general_image(W, fun(_) -> false end, Lanes) ++ reader_image(W, Lanes)).
+
+%% The code readers at rest: no answer, their counters where they stopped.
+reader_image(W, Lanes) ->
+    lists:append([[{{router_cell:group(reader, L), done}, false},
+                   {{router_cell:group(reader, L), no_read}, false},
+                   {{router_cell:group(reader, L), result}, <<>>},
+                   {{router_cell:group(reader, L), read_count},
+                    maps:get(L, maps:get(reads, W, #{}), 0)}] || L <- Lanes]).
 
 update_general(Fun, #{world := #{general := G} = W} = S) ->
     S#{world := W#{general := Fun(G)}}.
@@ -848,6 +924,7 @@ empty_world(Lanes) ->
                    faults => #{}},
       next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0,
                              removed => 0},
+      reads => maps:from_list([{L, 0} || L <- Lanes]),
       ledger => []}.
 
 %% A world read back: a panel that was entering the loading segment is back at the
@@ -887,7 +964,6 @@ image(W, Outs, Lanes) ->
         [[{{router_cell:group(loading, L), upstream_available}, maps:get(L, maps:get(upstream, W)) =/= []},
           {{router_cell:group(loading, L), panel_at_entry}, false},
           {{router_cell:group(loading, L), panel_at_stop}, is_at(slot(W, loading, L), stop)},
-          {{router_cell:group(loading, L), code}, code(slot(W, loading, L))},
           {{router_cell:group(loading, L), magazine_low}, false},
           {{router_cell:group(work, L), panel_in_position}, slot(W, work, L) =/= empty},
           {{router_cell:group(work, L), clamped}, Out({router_cell:group(work, L), clamp})},
@@ -903,13 +979,11 @@ image(W, Outs, Lanes) ->
           {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
           {{lower_io, plunged}, Out({lower_io, plunge})},
           {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
-      ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)).
+      ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)
+      ++ reader_image(W, Lanes)).
 
 is_at({_, Where}, Where) -> true;
 is_at(_, _) -> false.
-
-code({Serial, _}) -> Serial;
-code(empty) -> <<>>.
 
 slot(W, Where, L) ->
     maps:get(L, maps:get(Where, W)).
