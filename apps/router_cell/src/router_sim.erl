@@ -1119,7 +1119,18 @@ rest_image_test() ->
                    {drives_io, upper_fault} := false, {drives_io, upper_fault_code} := 0},
                  Rest),
     ?assertNot(maps:is_key({drives_io, conveyor_rear_ready}, Rest)),
-    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))).
+    ?assert(maps:is_key({drives_io, conveyor_rear_ready}, rest_image([front, rear]))),
+    %% The code readers unanswered, their counters at zero; the rear one with its lane.
+    ?assertMatch(#{{reader_front_io, done} := false, {reader_front_io, no_read} := false,
+                   {reader_front_io, result} := <<>>, {reader_front_io, read_count} := 0},
+                 Rest),
+    ?assertNot(maps:is_key({reader_rear_io, done}, Rest)),
+    ?assertMatch(#{{reader_rear_io, done} := false}, rest_image([front, rear])).
+
+%% Every input of the reader's group in the rest image, and no output.
+rest_image_covers_the_reader_test() ->
+    Ins = lists:sort([P || #{name := P, dir := in} <- router_reader_io:points(#{base => 400})]),
+    ?assertEqual(Ins, lists:sort([P || {reader_front_io, P} <- maps:keys(rest_image([front]))])).
 
 general_image_test() ->
     #{general := G} = W = empty_world([front]),

@@ -75,7 +75,7 @@ sim_faults(_Case) ->
 %% -------------------------------------------------------------------------------------
 
 loading_killed_in_every_phase(_Config) ->
-    killed_in_phases(loading_front, [idle, intake, full, offered, leaving, released]).
+    killed_in_phases(loading_front, [idle, intake, reading, full, offered, leaving, released]).
 
 work_killed_in_every_phase(_Config) ->
     killed_in_phases(work_front, [idle, take, moving_in, arriving, clamping, offered,
