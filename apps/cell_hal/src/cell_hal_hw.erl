@@ -190,10 +190,10 @@ call(Id, Request, Timeout) ->
 -spec call_async(atom(), {kind(), term()}) -> reference().
 call_async(Id, Request) ->
     Ref = make_ref(),
-    case whereis_object(Id) of
-        {ok, Pid} -> gen_server:cast(Pid, {async, self(), Ref, Request});
-        error -> self() ! {Ref, {error, not_present}}
-    end,
+    _ = case whereis_object(Id) of
+            {ok, Pid} -> gen_server:cast(Pid, {async, self(), Ref, Request});
+            error -> self() ! {Ref, {error, not_present}}
+        end,
     Ref.
 
 %% @doc Called by an implementation (in its own process) when the device comes and
