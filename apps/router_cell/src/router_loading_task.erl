@@ -49,9 +49,9 @@
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
 
-%% How long the task waits for its reader's answer: beyond the reader's own deadline
-%% (its `deadline_ms'), for a reader object that went away with the question.
--define(READ_WAIT_MS, 10000).
+%% How much longer than the reader's own deadline (`reader_deadline_ms') the task waits
+%% for its answer: the wait is for a reader object that went away with the question.
+-define(READ_MARGIN_MS, 5000).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
@@ -137,7 +137,7 @@ step(reading, {reply, _Ref, {error, no_read}}, T) ->
 step(reading, {reply, _Ref, {error, Why}}, T) ->
     reader_fault(io_lib:format("it answered ~ts", [why(Why)]), T);
 step(reading, {timer, _}, T) ->
-    reader_fault(io_lib:format("it did not answer within ~b s", [?READ_WAIT_MS div 1000]), T);
+    reader_fault(io_lib:format("it did not answer within ~.1f s", [read_wait(T) / 1000]), T);
 step(reading, _Woken, T) ->
     %% The operator's answer to a read that failed.
     case {cell_task:answer(T), cell_task:get(T, read_failed, undefined)} of
@@ -176,8 +176,11 @@ step(in_transit, _Woken, T) ->
 %% The panel at the stopper: its reader triggered, its answer waited for.
 read_code(T) ->
     Ref = cell_hal_code_reader:read_async(cell_task:arg(T, reader, undefined)),
-    {wait, [{reply, Ref}, {timer, ?READ_WAIT_MS}],
+    {wait, [{reply, Ref}, {timer, read_wait(T)}],
      phase(cell_task:put(T, read_failed, undefined), reading)}.
+
+read_wait(T) ->
+    cell_task:setting(T, reader_deadline_ms, 2000) + ?READ_MARGIN_MS.
 
 %% The code reader read the panel at the stopper: it is the cell's from now on.
 identified(Serial, T) ->
