@@ -36,7 +36,10 @@
 %% for it (`NOREAD-<task>-<n>', from a counter retained across restarts, so never
 %% made twice), the product marked `no_read' and its identifier read by the operator;
 %% RESET is for a panel the operator took off the conveyor: the segment starts again
-%% (a panel still at the stopper is read again). A crash between the trigger and the
+%% (a panel still at the stopper is read again). A reader that loses its connection
+%% with the read (the PLC's, shared with the task's IO, whose loss the engine reports)
+%% is asked again once the task's IO reads again; not connected then, it is the
+%% "Code reader fault" error. A crash between the trigger and the
 %% answer leaves no record: restarted, the task reads the panel at the stopper again,
 %% and the reader's object clears the trigger left on, so the answer of before is
 %% never taken for a panel.
@@ -130,12 +133,21 @@ step(intake, _Woken, T) ->
             watch(intake, panel_at_stop, true, cell_task:out(T, belt_run, true))
     end;
 %% -- reading: the code reader's answer ----------------------------------------------
-step(reading, {reply, _Ref, {ok, Serial}}, T) ->
-    identified(Serial, T);
-step(reading, {reply, _Ref, {error, no_read}}, T) ->
-    no_code(T);
-step(reading, {reply, _Ref, {error, Why}}, T) ->
-    reader_fault(io_lib:format("it answered ~ts", [why(Why)]), T);
+step(reading, {reply, _Ref, {error, not_connected}}, T) ->
+    case cell_task:get(T, lost_read, false) of
+        false ->
+            %% The reader's connection went with the read: here the PLC's, which the
+            %% task's own IO shares, and the engine tells the operator of that one.
+            %% Once the task's IO reads again, the stopper is looked at and the panel
+            %% read anew; a reader not connected then is a fault of its own.
+            {wait, [{io, panel_at_stop, {eq, true}}, {io, panel_at_stop, {eq, false}}],
+             phase(cell_task:put(T, lost_read, true), intake)};
+        true ->
+            reader_fault(io_lib:format("it answered ~ts", [why(not_connected)]),
+                         cell_task:put(T, lost_read, false))
+    end;
+step(reading, {reply, _Ref, Answer}, T) ->
+    read(Answer, cell_task:put(T, lost_read, false));
 step(reading, {timer, _}, T) ->
     reader_fault(io_lib:format("it did not answer within ~.1f s", [read_wait(T) / 1000]), T);
 step(reading, _Woken, T) ->
@@ -172,6 +184,10 @@ step(released, _Woken, T) ->
 %% -- the operator said the panel of an interrupted transfer is here ------------------
 step(in_transit, _Woken, T) ->
     {continue, phase(cell_handshake:confirm_here(T), full)}.
+
+read({ok, Serial}, T) -> identified(Serial, T);
+read({error, no_read}, T) -> no_code(T);
+read({error, Why}, T) -> reader_fault(io_lib:format("it answered ~ts", [why(Why)]), T).
 
 %% The panel at the stopper: its reader triggered, its answer waited for.
 read_code(T) ->

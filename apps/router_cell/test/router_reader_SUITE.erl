@@ -14,7 +14,7 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([monitor_connects_the_reader/1, panels_read/1, no_read_retry/1,
-         no_read_ignore/1, no_read_reset/1, reader_lost_mid_read/1]).
+         no_read_ignore/1, no_read_reset/1, reader_lost_mid_read/1, plc_lost_mid_read/1]).
 
 -define(DEADLINE_MS, 60000).
 -define(EVENTS, [item_identifier_read, item_transfer_out, alarm_raised, alarm_cleared]).
@@ -22,7 +22,7 @@
 
 all() ->
     [monitor_connects_the_reader, panels_read, no_read_retry, no_read_ignore,
-     no_read_reset, reader_lost_mid_read].
+     no_read_reset, reader_lost_mid_read, plc_lost_mid_read].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -185,6 +185,47 @@ reader_lost_mid_read(_Config) ->
           end),
     ?assertEqual([Serial], collect_out(1)),
     ok = cell_testkit:stop_cell(fun never_answer/1, ?DEADLINE_MS).
+
+%% The PLC's connection lost while the reader reads: the reader, on that connection,
+%% answers `not_connected'; the operator is asked about the lost connection only (its
+%% Retry once it is back), never about the reader, and the panel is read again and
+%% enters once under its own serial.
+plc_lost_mid_read(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_settings:put(router_sim, #{read_ms => 60000}, <<"suite">>),
+    {ok, Trigger} = cell_hal:watch(reader_front_io, trigger, {eq, true}),
+    ok = cell_controller:start(<<"suite">>),
+    receive {cell_hal_watch, Trigger, true} -> ok after ?DEADLINE_MS -> ct:fail(no_trigger) end,
+    {ok, up} = cell_hal:subscribe_connection(router_plc),
+    ok = cell_hal_sim:link(router_plc, down),
+    receive {cell_hal_conn, router_plc, down} -> ok after ?DEADLINE_MS -> ct:fail(still_up) end,
+    ok = cell_settings:put(router_sim, #{read_ms => 150}, <<"suite">>),
+    Serial = at_stopper(),
+    ok = cell_hal_sim:link(router_plc, up),
+    receive {cell_hal_conn, router_plc, up} -> ok after ?DEADLINE_MS -> ct:fail(still_down) end,
+    ok = read_after_reconnect(Serial, erlang:monotonic_time(millisecond) + ?DEADLINE_MS),
+    ?assertEqual([Serial], collect_out(1)),
+    ok = cell_testkit:stop_cell(fun never_answer/1, ?DEADLINE_MS).
+
+%% The serial read, the lost connection's errors answered Retry meanwhile (one the cell
+%% withdrew by itself is no longer there to answer).
+read_after_reconnect(Serial, Deadline) ->
+    receive
+        {cell_event, #{type := item_identifier_read, task := loading_front, item := Serial}} ->
+            ok;
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error, id := Id} = A}} ->
+            case binary:split(Id, <<":">>) of
+                [_, <<"io">>] -> ok;
+                [<<"cell">>, <<"connection.router_plc">>] -> ok;
+                _ -> ct:fail({unexpected_error, A})
+            end,
+            _ = cell_alarms:answer(Id, retry, <<"suite">>),
+            read_after_reconnect(Serial, Deadline);
+        {cell_event, _} ->
+            read_after_reconnect(Serial, Deadline)
+    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
+        ct:fail({not_read, Serial, cell_alarms:list()})
+    end.
 
 %% -------------------------------------------------------------------------------------
 
