@@ -199,3 +199,26 @@ lane_name(rear) -> <<"Rear">>.
 -spec router_settings() -> map().
 router_settings() ->
     cell_spec_helpers:saved_settings(router_settings).
+
+-ifdef(TEST).
+-include_lib("eunit/include/eunit.hrl").
+
+%% On the real PLC every point of both lanes has addresses of its own: no two groups'
+%% windows overlap in any Modbus table.
+modbus_map_without_overlap_test() ->
+    Machine = #{simulation_mode => false, dual_lane => true},
+    Router = #{plc_host => <<"127.0.0.1">>, plc_port => 502, plc_unit => 1},
+    #{groups := Groups, hardware := Hw} = hal(Machine, Router),
+    Used = lists:append(
+             [[{Table, A} || {Table, At, N} <- [span(F, T)], A <- lists:seq(At, At + N - 1)]
+              || #{module := M} = G <- Groups,
+                 #{field := F, type := T} <- M:points(maps:get(opts, G, #{}))]),
+    ?assertEqual([], Used -- lists:usort(Used)),
+    %% A code reader per lane, on its lane's reader group.
+    ?assertEqual([{reader_front, reader_front_io}, {reader_rear, reader_rear_io}],
+                 [{Id, G} || #{id := Id, type := io, opts := #{group := G}} <- Hw]).
+
+span({Table, A}, _) when Table =:= coil; Table =:= discrete_input -> {Table, A, 1};
+span({Table, A}, T) -> {Table, A, cell_hal_type_codec:registers(T)};
+span({Table, A, _Bit}, _) -> {Table, A, 1}.
+-endif.

@@ -13,6 +13,7 @@ points(Opts) ->
     router_io:points(maps:get(base, Opts, 0), [
         {done, in, bool, <<"A1.01.11">>, <<"Code reader: answered">>},
         {no_read, in, bool, <<"A1.01.12">>, <<"Code reader: no code found">>},
-        {result, in, {string, 40}, <<"A1.30.11">>, <<"Code reader: code read">>},
+        %% 16 registers and the counter after them: the group within its 20 addresses.
+        {result, in, {string, 32}, <<"A1.30.11">>, <<"Code reader: code read">>},
         {read_count, in, uint16, <<"A1.30.12">>, <<"Code reader: read counter">>},
         {trigger, out, bool, <<"A1.20.11">>, <<"Code reader: trigger">>}]).
