@@ -101,7 +101,7 @@ await_out(N, Timeout, Acc) ->
 settings(#{scale := Scale, dual_lane := Dual}) ->
     #{machine => #{dual_lane => Dual},
       router_sim => #{time_scale => Scale, arrival_ms => 0, product_lost_rate => 0.0,
-                      jam_rate => 0.0, magazine_low_s => 0}}.
+                      jam_rate => 0.0, no_read_rate => 0.0, magazine_low_s => 0}}.
 
 %% Figures and tables, not the cell's log.
 quiet() ->

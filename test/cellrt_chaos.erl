@@ -1236,6 +1236,9 @@ write_settings(Root) ->
                 router_sim => #{time_scale => 0.05, arrival_ms => 100,
                                 product_lost_rate => 0.05, reseat_ms => 20000,
                                 jam_rate => 0.01, jam_ms => 100000,
+                                %% The books match the machine's own serials: a panel
+                                %% taken without its code (NOREAD-...) would not.
+                                no_read_rate => 0.0,
                                 magazine_low_s => 600, magazine_refill_s => 120},
                 router => #{transfer_timeout_ms => 3000, motion_timeout_ms => 5000}},
     cell_testkit:write_settings(Root, Objects).

@@ -42,6 +42,9 @@ run_answer_stop_restart(Config) ->
     ok = router_test_settings:write(Root, #{router_sim => #{time_scale => 0.05, arrival_ms => 0,
                                                 product_lost_rate => 0.3, reseat_ms => 2000,
                                                 jam_rate => 0.05, jam_ms => 80000,
+                                                %% Serials checked against the machine's
+                                                %% own: no panel taken without its code.
+                                                no_read_rate => 0.0,
                                                 magazine_low_s => 60, magazine_refill_s => 20},
                                 router => #{hal_poll_ms => 10, transfer_timeout_ms => 3000,
                                             motion_timeout_ms => 5000}}),
@@ -132,9 +135,10 @@ real_mode_vplc_killed(Config) ->
            {"CELLRT_COOKIE", atom_to_list(?COOKIE)}, {"CELLRT_WEB_PORT", "0"},
            {"CELLRT_SHDR_PORT", "0"}],
     %% A fast machine without mistakes of its own: the errors are the lost PLC's (the
-    %% physics' own slips, jams and low magazine off: their defaults are not zero).
+    %% physics' own slips, jams, no-reads and low magazine off: their defaults are not
+    %% zero).
     Sim = #{time_scale => 0.05, arrival_ms => 0, product_lost_rate => 0.0, jam_rate => 0.0,
-            magazine_low_s => 0},
+            no_read_rate => 0.0, magazine_low_s => 0},
     Router = #{hal_poll_ms => 10},
     ok = router_test_settings:write(VRoot, #{router_sim => Sim, router => Router}),
     %% The suite's own clock, for the statistics' span (system time, as theirs).

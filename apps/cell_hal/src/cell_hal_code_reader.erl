@@ -3,10 +3,12 @@
 %% an implementation is a callback module run by {@link cell_hal_hw}.
 -module(cell_hal_code_reader).
 
--export([read/2]).
+-export([read/2, read_async/1]).
 
 -callback check_opts(Opts :: map()) -> {ok, map()} | {error, {bad_option, atom()}}.
--callback init(Id :: atom(), Opts :: map()) -> {ok, State :: term()} | {error, term()}.
+%% `{ok, State, down}': the object starts down (a device it must reach first).
+-callback init(Id :: atom(), Opts :: map()) ->
+    {ok, State :: term()} | {ok, State :: term(), up | down} | {error, term()}.
 %% Triggers one read: the code, or `{error, no_read}' when the reader found none within
 %% its read window; answers now, or `noreply' and later from handle_info/2.
 -callback read(State :: term()) ->
@@ -21,3 +23,11 @@
 -spec read(atom(), timeout()) -> {ok, binary()} | {error, term()}.
 read(Id, Timeout) ->
     cell_hal_hw:call(Id, {code_reader, read}, Timeout).
+
+%% @doc Triggers one read without waiting: the answer comes as the message `{Ref,
+%% {ok, Code} | {error, Why}}' (`no_read', `not_connected', `timeout', `not_present',
+%% ...). A device task waits for it with `{wait, [{reply, Ref}, {timer, Ms}], T}', the
+%% timer for a reader that went away with the question.
+-spec read_async(atom()) -> reference().
+read_async(Id) ->
+    cell_hal_hw:call_async(Id, {code_reader, read}).

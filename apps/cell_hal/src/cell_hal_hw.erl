@@ -13,7 +13,8 @@
 %% Each key is the object's id; `kind' may be given when the id is not itself a kind
 %% (`#{top_camera => #{kind => camera, type => sim}}'). `type => none' means the
 %% machine has no such hardware (the seed's `null'): nothing starts, and `present/1'
-%% says so. Type `sim' is built in for every kind; a cell adds its own under the
+%% says so. Type `sim' is built in for every kind, and `io' for code readers (one wired
+%% through the PLC's IO, {@link cell_hal_code_reader_io}); a cell adds its own under the
 %% application variable `hardware_types' of `cell_hal':
 %% `#{{camera, ueye} => my_ueye_camera}'.
 %%
@@ -23,13 +24,20 @@
 %% does them: an implementation answers at once (`{reply, R, State}') or starts the
 %% work and answers later from `handle_info/2', and never sees two at once. It reports
 %% its connectivity with {@link set_status/1}: subscribers get `{cell_hal_hw, Id, up |
-%% down}', and operations asked while it is down fail with `not_connected'.
+%% down}', and operations asked while it is down fail with `not_connected'. An
+%% implementation starts up unless its `init' says `{ok, State, down}' (a device it
+%% must reach first).
+%%
+%% An operation is asked and waited for ({@link call/3}), or asked without waiting
+%% ({@link call_async/2}): the answer then comes as a message `{Ref, Answer}', which a
+%% device task waits for with `{wait, [{reply, Ref}, {timer, Ms}], T}' (the timer for
+%% an object that went away with the question).
 -module(cell_hal_hw).
 -behaviour(gen_server).
 
 -export([add/1, from_settings/1, remove/1, list/0, present/1, status/1, subscribe/1,
          unsubscribe/1]).
--export([call/3, set_status/1, check_opts/2]).
+-export([call/3, call_async/2, set_status/1, check_opts/2]).
 -export([start_link/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 
@@ -39,8 +47,12 @@
 -type spec() :: #{id := atom(), kind := kind(), type := atom(), opts => map()}.
 
 -define(TAB, cell_hal_hw_objects).
+
+%% Who asked: a caller waiting in gen_server:call, or one told by a message.
+-type from() :: gen_server:from() | {async, pid(), reference()}.
 -define(BUILT_IN, #{{camera, sim} => cell_hal_camera_sim,
                     {code_reader, sim} => cell_hal_code_reader_sim,
+                    {code_reader, io} => cell_hal_code_reader_io,
                     {laser_marker, sim} => cell_hal_laser_marker_sim}).
 
 -record(state, {id :: atom(),
@@ -48,8 +60,8 @@
                 mod :: module(),
                 impl :: term(),
                 status = up :: up | down,
-                busy :: gen_server:from() | undefined,     %% the operation in progress
-                waiting = queue:new() :: queue:queue({gen_server:from(), term()}),
+                busy :: from() | undefined,                %% the operation in progress
+                waiting = queue:new() :: queue:queue({from(), term()}),
                 subs = #{} :: #{pid() => reference()}}).
 
 %%====================================================================
@@ -171,6 +183,19 @@ call(Id, Request, Timeout) ->
             {error, not_present}
     end.
 
+%% @doc A request to a hardware object without waiting: the answer comes as
+%% `{Ref, Answer}' to the caller, `{Ref, {error, not_present}}' at once when there is
+%% no such object. An object that goes away with the question never answers: wait with
+%% a deadline.
+-spec call_async(atom(), {kind(), term()}) -> reference().
+call_async(Id, Request) ->
+    Ref = make_ref(),
+    _ = case whereis_object(Id) of
+            {ok, Pid} -> gen_server:cast(Pid, {async, self(), Ref, Request});
+            error -> self() ! {Ref, {error, not_present}}
+        end,
+    Ref.
+
 %% @doc Called by an implementation (in its own process) when the device comes and
 %% goes; subscribers are told once the callback returns.
 -spec set_status(up | down) -> ok.
@@ -212,6 +237,9 @@ init({Id, Kind, Mod, Opts}) ->
         {ok, Impl} ->
             true = ets:insert(?TAB, {Id, self(), Kind, Mod}),
             {ok, #state{id = Id, kind = Kind, mod = Mod, impl = Impl}};
+        {ok, Impl, Status} when Status =:= up; Status =:= down ->
+            true = ets:insert(?TAB, {Id, self(), Kind, Mod}),
+            {ok, #state{id = Id, kind = Kind, mod = Mod, impl = Impl, status = Status}};
         {error, Why} ->
             {stop, Why}
     end.
@@ -238,20 +266,32 @@ handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
 handle_call({impl, Request}, _From, #state{mod = Mod, impl = Impl} = S) ->
     {reply, Reply, Impl1} = Mod:handle_call(Request, Impl),
     {reply, Reply, S#state{impl = Impl1}};
-handle_call({Kind, _}, _From, #state{kind = Other} = S) when Kind =/= Other ->
-    {reply, {error, not_present}, S};
-handle_call({_, _}, _From, #state{status = down} = S) ->
-    {reply, {error, not_connected}, S};
-handle_call({_, Op}, From, #state{busy = undefined} = S) ->
+handle_call({_, _} = Request, From, S) ->
+    operation(Request, From, S).
+
+%% An operation of the object's kind, asked by a call or without waiting.
+operation({Kind, _}, From, #state{kind = Other} = S) when Kind =/= Other ->
+    reply(From, {error, not_present}),
+    {noreply, S};
+operation({_, _}, From, #state{status = down} = S) ->
+    reply(From, {error, not_connected}),
+    {noreply, S};
+operation({_, Op}, From, #state{busy = undefined} = S) ->
     start(From, Op, S);
-handle_call({_, Op}, From, #state{waiting = W} = S) ->
+operation({_, Op}, From, #state{waiting = W} = S) ->
     {noreply, S#state{waiting = queue:in({From, Op}, W)}}.
+
+reply({async, Pid, Ref}, Reply) ->
+    Pid ! {Ref, Reply},
+    ok;
+reply(From, Reply) ->
+    gen_server:reply(From, Reply).
 
 %% Starts an operation; one that finishes at once lets the next waiting one start.
 start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
     case dispatch(Kind, Op, Mod, Impl) of
         {reply, Reply, Impl1} ->
-            gen_server:reply(From, Reply),
+            reply(From, Reply),
             next(S#state{impl = Impl1});
         {noreply, Impl1} ->
             {noreply, S#state{impl = Impl1, busy = From}}
@@ -260,7 +300,7 @@ start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
 next(#state{waiting = W, status = Status} = S) ->
     case queue:out(W) of
         {{value, {From, _}}, W1} when Status =:= down ->
-            gen_server:reply(From, {error, not_connected}),
+            reply(From, {error, not_connected}),
             next(S#state{waiting = W1});
         {{value, {From, Op}}, W1} ->
             start(From, Op, S#state{waiting = W1, busy = undefined});
@@ -274,7 +314,9 @@ dispatch(code_reader, read, Mod, Impl) -> Mod:read(Impl);
 dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl).
 
 %% @private
--spec handle_cast(term(), #state{}) -> no_return().
+-spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast({async, Pid, Ref, {_, _} = Request}, S) when is_pid(Pid), is_reference(Ref) ->
+    operation(Request, {async, Pid, Ref}, S);
 handle_cast(Msg, _S) ->
     error({unexpected_cast, Msg}).
 
@@ -299,13 +341,16 @@ handle_info(Msg, #state{mod = Mod, impl = Impl, busy = Busy} = S) ->
         {noreply, Impl1} ->
             {noreply, S#state{impl = Impl1}};
         {reply, Reply, Impl1} when Busy =/= undefined ->
-            gen_server:reply(Busy, Reply),
+            reply(Busy, Reply),
             next(S#state{impl = Impl1})
     end.
 
 %% @private
 -spec terminate(term(), #state{}) -> ok.
-terminate(_Reason, #state{id = Id, subs = Subs}) ->
+terminate(_Reason, #state{id = Id, subs = Subs, busy = Busy, waiting = W}) ->
     true = ets:match_delete(?TAB, {Id, self(), '_', '_'}),
+    %% Whoever asked is answered rather than left waiting for a deadline.
+    _ = [reply(From, {error, not_present}) || From <- [Busy || Busy =/= undefined]
+                                                  ++ [F || {F, _} <- queue:to_list(W)]],
     maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw, Id, down} end, Subs),
     ok.

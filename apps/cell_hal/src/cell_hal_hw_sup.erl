@@ -18,6 +18,8 @@ start_object(Id, Kind, Mod, Opts) ->
         {ok, _} -> ok;
         {error, {already_started, _}} -> {error, {already_exists, Id}};
         {error, already_present} -> {error, {already_exists, Id}};
+        %% The implementation's refusal, without the child spec the supervisor adds.
+        {error, {Why, Child}} when element(1, Child) =:= child -> {error, Why};
         {error, _} = Error -> Error
     end.
 

@@ -110,6 +110,8 @@ code_reader_reads(_Config) ->
     ?assert(erlang:monotonic_time(millisecond) - T0 >= 100),
     ok = cell_hal_code_reader_sim:present(code_reader, <<"PCB-000123">>),
     ?assertEqual({ok, <<"PCB-000123">>}, cell_hal_code_reader:read(code_reader, ?WAIT)),
+    Ref = cell_hal_code_reader:read_async(code_reader),
+    receive {Ref, R} -> ?assertEqual({ok, <<"PCB-000123">>}, R) after ?WAIT -> ct:fail(no_answer) end,
     ok = cell_hal_code_reader_sim:fail_next(code_reader, dirty_lens),
     ?assertEqual({error, dirty_lens}, cell_hal_code_reader:read(code_reader, ?WAIT)),
     ?assertEqual({ok, <<"PCB-000123">>}, cell_hal_code_reader:read(code_reader, ?WAIT)),
@@ -162,6 +164,11 @@ wrong_kind_or_absent(_Config) ->
     ?assertEqual({error, not_present}, cell_hal_camera:grab(code_reader, ?WAIT)),
     ?assertEqual({error, not_present}, cell_hal_code_reader:read(camera, ?WAIT)),
     ?assertEqual({error, not_present}, cell_hal_code_reader:read(nothing, ?WAIT)),
+    %% Asked without waiting: answered as a message all the same.
+    Ref = cell_hal_code_reader:read_async(nothing),
+    receive {Ref, R} -> ?assertEqual({error, not_present}, R) after ?WAIT -> ct:fail(no_answer) end,
+    Ref2 = cell_hal_code_reader:read_async(camera),
+    receive {Ref2, R2} -> ?assertEqual({error, not_present}, R2) after ?WAIT -> ct:fail(no_answer) end,
     ?assertEqual({error, not_present}, cell_hal_hw:status(nothing)),
     ?assertEqual({error, not_present}, cell_hal_hw:subscribe(nothing)).
 

@@ -9,9 +9,11 @@
 %% '''
 %%
 %% Per lane (front, and rear when the machine settings say `dual_lane'): a loading
-%% conveyor segment, a work segment with the routing fixture, whose clamps are a unit
-%% (seed 001, {@link router_clamps_unit}) the work segment orders, an unloading
-%% conveyor segment. Shared by the lanes: the lower routing robot, which routes the panel in
+%% conveyor segment with a code reader above its stopper (a hardware object wired
+%% through the PLC's IO, {@link cell_hal_code_reader_io}), a work segment with the
+%% routing fixture, whose clamps are a unit (seed 001, {@link router_clamps_unit}) the
+%% work segment orders, an unloading conveyor segment. Shared by the lanes: the lower
+%% routing robot, which routes the panel in
 %% whichever fixture offers one, and the upper manipulator robot, which lifts the
 %% routed modules out of the nest and puts them on the unloading segment of their lane.
 %% Every arrow is a handshake link (seed §2.3.6); the panel's serial travels along them.
@@ -25,7 +27,7 @@
 %% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2,
+-export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2, reader/1,
          router_settings/0, simulation/1, machine_actions/1, inspect_blocks/1]).
 
 -define(CONN, router_plc).
@@ -69,7 +71,7 @@ lane_tasks(L, Router) ->
     Lane = lane_name(L),
     [#{id => task(loading, L), module => router_loading_task, zone => <<"Loading">>,
        lane => Lane, io => [group(loading, L)], settings => router,
-       args => #{lane => L, next => link(load_work, L)}},
+       args => #{lane => L, next => link(load_work, L), reader => reader(L)}},
      #{id => task(work, L), module => router_work_task, zone => <<"Work">>, lane => Lane,
        %% The loading stopper's and the gripper's sensors read too: they tell whose a
        %% panel in the fixture that the segment holds no record of is; and the clamps'
@@ -94,9 +96,11 @@ lane_tasks(L, Router) ->
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
-%% TCP) and the IO group instances bound to it.
+%% TCP), the IO group instances bound to it, and the code readers, wired through the
+%% PLC's IO in simulation and on the real machine alike.
 -spec hal(map(), map()) -> #{connections := [cell_hal:connection_spec()],
-                             groups := [cell_hal:group_spec()]}.
+                             groups := [cell_hal:group_spec()],
+                             hardware := [cell_hal_hw:spec()]}.
 hal(Machine, Router) ->
     Conn = cell_spec_helpers:connection(
              ?CONN, Machine,
@@ -133,8 +137,15 @@ hal(Machine, Router) ->
                           #{id => group(inspect, L), module => router_inspect_io,
                             connection => ?CONN, opts => #{base => Mirror, block => Base}}]
                          || #{id := Block, lane := L, base := Base, mirror := Mirror}
-                                <- inspect_layout(lanes(Machine))]),
-    #{connections => [Conn], groups => Groups}.
+                                <- inspect_layout(lanes(Machine))])
+        ++ [#{id => group(reader, L), module => router_reader_io, connection => ?CONN,
+              opts => #{base => Base}}
+            || {L, Base} <- [{front, 400}, {rear, 420}], lists:member(L, lanes(Machine))],
+    Readers = [#{id => reader(L), kind => code_reader, type => io,
+                 opts => #{group => group(reader, L), count => read_count,
+                           deadline_ms => maps:get(reader_deadline_ms, Router, 2000)}}
+               || L <- lanes(Machine)],
+    #{connections => [Conn], groups => Groups, hardware => Readers}.
 
 %% @doc The inspection blocks of the machine (seed 004, {@link cell_inspect}), one per
 %% lane, on the router's PLC: for the `cell_inspect' application's `blocks'.
@@ -217,9 +228,10 @@ lanes(Machine) ->
     end.
 
 %% @doc The IO group instance of a lane's segment (`clamps': its fixture's clamps;
-%% `inspect': the PLC program's side of the lane's inspection block;
-%% `inspection_block': the block's own, its id in the inspection application).
--spec group(loading | work | unloading | clamps | inspect | inspection_block,
+%% `reader': its code reader's; `inspect': the PLC program's side of the lane's
+%% inspection block; `inspection_block': the block's own, its id in the inspection
+%% application).
+-spec group(loading | work | unloading | clamps | reader | inspect | inspection_block,
             front | rear) -> atom().
 group(loading, front) -> loading_front_io;
 group(loading, rear) -> loading_rear_io;
@@ -229,10 +241,17 @@ group(unloading, front) -> unloading_front_io;
 group(unloading, rear) -> unloading_rear_io;
 group(clamps, front) -> clamps_front_io;
 group(clamps, rear) -> clamps_rear_io;
+group(reader, front) -> reader_front_io;
+group(reader, rear) -> reader_rear_io;
 group(inspect, front) -> inspect_front_io;
 group(inspect, rear) -> inspect_rear_io;
 group(inspection_block, front) -> inspect_front;
 group(inspection_block, rear) -> inspect_rear.
+
+%% @doc The code reader above a lane's loading stopper (a hardware object).
+-spec reader(front | rear) -> atom().
+reader(front) -> reader_front;
+reader(rear) -> reader_rear.
 
 module(loading) -> router_loading_io;
 module(work) -> router_work_io;
@@ -282,4 +301,24 @@ machine_actions_test_() ->
      ?_assertEqual([], [R || #{choices := Cs} <- machine_actions(#{dual_lane => true}),
                              #{run := {M, F, A} = R} <- Cs,
                              not erlang:function_exported(M, F, length(A))])].
+
+%% On the real PLC every point of both lanes has addresses of its own: no two groups'
+%% windows overlap in any Modbus table.
+modbus_map_without_overlap_test() ->
+    Machine = #{simulation_mode => false, dual_lane => true},
+    Router = #{plc_host => <<"127.0.0.1">>, plc_port => 502, plc_unit => 1},
+    #{groups := Groups, hardware := Hw} = hal(Machine, Router),
+    Used = lists:append(
+             [[{Table, A} || {Table, At, N} <- [span(F, T)], A <- lists:seq(At, At + N - 1)]
+              || #{module := M} = G <- Groups,
+                 #{field := F, type := T} <- M:points(maps:get(opts, G, #{}))]),
+    ?assertEqual([], Used -- lists:usort(Used)),
+    %% A code reader per lane, on its lane's reader group.
+    ?assertEqual([{reader_front, reader_front_io}, {reader_rear, reader_rear_io}],
+                 [{Id, G} || #{id := Id, type := io, opts := #{group := G}} <- Hw]).
+
+span({Table, A}, _) when Table =:= coil; Table =:= discrete_input -> {Table, A, 1};
+span({Table, A}, T) -> {Table, A, cell_hal_type_codec:registers(T)};
+%% Booleans packed into a register's bits (an inspection block's UDT) share it.
+span({Table, A, Bit}, _) -> {{Table, A}, Bit, 1}.
 -endif.

@@ -1,6 +1,7 @@
 %% @doc The IO of a loading conveyor segment (one instance per lane): the belt, the
 %% SMEMA signals with the previous machine, the sensors at the entry and at the
-%% stopper, the code reader above the stopper.
+%% stopper. The code reader above the stopper has its own group ({@link
+%% router_reader_io}).
 -module(router_loading_io).
 -behaviour(cell_hal_group).
 
@@ -13,6 +14,5 @@ points(Opts) ->
         {panel_at_entry, in, bool, <<"A1.01.02">>, <<"Panel at the entry">>},
         {panel_at_stop, in, bool, <<"A1.01.03">>, <<"Panel at the stopper">>},
         {magazine_low, in, bool, <<"A1.01.04">>, <<"Previous machine: panel magazine low">>},
-        {code, in, {string, 40}, <<"A1.30.01">>, <<"Code reader: last code read">>},
         {belt_run, out, bool, <<"A1.20.01">>, <<"Belt run">>},
         {upstream_ready, out, bool, <<"A1.20.02">>, <<"Previous machine: ready to receive">>}]).

@@ -1,7 +1,7 @@
 %% @doc The router's own settings object, `Settings/router.json' (seed 000 §3.1): what
 %% each lane produces, the watchdogs and speeds the device tasks use, and where the
-%% real PLC is. The tasks run on the snapshot taken at Start; `plc_*' and
-%% `hal_poll_ms' are read when the cell boots (the HAL is connected then).
+%% real PLC is. The tasks run on the snapshot taken at Start; `plc_*', `hal_poll_ms'
+%% and `reader_deadline_ms' are read when the cell boots (the HAL is connected then).
 -module(router_settings).
 -behaviour(cell_settings_schema).
 
@@ -51,4 +51,8 @@ fields() ->
      #{name => plc_unit, type => {integer, 0, 255}, default => 1,
        doc => <<"Modbus unit id of the PLC; read when the cell boots.">>},
      #{name => hal_poll_ms, type => {integer, 1, 1000}, default => 20, unit => <<"ms">>,
-       doc => <<"How often the PLC's inputs are read; read when the cell boots.">>}].
+       doc => <<"How often the PLC's inputs are read; read when the cell boots.">>},
+     #{name => reader_deadline_ms, type => {integer, 100, 60000}, default => 2000,
+       unit => <<"ms">>,
+       doc => <<"How long a code reader may take to answer its trigger before the read "
+                "fails; read when the cell boots.">>}].

@@ -47,6 +47,11 @@
 %%   (`nest_stick_rate'); the
 %%   previous machine's magazine runs low now and then (`magazine_low_s',
 %%   `magazine_refill_s').</li>
+%% <li>The code reader above each loading stopper answers its trigger after `read_ms'
+%%   with the serial of the panel at the stopper, counting its reads; it finds no code
+%%   now and then (`no_read_rate'), on an empty stopper, and on the next read
+%%   {@link no_read_next/1} asks for. A trigger taken back before the answer gets
+%%   none; its fall clears the answer.</li>
 %% </ul>
 %%
 %% Every duration is multiplied by the settings' `time_scale' (0: none), which the
@@ -69,6 +74,7 @@
 -export([press_estop/0, release_estop/0, service_key/1, open_door/1, close_door/1,
          drop_air/0, restore_air/0, fault_drive/1, fault_drive/2, jam_clamp/1,
          free_clamp/1]).
+-export([no_read_next/0, no_read_next/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -85,7 +91,7 @@
 -type poke() :: {estop, pressed | released} | {service_key, boolean()}
               | {door, door(), open | closed} | {air, boolean()}
               | {fault, drive(), pos_integer() | never}
-              | {clamp, lane(), clamp(), jammed | free}.
+              | {clamp, lane(), clamp(), jammed | free} | {no_read, lane()}.
 -type clamp() :: a | b.
 -type action() :: fun((map()) -> map()).
 
@@ -188,6 +194,17 @@ free_clamp({Lane, C}) when (Lane =:= front orelse Lane =:= rear), (C =:= a orels
 free_clamp(Lane) when Lane =:= front; Lane =:= rear ->
     free_clamp({Lane, a}).
 
+%% @doc The front lane's code reader finds no code on its next read (see {@link
+%% no_read_next/1}).
+-spec no_read_next() -> ok | {error, not_running | no_such_lane}.
+no_read_next() -> no_read_next(front).
+
+%% @doc A lane's code reader finds no code on its next read, whatever the label (a
+%% smudged label, a reader out of focus): the "Code not read" error the operator
+%% answers. `{error, no_such_lane}' for the rear lane of a machine with one.
+-spec no_read_next(lane()) -> ok | {error, not_running | no_such_lane}.
+no_read_next(Lane) when Lane =:= front; Lane =:= rear -> poke({no_read, Lane}).
+
 poke(Poke) ->
     gen_server:call(?MODULE, {poke, Poke}).
 
@@ -220,7 +237,7 @@ ready(Timeout) ->
 -spec init(#{lanes := [lane()]}) -> {ok, map(), {continue, attach}}.
 init(#{lanes := Lanes}) ->
     Groups = maps:from_list(lists:append([[{router_cell:group(K, L), {K, L}}
-                                           || K <- [loading, work, unloading, clamps]]
+                                           || K <- [loading, work, unloading, clamps, reader]]
                                           || L <- Lanes])
                             ++ [{router_cell:group(inspect, L), {inspect, L}} || L <- Lanes]
                             ++ [{lower_io, {lower, none}}, {upper_io, {upper, none}},
@@ -231,7 +248,7 @@ init(#{lanes := Lanes}) ->
            rand => rand:seed_s(exsss), world => empty_world(Lanes),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
-           epoch => 0, held => #{}, clamp_moves => #{}},
+           epoch => 0, held => #{}, clamp_moves => #{}, no_read => #{}},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -280,7 +297,15 @@ restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
                                             end} || {Key, Type} <- Outputs]),
                       Holding),
     ok = cell_hal_sim:preset(?CONN, maps:merge(Holding, image(World, Outs, Lanes))),
-    S = S0#{world := World, outs := Outs, settings => settings()},
+    S1 = S0#{world := World, outs := Outs, settings => settings()},
+    %% A trigger on when the physics stopped is answered now (its answer, if the
+    %% reader had given one, went with the image).
+    S = lists:foldl(fun(L, Acc) ->
+                            case out(Acc, reader, L, trigger) of
+                                true -> read_label(L, Acc);
+                                false -> Acc
+                            end
+                    end, S1, Lanes),
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
@@ -433,6 +458,10 @@ output({inspect, L}, Point, V, _Old, S) ->
         {error, Gone} when Gone =:= unknown_point; Gone =:= unknown_group -> S;
         {error, Why} -> erlang:error({cannot_set, inspection_block, L, Point, V, Why})
     end;
+output({reader, L}, trigger, true, _Old, S) ->
+    read_label(L, S);
+output({reader, L}, trigger, false, _Old, S) ->
+    set(S, reader, L, done, false);
 output({drives, _}, Point, true, _Old, #{lanes := Lanes} = S) ->
     %% A reset's rising edge: one reset more towards clearing the drive's fault.
     case [D || D <- router_drives_io:drives(Lanes), router_drives_io:point(D, reset) =:= Point] of
@@ -522,6 +551,40 @@ gripper(false, #{world := #{gripper := Serial, upper_at := At} = W} = S) ->
          end).
 
 %%====================================================================
+%% The code reader
+%%====================================================================
+
+%% The reader decodes the label of the panel at the stopper: the code, or none (an
+%% empty stopper, a label it cannot read, a no-read asked for); the result and the
+%% counter before done, as a reader maps its answer. A trigger taken back meanwhile
+%% gets no answer.
+read_label(L, S) ->
+    later(delay(read_ms, S),
+          fun(S1) ->
+                  case out(S1, reader, L, trigger) of
+                      true -> answer_read(L, S1);
+                      false -> S1
+                  end
+          end, S).
+
+answer_read(L, #{world := W, no_read := Forced} = S0) ->
+    {Unreadable, S} = case maps:get(L, Forced, false) of
+                          true -> {true, S0#{no_read := maps:remove(L, Forced)}};
+                          false -> chance(no_read_rate, S0)
+                      end,
+    Code = case {slot(W, loading, L), Unreadable} of
+               {{Serial, stop}, false} -> Serial;
+               _ -> <<>>
+           end,
+    Count = (maps:get(L, maps:get(reads, W, #{}), 0) + 1) rem 65536,
+    Unreadable andalso
+        cell_log:info(router, "simulated router: the ~ts code reader finds no code",
+                      [L]),
+    S1 = S#{world := W#{reads => (maps:get(reads, W, #{}))#{L => Count}}},
+    S2 = set(set(S1, reader, L, result, Code), reader, L, no_read, Code =:= <<>>),
+    set(set(S2, reader, L, read_count, Count), reader, L, done, true).
+
+%%====================================================================
 %% The operator's hand
 %%====================================================================
 
@@ -561,8 +624,7 @@ stop_moves(Where, L, #{moves := Moves} = S) ->
 
 %% The sensors of a station emptied by hand.
 sensors(loading, L, S) ->
-    S1 = set(set(S, loading, L, panel_at_entry, false), loading, L, panel_at_stop, false),
-    set(S1, loading, L, code, <<>>);
+    set(set(S, loading, L, panel_at_entry, false), loading, L, panel_at_stop, false);
 sensors(work, L, S) ->
     set(set(S, work, L, nest_empty, true), work, L, panel_in_position, false);
 sensors(unloading, L, S) ->
@@ -595,8 +657,7 @@ try_start(intake, L, #{world := W} = S) ->
                      loading, L, panel_at_entry, true),
             conveyor({intake, L}, intake_ms,
                      [{1.0, fun(X) ->
-                                    X1 = set(set(X, loading, L, panel_at_entry, false),
-                                             loading, L, code, Serial),
+                                    X1 = set(X, loading, L, panel_at_entry, false),
                                     save(set(world(X1, loading, L, {Serial, stop}),
                                              loading, L, panel_at_stop, true))
                             end}], S3);
@@ -891,6 +952,11 @@ poked({clamp, L, C, How}, #{lanes := Lanes} = S) ->
         false ->
             {error, no_such_clamp}
     end;
+poked({no_read, L}, #{lanes := Lanes, no_read := Forced} = S) ->
+    case lists:member(L, Lanes) of
+        true -> S#{no_read := Forced#{L => true}};
+        false -> {error, no_such_lane}
+    end;
 poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
     case lists:member(Drive, router_drives_io:drives(Lanes)) of
         true ->
@@ -910,8 +976,16 @@ poked({fault, Drive, Resets}, #{lanes := Lanes} = S) ->
 rest_image(Lanes) ->
     W = empty_world(Lanes),
     maps:merge(maps:from_list(general_image(W, fun(_) -> false end, Lanes)
-                              ++ clamps_image(W)),
+                              ++ clamps_image(W) ++ reader_image(W, Lanes)),
                holding(W)).
+
+%% The code readers at rest: no answer, their counters where they stopped.
+reader_image(W, Lanes) ->
+    lists:append([[{{router_cell:group(reader, L), done}, false},
+                   {{router_cell:group(reader, L), no_read}, false},
+                   {{router_cell:group(reader, L), result}, <<>>},
+                   {{router_cell:group(reader, L), read_count},
+                    maps:get(L, maps:get(reads, W, #{}), 0)}] || L <- Lanes]).
 
 update_general(Fun, #{world := #{general := G} = W} = S) ->
     S#{world := W#{general := Fun(G)}}.
@@ -996,6 +1070,7 @@ empty_world(Lanes) ->
                    faults => #{}},
       next => 1, counters => #{arrived => 0, delivered => 0, scrapped => 0, frames => 0,
                              removed => 0},
+      reads => maps:from_list([{L, 0} || L <- Lanes]),
       ledger => []}.
 
 %% A world read back: a panel that was entering the loading segment is back at the
@@ -1042,7 +1117,6 @@ image(W, Outs, Lanes) ->
         [[{{router_cell:group(loading, L), upstream_available}, maps:get(L, maps:get(upstream, W)) =/= []},
           {{router_cell:group(loading, L), panel_at_entry}, false},
           {{router_cell:group(loading, L), panel_at_stop}, is_at(slot(W, loading, L), stop)},
-          {{router_cell:group(loading, L), code}, code(slot(W, loading, L))},
           {{router_cell:group(loading, L), magazine_low}, false},
           {{router_cell:group(work, L), panel_in_position}, slot(W, work, L) =/= empty},
           {{router_cell:group(work, L), nest_empty}, not is_at(slot(W, work, L), full)},
@@ -1059,7 +1133,8 @@ image(W, Outs, Lanes) ->
           {{lower_io, plunged}, Out({lower_io, plunge})},
           {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
       ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)
-      ++ inspect_image(Outs, Lanes)).
+      ++ inspect_image(Outs, Lanes)
+      ++ reader_image(W, Lanes)).
 
 %% Each side of an inspection block reads what the other wrote: the PLC maps the PLC
 %% program's tags onto the block's UDT. Outputs nobody has written read zero.
@@ -1081,9 +1156,6 @@ clamps_image(W) ->
 
 is_at({_, Where}, Where) -> true;
 is_at(_, _) -> false.
-
-code({Serial, _}) -> Serial;
-code(empty) -> <<>>.
 
 slot(W, Where, L) ->
     maps:get(L, maps:get(Where, W)).
@@ -1222,7 +1294,18 @@ rest_image_test() ->
                    {clamps_front_io, b_is_open} := true, {clamps_front_io, b_close} := false,
                    {clamps_front_io, a_open} := true},
                  Rest),
-    ?assertNot(maps:is_key({clamps_rear_io, a_is_open}, Rest)).
+    ?assertNot(maps:is_key({clamps_rear_io, a_is_open}, Rest)),
+    %% The code readers unanswered, their counters at zero; the rear one with its lane.
+    ?assertMatch(#{{reader_front_io, done} := false, {reader_front_io, no_read} := false,
+                   {reader_front_io, result} := <<>>, {reader_front_io, read_count} := 0},
+                 Rest),
+    ?assertNot(maps:is_key({reader_rear_io, done}, Rest)),
+    ?assertMatch(#{{reader_rear_io, done} := false}, rest_image([front, rear])).
+
+%% Every input of the reader's group in the rest image, and no output.
+rest_image_covers_the_reader_test() ->
+    Ins = lists:sort([P || #{name := P, dir := in} <- router_reader_io:points(#{base => 400})]),
+    ?assertEqual(Ins, lists:sort([P || {reader_front_io, P} <- maps:keys(rest_image([front]))])).
 
 saved_clamps_test() ->
     %% A world saved before the clamps were in it: closed on a panel, open without.

@@ -55,6 +55,11 @@ fields() ->
        doc => <<"Chance that the modules stay stuck in the module nest as the upper robot "
                 "lifts them: the gripper comes away empty (the \"Product lost\" error with "
                 "the modules still in the machine).">>},
+     #{name => read_ms, type => {integer, 0, 60000}, default => 150, unit => <<"ms">>,
+       doc => <<"The code reader decoding a panel's label after its trigger.">>},
+     #{name => no_read_rate, type => {float, 0.0, 1.0}, default => 0.02,
+       doc => <<"Chance that the code reader finds no code on a panel's label (the "
+                "\"Code not read\" error the operator answers).">>},
      #{name => jam_rate, type => {float, 0.0, 1.0}, default => 0.01,
        doc => <<"Chance that a panel sticks on a conveyor move (the \"Conveyor jam\" "
                 "error).">>},

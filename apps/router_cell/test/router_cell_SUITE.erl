@@ -35,7 +35,7 @@ init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     Sim = maps:merge(#{time_scale => 0.02, arrival_ms => 0, product_lost_rate => 0.0,
-                       jam_rate => 0.0, magazine_low_s => 0},
+                       jam_rate => 0.0, magazine_low_s => 0, no_read_rate => 0.0},
                      sim_settings(Case)),
     Machine = #{dual_lane => Case =:= dual_lane},
     ok = router_test_settings:write(Root, #{machine => Machine, router_sim => Sim,

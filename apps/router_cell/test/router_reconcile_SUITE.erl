@@ -41,7 +41,7 @@ init_per_testcase(Case, Config) ->
     ok = router_test_settings:write(
            Root, #{machine => #{dual_lane => false},
                    router_sim => maps:merge(#{time_scale => 0.02, arrival_ms => 0,
-                                              product_lost_rate => 0.0, jam_rate => 0.0,
+                                              product_lost_rate => 0.0, jam_rate => 0.0, no_read_rate => 0.0,
                                               magazine_low_s => 0}, sim_faults(Case)),
                    %% The inspection: router_inspect_SUITE's.
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
@@ -76,7 +76,7 @@ sim_faults(_Case) ->
 %% -------------------------------------------------------------------------------------
 
 loading_killed_in_every_phase(_Config) ->
-    killed_in_phases(loading_front, [idle, intake, full, offered, leaving, released]).
+    killed_in_phases(loading_front, [idle, intake, reading, full, offered, leaving, released]).
 
 work_killed_in_every_phase(_Config) ->
     killed_in_phases(work_front, [idle, take, moving_in, arriving, clamping, offered,

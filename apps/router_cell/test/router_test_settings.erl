@@ -24,7 +24,7 @@ start_quiet(Root, Router, Others) ->
     ok = write(Root, Others#{machine => #{},
                              router_sim => #{time_scale => 0.02, arrival_ms => 0,
                                              product_lost_rate => 0.0, jam_rate => 0.0,
-                                             magazine_low_s => 0},
+                                             no_read_rate => 0.0, magazine_low_s => 0},
                              router => maps:merge(#{hal_poll_ms => 5,
                                                     transfer_timeout_ms => 3000,
                                                     motion_timeout_ms => 3000}, Router)}),

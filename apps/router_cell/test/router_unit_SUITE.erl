@@ -30,7 +30,8 @@ init_per_testcase(Case, Config) ->
     %% Clamps that stick are seen within half a second (their travel is 8 ms here).
     ok = router_test_settings:start_cell(
            Root, #{router_sim => #{time_scale => 0.02, arrival_ms => 0, jam_rate => 0.0,
-                                   product_lost_rate => 0.0, magazine_low_s => 0},
+                                   product_lost_rate => 0.0, no_read_rate => 0.0,
+                                   magazine_low_s => 0},
                    router => #{hal_poll_ms => 5, transfer_timeout_ms => 3000,
                                motion_timeout_ms => 3000, clamp_timeout_ms => 500,
                                %% The inspection application is not started here.

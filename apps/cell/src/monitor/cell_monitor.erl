@@ -372,7 +372,13 @@ attach_hardware(Id, #data{spec = #{hal := #{hardware := Hw}}, attach = Backoff} 
     case Found of
         {ok, Status1, Pid} ->
             MRef = erlang:monitor(process, Pid),
-            core({device, {hardware, Id}, Status1},
+            %% An object may start down (one that must reach its device first): as its
+            %% message `down' says it.
+            Device = case Status1 of
+                         up -> up;
+                         down -> {down, <<>>}
+                     end,
+            core({device, {hardware, Id}, Device},
                  D#data{attach = maps:remove(Id, Backoff), hw = (D#data.hw)#{MRef => Id}});
         {error, not_present} ->
             Wait = maps:get(Id, Backoff, ?ATTACH_MIN),
