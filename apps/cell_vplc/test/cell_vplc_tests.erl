@@ -13,8 +13,9 @@ router_test() ->
         cell_vplc:setup(router(#{dual_lane => false}), undefined),
     %% Every point of the front lane's three segments and its fixture's clamps, the
     %% two robots, the general IO and the three drives (the front conveyors', the
-    %% robots'); the lane's inspection block's S7 UDT and the PLC program's side of it.
-    ?assertEqual(7 + 3 + 5 + 8 + 12 + 6 + 12 + 3 * 4 + 34 + 18, length(Points)),
+    %% robots'); the lane's inspection block's S7 UDT and the PLC program's side of it;
+    %% its code reader's.
+    ?assertEqual(6 + 3 + 5 + 8 + 12 + 6 + 12 + 3 * 4 + 34 + 18 + 5, length(Points)),
     ?assertMatch({{clamps_front_io, a_is_closed}, bool,
                   #{table := discrete_input, address := 440}},
                  lists:keyfind({clamps_front_io, a_is_closed}, 1, Points)),
@@ -36,13 +37,13 @@ router_test() ->
                  lists:keyfind({general_io, estop_ok}, 1, Points)),
     ?assertMatch({{drives_io, lower_reset}, bool, #{table := coil, address := 341}},
                  lists:keyfind({drives_io, lower_reset}, 1, Points)),
-    ?assertEqual(10, length(maps:get(groups, Hal))),
+    ?assertEqual(11, length(maps:get(groups, Hal))),
     {ok, Image} = cell_vplc_image:new(Points),
     ?assertEqual([1], cell_vplc_image:units(Image)),
     {ok, #{points := Dual}} = cell_vplc:setup(router(#{dual_lane => true}), router_plc),
-    %% The rear lane's three segments, its clamps (at 460), its conveyors' drive and
-    %% its inspection block.
-    ?assertEqual(length(Points) + 15 + 8 + 4 + 34 + 18, length(Dual)),
+    %% The rear lane's three segments, its clamps (at 460), its conveyors' drive, its
+    %% inspection block and its code reader.
+    ?assertEqual(length(Points) + 14 + 8 + 4 + 34 + 18 + 5, length(Dual)),
     ?assertMatch({{clamps_rear_io, a_close}, bool, #{table := coil, address := 460}},
                  lists:keyfind({clamps_rear_io, a_close}, 1, Dual)).
 
