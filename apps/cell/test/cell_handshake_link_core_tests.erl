@@ -146,7 +146,9 @@ a_transfer_through_phases_1_to_4_test() ->
     ?assertMatch([{send, U, {cell_handshake, l, signals, #{seq := 2}}}], E2),
     {ok, S3, C3, E3} = step({release, U}, C2),
     ?assertMatch(#{phase := released, available := false, not_busy := true}, S3),
-    ?assertMatch([{send, D, {cell_handshake, l, {released, P, 3}, #{seq := 3}}}], E3),
+    %% The fence on disk first: the link let generation 3 of S1 go.
+    ?assertMatch([{persist, #{<<"S1">> := #{gen := 3, state := released}}},
+                  {send, D, {cell_handshake, l, {released, P, 3}, #{seq := 3}}}], E3),
     {ok, S4, C4, E4} = step({complete, D}, C3),
     ?assertMatch(#{phase := idle, product := undefined, gen := 0, seq := 4}, S4),
     ?assertMatch([{send, U, {cell_handshake, l, completed, #{phase := idle}}}], E4),
@@ -214,8 +216,10 @@ abort_after_release_waits_for_upstream_to_take_it_back_test() ->
     ?assertEqual(aborting, phase(C)),
     {ok, S, C1, E1} = step({taken_back, U}, C),
     ?assertMatch(#{phase := idle}, S),
-    ?assertMatch([{send, D, {cell_handshake, l, signals, #{phase := idle}}},
-                  {reply, waiter, {given_back, #{phase := idle}}}], E1),
+    %% Upstream owns it again: nothing fenced.
+    ?assertMatch([{persist, Empty},
+                  {send, D, {cell_handshake, l, signals, #{phase := idle}}},
+                  {reply, waiter, {given_back, #{phase := idle}}}] when map_size(Empty) =:= 0, E1),
     ?assertEqual(idle, phase(C1)).
 
 abort_after_release_without_upstream_keeps_it_downstream_test() ->
@@ -291,7 +295,8 @@ detach_only_when_free_test() ->
 owned_tells_upstream_and_marks_its_copy_stale_test() ->
     U = pid(up), D = pid(down), U2 = pid(up_restarted),
     {C, E} = cell_handshake_link_core:cast({owned, D}, released()),
-    ?assertEqual([{send, U, {cell_handshake, l, owned}}], E),
+    ?assertEqual([{persist, #{<<"S1">> => #{gen => 3, state => owned, up => <<"u">>}}},
+                  {send, U, {cell_handshake, l, owned}}], E),
     %% Only downstream may say so, and only while the product is released.
     ?assertMatch({_, []}, cell_handshake_link_core:cast({owned, U}, released())),
     ?assertMatch({_, []}, cell_handshake_link_core:cast({owned, D}, committed())),
@@ -306,3 +311,75 @@ owned_tells_upstream_and_marks_its_copy_stale_test() ->
 unknown_requests_crash_test() ->
     ?assertError(function_clause, call({what, 1, 2}, attached())),
     ?assertError(function_clause, cell_handshake_link_core:cast(hello, attached())).
+
+%% -------------------------------------------------------------------------------------
+%% The fence: what the link released, per serial, on disk
+
+%% A network cut after release: the link loses upstream (noconnection) before
+%% downstream's `owned' reaches it. Downstream's word still settles the fence, and
+%% the copy upstream kept is refused when it is offered again after the heal.
+owned_after_upstream_lost_still_fences_the_copy_test() ->
+    U2 = pid(up_restarted), D = pid(down),
+    {C1, _} = partner_down(up, noconnection, released()),
+    ?assertEqual(idle, phase(C1)),
+    {C2, E2} = cell_handshake_link_core:cast({owned, D, <<"S1">>, 4}, C1),
+    %% No upstream to tell: only the fence changes.
+    ?assertEqual([{persist, #{<<"S1">> => #{gen => 3, state => owned, up => <<"u">>}}}], E2),
+    %% Upstream back (the same task, after the heal), holding its copy: stale.
+    {reply, {ok, S}, C3, _} = call({attach, up, u, U2, {<<"S1">>, 3}}, C2),
+    ?assertMatch(#{stale := true}, S),
+    %% An operator who said "it is here" makes it offer it again: refused.
+    ?assertMatch({{error, {stale, <<"S1">>}}, #{phase := idle}, _, []},
+                 step({offer, U2, ?P, 3}, C3)),
+    %% A newer record of the same serial (taken back, say) is not fenced.
+    ?assertMatch({ok, #{phase := offered}, _, _}, step({offer, U2, ?P, 5}, C3)).
+
+%% Downstream stopped before it said: the copy's owner is not known, so it is neither
+%% offered nor dropped until downstream says what it holds.
+unsettled_until_downstream_says_what_it_holds_test() ->
+    U = pid(up), U2 = pid(up_restarted), D2 = list_to_pid("<0.904.0>"),
+    {C1, _} = partner_down(down, killed, released()),
+    {reply, {ok, S}, C2, _} = call({attach, up, u, U2, {<<"S1">>, 3}}, C1),
+    ?assertMatch(#{unsettled := true}, S),
+    ?assertMatch({{error, {unsettled, <<"S1">>}}, _, _, []}, step({offer, U2, ?P, 3}, C2)),
+    %% Downstream back, holding it in the next generation: upstream is told.
+    {reply, {ok, _}, C3, E3} = call({attach, down, d, D2, {<<"S1">>, 4}}, C2),
+    ?assertMatch([{send, U2, {cell_handshake, l, {holder, <<"S1">>, 4}}},
+                  {monitor, down, D2},
+                  {persist, #{<<"S1">> := #{state := owned}}},
+                  {send, U2, {cell_handshake, l, {settled, <<"S1">>, owned}}}], E3),
+    ?assertMatch({{error, {stale, _}}, _, _, []}, step({offer, U2, ?P, 3}, C3)),
+    %% Downstream back holding nothing: it never wrote it, upstream's copy is the
+    %% owner and may be offered again.
+    {reply, {ok, _}, C4, E4} = call({attach, down, d, D2, none}, C2),
+    ?assertMatch([{monitor, down, D2},
+                  {persist, Empty},
+                  {send, U2, {cell_handshake, l, {settled, <<"S1">>, yours}}}]
+                   when map_size(Empty) =:= 0, E4),
+    ?assertMatch({ok, _, _, _}, step({offer, U2, ?P, 3}, C4)),
+    %% While the transfer is live, downstream re-attaching settles nothing.
+    {reply, {ok, _}, _, E5} = call({attach, down, d, pid(down), none}, released()),
+    ?assertEqual([], [E || {persist, _} = E <- E5]),
+    _ = U,
+    ok.
+
+%% Upstream offering another serial holds that one now: the fence of the last goes.
+the_fence_is_kept_per_upstream_until_it_offers_another_serial_test() ->
+    U = pid(up), D = pid(down),
+    {C, _} = cell_handshake_link_core:cast({owned, D}, released()),
+    {ok, _, C1, _} = step({complete, D}, C),
+    ?assertMatch({reply, {ok, #{stale := true}}, _, _},
+                 call({attach, up, u, U, {<<"S1">>, 3}}, C1)),
+    {ok, _, C2, E2} = step({offer, U, #{serial => <<"S2">>}, 1}, C1),
+    ?assertMatch([{persist, Empty} | _] when map_size(Empty) =:= 0, E2),
+    ?assertMatch({reply, {ok, S}, _, _} when not is_map_key(stale, S),
+                 call({attach, up, u, U, {<<"S1">>, 3}}, C2)).
+
+%% A link restarted on its folder starts from the fence its predecessor wrote.
+a_restarted_link_keeps_the_fence_test() ->
+    U = pid(up),
+    Fence = #{<<"S1">> => #{gen => 3, state => owned, up => <<"u">>}},
+    {C, _} = cell_handshake_link_core:new(#{id => l, from => u, to => d, fence => Fence},
+                                          pid(link)),
+    ?assertMatch({reply, {ok, #{stale := true}}, _, _},
+                 call({attach, up, u, U, {<<"S1">>, 3}}, C)).

@@ -30,6 +30,12 @@
 %% higher generation, marked in transit, before upstream forgets its copy; completion
 %% clears the mark. A transfer interrupted while the product moved leaves it with
 %% one side, marked, and the operator confirms where it is before that task goes on.
+%%
+%% The link's fence (see {@link cell_handshake_link_core}) settles what generations
+%% cannot: an offer of a copy the link handed on is refused (`stale': the engine drops
+%% it; `unsettled': it waits for the link's `settled'), and an upstream task cut off
+%% from the link's node after release, `owned' not heard, holds its copy without asking
+%% the operator until the link, back in reach, says whether downstream took it.
 -module(cell_handshake).
 
 
@@ -76,7 +82,24 @@ offer(T0, Link, P, G) ->
         {error, link_down} ->
             %% The link is restarting: no offer stands. A wait on the link ends soon
             %% (see arm/3) and the task offers again.
-            view(T, Link, #{phase => idle, outcome => interrupted, link_down => true})
+            view(T, Link, #{phase => idle, outcome => interrupted, link_down => true});
+        {error, {stale, S}} ->
+            %% The link handed this serial on and downstream owns it, or has sent it
+            %% out: this copy was left behind (the operator said it is here after a
+            %% network cut, or a power cut brought the file back). The engine drops
+            %% it as a copy older than another's record, and the task starts again
+            %% without it.
+            cell_log:warning(cell_task:id(T), "product ~ts was handed on over ~ts "
+                             "before; the next station holds it or has sent it on, so "
+                             "this copy is not offered again", [S, Link]),
+            self() ! {cell_registry, stale, S, G + 1},
+            view(T, Link, #{phase => idle, available => false});
+        {error, {unsettled, S}} ->
+            %% The link let this generation go and the next station has not said yet
+            %% whether it took it: offered again once the link knows (settled/3).
+            cell_log:notice(cell_task:id(T), "product ~ts waits for the next station "
+                            "to say whether it took it (handshake ~ts)", [S, Link]),
+            view(T, Link, #{phase => idle, available => false, settle => {S, offer}})
     end.
 
 %% @doc Withdraws the offer unless downstream has begun to take the product: `{false,
@@ -105,6 +128,7 @@ release(T0, Link) ->
     %% newer record then finds no older holder to tell. (After a crash in between, the
     %% restarted task holds the product again from its file.)
     ok = cell_registry:hold(Id, undefined, 0),
+    LPid = link_pid(T0, Link),
     {T, Reply} = call(T0, Link, {release, self()}),
     {P, G} = {cell_task:product(T), cell_task_core:gen(T)},
     case Reply of
@@ -115,14 +139,42 @@ release(T0, Link) ->
                                                        in_transit => false}),
             view(cell_task_core:released(T), Link,
                  #{phase => released, available => false, owned => false});
+        {error, link_down} when is_pid(LPid), node(LPid) =/= node() ->
+            case lists:member(node(LPid), nodes()) of
+                false ->
+                    %% The link's node went out of reach while it was asked: it may
+                    %% have let the product go. The task holds its copy, marked in
+                    %% transit, and asks the link when it is back.
+                    unsettled(T, Link, P, G);
+                true ->
+                    interrupted_release(T, Link, P, G)
+            end;
         {error, _} ->
-            %% Downstream stopped while the product was being moved out: it stays with
-            %% this task, marked in transit, for the operator to confirm.
-            Marker = #{link => Link, from => downstream, phase => in_transit},
-            view(store(T, P, G, Marker, #{}), Link,
-                 #{phase => idle, outcome => interrupted, available => false,
-                   not_busy => false})
+            interrupted_release(T, Link, P, G)
     end.
+
+%% Downstream stopped while the product was being moved out: it stays with this task,
+%% marked in transit, for the operator to confirm.
+interrupted_release(T, Link, P, G) ->
+    Marker = #{link => Link, from => downstream, phase => in_transit},
+    view(store(T, P, G, Marker, #{}), Link,
+         #{phase => idle, outcome => interrupted, available => false, not_busy => false}).
+
+%% Released, `owned' not heard, the link out of reach: not this task's again, not the
+%% operator's yet. The copy is held (durably, marked in transit, for a restart to
+%% find) and the task's wait for the end of the transfer stays armed; the link's
+%% answer when it is back settles it (attach/3, the `settled' message): downstream
+%% took it (the copy goes, ItemTransferOut), or it never had it (the transfer was
+%% interrupted: the operator says where the product is).
+unsettled(T0, Link, P, G) ->
+    #{serial := S} = P,
+    cell_log:warning(cell_task:id(T0), "product ~ts was leaving over the handshake ~ts "
+                     "when the link went out of reach; whether the next station took it "
+                     "is settled with the link when it is back", [S, Link]),
+    Marker = #{link => Link, from => downstream, phase => in_transit},
+    T = store(T0, P, G, Marker, #{}),
+    view(T, Link, #{phase => idle, available => false, not_busy => true,
+                    outcome => undefined, settle => {S, released}, last_product => P}).
 
 %% @doc After NotBusy went off: how the transfer ended. `completed' raises
 %% ItemTransferOut; after `aborted' the task holds its product again.
@@ -278,7 +330,7 @@ attach(T, Link, Role) ->
                 {ok, Status} ->
                     Old = link_view(T, Link),
                     New = (from_status(Role, Status))#{mref => MRef, link_down => false},
-                    T1 = drop_stale(Status, put_view(T, Link, maps:merge(Old, New))),
+                    T1 = drop_stale(Status, Link, put_view(T, Link, maps:merge(Old, New))),
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
                         true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
@@ -291,17 +343,39 @@ attach(T, Link, Role) ->
 
 %% The link says the copy this task holds is the one it handed on (the task restarted
 %% before it forgot it): downstream owns the product, or has sent it out.
-drop_stale(#{stale := true}, T) ->
-    case cell_task:product(T) of
-        #{serial := S} ->
-            cell_log:notice(cell_task:id(T), "dropped an old copy of product ~ts: it had "
-                            "been handed on before this task restarted", [S]),
-            store(T, undefined, 0, undefined, #{sync => false});
-        undefined ->
+drop_stale(#{stale := true}, Link, T) ->
+    case {cell_task:product(T), maps:get(settle, link_view(T, Link), none)} of
+        {#{serial := S}, {S, _}} ->
+            %% The transfer this task waited to settle: it ended downstream.
+            element(1, settled(T, Link, S, owned));
+        {#{serial := S}, _} ->
+            case cell_task:state(T) of
+                {ready, _, _} ->
+                    %% Running on it (the operator said it is here while the link was
+                    %% out of reach): the engine drops it as a copy older than
+                    %% another's record and the task reconciles again without it.
+                    self() ! {cell_registry, stale, S, cell_task_core:gen(T) + 1},
+                    T;
+                _ ->
+                    cell_log:notice(cell_task:id(T), "dropped an old copy of product ~ts: "
+                                    "the handshake had handed it on to the next station",
+                                    [S]),
+                    store(T, undefined, 0, undefined, #{sync => false})
+            end;
+        {undefined, _} ->
             T
     end;
-drop_stale(_Status, T) ->
-    T.
+drop_stale(#{unsettled := true}, _Link, T) ->
+    %% Downstream has not said yet: the link tells this task when it does.
+    T;
+drop_stale(_Status, Link, T) ->
+    case {cell_task:product(T), maps:get(settle, link_view(T, Link), none)} of
+        {#{serial := S}, {S, _}} ->
+            %% The link does not fence this copy: it never let it go.
+            element(1, settled(T, Link, S, yours));
+        _ ->
+            T
+    end.
 
 %% What the task holds, told to its partners when it attaches: a partner on another
 %% node with an older copy of the same product drops it.
@@ -359,7 +433,8 @@ interrupt_all(T) ->
 %% status messages, so a wait needs no call: it holds now, or a later status message
 %% ends it (see {@link handle/2}).
 arm(T, Link, {Signal, Value}) ->
-    case maps:get(link_down, maps:get(Link, links(T), #{}), false) of
+    View = maps:get(Link, links(T), #{}),
+    case maps:get(link_down, View, false) andalso not is_map_key(settle, View) of
         true ->
             %% The link is restarting: what the task waits for may never come from
             %% the link that replaces it.
@@ -426,18 +501,25 @@ handle({cell_handshake, _Link, {holder, Serial, Gen}}, T) ->
 handle({cell_handshake, Link, recheck}, T) ->
     {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
-    %% A restarted link: attach again; whatever the task waited for on it is over.
-    {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
+    %% A restarted link (or one back in reach): attach again; whatever the task waited
+    %% for on it is over, completed if the link settled a transfer so.
+    T1 = attach(T, Link, maps:get(role, link_view(T, Link), down)),
+    Why = case link_view(T1, Link) of
+              #{outcome := completed} -> completed;
+              _ -> interrupted
+          end,
+    {T1, [{wake, Link, Why}]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
     Marker = #{link => Link, from => upstream, phase => in_transit},
     T1 = store(T, Product, Gen + 1, Marker, #{}),
-    %% If the link is gone meanwhile, upstream keeps a stale copy the generations
-    %% recognise.
+    %% If the link is gone meanwhile, its successor learns it when this task attaches
+    %% with what it holds.
+    #{serial := Serial} = Product,
     _ = case link_pid(T, Link) of
             undefined -> ok;
-            Pid -> gen_server:cast(Pid, {owned, self()})
+            Pid -> gen_server:cast(Pid, {owned, self(), Serial, Gen + 1})
         end,
     {view(T1, Link, #{phase => released, available => false}), []};
 %% Upstream: downstream owns the product on disk; the old copy goes.
@@ -456,18 +538,72 @@ handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
     T1 = store(T, Product, Gen + 2, undefined, #{}),
     {T2, _} = call(T1, Link, {taken_back, self()}),
     {view(T2, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
+handle({cell_handshake, Link, {settled, S, Verdict}}, T) ->
+    settled(T, Link, S, Verdict);
 handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
     interrupted(T, Link, Phase);
 handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
     interrupted(T, Link, aborting);
 handle({cell_handshake_watch, Ref, Link, Signal, Value}, T) ->
     {T, [{wake, Link, {watch, Ref, Signal, Value}}]};
-handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, _Reason}, T0) ->
+handle({{'LINK_DOWN', Link}, _MRef, process, _Pid, Reason}, T0) ->
     %% Until the restarted link says hello, waits on it are not armed (see arm/3).
     T = view(T0, Link, #{link_down => true}),
-    case was_active(link_view(T, Link)) of
-        true -> interrupted(T, Link, phase(T, Link));
-        false -> {T, []}
+    case link_view(T, Link) of
+        #{role := up, phase := released} = View
+          when Reason =:= noconnection,
+               not (is_map_key(owned, View) andalso map_get(owned, View)) ->
+            %% The product left, downstream's `owned' was not heard, and the link's
+            %% node is out of reach: the link, when back, says whether it was. (A
+            %% link that restarted on a node still in reach is as a partner stopped:
+            %% downstream's newer record is found, or the operator asked.)
+            #{last_product := P} = View,
+            {unsettled(T, Link, P, gen_of(T, P)), []};
+        View ->
+            case was_active(View) of
+                true -> interrupted(T, Link, phase(T, Link));
+                false -> {T, []}
+            end
+    end.
+
+%% The generation of the copy this task released: in its file (released/1 forgot it
+%% in memory).
+gen_of(T, #{serial := S}) ->
+    case cell_product:load(cell_task_core:product_path(T)) of
+        {ok, #{product := #{serial := S}, gen := G}} -> G;
+        _ -> cell_task_core:gen(T)
+    end.
+
+%% The link's word on a copy it had released (its fence, see cell_handshake_link_core):
+%% `owned', downstream took it; `yours', it never reached downstream's records.
+settled(T, Link, S, Verdict) ->
+    case {maps:get(settle, maps:get(Link, links(T), #{}), none), cell_task:product(T)} of
+        {{S, released}, #{serial := S} = P} when Verdict =:= owned ->
+            cell_log:notice(cell_task:id(T), "the next station took product ~ts over ~ts "
+                            "before the link went out of reach: this station's copy is "
+                            "dropped", [S, Link]),
+            T1 = store(T, undefined, 0, undefined, #{sync => false}),
+            {put_view(T1, Link, maps:remove(settle, (link_view(T1, Link))#{
+                                                      outcome => completed, phase => idle,
+                                                      not_busy => false,
+                                                      last_product => P})),
+             [{wake, Link, completed}]};
+        {{S, released}, #{serial := S}} ->
+            %% The product never reached downstream's records: it was moving when the
+            %% link went, and the operator says where it is.
+            {put_view(T, Link, maps:remove(settle, (link_view(T, Link))#{
+                                                     outcome => interrupted,
+                                                     not_busy => false})),
+             [{wake, Link, interrupted}]};
+        {{S, offer}, #{serial := S}} when Verdict =:= owned ->
+            self() ! {cell_registry, stale, S, cell_task_core:gen(T) + 1},
+            {put_view(T, Link, maps:remove(settle, link_view(T, Link))), []};
+        {{S, offer}, _} ->
+            %% Its own again: offered anew.
+            {put_view(T, Link, maps:remove(settle, link_view(T, Link))),
+             [{wake, Link, interrupted}]};
+        _ ->
+            {T, []}
     end.
 
 %% A transfer ended before its end. Who owns the product follows from where it was.

@@ -18,11 +18,17 @@
 %% partners are monitored, across nodes too, and a partner that stops in any phase
 %% ends the transfer on the other side, never leaves it waiting. Every change is
 %% published as a `link_phase' event (`link', `phase', `serial') for the panel.
+%%
+%% The link's fence (what it released, per serial, and whether downstream owns it; see
+%% the core) is kept in `Data/<Link>.link', a record file of cell_file written durably
+%% before the answer or message that depends on it, and read when the link starts, so
+%% a link restarted after a crash or a power cut of its node still refuses a stale copy.
 -module(cell_handshake_link).
 -behaviour(gen_server).
 
 -export([start_link/1, child_spec/1, whereis/1, name/1]).
--export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+-export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2]).
+-export([fence_path/1]).
 
 -export_type([phase/0, role/0, spec/0]).
 
@@ -31,7 +37,8 @@
 -type task_ref() :: cell_handshake_link_core:task_ref().
 -type spec() :: #{id := atom(), from := task_ref(), to := task_ref()}.
 
--record(state, {core :: cell_handshake_link_core:core(),
+-record(state, {core :: cell_handshake_link_core:core() | undefined,
+                spec :: spec(),
                 %% The monitors of the attached partners.
                 mrefs = #{} :: #{role() => reference()}}).
 
@@ -57,11 +64,56 @@ whereis(Id) ->
 
 %% -------------------------------------------------------------------------------------
 
--spec init(spec()) -> {ok, #state{}}.
+-spec init(spec()) -> {ok, #state{}, {continue, load}}.
 init(Spec) ->
+    {ok, #state{spec = Spec}, {continue, load}}.
+
+%% The fence its predecessor left, before any partner is heard.
+-spec handle_continue(load, #state{}) -> {noreply, #state{}}.
+handle_continue(load, #state{spec = #{id := Id} = Spec} = State) ->
+    Fence = load_fence(Id),
     %% A restarted link tells its partners, who attach again.
-    {Core, Effects} = cell_handshake_link_core:new(Spec, self()),
-    {ok, effects(Effects, #state{core = Core})}.
+    {Core, Effects} = cell_handshake_link_core:new(Spec#{fence => Fence}, self()),
+    {noreply, effects(Effects, State#state{core = Core})}.
+
+%% @doc The file of a link's fence.
+-spec fence_path(atom()) -> binary().
+fence_path(Id) ->
+    unicode:characters_to_binary(filename:join(cell_config:dir(data),
+                                               atom_to_list(Id) ++ ".link"),
+                                 unicode, file:native_name_encoding()).
+
+%% The atoms of the record are named here, so `safe' decoding finds them.
+load_fence(Id) ->
+    Path = fence_path(Id),
+    case cell_file:get_record(Path) of
+        {error, enoent} ->
+            #{};
+        {ok, #{fence := Fence}} when is_map(Fence) ->
+            case lists:all(fun valid_entry/1, maps:to_list(Fence)) of
+                true -> Fence;
+                false -> damaged(Id, Path, bad_entry)
+            end;
+        {ok, _Other} ->
+            damaged(Id, Path, not_a_fence);
+        {error, Why} ->
+            damaged(Id, Path, Why)
+    end.
+
+valid_entry({S, #{gen := G, state := State, up := Up}})
+  when is_binary(S), is_integer(G), G >= 0, is_binary(Up) ->
+    State =:= released orelse State =:= owned;
+valid_entry(_) ->
+    false.
+
+%% The link still runs: without the fence it is as safe as the generations alone make
+%% it, and the operator is told so.
+damaged(Id, Path, Why) ->
+    cell_log:error(Id, "the handshake's record of the products it handed on (~ts) cannot "
+                   "be read (~tp): a copy left behind at the previous station after a "
+                   "network cut is no longer recognised as handed on; check the line for "
+                   "a product held twice", [Path, Why]),
+    #{}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) ->
           {reply, term(), #state{}} | {noreply, #state{}}.
@@ -76,7 +128,7 @@ handle_call(Request, From, #state{core = Core} = State) ->
 %% Downstream owns the released product on disk: upstream may forget its copy. A
 %% message, not a call: nothing downstream does next depends on it.
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast({owned, _Pid} = Msg, #state{core = Core} = State) ->
+handle_cast(Msg, #state{core = Core} = State) when element(1, Msg) =:= owned ->
     {Core1, Effects} = cell_handshake_link_core:cast(Msg, Core),
     {noreply, effects(Effects, State#state{core = Core1})}.
 
@@ -113,6 +165,12 @@ effects([{demonitor, Role} | Rest], #state{mrefs = MRefs} = State) ->
     effects(Rest, State#state{mrefs = maps:remove(Role, MRefs)});
 effects([{hello, Task, Id} | Rest], State) ->
     ok = cell_handshake:hello(Task, Id),
+    effects(Rest, State);
+effects([{persist, Fence} | Rest], #state{spec = #{id := Id}} = State) ->
+    %% Nothing that depends on it goes out before it is on disk; a fence that cannot
+    %% be written stops the link (its supervisor restarts it) rather than let it go on
+    %% promising what it could not keep.
+    ok = cell_file:put_record(fence_path(Id), #{fence => Fence}),
     effects(Rest, State);
 effects([{phase, Id, Phase, Serial} | Rest], State) ->
     ok = cell_events:publish(link_phase, cell, #{link => Id, phase => Phase, serial => Serial}),

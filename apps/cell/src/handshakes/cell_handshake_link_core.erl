@@ -35,12 +35,23 @@
 %% <li>Every signal change is numbered and told to the partners: to the one whose call
 %%   made it in its answer, to the other by message (with the protocol's step when
 %%   there is one, one message for both).</li>
+%% <li>The fence: the link remembers, per serial, the generation it last released and
+%%   whether downstream said it owns the product in a newer record (`released',
+%%   `owned'). The process keeps it on disk (the `persist' effect comes before the
+%%   answer or message that depends on it), so it outlives a crash or a power cut of
+%%   the link's node. An offer at or below a fenced generation is refused: the copy is
+%%   stale (`owned': downstream holds the product or has sent it on) or its owner is
+%%   not known yet (`released': downstream stopped before it said). An upstream task
+%%   that attaches with a copy learns which (`stale', `unsettled'); downstream
+%%   attaching says what it holds, which settles a `released' entry, and upstream is
+%%   told `{settled, Serial, owned | yours}'. An entry goes when upstream offers
+%%   another serial (its file holds that one now, durably) or takes the product back.</li>
 %% </ul>
 -module(cell_handshake_link_core).
 
 -export([new/2, call/3, cast/2, partner_down/3]).
 
--export_type([core/0, phase/0, role/0, task_ref/0, effect/0]).
+-export_type([core/0, phase/0, role/0, task_ref/0, effect/0, fence/0]).
 
 -type phase() :: idle | offered | committed | released | aborting.
 -type role() :: up | down.
@@ -51,7 +62,13 @@
                 | {monitor, role(), pid()}            %% watch the partner in this role
                 | {demonitor, role()}                 %% stop watching it (and its 'DOWN')
                 | {hello, task_ref(), atom()}         %% a link (re)started: attach again
-                | {phase, atom(), phase(), term()}.   %% publish the link's phase and serial
+                | {phase, atom(), phase(), term()}    %% publish the link's phase and serial
+                | {persist, fence()}.                 %% write the fence durably, now
+%% Per serial: the generation the link last released, whether downstream said it owns
+%% the product (in the next generation), and the upstream task that released it (as
+%% text, so the file never needs an atom the node does not know).
+-type fence() :: #{binary() => #{gen := non_neg_integer(), state := released | owned,
+                                 up := binary()}}.
 
 -record(end_, {task :: task_ref(),
                pid :: pid() | undefined}).
@@ -66,9 +83,8 @@
                abort = false :: boolean(),
                seq = 0 :: non_neg_integer(),
                waiter :: gen_server:from() | undefined,
-               %% The copy upstream last handed on: downstream owns the product in a
-               %% newer record (it said so), so this one is stale wherever it is.
-               handed = none :: {binary(), non_neg_integer()} | none,
+               %% What the link released, per serial (see the module doc).
+               fence = #{} :: fence(),
                %% The effects of the event being handled, last first.
                out = [] :: [effect()]}).
 
@@ -78,11 +94,13 @@
 
 %% @doc A link between `from' (upstream) and `to' (downstream), run by the process
 %% `Self' (its status names it, so a partner tells one incarnation from the next); it
-%% says hello to its partners, who attach again after a restart.
--spec new(#{id := atom(), from := task_ref(), to := task_ref(), _ => _}, pid()) ->
-          {core(), [effect()]}.
-new(#{id := Id, from := From, to := To}, Self) ->
-    Core = #core{id = Id, self = Self, up = #end_{task = From}, down = #end_{task = To}},
+%% says hello to its partners, who attach again after a restart. `fence' is the fence
+%% its predecessor left on disk.
+-spec new(#{id := atom(), from := task_ref(), to := task_ref(), fence => fence(), _ => _},
+          pid()) -> {core(), [effect()]}.
+new(#{id := Id, from := From, to := To} = Spec, Self) ->
+    Core = #core{id = Id, self = Self, up = #end_{task = From}, down = #end_{task = To},
+                 fence = maps:get(fence, Spec, #{})},
     {Core, [{hello, T, Id} || T <- [From, To], T =/= undefined]}.
 
 %% @doc A partner's call; `From' is kept when the answer has to wait (an abort after
@@ -92,18 +110,29 @@ new(#{id := Id, from := From, to := To}, Self) ->
 call(Request, From, Core) ->
     done(request(Request, From, Core)).
 
-%% @doc A partner's message: `{owned, Pid}', downstream owns the released product on
-%% disk, so upstream may forget its copy.
--spec cast({owned, pid()}, core()) -> {core(), [effect()]}.
+%% @doc A partner's message: `{owned, Pid, Serial, Gen}' (or `{owned, Pid}' for the
+%% product being released), downstream owns the released product on disk in
+%% generation `Gen', so upstream may forget its copy.
+-spec cast({owned, pid()} | {owned, pid(), binary(), pos_integer()}, core()) ->
+          {core(), [effect()]}.
 cast({owned, Pid}, #core{phase = released, product = #{serial := S}, gen = G} = Core) ->
-    case role_of(Pid, Core) of
-        down -> done(tell(up, owned, Core#core{handed = {S, G}}));
-        _ -> done(Core)
-    end;
+    cast({owned, Pid, S, G + 1}, Core);
 cast({owned, _Pid}, Core) ->
-    %% The transfer ended meanwhile (interrupted): upstream keeps a stale copy, which
-    %% the generations recognise.
-    done(Core).
+    done(Core);
+cast({owned, Pid, S, Gen}, #core{phase = Phase, product = P} = Core) ->
+    case role_of(Pid, Core) of
+        down ->
+            %% Said even when the transfer ended meanwhile (upstream's node went out of
+            %% reach as the product was released): the fence then knows that the copy
+            %% upstream kept is stale, whatever upstream is told later.
+            Core1 = fence_owned(S, Gen, Core),
+            case Phase =:= released andalso serial(P) =:= S of
+                true -> done(tell(up, owned, Core1));
+                false -> done(Core1)
+            end;
+        _ ->
+            done(Core)
+    end.
 
 %% @doc The partner in `Role' stopped (its monitor's `Reason'): the transfer ends for
 %% the other side.
@@ -125,12 +154,17 @@ request({attach, Role, Task, Pid, Holding}, _From, Core) ->
                 none -> Core
             end,
     case attach(Role, Task, Pid, Core1) of
-        %% An upstream task restarted before it forgot the copy it handed on: its
-        %% record is stale, though downstream may have sent the product out since and
-        %% hold no newer record for anyone to compare.
-        {reply, {ok, Status}, Core2} when Role =:= up, Holding =/= none,
-                                          Holding =:= Core#core.handed ->
-            {reply, {ok, Status#{stale => true}}, Core2};
+        {reply, {ok, Status}, Core2} when Role =:= up ->
+            %% An upstream task holding a copy the link released: stale if downstream
+            %% said it owns the product (it may have sent it out since and hold no
+            %% newer record for anyone to compare), unsettled until downstream says
+            %% what it holds.
+            {reply, {ok, maps:merge(Status, fenced(Holding, Core2))}, Core2};
+        {reply, {ok, _}, Core2} = Reply when Role =:= down ->
+            case settle(Holding, Core2) of
+                Core2 -> Reply;
+                Core3 -> {reply, {ok, status(Core3)}, Core3}
+            end;
         Reply ->
             Reply
     end;
@@ -146,8 +180,17 @@ request({Op, Pid} = Request, From, Core) when is_atom(Op) ->
 request({offer, Pid, Product, Gen}, _From, Core) ->
     numbered(case {role_of(Pid, Core), Core#core.phase} of
                  {up, idle} ->
-                     {reply, ok, change(up, Core#core{phase = offered, product = Product,
-                                                      gen = Gen, abort = false})};
+                     case fenced({serial(Product), Gen}, Core) of
+                         #{stale := true} ->
+                             {reply, {error, {stale, serial(Product)}}, Core};
+                         #{unsettled := true} ->
+                             {reply, {error, {unsettled, serial(Product)}}, Core};
+                         #{} ->
+                             Core1 = unfence_others(serial(Product), Core),
+                             {reply, ok, change(up, Core1#core{phase = offered,
+                                                               product = Product, gen = Gen,
+                                                               abort = false})}
+                     end;
                  {up, Phase} ->
                      {reply, {error, {busy, Phase}}, Core};
                  _ ->
@@ -172,11 +215,15 @@ op(up, {try_abort_offering, _}, _From, #core{phase = idle} = Core) ->
 op(up, {try_abort_offering, _}, _From, Core) ->
     {reply, false, Core};
 %% Upstream, phase 3: the product has left.
-op(up, {release, _}, _From, #core{phase = committed} = Core) ->
-    {reply, ok, change(up, {released, Core#core.product, Core#core.gen},
-                       Core#core{phase = released})};
+op(up, {release, _}, _From, #core{phase = committed, product = P, gen = G} = Core) ->
+    %% On disk before downstream hears of it and upstream of its answer: whatever is
+    %% cut after this, the link knows it let this generation go.
+    Core1 = fence(serial(P), #{gen => G, state => released, up => up_key(Core)}, Core),
+    {reply, ok, change(up, {released, P, G}, Core1#core{phase = released})};
 %% Upstream took an aborted product back: downstream may forget its copy.
-op(up, {taken_back, _}, _From, #core{phase = aborting, waiter = Waiter} = Core) ->
+op(up, {taken_back, _}, _From, #core{phase = aborting, waiter = Waiter} = Core0) ->
+    %% Upstream holds it again, in a newer record: nothing to fence.
+    Core = unfence(serial(Core0#core.product), Core0),
     Core1 = change(up, Core#core{phase = idle, product = undefined, gen = 0,
                                  waiter = undefined}),
     {reply, ok, answer(Waiter, given_back, Core1)};
@@ -341,3 +388,81 @@ get_end(down, #core{down = E}) -> E.
 
 set_end(up, E, Core) -> Core#core{up = E};
 set_end(down, E, Core) -> Core#core{down = E}.
+
+%% -------------------------------------------------------------------------------------
+%% The fence
+%% -------------------------------------------------------------------------------------
+
+%% What the fence says of a copy upstream holds (or offers): `stale' when downstream
+%% owns the product in a newer record, `unsettled' when the link released it and
+%% downstream has not said yet.
+fenced({S, G}, #core{fence = Fence}) ->
+    case Fence of
+        #{S := #{gen := F, state := owned}} when G =< F -> #{stale => true};
+        #{S := #{gen := F, state := released}} when G =< F -> #{unsettled => true};
+        #{} -> #{}
+    end;
+fenced(_None, _Core) ->
+    #{}.
+
+%% Downstream (re)attached holding `Holding': a released serial it holds in a newer
+%% record is its own; one it does not hold never reached its file (it is written,
+%% durably, before downstream says anything), so upstream's copy is the owner.
+settle(Holding, #core{fence = Fence} = Core) ->
+    Live = live(Core),
+    maps:fold(fun(S, _Entry, Acc) when S =:= Live ->
+                      %% The transfer under way: downstream says `owned' when it has
+                      %% written it.
+                      Acc;
+                 (S, #{gen := G, state := released}, Acc) ->
+                      case Holding of
+                          {S, HG} when HG > G -> fence_owned(S, HG, Acc);
+                          _ -> tell(up, {settled, S, yours}, unfence(S, Acc))
+                      end;
+                 (_S, _Entry, Acc) ->
+                      Acc
+              end, Core, Fence).
+
+fence_owned(S, Gen, #core{fence = Fence} = Core) ->
+    case Fence of
+        #{S := #{gen := G, state := released} = E} when Gen > G ->
+            Core1 = fence(S, E#{state => owned}, Core),
+            case live(Core) of
+                %% Upstream hears `owned' from the transfer itself.
+                S -> Core1;
+                _ -> tell(up, {settled, S, owned}, Core1)
+            end;
+        #{} ->
+            Core
+    end.
+
+%% The serial of the transfer under way after release, if any.
+live(#core{phase = Phase, product = P}) when Phase =:= released; Phase =:= aborting ->
+    serial(P);
+live(_Core) ->
+    none.
+
+%% Upstream offers another serial: it holds that one now, durably, so no copy of the
+%% serials it released before is left with it.
+unfence_others(S, #core{fence = Fence} = Core) ->
+    Up = up_key(Core),
+    Others = [O || {O, #{up := U}} <- maps:to_list(Fence), O =/= S, U =:= Up],
+    lists:foldl(fun unfence/2, Core, Others).
+
+fence(undefined, _Entry, Core) ->
+    Core;
+fence(S, Entry, #core{fence = Fence} = Core) ->
+    Fence1 = Fence#{S => Entry},
+    effect({persist, Fence1}, Core#core{fence = Fence1}).
+
+unfence(S, #core{fence = Fence} = Core) ->
+    case maps:is_key(S, Fence) of
+        true ->
+            Fence1 = maps:remove(S, Fence),
+            effect({persist, Fence1}, Core#core{fence = Fence1});
+        false ->
+            Core
+    end.
+
+up_key(#core{up = #end_{task = Task}}) ->
+    iolist_to_binary(io_lib:format("~0tp", [Task])).

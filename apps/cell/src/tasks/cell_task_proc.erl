@@ -1281,6 +1281,21 @@ retain_damaged_error(#data{task = #task{retain_path = Path}, retain_error = Why}
                     [Path, cell_retain:text(Why)]),
       [retry, reset]).
 
+transit_error(#data{task = #task{product = P, marker = #{link := Link, from := downstream}}}) ->
+    %% Leaving this task: if the link could be asked it settled this already (its
+    %% record says whether the next station took the product), so it could not be.
+    cell_task:error_spec(
+      <<"in_transit">>, "Product transfer interrupted",
+      io_lib:format("Product ~ts was leaving this station over the handshake ~ts when the "
+                    "transfer was interrupted, and the handshake cannot be asked whether "
+                    "the next station took it: the next station may hold the product or "
+                    "may already have sent it on.~nCheck where the product is. Select "
+                    "IGNORE only if it is on this station: the task goes on with it (if "
+                    "the next station took it after all, the handshake refuses this copy "
+                    "when it is back and the task drops it). Select RESET if it is not "
+                    "here: the task forgets it.",
+                    [serial_text(P), Link]),
+      [ignore, reset]);
 transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
     cell_task:error_spec(
       <<"in_transit">>, "Product transfer interrupted",
