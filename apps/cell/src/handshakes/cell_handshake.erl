@@ -48,7 +48,12 @@
                   outcome => completed | aborted | interrupted,
                   owned => boolean()}.
 
--define(CALL_TIMEOUT, 5000).
+%% A call to a link on another node outlasts the line's distribution ticks (a silent
+%% node is noticed within 6.25 s, see cell_peers): a partition ends the call as the
+%% node going down, which the callers handle. A call that still times out (a link
+%% that does not answer while its node does) is taken as the link being down, never
+%% as a crash of the task.
+-define(CALL_TIMEOUT, 8000).
 
 %% -------------------------------------------------------------------------------------
 %% Upstream
@@ -585,6 +590,8 @@ request(T, Link, Request) ->
                  Pid ->
                      case call_pid(Pid, Request) of
                          {error, link_down} -> plain_call(Link, Request);
+                         %% Asked once: another call would wait as long again.
+                         {error, no_answer} -> {{error, link_down}, Pid};
                          Reply -> {Reply, Pid}
                      end
              end,
@@ -600,12 +607,16 @@ link_pid(T, Link) ->
         _ -> undefined
     end.
 
-%% A link that is restarting answers `{error, link_down}'; a link that does not answer
-%% within the timeout is a fault, and the task crashes (and is restarted).
+%% A link that is restarting, on a node that went down, or that does not answer within
+%% the deadline answers `{error, link_down}'.
 plain_call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
         undefined -> {{error, link_down}, undefined};
-        Pid -> {call_pid(Pid, Request), Pid}
+        Pid ->
+            case call_pid(Pid, Request) of
+                {error, no_answer} -> {{error, link_down}, Pid};
+                Reply -> {Reply, Pid}
+            end
     end.
 
 call_pid(Pid, Request) ->
@@ -616,5 +627,11 @@ call_pid(Pid, Request) ->
         exit:{normal, _} -> {error, link_down};
         exit:{killed, _} -> {error, link_down};
         exit:{shutdown, _} -> {error, link_down};
-        exit:{{nodedown, _}, _} -> {error, link_down}
+        exit:{{nodedown, _}, _} -> {error, link_down};
+        exit:{timeout, _} ->
+            Op = case Request of {O, _} -> O; {O, _, _, _} -> O; _ -> Request end,
+            cell_log:warning(cell, "the handshake link on node ~ts did not answer (~p) "
+                             "within ~w s; taken as down", [node(Pid), Op,
+                                                            ?CALL_TIMEOUT div 1000]),
+            {error, no_answer}
     end.
