@@ -28,8 +28,10 @@ init_per_suite(Config) ->
                       %% The peers are @localhost: the same host name keeps global's
                       %% view of the cluster in one piece.
                       Name = list_to_atom("hs_nodes_" ++ os:getpid() ++ "@localhost"),
+                      %% The cells tick at a line's pace (cell_peers): a node that
+                      %% ticked slower would be dropped by them whenever it is idle.
                       {ok, _} = net_kernel:start(Name, #{name_domain => shortnames,
-                                                         hidden => true}),
+                                                         hidden => true, net_ticktime => 5}),
                       true;
                   _ ->
                       false

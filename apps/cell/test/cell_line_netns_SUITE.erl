@@ -153,7 +153,10 @@ run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
      || {C, T} <- Told],
     ok = cell_netns:heal(net(Config), Cut, Order),
     await_outs(Config, N),
-    [?assertEqual([], crashes(Config, C), {task_crashed, Phase, Cut}) || C <- [up, down]],
+    Outs = call(Config, down, cell_line_recorder, outs, []),
+    ?assertEqual([], Outs -- lists:usort(Outs), {out_twice, Phase, Cut, LinkPhase}),
+    [?assertEqual([], crashes(Config, C), {task_crashed, Phase, Cut, timeline(Config)})
+     || C <- [up, down]],
     ct:pal("cut ~p in ~p (link ~p), told in ~p ms", [Cut, Phase, LinkPhase,
                                                        told_after(Config, At)]),
     N.
