@@ -7,7 +7,7 @@
 %% Cuts are silent (every packet dropped: the nodes learn of it from their distribution
 %% ticks), clean (dropped, and both nodes drop the connection at once) or asymmetric
 %% (one direction dropped), made when a transfer is in a chosen phase and healed end by
-%% end in both orders; a node is killed during a cut. After each: nothing lost, nothing
+%% end in both orders; either node is killed during a cut. After each: nothing lost, nothing
 %% out twice, nothing stuck (every product fed is out within a deadline), no task
 %% crashed on a call that timed out, and a cell that lost its neighbour told the
 %% operator within seconds.
@@ -25,7 +25,8 @@
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 -export([silent_neighbour_told/1, partitions_in_every_phase/1,
-         node_killed_during_partition/1, release_phase_partition/1]).
+         upstream_killed_during_partition/1, downstream_killed_during_partition/1,
+         release_phase_partition/1]).
 
 %% A product moves for this long on each segment: a window in each phase to cut in.
 -define(DELAY, 150).
@@ -39,7 +40,8 @@ suite() ->
     [{timetrap, {minutes, 10}}].
 
 all() ->
-    [silent_neighbour_told, partitions_in_every_phase, node_killed_during_partition]
+    [silent_neighbour_told, partitions_in_every_phase, upstream_killed_during_partition,
+     downstream_killed_during_partition]
         ++ case os:getenv("CELLRT_NETNS_RELEASE") of
                "1" -> [release_phase_partition];
                _ -> []
@@ -103,27 +105,42 @@ partitions_in_every_phase(Config) ->
     ct:pal("~p cuts, ~p products", [length(Cycles), Fed]),
     finish(Config, Fed).
 
-%% The upstream node is killed during a silent cut while its product moves; it comes
-%% back on its folder after the heal, the operator answers, and every product is out
-%% once.
-node_killed_during_partition(Config) ->
+%% The upstream node is killed during a silent cut while downstream has committed to
+%% its product; it comes back on its folder after the heal, the operator answers, and
+%% every product is out once.
+upstream_killed_during_partition(Config) ->
+    killed_during_partition(Config, up, commit).
+
+%% The downstream node (the link's) is killed during a silent cut while it moves in a
+%% product it owns on disk; it comes back on its folder after the heal.
+downstream_killed_during_partition(Config) ->
+    killed_during_partition(Config, down, owned).
+
+killed_during_partition(Config, Killed, Phase) ->
     start_cells(Config),
     N0 = run_cycle(Config, #{phase => commit, cut => clean, heal => [up, down]}, 0),
+    {Who, Task, TaskPhase} = watch(Phase),
     %% One product: a second would wait in the feed, which is the test's, in the
-    %% memory of the node killed.
-    Since = call(Config, down, cell_line_recorder, mark, []),
+    %% memory of the upstream node.
+    Since = call(Config, Who, cell_line_recorder, mark, []),
     Fed = feed(Config, N0, 1),
-    {ok, _} = await(Config, down, {phase, sink, moving_in}, Since),
+    {ok, _} = await(Config, Who, {phase, Task, TaskPhase}, Since),
+    [Other] = [up, down] -- [Killed],
+    Told = call(Config, Other, cell_line_recorder, mark, []),
     ok = cut(Config, silent),
-    Net = cell_netns:kill_node(net(Config), up),
+    %% The products out so far, counted by the downstream node's recorder, which a
+    %% kill of that node forgets.
+    Before = call(Config, down, cell_line_recorder, outs, []),
+    Net = cell_netns:kill_node(net(Config), Killed),
     _ = put_net(?config(net, Config), Net),
-    {ok, _} = await_told(Config, down, Since),
+    {ok, _} = await_told(Config, Other, Told),
     ok = cell_netns:heal(Net, silent, [down, up]),
-    _ = put_net(?config(net, Config), cell_netns:start_node(Net, up, [])),
-    start_cell(Config, up),
-    [ok = call(Config, C, cell_controller, start, []) || C <- [up]],
-    await_outs(Config, Fed),
-    finish(Config, Fed).
+    _ = put_net(?config(net, Config), cell_netns:start_node(Net, Killed, [])),
+    start_cell(Config, Killed),
+    ok = call(Config, Killed, cell_controller, start, []),
+    Earlier = case Killed of down -> Before; up -> [] end,
+    await_outs(Config, Fed - length(Earlier)),
+    finish(Config, Fed, Earlier).
 
 %% Upstream's release reaches the link, and the link's `owned' and answer do not come
 %% back (the downstream node's packets are dropped). Until the link fences ownership by
@@ -264,7 +281,11 @@ timeline(Config) ->
 %% Every product fed is out exactly once and no task holds one any more, in memory or
 %% on disk.
 finish(Config, Fed) ->
-    Outs = call(Config, down, cell_line_recorder, outs, []),
+    finish(Config, Fed, []).
+
+%% `Earlier': the products out on a downstream node killed since.
+finish(Config, Fed, Earlier) ->
+    Outs = Earlier ++ call(Config, down, cell_line_recorder, outs, []),
     Serials = [serial(I) || I <- lists:seq(1, Fed)],
     ?assertEqual([], Outs -- lists:usort(Outs), out_twice),
     ?assertEqual(lists:sort(Serials), lists:sort(Outs), lost),
