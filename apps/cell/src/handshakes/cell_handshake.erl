@@ -431,8 +431,26 @@ handle({cell_handshake, _Link, {holder, Serial, Gen}}, T) ->
 handle({cell_handshake, Link, recheck}, T) ->
     {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
-    %% A restarted link: attach again; whatever the task waited for on it is over.
-    {attach(T, Link, maps:get(role, link_view(T, Link), down)), [{wake, Link, interrupted}]};
+    %% A restarted link: attach again; whatever the task waited for on it is over. The
+    %% same link greeted again (its node came back in reach: cell_peers) with a transfer
+    %% still under way on it has forgotten nothing: the transfer goes on, and a wait is
+    %% only looked at again (ending it would have a downstream task that committed take
+    %% the product as its own before upstream released it).
+    Was = maps:with([lpid, mref], link_view(T, Link)),
+    T1 = attach(T, Link, maps:get(role, link_view(T, Link), down)),
+    Now = link_view(T1, Link),
+    Wake = case maps:with([lpid, mref], Now) of
+               %% Attached again (a new monitor) to the same link.
+               #{lpid := Pid, mref := MRef} when is_pid(Pid), map_get(lpid, Was) =:= Pid,
+                                                  map_get(mref, Was) =/= MRef ->
+                   case was_active(Now) of
+                       true -> {signals, recheck};
+                       false -> interrupted
+                   end;
+               _ ->
+                   interrupted
+           end,
+    {T1, [{wake, Link, Wake}]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
