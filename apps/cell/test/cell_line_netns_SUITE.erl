@@ -119,12 +119,12 @@ downstream_killed_during_partition(Config) ->
 killed_during_partition(Config, Killed, Phase) ->
     start_cells(Config),
     N0 = run_cycle(Config, #{phase => commit, cut => clean, heal => [up, down]}, 0),
-    {Who, Task, TaskPhase} = watch(Phase),
+    {Who, Spec} = watch(Phase),
     %% One product: a second would wait in the feed, which is the test's, in the
     %% memory of the upstream node.
     Since = call(Config, Who, cell_line_recorder, mark, []),
     Fed = feed(Config, N0, 1),
-    {ok, _} = await(Config, Who, {phase, Task, TaskPhase}, Since),
+    {ok, _} = await(Config, Who, Spec, Since),
     [Other] = [up, down] -- [Killed],
     Told = call(Config, Other, cell_line_recorder, mark, []),
     ok = cut(Config, silent),
@@ -157,10 +157,12 @@ release_phase_partition(Config) ->
 %% both cells told their operators (a cut the nodes see), heals in the order given and
 %% waits until everything fed so far is out. The number of products fed so far.
 run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
-    {Who, Task, TaskPhase} = watch(Phase),
+    {Who, Spec} = watch(Phase),
     Since = call(Config, Who, cell_line_recorder, mark, []),
+    %% An offer stands only while downstream does not take it: its cell is paused.
+    _ = Phase =:= offer andalso call(Config, down, cell_controller, pause, []),
     N = feed(Config, N0, 2),
-    {ok, _} = await(Config, Who, {phase, Task, TaskPhase}, Since),
+    {ok, _} = await(Config, Who, Spec, Since),
     LinkPhase = last_link_phase(Config),
     At = call(Config, down, cell_line_recorder, now_ms, []),
     Marks = [{C, call(Config, C, cell_line_recorder, mark, [])} || C <- told_by(Cut)],
@@ -169,6 +171,7 @@ run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
     [?assertMatch({C, {ok, _}}, {C, T}, {not_told, Phase, Cut, timeline(Config)})
      || {C, T} <- Told],
     ok = cell_netns:heal(net(Config), Cut, Order),
+    _ = Phase =:= offer andalso call(Config, down, cell_controller, start, []),
     await_outs(Config, N),
     Outs = call(Config, down, cell_line_recorder, outs, []),
     ?assertEqual([], Outs -- lists:usort(Outs), {out_twice, Phase, Cut, LinkPhase}),
@@ -178,15 +181,15 @@ run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
                                                        told_after(Config, At)]),
     N.
 
-%% Which task's phase marks the moment to cut: offer (upstream offered, before the
-%% commit can come), commit (downstream took it, upstream moving it out), release
-%% (upstream about to call release), owned (downstream owns it, moving in), complete
-%% (downstream has it, upstream about to hear `completed').
-watch(offer) -> {up, src, offered};
-watch(commit) -> {down, sink, moving_in};
-watch(release) -> {up, src, leaving};
-watch(owned) -> {down, sink, arriving};
-watch(complete) -> {down, sink, full}.
+%% What marks the moment to cut: offer (the link holds upstream's offer, downstream's
+%% cell paused so it cannot commit), commit (downstream took it, upstream moving it
+%% out), release (upstream about to call release), owned (downstream owns it, moving
+%% in), complete (downstream has it, upstream about to hear `completed').
+watch(offer) -> {down, {link_phase, offered}};
+watch(commit) -> {down, {phase, sink, moving_in}};
+watch(release) -> {up, {phase, src, leaving}};
+watch(owned) -> {down, {phase, sink, arriving}};
+watch(complete) -> {down, {phase, sink, full}}.
 
 %% The cells that see a cut: the side whose packets are dropped hears nothing from its
 %% peer once the peer gives up the connection, so both do.
@@ -205,31 +208,15 @@ start_cells(Config) ->
 %% Each node runs a cell of one segment; the link between them runs downstream.
 start_cell(Config, Which) ->
     Net = net(Config),
-    UpNode = cell_netns:node_of(Net, up),
-    DownNode = cell_netns:node_of(Net, down),
     Root = filename:join(?config(base, Config), atom_to_list(Which)),
     {ok, Recorder} = call(Config, Which, cell_line_recorder, start, [#{}]),
-    Spec = case Which of
-               up ->
-                   #{tasks => [task(src, #{next => x1}, Config, Recorder)],
-                     links => [#{id => x1, from => src, to => {sink, DownNode}}]};
-               down ->
-                   #{tasks => [task(sink, #{prev => x1}, Config, Recorder)],
-                     links => [#{id => x1, from => {src, UpNode}, to => sink}]}
-           end,
-    [ok = call(Config, Which, application, load, [A]) || A <- [lager, cell_base, cell_hal, cell]],
-    ok = call(Config, Which, application, set_env,
-              [lager, handlers, [{lager_console_backend, [{level, critical}]}]]),
-    ok = call(Config, Which, application, set_env, [cell_base, root, Root]),
-    ok = call(Config, Which, application, set_env, [cell, cell_spec, Spec]),
-    {ok, _} = call(Config, Which, application, ensure_all_started, [cell]),
+    Spec = cell_line_nodes:spec(Which, cell_netns:node_of(Net, up),
+                                cell_netns:node_of(Net, down),
+                                #{feed => line_feed, out => line_out,
+                                  ref => ?config(ref, Config), notify => Recorder,
+                                  delay => ?DELAY}),
+    ok = cell_line_nodes:boot(fun(M, F, A) -> call(Config, Which, M, F, A) end, Root, Spec),
     ok = call(Config, Which, cell_line_recorder, subscribe, []).
-
-task(Id, Args, Config, Recorder) ->
-    #{id => Id, module => cell_line_task, zone => atom_to_binary(Id, utf8),
-      lane => <<"Line">>,
-      args => Args#{feed => line_feed, out => line_out, ref => ?config(ref, Config),
-                    notify => Recorder, delay => ?DELAY}}.
 
 %% Products N0+1 .. N0+K into the feed; the number fed so far.
 feed(Config, N0, K) ->

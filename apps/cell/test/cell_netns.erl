@@ -34,7 +34,8 @@
                    names := [atom()],
                    %% Per cell: its namespace, the device of its end and its address.
                    ends := #{atom() => #{ns := string(), dev := string(),
-                                         addr := string()}},
+                                         addr := string(),
+                                         port => {string(), string()}}},
                    %% Namespaces to delete, the bridge's among them.
                    nss := [string()],
                    cookie := atom(),
@@ -81,16 +82,16 @@ build(#{run := Run, names := Names} = Net) ->
     Nss = [ns(Run, I) || {I, _} <- Indexed],
     [ok = cmd(["ip netns add ", N]) || N <- Nss],
     [ok = cmd(["ip -n ", N, " link set lo up"]) || N <- Nss],
-    Ends = maps:from_list([{Name, #{ns => ns(Run, I), dev => dev(Run, I),
-                                    addr => "10.77.0." ++ integer_to_list(I)}}
-                           || {I, Name} <- Indexed]),
-    Extra = case Indexed of
+    Ends0 = maps:from_list([{Name, #{ns => ns(Run, I), dev => dev(Run, I),
+                                     addr => "10.77.0." ++ integer_to_list(I)}}
+                            || {I, Name} <- Indexed]),
+    {Ends, Extra} = case Indexed of
                 [{1, A}, {2, B}] ->
-                    #{ns := NA, dev := DA} = maps:get(A, Ends),
-                    #{ns := NB, dev := DB} = maps:get(B, Ends),
+                    #{ns := NA, dev := DA} = maps:get(A, Ends0),
+                    #{ns := NB, dev := DB} = maps:get(B, Ends0),
                     ok = cmd(["ip link add ", DA, " netns ", NA, " type veth peer name ", DB,
                               " netns ", NB]),
-                    [];
+                    {Ends0, []};
                 _ ->
                     Br = ns(Run, 0),
                     ok = cmd(["ip netns add ", Br]),
@@ -98,18 +99,23 @@ build(#{run := Run, names := Names} = Net) ->
                     ok = cmd(["ip -n ", Br, " link set ", dev(Run, 0), " up"]),
                     [begin
                          Port = dev(Run, 100 + I),
-                         #{ns := N, dev := D} = maps:get(Name, Ends),
+                         #{ns := N, dev := D} = maps:get(Name, Ends0),
                          ok = cmd(["ip link add ", D, " netns ", N, " type veth peer name ",
                                    Port, " netns ", Br]),
                          ok = cmd(["ip -n ", Br, " link set ", Port, " master ", dev(Run, 0)]),
                          ok = cmd(["ip -n ", Br, " link set ", Port, " up"])
                      end || {I, Name} <- Indexed],
-                    [Br]
+                    %% A cell's end cut both ways drops at its bridge port too.
+                    {maps:map(fun(Name, E) ->
+                                      {I, Name} = lists:keyfind(Name, 2, Indexed),
+                                      E#{port => {Br, dev(Run, 100 + I)}}
+                              end, Ends0),
+                     [Br]}
             end,
     [begin
          ok = cmd(["ip -n ", N, " addr add ", A, "/24 dev ", D]),
          ok = cmd(["ip -n ", N, " link set ", D, " up"])
-     end || #{ns := N, dev := D, addr := A} <- maps:values(Ends)],
+     end || #{ns := N, dev := D, addr := A} <- maps:values(Ends0)],
     Net#{ends => Ends, nss => Nss ++ Extra}.
 
 %% @doc Stops the nodes still running, ends every process left in the namespaces (the
@@ -191,30 +197,42 @@ call(#{peers := Peers}, Name, M, F, A, Timeout) ->
 os_pid(Net, Name) ->
     call(Net, Name, os, getpid, []).
 
-%% @doc Cuts the network between the cells (`silent' or `clean', above; `{silent,
-%% Name}' drops only what `Name' sends).
+%% @doc Cuts the cells `Names' off (`silent' or `clean', above; `{silent, Name}' drops
+%% only what `Name' sends). A cell's end cut is cut from every other cell: two cells
+%% of a pair, one cell of a bridge.
 -spec cut(net(), silent | clean | {silent, atom()}, [atom()]) -> ok.
 cut(Net, {silent, From}, _Names) ->
     blackhole(Net, From, add);
 cut(Net, silent, Names) ->
-    [blackhole(Net, N, add) || N <- Names],
+    [both_ways(Net, N, add) || N <- Names],
     ok;
-cut(Net, clean, Names) ->
-    [blackhole(Net, N, add) || N <- Names],
-    Nodes = [node_of(Net, N) || N <- Names],
-    _ = [call(Net, N, erlang, disconnect_node, [Other])
-         || N <- Names, Other <- Nodes, Other =/= node_of(Net, N)],
+cut(#{peers := Peers} = Net, clean, Names) ->
+    [both_ways(Net, N, add) || N <- Names],
+    %% Each cut node drops its connections to every other node, and they to it.
+    Pairs = [{A, B} || A <- maps:keys(Peers), B <- maps:keys(Peers), A =/= B,
+                       lists:member(A, Names) orelse lists:member(B, Names)],
+    _ = [call(Net, A, erlang, disconnect_node, [node_of(Net, B)]) || {A, B} <- Pairs],
     ok.
 
 %% @doc Lifts the cut on the cells' ends, in the order given (a cell not cut is
 %% passed over).
 -spec heal(net(), silent | clean | {silent, atom()}, [atom()]) -> ok.
 heal(Net, _How, Names) ->
-    [blackhole(Net, N, del) || N <- Names],
+    [both_ways(Net, N, del) || N <- Names],
     ok.
+
+both_ways(#{ends := Ends} = Net, Name, Op) ->
+    ok = blackhole(Net, Name, Op),
+    case maps:get(Name, Ends) of
+        #{port := {Br, Port}} -> qdisc(Br, Port, Name, Op);
+        #{} -> ok
+    end.
 
 blackhole(#{ends := Ends}, Name, Op) ->
     #{ns := NS, dev := Dev} = maps:get(Name, Ends),
+    qdisc(NS, Dev, Name, Op).
+
+qdisc(NS, Dev, Name, Op) ->
     case {Op, sh(["tc -n ", NS, " qdisc ", atom_to_list(Op), " dev ", Dev,
                   " root blackhole"])} of
         {_, {0, _}} -> ok;
