@@ -148,6 +148,9 @@ start_node(#{run := Run, ends := Ends, cookie := Cookie, peers := Peers} = Net, 
         peer:start(#{name => NodeName, host => Addr, longnames => true,
                      exec => {os:find_executable("ip"), ["netns", "exec", NS, Erl]},
                      connection => standard_io, wait_boot => 60000,
+                     %% The namespace's epmd listens on its address at the default
+                     %% port, whatever the test's environment says for its own.
+                     env => [{"ERL_EPMD_ADDRESS", false}, {"ERL_EPMD_PORT", false}],
                      args => ["-setcookie", atom_to_list(Cookie),
                               "-kernel", "inet_dist_listen_min", "21700",
                               "-kernel", "inet_dist_listen_max", "21709"]
