@@ -40,8 +40,10 @@ init_per_suite(Config) ->
                       %% The peers are @localhost: the same host name keeps global's
                       %% view of the cluster in one piece.
                       Name = list_to_atom("hs_nodes_" ++ os:getpid() ++ "@localhost"),
+                      %% The cells tick at a line's pace (cell_peers): a node that
+                      %% ticked slower would be dropped by them whenever it is idle.
                       {ok, _} = net_kernel:start(Name, #{name_domain => shortnames,
-                                                         hidden => true}),
+                                                         hidden => true, net_ticktime => 5}),
                       true;
                   _ ->
                       false
@@ -300,32 +302,15 @@ start_cell(Config, Which) ->
     #{node := UpNode} = maps:get(up, ?config(cells, Config)),
     #{node := DownNode} = maps:get(down, ?config(cells, Config)),
     #{root := Root} = maps:get(Which, ?config(cells, Config)),
-    Test = self(),
-    Spec = case Which of
-               up ->
-                   #{tasks => [task(src, #{next => x1}, Config, Test)],
-                     links => [#{id => x1, from => src, to => {sink, DownNode}}]};
-               down ->
-                   #{tasks => [task(sink, #{prev => x1}, Config, Test)],
-                     links => [#{id => x1, from => {src, UpNode}, to => sink}]}
-           end,
+    Spec = cell_line_nodes:spec(Which, UpNode, DownNode,
+                                #{feed => line_feed, out => line_out,
+                                  ref => ?config(ref, Config), notify => self(),
+                                  delay => ?config(delay, Config),
+                                  hold => ?config(hold, Config)}),
     %% The feed and out tables live on the node of the task that uses them, owned by a
     %% process that stays.
     ok = peer_call(Config, Which, cell_handshake_nodes_SUITE_keeper, start, []),
-    [ok = peer_call(Config, Which, application, load, [A]) || A <- [lager, cell_base, cell_hal, cell]],
-    ok = peer_call(Config, Which, application, set_env,
-                   [lager, handlers, [{lager_console_backend, [{level, critical}]}]]),
-    ok = peer_call(Config, Which, application, set_env, [cell_base, root, Root]),
-    ok = peer_call(Config, Which, application, set_env, [cell, cell_spec, Spec]),
-    {ok, _} = peer_call(Config, Which, application, ensure_all_started, [cell]),
-    ok.
-
-task(Id, Args, Config, Test) ->
-    #{id => Id, module => cell_line_task, zone => atom_to_binary(Id, utf8),
-      lane => <<"Line">>,
-      args => Args#{feed => line_feed, out => line_out, ref => ?config(ref, Config),
-                    notify => Test, delay => ?config(delay, Config),
-                    hold => ?config(hold, Config)}}.
+    cell_line_nodes:boot(fun(M, F, A) -> peer_call(Config, Which, M, F, A) end, Root, Spec).
 
 start(Config, Which) ->
     peer_call(Config, Which, cell_controller, start, []).

@@ -54,7 +54,12 @@
                   outcome => completed | aborted | interrupted,
                   owned => boolean()}.
 
--define(CALL_TIMEOUT, 5000).
+%% A call to a link on another node outlasts the line's distribution ticks (a silent
+%% node is noticed within 6.25 s, see cell_peers): a partition ends the call as the
+%% node going down, which the callers handle. A call that still times out (a link
+%% that does not answer while its node does) is taken as the link being down, never
+%% as a crash of the task.
+-define(CALL_TIMEOUT, 8000).
 
 %% -------------------------------------------------------------------------------------
 %% Upstream
@@ -502,13 +507,28 @@ handle({cell_handshake, Link, recheck}, T) ->
     {T, [{wake, Link, {signals, recheck}}]};
 handle({cell_handshake, Link, hello}, T) ->
     %% A restarted link (or one back in reach): attach again; whatever the task waited
-    %% for on it is over, completed if the link settled a transfer so.
+    %% for on it is over, completed if the link settled a transfer so. The same link
+    %% greeted again (its node came back in reach: cell_peers) with a transfer still
+    %% under way on it has forgotten nothing: the transfer goes on, and a wait is only
+    %% looked at again (ending it would have a downstream task that committed take the
+    %% product as its own before upstream released it).
+    Was = maps:with([lpid, mref], link_view(T, Link)),
     T1 = attach(T, Link, maps:get(role, link_view(T, Link), down)),
-    Why = case link_view(T1, Link) of
-              #{outcome := completed} -> completed;
-              _ -> interrupted
-          end,
-    {T1, [{wake, Link, Why}]};
+    Now = link_view(T1, Link),
+    Wake = case {Now, maps:with([lpid, mref], Now)} of
+               {#{outcome := completed}, _} ->
+                   completed;
+               %% Attached again (a new monitor) to the same link.
+               {_, #{lpid := Pid, mref := MRef}} when is_pid(Pid), map_get(lpid, Was) =:= Pid,
+                                                     map_get(mref, Was) =/= MRef ->
+                   case was_active(Now) of
+                       true -> {signals, recheck};
+                       false -> interrupted
+                   end;
+               _ ->
+                   interrupted
+           end,
+    {T1, [{wake, Link, Wake}]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
@@ -721,6 +741,8 @@ request(T, Link, Request) ->
                  Pid ->
                      case call_pid(Pid, Request) of
                          {error, link_down} -> plain_call(Link, Request);
+                         %% Asked once: another call would wait as long again.
+                         {error, no_answer} -> {{error, link_down}, Pid};
                          Reply -> {Reply, Pid}
                      end
              end,
@@ -736,12 +758,16 @@ link_pid(T, Link) ->
         _ -> undefined
     end.
 
-%% A link that is restarting answers `{error, link_down}'; a link that does not answer
-%% within the timeout is a fault, and the task crashes (and is restarted).
+%% A link that is restarting, on a node that went down, or that does not answer within
+%% the deadline answers `{error, link_down}'.
 plain_call(Link, Request) ->
     case cell_handshake_link:whereis(Link) of
         undefined -> {{error, link_down}, undefined};
-        Pid -> {call_pid(Pid, Request), Pid}
+        Pid ->
+            case call_pid(Pid, Request) of
+                {error, no_answer} -> {{error, link_down}, Pid};
+                Reply -> {Reply, Pid}
+            end
     end.
 
 call_pid(Pid, Request) ->
@@ -752,5 +778,11 @@ call_pid(Pid, Request) ->
         exit:{normal, _} -> {error, link_down};
         exit:{killed, _} -> {error, link_down};
         exit:{shutdown, _} -> {error, link_down};
-        exit:{{nodedown, _}, _} -> {error, link_down}
+        exit:{{nodedown, _}, _} -> {error, link_down};
+        exit:{timeout, _} ->
+            Op = case Request of {O, _} -> O; {O, _, _, _} -> O; _ -> Request end,
+            cell_log:warning(cell, "the handshake link on node ~ts did not answer (~p) "
+                             "within ~w s; taken as down", [node(Pid), Op,
+                                                            ?CALL_TIMEOUT div 1000]),
+            {error, no_answer}
     end.

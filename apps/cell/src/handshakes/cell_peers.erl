@@ -3,6 +3,13 @@
 %% spec's links). It connects at start and after every loss, with a backoff, never
 %% blocking anyone; when a node comes (back) it tells the local tasks whose links reach
 %% it, and they attach to their links again.
+%%
+%% A neighbour that goes (its node down, or silent: no distribution tick for longer
+%% than the line's tick time) is a warning on the panel until it is back. A silent
+%% neighbour is noticed by the distribution's ticks: a cell with remote links runs
+%% them at a tick time of 5 s (unless the release sets `net_ticktime' itself), so it
+%% is told within 0.75 to 1.25 times that, where Erlang's default of 60 s would
+%% leave it waiting a minute or more.
 -module(cell_peers).
 -behaviour(gen_server).
 
@@ -11,6 +18,9 @@
 
 -define(BACKOFF_MIN, 500).
 -define(BACKOFF_MAX, 30000).
+%% Seconds: a silent neighbour is noticed within 3.75 to 6.25 s. Ticks go every
+%% ?LINE_TICKTIME/4 s; four missed in a row on a LAN is a broken link, not a busy one.
+-define(LINE_TICKTIME, 5).
 
 -record(state, {peers = #{} :: #{node() => #{links := [{atom(), atom()}],
                                             backoff := pos_integer(),
@@ -48,7 +58,7 @@ init(Spec) ->
                      nodes_of(Spec)),
     case maps:size(Peers) of
         0 -> ok;
-        _ -> ok = net_kernel:monitor_nodes(true)
+        _ -> ok = net_kernel:monitor_nodes(true), line_ticks()
     end,
     case cell_dist:unreachable_peers(cell_dist:listen_interface(), node(), maps:keys(Peers)) of
         [] ->
@@ -87,6 +97,12 @@ handle_info({nodedown, Node}, #state{peers = Peers} = State) ->
     case maps:find(Node, Peers) of
         {ok, #{up := true} = P} ->
             cell_log:warning(cell, "the cell on node ~ts is out of reach; reconnecting", [Node]),
+            ok = cell_alarms:warning(cell, warning_id(Node), "Neighbour cell out of reach",
+                                     io_lib:format("The cell on node ~ts does not answer (its "
+                                                   "PC, its node or the network between is "
+                                                   "down). Products are not handed to it or "
+                                                   "taken from it until it is back; this "
+                                                   "cell keeps trying.", [Node])),
             {noreply, retry(Node, State#state{peers = Peers#{Node => P#{up => false}}})};
         _ ->
             {noreply, State}
@@ -98,6 +114,7 @@ node_up(Node, #state{peers = Peers} = State) ->
     case maps:find(Node, Peers) of
         {ok, #{up := false, links := Links} = P} ->
             cell_log:info(cell, "connected to the cell on node ~ts", [Node]),
+            ok = cell_alarms:reset_warning(cell, warning_id(Node)),
             %% The names the other node registered become visible once global has
             %% synchronised; then the tasks attach to their links again.
             _ = spawn_link(fun() ->
@@ -108,6 +125,26 @@ node_up(Node, #state{peers = Peers} = State) ->
         _ ->
             State
     end.
+
+%% The distribution's ticks at the line's pace, unless the release chose a tick time of
+%% its own (anything but OTP's default, 60 s: `-kernel net_ticktime' in vm.args).
+line_ticks() ->
+    case net_kernel:get_net_ticktime() of
+        60 ->
+            %% At once: no transition period, the line's nodes all tick alike (a remote
+            %% console asks the node for its tick time when it connects).
+            _ = net_kernel:set_net_ticktime(?LINE_TICKTIME, 0),
+            cell_log:info(cell, "distribution ticks every ~w ms: a silent neighbour is "
+                          "noticed within ~w s", [?LINE_TICKTIME * 250,
+                                                   ?LINE_TICKTIME * 5 div 4]);
+        _Chosen ->
+            %% Chosen by the release, changing, or not distributed (`ignored': no
+            %% peer will be reached, and cell_dist says why).
+            ok
+    end.
+
+warning_id(Node) ->
+    <<"peer:", (atom_to_binary(Node, utf8))/binary>>.
 
 retry(Node, #state{peers = Peers} = State) ->
     case maps:find(Node, Peers) of
