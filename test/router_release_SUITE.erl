@@ -123,7 +123,8 @@ run_answer_stop_restart(Config) ->
 %% suite can call router_sim there) and the cell reacts through its IO over Modbus: the
 %% emergency-stop circuit opened stops every task and refuses Start, closed again the
 %% line starts again; a door opened is a warning the line runs on with; a drive fault
-%% is reset by the monitor. Every serial that entered is in the cell or has left, once,
+%% is reset by the monitor; a code reader's no-read is answered Retry. Every serial that
+%% entered is in the cell or has left, once,
 %% and the statistics of every task add up to the wall-clock time.
 real_mode_vplc_killed(Config) ->
     Priv = ?config(priv_dir, Config),
@@ -211,8 +212,6 @@ real_mode_vplc_killed(Config) ->
                 lists:member(W, [<<"retry">>, <<"ignore">>, <<"reset">>])],
             %% The machine poked through the virtual PLC's physics.
             Answers3 = machine_events(Op, Node, vplc_node(2), Answers2),
-            %% A code reader's no-read, answered by the operator: its place, once the
-            %% demo machine has a code reader.
             {200, _, _} = cell_web_client:req(Op, post, "/api/cell/stop"),
             ok = stopped(Op, Node),
             ct:log("answers given: ~p", [Answers3]),
@@ -275,7 +274,7 @@ vplc_node(N) ->
     list_to_atom("cellrt_ct_vplc_" ++ os:getpid() ++ "_" ++ integer_to_list(N) ++ "@localhost").
 
 %% The emergency-stop circuit opened and closed, a door opened and closed, a drive
-%% faulted and reset by the monitor: each poked in the virtual PLC's physics
+%% faulted and reset by the monitor, a code reader's no-read: each poked in the virtual PLC's physics
 %% (router_sim in `VNode') and seen by the cell through its IO over Modbus TCP, as the
 %% machine's own would be. Every error meanwhile is answered as in run/5.
 machine_events(Op, Node, VNode, Answers0) ->
@@ -309,7 +308,17 @@ machine_events(Op, Node, VNode, Answers0) ->
     Poke(fault_drive, [conveyor_front]),
     _ = await_probe(alarm(alarm_raised, warning, <<"cell:drive.conveyor_front">>)),
     _ = await_probe(alarm(alarm_cleared, warning, <<"cell:drive.conveyor_front">>)),
-    run(Op, Node, await_left, out(Node) + 2, Answers2).
+    Answers3 = run(Op, Node, await_left, out(Node) + 1, Answers2),
+    %% The code reader finds no code on the next panel: the operator's question, whose
+    %% Retry reads the panel again (its serial the one the machine has).
+    Poke(no_read_next, [front]),
+    #{alarm := #{id := NoCode}} =
+        await_probe(alarm(alarm_raised, error, <<"loading_front:no_code">>)),
+    Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(NoCode)) ++ "/answer",
+    {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => retry}),
+    _ = await_probe(alarm(alarm_cleared, error, <<"loading_front:no_code">>)),
+    run(Op, Node, await_left, out(Node) + 2,
+        maps:update_with(retry, fun(X) -> X + 1 end, 1, Answers3)).
 
 alarm(Type, Kind, Id) ->
     fun(#{type := T, alarm := #{id := I, kind := K}}) -> {T, K, I} =:= {Type, Kind, Id};
@@ -351,7 +360,8 @@ check_time(Node, Began, Flowing) ->
            "start, ~.1f s since products flowed",
            [[{T, Span / 1.0e6} || {T, _, Span} <- Checks], (Now - Began) / 1.0e6,
             (Asked - Flowing) / 1.0e6]),
-    ?assertEqual(5, length(Checks)),
+    %% The five tasks and the fixture's clamps' unit.
+    ?assertEqual(6, length(Checks)),
     [begin
          ?assertEqual({T, Span}, {T, Sum}),
          ?assert(Span =< Now - Began, {T, Span, Now - Began}),
