@@ -261,7 +261,7 @@ start_vplc(Root, Port, VNode) ->
                   [{args, ["--port", integer_to_list(Port), "--root", Root,
                            "--node", atom_to_list(VNode)]},
                    {line, 4096}, exit_status, stderr_to_stdout, binary]),
-    Listening = await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS),
+    Listening = cell_vplc_os:await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS),
     %% Its cookie, made at its first start, in its root (as the cell under make run
     %% reads it).
     {ok, Cookie} = file:read_file(filename:join([Root, "Distribution", "cookie"])),
@@ -368,37 +368,9 @@ check_time(Node, Began, Flowing) ->
          ?assert(Span >= Asked - Flowing, {T, Span, Asked - Flowing})
      end || {T, Sum, Span} <- Checks].
 
-await_listening(P, Deadline) ->
-    receive
-        {P, {data, {eol, <<"virtual PLC of router_cell listening on ", Rest/binary>>}}} ->
-            [_, PortText] = binary:split(Rest, <<" port ">>),
-            binary_to_integer(PortText);
-        {P, {data, {_, Line}}} ->
-            ct:log("vplc: ~s", [Line]),
-            await_listening(P, Deadline);
-        {P, {exit_status, S}} ->
-            ct:fail({vplc_exited, S})
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail(vplc_not_listening)
-    end.
-
 %% Kills the virtual PLC's OS process outright, and waits for its end.
 kill_vplc(P) ->
-    case erlang:port_info(P, os_pid) of
-        {os_pid, Pid} ->
-            _ = os:cmd("kill -KILL " ++ integer_to_list(Pid)),
-            await_exit(P);
-        undefined ->
-            ok
-    end.
-
-await_exit(P) ->
-    receive
-        {P, {exit_status, _}} -> ok;
-        {P, {data, _}} -> await_exit(P)
-    after ?WAIT_MS ->
-        ct:fail(vplc_not_killed)
-    end.
+    cell_vplc_os:kill(P, ?WAIT_MS).
 
 %% `make run' (scripts/run) as a user starts it: a virtual PLC, then the cell in real
 %% mode connected to it over Modbus TCP; the operator's hand on the machine (the

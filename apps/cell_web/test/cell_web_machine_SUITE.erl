@@ -302,36 +302,8 @@ start_vplc(Root, Name) ->
                   [{args, ["--port", "0", "--root", Root, "--node", Name]},
                    {env, [{"CELLRT_BUILD", Build}]},
                    {line, 4096}, exit_status, stderr_to_stdout, binary]),
-    {P, await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS)}.
-
-await_listening(P, Deadline) ->
-    receive
-        {P, {data, {eol, <<"virtual PLC of router_cell listening on ", Rest/binary>>}}} ->
-            [_, PortText] = binary:split(Rest, <<" port ">>),
-            binary_to_integer(PortText);
-        {P, {data, {_, Line}}} ->
-            ct:log("vplc: ~s", [Line]),
-            await_listening(P, Deadline);
-        {P, {exit_status, S}} ->
-            ct:fail({vplc_exited, S})
-    after max(0, Deadline - erlang:monotonic_time(millisecond)) ->
-        ct:fail(vplc_not_listening)
-    end.
+    {P, cell_vplc_os:await_listening(P, erlang:monotonic_time(millisecond) + ?WAIT_MS)}.
 
 %% Kills the virtual PLC's OS process outright, and waits for its end.
 kill_vplc(P) ->
-    case erlang:port_info(P, os_pid) of
-        {os_pid, Pid} ->
-            _ = os:cmd("kill -KILL " ++ integer_to_list(Pid)),
-            await_exit(P);
-        undefined ->
-            ok
-    end.
-
-await_exit(P) ->
-    receive
-        {P, {exit_status, _}} -> ok;
-        {P, {data, _}} -> await_exit(P)
-    after ?WAIT_MS ->
-        ct:fail(vplc_not_killed)
-    end.
+    cell_vplc_os:kill(P, ?WAIT_MS).
