@@ -90,14 +90,25 @@ offer(T0, Link, P, G) ->
             view(T, Link, #{phase => idle, outcome => interrupted, link_down => true});
         {error, {stale, S}} ->
             %% The link handed this serial on and downstream owns it, or has sent it
-            %% out: this copy was left behind (the operator said it is here after a
-            %% network cut, or a power cut brought the file back). The engine drops
-            %% it as a copy older than another's record, and the task starts again
-            %% without it.
-            cell_log:warning(cell_task:id(T), "product ~ts was handed on over ~ts "
-                             "before; the next station holds it or has sent it on, so "
-                             "this copy is not offered again", [S, Link]),
-            self() ! {cell_registry, stale, S, G + 1},
+            %% out. A task of this cell that holds it too is a product held twice (the
+            %% serial read again on another panel, say): the cell's guard asks the
+            %% operator about both holders, and nothing is dropped unasked. Otherwise
+            %% this copy was left behind (the operator said it is here after a network
+            %% cut, or a power cut brought the file back): the engine drops it as a
+            %% copy older than another's record, and the task starts again without it.
+            Id = cell_task:id(T),
+            case [Other || {Other, _} <- cell_registry:holders(S), Other =/= Id] of
+                [] ->
+                    cell_log:warning(Id, "product ~ts was handed on over ~ts before; the "
+                                     "next station holds it or has sent it on, so this "
+                                     "copy is not offered again", [S, Link]),
+                    self() ! {cell_registry, stale, S, G + 1};
+                Others ->
+                    cell_log:warning(Id, "product ~ts was handed on over ~ts before and ~ts "
+                                     "holds it too: not offered again until the operator "
+                                     "says which holds it",
+                                     [S, Link, lists:join(", ", [atom_to_list(O) || O <- Others])])
+            end,
             view(T, Link, #{phase => idle, available => false});
         {error, {unsettled, S}} ->
             %% The link let this generation go and the next station has not said yet
