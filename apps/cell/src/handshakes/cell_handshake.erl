@@ -518,6 +518,13 @@ handle({cell_handshake, Link, hello}, T) ->
     Wake = case {Now, maps:with([lpid, mref], Now)} of
                {#{outcome := completed}, _} ->
                    completed;
+               {#{settle := _}, _} ->
+                   %% A copy released and not yet settled (see unsettled/4): the
+                   %% transfer is not over until the link says what became of it,
+                   %% when this task attaches with the copy (the greeting of a link
+                   %% whose name is not known here yet finds none) or when downstream
+                   %% says what it holds. Not the operator's yet.
+                   none;
                %% Attached again (a new monitor) to the same link.
                {_, #{lpid := Pid, mref := MRef}} when is_pid(Pid), map_get(lpid, Was) =:= Pid,
                                                      map_get(mref, Was) =/= MRef ->
@@ -528,7 +535,7 @@ handle({cell_handshake, Link, hello}, T) ->
                _ ->
                    interrupted
            end,
-    {T1, [{wake, Link, Wake}]};
+    {T1, [{wake, Link, Wake} || Wake =/= none]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
