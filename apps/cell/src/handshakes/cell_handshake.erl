@@ -278,12 +278,22 @@ in_transit(T) ->
     end.
 
 %% @doc The product of an interrupted transfer is here (the operator said so): the
-%% in-transit mark is cleared, durably.
+%% in-transit mark is cleared, durably. A settlement of it the task waited for on a link
+%% is no longer waited for: the task goes on with the copy, and if the link handed it
+%% on after all it refuses the copy when offered or attached, and the engine drops it
+%% (the task reconciles again without it), never the link's late word under a step.
 -spec confirm_here(cell_task:task()) -> cell_task:task().
 confirm_here(T) ->
     case cell_task:product(T) of
-        undefined -> T;
-        P -> store(T, P, cell_task_core:gen(T), undefined, #{})
+        undefined ->
+            T;
+        #{serial := S} = P ->
+            T1 = store(T, P, cell_task_core:gen(T), undefined, #{}),
+            maps:fold(fun(Link, #{settle := {S1, released}} = View, Acc) when S1 =:= S ->
+                              put_view(Acc, Link, maps:remove(settle, View));
+                         (_Link, _View, Acc) ->
+                              Acc
+                      end, T1, links(T1))
     end.
 
 %% @doc Connects the task to a link at run time as its upstream or downstream end
