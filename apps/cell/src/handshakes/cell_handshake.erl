@@ -733,7 +733,15 @@ call(T, Link, Request) ->
         {{error, not_attached}, _, _} ->
             #{role := Role} = link_view(T, Link),
             T1 = attach(T, Link, Role),
-            seen(T1, Link, request(T1, Link, Request));
+            case request(T1, Link, Request) of
+                {{error, not_attached}, _, LPid} ->
+                    %% Still not attached: the link's name is not known here yet (a
+                    %% connection just healed, before global's sync; the greeting
+                    %% that follows it attaches the task). As a link restarting.
+                    seen(T1, Link, {{error, link_down}, none, LPid});
+                Answer ->
+                    seen(T1, Link, Answer)
+            end;
         Answer ->
             seen(T, Link, Answer)
     end.
