@@ -9,6 +9,7 @@
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1,
          crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
+         older_copy_dropped_while_paused/1,
          damaged_product_file/1,
          reconcile_gets_what_was_held/1,
          damaged_product_file_mended/1, damaged_product_file_mended_in_transit/1,
@@ -23,7 +24,7 @@
 all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, crash_asked_where_reconcile_cannot_decide,
-     older_copy_answer_not_refused, damaged_product_file,
+     older_copy_answer_not_refused, older_copy_dropped_while_paused, damaged_product_file,
      reconcile_gets_what_was_held,
      damaged_product_file_mended, damaged_product_file_mended_in_transit,
      product_survives_restart, warnings, events_have_their_fields,
@@ -302,6 +303,33 @@ older_copy_answer_not_refused(Config) ->
     ?assertMatch(#{product := undefined}, cell_task_proc:info(work)),
     ?assertEqual([retry], cell_test_task:recorded(?config(tab, Config), work, answers)),
     ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-4">>)).
+
+%% A paused task holding P hears that another task took P in a newer record (a hand-over
+%% settled while it was paused): it drops its copy, and when started it does not go back
+%% to where it was (a step resting on a product it no longer holds) but reconciles again
+%% with nothing held, as a running task does when its copy is dropped.
+older_copy_dropped_while_paused(Config) ->
+    Tab = ?config(tab, Config),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    P = cell_product:new(<<"PANEL-5">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    ok = cell_controller:pause(),
+    ok = settle(Config),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    [{work, Gen}] = cell_registry:holders(<<"PANEL-5">>),
+    Reconciled = length(cell_test_task:recorded(Tab, work, held)),
+    ok = cell_registry:hold(load, <<"PANEL-5">>, Gen + 1),
+    ok = cell_task_proc:sync(work),
+    ?assertMatch(#{product := undefined}, cell_task_proc:info(work)),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    ok = cell_controller:start(),
+    ok = settle(Config),
+    ?assertMatch({ready, _, _}, cell_task_proc:state(work)),
+    Held = cell_test_task:recorded(Tab, work, held),
+    ?assertEqual(Reconciled + 1, length(Held)),
+    ?assertMatch(#{cause := dropped, product := undefined}, lists:last(Held)),
+    ?assertEqual([{load, Gen + 1}], cell_registry:holders(<<"PANEL-5">>)).
 
 kill_and_await(Task) ->
     exit(cell_task_proc:whereis(Task), kill),

@@ -14,8 +14,8 @@
 %%
 %% CELLRT_NETNS_ROUNDS (default 1) repeats the round of phases and cuts. A cut in the
 %% release phase (after the link received `release', before `owned' reached upstream)
-%% lets both cells claim the product until the link fences ownership by generation:
-%% that case runs only with CELLRT_NETNS_RELEASE=1.
+%% is settled by the link's fence after the heal: upstream's copy is not sent out a
+%% second time, whatever its operator answers.
 %%
 %% Needs root (namespaces, tc); without it every case is skipped, saying why.
 -module(cell_line_netns_SUITE).
@@ -26,7 +26,8 @@
          end_per_testcase/2]).
 -export([silent_neighbour_told/1, partitions_in_every_phase/1,
          upstream_killed_during_partition/1, downstream_killed_during_partition/1,
-         release_phase_partition/1]).
+         release_phase_partition/1, upstream_killed_in_release_partition_answered_where/1,
+         link_restarted_during_partition/1]).
 
 %% A product moves for this long on each segment: a window in each phase to cut in.
 -define(DELAY, 150).
@@ -41,11 +42,8 @@ suite() ->
 
 all() ->
     [silent_neighbour_told, partitions_in_every_phase, upstream_killed_during_partition,
-     downstream_killed_during_partition]
-        ++ case os:getenv("CELLRT_NETNS_RELEASE") of
-               "1" -> [release_phase_partition];
-               _ -> []
-           end.
+     downstream_killed_during_partition, release_phase_partition,
+     upstream_killed_in_release_partition_answered_where, link_restarted_during_partition].
 
 init_per_suite(Config) ->
     case os:cmd("id -u") of
@@ -143,20 +141,82 @@ killed_during_partition(Config, Killed, Phase) ->
     finish(Config, Fed, Earlier).
 
 %% Upstream's release reaches the link, and the link's `owned' and answer do not come
-%% back (the downstream node's packets are dropped). Until the link fences ownership by
-%% generation both cells may claim the product, and an operator answering Ignore sends
-%% it out twice: run with CELLRT_NETNS_RELEASE=1.
+%% back (the downstream node's packets are dropped). Upstream's copy waits to be
+%% settled with the link (its operator, who answers Ignore to whatever is asked, is not
+%% asked to place it); after the heal the link's fence (it released that generation,
+%% downstream owns it) has upstream drop the copy, and refuses an offer of it: the
+%% product is out once, and no task crashed.
 release_phase_partition(Config) ->
     start_cells(Config),
     Fed = run_cycle(Config, #{phase => release, cut => {silent, down}, heal => [down, up]}, 0),
     finish(Config, Fed).
 
+%% The upstream node is killed during a release-phase cut, once its task holds its copy
+%% again (marked in transit: it saw the link's node go), and started again on its folder
+%% while the cut lasts: the link cannot be asked, so its operator is. This operator
+%% answers from where the product is: sent out or held by the downstream cell, RESET
+%% (not here); else IGNORE. Nothing is out twice, nothing lost, no task crashed.
+upstream_killed_in_release_partition_answered_where(Config) ->
+    start_cells(Config),
+    Since = call(Config, up, cell_line_recorder, mark, []),
+    Fed = feed(Config, 0, 1),
+    S = serial(1),
+    {ok, _} = await(Config, up, {phase, src, leaving}, Since),
+    Cut = {silent, down},
+    ok = cut(Config, Cut),
+    {ok, _} = await(Config, up, {in_transit, src}, Since),
+    Net = cell_netns:kill_node(net(Config), up),
+    _ = put_net(?config(net, Config), cell_netns:start_node(Net, up, [])),
+    start_cell(Config, up, #{answers => manual}),
+    ok = call(Config, up, cell_controller, start, []),
+    {ok, {alarm, #{id := Id, description := Text}}} =
+        await(Config, up, {alarm, <<"in_transit">>}, 0),
+    %% The question says the other cell may hold or have shipped the product.
+    ?assertNotEqual(nomatch, binary:match(Text, <<"may already have sent it on">>)),
+    Answer = case lists:member(S, call(Config, down, cell_line_recorder, outs, []))
+                 orelse held(Config, down, sink) =:= S of
+                 true -> reset;
+                 false -> ignore
+             end,
+    ok = call(Config, up, cell_alarms, answer, [Id, Answer, <<"suite">>]),
+    ok = cell_netns:heal(net(Config), Cut, [down, up]),
+    await_outs(Config, Fed),
+    [?assertEqual([], crashes(Config, C), {task_crashed, C, timeline(Config)})
+     || C <- [up, down]],
+    ct:pal("upstream asked after its restart, answered ~p", [Answer]),
+    finish(Config, Fed).
+
+%% The link (on the downstream node) is stopped and started again by its supervisor
+%% during a cut, in the release phase (its fence says it released the product and
+%% downstream owns it: the new link reads that from its file) and in the commit phase
+%% (the transfer ends with the old link: before release the product is upstream's).
+link_restarted_during_partition(Config) ->
+    start_cells(Config),
+    Cycles = [#{phase => release, cut => {silent, down}, heal => [down, up],
+                during => fun restart_link/1},
+              #{phase => commit, cut => silent, heal => [up, down],
+                during => fun restart_link/1}],
+    Fed = lists:foldl(fun(C, N) -> run_cycle(Config, C, N) end, 0, Cycles),
+    finish(Config, Fed).
+
+restart_link(Config) ->
+    ok = call(Config, down, supervisor, terminate_child, [cell_handshake_sup, x1]),
+    {ok, _} = call(Config, down, supervisor, restart_child, [cell_handshake_sup, x1]),
+    ok.
+
+held(Config, Which, Task) ->
+    case call(Config, Which, cell_task_proc, info, [Task]) of
+        #{product := #{serial := S}} -> S;
+        _ -> undefined
+    end.
+
 %% -------------------------------------------------------------------------------------
 
 %% Feeds two products, cuts when the transfer of the first reaches `phase', waits until
 %% both cells told their operators (a cut the nodes see), heals in the order given and
-%% waits until everything fed so far is out. The number of products fed so far.
-run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
+%% waits until everything fed so far is out (`during', if given, is done in the cut,
+%% before the heal). The number of products fed so far.
+run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order} = Cycle, N0) ->
     {Who, Spec} = watch(Phase),
     Since = call(Config, Who, cell_line_recorder, mark, []),
     %% An offer stands only while downstream does not take it: its cell is paused.
@@ -170,6 +230,7 @@ run_cycle(Config, #{phase := Phase, cut := Cut, heal := Order}, N0) ->
     Told = [{C, await_told(Config, C, Since1)} || {C, Since1} <- Marks],
     [?assertMatch({C, {ok, _}}, {C, T}, {not_told, Phase, Cut, timeline(Config)})
      || {C, T} <- Told],
+    ok = (maps:get(during, Cycle, fun(_) -> ok end))(Config),
     ok = cell_netns:heal(net(Config), Cut, Order),
     _ = Phase =:= offer andalso call(Config, down, cell_controller, start, []),
     await_outs(Config, N),
@@ -207,9 +268,13 @@ start_cells(Config) ->
 
 %% Each node runs a cell of one segment; the link between them runs downstream.
 start_cell(Config, Which) ->
+    start_cell(Config, Which, #{}).
+
+%% `Opts': the recorder's (who answers the cell's questions).
+start_cell(Config, Which, Opts) ->
     Net = net(Config),
     Root = filename:join(?config(base, Config), atom_to_list(Which)),
-    {ok, Recorder} = call(Config, Which, cell_line_recorder, start, [#{}]),
+    {ok, Recorder} = call(Config, Which, cell_line_recorder, start, [Opts]),
     Spec = cell_line_nodes:spec(Which, cell_netns:node_of(Net, up),
                                 cell_netns:node_of(Net, down),
                                 #{feed => line_feed, out => line_out,

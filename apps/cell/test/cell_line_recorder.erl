@@ -16,9 +16,10 @@
 
 -type event() :: {phase, atom(), atom()} | {out, atom(), binary()}
                | {link_phase, atom(), atom(), term()} | {alarm, map()}
-               | {answered, binary(), atom()} | {crashed, term()}.
+               | {answered, binary(), atom()} | {crashed, term()}
+               | {in_transit, atom(), binary()}.
 -type spec() :: {phase, atom(), atom()} | {outs, non_neg_integer()} | {link_phase, atom()}
-              | alarm | {alarm, binary()}.
+              | alarm | {alarm, binary()} | {in_transit, atom()}.
 
 -record(state, {events = [] :: [{pos_integer(), event()}],
                 %% When each event came (monotonic ms), by its number.
@@ -33,11 +34,12 @@
 start(Opts) ->
     gen_server:start({local, ?MODULE}, ?MODULE, Opts, []).
 
-%% @doc Subscribes the recorder to the cell's link phases and alarms (once the cell
-%% runs, before its tasks start).
+%% @doc Subscribes the recorder to the cell's link phases, alarms, task crashes and
+%% products saved marked in transit (once the cell runs, before its tasks start).
 -spec subscribe() -> ok.
 subscribe() ->
-    cell_events:subscribe(whereis(?MODULE), [link_phase, alarm_raised, task_crashed]).
+    cell_events:subscribe(whereis(?MODULE), [link_phase, alarm_raised, task_crashed,
+                                             product_saved]).
 
 %% @doc Puts products in the feed and wakes the first segment `Task' (waiting on `Ref').
 -spec feed([binary()], atom(), reference()) -> ok.
@@ -131,6 +133,11 @@ handle_info({cell_event, #{type := alarm_raised, alarm := A}}, State) ->
     {noreply, answer(A, record({alarm, A}, State))};
 handle_info({cell_event, #{type := task_crashed} = E}, State) ->
     {noreply, record({crashed, E}, State)};
+handle_info({cell_event, #{type := product_saved, task := T, item := S, in_transit := true}},
+            State) ->
+    %% On the disk, marked in transit: the task holds the product of a transfer cut
+    %% short (or one it takes in).
+    {noreply, record({in_transit, T, S}, State)};
 handle_info({cell_event, _}, State) ->
     {noreply, State};
 handle_info({timeout, TRef, {await, From}}, #state{waiters = Ws} = State) ->
@@ -166,6 +173,7 @@ found(Spec, Since, #state{events = Es}) ->
 matches({phase, T, P}, {phase, T, P}) -> true;
 matches({link_phase, P}, {link_phase, _, P, _}) -> true;
 matches(alarm, {alarm, _}) -> true;
+matches({in_transit, T}, {in_transit, T, _}) -> true;
 matches({alarm, Prefix}, {alarm, #{local_id := Id}}) ->
     binary:longest_common_prefix([Prefix, Id]) =:= byte_size(Prefix);
 matches(_, _) -> false.

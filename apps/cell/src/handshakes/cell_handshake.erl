@@ -289,12 +289,22 @@ in_transit(T) ->
     end.
 
 %% @doc The product of an interrupted transfer is here (the operator said so): the
-%% in-transit mark is cleared, durably.
+%% in-transit mark is cleared, durably. A settlement of it the task waited for on a link
+%% is no longer waited for: the task goes on with the copy, and if the link handed it
+%% on after all it refuses the copy when offered or attached, and the engine drops it
+%% (the task reconciles again without it), never the link's late word under a step.
 -spec confirm_here(cell_task:task()) -> cell_task:task().
 confirm_here(T) ->
     case cell_task:product(T) of
-        undefined -> T;
-        P -> store(T, P, cell_task_core:gen(T), undefined, #{})
+        undefined ->
+            T;
+        #{serial := S} = P ->
+            T1 = store(T, P, cell_task_core:gen(T), undefined, #{}),
+            maps:fold(fun(Link, #{settle := {S1, released}} = View, Acc) when S1 =:= S ->
+                              put_view(Acc, Link, maps:remove(settle, View));
+                         (_Link, _View, Acc) ->
+                              Acc
+                      end, T1, links(T1))
     end.
 
 %% @doc Connects the task to a link at run time as its upstream or downstream end
@@ -529,6 +539,13 @@ handle({cell_handshake, Link, hello}, T) ->
     Wake = case {Now, maps:with([lpid, mref], Now)} of
                {#{outcome := completed}, _} ->
                    completed;
+               {#{settle := _}, _} ->
+                   %% A copy released and not yet settled (see unsettled/4): the
+                   %% transfer is not over until the link says what became of it,
+                   %% when this task attaches with the copy (the greeting of a link
+                   %% whose name is not known here yet finds none) or when downstream
+                   %% says what it holds. Not the operator's yet.
+                   none;
                %% Attached again (a new monitor) to the same link.
                {_, #{lpid := Pid, mref := MRef}} when is_pid(Pid), map_get(lpid, Was) =:= Pid,
                                                      map_get(mref, Was) =/= MRef ->
@@ -539,7 +556,7 @@ handle({cell_handshake, Link, hello}, T) ->
                _ ->
                    interrupted
            end,
-    {T1, [{wake, Link, Wake}]};
+    {T1, [{wake, Link, Wake} || Wake =/= none]};
 %% Downstream: the product left upstream. It is this task's own on disk from now,
 %% marked in transit, before upstream forgets its copy.
 handle({cell_handshake, Link, {released, Product, Gen}}, T) ->
@@ -727,7 +744,15 @@ call(T, Link, Request) ->
         {{error, not_attached}, _, _} ->
             #{role := Role} = link_view(T, Link),
             T1 = attach(T, Link, Role),
-            seen(T1, Link, request(T1, Link, Request));
+            case request(T1, Link, Request) of
+                {{error, not_attached}, _, LPid} ->
+                    %% Still not attached: the link's name is not known here yet (a
+                    %% connection just healed, before global's sync; the greeting
+                    %% that follows it attaches the task). As a link restarting.
+                    seen(T1, Link, {{error, link_down}, none, LPid});
+                Answer ->
+                    seen(T1, Link, Answer)
+            end;
         Answer ->
             seen(T, Link, Answer)
     end.

@@ -91,6 +91,7 @@
     conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
     lost = [] :: [atom()],                %% connections lost since init or the last resume
     reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
+    dropped = false :: boolean(),         %% its product dropped while paused: Start reconciles
     estop_flag :: atomics:atomics_ref(),   %% the node's emergency-stop flag, read before every step
     held :: atomics:atomics_ref() | undefined %% secured; OFF not yet announced (the barrier)
 }).
@@ -274,6 +275,11 @@ handle_event(internal, stop, down, D) ->
     stop_to_off(D);
 handle_event(info, {control, request, stop}, down, D) ->
     stop_to_off(member(request, stop, D));
+handle_event(info, {control, request, start}, down, #data{down = {paused, _}, dropped = true} = D) ->
+    %% Its product was dropped as an old copy while it was paused: where it was rests
+    %% on a product it no longer holds, so it reconciles again instead (as a task
+    %% running when its copy is dropped does).
+    reconcile_dropped(8, member(request, start, D));
 handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
     resume(member(request, start, D));
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
@@ -337,9 +343,12 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
             %% Running on a copy found old (another task took the product on in a
             %% newer record after this one restarted): what it does rests on a
             %% product it does not hold. Its transfers end, and it reconciles again.
-            D1 = leave_for_setup(dropped, D#data{task = T}),
-            goto(setup, {arrow, 2}, D1#data{predecessor = predecessor(D1)},
-                 [{next_event, internal, {reconcile, undefined}}]);
+            reconcile_dropped(2, D#data{task = T});
+        down when T#task.product =:= undefined, T0#task.product =/= undefined,
+                  element(1, D#data.down) =:= paused ->
+            %% Paused: it reconciles again when started (an error waiting for the
+            %% operator is answered first, the answer acted on without the copy).
+            {keep_state, D#data{task = T, dropped = true}};
         _ ->
             {keep_state, D#data{task = T}}
     end;
@@ -1009,8 +1018,9 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
     D#data{task = T2#task{commanded = cell_task_outputs:new()}, initialized = false,
            lost = []}.
 
-goto(To, Cause, #data{task = T} = D, Actions) ->
-    {next_state, To, D#data{task = cell_task:set_state(T, To, Cause)}, Actions}.
+goto(To, Cause, #data{task = T, dropped = Dropped} = D, Actions) ->
+    {next_state, To, D#data{task = cell_task:set_state(T, To, Cause),
+                            dropped = Dropped andalso To =:= down}, Actions}.
 
 %% The controller's commands as the task joined the cell.
 joined(#{request := Request, estop := Estop, service_mode := Service}, #data{task = T} = D) ->
@@ -1146,6 +1156,12 @@ forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D
     end;
 forget(_State, _Serial, _Who, _D) ->
     keep_state_and_data.
+
+%% From READY (arrow 2) or paused (8) to reconcile again, for a copy dropped as old.
+reconcile_dropped(Arrow, D0) ->
+    D = leave_for_setup(dropped, D0),
+    goto(setup, {arrow, Arrow}, D#data{predecessor = predecessor(D)},
+         [{next_event, internal, {reconcile, undefined}}]).
 
 %% Back to setup from where the task was, for a product it no longer has (an old copy
 %% dropped, or forgotten on the operator's word): its waits, a pause held back and the
