@@ -41,7 +41,7 @@ init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
     %% The router declares its own inspection blocks only where none are configured: an
     %% inspection application an earlier suite of this run left with its blocks goes.
     _ = application:stop(cell_inspect),
-    [_ = application:unset_env(cell_inspect, K) || K <- [blocks, connections]],
+    [ok = application:set_env(cell_inspect, K, []) || K <- [blocks, connections]],
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     VplcRoot = filename:join(Root, "vplc"),
     ok = cell_testkit:write_settings(VplcRoot, #{router_sim => #{time_scale => 0.02,

@@ -23,7 +23,7 @@ init_per_testcase(Case, Config) ->
     %% The router declares its own inspection blocks only where none are configured: an
     %% inspection application an earlier suite of this run left with its blocks goes.
     _ = application:stop(cell_inspect),
-    [_ = application:unset_env(cell_inspect, K) || K <- [blocks, connections]],
+    [ok = application:set_env(cell_inspect, K, []) || K <- [blocks, connections]],
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     ok = router_test_settings:start_quiet(Root, #{inspection_timeout_ms => 2000}, #{}),
     %% The demo's camera shows no bad part unless told to.
