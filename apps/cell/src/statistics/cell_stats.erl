@@ -937,7 +937,7 @@ batch_done(done, #st{writing = false, queued = [_ | _] = Q} = St) ->
 batch_done(done, St) ->
     St;
 batch_done({failed, Why, Rest}, St) ->
-    St1 = lists:foldl(fun keep/2, St, Rest),
+    St1 = keep_older(Rest, St),
     case St1#st.db of
         open -> closed(Why, St1);
         closed -> St1
@@ -950,15 +950,34 @@ history_written(#st{writer = Writer, queued = Q} = St) ->
                St#st{queued = [], writing = false}).
 
 keep(Fun, #st{backlog_len = N, backlog_dropped = D} = St) when N >= ?BACKLOG_MAX ->
-    _ = D > 0 orelse
-        cell_log:warning(cell, "statistics: the database has been away so long that ~b "
-                         "history records wait in memory for it; from now on the oldest "
-                         "are dropped to make room (the counters are kept whole)",
-                         [?BACKLOG_MAX]),
+    full(D),
     St#st{backlog = [Fun | lists:sublist(St#st.backlog, ?BACKLOG_MAX - 1)],
           backlog_dropped = D + 1};
 keep(Fun, #st{backlog = B, backlog_len = N} = St) ->
     St#st{backlog = [Fun | B], backlog_len = N + 1}.
+
+%% The rest of a batch the database stopped: older than every write kept meanwhile (the
+%% database may have been found closed, and later writes kept, before the batch's
+%% answer came), so it goes at the oldest end, and the oldest are what a full backlog
+%% drops.
+keep_older(Rest, #st{backlog = B, backlog_len = N, backlog_dropped = D} = St) ->
+    All = B ++ lists:reverse(Rest),
+    case N + length(Rest) of
+        Len when Len > ?BACKLOG_MAX ->
+            full(D),
+            St#st{backlog = lists:sublist(All, ?BACKLOG_MAX), backlog_len = ?BACKLOG_MAX,
+                  backlog_dropped = D + Len - ?BACKLOG_MAX};
+        Len ->
+            St#st{backlog = All, backlog_len = Len}
+    end.
+
+%% The backlog is full: said once, when the first record is dropped.
+full(0) ->
+    cell_log:warning(cell, "statistics: the database has been away so long that ~b history "
+                     "records wait in memory for it; from now on the oldest are dropped to "
+                     "make room (the counters are kept whole)", [?BACKLOG_MAX]);
+full(_Dropped) ->
+    ok.
 
 trace(undefined, _At, _Task, _Entry, St) ->
     St;
