@@ -310,9 +310,9 @@ restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
     %% A clamp that was moving when the physics stopped goes on to its valve's end.
-    S1 = lists:foldl(fun(Key, Acc) -> clamp_move(Key, Acc) end, S,
+    S2 = lists:foldl(fun(Key, Acc) -> clamp_move(Key, Acc) end, S,
                      lists:sort(maps:keys(maps:get(clamps, World)))),
-    maps:remove(settings, kick(arrivals(magazine_timer(S1#{armed := Armed})))).
+    maps:remove(settings, kick(arrivals(magazine_timer(S2#{armed := Armed})))).
 
 -spec handle_call(world | groups | {take_out, atom(), atom()} | {poke, poke()},
                   gen_server:from(), map()) ->
