@@ -97,12 +97,13 @@ offer(T0, Link, P, G) ->
             %% cut, or a power cut brought the file back): the engine drops it as a
             %% copy older than another's record, and the task starts again without it.
             Id = cell_task:id(T),
-            case [Other || {Other, _} <- cell_registry:holders(S), Other =/= Id] of
+            ok = case [Other || {Other, _} <- cell_registry:holders(S), Other =/= Id] of
                 [] ->
                     cell_log:warning(Id, "product ~ts was handed on over ~ts before; the "
                                      "next station holds it or has sent it on, so this "
                                      "copy is not offered again", [S, Link]),
-                    self() ! {cell_registry, stale, S, G + 1};
+                    self() ! {cell_registry, stale, S, G + 1},
+                    ok;
                 Others ->
                     cell_log:warning(Id, "product ~ts was handed on over ~ts before and ~ts "
                                      "holds it too: not offered again until the operator "
