@@ -150,8 +150,12 @@ make_run_first_screen(Config) ->
     Rel = filename:dirname(filename:dirname(Bin)),
     Script = filename:join([cellrt_rel:top(), "scripts", "run"]),
     Env = [{"CELLRT_REL", Rel} | ?config(env, Config)],
-    Port = open_port({spawn_executable, Script},
-                     [{env, Env}, exit_status, stderr_to_stdout, binary, {line, 4096}]),
+    %% Started as from a terminal, where Ctrl-C is not ignored: a shell cannot trap a
+    %% signal ignored when it started, and a test run in the background (nohup, CI
+    %% runners) hands its children SIGINT ignored.
+    Port = open_port({spawn_executable, os:find_executable("env")},
+                     [{args, ["--default-signal=INT", Script]},
+                      {env, Env}, exit_status, stderr_to_stdout, binary, {line, 4096}]),
     {os_pid, OsPid} = erlang:port_info(Port, os_pid),
     ok = await_up(Config),
     _ = os:cmd("kill -INT " ++ integer_to_list(OsPid)),
@@ -193,7 +197,7 @@ lines(Port, Acc, Deadline) ->
         {Port, {exit_status, S}} -> {S, lists:reverse(Acc)}
     after Left ->
         %% Which of the scripts and VMs still run, for whoever reads the failure.
-        Ps = os:cmd("ps -eo pid,ppid,pgid,stat,args | grep -E 'scripts/run|priv/run|vplc|beam' "
+        Ps = os:cmd("ps -eo pid,ppid,pgid,stat,args | grep -E 'scripts/run|priv/run|vplc|beam|foreground|heart' "
                     "| grep -v grep"),
         catch port_close(Port),
         ct:fail("timed out; output so far: ~p~nprocesses: ~s", [lists:reverse(Acc), Ps])
