@@ -9,6 +9,8 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([held_twice_is_an_error_naming_both/1, answer_that_would_hold_twice_is_refused/1,
+         not_here_downstream_lets_the_copy_upstream_go_on/1,
+         handed_on_serial_back_again_is_an_error/1,
          held_twice_read_back_at_boot/1, stalled_line_warns_and_progress_clears/1]).
 
 -define(SEGMENTS, [src, a, sink]).
@@ -19,6 +21,7 @@
 
 all() ->
     [held_twice_is_an_error_naming_both, answer_that_would_hold_twice_is_refused,
+     not_here_downstream_lets_the_copy_upstream_go_on, handed_on_serial_back_again_is_an_error,
      held_twice_read_back_at_boot, stalled_line_warns_and_progress_clears].
 
 init_per_testcase(Case, Config) ->
@@ -62,6 +65,36 @@ held_twice_is_an_error_naming_both(Config) ->
     receive {line_out, sink, Serial} -> ok
     after ?TIMEOUT -> ct:fail(not_out)
     end.
+
+%% The other answer: P is at src (sink's record is the one left behind, as when the
+%% power went as a product moved), so Reset goes on sink's error. Sink forgets it; the
+%% links that handed it on (src to a, a to sink) no longer take src's copy for a stale
+%% one, and P goes down the line again and out.
+not_here_downstream_lets_the_copy_upstream_go_on(Config) ->
+    {Serial, JamId} = hold_twice(Config),
+    ok = cell_alarms:answer(<<"sink:held_twice">>, reset, <<"op">>),
+    await_alarm(alarm_cleared, <<"src:held_twice">>),
+    %% Sink's jam waited on the product it no longer has: withdrawn with it.
+    await_alarm(alarm_cleared, JamId),
+    out_answering_jams(Serial).
+
+%% P went down the line and out; a part with P's serial comes to src again. src's
+%% copy is refused by the link that handed P on and dropped; read once more (the part
+%% is still there), it is an error for the operator, not a round of drops for ever.
+%% Reset starts src again, and the line goes on with the next part.
+handed_on_serial_back_again_is_an_error(Config) ->
+    ok = cell_events:subscribe([alarm_raised, alarm_cleared]),
+    [Serial] = feed(Config, [<<"P-1">>]),
+    ok = cell_controller:start(),
+    out_answering_jams(Serial),
+    _ = feed(Config, [Serial, Serial]),
+    #{description := Text} = await_alarm(alarm_raised, <<"src:handed_on_again">>),
+    ?assertNotEqual(nomatch, string:find(Text, <<"This station has product P-1 again">>)),
+    ?assertEqual([], cell_registry:holders(Serial)),
+    ok = cell_alarms:answer(<<"src:handed_on_again">>, reset, <<"op">>),
+    await_alarm(alarm_cleared, <<"src:handed_on_again">>),
+    [Next] = feed(Config, [<<"P-2">>]),
+    out_answering_jams(Next).
 
 %% Two product files of one serial, in records of the same generation (a copy restored
 %% by hand, say): read back at boot, each holder gets the error before anyone presses
@@ -150,6 +183,17 @@ hold_twice(Config) ->
      || {Text, Both} <- [{TextSrc, <<"src and sink">>}, {TextSink, <<"sink and src">>}]],
     ?assertEqual([sink, src], lists:sort([Id || {Id, _} <- cell_registry:holders(Serial)])),
     {Serial, JamId}.
+
+%% Until the product leaves sink; a jam on its way answered with Retry.
+out_answering_jams(Serial) ->
+    receive
+        {line_out, sink, Serial} -> ok;
+        {cell_event, #{type := alarm_raised, alarm := #{id := <<"sink:jam">> = Id}}} ->
+            ok = cell_alarms:answer(Id, retry, <<"op">>),
+            out_answering_jams(Serial)
+    after ?TIMEOUT ->
+        ct:fail({not_out, cell_registry:holders(Serial), cell_alarms:list()})
+    end.
 
 await_alarm(Type, Id) ->
     receive

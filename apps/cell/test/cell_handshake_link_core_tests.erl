@@ -383,3 +383,23 @@ a_restarted_link_keeps_the_fence_test() ->
                                           pid(link)),
     ?assertMatch({reply, {ok, #{stale := true}}, _, _},
                  call({attach, up, u, U, {<<"S1">>, 3}}, C)).
+
+%% Downstream forgot the product on the operator's word (held by two tasks, "not
+%% here"): the panel is still upstream, its serial read again in a new record of
+%% generation 1. The fence lets that copy be offered, and upstream is told it is its
+%% own. Only downstream may say so; a serial the fence does not hold changes nothing.
+disowned_by_downstream_the_copy_is_offered_again_test() ->
+    U = pid(up), D = pid(down),
+    {C, _} = cell_handshake_link_core:cast({owned, D}, released()),
+    {ok, _, C1, _} = step({complete, D}, C),
+    ?assertMatch({{error, {stale, <<"S1">>}}, _, _, []}, step({offer, U, ?P, 1}, C1)),
+    ?assertMatch({{error, not_attached}, _, _, []}, step({disown, U, <<"S1">>}, C1)),
+    {ok, _, C2, E2} = step({disown, D, <<"S1">>}, C1),
+    ?assertMatch([{persist, Empty}, {send, U, {cell_handshake, l, {settled, <<"S1">>, yours}}}]
+                   when map_size(Empty) =:= 0, E2),
+    ?assertMatch({ok, #{phase := offered}, _, _}, step({offer, U, ?P, 1}, C2)),
+    ?assertMatch({ok, _, _, []}, step({disown, D, <<"S9">>}, C1)),
+    %% While the product is on its way, downstream's word does not lift the fence of
+    %% the transfer under way.
+    {C3, _} = cell_handshake_link_core:cast({owned, D}, released()),
+    ?assertMatch({ok, #{phase := released}, _, []}, step({disown, D, <<"S1">>}, C3)).

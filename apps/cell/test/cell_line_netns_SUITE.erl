@@ -17,7 +17,7 @@
 %% is settled by the link's fence after the heal: upstream's copy is not sent out a
 %% second time, whatever its operator answers.
 %%
-%% Needs root (namespaces, tc); without it every case is skipped, saying why.
+%% Needs root (namespaces, tc); without it the suite fails, saying what is missing.
 -module(cell_line_netns_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").

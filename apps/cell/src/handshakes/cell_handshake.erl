@@ -44,7 +44,7 @@
          connect/3, disconnect/2, confirm_here/1, in_transit/1]).
 %% For the engine and the links.
 -export([attach_all/1, handle/2, holding/1, arm/3, signal/3, hello/2, interrupt_all/1,
-         active_offers/1, reoffer/2]).
+         disown_all/2, active_offers/1, reoffer/2]).
 
 -export_type([view/0]).
 
@@ -110,7 +110,10 @@ offer(T0, Link, P, G) ->
                                      "says which holds it",
                                      [S, Link, lists:join(", ", [atom_to_list(O) || O <- Others])])
             end,
-            view(T, Link, #{phase => idle, available => false});
+            %% Settled by the operator's answer: the other holder forgets it (the link
+            %% then says `yours' and the task offers it again) or this one does.
+            view(T, Link, #{phase => idle, available => false, settle => {S, offer},
+                            held_back => true});
         {error, {unsettled, S}} ->
             %% The link let this generation go and the next station has not said yet
             %% whether it took it: offered again once the link knows (settled/3).
@@ -452,6 +455,27 @@ interrupt_all(T) ->
                       end
               end, T, Links).
 
+%% @doc The operator said the product `Serial' is not at this task, which forgets it:
+%% each link into the task is told, so that its fence no longer takes an upstream copy
+%% of it (the panel still at the previous station, its serial read again) for a stale
+%% one. A link out of reach keeps its fence; the operator is asked there when the copy
+%% is offered.
+-spec disown_all(cell_task:task(), binary()) -> cell_task:task().
+disown_all(T, Serial) ->
+    maps:fold(fun(Link, #{role := down}, Acc) ->
+                      case call(Acc, Link, {disown, self(), Serial}) of
+                          {Acc1, ok} ->
+                              Acc1;
+                          {Acc1, {error, Why}} ->
+                              cell_log:warning(cell_task:id(Acc1), "handshake ~ts was not told "
+                                               "that product ~ts is not here (~tp)",
+                                               [Link, Serial, Why]),
+                              Acc1
+                      end;
+                 (_Link, _View, Acc) ->
+                      Acc
+              end, T, links(T)).
+
 %% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
 %% it holds (at once if it already does). `link_down' while the link restarts.
 -spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()} | link_down.
@@ -589,6 +613,22 @@ handle({cell_handshake, Link, {take_back, Product, Gen}}, T) ->
     {view(T2, Link, #{outcome => aborted, phase => idle}), [{wake, Link, aborted}]};
 handle({cell_handshake, Link, {settled, S, Verdict}}, T) ->
     settled(T, Link, S, Verdict);
+handle({cell_registry, sole_holder, S}, T) ->
+    %% An offer held back while another task of the cell held the product too: that
+    %% one has let it go (or the operator answered), so it is made now and the link
+    %% decides (a copy it handed on before is dropped then).
+    case cell_task:product(T) of
+        #{serial := S} ->
+            Held = [L || {L, #{settle := {S1, offer}, held_back := true}} <- maps:to_list(links(T)),
+                         S1 =:= S],
+            {lists:foldl(fun(L, Acc) ->
+                                 put_view(Acc, L, maps:without([settle, held_back],
+                                                               link_view(Acc, L)))
+                         end, T, Held),
+             [{wake, L, interrupted} || L <- Held]};
+        _ ->
+            {T, []}
+    end;
 handle({cell_handshake, Link, {interrupted, _Why, Phase}}, T) ->
     interrupted(T, Link, Phase);
 handle({cell_handshake, Link, {interrupted, _Why}}, T) ->
@@ -651,6 +691,15 @@ settled(T, Link, S, Verdict) ->
             %% Its own again: offered anew.
             {put_view(T, Link, maps:remove(settle, link_view(T, Link))),
              [{wake, Link, interrupted}]};
+        {_, P} when Verdict =:= yours ->
+            %% The product is not past this link, and this task holds no copy of it
+            %% either: nor is it here. A copy further upstream (the panel still
+            %% there, its serial read again) is the product, so the links into this
+            %% task are told too.
+            case cell_product:serial(P) of
+                S -> {T, []};
+                _ -> {disown_all(T, S), []}
+            end;
         _ ->
             {T, []}
     end.

@@ -45,7 +45,9 @@
 %%   that attaches with a copy learns which (`stale', `unsettled'); downstream
 %%   attaching says what it holds, which settles a `released' entry, and upstream is
 %%   told `{settled, Serial, owned | yours}'. An entry goes when upstream offers
-%%   another serial (its file holds that one now, durably) or takes the product back.</li>
+%%   another serial (its file holds that one now, durably), takes the product back, or
+%%   downstream disowns it (`{disown, Pid, Serial}': the operator said the product is
+%%   not at downstream, so the copy upstream sees is the product).</li>
 %% </ul>
 -module(cell_handshake_link_core).
 
@@ -177,6 +179,19 @@ request({Op, Pid} = Request, From, Core) when is_atom(Op) ->
         undefined -> {reply, {{error, not_attached}, status(Core)}, Core};
         Role -> numbered(op(Role, Request, From, Core))
     end;
+request({disown, Pid, S}, _From, Core) ->
+    %% Downstream forgot the product on the operator's word (it is not there): the
+    %% fence no longer says downstream holds it, and upstream's copy (the panel still
+    %% there, its serial read again) is the owner.
+    numbered(case role_of(Pid, Core) of
+                 down when S =/= undefined ->
+                     case maps:is_key(S, Core#core.fence) andalso live(Core) =/= S of
+                         true -> {reply, ok, tell(up, {settled, S, yours}, unfence(S, Core))};
+                         false -> {reply, ok, Core}
+                     end;
+                 _ ->
+                     {reply, {error, not_attached}, Core}
+             end);
 request({offer, Pid, Product, Gen}, _From, Core) ->
     numbered(case {role_of(Pid, Core), Core#core.phase} of
                  {up, idle} ->

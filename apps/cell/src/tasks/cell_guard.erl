@@ -196,6 +196,10 @@ check_double(Serial, State) ->
                  [_, _ | _] -> raise_double(Serial, Holders, Raised, State);
                  _ -> withdraw_double(Serial, Raised, State)
              end,
+    %% The one holder left may have held an offer back while the other held it too
+    %% (cell_handshake): it offers it now, and the link says whose it is.
+    _ = [Pid ! {cell_registry, sole_holder, Serial}
+         || [Only] <- [Holders], Pid <- [cell_task_proc:whereis(Only)], is_pid(Pid)],
     watch_saves(State1).
 
 sync_task(Id) ->

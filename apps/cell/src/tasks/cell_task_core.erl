@@ -41,7 +41,8 @@
 
 -type why() :: pause | service.
 %% Where an error the operator answers came from.
--type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io.
+-type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io
+                | handed_on.
 -type setup_event() :: retain_damaged | in_transit | run_init | product_damaged
                      | {crashed, term()}.
 %% What the engine does with the operator's answer.
@@ -198,6 +199,9 @@ answer(transit, _Ignore, _) -> {confirm_here, run_init};
 answer(io, _Retry, #{resume := undefined}) -> {setup, run_init};
 answer(io, _Retry, #{request := start}) -> resume;
 answer(io, _Retry, _) -> paused;
+%% A product handed on before came back to the task (its copy dropped again): once the
+%% operator has seen to it, the task starts again from what its sensors see.
+answer(handed_on, _Reset, _) -> reinit;
 answer(product_file, reset, _) -> set_aside_product;
 answer(product_file, _Retry, _) -> reload_product;
 answer(retain_file, reset, _) -> set_aside_retained;

@@ -92,6 +92,7 @@
     lost = [] :: [atom()],                %% connections lost since init or the last resume
     reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
     dropped = false :: boolean(),         %% its product dropped while paused: Start reconciles
+    handed_on = [] :: [binary()],         %% serials whose copies it dropped as handed on
     estop_flag :: atomics:atomics_ref(),   %% the node's emergency-stop flag, read before every step
     held :: atomics:atomics_ref() | undefined %% secured; OFF not yet announced (the barrier)
 }).
@@ -340,10 +341,20 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
     T = drop_stale(T0, Serial, Gen),
     case State of
         {ready, _, _} when T#task.product =:= undefined, T0#task.product =/= undefined ->
-            %% Running on a copy found old (another task took the product on in a
-            %% newer record after this one restarted): what it does rests on a
-            %% product it does not hold. Its transfers end, and it reconciles again.
-            reconcile_dropped(2, D#data{task = T});
+            case lists:member(Serial, D#data.handed_on) of
+                false ->
+                    %% Running on a copy found old (another task took the product on in
+                    %% a newer record after this one restarted): what it does rests on a
+                    %% product it does not hold. Its transfers end, and it reconciles
+                    %% again.
+                    reconcile_dropped(2, D#data{task = T,
+                                                handed_on = [Serial | D#data.handed_on]});
+                true ->
+                    %% The same serial back again (read again on a part its sensors
+                    %% see): dropping it once more would go round for ever. The
+                    %% operator sees to the part.
+                    handed_on_again(State, Serial, D#data{task = T})
+            end;
         down when T#task.product =:= undefined, T0#task.product =/= undefined,
                   element(1, D#data.down) =:= paused ->
             %% Paused: it reconciles again when started (an error waiting for the
@@ -352,6 +363,8 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
         _ ->
             {keep_state, D#data{task = T}}
     end;
+handle_event(info, {cell_registry, sole_holder, _} = Msg, State, D) ->
+    handshake(Msg, State, D);
 handle_event(info, {cell_registry, forget, Serial, Who}, State, D) ->
     forget(State, Serial, Who, D);
 handle_event(info, {Ref, _} = Msg, _State, D) when is_reference(Ref) ->
@@ -885,11 +898,11 @@ act({reconcile, Then}, _Who, D) ->
 act(forget_then_reinit, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
                     [Who, serial_text(P)]),
-    reinit(D#data{task = cell_task:clear_product(T)});
+    reinit(D#data{task = not_here(T)});
 act({forget, Event}, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
                     [Who, serial_text(P)]),
-    goto(setup, {arrow, 8}, D#data{task = cell_task:clear_product(T)},
+    goto(setup, {arrow, 8}, D#data{task = not_here(T)},
          [{next_event, internal, Event}]);
 act({confirm_here, Event}, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
@@ -1143,7 +1156,7 @@ forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D
     cell_log:notice(Id, "~ts said product ~ts is not at this task: it is forgotten", [Who, S]),
     case State of
         off ->
-            {keep_state, D0#data{task = cell_task:clear_product(D0#data.task)}};
+            {keep_state, D0#data{task = not_here(D0#data.task)}};
         _ ->
             _ = case D0#data.down of
                     {error, AlarmId, _} -> cell_alarms:withdraw(AlarmId);
@@ -1151,11 +1164,31 @@ forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D
                 end,
             D = uninit(leave_for_setup(reset, D0)),
             Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
-            goto(setup, {arrow, Arrow}, D#data{task = cell_task:clear_product(D#data.task)},
+            goto(setup, {arrow, Arrow}, D#data{task = not_here(D#data.task)},
                  [{next_event, internal, run_init}])
     end;
 forget(_State, _Serial, _Who, _D) ->
     keep_state_and_data.
+
+%% The operator said the task's product is not here: forgotten, and the links that
+%% handed it in told, so that a copy upstream (the panel still there) is the product.
+not_here(#task{product = #{serial := S}} = T) ->
+    cell_task:clear_product(cell_handshake:disown_all(T, S));
+not_here(T) ->
+    cell_task:clear_product(T).
+
+handed_on_again(State, Serial, D0) ->
+    D = leave_for_setup(dropped, D0),
+    Spec = cell_task:error_spec(
+             <<"handed_on_again">>, "Product handed on before is here again",
+             io_lib:format("This station has product ~ts again, but it handed it on to the next "
+                           "station before, which holds it or has sent it on: the part here is a "
+                           "second part with the same serial, or it came back past the records. "
+                           "Take it out by hand (report a serial on two parts to maintenance), "
+                           "then press Reset: the station starts again from what its sensors "
+                           "see.", [Serial]),
+             [reset]),
+    raise(State, Spec, handed_on, D).
 
 %% From READY (arrow 2) or paused (8) to reconcile again, for a copy dropped as old.
 reconcile_dropped(Arrow, D0) ->
