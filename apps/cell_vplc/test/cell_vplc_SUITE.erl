@@ -56,11 +56,7 @@ init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
                                                              plc_port => Port,
                                                              hal_poll_ms => 5,
                                                              transfer_timeout_ms => 5000,
-                                                             motion_timeout_ms => 5000,
-                                                             %% Not yet here: over Modbus the
-                                                             %% block's PASS is at times read
-                                                             %% back as an Error (open).
-                                                             inspection => false}}),
+                                                             motion_timeout_ms => 5000}}),
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
     ok = cell_testkit:start(CellRoot, router_cell, router_cell),
     ok = cell_testkit:await_connection(?CONN, ?WAIT),
@@ -181,7 +177,9 @@ the_physics_settings_of_its_root(_Config) ->
     ?assertEqual(true, First).
 
 %% The router cell itself with simulation_mode off, its HAL on the Modbus driver: panels
-%% pass the whole line through the virtual PLC, each serial once, no error raised.
+%% pass the whole line through the virtual PLC, each serial once, no error or warning
+%% raised. Each is inspected at the unloading exit by the inspection block on the
+%% virtual PLC's UDT, whose camera sees no bad part: each passes.
 the_router_cell_in_real_mode(_Config) ->
     {ok, #{driver := cell_hal_modbus}} = cell_hal:info(?CONN),
     ok = cell_events:subscribe([item_transfer_out, alarm_raised, cell_state]),
@@ -191,7 +189,14 @@ the_router_cell_in_real_mode(_Config) ->
                                      (_) -> false
                                   end, fun never_answer/1, ?WAIT),
     ?assertEqual(5, length(lists:usort(Out))),
+    ok = cell_stats:flush(),
+    [?assertEqual([<<"pass">>], inspections(S), S) || S <- Out],
     ok = cell_testkit:stop_cell(fun never_answer/1, ?WAIT).
+
+%% The inspection verdicts a product's history records.
+inspections(Serial) ->
+    {ok, #{events := Events}} = cell_stats:product(Serial),
+    [V || #{event := changed, changes := #{inspection := V}} <- Events].
 
 never_answer(Alarm) ->
     ct:fail({unexpected_error, Alarm}).

@@ -25,7 +25,7 @@
 %% a warning. The block records every inspection in the serial's history itself.
 -module(router_inspection).
 
--export([next/3, product/2, point/0]).
+-export([next/3, expired/2, product/2, point/0]).
 
 -export_type([phase/0, verdict/0]).
 
@@ -44,25 +44,25 @@ point() -> <<"MODULES">>.
 
 %% @doc The next move in a phase, from the block's tags as read (`Facts', point =>
 %% value) and the writes of the point and serial (`Ids', the PLC's STRING points =>
-%% value, see {@link router_inspect_io:string/3}).
+%% value, see {@link router_inspect_io:string/3}). A wait is for any of its conditions.
 -spec next(phase(), facts(), [{atom(), cell_hal_type:value()}]) ->
-          {wait, atom(), cell_hal_type:condition()}
+          {wait, [{atom(), cell_hal_type:condition()}, ...]}
         | {write, [{atom(), cell_hal_type:value()}], phase()}
         | {done, verdict()}.
 next(prepare, Facts, Ids) ->
     case unmet([{trigger_inspection_echo, false}, {clear_results_echo, false}], Facts) of
-        {wait, _, _} = W -> W;
+        {wait, _} = W -> W;
         met -> {write, Ids ++ [{trigger_inspection, false}, {clear_results, true}], cleared}
     end;
 next(cleared, Facts, Ids) ->
     Echoes = [{echo(P), V} || {P, V} <- Ids],
     case unmet([{clear_results_echo, true}, {inspection_status, ?READY} | Echoes], Facts) of
-        {wait, _, _} = W -> W;
+        {wait, _} = W -> W;
         met -> {write, [{clear_results, false}, {trigger_inspection, true}], triggered}
     end;
 next(triggered, Facts, _Ids) ->
     case unmet([{trigger_inspection_echo, true}], Facts) of
-        {wait, _, _} = W -> W;
+        {wait, _} = W -> W;
         met ->
             case maps:get(inspection_status, Facts, undefined) of
                 ?COMPLETE ->
@@ -70,12 +70,17 @@ next(triggered, Facts, _Ids) ->
                           maps:get(inspection_fail, Facts, false)} of
                         {true, false} -> {done, pass};
                         {false, true} -> {done, fail};
-                        %% Complete is written last: PASS and FAIL are in place by then.
+                        %% Complete is written last, PASS or FAIL before it; read as
+                        %% neither, they were read before it by an earlier request of
+                        %% the same poll (the clear dropped both): the next poll has
+                        %% the verdict. Both at once the block never means.
+                        {false, false} -> {wait, [{inspection_pass, {eq, true}},
+                                                  {inspection_fail, {eq, true}}]};
                         _ -> {done, {error, 0}}
                     end;
                 ?ERROR -> {done, {error, maps:get(error_code, Facts, 0)}};
                 ?CANCELED -> {done, canceled};
-                Other -> {wait, inspection_status, {ne, Other}}
+                Other -> {wait, [{inspection_status, {ne, Other}}]}
             end
     end.
 
@@ -84,8 +89,16 @@ unmet([], _Facts) -> met;
 unmet([{P, V} | Rest], Facts) ->
     case maps:get(P, Facts, undefined) of
         V -> unmet(Rest, Facts);
-        _ -> {wait, P, {eq, V}}
+        _ -> {wait, [{P, {eq, V}}]}
     end.
+
+%% @doc The verdict when the step's watchdog ends a phase: a Complete that never came
+%% with PASS or FAIL is the block's Error 0; anything else is no answer.
+-spec expired(phase(), facts()) -> verdict().
+expired(triggered, #{trigger_inspection_echo := true, inspection_status := ?COMPLETE}) ->
+    {error, 0};
+expired(_Phase, _Facts) ->
+    not_answered.
 
 echo(inspection_point_id) -> inspection_point_id_echo;
 echo(inspection_point_id_len) -> inspection_point_id_echo_len;
@@ -119,9 +132,9 @@ ids() ->
      {part_serial, <<"P1">>}, {part_serial_len, 16#3002}].
 
 prepare_test_() ->
-    [?_assertEqual({wait, trigger_inspection_echo, {eq, false}},
+    [?_assertEqual({wait, [{trigger_inspection_echo, {eq, false}}]},
                    next(prepare, #{trigger_inspection_echo => true}, ids())),
-     ?_assertEqual({wait, clear_results_echo, {eq, false}},
+     ?_assertEqual({wait, [{clear_results_echo, {eq, false}}]},
                    next(prepare, #{trigger_inspection_echo => false,
                                    clear_results_echo => true}, ids())),
      ?_assertMatch({write, [_, _, _, _, {trigger_inspection, false}, {clear_results, true}],
@@ -136,13 +149,13 @@ cleared_test_() ->
                part_serial_echo_len => 16#3002},
     [?_assertEqual({write, [{clear_results, false}, {trigger_inspection, true}], triggered},
                    next(cleared, Echoed, ids())),
-     ?_assertEqual({wait, clear_results_echo, {eq, true}},
+     ?_assertEqual({wait, [{clear_results_echo, {eq, true}}]},
                    next(cleared, Echoed#{clear_results_echo => false}, ids())),
      %% Still the last inspection's status: not ready for a trigger.
-     ?_assertEqual({wait, inspection_status, {eq, 1}},
+     ?_assertEqual({wait, [{inspection_status, {eq, 1}}]},
                    next(cleared, Echoed#{inspection_status => 2}, ids())),
      %% The serial's length not echoed yet (the characters come first).
-     ?_assertEqual({wait, part_serial_echo_len, {eq, 16#3002}},
+     ?_assertEqual({wait, [{part_serial_echo_len, {eq, 16#3002}}]},
                    next(cleared, Echoed#{part_serial_echo_len => 16#3001}, ids()))].
 
 triggered_test_() ->
@@ -154,12 +167,21 @@ triggered_test_() ->
      ?_assertEqual({done, {error, 1}}, next(triggered, Done#{inspection_status => 5,
                                                              error_code => 1}, [])),
      ?_assertEqual({done, canceled}, next(triggered, Done#{inspection_status => 6}, [])),
-     ?_assertEqual({wait, trigger_inspection_echo, {eq, true}},
+     %% Complete read after PASS and FAIL were (two requests of one poll): the next
+     %% poll's verdict, either way.
+     ?_assertEqual({wait, [{inspection_pass, {eq, true}}, {inspection_fail, {eq, true}}]},
+                   next(triggered, Done#{inspection_pass => false}, [])),
+     ?_assertEqual({done, {error, 0}},
+                   next(triggered, Done#{inspection_fail => true}, [])),
+     ?_assertEqual({error, 0}, expired(triggered, Done#{inspection_pass => false})),
+     ?_assertEqual(not_answered, expired(triggered, Done#{inspection_status => 4})),
+     ?_assertEqual(not_answered, expired(cleared, Done)),
+     ?_assertEqual({wait, [{trigger_inspection_echo, {eq, true}}]},
                    next(triggered, Done#{trigger_inspection_echo => false}, [])),
      %% Requesting, then Processing: each change looked at.
-     ?_assertEqual({wait, inspection_status, {ne, 3}},
+     ?_assertEqual({wait, [{inspection_status, {ne, 3}}]},
                    next(triggered, Done#{inspection_status => 3}, [])),
-     ?_assertEqual({wait, inspection_status, {ne, 1}},
+     ?_assertEqual({wait, [{inspection_status, {ne, 1}}]},
                    next(triggered, Done#{inspection_status => 1}, []))].
 
 product_test_() ->

@@ -122,19 +122,18 @@ step(conveying, _Woken, T) ->
     end;
 %% -- at the exit: the camera's inspection, as the PLC program drives it ---------------
 step(Phase, {timer, _}, T) when Phase =:= prepare; Phase =:= cleared; Phase =:= triggered ->
-    inspected(not_answered, T);
+    {_, Facts} = inspection_facts(T),
+    inspected(router_inspection:expired(Phase, Facts), T);
 step(Phase, _Woken, T) when Phase =:= prepare; Phase =:= cleared; Phase =:= triggered ->
-    G = router_cell:group(inspect, router_task:lane(T)),
+    {G, Facts} = inspection_facts(T),
     #{serial := S} = cell_task:product(T),
     Ids = [{P, V} || {_, P, V} <- router_inspect_io:string(G, inspection_point_id,
                                                             router_inspection:point())
                                       ++ router_inspect_io:string(G, part_serial, S)],
-    Facts = maps:from_list([{P, V} || P <- router_inspect_io:mapped(),
-                                      {ok, V} <- [cell_task:read(T, G, P)]]),
     case router_inspection:next(Phase, Facts, Ids) of
-        {wait, Point, Cond} ->
-            {wait, [{io, G, Point, Cond},
-                    router_task:watchdog(T, inspection_timeout_ms, 10000)], phase(T, Phase)};
+        {wait, Conds} ->
+            {wait, [{io, G, Point, Cond} || {Point, Cond} <- Conds]
+                   ++ [router_task:watchdog(T, inspection_timeout_ms, 10000)], phase(T, Phase)};
         {write, Writes, Next} ->
             {continue, phase(lists:foldl(fun({P, V}, Ti) -> cell_task:out(Ti, G, P, V) end,
                                          T, Writes), Next)};
@@ -190,6 +189,12 @@ offer(T) ->
     {continue, phase(router_task:blocked(T1), waiting)}.
 
 %% The verdict in the product (saved), the PLC's commands dropped, then the offer.
+%% The lane's inspection group and its tags as read now.
+inspection_facts(T) ->
+    G = router_cell:group(inspect, router_task:lane(T)),
+    {G, maps:from_list([{P, V} || P <- router_inspect_io:mapped(),
+                                  {ok, V} <- [cell_task:read(T, G, P)]])}.
+
 inspected(Verdict, T) ->
     #{serial := S} = P = cell_task:product(T),
     {P1, Warning} = router_inspection:product(Verdict, P),
