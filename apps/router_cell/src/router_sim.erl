@@ -245,7 +245,9 @@ init(#{lanes := Lanes}) ->
     %% The inspection blocks' UDTs: the inspection application's, not needed to run.
     Blocks = maps:from_list([{router_cell:group(inspection_block, L), L} || L <- Lanes]),
     {ok, #{lanes => Lanes, groups => Groups, blocks => Blocks, outs => #{}, moves => #{},
-           rand => rand:seed_s(exsss), world => empty_world(Lanes),
+           %% No world until restore/1 reads the saved one: a stop before that (the
+           %% HAL not there yet, a crash in restore) saves nothing over it.
+           rand => rand:seed_s(exsss),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
            epoch => 0, held => #{}, clamp_moves => #{}, no_read => #{}},
@@ -271,14 +273,19 @@ attach(#{groups := Groups, attach_ms := Ms} = S) ->
             S#{attach_ms := min(Ms * 2, ?ATTACH_MAX)}
     end.
 
+%% The world in the file, settled; an empty one when there is none (or it cannot be
+%% read: logged by cell_file).
+stored_world(Lanes) ->
+    case cell_file:read_term(path()) of
+        {ok, #{counters := _} = W} ->
+            settle(maps:merge(empty_world(Lanes), W#{clamps => saved_clamps(W, Lanes)}), Lanes);
+        _ ->
+            empty_world(Lanes)
+    end.
+
 %% The world as it was saved, its sensors set, and a rule on every output.
 restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
-    World = case cell_file:read_term(path()) of
-                {ok, #{counters := _} = W} ->
-                    settle(maps:merge(empty_world(Lanes), W#{clamps => saved_clamps(W, Lanes)}),
-                           Lanes);
-                _ -> empty_world(Lanes)
-            end,
+    World = stored_world(Lanes),
     Outputs = [{{G, P}, Type} || G <- maps:keys(Groups) ++ maps:keys(Blocks),
                                  {ok, Points} <- [cell_hal:points(G)],
                                  #{name := P, dir := out, type := Type} <- Points],
@@ -297,7 +304,7 @@ restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
                                             end} || {Key, Type} <- Outputs]),
                       Holding),
     ok = cell_hal_sim:preset(?CONN, maps:merge(Holding, image(World, Outs, Lanes))),
-    S1 = S0#{world := World, outs := Outs, settings => settings()},
+    S1 = S0#{world => World, outs := Outs, settings => settings()},
     %% A trigger on when the physics stopped is answered now (its answer, if the
     %% reader had given one, went with the image).
     S = lists:foldl(fun(L, Acc) ->
@@ -319,6 +326,9 @@ restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
           {reply, term(), map()} | {noreply, map()}.
 handle_call(world, _From, #{world := W} = S) ->
     {reply, W, S};
+handle_call(world, _From, #{lanes := Lanes} = S) ->
+    %% Waiting for the HAL: the world is the one saved.
+    {reply, stored_world(Lanes), S};
 handle_call({poke, Poke}, _From, #{attached := true} = S) ->
     try poked(Poke, S#{settings => settings()}) of
         {error, _} = Error -> {reply, Error, S};

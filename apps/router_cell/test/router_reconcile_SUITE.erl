@@ -18,7 +18,8 @@
          panel_forgotten_in_the_fixture/1, plc_killed_during_a_routing_move/1,
          plc_killed_during_a_clamp_move/1, held_twice_answered_at_the_machine/1,
          held_twice_answered_wrong_the_loading_offer_taken_in/1,
-         upper_lost_its_modules_the_next_panel_in_the_nest/1]).
+         upper_lost_its_modules_the_next_panel_in_the_nest/1,
+         physics_stopped_before_the_hal_keeps_its_world/1]).
 
 -define(DEADLINE_MS, 60000).
 %% How long the line may take to go on after its PLC was killed: a restart of the PLC,
@@ -33,7 +34,8 @@ all() ->
      unloading_killed_while_the_upper_puts_down, panel_forgotten_in_the_fixture,
      plc_killed_during_a_routing_move, plc_killed_during_a_clamp_move,
      held_twice_answered_at_the_machine, held_twice_answered_wrong_the_loading_offer_taken_in,
-     upper_lost_its_modules_the_next_panel_in_the_nest].
+     upper_lost_its_modules_the_next_panel_in_the_nest,
+     physics_stopped_before_the_hal_keeps_its_world].
 
 init_per_testcase(Case, Config) ->
     ok = application:set_env(cell, shutdown_wait_ms, 10000),
@@ -785,3 +787,26 @@ deadline() ->
 
 left(Deadline) ->
     max(0, Deadline - erlang:monotonic_time(millisecond)).
+
+%% The physics started while the cell's HAL is not there (the cell stopped), then
+%% stopped before the HAL came: it shows the world it saved and leaves it as it was,
+%% never an empty machine in its place (which would make the panels in it vanish and
+%% their serials be made again).
+physics_stopped_before_the_hal_keeps_its_world(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    receive
+        {cell_event, #{type := item_transfer_out, task := unloading_front}} -> ok
+    after ?DEADLINE_MS -> ct:fail(nothing_out)
+    end,
+    ok = application:stop(router_cell),
+    ok = application:stop(cell),
+    Path = filename:join(cell_config:dir(data), "router_sim.world"),
+    {ok, Saved} = cell_file:read_term(Path),
+    ?assertMatch(#{counters := #{delivered := D}} when D >= 1, Saved),
+    process_flag(trap_exit, true),
+    {ok, Pid} = router_sim:start_link(#{lanes => [front]}),
+    ?assertEqual(maps:get(counters, Saved), maps:get(counters, router_sim:world())),
+    ok = gen_server:stop(Pid),
+    ?assertEqual({ok, Saved}, cell_file:read_term(Path)).
+
