@@ -97,23 +97,23 @@ offer(T0, Link, P, G) ->
             %% cut, or a power cut brought the file back): the engine drops it as a
             %% copy older than another's record, and the task starts again without it.
             Id = cell_task:id(T),
-            ok = case [Other || {Other, _} <- cell_registry:holders(S), Other =/= Id] of
+            Idle = #{phase => idle, available => false},
+            case [Other || {Other, _} <- cell_registry:holders(S), Other =/= Id] of
                 [] ->
                     cell_log:warning(Id, "product ~ts was handed on over ~ts before; the "
                                      "next station holds it or has sent it on, so this "
                                      "copy is not offered again", [S, Link]),
                     self() ! {cell_registry, stale, S, G + 1},
-                    ok;
+                    view(T, Link, Idle);
                 Others ->
                     cell_log:warning(Id, "product ~ts was handed on over ~ts before and ~ts "
                                      "holds it too: not offered again until the operator "
                                      "says which holds it",
-                                     [S, Link, lists:join(", ", [atom_to_list(O) || O <- Others])])
-            end,
-            %% Settled by the operator's answer: the other holder forgets it (the link
-            %% then says `yours' and the task offers it again) or this one does.
-            view(T, Link, #{phase => idle, available => false, settle => {S, offer},
-                            held_back => true});
+                                     [S, Link, lists:join(", ", [atom_to_list(O) || O <- Others])]),
+                    %% Held back until one holder is left (the guard says so) or the
+                    %% link says whose it is after the operator's answer.
+                    view(T, Link, Idle#{settle => {S, offer}, held_back => true})
+            end;
         {error, {unsettled, S}} ->
             %% The link let this generation go and the next station has not said yet
             %% whether it took it: offered again once the link knows (settled/3).

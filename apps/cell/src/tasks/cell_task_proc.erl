@@ -92,7 +92,7 @@
     lost = [] :: [atom()],                %% connections lost since init or the last resume
     reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
     dropped = false :: boolean(),         %% its product dropped while paused: Start reconciles
-    handed_on = [] :: [binary()],         %% serials whose copies it dropped as handed on
+    handed_on :: binary() | undefined,    %% the serial whose copy it last dropped as old
     estop_flag :: atomics:atomics_ref(),   %% the node's emergency-stop flag, read before every step
     held :: atomics:atomics_ref() | undefined %% secured; OFF not yet announced (the barrier)
 }).
@@ -341,14 +341,13 @@ handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} 
     T = drop_stale(T0, Serial, Gen),
     case State of
         {ready, _, _} when T#task.product =:= undefined, T0#task.product =/= undefined ->
-            case lists:member(Serial, D#data.handed_on) of
+            case D#data.handed_on =:= Serial of
                 false ->
                     %% Running on a copy found old (another task took the product on in
                     %% a newer record after this one restarted): what it does rests on a
                     %% product it does not hold. Its transfers end, and it reconciles
                     %% again.
-                    reconcile_dropped(2, D#data{task = T,
-                                                handed_on = [Serial | D#data.handed_on]});
+                    reconcile_dropped(2, D#data{task = T, handed_on = Serial});
                 true ->
                     %% The same serial back again (read again on a part its sensors
                     %% see): dropping it once more would go round for ever. The
