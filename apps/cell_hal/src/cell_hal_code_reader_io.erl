@@ -232,6 +232,10 @@ finish(S) ->
         {error, Why} -> fail(Why, S)
     end.
 
+%% The HAL's `disconnected' (the connection went, or its server restarts) can come
+%% before the connection's own news does: to the asker it is the same lost read.
+fail(disconnected, S) ->
+    {reply, {error, not_connected}, idle(S)};
 fail(Why, S) ->
     {reply, {error, Why}, idle(S)}.
 

@@ -9,7 +9,8 @@
 -export([all/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 -export([refuses_bad_options/1, reads_a_code/1, no_read/1, deadline/1,
-         connection_down/1, stale_trigger_cleared/1]).
+         connection_down/1, connection_gone_before_its_news/1,
+         stale_trigger_cleared/1]).
 
 -define(WAIT, 5000).
 -define(G, rd).
@@ -17,7 +18,7 @@
 
 all() ->
     [refuses_bad_options, reads_a_code, no_read, deadline, connection_down,
-     stale_trigger_cleared].
+     connection_gone_before_its_news, stale_trigger_cleared].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -172,6 +173,31 @@ connection_down(_Config) ->
     receive triggered -> ok after ?WAIT -> ct:fail(no_trigger) end,
     ok = answer(<<"P-0005">>, false),
     ?assertEqual({ok, <<"P-0005">>}, reply(Ref2)).
+
+%% The answer came, and the connection went before the object looked at it: the
+%% object learns of the loss from the HAL's read of the result before the
+%% connection's own news. To the asker that is the same lost read, `not_connected',
+%% never an error the task does not know.
+connection_gone_before_its_news(_Config) ->
+    ok = reader(#{}),
+    Ref = cell_hal_code_reader:read_async(reader),
+    receive triggered -> ok after ?WAIT -> ct:fail(no_trigger) end,
+    [Pid] = [P || {reader, P, _, _} <- ets:lookup(cell_hal_hw_objects, reader)],
+    ok = sys:suspend(Pid),
+    ok = answer(<<"P-0007">>, false),
+    ok = await_point(done, true),
+    ok = cell_hal_sim:link(?CONN, down),
+    ok = await_conn(down),
+    ok = sys:resume(Pid),
+    ?assertEqual({error, not_connected}, reply(Ref)),
+    ok = await_hw(down),
+    ok = cell_hal_sim:link(?CONN, up),
+    ok = await_hw(up),
+    ok = cell_hal_sim:set({?G, done}, false),
+    Ref2 = cell_hal_code_reader:read_async(reader),
+    receive triggered -> ok after ?WAIT -> ct:fail(no_trigger) end,
+    ok = answer(<<"P-0008">>, false),
+    ?assertEqual({ok, <<"P-0008">>}, reply(Ref2)).
 
 %% A reader object that crashed mid-read left the trigger on, and the reader answered
 %% it: its successor clears the trigger and never takes that answer.
