@@ -23,8 +23,8 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
--export([all/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
-         end_per_testcase/2]).
+-export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_group/2,
+         end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
 -export([silent_neighbour_told/1, partitions_in_every_phase/1,
          upstream_killed_during_partition/1, downstream_killed_during_partition/1,
          release_phase_partition/1, upstream_killed_in_release_partition_answered_where/1,
@@ -46,9 +46,24 @@ rounds() ->
     list_to_integer(os:getenv("CELLRT_NETNS_ROUNDS", "1")).
 
 all() ->
-    [silent_neighbour_told, partitions_in_every_phase, upstream_killed_during_partition,
-     downstream_killed_during_partition, release_phase_partition,
-     upstream_killed_in_release_partition_answered_where, link_restarted_during_partition].
+    [{group, tcp}, {group, tls}].
+
+%% Every case over the plain distribution; the cuts in every phase again over TLS, as
+%% the cells of a line on several PCs speak it (README).
+groups() ->
+    [{tcp, [], [silent_neighbour_told, partitions_in_every_phase,
+                upstream_killed_during_partition, downstream_killed_during_partition,
+                release_phase_partition, upstream_killed_in_release_partition_answered_where,
+                link_restarted_during_partition]},
+     {tls, [], [partitions_in_every_phase]}].
+
+init_per_group(tls, Config) ->
+    [{tls, filename:join(?config(priv_dir, Config), "tls")} | Config];
+init_per_group(_Group, Config) ->
+    Config.
+
+end_per_group(_Group, _Config) ->
+    ok.
 
 %% The suite needs root and iproute2 (scripts/setup test installs it): without them it
 %% fails, saying what is missing, rather than passing unrun.
@@ -69,14 +84,20 @@ end_per_suite(_Config) ->
 init_per_testcase(Case, Config) ->
     Net0 = cell_netns:create([up, down]),
     Holder = try
-        Net = cell_netns:start_node(cell_netns:start_node(Net0, up, []), down, []),
+        Net1 = case ?config(tls, Config) of
+                   undefined -> Net0;
+                   Dir -> cell_netns:tls(Net0, filename:join(Dir, atom_to_list(Case)))
+               end,
+        Net = cell_netns:start_node(cell_netns:start_node(Net1, up, []), down, []),
         put_net(holder(), Net)
     catch
         C:R:St ->
             ok = cell_netns:destroy(Net0),
             erlang:raise(C, R, St)
     end,
-    Base = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    %% A folder of the group's own: a link's fence outlives a case.
+    Group = case ?config(tls, Config) of undefined -> "tcp"; _ -> "tls" end,
+    Base = filename:join([?config(priv_dir, Config), Group, atom_to_list(Case)]),
     [{net, Holder}, {base, Base}, {ref, make_ref()} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -349,6 +370,13 @@ finish(Config, Fed) ->
 
 %% `Earlier': the products out on a downstream node killed since.
 finish(Config, Fed, Earlier) ->
+    %% In the tls group the cells spoke TLS to each other.
+    _ = ?config(tls, Config) =/= undefined andalso
+        ?assertEqual([tls], lists:usort([element(4, proplists:get_value(address, I))
+                                         || C <- [up, down],
+                                            {ok, Is} <- [call(Config, C, net_kernel,
+                                                              nodes_info, [])],
+                                            {_, I} <- Is])),
     Outs = Earlier ++ call(Config, down, cell_line_recorder, outs, []),
     Serials = [serial(I) || I <- lists:seq(1, Fed)],
     ?assertEqual([], Outs -- lists:usort(Outs), out_twice),

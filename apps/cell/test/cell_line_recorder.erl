@@ -11,7 +11,7 @@
 -module(cell_line_recorder).
 -behaviour(gen_server).
 
--export([start/1, subscribe/0, feed/3, mark/0, await/3, events/0, timeline/0, now_ms/0, outs/0, answered/0, stop/0]).
+-export([start/1, subscribe/0, feed/3, take_feed/1, mark/0, await/3, events/0, timeline/0, now_ms/0, outs/0, answered/0, stop/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -type event() :: {phase, atom(), atom()} | {out, atom(), binary()}
@@ -45,6 +45,14 @@ subscribe() ->
 -spec feed([binary()], atom(), reference()) -> ok.
 feed(Serials, Task, Ref) ->
     gen_server:call(?MODULE, {feed, Serials, Task, Ref}).
+
+%% @doc Before the node is killed: stops the first segment `Task' (suspended, so it
+%% takes nothing more) and gives the serials still in the feed, which a kill of the
+%% node would lose with its memory, to be fed again to its successor. The products on
+%% the infeed are the machine's, not the cell's: they outlive the node.
+-spec take_feed(atom()) -> [binary()].
+take_feed(Task) ->
+    gen_server:call(?MODULE, {take_feed, Task}).
 
 %% @doc How many events so far: `await/3' after a mark looks at later events only.
 -spec mark() -> non_neg_integer().
@@ -104,6 +112,12 @@ handle_call({feed, Serials, Task, Ref}, _From, State) ->
             Pid -> Pid ! {Ref, fed}
         end,
     {reply, ok, State};
+handle_call({take_feed, Task}, _From, State) ->
+    _ = case cell_task_proc:whereis(Task) of
+            undefined -> ok;
+            Pid -> sys:suspend(Pid)
+        end,
+    {reply, [S || {_, S} <- ets:tab2list(line_feed)], State};
 handle_call(mark, _From, #state{n = N} = State) ->
     {reply, N, State};
 handle_call(timeline, _From, #state{events = Es, times = Ts} = State) ->

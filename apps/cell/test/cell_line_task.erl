@@ -5,12 +5,15 @@
 %% physical moves (0: none).
 %%
 %% Args: #{prev => Link, next => Link, feed => Tab, out => Tab, ref => Ref,
-%%         delay => Ms, notify => Pid, jam => true, hold => true}. With `jam' the first
+%%         delay => Ms, notify => Pid, jam => true, hold => true, out_log => File}. With `jam' the first
 %% product taken sticks before it arrives: an error with Retry. With `hold' a product
 %% stops in the middle of its move and stays there (a segment stopped mid-transfer,
 %% for a test to kill the node at that moment). The feed is an ordered_set of {N, Serial}; when
 %% it runs dry the first segment waits for `{Ref, fed}'. The out table gets
-%% {Serial, Task}. `notify' gets `{line_phase, Task, Phase}' at every phase change
+%% {Serial, Task}. With `out_log' the last segment also appends each serial it sends
+%% out to that file, on disk before it forgets the product: the log is the sensor that
+%% says a product left, so a segment that comes back after a power cut still holding
+%% a product the log has does not send it out again. `notify' gets `{line_phase, Task, Phase}' at every phase change
 %% (unless `phases => false') and `{line_out, Task, Serial}' for every product sent out.
 %%
 %% A transfer interrupted while the product moved asks the operator (Ignore: it is here;
@@ -30,14 +33,20 @@ init(T) ->
 %% file is where the product is, and the segment goes on from there.
 -spec reconcile(cell_task:held(), cell_task:task()) -> {ok, cell_task:task()}.
 reconcile(_Held, T) ->
-    Phase = case cell_task:product(T) of
-                undefined -> idle;
-                #{serial := S} ->
+    case cell_task:product(T) of
+        undefined ->
+            {ok, phase(T, idle)};
+        #{serial := S} ->
+            case logged_out(T, S) of
+                true ->
+                    %% Sent out just before the power went: it is gone.
+                    {ok, phase(cell_task:clear_product(T), idle)};
+                false ->
                     %% A take cut short after the product was saved: finish it.
                     forget_fed(T, S),
-                    full
-            end,
-    {ok, phase(T, Phase)}.
+                    {ok, phase(T, full)}
+            end
+    end.
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
@@ -76,6 +85,7 @@ step(full, _Woken, T) ->
     case arg(T, next) of
         undefined ->
             #{serial := S} = cell_task:product(T),
+            ok = log_out(T, S),
             true = ets:insert(arg(T, out), {S, cell_task:id(T)}),
             notify(T, {line_out, cell_task:id(T), S}),
             {continue, phase(cell_task:clear_product(T), idle)};
@@ -132,6 +142,23 @@ take_new(T) ->
             T1 = cell_task:set_product(T, cell_product:new(Serial, <<"line">>)),
             true = ets:delete(Feed, N),
             {continue, phase(T1, full)}
+    end.
+
+log_out(T, S) ->
+    case arg(T, out_log) of
+        undefined -> ok;
+        File -> file:write_file(File, [S, $\n], [append, sync])
+    end.
+
+logged_out(T, S) ->
+    case arg(T, out_log) of
+        undefined ->
+            false;
+        File ->
+            case file:read_file(File) of
+                {ok, Log} -> lists:member(S, binary:split(Log, <<"\n">>, [global]));
+                {error, enoent} -> false
+            end
     end.
 
 forget_fed(T, Serial) ->

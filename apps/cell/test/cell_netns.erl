@@ -20,12 +20,17 @@
 %% </ul>
 %% `heal/3' lifts a cut end by end, in the order given.
 %%
+%% With `tls/2' the nodes speak the distribution over TLS as the cells of a line on
+%% several PCs do (README, "A line of cells on several PCs"): a certificate per node,
+%% for its address, signed by an authority of the net's own, and peers verified both
+%% ways.
+%%
 %% Every name made here (namespaces `crt_<run>_<n>', veth ends `crt_<run>_<n>') has the
 %% run's own tag, so runs side by side never meet, and `destroy/1' removes all of it,
 %% also the epmd daemons the nodes started inside their namespaces.
 -module(cell_netns).
 
--export([available/0, create/1, destroy/1, start_node/3, stop_node/2, node_of/2,
+-export([available/0, create/1, destroy/1, tls/2, start_node/3, stop_node/2, node_of/2,
          call/5, call/6, os_pid/2, kill_node/2, cut/3, heal/3, names/1]).
 
 -export_type([net/0]).
@@ -39,7 +44,9 @@
                    %% Namespaces to delete, the bridge's among them.
                    nss := [string()],
                    cookie := atom(),
-                   peers := #{atom() => {pid(), node()}}}.
+                   peers := #{atom() => {pid(), node()}},
+                   %% Per cell, the options file of its TLS distribution.
+                   tls => #{atom() => file:filename()}}.
 
 -define(CALL_TIMEOUT, 30000).
 
@@ -118,6 +125,42 @@ build(#{run := Run, names := Names} = Net) ->
      end || #{ns := N, dev := D, addr := A} <- maps:values(Ends0)],
     Net#{ends => Ends, nss => Nss ++ Extra}.
 
+%% @doc Has the nodes started from now on speak the distribution over TLS: makes in
+%% `Dir' an authority, and for each cell a key and a certificate for its address signed
+%% by it, and the distribution's options file (the README's, peers verified both ways).
+-spec tls(net(), file:filename()) -> net().
+tls(#{names := Names, ends := Ends} = Net, Dir) ->
+    ok = filelib:ensure_path(Dir),
+    ok = openssl(Dir, ["req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+                       "-keyout", "ca.key", "-out", "ca.pem", "-subj", "/CN=line"]),
+    Confs = [{Name, cert(Dir, atom_to_list(Name), maps:get(addr, maps:get(Name, Ends)))}
+             || Name <- Names],
+    Net#{tls => maps:from_list(Confs)}.
+
+cert(Dir, Name, Addr) ->
+    ok = openssl(Dir, ["req", "-newkey", "rsa:2048", "-nodes", "-keyout", Name ++ ".key",
+                       "-out", Name ++ ".csr", "-subj", "/CN=" ++ Addr]),
+    %% The node's host is its address: the distribution checks it as a name.
+    ok = file:write_file(filename:join(Dir, Name ++ ".ext"),
+                         ["subjectAltName=DNS:", Addr, ",IP:", Addr, "\n"]),
+    ok = openssl(Dir, ["x509", "-req", "-in", Name ++ ".csr", "-CA", "ca.pem",
+                       "-CAkey", "ca.key", "-CAcreateserial", "-days", "2",
+                       "-extfile", Name ++ ".ext", "-out", Name ++ ".pem"]),
+    F = fun(File) -> filename:join(Dir, File) end,
+    Common = [{certfile, F(Name ++ ".pem")}, {keyfile, F(Name ++ ".key")},
+              {cacertfile, F("ca.pem")}, {verify, verify_peer}],
+    Conf = F(Name ++ ".conf"),
+    ok = file:write_file(Conf, io_lib:format("~p.~n", [[{server, [{fail_if_no_peer_cert, true}
+                                                                   | Common]},
+                                                         {client, Common}]])),
+    Conf.
+
+openssl(Dir, Args) ->
+    case sh(["cd ", Dir, " && openssl ", lists:join(" ", Args)]) of
+        {0, _} -> ok;
+        {Code, Out} -> erlang:error({openssl_failed, Args, Code, Out})
+    end.
+
 %% @doc Stops the nodes still running, ends every process left in the namespaces (the
 %% epmd daemons the nodes started) and deletes the namespaces with their links.
 -spec destroy(net()) -> ok.
@@ -144,6 +187,12 @@ start_node(#{run := Run, ends := Ends, cookie := Cookie, peers := Peers} = Net, 
                                              orelse string:find(P, "_debdeps") =/= nomatch],
     NodeName = "line_netns_" ++ atom_to_list(Name) ++ "_" ++ Run,
     Erl = os:find_executable("erl"),
+    Tls = case Net of
+              #{tls := #{Name := Conf}} ->
+                  ["-proto_dist", "inet_tls", "-ssl_dist_optfile", Conf];
+              #{} ->
+                  []
+          end,
     {ok, Peer, Node} =
         peer:start(#{name => NodeName, host => Addr, longnames => true,
                      exec => {os:find_executable("ip"), ["netns", "exec", NS, Erl]},
@@ -154,7 +203,7 @@ start_node(#{run := Run, ends := Ends, cookie := Cookie, peers := Peers} = Net, 
                      args => ["-setcookie", atom_to_list(Cookie),
                               "-kernel", "inet_dist_listen_min", "21700",
                               "-kernel", "inet_dist_listen_max", "21709"]
-                              ++ lists:append([["-pa", P] || P <- Paths]) ++ Args}),
+                              ++ Tls ++ lists:append([["-pa", P] || P <- Paths]) ++ Args}),
     Net#{peers => Peers#{Name => {Peer, Node}}}.
 
 %% @doc Stops the node of a cell (an orderly stop).
