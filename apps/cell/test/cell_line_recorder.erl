@@ -52,7 +52,8 @@ feed(Serials, Task, Ref) ->
 %% the infeed are the machine's, not the cell's: they outlive the node.
 -spec take_feed(atom()) -> [binary()].
 take_feed(Task) ->
-    gen_server:call(?MODULE, {take_feed, Task}).
+    %% The task may be in a call across a cut: its deadline (8 s) comes first.
+    gen_server:call(?MODULE, {take_feed, Task}, 30000).
 
 %% @doc How many events so far: `await/3' after a mark looks at later events only.
 -spec mark() -> non_neg_integer().
@@ -115,7 +116,7 @@ handle_call({feed, Serials, Task, Ref}, _From, State) ->
 handle_call({take_feed, Task}, _From, State) ->
     _ = case cell_task_proc:whereis(Task) of
             undefined -> ok;
-            Pid -> sys:suspend(Pid)
+            Pid -> sys:suspend(Pid, 25000)
         end,
     {reply, [S || {_, S} <- ets:tab2list(line_feed)], State};
 handle_call(mark, _From, #state{n = N} = State) ->

@@ -277,7 +277,7 @@ heal(C) ->
 -spec kill(atom()) -> ok.
 kill(C) ->
     Left = case C of
-               a -> call(a, cell_line_recorder, take_feed, [src]);
+               a -> call(a, cell_line_recorder, take_feed, [src], 40000);
                _ -> []
            end,
     true = ets:insert(?TAB, [{refeed, world(refeed) ++ Left},
