@@ -1,6 +1,7 @@
 %% @doc Hardware objects (seed 000 §4.2): wrappers of the machine's cameras, code
-%% readers and laser markers behind one interface per kind ({@link cell_hal_camera},
-%% {@link cell_hal_code_reader}, {@link cell_hal_laser_marker}), created from settings
+%% readers, laser markers and axes behind one interface per kind ({@link
+%% cell_hal_camera}, {@link cell_hal_code_reader}, {@link cell_hal_laser_marker},
+%% {@link cell_hal_axis}), created from settings
 %% by a factory, so a cell is configured rather than coded for its hardware.
 %%
 %% Settings name the implementation of each object by type, as the seed's
@@ -21,7 +22,8 @@
 %% Every object runs in its own process under `cell_hal_hw_sup'; its implementation
 %% module is a callback module of its kind's behaviour, called by this generic server.
 %% Operations (grab, read, mark) run one at a time, in the order asked, as a device
-%% does them: an implementation answers at once (`{reply, R, State}') or starts the
+%% does them (an axis answers each command at once and tells of its job's end by a
+%% message of its own, so a halt or a stop never waits behind a move): an implementation answers at once (`{reply, R, State}') or starts the
 %% work and answers later from `handle_info/2', and never sees two at once. It reports
 %% its connectivity with {@link set_status/1}: subscribers get `{cell_hal_hw, Id, up |
 %% down}', and operations asked while it is down fail with `not_connected'. An
@@ -43,7 +45,7 @@
 
 -export_type([kind/0, spec/0]).
 
--type kind() :: camera | code_reader | laser_marker.
+-type kind() :: camera | code_reader | laser_marker | axis.
 -type spec() :: #{id := atom(), kind := kind(), type := atom(), opts => map()}.
 
 -define(TAB, cell_hal_hw_objects).
@@ -53,7 +55,8 @@
 -define(BUILT_IN, #{{camera, sim} => cell_hal_camera_sim,
                     {code_reader, sim} => cell_hal_code_reader_sim,
                     {code_reader, io} => cell_hal_code_reader_io,
-                    {laser_marker, sim} => cell_hal_laser_marker_sim}).
+                    {laser_marker, sim} => cell_hal_laser_marker_sim,
+                    {axis, sim} => cell_hal_axis_sim}).
 
 -record(state, {id :: atom(),
                 kind :: kind(),
@@ -147,7 +150,7 @@ unsubscribe(Id) ->
         error -> ok
     end.
 
-is_kind(K) -> K =:= camera orelse K =:= code_reader orelse K =:= laser_marker.
+is_kind(K) -> lists:member(K, [camera, code_reader, laser_marker, axis]).
 
 implementation(_, none) ->
     none;
@@ -311,7 +314,10 @@ next(#state{waiting = W, status = Status} = S) ->
 %% The operations of each kind's behaviour.
 dispatch(camera, {grab, Opts}, Mod, Impl) -> Mod:grab(Opts, Impl);
 dispatch(code_reader, read, Mod, Impl) -> Mod:read(Impl);
-dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl).
+dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl);
+dispatch(axis, {command, Owner, Command}, Mod, Impl) -> Mod:command(Owner, Command, Impl);
+dispatch(axis, {override, Pct}, Mod, Impl) -> Mod:set_override(Pct, Impl);
+dispatch(axis, status, Mod, Impl) -> Mod:status(Impl).
 
 %% @private
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
