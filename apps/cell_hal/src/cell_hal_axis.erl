@@ -26,6 +26,7 @@
 
 -export([power/2, home/2, move_absolute/3, move_relative/3, halt/2, stop/3, reset/1,
          set_override/2, status/1]).
+-export([follow/2]).
 
 -export_type([status/0]).
 
@@ -89,6 +90,12 @@ stop(Id, Execute, Deceleration) when is_boolean(Execute) ->
 -spec reset(atom()) -> {ok, reference()} | {error, term()}.
 reset(Id) ->
     command(Id, reset).
+
+%% @private Couples the axis to a motion of several axes (an interpolation channel's
+%% path): PLCopen's SynchronizedMotion until it is done.
+-spec follow(atom(), cell_hal_axis_fsm:motion()) -> {ok, reference()} | {error, term()}.
+follow(Id, Motion) ->
+    command(Id, {follow, Motion}).
 
 %% @doc The machine's speed override in percent (0–100), applied to what runs as it
 %% changes (seed 000 §2.4: even while the machine runs).

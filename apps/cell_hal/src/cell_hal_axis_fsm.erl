@@ -14,6 +14,10 @@
 %%   MC_Halt. A newer move or halt aborts the running one (its owner is told
 %%   `aborted', PLCopen's CommandAborted); home is refused (homing starts from
 %%   standstill only).</li>
+%% <li>`synchronized_motion' — the axis follows a motion computed for several axes at
+%%   once (an interpolation channel's path: PLCopen's coupled motion). Entered from
+%%   standstill or any motion but homing and stopping (aborting it); a move, halt or
+%%   stop aborts it; it ends in standstill when done.</li>
 %% <li>`stopping' — MC_Stop: the axis decelerates to a stop and stays here while the
 %%   stop's Execute is held, refusing every motion command; it leaves for standstill
 %%   once the stop is done and released.</li>
@@ -35,9 +39,10 @@
 -export([new/1, command/3, event/2, set_override/2]).
 -export([state/1, error_code/1, homed/1, job/1, override/1, powered/1]).
 
--export_type([axis/0, state/0, command/0, event/0, effect/0, job/0, params/0]).
+-export_type([axis/0, state/0, command/0, event/0, effect/0, job/0, params/0, motion/0]).
 
--type state() :: disabled | standstill | homing | discrete_motion | stopping | error_stop.
+-type state() :: disabled | standstill | homing | discrete_motion | synchronized_motion
+               | stopping | error_stop.
 -type params() :: #{velocity := number(), acceleration := number(),
                     deceleration := number()}.
 -type command() :: {power, boolean()}
@@ -46,13 +51,18 @@
                  | {move_relative, number(), params()}
                  | {halt, number()}
                  | {stop, boolean(), number()}
+                 | {follow, motion()}
                  | reset.
+%% A motion several axes follow together: what the NC runs (opaque here), and the
+%% range of this axis's positions along it, held against the software limits.
+-type motion() :: #{range := {number(), number()}, atom() => term()}.
 %% The NC's news: a job ran to its end, or the axis or its drive faulted.
 -type event() :: {done, pos_integer()} | {fault, pos_integer()}.
 -type job() :: #{id := pos_integer(),
-                 kind := home | move | halt | stop,
+                 kind := home | move | halt | stop | follow,
                  %% Where it ends (a move, home) or how fast it stops (halt, stop).
-                 target => number(), params => params(), deceleration => number()}.
+                 target => number(), params => params(), deceleration => number(),
+                 motion => motion()}.
 -type effect() :: {run, job()}          % the NC starts this job (replacing any)
                 | {aborted, job()}      % its owner is told CommandAborted
                 | {done, job()}         % its owner is told Done
@@ -155,6 +165,13 @@ command({halt, Dec}, _Position, A) ->
     end;
 command({move_absolute, _To, _Params}, _Position, #axis{homed = false}) ->
     {error, not_homed};
+command({follow, _Motion}, _Position, #axis{homed = false}) ->
+    {error, not_homed};
+command({follow, #{range := {Lo, Hi}} = Motion}, _Position, #axis{limits = Limits} = A) ->
+    case within(Lo, Limits) andalso within(Hi, Limits) of
+        true -> start(#{kind => follow, motion => Motion}, synchronized_motion, A);
+        false -> {error, {beyond_limits, {Lo, Hi}, Limits}}
+    end;
 command({move_absolute, To, Params}, _Position, A) ->
     move(To, Params, A);
 command({move_relative, By, Params}, Position, A) when is_number(By) ->

@@ -7,6 +7,10 @@
 %% job that runs (none at override 0, where the axis holds its place). A change of
 %% override moves the time base, not the profile.
 %%
+%% A coupled motion (`{follow, Motion}', an interpolation channel's path,
+%% cell_hal_channel_sim) is sampled the same way: the path's own profile along its
+%% length, at the profile's time, and this axis's coordinate of the path's point there.
+%%
 %% Homing takes `home_ms' and sets the position to the homing position. A fault (a
 %% following error, code 16#4550 as TwinCAT NC reports it) can be injected: at
 %% `fault_rate' (the chance a move faults, midway), on the next move (`fault_next/1'),
@@ -26,11 +30,16 @@
 
 -define(FOLLOWING_ERROR, 16#4550).
 
+%% What the axis runs: its own profile, or its coordinate (1, 2 or 3) of a point moving
+%% along a path with the path's profile.
+-type motion() :: cell_hal_axis_profile:profile()
+                | {coupled, cell_hal_axis_profile:profile(), cell_hal_path:path(), 1..3}.
+
 -record(s, {id :: atom(),
             fsm :: cell_hal_axis_fsm:axis(),
             %% At rest: the position. Moving: the profile, sampled at its time.
             position = 0.0 :: float(),
-            profile :: cell_hal_axis_profile:profile() | undefined,
+            profile :: motion() | undefined,
             %% The profile's time Tau0 at monotonic time T0 (ms), running at Rate.
             tau0 = 0.0 :: float(),
             t0 = 0 :: integer(),
@@ -141,6 +150,10 @@ effect({run, #{kind := home} = Job}, S) ->
 effect({run, #{kind := move, target := To, params := Params} = Job}, S) ->
     Profile = cell_hal_axis_profile:move(actual(S), To, Params),
     faulting(Profile, run(Job, Profile, undefined, S));
+effect({run, #{kind := follow, motion := #{path := Path, profile := Profile, axis := I}} = Job},
+       S) ->
+    Coupled = {coupled, Profile, Path, I},
+    faulting(Coupled, run(Job, Coupled, undefined, S));
 effect({run, #{deceleration := Dec} = Job}, S) ->
     %% Halt and stop.
     run(Job, cell_hal_axis_profile:stop(actual(S), Dec), undefined, S);
@@ -169,7 +182,7 @@ run(#{id := Id}, Profile, Ms, S) ->
     arm(Id, Ms, S1).
 
 arm(Id, undefined, #s{profile = Profile, tau0 = Tau0, rate = Rate} = S) when Rate > 0 ->
-    Left = (cell_hal_axis_profile:duration(Profile) - Tau0) / Rate,
+    Left = (duration(Profile) - Tau0) / Rate,
     S#s{timer = erlang:start_timer(ceil(max(Left, 0.0) * 1000), self(), {job_end, Id})};
 arm(_Id, undefined, S) ->
     %% Override 0: the axis holds; the job ends once the override is raised.
@@ -196,7 +209,7 @@ rebase(Rate, #s{fsm = Fsm} = S) ->
 faulting(Profile, #s{fault_next = Next, opts = #{fault_rate := Rate}} = S) ->
     case Next orelse rand:uniform() < Rate of
         true ->
-            Half = cell_hal_axis_profile:duration(Profile) / 2,
+            Half = duration(Profile) / 2,
             S#s{fault_next = false,
                 fault_timer = erlang:start_timer(ceil(Half * 1000 / max(S#s.rate, 0.01)),
                                                  self(), fault)};
@@ -225,7 +238,23 @@ cancel(#s{timer = T, fault_timer = F} = S) ->
 actual(#s{profile = undefined, position = X}) ->
     {X, 0.0};
 actual(#s{profile = Profile} = S) ->
-    cell_hal_axis_profile:at(Profile, tau(now_ms(), S)).
+    sample(Profile, tau(now_ms(), S)).
+
+sample({coupled, Profile, Path, I}, Tau) ->
+    {Along, Speed} = cell_hal_axis_profile:at(Profile, Tau),
+    X = element(I, cell_hal_path:at(Path, Along)),
+    %% The velocity: the path's direction here times its speed along it.
+    Ds = 1.0e-3,
+    Ahead = element(I, cell_hal_path:at(Path, Along + Ds)),
+    {X, case Speed == 0.0 of
+            true -> 0.0;
+            false -> (Ahead - X) / Ds * Speed
+        end};
+sample(Profile, Tau) ->
+    cell_hal_axis_profile:at(Profile, Tau).
+
+duration({coupled, Profile, _, _}) -> cell_hal_axis_profile:duration(Profile);
+duration(Profile) -> cell_hal_axis_profile:duration(Profile).
 
 tau(Now, #s{tau0 = Tau0, t0 = T0, rate = Rate}) ->
     Tau0 + Rate * (Now - T0) / 1000.

@@ -1,7 +1,8 @@
 %% @doc Hardware objects (seed 000 §4.2): wrappers of the machine's cameras, code
-%% readers, laser markers and axes behind one interface per kind ({@link
-%% cell_hal_camera}, {@link cell_hal_code_reader}, {@link cell_hal_laser_marker},
-%% {@link cell_hal_axis}), created from settings
+%% readers, laser markers, axes and interpolation channels behind one interface per kind
+%% ({@link cell_hal_camera}, {@link cell_hal_code_reader}, {@link
+%% cell_hal_laser_marker}, {@link cell_hal_axis}, {@link cell_hal_channel}), created
+%% from settings
 %% by a factory, so a cell is configured rather than coded for its hardware.
 %%
 %% Settings name the implementation of each object by type, as the seed's
@@ -22,8 +23,8 @@
 %% Every object runs in its own process under `cell_hal_hw_sup'; its implementation
 %% module is a callback module of its kind's behaviour, called by this generic server.
 %% Operations (grab, read, mark) run one at a time, in the order asked, as a device
-%% does them (an axis answers each command at once and tells of its job's end by a
-%% message of its own, so a halt or a stop never waits behind a move): an implementation answers at once (`{reply, R, State}') or starts the
+%% does them (an axis or a channel answers each command at once and tells of its job's
+%% end by a message of its own, so a halt or a stop never waits behind a move): an implementation answers at once (`{reply, R, State}') or starts the
 %% work and answers later from `handle_info/2', and never sees two at once. It reports
 %% its connectivity with {@link set_status/1}: subscribers get `{cell_hal_hw, Id, up |
 %% down}', and operations asked while it is down fail with `not_connected'. An
@@ -45,7 +46,7 @@
 
 -export_type([kind/0, spec/0]).
 
--type kind() :: camera | code_reader | laser_marker | axis.
+-type kind() :: camera | code_reader | laser_marker | axis | channel.
 -type spec() :: #{id := atom(), kind := kind(), type := atom(), opts => map()}.
 
 -define(TAB, cell_hal_hw_objects).
@@ -56,7 +57,8 @@
                     {code_reader, sim} => cell_hal_code_reader_sim,
                     {code_reader, io} => cell_hal_code_reader_io,
                     {laser_marker, sim} => cell_hal_laser_marker_sim,
-                    {axis, sim} => cell_hal_axis_sim}).
+                    {axis, sim} => cell_hal_axis_sim,
+                    {channel, sim} => cell_hal_channel_sim}).
 
 -record(state, {id :: atom(),
                 kind :: kind(),
@@ -150,7 +152,7 @@ unsubscribe(Id) ->
         error -> ok
     end.
 
-is_kind(K) -> lists:member(K, [camera, code_reader, laser_marker, axis]).
+is_kind(K) -> lists:member(K, [camera, code_reader, laser_marker, axis, channel]).
 
 implementation(_, none) ->
     none;
@@ -317,7 +319,11 @@ dispatch(code_reader, read, Mod, Impl) -> Mod:read(Impl);
 dispatch(laser_marker, {mark, Job}, Mod, Impl) -> Mod:mark(Job, Impl);
 dispatch(axis, {command, Owner, Command}, Mod, Impl) -> Mod:command(Owner, Command, Impl);
 dispatch(axis, {override, Pct}, Mod, Impl) -> Mod:set_override(Pct, Impl);
-dispatch(axis, status, Mod, Impl) -> Mod:status(Impl).
+dispatch(axis, status, Mod, Impl) -> Mod:status(Impl);
+dispatch(channel, {follow, Owner, Path, Params}, Mod, Impl) -> Mod:follow(Owner, Path, Params, Impl);
+dispatch(channel, {halt, Owner, Dec}, Mod, Impl) -> Mod:halt(Owner, Dec, Impl);
+dispatch(channel, {override, Pct}, Mod, Impl) -> Mod:set_override(Pct, Impl);
+dispatch(channel, status, Mod, Impl) -> Mod:status(Impl).
 
 %% @private
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.

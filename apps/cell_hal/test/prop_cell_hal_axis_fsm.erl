@@ -16,6 +16,9 @@
 %%   aborting what runs; Stopping refuses every motion command and is left for
 %%   Standstill only when the stop is done and its Execute is low;</li>
 %% <li>every motion command is refused in Disabled and ErrorStop;</li>
+%% <li>a coupled motion (SynchronizedMotion, here an interpolation channel's path) is
+%%   entered from Standstill or DiscreteMotion or SynchronizedMotion, aborting what
+%%   runs; a move, halt or stop aborts it; it ends in Standstill when done;</li>
 %% </ul>
 %% and what the runtime adds (cell_hal_axis_fsm's documentation): an absolute move needs
 %% a homed axis, a target beyond the software limits or a non-positive velocity,
@@ -85,6 +88,7 @@ command(#m{job = Job, next_id = Next}) ->
        {3, {call, ?MODULE, do, [{command, {home, range(-10, 10)}}]}},
        {4, {call, ?MODULE, do, [{command, {move_absolute, target(), params()}}]}},
        {3, {call, ?MODULE, do, [{command, {move_relative, range(-600, 600), params()}}]}},
+       {3, {call, ?MODULE, do, [{command, {follow, #{range => {target(), target()}}}}]}},
        {2, {call, ?MODULE, do, [{command, {halt, dec()}}]}},
        {2, {call, ?MODULE, do, [{command, {stop, true, dec()}}]}},
        {3, {call, ?MODULE, do, [{command, {stop, false, dec()}}]}},
@@ -237,7 +241,15 @@ expect({command, {move_absolute, _, _}}, #m{homed = false} = M) ->
 expect({command, {move_absolute, To, Params}}, M) ->
     move(To, Params, M);
 expect({command, {move_relative, By, Params}}, #m{position = P} = M) ->
-    move(P + By, Params, M).
+    move(P + By, Params, M);
+expect({command, {follow, _}}, #m{homed = false} = M) ->
+    {refuse, M, []};
+expect({command, {follow, #{range := {Lo, Hi}}}}, M) ->
+    {Min, Max} = ?LIMITS,
+    case Lo >= Min andalso Lo =< Max andalso Hi >= Min andalso Hi =< Max of
+        true -> start(follow, synchronized_motion, M);
+        false -> {refuse, M, []}
+    end.
 
 move(To, #{velocity := V, acceleration := A, deceleration := D}, M) ->
     {Min, Max} = ?LIMITS,
