@@ -2,6 +2,7 @@
 %% emergency-stop voltage drops and every task stops; the service key; door and air
 %% warnings; a PLC that drops off and comes back; a camera unplugged, crashed and
 %% lost; drives in error reset, or handed to the operator; the speed override applied
+%% (to the drives' points and the axes)
 %% while the cell runs; the beacon following the cell; the HAL taken down when the
 %% cell stops, and kept when the monitor crashes.
 %%
@@ -73,6 +74,10 @@ end_per_testcase(_Case, _Config) ->
 
 hal(hal_refusal_is_an_alarm) ->
     cell_monitor_test_cell:hal([#{id => plc2, driver => cell_hal_sim, opts => #{timeout_ms => 0}}]);
+hal(speed_override_applied_while_running) ->
+    %% An axis too: the override is applied to it as to the drives.
+    Hal = cell_monitor_test_cell:hal([]),
+    Hal#{hardware := maps:get(hardware, Hal) ++ [#{id => z_axis, kind => axis, type => sim}]};
 hal(_) ->
     cell_monitor_test_cell:hal([]).
 
@@ -309,7 +314,8 @@ drive_error_for_the_operator(_Config) ->
 
 speed_override_applied_while_running(Config) ->
     %% The machine's default 50 %: the X drive takes percent, the Y drive a factor.
-    await(default_override, fun() -> device(x_override) =:= {ok, 50} end),
+    await(default_override, fun() -> device(x_override) =:= {ok, 50}
+                                          andalso axis_override() =:= 50 end),
     ?assertEqual({ok, 0.5}, device(y_override)),
     ok = cell_controller:start(),
     ok = cell_controller:sync(),
@@ -323,6 +329,7 @@ speed_override_applied_while_running(Config) ->
     %% Two drives, two writes: the test waits for both, in either order.
     await(new_override, fun() ->
                                 device(x_override) =:= {ok, 80} andalso
+                                    axis_override() =:= 80 andalso
                                     case device(y_override) of
                                         {ok, Factor} -> abs(Factor - 0.8) < 1.0e-12;
                                         _ -> false
@@ -331,11 +338,19 @@ speed_override_applied_while_running(Config) ->
     ?assertEqual({ready, processing, executing}, cell_controller:state()),
     %% Service mode caps it at the service limit, and gives it back after.
     ok = cell_hal_sim:set({general, service_key}, true),
-    await(capped, fun() -> device(x_override) =:= {ok, 10} end),
+    await(capped, fun() -> device(x_override) =:= {ok, 10} andalso axis_override() =:= 10 end),
     ok = cell_settings:put(monitor, #{service_speed_limit => 25}, <<"service">>),
     await(new_cap, fun() -> device(x_override) =:= {ok, 25} end),
     ok = cell_hal_sim:set({general, service_key}, false),
-    await(uncapped, fun() -> device(x_override) =:= {ok, 80} end).
+    await(uncapped, fun() -> device(x_override) =:= {ok, 80} andalso axis_override() =:= 80 end).
+
+%% The simulated axis's override (seed 000 §2.4: the monitor applies the speed override
+%% to the axes too).
+axis_override() ->
+    case cell_hal_axis:status(z_axis) of
+        {ok, #{override := Pct}} -> Pct;
+        Other -> Other
+    end.
 
 beacon_follows_the_cell(Config) ->
     Self = self(),

@@ -329,6 +329,32 @@ speed_override_test() ->
     %% A speed under the cap is not raised to it.
     ?assertEqual([{?X_OVERRIDE, 5}, {?Y_OVERRIDE, 0.05}], writes(effects([{speed, 5}], C3))).
 
+%% Axes and interpolation channels take the speed override as a command: at start, as
+%% it changes (the service mode's cap included), and again when one comes back.
+axis_override_test() ->
+    {ok, Spec} = cell_monitor_spec:validate(
+                   #{hal => #{connections => [], groups => [],
+                              hardware => [#{id => x, kind => axis, type => sim},
+                                           #{id => xy, kind => channel, type => sim},
+                                           #{id => camera, kind => camera, type => sim}]},
+                     monitor => #{io => #{}, drives => []}}),
+    {C0, E0} = cell_monitor_core:new(Spec, #{settings => settings(), speed => 50,
+                                            cell => cell()}),
+    Overrides = fun(E) -> [O || {override, _, _, _} = O <- E] end,
+    ?assertEqual([{override, axis, x, 50}, {override, channel, xy, 50}], Overrides(E0)),
+    {C1, E1} = run([{device, {hardware, x}, up}, {speed, 80}], C0),
+    ?assertEqual([{override, axis, x, 50}, {override, axis, x, 80},
+                  {override, channel, xy, 80}], Overrides(E1)),
+    ?assertMatch([{log, brief, _, [80, "", 2]}], [L || {log, _, _, _} = L <- E1]),
+    {C2, E2} = run([{cell, (cell())#{service_mode := true}}], C1),
+    ?assertEqual([{override, axis, x, 10}, {override, channel, xy, 10}], Overrides(E2)),
+    %% The axis object restarted (down, then up): told again, at the cap.
+    ?assertEqual([{override, axis, x, 10}],
+                 Overrides(effects([{device, {hardware, x}, {down, <<>>}},
+                                    {device, {hardware, x}, up}], C2))),
+    %% A camera coming back is told nothing of it.
+    ?assertEqual([], Overrides(effects([{device, ?CAM, up}], healthy()))).
+
 answer_for_something_else_test() ->
     ?assertEqual([], effects([{answer, <<"door">>, retry}, {answer, <<"nothing">>, close}],
                              healthy())).
@@ -339,7 +365,7 @@ kinds_test() ->
                   {device, ?PLC, {down, <<>>}}, {cell, (cell())#{state := down}}],
                  healthy()),
     Known = [estop, service_mode, warning, reset_warning, error, withdraw, write, timer,
-             cancel],
+             cancel, override],
     ?assertEqual([], [K || K <- kinds(E), not lists:member(K, Known)]),
     ?assert(length(kinds(E)) > 5).
 

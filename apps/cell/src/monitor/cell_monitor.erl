@@ -466,6 +466,19 @@ effects([{cancel, T} | Rest], D, A) ->
     effects(Rest, D, [{{timeout, T}, cancel} | A]);
 effects([{log, Level, Format, Args} | Rest], D, A) ->
     cell_log:log(Level, ?LOG, Format, Args),
+    effects(Rest, D, A);
+effects([{override, Kind, Id, Pct} | Rest], D, A) ->
+    Set = case Kind of
+              axis -> cell_hal_axis:set_override(Id, Pct);
+              channel -> cell_hal_channel:set_override(Id, Pct)
+          end,
+    _ = case Set of
+            ok -> ok;
+            %% Not added yet, or down: it is told when it comes (up again).
+            {error, Away} when Away =:= not_present; Away =:= not_connected -> ok;
+            {error, Why} -> cell_log:warning(?LOG, "cannot set the speed override of ~ts: ~tp",
+                                             [Id, Why])
+        end,
     effects(Rest, D, A).
 
 write(G, P, V) ->

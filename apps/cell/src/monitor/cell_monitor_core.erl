@@ -72,7 +72,9 @@
                 | {write, point(), value()}
                 | {timer, timer(), non_neg_integer()}
                 | {cancel, timer()}
-                | {log, cell_log:level(), io:format(), [term()]}.
+                | {log, cell_log:level(), io:format(), [term()]}
+                %% The speed override for an axis or interpolation channel.
+                | {override, axis | channel, atom(), 1..100}.
 
 -record(drive, {spec :: cell_monitor_spec:drive(),
                 error = unknown :: boolean() | unknown,
@@ -393,7 +395,9 @@ device_name({hardware, Id}, #core{kinds = Kinds}) ->
     Kind = case maps:get(Id, Kinds, camera) of
                camera -> "Camera ";
                code_reader -> "Code reader ";
-               laser_marker -> "Laser marker "
+               laser_marker -> "Laser marker ";
+               axis -> "Axis ";
+               channel -> "Interpolation channel "
            end,
     [Kind, atom_to_binary(Id)].
 
@@ -401,8 +405,12 @@ device_name({hardware, Id}, #core{kinds = Kinds}) ->
 reassert({connection, Conn}, #core{outputs = Outputs, info = Info} = C, E) ->
     {C, E ++ [{write, P, V} || {P, V} <- lists:sort(maps:to_list(Outputs)),
                                maps:get(connection, maps:get(P, Info)) =:= Conn]};
-reassert({hardware, _}, C, E) ->
-    {C, E}.
+reassert({hardware, Id}, #core{kinds = Kinds} = C, E) ->
+    %% An axis or channel that came back (a new process) runs at 100 % until told.
+    case maps:get(Id, Kinds, camera) of
+        K when K =:= axis; K =:= channel -> {C, E ++ [{override, K, Id, effective_speed(C)}]};
+        _ -> {C, E}
+    end.
 
 %%====================================================================
 %% The cell's flags: beacon, emergency stop, service mode
@@ -481,24 +489,31 @@ effective_speed(#core{speed = Speed, cell = #{service_mode := true}} = C) ->
 effective_speed(#core{speed = Speed}) ->
     Speed.
 
-overrides(#core{drives = Drives, info = Info, applied = Applied} = C, E) ->
+overrides(#core{drives = Drives, info = Info, applied = Applied, kinds = Kinds} = C, E) ->
     Speed = effective_speed(C),
     Points = [{P, Scale} || {_, #drive{spec = #{override := P, override_scale := Scale}}}
                                 <- lists:sort(maps:to_list(Drives))],
+    %% Axes and channels take the override as a command (seed 000 §2.4: applied to
+    %% the axes even while the machine runs).
+    Motion = [{K, Id} || {Id, K} <- lists:sort(maps:to_list(Kinds)),
+                         K =:= axis orelse K =:= channel],
     {C1, E1} = lists:foldl(fun({P, Scale}, {Ci, Ei}) ->
                                    #{type := T} = maps:get(P, Info),
                                    V = cell_monitor_spec:override_value(T, Speed, Scale),
                                    output(P, V, Ci, Ei)
                            end, {C, E}, Points),
-    case Points =/= [] andalso Speed =/= Applied of
+    case (Points =/= [] orelse Motion =/= []) andalso Speed =/= Applied of
         true ->
             Why = case Speed < C#core.speed of
                       true -> " (the service mode limit)";
                       false -> ""
                   end,
+            Logs = [{log, brief, "speed override ~b %~ts on ~b drives",
+                     [Speed, Why, length(Points)]} || Points =/= []]
+                ++ [{log, brief, "speed override ~b %~ts on ~b axes and channels",
+                     [Speed, Why, length(Motion)]} || Motion =/= []],
             {C1#core{applied = Speed},
-             E1 ++ [{log, brief, "speed override ~b %~ts on ~b drives",
-                     [Speed, Why, length(Points)]}]};
+             E1 ++ [{override, K, Id, Speed} || {K, Id} <- Motion] ++ Logs};
         false ->
             {C1, E1}
     end.

@@ -204,7 +204,8 @@ group_points(#{module := M} = G) ->
 
 hardware(_Id, H) ->
     keys(H, [id, kind, type], [opts],
-         [{kind, fun(K) -> lists:member(K, [camera, code_reader, laser_marker]) end},
+         [{kind, fun(K) -> lists:member(K, [camera, code_reader, laser_marker, axis,
+                                            channel]) end},
           {type, fun is_atom/1},
           {opts, fun is_map/1}]).
 
