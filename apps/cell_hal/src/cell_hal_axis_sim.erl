@@ -145,7 +145,8 @@ effects(Effects, S) ->
     lists:foldl(fun effect/2, S, Effects).
 
 effect({run, #{kind := home} = Job}, S) ->
-    %% Homing: the reference found after home_ms; the axis stands meanwhile.
+    %% Homing: the reference found after home_ms; the axis (in standstill, as homing
+    %% starts) stands meanwhile: a stop from rest, which is no motion at all.
     run(Job, cell_hal_axis_profile:stop(actual(S), 1), home_ms(S), S);
 effect({run, #{kind := move, target := To, params := Params} = Job}, S) ->
     Profile = cell_hal_axis_profile:move(actual(S), To, Params),
@@ -158,9 +159,10 @@ effect({run, #{deceleration := Dec} = Job}, S) ->
     %% Halt and stop.
     run(Job, cell_hal_axis_profile:stop(actual(S), Dec), undefined, S);
 effect({done, #{id := Id, kind := home, target := At}}, S) ->
-    tell(Id, done, (settle(S))#s{position = float(At)});
+    tell(Id, done, (stand(S))#s{position = float(At)});
 effect({done, #{id := Id}}, S) ->
-    tell(Id, done, settle(S));
+    %% The job's motion ended: the axis stands at its end.
+    tell(Id, done, stand(S));
 effect({aborted, #{id := Id}}, S) ->
     tell(Id, aborted, S);
 effect({failed, #{id := Id}, Code}, S) ->
@@ -223,10 +225,7 @@ tell(Id, What, #s{owners = Owners} = S) ->
         error -> S
     end.
 
-%% The job's profile ended: the axis stands at its end.
-settle(S) ->
-    stand(S).
-
+%% The axis stands where it is now.
 stand(S) ->
     {X, _} = actual(S),
     (cancel(S))#s{position = X, profile = undefined, tau0 = 0.0}.
