@@ -1,4 +1,7 @@
-%% @doc Path-following overhead of the interpolation channel (issue: axes and channels):
+%% @doc Path-following overhead of the interpolation channel, and the latch's position
+%% error at a sensor edge (issue: axes and channels).
+%%
+%% Path following:
 %% a channel of three simulated NC axes follows a path of 10,000 segments (lines and
 %% arcs, as a routed panel's cuts give), and the runtime's cost per segment is set
 %% beside the bare profile computation in the same run.
@@ -11,6 +14,14 @@
 %% in one process straight from the profile and the path (`cell_hal_axis_profile:at/2'
 %% and `cell_hal_path:at/2'), no planning, no processes: the floor of what following a
 %% path costs. Both as microseconds per segment.
+%%
+%% The latch (seed 000 §2.3.7, the laser-beam measurement): an axis drives through a
+%% sensor at 200 mm/s (a simulated NC profile), the sensor's edge at a random moment of
+%% the cruise. The PLC stamps its position and sensor samples with its 1 ms cycle, and
+%% `cell_hal_ads_latch:position_at_edge/3' takes the position at the first sensor
+%% sample that shows the edge. The peer is a poll every 10 ms (a PC reading both over
+%% the network): the position read at the first poll that sees the sensor changed. Both
+%% as the median distance from the true position at the edge, over 1,000 edges.
 -module(cell_hal_axis_bench).
 
 -export([run/0]).
@@ -49,6 +60,7 @@ run() ->
                  "profile, the coupling) and a status call to each axis per segment; the "
                  "peer computes the same positions in one process.",
                  [?SEGMENTS, N, ?RUNS, 1000]),
+        latch() ++
         [#{title => "following a path of 10,000 segments with 3 axes, per segment, median",
            unit => "µs", ours => maps:get(median, Ours), peer => maps:get(median, Bare),
            peer_name => "the bare profile and path computation (one process)",
@@ -85,6 +97,41 @@ bare(Path, N) ->
           || I <- [1, 2, 3]]
          || K <- lists:seq(1, N)],
     (erlang:monotonic_time(microsecond) - T0) / N.
+
+%% The latch's error and a poll's, in mm, at 1,000 random sensor edges.
+latch() ->
+    Profile = cell_hal_axis_profile:move({0, 0}, 600, #{velocity => 200, acceleration => 2000,
+                                                        deceleration => 2000}),
+    At = fun(Ms) -> element(1, cell_hal_axis_profile:at(Profile, Ms / 1000)) end,
+    Cycle = 1.0,     %% ms
+    Poll = 10.0,     %% ms
+    rand:seed(exsss, {7, 11, 13}),
+    Errors = [edge(At, 500.0 + rand:uniform() * 1900.0, Cycle, Poll)
+              || _ <- lists:seq(1, 1000)],
+    Latch = cell_bench:stats([abs(L) || {L, _} <- Errors]),
+    Polled = cell_bench:stats([abs(P) || {_, P} <- Errors]),
+    [#{title => "position at a sensor edge, 200 mm/s, error, median",
+       unit => "mm", ours => maps:get(median, Latch), peer => maps:get(median, Polled),
+       peer_name => "a poll every 10 ms (the position read when the sensor is seen)",
+       better => lower,
+       goal => "the latch's error against the one-sample error of a poll",
+       note => io_lib:format("PLC cycle 1 ms (the samples' stamps), 1,000 edges at random "
+                             "moments of the cruise; latch p99 ~.3f mm, poll p99 ~.3f mm.",
+                             [maps:get(p99, Latch), maps:get(p99, Polled)])}].
+
+%% One edge at time Te (ms): the latch's error and the poll's.
+edge(At, Te, Cycle, Poll) ->
+    True = At(Te),
+    %% The PLC's samples: position and sensor each cycle, stamped in µs.
+    Cycles = [C * Cycle || C <- lists:seq(0, 3000)],
+    Positions = [{round(T * 1000), At(T)} || T <- Cycles],
+    Sensor = [{round(T * 1000), T >= Te} || T <- Cycles],
+    {ok, #{position := Latched}} =
+        cell_hal_ads_latch:position_at_edge(Sensor, Positions, #{edge => rising}),
+    %% The poll: the first poll at or after the edge, at a random phase.
+    Phase = rand:uniform() * Poll,
+    Seen = Phase + Poll * math:ceil((Te - Phase) / Poll),
+    {Latched - True, At(Seen) - True}.
 
 position() ->
     list_to_tuple([begin {ok, #{position := P}} = cell_hal_axis:status(A), P end
