@@ -17,9 +17,17 @@
 %% or at once (`fault/2'); the axis then stops with `quick_deceleration' in ErrorStop
 %% until reset.
 %%
+%% With `publish' the axis writes its actual position (and velocity) into inputs of a
+%% simulated PLC's image, as an NC does into the PLC's axis structure every cycle: every
+%% `period_ms' while it moves, and once where it comes to rest. The HAL then reads
+%% them as any input, so the panel's IO page, the SHDR adapter's configured points and
+%% the latch's samples see the axis move. (A real axis's position is the PLC's own
+%% point; nothing is published.)
+%%
 %% ```
 %% #{id => x, kind => axis, type => sim,
-%%   opts => #{limits => {0.0, 1200.0}, home_ms => 100, fault_rate => 0.0}}
+%%   opts => #{limits => {0.0, 1200.0}, home_ms => 100, fault_rate => 0.0,
+%%             publish => #{group => axes_io, position => x_pos, velocity => x_vel}}}
 %% '''
 -module(cell_hal_axis_sim).
 -behaviour(cell_hal_axis).
@@ -47,6 +55,9 @@
             timer :: reference() | undefined,
             fault_timer :: reference() | undefined,
             fault_next = false :: boolean(),
+            publish_timer :: reference() | undefined,
+            %% The last failure to publish, logged once.
+            publish_error :: term(),
             %% Who is told of each job's end: {Pid, Ref} by job id.
             owners = #{} :: #{pos_integer() => {pid(), reference()}},
             opts :: map()}).
@@ -69,7 +80,20 @@ check_opts(Opts) ->
                                    fault_rate => {0.0, fun(V) -> is_number(V) andalso V >= 0
                                                                      andalso V =< 1 end},
                                    quick_deceleration => {10000, fun positive/1},
-                                   position => {0.0, fun erlang:is_number/1}}).
+                                   position => {0.0, fun erlang:is_number/1},
+                                   publish => {none, fun publish/1}}).
+
+publish(none) ->
+    true;
+publish(#{group := G, position := P} = M) when is_atom(G), is_atom(P) ->
+    lists:all(fun({group, _}) -> true;
+                 ({position, _}) -> true;
+                 ({velocity, V}) -> is_atom(V);
+                 ({period_ms, Ms}) -> is_integer(Ms) andalso Ms > 0;
+                 (_) -> false
+              end, maps:to_list(M));
+publish(_) ->
+    false.
 
 limits(none) -> true;
 limits({Min, Max}) -> is_number(Min) andalso is_number(Max) andalso Min < Max;
@@ -80,8 +104,9 @@ positive(V) -> is_number(V) andalso V > 0.
 %% @private
 -spec init(atom(), map()) -> {ok, #s{}}.
 init(Id, #{limits := Limits, position := P} = Opts) ->
-    {ok, #s{id = Id, fsm = cell_hal_axis_fsm:new(#{limits => Limits}), position = float(P),
-            t0 = now_ms(), opts = Opts}}.
+    S = #s{id = Id, fsm = cell_hal_axis_fsm:new(#{limits => Limits}), position = float(P),
+           t0 = now_ms(), opts = Opts},
+    {ok, publish_now(S)}.
 
 %% @private
 -spec command(pid(), cell_hal_axis_fsm:command(), #s{}) ->
@@ -129,6 +154,8 @@ handle_call({fault, Code}, S) when is_integer(Code), Code > 0 ->
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
 handle_info({timeout, Ref, {job_end, Id}}, #s{timer = Ref} = S) ->
     {noreply, event({done, Id}, S#s{timer = undefined})};
+handle_info({timeout, Ref, publish}, #s{publish_timer = Ref} = S) ->
+    {noreply, published(S#s{publish_timer = undefined})};
 handle_info({timeout, Ref, fault}, #s{fault_timer = Ref} = S) ->
     {noreply, event({fault, ?FOLLOWING_ERROR}, S#s{fault_timer = undefined})};
 handle_info({timeout, _Stale, _}, S) ->
@@ -159,7 +186,7 @@ effect({run, #{deceleration := Dec} = Job}, S) ->
     %% Halt and stop.
     run(Job, cell_hal_axis_profile:stop(actual(S), Dec), undefined, S);
 effect({done, #{id := Id, kind := home, target := At}}, S) ->
-    tell(Id, done, (stand(S))#s{position = float(At)});
+    tell(Id, done, publish_now((stand(S))#s{position = float(At)}));
 effect({done, #{id := Id}}, S) ->
     %% The job's motion ended: the axis stands at its end.
     tell(Id, done, stand(S));
@@ -174,14 +201,15 @@ effect(power_off, S) ->
     stand(S);
 effect(quick_stop, #s{opts = #{quick_deceleration := Dec}} = S) ->
     S1 = cancel(S),
-    S1#s{profile = cell_hal_axis_profile:stop(actual(S), Dec), tau0 = 0.0, t0 = now_ms()};
+    published(S1#s{profile = cell_hal_axis_profile:stop(actual(S), Dec), tau0 = 0.0,
+                   t0 = now_ms()});
 effect({override, Pct}, S) ->
     rebase(Pct / 100, S).
 
 %% A job runs: its profile from now, a timer at its end (`Ms' real ms for homing).
 run(#{id := Id}, Profile, Ms, S) ->
     S1 = (cancel(S))#s{profile = Profile, tau0 = 0.0, t0 = now_ms()},
-    arm(Id, Ms, S1).
+    published(arm(Id, Ms, S1)).
 
 arm(Id, undefined, #s{profile = Profile, tau0 = Tau0, rate = Rate} = S) when Rate > 0 ->
     Left = (duration(Profile) - Tau0) / Rate,
@@ -228,11 +256,50 @@ tell(Id, What, #s{owners = Owners} = S) ->
 %% The axis stands where it is now.
 stand(S) ->
     {X, _} = actual(S),
-    (cancel(S))#s{position = X, profile = undefined, tau0 = 0.0}.
+    publish_now((cancel(S))#s{position = X, profile = undefined, tau0 = 0.0}).
 
-cancel(#s{timer = T, fault_timer = F} = S) ->
-    _ = [erlang:cancel_timer(R) || R <- [T, F], R =/= undefined],
-    S#s{timer = undefined, fault_timer = undefined}.
+%% The position written now and, while the axis moves, again each period.
+published(#s{opts = #{publish := none}} = S) ->
+    S;
+published(#s{profile = undefined} = S) ->
+    publish_now(S);
+published(#s{profile = Profile, timer = undefined, fsm = Fsm} = S) when Profile =/= undefined ->
+    %% No job's end to wait for (the stop after a fault): at rest once its profile ran
+    %% out.
+    case cell_hal_axis_fsm:job(Fsm) =:= undefined andalso tau(now_ms(), S) >= duration(Profile) of
+        true -> {X, _} = actual(S), publish_now(S#s{position = X, profile = undefined});
+        false -> tick(S)
+    end;
+published(S) ->
+    tick(S).
+
+tick(#s{opts = #{publish := Pub}, publish_timer = undefined} = S) ->
+    S1 = publish_now(S),
+    S1#s{publish_timer = erlang:start_timer(maps:get(period_ms, Pub, 20), self(), publish)};
+tick(S) ->
+    publish_now(S).
+
+publish_now(#s{opts = #{publish := none}} = S) ->
+    S;
+publish_now(#s{id = Id, opts = #{publish := #{group := G} = Pub}, rate = Rate} = S) ->
+    {X, V} = actual(S),
+    Writes = [{maps:get(position, Pub), X}]
+        ++ [{P, V * Rate} || P <- [maps:get(velocity, Pub, none)], P =/= none],
+    case [R || {P, Value} <- Writes, R <- [cell_hal_sim:set({G, P}, Value)], R =/= ok] of
+        [] ->
+            S#s{publish_error = undefined};
+        [Error | _] when Error =:= S#s.publish_error ->
+            S;
+        [Error | _] ->
+            %% The group not added yet, or not on a simulated PLC: said once.
+            cell_log:warning(Id, "axis ~s cannot publish its position to ~s: ~tp",
+                             [Id, G, Error]),
+            S#s{publish_error = Error}
+    end.
+
+cancel(#s{timer = T, fault_timer = F, publish_timer = P} = S) ->
+    _ = [erlang:cancel_timer(R) || R <- [T, F, P], R =/= undefined],
+    S#s{timer = undefined, fault_timer = undefined, publish_timer = undefined}.
 
 actual(#s{profile = undefined, position = X}) ->
     {X, 0.0};

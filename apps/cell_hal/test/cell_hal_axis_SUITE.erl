@@ -12,7 +12,7 @@
          end_per_testcase/2]).
 -export([power_home_move/1, refused_commands/1, newer_move_aborts/1, halt_mid_move/1,
          stop_holds_until_released/1, fault_fails_the_move/1, override_is_a_time_base/1,
-         power_off_aborts/1, bad_options/1]).
+         power_off_aborts/1, publishes_its_position/1, bad_options/1]).
 
 -define(WAIT, 10000).
 -define(FAST, #{velocity => 2000, acceleration => 20000, deceleration => 20000}).
@@ -22,7 +22,7 @@
 all() ->
     [power_home_move, refused_commands, newer_move_aborts, halt_mid_move,
      stop_holds_until_released, fault_fails_the_move, override_is_a_time_base,
-     power_off_aborts, bad_options].
+     power_off_aborts, publishes_its_position, bad_options].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -165,11 +165,45 @@ power_off_aborts(_Config) ->
     {ok, #{state := disabled, position := P, velocity := 0.0}} = cell_hal_axis:status(x),
     ?assertMatch({ok, #{position := P}}, cell_hal_axis:status(x)).
 
+%% Published into a simulated PLC's inputs, the position is a HAL point like any other:
+%% it follows the move and ends at the target.
+publishes_its_position(_Config) ->
+    ok = cell_hal:add_connection(#{id => nc, driver => cell_hal_sim, opts => #{poll_ms => 10}}),
+    ok = cell_hal:add_group(#{id => axes_io, module => cell_hal_test_axis_io, connection => nc}),
+    try
+        ok = cell_hal_hw:add(#{id => px, kind => axis, type => sim,
+                               opts => #{home_ms => 1, position => 5.0,
+                                         publish => #{group => axes_io, position => x_pos,
+                                                      velocity => x_vel, period_ms => 10}}}),
+        %% At rest where it starts.
+        ok = await_point(x_pos, {eq, 5.0}),
+        ok = done(cell_hal_axis:power(px, true)),
+        ok = done(cell_hal_axis:home(px, 0.0)),
+        ok = await_point(x_pos, {eq, 0.0}),
+        %% Moving: the published position passes 100 on its way to 300, the velocity
+        %% is seen above zero; at rest at the target, velocity zero.
+        {ok, M} = cell_hal_axis:move_absolute(px, 300.0, ?SLOW#{velocity => 200}),
+        ok = await_point(x_pos, {gt, 100.0}),
+        ok = await_point(x_vel, {gt, 0.0}),
+        ok = await(M, done),
+        ok = await_point(x_pos, {eq, 300.0}),
+        ok = await_point(x_vel, {eq, 0.0})
+    after
+        _ = cell_hal_hw:remove(px),
+        ok = cell_hal:remove_group(axes_io),
+        ok = cell_hal:remove_connection(nc)
+    end.
+
+await_point(P, Cond) ->
+    {ok, Ref} = cell_hal:watch(axes_io, P, Cond),
+    receive {cell_hal_watch, Ref, _} -> ok after ?WAIT -> ct:fail({point, P, Cond}) end.
+
 bad_options(_Config) ->
     Add = fun(Opts) -> cell_hal_hw:add(#{id => y, kind => axis, type => sim, opts => Opts}) end,
     ?assertEqual({error, {bad_option, limits}}, Add(#{limits => {5, 1}})),
     ?assertEqual({error, {bad_option, fault_rate}}, Add(#{fault_rate => 2})),
     ?assertEqual({error, {bad_option, speed}}, Add(#{speed => 1})),
+    ?assertEqual({error, {bad_option, publish}}, Add(#{publish => #{group => g}})),
     ?assertEqual({error, not_present}, cell_hal_axis:status(y)).
 
 %% -------------------------------------------------------------------------------------
