@@ -5,7 +5,8 @@
 %% writing XML by hand.
 %%
 %% The cell is a Device; its Controller holds the cell-wide items and one Path per
-%% device task; configured HAL points sit on the Device.
+%% device task; configured HAL points sit on the Device, or, configured on an axis, on
+%% a Linear or Rotary component of the Device's Axes (`<name>.axes', `<name>.axis.<axis>').
 %%
 %% Ids are unique per cell, so several cells can feed one agent (which refuses a
 %% device declaring an id another device has): each is derived from the device name,
@@ -28,6 +29,7 @@ xml(Items, Settings, NowMs) ->
     Esc = fun cell_shdr_assets:xml_escape/1,
     Name = maps:get(device_name, Settings),
     Paths = lists:usort([{Prefix, Task} || #{component := {path, Task, Prefix}} <- Items]),
+    Axes = lists:usort([{Axis, Kind} || #{component := {axis, Kind, Axis}} <- Items]),
     iolist_to_binary(
       [<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n">>,
        <<"<MTConnectDevices xmlns=\"urn:mtconnect.org:MTConnectDevices:">>, version(),
@@ -44,6 +46,7 @@ xml(Items, Settings, NowMs) ->
        description(Settings, <<"      ">>),
        data_items(Name, [I || #{component := device} = I <- Items], <<"      ">>),
        <<"      <Components>\n">>,
+       axes(Name, Axes, Items),
        <<"        <Controller id=\"">>, Esc(Name), <<".controller\" name=\"controller\">\n">>,
        data_items(Name, [I || #{component := controller} = I <- Items], <<"          ">>),
        case Paths of
@@ -67,6 +70,23 @@ description(Settings, Indent) ->
                 V <- [maps:get(F, Settings)], V =/= <<>>],
     [Indent, <<"<Description">>, Attrs, $>, Esc(maps:get(description, Settings)),
      <<"</Description>\n">>].
+
+axes(_Device, [], _Items) ->
+    [];
+axes(Device, Axes, Items) ->
+    Esc = fun cell_shdr_assets:xml_escape/1,
+    [<<"        <Axes id=\"">>, Esc(Device), <<".axes\" name=\"axes\">\n">>,
+     <<"          <Components>\n">>,
+     [begin
+          Tag = case Kind of linear -> <<"Linear">>; rotary -> <<"Rotary">> end,
+          Mine = [I || #{component := {axis, K, A}} = I <- Items, K =:= Kind, A =:= Axis],
+          [<<"            <">>, Tag, <<" id=\"">>, Esc(Device), <<".axis.">>, Esc(Axis),
+           <<"\" name=\"">>, Esc(Axis), <<"\">\n">>,
+           data_items(Device, Mine, <<"              ">>),
+           <<"            </">>, Tag, <<">\n">>]
+      end || {Axis, Kind} <- Axes],
+     <<"          </Components>\n">>,
+     <<"        </Axes>\n">>].
 
 path(Device, Prefix, Task, Items) ->
     Esc = fun cell_shdr_assets:xml_escape/1,

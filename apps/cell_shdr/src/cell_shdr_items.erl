@@ -74,7 +74,8 @@
 -export_type([item/0, component/0, category/0]).
 
 -type category() :: sample | event | condition.
--type component() :: device | controller | {path, atom(), binary()}.
+-type component() :: device | controller | {path, atom(), binary()}
+                   | {axis, linear | rotary, binary()}.
 -type item() :: #{key := binary(), type := binary(), category := category(),
                   component := component(), sub_type => binary(), units => binary(),
                   time_series => true, rate => number()}.
@@ -123,7 +124,14 @@ task_items(Task, Prefix, Works) ->
 
 point_item(#{name := Name, type := Type, category := Cat, sub_type := Sub,
              units := Units} = P) ->
-    Base = #{key => Name, type => Type, category => Cat, component => device},
+    Component = case P of
+                    #{component := Kind, axis := Axis} when Kind =:= linear;
+                                                            Kind =:= rotary ->
+                        {axis, Kind, Axis};
+                    #{} ->
+                        device
+                end,
+    Base = #{key => Name, type => Type, category => Cat, component => Component},
     B1 = case Sub of <<>> -> Base; _ -> Base#{sub_type => Sub} end,
     B2 = case Units of <<>> -> B1; _ -> B1#{units => Units} end,
     case P of

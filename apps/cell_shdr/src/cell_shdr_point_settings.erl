@@ -32,9 +32,15 @@ fields() ->
      #{name => rate, type => {float, 0.1, 1000.0}, default => 10.0, unit => <<"Hz">>,
        doc => <<"Sampling rate of a time series.">>},
      #{name => count, type => {integer, 1, 1000}, default => 10,
-       doc => <<"Samples per time series line.">>}].
+       doc => <<"Samples per time series line.">>},
+     #{name => component, type => {enum, [device, linear, rotary]}, default => device,
+       doc => <<"Where the item sits: on the device, or on an axis (a Linear or Rotary "
+                "component of the device's Axes), as an axis's position and velocity.">>},
+     #{name => axis, type => {string, 32}, default => <<>>,
+       doc => <<"The axis's name (X, Y, C ...) for a Linear or Rotary component.">>}].
 
-%% @doc Types and sub-types are MTConnect words; a time series is a sample.
+%% @doc Types and sub-types are MTConnect words; a time series is a sample; an item on
+%% an axis names the axis.
 -spec check(map()) -> ok | {error, cell_settings_schema:path(), term()}.
 check(#{type := Type, sub_type := Sub, units := Units} = P) ->
     case {word(Type), Sub =:= <<>> orelse word(Sub), Units =:= <<>> orelse unit(Units)} of
@@ -45,6 +51,11 @@ check(#{type := Type, sub_type := Sub, units := Units} = P) ->
             case P of
                 #{time_series := true, category := event} ->
                     {error, [category], time_series_is_a_sample};
+                #{component := C, axis := Axis} when C =/= device ->
+                    case Axis =/= <<>> andalso cell_shdr_items:valid_name(Axis) of
+                        true -> ok;
+                        false -> {error, [axis], {an_axis_needs_a_name, Axis}}
+                    end;
                 _ ->
                     ok
             end

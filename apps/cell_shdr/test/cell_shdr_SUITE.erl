@@ -576,12 +576,25 @@ identity_changes_announced(_Config) ->
 
 %% Devices.xml declares exactly the items the stream carries, and is valid against the
 %% MTConnect 2.0 schema (XSD 1.0 edition) when xmllint and the schema are at hand.
+%% Points configured on an axis sit on a Linear or Rotary component of the Axes.
 devices_xml_matches_stream(Config) ->
     ok = put_settings(#{manufacturer => <<"ACME & Sons">>, station => <<"7">>,
                         points => [point(<<"oven_temp">>, <<"oven">>, <<"temp">>, sample,
                                          <<"TEMPERATURE">>, <<"CELSIUS">>),
                                    (point(<<"current">>, <<"spindle">>, <<"current">>, sample,
-                                          <<"AMPERAGE">>, <<"AMPERE">>))#{time_series => true}]}),
+                                          <<"AMPERAGE">>, <<"AMPERE">>))#{time_series => true},
+                                   (point(<<"x_pos">>, <<"axes">>, <<"x_pos">>, sample,
+                                          <<"POSITION">>, <<"MILLIMETER">>))#{
+                                     sub_type => <<"ACTUAL">>, component => linear,
+                                     axis => <<"X">>},
+                                   (point(<<"x_feed">>, <<"axes">>, <<"x_vel">>, sample,
+                                          <<"AXIS_FEEDRATE">>, <<"MILLIMETER/SECOND">>))#{
+                                     sub_type => <<"ACTUAL">>, component => linear,
+                                     axis => <<"X">>},
+                                   (point(<<"c_angle">>, <<"axes">>, <<"c_pos">>, sample,
+                                          <<"ANGLE">>, <<"DEGREE">>))#{
+                                     sub_type => <<"ACTUAL">>, component => rotary,
+                                     axis => <<"C">>}]}),
     File = filename:join(?config(priv_dir, Config), "Devices.xml"),
     ok = cell_shdr:devices_xml(File),
     {Doc, _} = xmerl_scan:file(File),
@@ -601,6 +614,10 @@ devices_xml_matches_stream(Config) ->
     ?assertMatch([_], xmerl_xpath:string("//Device[@uuid='" ++ Uuid ++ "']", Doc)),
     [?assertMatch([_], xmerl_xpath:string("//Path[@name='" ++ atom_to_list(T) ++ "']", Doc))
      || T <- ?TASKS],
+    ?assertMatch([_, _], xmerl_xpath:string(
+                           "//Axes/Components/Linear[@name='X']/DataItems/DataItem", Doc)),
+    ?assertMatch([_], xmerl_xpath:string("//Axes/Components/Rotary[@name='C']/DataItems/"
+                                         "DataItem[@name='c_angle']", Doc)),
     {ok, Xml} = file:read_file(File),
     schema_check("MTConnectDevices_2.0_1.0.xsd", Xml, Config),
     ok = gen_tcp:close(S).

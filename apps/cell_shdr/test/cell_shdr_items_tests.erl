@@ -119,3 +119,26 @@ is_message_test_() ->
     [?_assert(cell_shdr_items:is_message(#{type => <<"MESSAGE">>})),
      ?_assertNot(cell_shdr_items:is_message(#{type => <<"PROGRAM">>})),
      ?_assertNot(cell_shdr_items:is_message(#{type => <<"TEMPERATURE">>}))].
+
+%% A point configured on an axis is an item of that axis's Linear or Rotary component;
+%% the settings refuse one that names no axis.
+axis_point_test_() ->
+    Point = #{name => <<"x_pos">>, type => <<"POSITION">>, category => sample,
+              sub_type => <<"ACTUAL">>, units => <<"MILLIMETER">>},
+    Items = fun(P) -> [I || #{key := <<"x_pos">>} = I <- cell_shdr_items:items([], [P])] end,
+    Check = fun(P) ->
+                    cell_shdr_point_settings:check(
+                      maps:merge(#{time_series => false, component => device, axis => <<>>},
+                                 P))
+            end,
+    [?_assertMatch([#{component := {axis, linear, <<"X">>}}],
+                   Items(Point#{component => linear, axis => <<"X">>})),
+     ?_assertMatch([#{component := {axis, rotary, <<"C">>}}],
+                   Items(Point#{component => rotary, axis => <<"C">>})),
+     ?_assertMatch([#{component := device}], Items(Point#{component => device, axis => <<>>})),
+     ?_assertMatch([#{component := device}], Items(Point)),
+     ?_assertEqual(ok, Check(Point#{component => linear, axis => <<"X">>})),
+     ?_assertEqual({error, [axis], {an_axis_needs_a_name, <<>>}},
+                   Check(Point#{component => linear})),
+     ?_assertEqual({error, [axis], {an_axis_needs_a_name, <<"X Y">>}},
+                   Check(Point#{component => rotary, axis => <<"X Y">>}))].
