@@ -50,16 +50,23 @@ await_boot_expr() ->
                                 "application:ensure_all_started(A, T) end, ~w).",
                                 [boot_apps()])).
 
-%% Runs the start script's `ping' until `Done(Output)' holds, at most `Tries' times;
+%% Runs the start script's `ping' until `Done(Output)' holds, for at most `TimeoutMs';
 %% `ok' or `{error, timeout}'. `ping' waits for its answer, so each try is a round trip,
-%% not a sleep.
-await_ping(_Bin, _Env, _Done, 0) ->
-    {error, timeout};
-await_ping(Bin, Env, Done, Tries) ->
+%% not a sleep. A deadline, not a number of tries: a failing ping is quick, and a node
+%% that boots slowly on a busy machine (the virtual PLC first, then the cell) must not
+%% run out of tries before it is up.
+await_ping(Bin, Env, Done, TimeoutMs) ->
+    ping_until(Bin, Env, Done, erlang:monotonic_time(millisecond) + TimeoutMs).
+
+ping_until(Bin, Env, Done, Deadline) ->
     {_, Out} = run(Bin, ["ping"], Env, 30000),
     case Done(Out) of
         true -> ok;
-        false -> await_ping(Bin, Env, Done, Tries - 1)
+        false ->
+            case erlang:monotonic_time(millisecond) < Deadline of
+                true -> ping_until(Bin, Env, Done, Deadline);
+                false -> {error, timeout}
+            end
     end.
 
 %% Makes the test's node a distributed one, named from `Prefix' and its OS pid, unless

@@ -261,13 +261,13 @@ other_addresses() ->
 start(Config) ->
     {0, _} = cellrt(Config, ["daemon"]),
     ok = cellrt_rel:await_ping(?config(bin, Config), ?config(env, Config),
-                               fun(Out) -> string:trim(Out) =:= "pong" end, 100),
+                               fun(Out) -> string:trim(Out) =:= "pong" end, 120000),
     ?assertEqual("ok", eval(Config, cellrt_rel:await_boot_expr())),
     ok.
 
 await_down(Config) ->
     cellrt_rel:await_ping(?config(bin, Config), ?config(env, Config),
-                          fun(Out) -> string:trim(Out) =/= "pong" end, 100).
+                          fun(Out) -> string:trim(Out) =/= "pong" end, 120000).
 
 eval(Config, Expr) ->
     {0, Out} = cellrt(Config, ["eval", Expr], 120000),

@@ -101,7 +101,7 @@ heart_restarts_after_sigkill(Config) ->
     _ = os:cmd("kill -9 " ++ string:trim(Pid, both, "\"\n ")),
     %% Each try is a round trip of the start script: the node answering with another
     %% OS process is heart's restart.
-    ok = await(Config, fun(_) -> other_pid(Config, Pid) end, 200),
+    ok = await(Config, fun(_) -> other_pid(Config, Pid) end),
     ok = await_up(Config),
     {0, Counts} = cellrt(Config, ["eval", "cell_stats:node_restarts()."]),
     ?assertEqual({ok, #{clean => 0, unexpected => 1}}, parse(Counts)),
@@ -223,13 +223,15 @@ cellrt(Config, Args, Timeout) ->
 %% Up: answering ping, and its boot done (a node answers ping while its boot still
 %% starts the applications).
 await_up(Config) ->
-    ok = await(Config, fun(Out) -> string:trim(Out) =:= "pong" end, 100),
+    ok = await(Config, fun(Out) -> string:trim(Out) =:= "pong" end),
     {0, Out} = cellrt(Config, ["eval", cellrt_rel:await_boot_expr()], 120000),
     ?assertEqual("ok", string:trim(Out)),
     ok.
 
 await_down(Config) ->
-    await(Config, fun(Out) -> string:trim(Out) =/= "pong" end, 100).
+    await(Config, fun(Out) -> string:trim(Out) =/= "pong" end).
 
-await(Config, Done, N) ->
-    cellrt_rel:await_ping(?config(bin, Config), ?config(env, Config), Done, N).
+%% Two minutes: a node (and, for `make run', its virtual PLC before it) boots within
+%% that on a busy machine.
+await(Config, Done) ->
+    cellrt_rel:await_ping(?config(bin, Config), ?config(env, Config), Done, 120000).

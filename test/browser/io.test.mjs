@@ -32,7 +32,7 @@ test('an operator sees no IO page and cannot force', async () => {
   await logout(page);
 });
 
-test('the IO page shows every point live, its connection and its camera', async () => {
+test('the IO page shows every point live, its connection, its camera and its axis', async () => {
   await login(page, 'service', 'service');
   await page.click('[data-testid=tab-io]');
   await page.waitForSelector('[data-connection="demo_plc"]:has-text("up")');
@@ -54,6 +54,9 @@ test('the IO page shows every point live, its connection and its camera', async 
   await page.waitForSelector('[data-hardware=camera] img[data-loaded=true]');
   const size = await page.locator('[data-hardware=camera] img').evaluate((i) => [i.naturalWidth, i.naturalHeight]);
   assert.deepEqual(size, [64, 48]);
+  // The axis as its NC has it: PLCopen's state, where it stands, not homed yet.
+  const axis = await page.locator('[data-testid=axis-gantry_x]').textContent();
+  assert.match(axis, /disabled · 25 · 0\/s · override \d+ % · not homed/);
 });
 
 test('forcing needs service mode; a real refusal names why', async () => {
