@@ -2,7 +2,9 @@
 %% unit, address, quality, whether it is forced and whether it can be: an output, or
 %% an input of a simulated PLC), grouped as the cell spec lists the
 %% groups, the PLC connections (status, why down, reconnections) and the hardware
-%% objects; the page then follows the websocket (`io', `io_conn', `forces').
+%% objects (an axis with its state, position, velocity and error code, a channel with
+%% its progress, as they are at the request); the page then follows the websocket
+%% (`io', `io_conn', `forces').
 %% `GET /api/io/hardware/:id/image' — grabs an image from a camera (role service) and
 %% answers it as PNG.
 -module(cell_web_io_h).
@@ -62,11 +64,31 @@ point(#{group := G, name := P, dir := Dir, type := Type, address := A, caption :
       <<"forceable">> => cell_hal_force:forceable(Dir, Driver) =:= ok}.
 
 hardware({Id, Kind, _Mod}) ->
-    #{<<"id">> => atom_to_binary(Id, utf8), <<"kind">> => atom_to_binary(Kind, utf8),
-      <<"status">> => case cell_hal_hw:status(Id) of
-                          S when is_atom(S) -> atom_to_binary(S, utf8);
-                          {error, _} -> <<"absent">>
-                      end}.
+    Base = #{<<"id">> => atom_to_binary(Id, utf8), <<"kind">> => atom_to_binary(Kind, utf8),
+             <<"status">> => case cell_hal_hw:status(Id) of
+                                 S when is_atom(S) -> atom_to_binary(S, utf8);
+                                 {error, _} -> <<"absent">>
+                             end},
+    maps:merge(Base, motion(Kind, Id)).
+
+%% An axis's or a channel's state as its NC has it now (PLCopen's state, position,
+%% velocity, error code; a channel's progress along its path).
+motion(axis, Id) ->
+    case cell_hal_axis:status(Id) of
+        {ok, St} -> #{<<"axis">> => cell_web_json:term(maps:with([state, position, velocity,
+                                                                  error, homed, powered,
+                                                                  override], St))};
+        {error, _} -> #{}
+    end;
+motion(channel, Id) ->
+    case cell_hal_channel:status(Id) of
+        {ok, St} -> #{<<"channel">> => cell_web_json:term(maps:with([state, along, length,
+                                                                     segment, segments],
+                                                                    St))};
+        {error, _} -> #{}
+    end;
+motion(_Kind, _Id) ->
+    #{}.
 
 grab(Name, Req) ->
     case [Id || {Id, camera, _} <- cell_hal_hw:list(), atom_to_binary(Id, utf8) =:= Name] of

@@ -54,7 +54,8 @@ hal() ->
                  #{id => line, module => ?MODULE, connection => demo_plc,
                    opts => #{kind => line}}],
       hardware => [#{id => camera, kind => camera, type => sim,
-                     opts => #{width => 64, height => 48}}]}.
+                     opts => #{width => 64, height => 48}},
+                   #{id => gantry_x, kind => axis, type => sim, opts => #{position => 25.0}}]}.
 
 monitor() ->
     #{io => maps:from_list([{R, {general, R}} || R <- cell_monitor_spec:outputs()])}.

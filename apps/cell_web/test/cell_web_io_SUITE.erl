@@ -40,7 +40,12 @@ init_per_suite(Config) ->
                                  #{id => line, module => cell_web_demo, connection => plc,
                                    opts => #{kind => line}}],
                       hardware => [#{id => camera, kind => camera, type => sim,
-                                     opts => #{width => 8, height => 4}}]},
+                                     opts => #{width => 8, height => 4}},
+                                   #{id => x, kind => axis, type => sim,
+                                     opts => #{position => 12.5}},
+                                   #{id => y, kind => axis, type => sim},
+                                   #{id => xy, kind => channel, type => sim,
+                                     opts => #{axes => [x, y]}}]},
              monitor => Monitor}),
     ok = application:set_env(cell_web, port, 0),
     {ok, _} = application:ensure_all_started(cell_web),
@@ -145,8 +150,21 @@ io_points_and_connections(Config) ->
                    <<"address">> := <<"A2.40.01">>, <<"caption">> := <<"Conveyor speed">>,
                    <<"quality">> := <<"good">>, <<"value">> := 0, <<"forced">> := false,
                    <<"forceable">> := true}, Speed),
-    ?assertEqual([#{<<"id">> => <<"camera">>, <<"kind">> => <<"camera">>, <<"status">> => <<"up">>}],
-                 Hw).
+    %% An axis with its state and position, a channel with its progress.
+    ?assertEqual([#{<<"id">> => <<"camera">>, <<"kind">> => <<"camera">>, <<"status">> => <<"up">>},
+                  #{<<"id">> => <<"x">>, <<"kind">> => <<"axis">>, <<"status">> => <<"up">>,
+                    <<"axis">> => #{<<"state">> => <<"disabled">>, <<"position">> => 12.5,
+                                    <<"velocity">> => 0.0, <<"error">> => 0,
+                                    <<"homed">> => false, <<"powered">> => false}},
+                  #{<<"id">> => <<"xy">>, <<"kind">> => <<"channel">>, <<"status">> => <<"up">>,
+                    <<"channel">> => #{<<"state">> => <<"idle">>, <<"along">> => 0.0,
+                                       <<"length">> => 0.0, <<"segment">> => 0,
+                                       <<"segments">> => 0}}],
+                 %% (The override is the monitor's to set: its own suites check it.)
+                 [case H of
+                      #{<<"axis">> := A} -> H#{<<"axis">> := maps:remove(<<"override">>, A)};
+                      _ -> H
+                  end || #{<<"id">> := Id} = H <- Hw, Id =/= <<"y">>]).
 
 force_needs_role_and_service_mode(Config) ->
     Op = as(operator, Config),

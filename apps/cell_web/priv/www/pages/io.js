@@ -1,7 +1,7 @@
 // The IO page (service): every IO group and point of the cell live (value, type,
 // caption, unit, address, quality), grouped as the cell spec groups them; the PLC
 // connections with their status and reconnections; the hardware objects (a camera's
-// image grabbed on request). In service mode a service user forces an output or a
+// image grabbed on request, an axis's state and position, a channel's progress). In service mode a service user forces an output or a
 // simulated input and releases it; the server decides and records each one.
 'use strict';
 (() => {
@@ -66,6 +66,23 @@
       const d = html('div', `hw ${h.status}`);
       d.dataset.hardware = h.id;
       d.append(html('b', '', h.id), html('span', '', ` ${h.kind} · ${h.status}`));
+      // An axis or a channel as it was when the page loaded (its published position
+      // points, if any, move live in their group below).
+      if (h.axis) {
+        const a = h.axis;
+        const s = html('span', 'motion', ` · ${a.state.replace('_', ' ')} · ${show(a.position)} · `
+          + `${show(a.velocity)}/s · override ${show(a.override)} %`
+          + (a.error ? ` · error ${a.error}` : '') + (a.homed ? '' : ' · not homed'));
+        s.dataset.testid = `axis-${h.id}`;
+        d.append(s);
+      }
+      if (h.channel) {
+        const c = h.channel;
+        const s = html('span', 'motion', ` · ${c.state} · ${show(c.along)} of ${show(c.length)}`
+          + ` · segment ${c.segment} of ${c.segments}`);
+        s.dataset.testid = `channel-${h.id}`;
+        d.append(s);
+      }
       if (h.kind === 'camera') {
         const b = html('button', 'small', 'Grab image');
         b.dataset.testid = `grab-${h.id}`;
