@@ -68,15 +68,8 @@ end_per_group(_Group, _Config) ->
 %% The suite needs root and iproute2 (scripts/setup test installs it): without them it
 %% fails, saying what is missing, rather than passing unrun.
 init_per_suite(Config) ->
-    case os:cmd("id -u") of
-        "0\n" ->
-            case cell_netns:available() of
-                ok -> Config;
-                {error, Why} -> ct:fail("network namespaces unavailable: " ++ Why)
-            end;
-        _ ->
-            ct:fail("network namespaces need root")
-    end.
+    ok = cell_netns:required(),
+    Config.
 
 end_per_suite(_Config) ->
     ok.

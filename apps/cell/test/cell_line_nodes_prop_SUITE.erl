@@ -20,15 +20,8 @@ all() ->
     [line_of_three].
 
 init_per_suite(Config) ->
-    case os:cmd("id -u") of
-        "0\n" ->
-            case cell_netns:available() of
-                ok -> Config;
-                {error, Why} -> ct:fail("network namespaces unavailable: " ++ Why)
-            end;
-        _ ->
-            ct:fail("network namespaces need root")
-    end.
+    ok = cell_netns:required(),
+    Config.
 
 end_per_suite(_Config) ->
     ok.

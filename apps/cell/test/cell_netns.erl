@@ -30,7 +30,7 @@
 %% also the epmd daemons the nodes started inside their namespaces.
 -module(cell_netns).
 
--export([available/0, create/1, destroy/1, tls/2, start_node/3, stop_node/2, node_of/2,
+-export([available/0, required/0, create/1, destroy/1, tls/2, start_node/3, stop_node/2, node_of/2,
          call/5, call/6, os_pid/2, kill_node/2, cut/3, heal/3, names/1]).
 
 -export_type([net/0]).
@@ -67,6 +67,20 @@ available() ->
             R;
         {_, Out} ->
             {error, "ip netns add: " ++ Out}
+    end.
+
+%% @doc For a suite's `init_per_suite': `ok', or the suite fails saying what is missing
+%% (root, iproute2, the blackhole qdisc) rather than passing unrun.
+-spec required() -> ok.
+required() ->
+    case os:cmd("id -u") of
+        "0\n" ->
+            case available() of
+                ok -> ok;
+                {error, Why} -> ct:fail("network namespaces unavailable: " ++ Why)
+            end;
+        _ ->
+            ct:fail("network namespaces need root")
     end.
 
 %% @doc Namespaces for the cells `Names', joined in a pair or to a bridge, with lo up.
