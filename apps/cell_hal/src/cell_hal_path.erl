@@ -52,19 +52,9 @@ new(_) ->
 %% @doc The path begun at `Point' (where the axes stand): a connecting line to its
 %% start put in front when it starts elsewhere.
 -spec from(path(), point()) -> path().
-from(#path{start = Start} = Path, Point) ->
+from(#path{segs = Segs}, Point) ->
     {ok, P} = pt(Point),
-    case dist(P, Start) > 1.0e-9 of
-        true ->
-            Gap = dist(P, Start),
-            Shifted = [{S + Gap, Len, Kind, Role}
-                       || {S, Len, Kind, Role} <- tuple_to_list(Path#path.segs)],
-            Path#path{segs = list_to_tuple([{0.0, Gap, {line, P, Start}, connecting}
-                                            | Shifted]),
-                      length = Path#path.length + Gap, start = P};
-        false ->
-            Path
-    end.
+    build(P, [Kind || {_, _, Kind, path} <- tuple_to_list(Segs)]).
 
 %% @doc The path's length.
 -spec length(path()) -> float().
@@ -149,7 +139,11 @@ pt({X, Y}) when is_number(X), is_number(Y) -> {ok, {float(X), float(Y), 0.0}};
 pt(_) -> error.
 
 build(Kinds) ->
-    Start = first(hd(Kinds)),
+    build(first(hd(Kinds)), Kinds).
+
+%% Laid from Start: a connecting line put in wherever the next segment begins
+%% elsewhere, the first included.
+build(Start, Kinds) ->
     {Segs, Length, Finish} = lay(Kinds, Start, 0.0, []),
     #path{segs = list_to_tuple(Segs), length = Length, start = Start, finish = Finish}.
 
