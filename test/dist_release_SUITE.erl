@@ -15,12 +15,14 @@
 -export([no_cookie_makes_one_in_the_root/1, well_known_cookie_is_warned_of/1,
          cookie_others_can_read_is_refused/1,
          distribution_listens_on_loopback/1, distribution_bind_opens_it/1,
+         line_neighbours_only/1,
          bad_distribution_bind_is_refused/1, tls_distribution_between_two_nodes/1]).
 
 all() ->
     [no_cookie_makes_one_in_the_root, well_known_cookie_is_warned_of,
      cookie_others_can_read_is_refused,
      distribution_listens_on_loopback, distribution_bind_opens_it,
+     line_neighbours_only,
      bad_distribution_bind_is_refused, tls_distribution_between_two_nodes].
 
 init_per_suite(Config) ->
@@ -140,6 +142,15 @@ distribution_listens_on_loopback(Config) ->
     Port = dist_port(Config),
     [?assertEqual({error, econnrefused},
                   gen_tcp:connect(Ip, Port, [], 5000), Ip) || Ip <- other_addresses()].
+
+%% A cell's node connects to the nodes it dials and those that dial it, not to every
+%% node they know; and a cut between two other nodes never makes it drop its own
+%% connections (the line keeps one neighbour when it loses the other).
+line_neighbours_only(Config) ->
+    ok = start(Config),
+    ?assertEqual("{{ok,[[\"false\"]]},{ok,false}}",
+                 eval(Config, "{init:get_argument(connect_all), "
+                              "application:get_env(kernel, prevent_overlapping_partitions)}.")).
 
 %% CELLRT_DIST_BIND opens the distribution to a line of cells on several PCs.
 distribution_bind_opens_it(Config) ->

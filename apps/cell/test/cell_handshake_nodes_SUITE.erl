@@ -279,7 +279,8 @@ start_peer(Which, _Config) ->
     Paths = [P || P <- code:get_path(), string:find(P, "_build") =/= nomatch
                                              orelse string:find(P, "_debdeps") =/= nomatch],
     {ok, Peer, Node} = peer:start_link(#{name => Name, host => "localhost",
-                                         args => lists:append([["-pa", P] || P <- Paths]),
+                                         args => cell_netns:line_vm_args()
+                                             ++ lists:append([["-pa", P] || P <- Paths]),
                                          connection => standard_io}),
     true = erlang:register(list_to_atom("peer_" ++ atom_to_list(Which)), Peer),
     Node.

@@ -31,7 +31,7 @@
 -module(cell_netns).
 
 -export([available/0, required/0, create/1, destroy/1, tls/2, start_node/3, stop_node/2, node_of/2,
-         call/5, call/6, os_pid/2, kill_node/2, cut/3, heal/3, names/1]).
+         call/5, call/6, os_pid/2, kill_node/2, cut/3, heal/3, names/1, line_vm_args/0]).
 
 -export_type([net/0]).
 
@@ -217,8 +217,15 @@ start_node(#{run := Run, ends := Ends, cookie := Cookie, peers := Peers} = Net, 
                      args => ["-setcookie", atom_to_list(Cookie),
                               "-kernel", "inet_dist_listen_min", "21700",
                               "-kernel", "inet_dist_listen_max", "21709"]
-                              ++ Tls ++ lists:append([["-pa", P] || P <- Paths]) ++ Args}),
+                              ++ line_vm_args() ++ Tls ++ lists:append([["-pa", P] || P <- Paths]) ++ Args}),
     Net#{peers => Peers#{Name => {Peer, Node}}}.
+
+%% @doc The distribution flags the release gives a cell's node (config/vm.args.src):
+%% connected to its neighbours only, and a cut between two nodes never makes a third
+%% drop its connections.
+-spec line_vm_args() -> [string()].
+line_vm_args() ->
+    ["-connect_all", "false", "-kernel", "prevent_overlapping_partitions", "false"].
 
 %% @doc Stops the node of a cell (an orderly stop).
 -spec stop_node(net(), atom()) -> net().

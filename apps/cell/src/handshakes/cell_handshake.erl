@@ -796,9 +796,8 @@ call(T, Link, Request) ->
             T1 = attach(T, Link, Role),
             case request(T1, Link, Request) of
                 {{error, not_attached}, _, LPid} ->
-                    %% Still not attached: the link's name is not known here yet (a
-                    %% connection just healed, before global's sync; the greeting
-                    %% that follows it attaches the task). As a link restarting.
+                    %% Still not attached: the link restarted between the two asks
+                    %% (its greeting attaches the task). As a link restarting.
                     seen(T1, Link, {{error, link_down}, none, LPid});
                 Answer ->
                     seen(T1, Link, Answer)
@@ -817,8 +816,8 @@ seen(T, Link, {Reply, #{seq := Seq, link := LPid} = Status, LPid}) ->
 seen(T, _Link, {Reply, _, _}) ->
     {T, Reply}.
 
-%% The link process the task is attached to is called directly: looking a global name
-%% up checks that the process is alive, a round trip to it of its own. Only when that
+%% The link process the task is attached to is called directly: looking its name up
+%% on its node is a round trip of its own. Only when that
 %% process is gone is the name looked up (a restarted link answers `not_attached').
 request(T, Link, Request) ->
     Answer = case link_pid(T, Link) of

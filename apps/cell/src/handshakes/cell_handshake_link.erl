@@ -26,11 +26,15 @@
 -module(cell_handshake_link).
 -behaviour(gen_server).
 
--export([start_link/1, child_spec/1, whereis/1, name/1]).
+-export([start_link/1, child_spec/1, whereis/1, name/1, host/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2]).
 -export([fence_path/1]).
 
 -export_type([phase/0, role/0, spec/0]).
+
+%% A name looked up on a connected node: its answer is a round trip; a node that takes
+%% longer is as good as out of reach for this ask.
+-define(LOOKUP_TIMEOUT, 2000).
 
 -type phase() :: cell_handshake_link_core:phase().
 -type role() :: cell_handshake_link_core:role().
@@ -42,24 +46,55 @@
                 %% The monitors of the attached partners.
                 mrefs = #{} :: #{role() => reference()}}).
 
-%% @doc Starts a link; it registers globally, so a partner on another node finds it.
+%% @doc Starts a link, registered on its node under its local name. The cell's spec
+%% says which node runs it (the downstream's, see {@link cell_spec:hosted_links/1}),
+%% so a partner on another node finds it there without a name registry spanning the
+%% line: no global name, no synchronisation of names after a network cut or a node
+%% that restarts.
 -spec start_link(spec()) -> {ok, pid()} | {error, term()}.
 start_link(#{id := Id} = Spec) ->
-    gen_server:start_link({global, name(Id)}, ?MODULE, Spec, []).
+    gen_server:start_link({local, name(Id)}, ?MODULE, Spec, []).
 
 -spec child_spec(spec()) -> supervisor:child_spec().
 child_spec(#{id := Id} = Spec) ->
     #{id => Id, start => {?MODULE, start_link, [Spec]}}.
 
-%% @doc The global name of a link.
--spec name(atom()) -> {cell_handshake, atom()}.
-name(Id) -> {cell_handshake, Id}.
+%% @doc The name a link is registered under on its node.
+-spec name(atom()) -> atom().
+name(Id) -> list_to_atom("cell_handshake_" ++ atom_to_list(Id)).
 
+%% @doc The link process, wherever the running cell's spec places it; `undefined'
+%% while it is not running or its node is not connected. A node out of reach is not
+%% dialled here (cell_peers connects to the line's nodes, with a backoff): a task that
+%% asks again and again never waits for a connection of its own. A link the spec does
+%% not name is looked for on this node.
 -spec whereis(atom()) -> pid() | undefined.
 whereis(Id) ->
-    case global:whereis_name(name(Id)) of
-        undefined -> undefined;
-        Pid -> Pid
+    Name = name(Id),
+    Node = host(Id),
+    case Node =:= node() of
+        true ->
+            erlang:whereis(Name);
+        false ->
+            case lists:member(Node, nodes()) of
+                true ->
+                    try erpc:call(Node, erlang, whereis, [Name], ?LOOKUP_TIMEOUT)
+                    catch error:{erpc, _} -> undefined
+                    end;
+                false ->
+                    undefined
+            end
+    end.
+
+%% @doc The node a link runs on by the running cell's spec: the downstream task's, or
+%% the upstream's for a link with none (this node for a link it does not name).
+-spec host(atom()) -> node().
+host(Id) ->
+    #{links := Links} = cell_spec:running(),
+    case [L || #{id := I} = L <- Links, I =:= Id] of
+        [#{to := {_, Node}}] -> Node;
+        [#{to := undefined, from := {_, Node}}] -> Node;
+        _ -> node()
     end.
 
 %% -------------------------------------------------------------------------------------

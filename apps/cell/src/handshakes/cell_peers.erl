@@ -115,12 +115,10 @@ node_up(Node, #state{peers = Peers} = State) ->
         {ok, #{up := false, links := Links} = P} ->
             cell_log:info(cell, "connected to the cell on node ~ts", [Node]),
             ok = cell_alarms:reset_warning(cell, warning_id(Node)),
-            %% The names the other node registered become visible once global has
-            %% synchronised; then the tasks attach to their links again.
-            _ = spawn_link(fun() ->
-                                   _ = global:sync(),
-                                   [cell_handshake:hello(Task, Link) || {Task, Link} <- Links]
-                           end),
+            %% The tasks attach to their links again (a link on this node greets
+            %% its remote partner when that partner's node comes back: its task does
+            %% the same from there).
+            _ = [cell_handshake:hello(Task, Link) || {Task, Link} <- Links],
             State#state{peers = Peers#{Node => P#{up => true, backoff => ?BACKOFF_MIN}}};
         _ ->
             State
