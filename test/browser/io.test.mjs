@@ -57,6 +57,16 @@ test('the IO page shows every point live, its connection, its camera and its axi
   // The axis as its NC has it: PLCopen's state, where it stands, not homed yet.
   const axis = await page.locator('[data-testid=axis-gantry_x]').textContent();
   assert.match(axis, /disabled · 25 · 0\/s · override \d+ % · not homed/);
+  // It moves, and the page follows without asking: powered, homed, on its way, there.
+  page.on('request', seen);
+  await cell.cmd('axis gantry_x power');
+  await cell.cmd('axis gantry_x home 0');
+  await page.waitForSelector('[data-testid=axis-gantry_x]:text-matches("standstill · 0 · 0/s · override [0-9]+ %$")');
+  await cell.cmd('axis gantry_x move 40 20');
+  await page.waitForSelector('[data-testid=axis-gantry_x]:text("discrete motion")');
+  await page.waitForSelector('[data-testid=axis-gantry_x]:text-matches("standstill · 40 · 0/s")');
+  page.off('request', seen);
+  assert.deepEqual(requests, []);
 });
 
 test('forcing needs service mode; a real refusal names why', async () => {

@@ -39,7 +39,7 @@
 -behaviour(gen_server).
 
 -export([add/1, from_settings/1, remove/1, list/0, present/1, status/1, subscribe/1,
-         unsubscribe/1]).
+         unsubscribe/1, watch/1]).
 -export([call/3, call_async/2, set_status/1, check_opts/2]).
 -export([start_link/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
@@ -67,7 +67,9 @@
                 status = up :: up | down,
                 busy :: from() | undefined,                %% the operation in progress
                 waiting = queue:new() :: queue:queue({from(), term()}),
-                subs = #{} :: #{pid() => reference()}}).
+                subs = #{} :: #{pid() => reference()},
+                %% Told `{cell_hal_hw_changed, Id}' when the object may have changed.
+                watchers = #{} :: #{pid() => reference()}}).
 
 %%====================================================================
 %% Factory
@@ -141,6 +143,20 @@ status(Id) ->
 subscribe(Id) ->
     case whereis_object(Id) of
         {ok, Pid} -> gen_server:call(Pid, {subscribe, self()});
+        error -> {error, not_present}
+    end.
+
+%% @doc Sends `{cell_hal_hw_changed, Id}' to the caller whenever the object may have
+%% changed: a command or operation it took (not a question of its status), the end of
+%% a job, anything its implementation handled (an axis publishing its position as it
+%% moves, a fault), its connection. The caller reads what it shows (an axis's {@link
+%% cell_hal_axis:status/1}) when it is ready to: a panel shows a moving axis at its own
+%% pace, never falling behind. Answers the object's process, for the caller to monitor
+%% (a restarted object has watchers no more).
+-spec watch(atom()) -> {ok, pid()} | {error, not_present}.
+watch(Id) ->
+    case whereis_object(Id) of
+        {ok, Pid} -> gen_server:call(Pid, {watch, self()});
         error -> {error, not_present}
     end.
 
@@ -268,9 +284,15 @@ handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
         error ->
             {reply, ok, S}
     end;
+handle_call({watch, Pid}, _From, #state{watchers = Ws} = S) ->
+    Ws1 = case Ws of
+              #{Pid := _} -> Ws;
+              #{} -> Ws#{Pid => erlang:monitor(process, Pid)}
+          end,
+    {reply, {ok, self()}, S#state{watchers = Ws1}};
 handle_call({impl, Request}, _From, #state{mod = Mod, impl = Impl} = S) ->
     {reply, Reply, Impl1} = Mod:handle_call(Request, Impl),
-    {reply, Reply, S#state{impl = Impl1}};
+    {reply, Reply, changed(S#state{impl = Impl1})};
 handle_call({_, _} = Request, From, S) ->
     operation(Request, From, S).
 
@@ -293,14 +315,23 @@ reply(From, Reply) ->
     gen_server:reply(From, Reply).
 
 %% Starts an operation; one that finishes at once lets the next waiting one start.
+%% Watchers hear of every operation but a question of the status (their own).
 start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
+    Told = case Op of
+               status -> fun(S1) -> S1 end;
+               _ -> fun changed/1
+           end,
     case dispatch(Kind, Op, Mod, Impl) of
         {reply, Reply, Impl1} ->
             reply(From, Reply),
-            next(S#state{impl = Impl1});
+            next(Told(S#state{impl = Impl1}));
         {noreply, Impl1} ->
-            {noreply, S#state{impl = Impl1, busy = From}}
+            {noreply, Told(S#state{impl = Impl1, busy = From})}
     end.
+
+changed(#state{id = Id, watchers = Ws} = S) ->
+    maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw_changed, Id} end, Ws),
+    S.
 
 next(#state{waiting = W, status = Status} = S) ->
     case queue:out(W) of
@@ -340,21 +371,24 @@ handle_info({'$cell_hal_hw_status', Status}, #state{id = Id, subs = Subs} = S) -
     cell_log:notice(Id, "~s is ~s", [Id, case Status of up -> "connected";
                                                          down -> "disconnected" end]),
     maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw, Id, Status} end, Subs),
-    {noreply, S#state{status = Status}};
-handle_info({'DOWN', MRef, process, Pid, _}, #state{subs = Subs} = S) when is_map_key(Pid, Subs) ->
-    case Subs of
-        #{Pid := MRef} -> {noreply, S#state{subs = maps:remove(Pid, Subs)}};
-        #{} -> {noreply, S}
-    end;
+    {noreply, changed(S#state{status = Status})};
+handle_info({'DOWN', MRef, process, Pid, _}, #state{subs = Subs, watchers = Ws} = S)
+  when is_map_key(Pid, Subs); is_map_key(Pid, Ws) ->
+    Drop = fun(M) -> case M of
+                         #{Pid := MRef} -> maps:remove(Pid, M);
+                         #{} -> M
+                     end
+           end,
+    {noreply, S#state{subs = Drop(Subs), watchers = Drop(Ws)}};
 handle_info({'EXIT', _, _}, S) ->
     {noreply, S};
 handle_info(Msg, #state{mod = Mod, impl = Impl, busy = Busy} = S) ->
     case Mod:handle_info(Msg, Impl) of
         {noreply, Impl1} ->
-            {noreply, S#state{impl = Impl1}};
+            {noreply, changed(S#state{impl = Impl1})};
         {reply, Reply, Impl1} when Busy =/= undefined ->
             reply(Busy, Reply),
-            next(S#state{impl = Impl1})
+            next(changed(S#state{impl = Impl1}))
     end.
 
 %% @private

@@ -7,14 +7,14 @@
 -export([all/0, init_per_suite/1, end_per_suite/1, end_per_testcase/2]).
 -export([factory_from_settings/1, factory_refuses_bad_settings/1, cell_specific_types/1,
          camera_grabs/1, code_reader_reads/1, laser_marker_marks/1, connectivity/1,
-         wrong_kind_or_absent/1, remove_stops_the_object/1]).
+         wrong_kind_or_absent/1, remove_stops_the_object/1, watchers_hear_of_changes/1]).
 
 -define(WAIT, 5000).
 
 all() ->
     [factory_from_settings, factory_refuses_bad_settings, cell_specific_types, camera_grabs,
      code_reader_reads, laser_marker_marks, connectivity, wrong_kind_or_absent,
-     remove_stops_the_object].
+     remove_stops_the_object, watchers_hear_of_changes].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -179,3 +179,28 @@ remove_stops_the_object(_Config) ->
     receive {cell_hal_hw, code_reader, down} -> ok after ?WAIT -> ct:fail(no_down) end,
     ?assertNot(cell_hal_hw:present(code_reader)),
     ?assertEqual({error, not_present}, cell_hal_hw:remove(code_reader)).
+
+%% A watcher hears that an axis may have changed: a command it took, the end of its
+%% job; never a question of its status (the watcher's own reads would echo forever).
+watchers_hear_of_changes(_Config) ->
+    ok = cell_hal_hw:from_settings(#{x => #{kind => axis, type => sim}}),
+    {ok, Pid} = cell_hal_hw:watch(x),
+    ?assert(is_pid(Pid)),
+    ?assertEqual({error, not_present}, cell_hal_hw:watch(nothing_here)),
+    {ok, _} = cell_hal_axis:status(x),
+    {ok, P} = cell_hal_axis:power(x, true),
+    receive {cell_hal_hw_changed, x} -> ok after ?WAIT -> ct:fail(no_change_told) end,
+    receive {P, done} -> ok after ?WAIT -> ct:fail(not_powered) end,
+    flush_changes(),
+    {ok, _} = cell_hal_axis:status(x),
+    %% The status read is not a change: the next message is the one the override makes.
+    ok = cell_hal_axis:set_override(x, 50),
+    {ok, #{override := 50}} = cell_hal_axis:status(x),
+    {messages, Msgs} = process_info(self(), messages),
+    ?assertEqual([{cell_hal_hw_changed, x}], Msgs),
+    flush_changes().
+
+flush_changes() ->
+    receive {cell_hal_hw_changed, _} -> flush_changes()
+    after 0 -> ok
+    end.

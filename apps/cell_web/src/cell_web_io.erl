@@ -9,12 +9,19 @@
 %% change is sent at once: `{"type": "io_conn", "connection": Conn}'. It counts the
 %% reconnections of each connection it has seen come up again.
 %%
+%% The axes and the interpolation channels are watched too ({@link
+%% cell_hal_hw:watch/1}): when one may have changed (a move began or ended, it
+%% published its position while moving, it faulted, its override changed) it is read
+%% again at the next flush and sent as `{"type": "hardware", "hardware": [Object]}',
+%% each as `GET /api/io' has it ({@link hardware_json/1}).
+%%
 %% The subscriptions live in the HAL's tables, so a restart of a HAL process keeps
-%% them; a restart of this process subscribes again at the next page.
+%% them; a restart of this process subscribes again at the next page. A hardware
+%% object that restarts is watched again at the next page.
 -module(cell_web_io).
 -behaviour(gen_server).
 
--export([start_link/0, watch/0, connections/0, point_json/2, quality/1]).
+-export([start_link/0, watch/0, connections/0, point_json/2, quality/1, hardware_json/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(FLUSH_MS, 50).
@@ -23,6 +30,9 @@
                 conns = #{} :: #{atom() => #{status := up | down, reconnects := non_neg_integer(),
                                             seen_up := boolean()}},
                 pending = #{} :: #{{atom(), atom()} => true},
+                %% The axes and channels watched, by the monitor of their process.
+                hw = #{} :: #{atom() => reference()},
+                hw_pending = #{} :: #{atom() => true},
                 timer :: reference() | undefined}).
 
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
@@ -64,6 +74,36 @@ quality({error, not_yet_read}) -> {null, <<"not_yet_read">>};
 quality({error, {unavailable, _}}) -> {null, <<"unavailable">>};
 quality({error, _}) -> {null, <<"unknown">>}.
 
+%% @doc A hardware object as the IO page shows it: id, kind, status (`up', `down',
+%% `absent') and, for an axis or a channel, its motion as its NC has it now.
+-spec hardware_json({atom(), cell_hal_hw:kind(), module()}) -> map().
+hardware_json({Id, Kind, _Mod}) ->
+    Base = #{<<"id">> => atom_to_binary(Id, utf8), <<"kind">> => atom_to_binary(Kind, utf8),
+             <<"status">> => case cell_hal_hw:status(Id) of
+                                 S when is_atom(S) -> atom_to_binary(S, utf8);
+                                 {error, _} -> <<"absent">>
+                             end},
+    maps:merge(Base, motion(Kind, Id)).
+
+%% An axis's or a channel's state as its NC has it now (PLCopen's state, position,
+%% velocity, error code; a channel's progress along its path).
+motion(axis, Id) ->
+    case cell_hal_axis:status(Id) of
+        {ok, St} -> #{<<"axis">> => cell_web_json:term(maps:with([state, position, velocity,
+                                                                  error, homed, powered,
+                                                                  override], St))};
+        {error, _} -> #{}
+    end;
+motion(channel, Id) ->
+    case cell_hal_channel:status(Id) of
+        {ok, St} -> #{<<"channel">> => cell_web_json:term(maps:with([state, along, length,
+                                                                     segment, segments],
+                                                                    St))};
+        {error, _} -> #{}
+    end;
+motion(_Kind, _Id) ->
+    #{}.
+
 %%--------------------------------------------------------------------
 
 -spec init([]) -> {ok, #state{}}.
@@ -100,15 +140,35 @@ handle_info({cell_hal_conn, C, Status}, #state{conns = Cs} = State) ->
                           [K || {G, _} = K <- maps:keys(State#state.points),
                                 cell_hal:connection_of(G) =:= {ok, C}]),
     {noreply, arm(State#state{conns = Cs#{C => New}, pending = Pending})};
-handle_info({timeout, TRef, flush}, #state{timer = TRef, pending = Pending} = State) ->
+handle_info({cell_hal_hw_changed, Id}, #state{hw_pending = Pending} = State) ->
+    {noreply, arm(State#state{hw_pending = Pending#{Id => true}})};
+handle_info({'DOWN', MRef, process, _, _}, #state{hw = Hw, hw_pending = Pending} = State) ->
+    %% The object went (or restarts): the pages see it so; the next page watches the
+    %% new one.
+    case [Id || {Id, R} <- maps:to_list(Hw), R =:= MRef] of
+        [Id] -> {noreply, arm(State#state{hw = maps:remove(Id, Hw),
+                                          hw_pending = Pending#{Id => true}})};
+        [] -> {noreply, State}
+    end;
+handle_info({timeout, TRef, flush}, #state{timer = TRef, pending = Pending,
+                                           hw_pending = HwPending} = State) ->
     Points = [point_json(G, P) || {G, P} <- maps:keys(Pending)],
-    ok = cell_web_feed:publish([#{<<"type">> => <<"io">>, <<"points">> => Points}]),
-    {noreply, State#state{timer = undefined, pending = #{}}}.
+    Objects = maps:from_list([{Id, O} || {Id, _, _} = O <- cell_hal_hw:list()]),
+    Hardware = [case Objects of
+                    #{Id := O} -> hardware_json(O);
+                    #{} -> #{<<"id">> => atom_to_binary(Id, utf8), <<"status">> => <<"absent">>}
+                end || Id <- lists:sort(maps:keys(HwPending))],
+    ok = cell_web_feed:publish([#{<<"type">> => <<"io">>, <<"points">> => Points}
+                                || Points =/= []]
+                               ++ [#{<<"type">> => <<"hardware">>, <<"hardware">> => Hardware}
+                                   || Hardware =/= []]),
+    {noreply, State#state{timer = undefined, pending = #{}, hw_pending = #{}}}.
 
 changed(Key, #state{pending = Pending} = State) ->
     arm(State#state{pending = Pending#{Key => true}}).
 
-arm(#state{timer = undefined, pending = P} = State) when map_size(P) > 0 ->
+arm(#state{timer = undefined, pending = P, hw_pending = H} = State)
+  when map_size(P) > 0; map_size(H) > 0 ->
     State#state{timer = erlang:start_timer(?FLUSH_MS, self(), flush)};
 arm(State) ->
     State.
@@ -119,7 +179,17 @@ watch_new(#state{points = Points, conns = Conns} = State) ->
     Subscribed = [K || {G, P} = K <- New, cell_hal:subscribe(G, P) =:= ok],
     NewConns = [C || C <- cell_hal:connections(), not is_map_key(C, Conns)],
     Watched = [{C, S} || C <- NewConns, {ok, S} <- [cell_hal:subscribe_connection(C)]],
-    State#state{points = maps:merge(Points, maps:from_keys(Subscribed, true)),
+    Hw = lists:foldl(fun({Id, Kind, _}, Acc) when Kind =:= axis; Kind =:= channel ->
+                             case {Acc, cell_hal_hw:watch(Id)} of
+                                 {#{Id := _}, _} -> Acc;
+                                 {#{}, {ok, Pid}} -> Acc#{Id => erlang:monitor(process, Pid)};
+                                 {#{}, {error, _}} -> Acc
+                             end;
+                        (_, Acc) ->
+                             Acc
+                     end, State#state.hw, cell_hal_hw:list()),
+    State#state{hw = Hw,
+                points = maps:merge(Points, maps:from_keys(Subscribed, true)),
                 conns = maps:merge(Conns, maps:from_list(
                                             [{C, #{status => S, reconnects => 0,
                                                    seen_up => S =:= up}} || {C, S} <- Watched]))}.

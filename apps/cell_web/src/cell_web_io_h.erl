@@ -28,7 +28,7 @@ handle(What, Req, Caller) ->
             {json, 200, #{<<"connections">> => [cell_web_json:term(C)
                                                 || C <- cell_web_io:connections()],
                           <<"groups">> => [group(G) || G <- ordered_groups()],
-                          <<"hardware">> => [hardware(H) || H <- cell_hal_hw:list()],
+                          <<"hardware">> => [cell_web_io:hardware_json(H) || H <- cell_hal_hw:list()],
                           <<"forces">> => cell_web_forces:json()}};
         image ->
             _ = cell_web_req:require(Caller, service),
@@ -62,33 +62,6 @@ point(#{group := G, name := P, dir := Dir, type := Type, address := A, caption :
       <<"address">> => A, <<"caption">> => Cap, <<"unit">> => maps:get(unit, Info, <<>>),
       <<"forced">> => cell_hal_force:forced(G, P),
       <<"forceable">> => cell_hal_force:forceable(Dir, Driver) =:= ok}.
-
-hardware({Id, Kind, _Mod}) ->
-    Base = #{<<"id">> => atom_to_binary(Id, utf8), <<"kind">> => atom_to_binary(Kind, utf8),
-             <<"status">> => case cell_hal_hw:status(Id) of
-                                 S when is_atom(S) -> atom_to_binary(S, utf8);
-                                 {error, _} -> <<"absent">>
-                             end},
-    maps:merge(Base, motion(Kind, Id)).
-
-%% An axis's or a channel's state as its NC has it now (PLCopen's state, position,
-%% velocity, error code; a channel's progress along its path).
-motion(axis, Id) ->
-    case cell_hal_axis:status(Id) of
-        {ok, St} -> #{<<"axis">> => cell_web_json:term(maps:with([state, position, velocity,
-                                                                  error, homed, powered,
-                                                                  override], St))};
-        {error, _} -> #{}
-    end;
-motion(channel, Id) ->
-    case cell_hal_channel:status(Id) of
-        {ok, St} -> #{<<"channel">> => cell_web_json:term(maps:with([state, along, length,
-                                                                     segment, segments],
-                                                                    St))};
-        {error, _} -> #{}
-    end;
-motion(_Kind, _Id) ->
-    #{}.
 
 grab(Name, Req) ->
     case [Id || {Id, camera, _} <- cell_hal_hw:list(), atom_to_binary(Id, utf8) =:= Name] of

@@ -21,6 +21,8 @@
 %% <li>`{"type": "forces", "forces": [Force]}' — the forced IO points, at every change</li>
 %% <li>`{"type": "io", "points": [Point]}' and `{"type": "io_conn", ...}' — IO values
 %%     and PLC connections changed (see `cell_web_io')</li>
+%% <li>`{"type": "hardware", "hardware": [Object]}' — axes and interpolation channels
+%%     that moved or changed, each as `GET /api/io' has it (see `cell_web_io')</li>
 %% <li>the messages of the extensions' feeds (`cell_web_extension'), as
 %%     `{"type": "inspect_messages", "messages": [Message]}' of the inspection blocks</li>
 %% </ul>

@@ -164,8 +164,37 @@ run([<<"sim">>, G, P, V], _Tasks) ->
         [Key] -> cell_hal_sim:set(Key, sim_value(V));
         [] -> {error, {unknown_point, G, P}}
     end;
+%% An axis of the demo: `power' and `home <at>' answer once the axis has done it;
+%% `move <to> <velocity>' once it has begun.
+run([<<"axis">>, Axis | Command], _Tasks) ->
+    case [Id || {Id, axis, _} <- cell_hal_hw:list(), atom_to_binary(Id, utf8) =:= Axis] of
+        [Id] -> axis(Id, Command);
+        [] -> {error, {unknown_axis, Axis}}
+    end;
 run(Other, _Tasks) ->
     {error, {unknown_command, Other}}.
+
+axis(Id, [<<"power">>]) ->
+    job_end(cell_hal_axis:power(Id, true));
+axis(Id, [<<"home">>, At]) ->
+    job_end(cell_hal_axis:home(Id, sim_value(At)));
+axis(Id, [<<"move">>, To, V]) ->
+    case cell_hal_axis:move_absolute(Id, sim_value(To), #{velocity => sim_value(V),
+                                                         acceleration => 1000,
+                                                         deceleration => 1000}) of
+        {ok, _} -> ok;
+        {error, _} = Error -> Error
+    end;
+axis(_Id, Command) ->
+    {error, {unknown_axis_command, Command}}.
+
+job_end({ok, Ref}) ->
+    receive {Ref, done} -> ok;
+            {Ref, Other} -> {error, Other}
+    after 10000 -> {error, no_end_of_job}
+    end;
+job_end({error, _} = Error) ->
+    Error.
 
 sim_value(<<"true">>) -> true;
 sim_value(<<"false">>) -> false;

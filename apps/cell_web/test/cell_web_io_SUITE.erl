@@ -15,7 +15,7 @@ all() ->
      bad_force_requests_change_nothing, forced_output_keeps_task_writes,
      forced_simulated_input, forces_end_on_estop_service_mode_and_logout,
      forces_end_when_the_io_service_restarts,
-     camera_image, websocket_carries_forces_io_and_links].
+     camera_image, websocket_carries_forces_io_and_links, websocket_carries_axes].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(inets),
@@ -375,6 +375,46 @@ websocket_carries_forces_io_and_links(Config) ->
     ?assertEqual(#{<<"link">> => <<"load_route">>, <<"phase">> => <<"offered">>,
                    <<"serial">> => <<"P-1">>}, Link),
     ok = cell_web_client:ws_close(Ws3).
+
+%% An axis's moves reach the pages as they happen: its state as a move begins, where
+%% it stands when done. Nothing is asked by the page.
+websocket_carries_axes(Config) ->
+    Svc = as(service, Config),
+    Origin = "http://127.0.0.1:" ++ integer_to_list(?config(port, Config)),
+    {ok, Ws} = cell_web_client:ws_connect(Svc, Origin),
+    {[_Snapshot], Ws0} = cell_web_client:ws_next(Ws, 10000),
+    %% The page's watch is asked as it connects (a cast before the snapshot); a call
+    %% after the snapshot comes after it.
+    _ = cell_web_io:connections(),
+    {ok, _} = cell_hal_axis:power(x, true),
+    {_, Ws1} = next_axis(<<"x">>, fun(#{<<"state">> := S}) -> S =:= <<"standstill">> end, Ws0),
+    {ok, H} = cell_hal_axis:home(x, 0.0),
+    ok = await_reply(H),
+    Slow = #{velocity => 20, acceleration => 200, deceleration => 200},
+    {ok, M} = cell_hal_axis:move_absolute(x, 30.0, Slow),
+    {_, Ws2} = next_axis(<<"x">>, fun(#{<<"state">> := S}) -> S =:= <<"discrete_motion">> end,
+                         Ws1),
+    ok = await_reply(M),
+    {#{<<"axis">> := Done}, Ws3} =
+        next_axis(<<"x">>, fun(#{<<"state">> := S, <<"position">> := P}) ->
+                                   S =:= <<"standstill">> andalso P == 30.0
+                           end, Ws2),
+    ?assertMatch(#{<<"homed">> := true, <<"velocity">> := 0.0, <<"error">> := 0}, Done),
+    ok = cell_web_client:ws_close(Ws3).
+
+await_reply(Ref) ->
+    receive {Ref, done} -> ok;
+            {Ref, Other} -> ct:fail({axis_job, Other})
+    after 10000 -> ct:fail({no_end_of_job, Ref})
+    end.
+
+%% The next `hardware' message whose axis `Id' satisfies `Pred'.
+next_axis(Id, Pred, Ws) ->
+    {#{<<"hardware">> := Hw}, Ws1} = next_of(<<"hardware">>, Ws),
+    case [H || #{<<"id">> := I, <<"axis">> := A} = H <- Hw, I =:= Id, Pred(A)] of
+        [H | _] -> {H, Ws1};
+        [] -> next_axis(Id, Pred, Ws1)
+    end.
 
 next_of(Type, Ws) ->
     {Msgs, Ws1} = cell_web_client:ws_next(Ws, 5000),

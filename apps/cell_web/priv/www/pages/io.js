@@ -1,8 +1,9 @@
 // The IO page (service): every IO group and point of the cell live (value, type,
 // caption, unit, address, quality), grouped as the cell spec groups them; the PLC
 // connections with their status and reconnections; the hardware objects (a camera's
-// image grabbed on request, an axis's state and position, a channel's progress). In service mode a service user forces an output or a
-// simulated input and releases it; the server decides and records each one.
+// image grabbed on request, an axis's state and position and a channel's progress,
+// live as they move). In service mode a service user forces an output or a simulated
+// input and releases it; the server decides and records each one.
 'use strict';
 (() => {
   let panel, root, data = null, forced = new Set();
@@ -30,6 +31,7 @@
       const c = data.connections.find((x) => x.id === m.connection);
       if (c) { c.status = m.status; c.reconnects = m.reconnects; renderConns(); }
     });
+    panel.on('hardware', (m) => { for (const h of m.hardware) updateHardware(h); });
     panel.on('forces', (m) => { forced = keys(m.forces); for (const k of cells.keys()) mark(k); });
     panel.on('cell', () => { for (const k of cells.keys()) mark(k); });
   }
@@ -65,22 +67,11 @@
     box.replaceChildren(...data.hardware.map((h) => {
       const d = html('div', `hw ${h.status}`);
       d.dataset.hardware = h.id;
-      d.append(html('b', '', h.id), html('span', '', ` ${h.kind} · ${h.status}`));
-      // An axis or a channel as it was when the page loaded (its published position
-      // points, if any, move live in their group below).
-      if (h.axis) {
-        const a = h.axis;
-        const s = html('span', 'motion', ` · ${a.state.replace('_', ' ')} · ${show(a.position)} · `
-          + `${show(a.velocity)}/s · override ${show(a.override)} %`
-          + (a.error ? ` · error ${a.error}` : '') + (a.homed ? '' : ' · not homed'));
-        s.dataset.testid = `axis-${h.id}`;
-        d.append(s);
-      }
-      if (h.channel) {
-        const c = h.channel;
-        const s = html('span', 'motion', ` · ${c.state} · ${show(c.along)} of ${show(c.length)}`
-          + ` · segment ${c.segment} of ${c.segments}`);
-        s.dataset.testid = `channel-${h.id}`;
+      d.append(html('b', '', h.id), html('span', 'hw-status', ` ${h.kind} · ${h.status}`));
+      // An axis or a channel as its NC has it, kept live by the 'hardware' messages.
+      if (h.axis || h.channel) {
+        const s = html('span', 'motion', motion(h));
+        s.dataset.testid = `${h.axis ? 'axis' : 'channel'}-${h.id}`;
         d.append(s);
       }
       if (h.kind === 'camera') {
@@ -93,6 +84,36 @@
       }
       return d;
     }));
+  }
+
+  function motion(h) {
+    if (h.axis) {
+      const a = h.axis;
+      return ` · ${a.state.replace('_', ' ')} · ${show(a.position)} · ${show(a.velocity)}/s`
+        + ` · override ${show(a.override)} %` + (a.error ? ` · error ${a.error}` : '')
+        + (a.homed ? '' : ' · not homed');
+    }
+    if (h.channel) {
+      const c = h.channel;
+      return ` · ${c.state} · ${show(c.along)} of ${show(c.length)}`
+        + ` · segment ${c.segment} of ${c.segments}`;
+    }
+    return '';
+  }
+
+  // An axis or a channel that changed: its line on the page, as /api/io would give it.
+  function updateHardware(h) {
+    if (!data) return;
+    const i = data.hardware.findIndex((x) => x.id === h.id);
+    if (i < 0) return;
+    const kind = data.hardware[i].kind;
+    data.hardware[i] = { ...h, kind };
+    const d = root.querySelector(`[data-hardware="${CSS.escape(h.id)}"]`);
+    if (!d) return;
+    d.className = `hw ${h.status}`;
+    d.querySelector('.hw-status').textContent = ` ${kind} · ${h.status}`;
+    const s = d.querySelector('.motion');
+    if (s && (h.axis || h.channel)) s.textContent = motion(h);
   }
 
   // The image is the answer of a GET the <img> makes itself (the panel's content
