@@ -360,7 +360,9 @@ attach(T, Link, Role) ->
                 {ok, Status} ->
                     Old = link_view(T, Link),
                     New = (from_status(Role, Status))#{mref => MRef, link_down => false},
-                    T1 = drop_stale(Status, Link, put_view(T, Link, maps:merge(Old, New))),
+                    T1 = drop_stale(Status, Link,
+                                    put_view(T, Link, maps:remove(retry_ms,
+                                                                  maps:merge(Old, New)))),
                     case was_active(Old) andalso maps:get(phase, New) =:= idle of
                         %% The link restarted and forgot a transfer this task was in.
                         true -> element(1, interrupted(T1, Link, maps:get(phase, Old)));
@@ -477,8 +479,12 @@ disown_all(T, Serial) ->
               end, T, links(T)).
 
 %% @private Arms a wait on a link signal; `{cell_handshake_watch, Ref, ...}' comes when
-%% it holds (at once if it already does). `link_down' while the link restarts.
--spec arm(cell_task:task(), atom(), {atom(), term()}) -> {ok, reference()} | link_down.
+%% it holds (at once if it already does). While the link restarts or its node is out of
+%% reach, `{link_down, Ms, T}': look again in `Ms' (a backoff from 50 ms to 1 s, kept
+%% in the task's view of the link until it attaches again; the link's greeting ends
+%% the wait sooner).
+-spec arm(cell_task:task(), atom(), {atom(), term()}) ->
+          {ok, reference()} | {link_down, pos_integer(), cell_task:task()}.
 %%
 %% The task's view of the link's signals is kept up to date by the link's numbered
 %% status messages, so a wait needs no call: it holds now, or a later status message
@@ -489,7 +495,8 @@ arm(T, Link, {Signal, Value}) ->
         true ->
             %% The link is restarting: what the task waits for may never come from
             %% the link that replaces it.
-            link_down;
+            Ms = cell_task_core:link_retry_ms(maps:get(retry_ms, View, undefined)),
+            {link_down, Ms, put_view(T, Link, View#{retry_ms => Ms})};
         false ->
             Ref = make_ref(),
             _ = signal(T, Link, Signal) =:= Value

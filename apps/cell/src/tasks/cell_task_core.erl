@@ -32,12 +32,15 @@
 
 -export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, woken_by/2, clean/1,
          down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
-         ended_while_down/2, wake_event/2, starves/4, newer_holder/3]).
+         ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
 -export_type([why/0, origin/0, answer_action/0, setup_event/0, armed/0]).
+
+-define(LINK_RETRY_MIN_MS, 50).
+-define(LINK_RETRY_MAX_MS, 1000).
 
 -type why() :: pause | service.
 %% Where an error the operator answers came from.
@@ -314,6 +317,15 @@ take(T, Product, Gen, Marker) ->
 released(T) ->
     T#task{product = undefined, gen = 0, marker = undefined, traced = undefined}.
 
+%% @doc The wait before a task looks again at a link that is down, after the one it
+%% waited last (`undefined': the first look): 50 ms, doubling up to 1 s. A link that
+%% restarts is back within the first few; a neighbour's node out of reach for minutes
+%% is asked once a second, not twenty times. The link's greeting when it is back ends
+%% the wait at once, whatever is left of it.
+-spec link_retry_ms(pos_integer() | undefined) -> pos_integer().
+link_retry_ms(undefined) -> ?LINK_RETRY_MIN_MS;
+link_retry_ms(Last) -> min(2 * Last, ?LINK_RETRY_MAX_MS).
+
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
@@ -447,4 +459,11 @@ fields_test() ->
     ?assertEqual({undefined, 0, undefined, undefined},
                  {T1#task.product, gen(T1), marker(T1), T1#task.traced}),
     ?assertEqual(#{l => #{}}, links(set_links(T, #{l => #{}}))).
+
+link_retry_test_() ->
+    Waits = lists:sublist(lists:foldl(fun(_, [Last | _] = Acc) -> [link_retry_ms(Last) | Acc] end,
+                                      [link_retry_ms(undefined)], lists:seq(1, 7)), 8),
+    [?_assertEqual([50, 100, 200, 400, 800, 1000, 1000, 1000], lists:reverse(Waits))].
+
 -endif.
+

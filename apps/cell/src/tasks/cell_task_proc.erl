@@ -99,7 +99,6 @@
 
 -define(STEP(Gen), {'$cell_step', Gen}).
 -define(WAIT(Gen), {'$cell_wait', Gen}).
--define(LINK_RETRY_MS, 50).
 %% Room on the heap for what an emergency stop allocates (see headroom/0): about 8 KB.
 -define(MIN_HEAP_WORDS, 987).
 
@@ -691,12 +690,12 @@ arm_one({handshake, Link, Signal, Value}, Gen, T0)
     case cell_handshake:arm(T0, Link, {Signal, Value}) of
         {ok, Ref} ->
             arm_watch(Ref, Link, Signal, Value, T0);
-        link_down ->
-            %% The link is restarting (its name may still point at the old process).
-            %% Look again shortly: the step runs, sees the link as it is, and offers
-            %% or waits again; a greeting of the restarted link ends the wait sooner.
-            TRef = erlang:start_timer(?LINK_RETRY_MS, self(), ?WAIT(Gen)),
-            {{timer, TRef, {link_down, Link}}, T0}
+        {link_down, Ms, T1} ->
+            %% The link is restarting, or its node is out of reach. Look again after
+            %% a backoff: the step runs, sees the link as it is, and offers or waits
+            %% again; a greeting of the link ends the wait sooner.
+            TRef = erlang:start_timer(Ms, self(), ?WAIT(Gen)),
+            {{timer, TRef, {link_down, Link}}, T1}
     end;
 arm_one({io, Point, Cond}, Gen, #task{io = [Group | _]} = T) ->
     arm_one({io, Group, Point, Cond}, Gen, T);
