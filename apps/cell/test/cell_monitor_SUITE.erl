@@ -20,7 +20,7 @@
          speed_override_applied_while_running/1, beacon_follows_the_cell/1,
          hal_disconnected_when_the_cell_stops/1, monitor_crash_keeps_the_hal/1,
          hal_refusal_is_an_alarm/1, hal_server_away_as_the_monitor_starts/1,
-         a_refused_input_is_unknown/1]).
+         a_refused_input_is_unknown/1, replaced_monitor_releases_its_estop/1]).
 
 -define(IDS, [load, work, unload]).
 -define(WAIT, 10000).
@@ -33,7 +33,7 @@ all() ->
      speed_override_applied_while_running, beacon_follows_the_cell,
      hal_disconnected_when_the_cell_stops, monitor_crash_keeps_the_hal,
      hal_refusal_is_an_alarm, hal_server_away_as_the_monitor_starts,
-     a_refused_input_is_unknown].
+     a_refused_input_is_unknown, replaced_monitor_releases_its_estop].
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
@@ -598,3 +598,22 @@ sim_image(Device, Key) ->
         {ok, V} -> V;
         error -> undefined
     end.
+
+%% The circuit opens and its monitor raises the emergency stop; the circuit closes
+%% while that monitor can no longer act (it hangs, and is then replaced): the monitor
+%% that replaces it finds the circuit closed and releases the circuit's emergency stop
+%% rather than leave the cell in it for good. (One raised from the panel or the shell
+%% is left alone: manual_estop_is_left_alone.)
+replaced_monitor_releases_its_estop(_Config) ->
+    ok = cell_hal_sim:set({general, estop_voltage}, false),
+    await(estop, fun() -> maps:get(estop, cell_controller:flags()) end),
+    ?assertEqual(<<"emergency stop circuit">>, cell_controller:estop_by()),
+    Old = whereis(cell_monitor),
+    ok = sys:suspend(Old),
+    ok = cell_hal_sim:set({general, estop_voltage}, true),
+    exit(Old, kill),
+    await(restarted, fun() -> lists:member(whereis(cell_monitor), [undefined, Old]) =:= false end),
+    await(released, fun() -> not maps:get(estop, cell_controller:flags()) end),
+    await(alarm_cleared, fun() -> not has_alarm(<<"cell:estop">>) end),
+    ?assertEqual(undefined, cell_controller:estop_by()),
+    ?assertMatch(#{estop_raised := false, inputs := #{estop_ok := true}}, cell_monitor:info()).

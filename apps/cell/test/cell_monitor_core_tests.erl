@@ -108,7 +108,22 @@ estop_circuit_test_() ->
                                  <- effects([{cell, (cell())#{estop := true}},
                                              {point, ?ESTOP, unknown}, {point, ?ESTOP, true}], C)]),
      %% At start, a closed circuit releases nothing.
-     ?_assertEqual([], [E || {estop, _} = E <- effects([{point, ?ESTOP, true}], new())])].
+     ?_assertEqual([], [E || {estop, _} = E <- effects([{point, ?ESTOP, true}], new())]),
+     %% A monitor started while the circuit's emergency stop is active (the one before
+     %% it raised it and was replaced): the circuit read closed releases it; read open,
+     %% it stays raised and is released when the circuit closes.
+     ?_assertEqual([{estop, false}],
+                   [E || {estop, _} = E <- effects([{point, ?ESTOP, true}], adopted())]),
+     ?_assertEqual([{estop, true}, {estop, false}],
+                   [E || {estop, _} = E <- effects([{point, ?ESTOP, false},
+                                                    {point, ?ESTOP, true}], adopted())])].
+
+%% A monitor that starts with the circuit's emergency stop active.
+adopted() ->
+    {Core, _} = cell_monitor_core:new(spec(), #{settings => settings(), speed => 50,
+                                                cell => (cell())#{estop := true},
+                                                estop_raised => true}),
+    Core.
 
 service_key_test_() ->
     C = healthy(),

@@ -344,7 +344,9 @@ setup() ->
     %% stayed stopped with the circuit closed and no alarm. Likely: the first monitor
     %% decided the stop before the controller ran, so cell_controller:estop/2 set the
     %% flag and the call was kept for a retry, and the monitor went before the retry;
-    %% its successor, finding the circuit closed, knows of no stop of its own.)
+    %% its successor, finding the circuit closed, knew of no stop of its own. It now
+    %% takes the circuit's stop as its own: replaced_monitor_releases_its_estop in
+    %% cell_monitor_SUITE.)
     ok = cell_events:subscribe(),
     [ok = cell_hal_sim:set({general, P}, true) || P <- [estop_voltage, door_locked, air_ok]],
     released = await(fun() -> not maps:get(estop, cell_controller:flags()) end, released),

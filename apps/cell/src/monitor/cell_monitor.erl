@@ -56,6 +56,8 @@
 -define(TASK, cell).
 -define(LOG, monitor).
 -define(SAFE_WRITE_MS, 500).
+%% Who the controller is told raised or released an emergency stop of the circuit.
+-define(CIRCUIT, <<"emergency stop circuit">>).
 -define(EVENTS, [cell_state, alarm_raised, alarm_cleared, estop, service_mode]).
 
 -record(data, {spec :: spec(),
@@ -225,9 +227,14 @@ attach(#data{spec = #{hal := Hal, monitor := Mon} = Spec} = D0) ->
     Info = cell_monitor_spec:points(Hal, Mon),
     Inputs = maps:groups_from_list(fun(P) -> maps:get(connection, maps:get(P, Info)) end,
                                    [P || {P, #{dir := in}} <- lists:sort(maps:to_list(Info))]),
+    %% An emergency stop the circuit raised before this monitor (its predecessor's, or
+    %% one whose call to the controller was still pending when it was replaced) is
+    %% this monitor's to release when the circuit is closed.
     {Core, Effects} = cell_monitor_core:new(Spec, #{settings => cell_settings:get(monitor),
                                                     speed => speed(),
-                                                    cell => cell_controller:flags()}),
+                                                    cell => cell_controller:flags(),
+                                                    estop_raised => cell_controller:estop_by()
+                                                                    =:= ?CIRCUIT}),
     {D4, A4} = effects(Effects, D3#data{core = Core, inputs = Inputs}, []),
     %% Devices, then inputs: each subscribed to first, read after, so a change in
     %% between is seen in a message or in the read, never in neither.
@@ -507,7 +514,7 @@ controller(#data{pending = Pending} = D) ->
 
 send({Kind, On}) ->
     Who = case Kind of
-              estop -> <<"emergency stop circuit">>;
+              estop -> ?CIRCUIT;
               service_mode -> <<"service key">>
           end,
     try cell_controller:Kind(On, Who)

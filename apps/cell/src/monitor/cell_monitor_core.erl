@@ -116,9 +116,10 @@
 %% monitor's settings, the machine's speed override and the cell's flags as they are
 %% now; the effects put the outputs in their first state.
 -spec new(#{hal := cell_monitor_spec:hal(), monitor := cell_monitor_spec:monitor()},
-          #{settings := map(), speed := 1..100, cell := cell()}) -> {core(), [effect()]}.
+          #{settings := map(), speed := 1..100, cell := cell(), estop_raised => boolean()}) ->
+          {core(), [effect()]}.
 new(#{hal := Hal, monitor := #{io := Io, drives := Drives} = Mon} = Spec,
-    #{settings := Settings, speed := Speed, cell := Cell}) ->
+    #{settings := Settings, speed := Speed, cell := Cell} = Opts) ->
     Info = cell_monitor_spec:points(Hal, Mon),
     Core0 = #core{io = Io, info = Info,
                   kinds = maps:from_list([{Id, K}
@@ -127,6 +128,9 @@ new(#{hal := Hal, monitor := #{io := Io, drives := Drives} = Mon} = Spec,
                   devices = maps:from_list([{Dev, #dev{severity = S}}
                                             || {Dev, S} <- cell_monitor_spec:devices(Spec)]),
                   settings = Settings, speed = Speed, cell = Cell,
+                  %% An emergency stop the circuit raised before (a monitor restarted):
+                  %% released when the circuit reads closed.
+                  estop_raised = maps:get(estop_raised, Opts, false),
                   lamps = maps:from_list([{L, off} || L <- cell_beacon:lamps()])},
     %% Every output starts from a known state: resets off, lamps and overrides as due.
     {Core1, E1} = lists:foldl(fun(#{reset := P}, {C, E}) -> output(P, false, C, E);

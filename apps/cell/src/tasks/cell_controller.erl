@@ -28,7 +28,7 @@
 -behaviour(gen_server).
 
 -export([start_link/0, start/0, start/1, pause/0, pause/1, stop/0, stop/1, estop/1,
-         estop/2, service_mode/1, service_mode/2, state/0, flags/0, tasks/0, sync/0]).
+         estop/2, estop_by/0, service_mode/1, service_mode/2, state/0, flags/0, tasks/0, sync/0]).
 %% For the tasks and the registry.
 -export([task_state_changed/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
@@ -85,11 +85,23 @@ estop(On) -> estop(On, <<"cell">>).
 estop(On, Who) when is_boolean(On) ->
     case On of
         %% The flag first, from the caller, before any queueing: no task starts a step
-        %% from here on.
-        true -> ok = cell_registry:set_control(estop, true);
+        %% from here on. Who raised it is kept with it, for whoever may release it
+        %% after a restart (the monitor its circuit's).
+        true ->
+            ok = cell_registry:set_control(estop_by, Who),
+            ok = cell_registry:set_control(estop, true);
         false -> ok
     end,
     gen_server:call(?MODULE, {estop, On, Who}).
+
+%% @doc Who raised the emergency stop that is active (the last to raise it, as given
+%% to {@link estop/2}); `undefined' when none is.
+-spec estop_by() -> binary() | undefined.
+estop_by() ->
+    case cell_registry:control(estop) of
+        true -> cell_registry:control(estop_by);
+        false -> undefined
+    end.
 
 %% @doc Service mode: tasks pause after their current motion; a Start then runs them
 %% with the service flag set (speeds limited).
@@ -211,6 +223,7 @@ handle_call({estop, true, Who}, From, State0) ->
 handle_call({estop, false, Who}, _From, State0) ->
     State = settle(State0),
     ok = cell_registry:set_control(estop, false),
+    ok = cell_registry:set_control(estop_by, undefined),
     broadcast(estop, false),
     cell_log:notice(cell, "emergency stop released (~ts); press Start to go on", [Who]),
     ok = cell_alarms:clear_alarm(cell, <<"estop">>),

@@ -36,7 +36,7 @@
 %% registry itself (alone, or with the whole controller's tree) started anew; or the
 %% node itself stopped unexpectedly before this run (killed, crashed, its power cut).
 -type fault() :: services | registry | node.
--type control_key() :: request | estop | service_mode | cell_state.
+-type control_key() :: request | estop | estop_by | service_mode | cell_state.
 
 -define(TASKS, cell_tasks).
 -define(STATES, cell_task_states).
@@ -281,6 +281,7 @@ control(Key) ->
 
 default(request) -> stop;
 default(estop) -> false;
+default(estop_by) -> undefined;
 default(service_mode) -> false;
 default(cell_state) -> off.
 
