@@ -42,6 +42,13 @@ stdout, written as an Erlang term:
                             before the write is answered)
     clear | mute | unmute | record on|off | drop | garbage HEX | quit
 
+An NC with axes answers on AMS port 500 (see Nc below):
+
+    nc_axis ID [MIN MAX [HOME_MS]] -> ok     (an axis, with software limits)
+    nc_fail ID CODE  -> ok   (the axis's next move faults halfway with NC error CODE)
+    nc_fault ID CODE -> ok   (the axis faults now)
+    nc_get ID        -> {ok, #{...}}  (the axis as the NC has it)
+
 Names with spaces are written with %20 for each space.
 `nested` marks a structure field: found by name like TwinCAT finds them, not listed
 in the uploaded table (which holds top-level symbols only).
@@ -95,11 +102,14 @@ def filetime_now():
 
 
 def erl(term):
-    """An Erlang term's text for ints, atoms (str), binaries (bytes), lists, tuples, maps."""
+    """An Erlang term's text for ints, floats, atoms (str), binaries (bytes), lists, tuples,
+    maps."""
     if isinstance(term, bool):
         return "true" if term else "false"
     if isinstance(term, int):
         return str(term)
+    if isinstance(term, float):
+        return "%.17e" % term
     if isinstance(term, str):
         return term
     if isinstance(term, (bytes, bytearray)):
@@ -171,6 +181,7 @@ class Plc:
         self.held = []
         self.waiters = []
         self.report = None             # the event writer while `report on'
+        self.nc = Nc()                 # the NC on AMS port 500
 
     def wake(self):
         """Answers `wait_clients' and `wait_stat' commands whose condition holds."""
@@ -325,6 +336,8 @@ class Conn(asyncio.Protocol):
 
     def dispatch(self, cmd, data, client, server):
         plc = self.plc
+        if server[1] == NC_PORT and cmd in (2, 3):
+            return self.nc_dispatch(cmd, data)
         if cmd == 1:
             plc.count("device_info")
             return struct.pack("<IBBH16s", 0, 3, 1, 4024, b"Fake PLC"), None
@@ -365,6 +378,18 @@ class Conn(asyncio.Protocol):
             err, value = self.read_write(group, offset, rlen, wdata)
             return struct.pack("<II", err, len(value)) + value, None
         return struct.pack("<I", ERR_SERVICE), None
+
+    def nc_dispatch(self, cmd, data):
+        nc = self.plc.nc
+        if cmd == 2:
+            group, offset, length = struct.unpack_from("<III", data)
+            err, value = nc.read(group, offset, length)
+            return struct.pack("<II", err, len(value)) + value, None
+        group, offset, length = struct.unpack_from("<III", data)
+        payload = data[12: 12 + length]
+        if len(payload) != length:
+            return struct.pack("<I", ERR_SIZE), None
+        return struct.pack("<I", nc.write(group, offset, payload)), None
 
     # --- the index groups ------------------------------------------------------------
 
@@ -567,6 +592,240 @@ class Conn(asyncio.Protocol):
             self.transport.write(struct.pack("<HI", 0, 32 + len(payload)) + header + payload)
 
 
+# --- an NC with axes, on AMS port 500 ------------------------------------------------
+
+NC_PORT = 500
+IG_NC_STATE = 0x4100
+IG_NC_FUNCTIONS = 0x4200
+IG_NC_CYCLIC = 0x4300
+ONLINE_SIZE = 256
+# The fake's own answers to a start it cannot take (a real NC has its own codes).
+NC_NOT_READY = 0x4260
+NC_BEYOND_LIMITS = 0x4358
+NC_BAD_PARAMETER = 0x4221
+ERR_INVALID_DATA = 0x706
+STEP = 0.001                    # s, the model's integration step
+QUICK_STOP = 1e9                # the deceleration of a stop on a fault: at once
+
+
+class NcAxis:
+    """An NC axis: disabled, standing, moving, homing, stopping or in error. A move
+    accelerates, runs at its velocity times the override and brakes so as to stand
+    at its target (a trapezoid, jerk ignored)."""
+
+    def __init__(self, axis_id, limits=None, home_s=0.1):
+        self.id = axis_id
+        self.limits = limits
+        self.home_s = home_s
+        self.enables = [0, 0, 0]       # controller, feed plus, feed minus
+        self.override = 1000000
+        self.pos = 0.0
+        self.vel = 0.0
+        self.job = None                # None | "move" | "stop" | "home"
+        self.target = 0.0
+        self.vmax = self.acc = self.dec = 0.0
+        self.start = 0.0
+        self.home_end = 0.0
+        self.referenced = False
+        self.error = 0
+        self.fail_next = None          # the code the next move faults with
+        self.fail = None               # (code, position where it faults)
+        self.t = time.monotonic()
+
+    def enabled(self):
+        return self.enables[0] != 0 and self.enables[1] != 0 and self.enables[2] != 0
+
+    def advance(self):
+        now = time.monotonic()
+        while self.t < now:
+            dt = min(STEP, now - self.t)
+            self.t += dt
+            self.step(dt)
+        self.t = now
+
+    def step(self, dt):
+        if self.job == "home":
+            if self.t >= self.home_end:
+                self.referenced = True
+                self.job = None
+        elif self.job == "stop":
+            speed = abs(self.vel) - self.dec * dt
+            if speed <= 0:
+                self.vel, self.job = 0.0, None
+            else:
+                self.vel = speed if self.vel > 0 else -speed
+                self.pos += self.vel * dt
+        elif self.job == "move":
+            self.move_step(dt)
+
+    def move_step(self, dt):
+        dist = self.target - self.pos
+        way = 1.0 if dist >= 0 else -1.0
+        speed = self.vel * way                 # towards the target
+        if speed < 0:                          # still going the other way: brake
+            speed = min(0.0, speed + self.dec * dt)
+        else:
+            cap = self.vmax * self.override / 1000000
+            if speed > cap:
+                speed = max(cap, speed - self.dec * dt)
+            else:
+                speed = min(cap, speed + self.acc * dt)
+            speed = min(speed, (2 * self.dec * abs(dist)) ** 0.5)
+        if speed > 0 and speed * dt >= abs(dist):
+            self.pos, self.vel, self.job = self.target, 0.0, None
+            return
+        self.vel = speed * way
+        self.pos += self.vel * dt
+        if self.fail is not None and (self.pos - self.fail[1]) * way >= 0:
+            self.fault(self.fail[0])
+
+    def fault(self, code):
+        self.error = code
+        self.job = None
+        self.vel = 0.0
+        self.fail = None
+
+    def status(self):
+        moving = self.vel != 0.0
+        bits = 0
+        if self.enabled() and self.error == 0:
+            bits |= 1 << 0
+        if self.referenced:
+            bits |= 1 << 1
+        if not moving:
+            bits |= 1 << 2
+        if self.job is None and not moving:
+            bits |= 1 << 4
+        if self.job is not None:
+            bits |= 1 << 8
+        if self.job == "home":
+            bits |= 1 << 11
+        if self.enabled():
+            bits |= 1 << 20
+        if self.error:
+            bits |= 1 << 31
+        return bits
+
+    def online(self):
+        data = struct.pack("<ii6dII5dIIII", self.error, 0, self.pos, self.pos, self.pos,
+                           self.pos, self.vel, self.vel, self.override, 0,
+                           0.0, 0.0, 0.0, 0.0, 0.0, self.status(), 0, 0, 0)
+        return data.ljust(ONLINE_SIZE, b"\0")
+
+    def ready(self):
+        return self.enabled() and self.error == 0
+
+    # --- functions (0x4200 + id) ------------------------------------------------------
+
+    def function(self, offset, data):
+        if offset == 0x1:              # reset
+            self.error = 0
+            self.job = None
+            self.vel = 0.0
+            return 0
+        if offset == 0x2:              # stop with the NC's own deceleration
+            return self.stop(self.dec or 1000.0)
+        if offset == 0x4:              # stop {deceleration, jerk}
+            dec, _jerk = struct.unpack_from("<dd", data)
+            if dec <= 0:
+                return NC_BAD_PARAMETER
+            return self.stop(dec)
+        if offset == 0x10:             # reference (homing)
+            if not self.ready():
+                return NC_NOT_READY
+            self.referenced = False
+            self.job = "home"
+            self.vel = 0.0
+            self.home_end = self.t + self.home_s
+            return 0
+        if offset == 0x0:              # start {type, reserved, target, v, acc, dec, jerk}
+            _type, _res, target, v, acc, dec, _jerk = struct.unpack_from("<II5d", data)
+            if not self.ready():
+                return NC_NOT_READY
+            if min(v, acc, dec) <= 0:
+                return NC_BAD_PARAMETER
+            if self.limits is not None and not self.limits[0] <= target <= self.limits[1]:
+                return NC_BEYOND_LIMITS
+            self.job, self.target, self.vmax, self.acc, self.dec = "move", target, v, acc, dec
+            self.fail = None
+            if self.fail_next is not None:
+                self.fail = (self.fail_next, (self.pos + target) / 2)
+                self.fail_next = None
+            return 0
+        if offset == 0x8:              # set actual position {type, reserved, position}
+            _type, _res, pos = struct.unpack_from("<IId", data)
+            self.pos = pos
+            return 0
+        return ERR_OFFSET
+
+    def stop(self, dec):
+        if self.error:
+            return NC_NOT_READY
+        self.job = "stop" if self.vel != 0.0 else None
+        self.dec = dec
+        return 0
+
+    # --- the cyclic interface (0x4300 + id) --------------------------------------------
+
+    def cyclic(self, offset, data):
+        if offset in (0x2, 0x3, 0x4):
+            (value,) = struct.unpack_from("<H", data)
+            self.enables[offset - 2] = value
+            if not self.enabled() and self.job is not None:
+                # The drive lets go: what ran stops where it is.
+                self.job, self.vel = None, 0.0
+            return 0
+        if offset == 0x21:
+            (value,) = struct.unpack_from("<I", data)
+            if value > 1000000:
+                return ERR_INVALID_DATA
+            self.override = value
+            return 0
+        return ERR_OFFSET
+
+    def describe(self):
+        return {"position": self.pos, "velocity": self.vel,
+                "override": self.override, "error": self.error,
+                "enabled": self.enabled(), "referenced": self.referenced,
+                "job": self.job or "none"}
+
+
+class Nc:
+    def __init__(self):
+        self.axes = {}
+
+    def axis(self, group, base):
+        axis = self.axes.get(group - base)
+        if axis is not None:
+            axis.advance()
+        return axis
+
+    def read(self, group, offset, length):
+        if IG_NC_STATE < group <= IG_NC_STATE + 0xFF:
+            axis = self.axis(group, IG_NC_STATE)
+            if axis is None:
+                return ERR_GROUP, b""
+            if offset == 0:
+                return 0, axis.online()[:length]
+            if offset == 1:
+                return 0, struct.pack("<I", axis.error)[:length]
+            return ERR_OFFSET, b""
+        return ERR_GROUP, b""
+
+    def write(self, group, offset, data):
+        for base, handler in ((IG_NC_FUNCTIONS, NcAxis.function),
+                              (IG_NC_CYCLIC, NcAxis.cyclic)):
+            if base < group <= base + 0xFF:
+                axis = self.axis(group, base)
+                if axis is None:
+                    return ERR_GROUP
+                try:
+                    return handler(axis, offset, data)
+                except struct.error:
+                    return ERR_SIZE
+        return ERR_GROUP
+
+
 # --- control ---------------------------------------------------------------------------
 
 
@@ -692,6 +951,22 @@ def control(plc, line, loop, answer):
         if cmd == "garbage":
             for conn in list(plc.conns):
                 conn.transport.write(bytes.fromhex(args[0]))
+            return "ok"
+        if cmd == "nc_axis":
+            axis_id = int(args[0])
+            limits = (float(args[1]), float(args[2])) if len(args) >= 3 else None
+            home_s = int(args[3]) / 1000 if len(args) >= 4 else 0.1
+            plc.nc.axes[axis_id] = NcAxis(axis_id, limits, home_s)
+            return "ok"
+        if cmd in ("nc_fail", "nc_fault", "nc_get"):
+            axis = plc.nc.axes[int(args[0])]
+            axis.advance()
+            if cmd == "nc_get":
+                return ("ok", axis.describe())
+            if cmd == "nc_fail":
+                axis.fail_next = int(args[1], 0)
+            else:
+                axis.fault(int(args[1], 0))
             return "ok"
         if cmd == "quit":
             loop.stop()
