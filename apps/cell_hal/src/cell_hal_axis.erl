@@ -21,7 +21,8 @@
 %%                                                  deceleration => 1000})
 %% '''
 %%
-%% Implementations: `sim' ({@link cell_hal_axis_sim}, a simulated NC axis).
+%% Implementations: `sim' ({@link cell_hal_axis_sim}, a simulated NC axis) and `ads'
+%% (cell_hal_ads_axis, an axis of TwinCAT NC over ADS).
 -module(cell_hal_axis).
 
 -export([power/2, home/2, move_absolute/3, move_relative/3, halt/2, stop/3, reset/1,

@@ -15,8 +15,9 @@
 %% Each key is the object's id; `kind' may be given when the id is not itself a kind
 %% (`#{top_camera => #{kind => camera, type => sim}}'). `type => none' means the
 %% machine has no such hardware (the seed's `null'): nothing starts, and `present/1'
-%% says so. Type `sim' is built in for every kind, and `io' for code readers (one wired
-%% through the PLC's IO, {@link cell_hal_code_reader_io}); a cell adds its own under the
+%% says so. Type `sim' is built in for every kind, `io' for code readers (one wired
+%% through the PLC's IO, {@link cell_hal_code_reader_io}) and `ads' for axes (TwinCAT
+%% NC, cell_hal_ads_axis in the cell_hal_ads application); a cell adds its own under the
 %% application variable `hardware_types' of `cell_hal':
 %% `#{{camera, ueye} => my_ueye_camera}'.
 %%
@@ -58,6 +59,9 @@
                     {code_reader, io} => cell_hal_code_reader_io,
                     {laser_marker, sim} => cell_hal_laser_marker_sim,
                     {axis, sim} => cell_hal_axis_sim,
+                    %% TwinCAT NC over ADS, where the cell_hal_ads application is
+                    %% in the release (else the type is refused as unknown).
+                    {axis, ads} => cell_hal_ads_axis,
                     {channel, sim} => cell_hal_channel_sim}).
 
 -record(state, {id :: atom(),
