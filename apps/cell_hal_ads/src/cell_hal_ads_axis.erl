@@ -54,7 +54,13 @@
             client :: pid() | undefined,
             monitor :: reference() | undefined,
             up = false :: boolean(),
+            %% Polls sent without waiting, labelled with their client: one may still
+            %% be answered (or its client's end told) after that client was given up.
             reqs = gen_statem:reqids_new() :: cell_hal_ads_client:request_ids(),
+            polling = false :: boolean(),         % a poll of the present client is out
+            %% That poll went out before a command's writes were answered: what it
+            %% reads may predate the command, and is dropped.
+            stale = false :: boolean(),
             poll_timer :: reference() | undefined,
             backoff :: pos_integer(),
             %% Who is told of each job's end: {Pid, Ref} by job id.
@@ -137,7 +143,8 @@ command(Owner, Command, #s{fsm = Fsm, ctx = Ctx, watch = W} = S) ->
                              [JobId] -> S#s{owners = (S#s.owners)#{JobId => {Owner, Ref}}};
                              [] -> Owner ! {Ref, done}, S
                          end,
-                    S2 = tell_all(Effects, S1#s{fsm = Fsm1, watch = W1}),
+                    S2 = tell_all(Effects, S1#s{fsm = Fsm1, watch = W1,
+                                                stale = S1#s.polling}),
                     {reply, {ok, Ref}, poll_soon(S2)};
                 {error, Why} ->
                     {reply, {error, {nc_refused, Why}}, S}
@@ -205,10 +212,14 @@ handle_info({timeout, Ref, poll}, #s{poll_timer = Ref} = S) ->
     {noreply, poll(S#s{poll_timer = undefined})};
 handle_info({timeout, _Stale, poll}, S) ->
     {noreply, S};
-handle_info(Msg, #s{reqs = Reqs} = S) ->
+handle_info(Msg, #s{reqs = Reqs, client = Client} = S) ->
     case cell_hal_ads_client:check_response(Msg, Reqs) of
-        {Result, poll, Rest} ->
-            {noreply, polled(Result, S#s{reqs = Rest})};
+        {_Early, {poll, Client}, Rest} when S#s.stale ->
+            {noreply, poll(S#s{reqs = Rest, polling = false, stale = false})};
+        {Result, {poll, Client}, Rest} ->
+            {noreply, polled(Result, S#s{reqs = Rest, polling = false})};
+        {_Stale, {poll, _Earlier}, Rest} ->
+            {noreply, S#s{reqs = Rest}};
         _ ->
             error({unexpected_message, Msg})
     end.
@@ -249,7 +260,7 @@ lost(Reason, #s{id = Id, up = Up} = S) ->
     Backoff = S1#s.backoff,
     _ = erlang:send_after(Backoff, self(), {?MODULE, connect}),
     S1#s{up = false, owners = #{}, watch = cell_hal_ads_nc:watch(undefined),
-         reqs = gen_statem:reqids_new(),
+         polling = false, stale = false,
          backoff = min(Backoff * 2, maps:get(max_reconnect_ms, S1#s.opts))}.
 
 %% A connection that answers wrongly is given up like a lost one.
@@ -271,16 +282,13 @@ stop_client(#s{client = C, monitor = Mon} = S) ->
 
 poll(#s{up = false} = S) ->
     S;
+poll(#s{polling = true} = S) ->
+    %% One poll at a time; its answer schedules the next.
+    S;
 poll(#s{client = C, ctx = Ctx, reqs = Reqs, opts = #{timeout_ms := T}} = S) ->
-    case gen_statem:reqids_size(Reqs) of
-        0 ->
-            {read, G, O, N} = cell_hal_ads_nc:request(online, Ctx),
-            {ok, Reqs1} = cell_hal_ads_client:send_request(C, {read, G, O, N}, T, poll, Reqs),
-            S#s{reqs = Reqs1};
-        _ ->
-            %% One poll at a time; its answer schedules the next.
-            S
-    end.
+    {read, G, O, N} = cell_hal_ads_nc:request(online, Ctx),
+    {ok, Reqs1} = cell_hal_ads_client:send_request(C, {read, G, O, N}, T, {poll, C}, Reqs),
+    S#s{reqs = Reqs1, polling = true}.
 
 polled(Result, #s{up = false} = S) ->
     _ = Result,

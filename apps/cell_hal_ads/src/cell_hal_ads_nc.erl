@@ -81,10 +81,11 @@
                     has_job := boolean(), homing := boolean(),
                     enabled := boolean(), in_error := boolean()}.
 
-%% What the axis process remembers of the job that runs between two polls: whether
-%% the NC has been seen working on it (a reference already done before a new homing
-%% must not end it).
--type watch() :: #{job := cell_hal_axis_fsm:job() | undefined, seen_busy := boolean()}.
+%% The job whose end the axis process waits for. Its end is judged only from online
+%% states read after the job's writes were answered: the NC has then taken the job
+%% (its "has job" bit is set once an ADS start is answered), so a state without it
+%% means the job ended.
+-type watch() :: #{job := cell_hal_axis_fsm:job() | undefined}.
 
 %% The axis's NC id, the jerk of stops and the distance to the target within which a
 %% move counts as arrived.
@@ -184,13 +185,13 @@ effect(quick_stop, W, _Ctx) ->
     %% The NC stopped the axis itself when it faulted.
     {[], idle(W)}.
 
-running(Job) -> #{job => Job, seen_busy => false}.
-idle(W) -> W#{job := undefined, seen_busy := false}.
+running(Job) -> #{job => Job}.
+idle(W) -> W#{job := undefined}.
 
 %% @doc No job watched.
 -spec watch(cell_hal_axis_fsm:job() | undefined) -> watch().
 watch(Job) ->
-    #{job => Job, seen_busy => false}.
+    #{job => Job}.
 
 %% @doc The online structure read at 0x4100 + Axis, offset 0.
 -spec decode_online(binary()) -> {ok, online()} | {error, {short_online_state, non_neg_integer()}}.
@@ -212,10 +213,12 @@ decode_online(Bin) ->
 %% @doc What a new online state means: the NC's news for the axis's state machine
 %% (a fault, the job's end), and the watch carried to the next poll.
 %%
-%% A fault is the NC's error code, news once (the state machine is in error_stop
-%% until reset). A move is done when the NC has no job and the axis stands within
-%% `in_position' of its target; a halt or stop when the NC has no job and the axis
-%% stands; homing when the NC was seen homing and now stands referenced.
+%% The online state must have been read after the job's writes were answered (the
+%% axis process drops a poll sent before them). A fault is the NC's error code, news
+%% once (the state machine is in error_stop until reset). A move is done when the NC
+%% has no job and the axis stands within `in_position' of its target; a halt or stop
+%% when the NC has no job and the axis stands; homing when the NC has no job, is not
+%% homing and the axis is referenced.
 -spec news(online(), watch(), #{state := cell_hal_axis_fsm:state(), ctx := ctx()}) ->
           {[cell_hal_axis_fsm:event()], watch()}.
 news(#{error := Code}, W, #{state := State}) when Code =/= 0, State =/= error_stop ->
@@ -224,23 +227,21 @@ news(#{error := Code}, W, _) when Code =/= 0 ->
     {[], W};
 news(_Online, #{job := undefined} = W, _) ->
     {[], W};
-news(Online, #{job := #{id := Id} = Job, seen_busy := Seen} = W, #{ctx := Ctx}) ->
-    Busy = maps:get(has_job, Online) orelse maps:get(homing, Online),
-    Seen1 = Seen orelse Busy,
-    case ended(Job, Online, Seen1, Ctx) of
-        true -> {[{done, Id}], W#{seen_busy := Seen1}};
-        false -> {[], W#{seen_busy := Seen1}}
+news(Online, #{job := #{id := Id} = Job} = W, #{ctx := Ctx}) ->
+    case ended(Job, Online, Ctx) of
+        true -> {[{done, Id}], W};
+        false -> {[], W}
     end.
 
 ended(#{kind := move, target := To}, #{has_job := false, not_moving := true,
-                                       position := X}, _Seen, #{in_position := Tol}) ->
+                                       position := X}, #{in_position := Tol}) ->
     abs(X - To) =< Tol;
-ended(#{kind := home}, #{has_job := false, homing := false, referenced := true}, true, _) ->
+ended(#{kind := home}, #{has_job := false, homing := false, referenced := true}, _) ->
     true;
-ended(#{kind := Kind}, #{has_job := false, not_moving := true}, _Seen, _)
+ended(#{kind := Kind}, #{has_job := false, not_moving := true}, _)
   when Kind =:= halt; Kind =:= stop ->
     true;
-ended(_Job, _Online, _Seen, _Ctx) ->
+ended(_Job, _Online, _Ctx) ->
     false.
 
 %% @doc The axis's state machine rebuilt from what the NC says, after the connection

@@ -44,20 +44,20 @@ effect_writes_test_() ->
     E = fun(Effects, W) -> cell_hal_ads_nc:effect_writes(Effects, W, ?CTX) end,
     [?_assertEqual({cell_hal_ads_nc:request({enable, true}, ?CTX), W0}, E([power_on], W0)),
      ?_assertEqual({cell_hal_ads_nc:request({start, 10.0, ?PARAMS}, ?CTX),
-                    #{job => Move, seen_busy => false}}, E([{run, Move}], W0)),
+                    #{job => Move}}, E([{run, Move}], W0)),
      %% A newer job replaces the one watched; the aborted one writes nothing.
      ?_assertEqual({cell_hal_ads_nc:request({stop, 800, 5000}, ?CTX),
-                    #{job => Halt, seen_busy => false}},
-                   E([{aborted, Move}, {run, Halt}], #{job => Move, seen_busy => true})),
+                    #{job => Halt}},
+                   E([{aborted, Move}, {run, Halt}], #{job => Move})),
      ?_assertEqual({cell_hal_ads_nc:request(reference, ?CTX),
-                    #{job => Home, seen_busy => false}}, E([{run, Home}], W0)),
+                    #{job => Home}}, E([{run, Home}], W0)),
      %% Homing done: the actual position set to the one asked.
      ?_assertEqual({cell_hal_ads_nc:request({set_position, 5.0}, ?CTX), W0},
-                   E([{done, Home}], #{job => Home, seen_busy => true})),
+                   E([{done, Home}], #{job => Home})),
      ?_assertEqual({[], W0}, E([{failed, Move, 16#4550}, quick_stop],
-                               #{job => Move, seen_busy => true})),
+                               #{job => Move})),
      ?_assertEqual({cell_hal_ads_nc:request({enable, false}, ?CTX), W0},
-                   E([{aborted, Move}, power_off], #{job => Move, seen_busy => true})),
+                   E([{aborted, Move}, power_off], #{job => Move})),
      ?_assertEqual({cell_hal_ads_nc:request({override, 40}, ?CTX), W0},
                    E([{override, 40}], W0))].
 
@@ -95,7 +95,7 @@ news_test_() ->
         end,
     Watch = fun(Job) -> cell_hal_ads_nc:watch(Job) end,
     Moving = #{pos => 50.0, vel => 10.0, bits => [8, 20]},
-    [?_assertMatch({[], #{seen_busy := true}}, N(Moving, Watch(Move), discrete_motion)),
+    [?_assertMatch({[], #{job := Move}}, N(Moving, Watch(Move), discrete_motion)),
      ?_assertMatch({[{done, 7}], _},
                    N(#{pos => 100.0, bits => [2, 4, 20]}, Watch(Move), discrete_motion)),
      %% Within in_position of the target, and just beyond it.
@@ -110,11 +110,10 @@ news_test_() ->
      ?_assertMatch({[], _}, N(#{error => 16#4550, bits => [2, 31]}, Watch(undefined), error_stop)),
      ?_assertMatch({[{fault, 16#4260}], _},
                    N(#{error => 16#4260, bits => [2, 31]}, Watch(undefined), standstill)),
-     %% Homing: an axis referenced before is not done until the NC was seen homing.
-     ?_assertMatch({[], _}, N(#{bits => [1, 2, 20]}, Watch(Home), homing)),
-     ?_assertMatch({[], #{seen_busy := true}}, N(#{bits => [2, 8, 11, 20]}, Watch(Home), homing)),
-     ?_assertMatch({[{done, 8}], _},
-                   N(#{bits => [1, 2, 20]}, #{job => Home, seen_busy => true}, homing)),
+     %% Homing: done once the NC has no job, is not homing and is referenced.
+     ?_assertMatch({[], _}, N(#{bits => [2, 8, 11, 20]}, Watch(Home), homing)),
+     ?_assertMatch({[], _}, N(#{bits => [2, 20]}, Watch(Home), homing)),
+     ?_assertMatch({[{done, 8}], _}, N(#{bits => [1, 2, 20]}, Watch(Home), homing)),
      ?_assertMatch({[], _}, N(#{vel => 5.0, bits => [8, 20]}, Watch(Halt), discrete_motion)),
      ?_assertMatch({[{done, 9}], _}, N(#{pos => 3.0, bits => [2, 20]}, Watch(Halt),
                                        discrete_motion)),
