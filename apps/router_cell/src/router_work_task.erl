@@ -10,7 +10,10 @@
 %% sticks is the unit's fault, the error the operator answers there (RESET, once it is
 %% free); the task waits meanwhile, giving its order again each `motion_timeout_ms'
 %% (a unit that restarted has lost it), and goes on once the sensors show the clamps
-%% where it ordered them.
+%% where it ordered them. It gives the order as it goes on even when the sensors showed
+%% the clamps there at once: the unit keeps its last order across a Stop and a Start,
+%% and an order left from before (to close, given at a restart) would move the clamps
+%% away again under the task, closing them on the frame as the belt runs it out.
 %%
 %% <pre>
 %%  phase      waits for                                    then
@@ -39,7 +42,9 @@
 %% without one, a panel in position is decided as below; none is idle.
 %%
 %% A panel in position while the task holds no product (restarted, or idle): its frame
-%% (the nest empty) or a robot's panel is emptied (emptying). Whose a whole panel is
+%% (the nest empty) or a robot's panel is emptied (emptying). Restarted, the task has a
+%% robot's panel clamped (ordered again); never a frame, whose modules are out: its
+%% clamps open for it to leave. Whose a whole panel is
 %% ({@link router_task:fixture/1}) follows only the records whose product can lie there,
 %% each checked against the sensor that would see it elsewhere: the routing robot's
 %% product of this lane; the upper robot's unless its gripper sensor sees modules and
@@ -81,9 +86,12 @@ reconcile(_Held, T2) ->
         {undefined, true} ->
             %% Looked at again after the operator's answer: the machine stood meanwhile.
             case in_fixture(T2, cell_task:answer(T2) =/= undefined) of
-                Robot when Robot =:= frame; element(1, Robot) =:= robot ->
-                    %% A panel a robot has, or its frame: the clamps hold it until the
-                    %% modules are out.
+                frame ->
+                    %% Its modules are out: the clamps open for it to leave (unclamping
+                    %% orders them so), never closed on it again.
+                    {ok, phase(T2, emptying)};
+                {robot, _} ->
+                    %% A panel a robot has: the clamps hold it until the modules are out.
                     {ok, phase(order(T2, true), emptying)};
                 {arrived, S} ->
                     {ok, arrived(T2, S)};
@@ -151,7 +159,10 @@ step(arriving, _Woken, T) ->
 step(clamping, Woken, T) ->
     case clamps_at(T, closed) of
         true ->
-            T1 = cell_handshake:offer(T, next(T)),
+            %% Ordered even when the sensors show them closed already: the unit keeps
+            %% its last order across a Stop, and one to open would open them under the
+            %% panel being routed.
+            T1 = cell_handshake:offer(order(T, true), next(T)),
             {wait, {handshake, next(T), not_busy, true}, phase(T1, offered)};
         false ->
             await_clamps(T, Woken, closed, clamping)
@@ -175,8 +186,12 @@ step(emptying, _Woken, T) ->
     end;
 step(unclamping, Woken, T) ->
     case clamps_at(T, open) of
-        true -> watch(cell_task:out(T, belt_run, true), ejecting, panel_in_position, false,
-                      transfer_timeout_ms);
+        true ->
+            %% Ordered even when the sensors show them open already: the unit keeps its
+            %% last order across a Stop, and one to close would close them on the frame
+            %% as the belt runs, which the fixture's end stop then holds for good.
+            watch(cell_task:out(order(T, false), belt_run, true), ejecting,
+                  panel_in_position, false, transfer_timeout_ms);
         false -> await_clamps(T, Woken, open, unclamping)
     end;
 step(ejecting, {timer, _}, T) ->

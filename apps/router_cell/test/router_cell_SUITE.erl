@@ -13,7 +13,7 @@
          reset_clears_the_nest/1,
          jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
-         stop_at_any_moment/1,
+         stop_at_any_moment/1, frame_leaves_after_a_stop_with_the_clamps_open/1,
          physics_waits_for_the_hal/1, node_stop_secures_outputs/1,
          histories_kept_within_their_limit/1, real_mode_spec/1, diagnostics/1]).
 
@@ -26,6 +26,7 @@ all() ->
      reset_clears_the_nest,
      jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
+     frame_leaves_after_a_stop_with_the_clamps_open,
      physics_waits_for_the_hal,
      node_stop_secures_outputs, histories_kept_within_their_limit, real_mode_spec,
      diagnostics].
@@ -333,6 +334,51 @@ stop_at_any_moment(_Config) ->
     ?assertEqual(In, OutN + InCell),
     ?assertEqual([], cell_alarms:list()).
 
+%% Stopped with the frame in the fixture, its clamps open (the modules out) and the
+%% belt not run yet: started again, the work segment runs the frame out, the clamps
+%% staying open, and nobody is asked. Clamp A jams closed while the panel is routed, so
+%% the Stop falls while the segment waits for it to open, whatever the machine's load;
+%% it is freed once the cell is off.
+frame_leaves_after_a_stop_with_the_clamps_open(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    {module, cell_handover} = code:ensure_loaded(cell_handover),
+    1 = erlang:trace_pattern({cell_handover, phase, 2}, true, [local]),
+    Work = cell_task_proc:whereis(work_front),
+    1 = erlang:trace(Work, true, [call, {tracer, self()}]),
+    ok = cell_controller:start(<<"suite">>),
+    ok = await_phase(Work, offered),
+    ok = router_sim:jam_clamp({front, a}),
+    ok = await_phase(Work, unclamping),
+    Clamps = router_cell:group(clamps, front),
+    ok = await_io(Clamps, b_is_open, true),
+    ok = stop_cell(),
+    1 = erlang:trace(Work, false, [call]),
+    _ = erlang:trace_pattern({cell_handover, phase, 2}, false, [local]),
+    flush_trace(Work),
+    ok = router_sim:free_clamp({front, a}),
+    ok = await_io(Clamps, a_is_open, true),
+    #{work := #{front := {_, frame}}} = World = router_sim:world(),
+    ct:log("stopped with the frame in the fixture, the clamps open: ~tp", [World]),
+    %% The frame out of the fixture before either clamp leaves its open end.
+    {ok, Out} = cell_hal:watch(router_cell:group(work, front), panel_in_position, {eq, false}),
+    {ok, A} = cell_hal:watch(Clamps, a_is_open, {eq, false}),
+    {ok, B} = cell_hal:watch(Clamps, b_is_open, {eq, false}),
+    ok = cell_controller:start(<<"suite">>),
+    receive
+        {cell_hal_watch, Out, false} -> ok;
+        {cell_hal_watch, Ref, false} when Ref =:= A; Ref =:= B ->
+            ct:fail({clamps_closed_on_the_frame, router_sim:world()})
+    after ?DEADLINE_MS ->
+        ct:fail({frame_never_left, router_sim:world(), cell_alarms:list()})
+    end,
+    _ = [cell_hal:cancel_watch(Ref) || Ref <- [A, B]],
+    %% The line goes on, nobody asked.
+    _ = collect_out(2, fun never_answer/1),
+    ok = stop_cell(),
+    #{cell := #{in := In, out := OutN, scrapped := 0}, in_cell := InCell} = settle(),
+    ?assertEqual(In, OutN + InCell),
+    ?assertEqual([], cell_alarms:list()).
+
 %% The cell's monitor takes the HAL down under the physics (the cell stops) and the
 %% physics restarts meanwhile: it waits for the HAL, and once the cell is back it
 %% goes on from the world it saved; the line runs again.
@@ -516,6 +562,31 @@ await_log(Prefix) ->
         {cell_log, #{text := <<Prefix:(byte_size(Prefix))/binary, _/binary>>}} -> ok
     after ?DEADLINE_MS ->
         ct:fail({no_log_line, Prefix})
+    end.
+
+%% Waits for the traced task to enter the phase (cell_handover:phase/2 traced); an
+%% error meanwhile fails the case.
+await_phase(Pid, Phase) ->
+    receive
+        {trace, Pid, call, {cell_handover, phase, [_, Phase]}} -> ok;
+        {trace, Pid, call, _} -> await_phase(Pid, Phase);
+        {cell_event, #{type := alarm_raised, alarm := #{kind := error} = A}} ->
+            ct:fail({unexpected_error, A});
+        {cell_event, _} -> await_phase(Pid, Phase)
+    after ?DEADLINE_MS ->
+        ct:fail({phase_never_entered, Phase, cell_controller:tasks(), cell_alarms:list()})
+    end.
+
+flush_trace(Pid) ->
+    receive {trace, Pid, _, _} -> flush_trace(Pid)
+    after 0 -> ok
+    end.
+
+%% Waits for an IO point, as the HAL reads it, to have the value.
+await_io(Group, Point, Value) ->
+    {ok, Ref} = cell_hal:watch(Group, Point, {eq, Value}),
+    receive {cell_hal_watch, Ref, Value} -> ok
+    after ?DEADLINE_MS -> ct:fail({io_never, Group, Point, Value, router_sim:world()})
     end.
 
 %% Lets N events of the cell pass; an error among them fails the case.
