@@ -17,7 +17,8 @@
          no_read_ignore/1, no_read_reset/1, reader_lost_mid_read/1, plc_lost_mid_read/1]).
 
 -define(DEADLINE_MS, 60000).
--define(EVENTS, [item_identifier_read, item_transfer_out, alarm_raised, alarm_cleared]).
+-define(EVENTS, [item_identifier_read, item_transfer_out, alarm_raised, alarm_cleared,
+                 cell_state]).
 -define(NO_CODE, <<"loading_front:no_code">>).
 
 all() ->

@@ -17,7 +17,7 @@
 
 -define(DEADLINE_MS, 60000).
 -define(EVENTS, [item_transfer_out, alarm_raised, alarm_cleared, task_state,
-                 equipment_starved, equipment_unstarved]).
+                 equipment_starved, equipment_unstarved, cell_state]).
 -define(UNIT, clamps_front).
 
 all() ->
