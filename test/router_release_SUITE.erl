@@ -504,12 +504,15 @@ run(Op, Node, Await, Target, Answers) ->
         timeout ->
             ct:fail({stuck, erpc:call(Node, cell_controller, tasks, [])});
         {error, #{id := Id, solutions := Solutions}} ->
-            Turn = [retry, ignore, reset],
-            N = lists:sum(maps:values(Answers)),
-            Preferred = lists:nth(N rem 3 + 1, Turn),
-            Solution = case lists:member(Preferred, Solutions) of
-                           true -> Preferred;
-                           false -> hd(Solutions)
+            %% The answer given least so far among those offered (in this order on a
+            %% tie): which errors come, and which answers each offers, is the
+            %% machine's chance; every answer is given as soon as an error offers it.
+            Offered = [S || S <- [retry, ignore, reset], lists:member(S, Solutions)],
+            Solution = case Offered of
+                           [] -> hd(Solutions);
+                           _ -> hd(lists:sort(fun(A, B) -> maps:get(A, Answers, 0) =<
+                                                               maps:get(B, Answers, 0)
+                                              end, Offered))
                        end,
             Path = "/api/alarms/" ++ uri_string:quote(binary_to_list(Id)) ++ "/answer",
             {200, _, _} = cell_web_client:req(Op, post, Path, #{solution => Solution}),
