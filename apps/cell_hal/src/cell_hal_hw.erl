@@ -275,11 +275,7 @@ init({Id, Kind, Mod, Opts}) ->
 handle_call(status, _From, #state{status = Status} = S) ->
     {reply, Status, S};
 handle_call({subscribe, Pid}, _From, #state{subs = Subs, status = Status} = S) ->
-    Subs1 = case Subs of
-                #{Pid := _} -> Subs;
-                #{} -> Subs#{Pid => erlang:monitor(process, Pid)}
-            end,
-    {reply, {ok, Status}, S#state{subs = Subs1}};
+    {reply, {ok, Status}, S#state{subs = monitored(Pid, Subs)}};
 handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
     case maps:take(Pid, Subs) of
         {MRef, Rest} ->
@@ -289,11 +285,7 @@ handle_call({unsubscribe, Pid}, _From, #state{subs = Subs} = S) ->
             {reply, ok, S}
     end;
 handle_call({watch, Pid}, _From, #state{watchers = Ws} = S) ->
-    Ws1 = case Ws of
-              #{Pid := _} -> Ws;
-              #{} -> Ws#{Pid => erlang:monitor(process, Pid)}
-          end,
-    {reply, {ok, self()}, S#state{watchers = Ws1}};
+    {reply, {ok, self()}, S#state{watchers = monitored(Pid, Ws)}};
 handle_call({impl, Request}, _From, #state{mod = Mod, impl = Impl} = S) ->
     {reply, Reply, Impl1} = Mod:handle_call(Request, Impl),
     {reply, Reply, changed(S#state{impl = Impl1})};
@@ -332,6 +324,10 @@ start(From, Op, #state{kind = Kind, mod = Mod, impl = Impl} = S) ->
         {noreply, Impl1} ->
             {noreply, Told(S#state{impl = Impl1, busy = From})}
     end.
+
+%% Subscribers and watchers, each monitored once.
+monitored(Pid, Pids) when is_map_key(Pid, Pids) -> Pids;
+monitored(Pid, Pids) -> Pids#{Pid => erlang:monitor(process, Pid)}.
 
 changed(#state{id = Id, watchers = Ws} = S) ->
     maps:foreach(fun(Pid, _) -> Pid ! {cell_hal_hw_changed, Id} end, Ws),

@@ -179,11 +179,11 @@ watch_new(#state{points = Points, conns = Conns} = State) ->
     Subscribed = [K || {G, P} = K <- New, cell_hal:subscribe(G, P) =:= ok],
     NewConns = [C || C <- cell_hal:connections(), not is_map_key(C, Conns)],
     Watched = [{C, S} || C <- NewConns, {ok, S} <- [cell_hal:subscribe_connection(C)]],
-    Hw = lists:foldl(fun({Id, Kind, _}, Acc) when Kind =:= axis; Kind =:= channel ->
-                             case {Acc, cell_hal_hw:watch(Id)} of
-                                 {#{Id := _}, _} -> Acc;
-                                 {#{}, {ok, Pid}} -> Acc#{Id => erlang:monitor(process, Pid)};
-                                 {#{}, {error, _}} -> Acc
+    Hw = lists:foldl(fun({Id, Kind, _}, Acc) when (Kind =:= axis orelse Kind =:= channel),
+                                                   not is_map_key(Id, Acc) ->
+                             case cell_hal_hw:watch(Id) of
+                                 {ok, Pid} -> Acc#{Id => erlang:monitor(process, Pid)};
+                                 {error, _} -> Acc
                              end;
                         (_, Acc) ->
                              Acc
