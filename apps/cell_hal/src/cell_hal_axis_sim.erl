@@ -11,6 +11,10 @@
 %% cell_hal_channel_sim) is sampled the same way: the path's own profile along its
 %% length, at the profile's time, and this axis's coordinate of the path's point there.
 %%
+%% With `time_scale' below 1 the simulated machine runs faster than real time (a test's
+%% physics): every profile's time and the homing time are scaled by it, while positions,
+%% velocities and the override read as the machine's own.
+%%
 %% Homing takes `home_ms' and sets the position to the homing position. A fault (a
 %% following error, code 16#4550 as TwinCAT NC reports it) can be injected: at
 %% `fault_rate' (the chance a move faults, midway), on the next move (`fault_next/1'),
@@ -81,6 +85,7 @@ check_opts(Opts) ->
                                                                      andalso V =< 1 end},
                                    quick_deceleration => {10000, fun positive/1},
                                    position => {0.0, fun erlang:is_number/1},
+                                   time_scale => {1.0, fun positive/1},
                                    publish => {none, fun publish/1}}).
 
 publish(none) ->
@@ -212,7 +217,7 @@ run(#{id := Id}, Profile, Ms, S) ->
     published(arm(Id, Ms, S1)).
 
 arm(Id, undefined, #s{profile = Profile, tau0 = Tau0, rate = Rate} = S) when Rate > 0 ->
-    Left = (duration(Profile) - Tau0) / Rate,
+    Left = (duration(Profile) - Tau0) / (Rate * speed(S)),
     S#s{timer = erlang:start_timer(ceil(max(Left, 0.0) * 1000), self(), {job_end, Id})};
 arm(_Id, undefined, S) ->
     %% Override 0: the axis holds; the job ends once the override is raised.
@@ -241,8 +246,9 @@ faulting(Profile, #s{fault_next = Next, opts = #{fault_rate := Rate}} = S) ->
         true ->
             Half = duration(Profile) / 2,
             S#s{fault_next = false,
-                fault_timer = erlang:start_timer(ceil(Half * 1000 / max(S#s.rate, 0.01)),
-                                                 self(), fault)};
+                fault_timer = erlang:start_timer(
+                                ceil(Half * 1000 / (max(S#s.rate, 0.01) * speed(S))),
+                                self(), fault)};
         false ->
             S
     end.
@@ -322,11 +328,15 @@ sample(Profile, Tau) ->
 duration({coupled, Profile, _, _}) -> cell_hal_axis_profile:duration(Profile);
 duration(Profile) -> cell_hal_axis_profile:duration(Profile).
 
-tau(Now, #s{tau0 = Tau0, t0 = T0, rate = Rate}) ->
-    Tau0 + Rate * (Now - T0) / 1000.
+tau(Now, #s{tau0 = Tau0, t0 = T0, rate = Rate} = S) ->
+    Tau0 + Rate * speed(S) * (Now - T0) / 1000.
 
-home_ms(#s{opts = #{home_ms := Ms}}) ->
-    Ms.
+%% How many of the machine's seconds pass in one real second.
+speed(#s{opts = #{time_scale := Scale}}) ->
+    1 / Scale.
+
+home_ms(#s{opts = #{home_ms := Ms, time_scale := Scale}}) ->
+    round(Ms * Scale).
 
 now_ms() ->
     erlang:monotonic_time(millisecond).

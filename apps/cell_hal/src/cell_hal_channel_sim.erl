@@ -11,6 +11,9 @@
 %% thousand points along it). An axis that faults fails the path, and the channel halts
 %% the others; an axis commanded elsewhere aborts it.
 %%
+%% `time_scale' is its axes' (see cell_hal_axis_sim), so that its progress keeps pace
+%% with them.
+%%
 %% ```
 %% #{id => router, kind => channel, type => sim, opts => #{axes => [x, y, z]}}
 %% '''
@@ -37,13 +40,16 @@
             tau0 = 0.0 :: float(),
             t0 = 0 :: integer(),
             rate = 1.0 :: float(),
+            %% The machine's seconds in one real second (1 / time_scale).
+            speed = 1.0 :: float(),
             %% Where it stopped (the end of the last path, or where it was halted).
             along = 0.0 :: float()}).
 
 %% @private
 -spec check_opts(map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 check_opts(Opts) ->
-    cell_hal_hw:check_opts(Opts, #{axes => {undefined, fun axes/1}}).
+    cell_hal_hw:check_opts(Opts, #{axes => {undefined, fun axes/1},
+                                   time_scale => {1.0, fun(V) -> is_number(V) andalso V > 0 end}}).
 
 axes([_, _ | _] = Axes) when length(Axes) =< 3 ->
     lists:all(fun erlang:is_atom/1, Axes) andalso length(lists:usort(Axes)) =:= length(Axes);
@@ -54,8 +60,8 @@ axes(_) ->
 -spec init(atom(), map()) -> {ok, #s{}} | {error, {bad_option, axes}}.
 init(_Id, #{axes := undefined}) ->
     {error, {bad_option, axes}};
-init(Id, #{axes := Axes}) ->
-    {ok, #s{id = Id, axes = Axes, t0 = now_ms()}}.
+init(Id, #{axes := Axes, time_scale := Scale}) ->
+    {ok, #s{id = Id, axes = Axes, t0 = now_ms(), speed = 1 / Scale}}.
 
 %% @private
 -spec follow(pid(), cell_hal_path:path(), cell_hal_axis_fsm:params(), #s{}) ->
@@ -204,8 +210,8 @@ ranges(Path, N) ->
                        {lists:min(Xs), lists:max(Xs)}
                    end || I <- lists:seq(1, N)]).
 
-tau(Now, #s{tau0 = Tau0, t0 = T0, rate = Rate}) ->
-    Tau0 + Rate * (Now - T0) / 1000.
+tau(Now, #s{tau0 = Tau0, t0 = T0, rate = Rate, speed = Speed}) ->
+    Tau0 + Rate * Speed * (Now - T0) / 1000.
 
 now_ms() ->
     erlang:monotonic_time(millisecond).

@@ -12,7 +12,8 @@
          end_per_testcase/2]).
 -export([power_home_move/1, refused_commands/1, newer_move_aborts/1, halt_mid_move/1,
          stop_holds_until_released/1, fault_fails_the_move/1, override_is_a_time_base/1,
-         power_off_aborts/1, publishes_its_position/1, bad_options/1]).
+         power_off_aborts/1, publishes_its_position/1, time_scale_speeds_the_machine/1,
+         bad_options/1]).
 
 -define(WAIT, 10000).
 -define(FAST, #{velocity => 2000, acceleration => 20000, deceleration => 20000}).
@@ -22,7 +23,7 @@
 all() ->
     [power_home_move, refused_commands, newer_move_aborts, halt_mid_move,
      stop_holds_until_released, fault_fails_the_move, override_is_a_time_base,
-     power_off_aborts, publishes_its_position, bad_options].
+     power_off_aborts, publishes_its_position, time_scale_speeds_the_machine, bad_options].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -198,11 +199,36 @@ await_point(P, Cond) ->
     {ok, Ref} = cell_hal:watch(axes_io, P, Cond),
     receive {cell_hal_watch, Ref, _} -> ok after ?WAIT -> ct:fail({point, P, Cond}) end.
 
+%% A simulated machine ten times faster than real time (a test's physics): homing and a
+%% move take a tenth of their time, and the axis reads the machine's own velocity.
+%% ?SLOW over 100 mm takes 2 s of the machine's time: between 0.2 s (a lower bound, as a
+%% busy machine only makes it later) and the 2 s it would take in real time.
+time_scale_speeds_the_machine(_Config) ->
+    ok = cell_hal_hw:add(#{id => fast, kind => axis, type => sim,
+                           opts => #{home_ms => 3000, time_scale => 0.1}}),
+    try
+        ok = done(cell_hal_axis:power(fast, true)),
+        T0 = erlang:monotonic_time(millisecond),
+        ok = done(cell_hal_axis:home(fast, 0.0)),
+        T1 = erlang:monotonic_time(millisecond),
+        ?assert(T1 - T0 >= 300 andalso T1 - T0 < 3000, T1 - T0),
+        {ok, M} = cell_hal_axis:move_absolute(fast, 100.0, ?SLOW),
+        {ok, #{velocity := V}} = cell_hal_axis:status(fast),
+        ?assert(V >= 0.0 andalso V =< 100.0, V),
+        ok = await(M, done),
+        T2 = erlang:monotonic_time(millisecond),
+        ?assert(T2 - T1 >= 200 andalso T2 - T1 < 2000, T2 - T1),
+        ?assertMatch({ok, #{position := 100.0, velocity := 0.0}}, cell_hal_axis:status(fast))
+    after
+        ok = cell_hal_hw:remove(fast)
+    end.
+
 bad_options(_Config) ->
     Add = fun(Opts) -> cell_hal_hw:add(#{id => y, kind => axis, type => sim, opts => Opts}) end,
     ?assertEqual({error, {bad_option, limits}}, Add(#{limits => {5, 1}})),
     ?assertEqual({error, {bad_option, fault_rate}}, Add(#{fault_rate => 2})),
     ?assertEqual({error, {bad_option, speed}}, Add(#{speed => 1})),
+    ?assertEqual({error, {bad_option, time_scale}}, Add(#{time_scale => 0})),
     ?assertEqual({error, {bad_option, publish}}, Add(#{publish => #{group => g}})),
     ?assertEqual({error, not_present}, cell_hal_axis:status(y)).
 
