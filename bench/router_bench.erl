@@ -89,7 +89,8 @@ busy(Dual, Router, Sim) ->
 
 %% The routing robot's time for one panel, the lanes' panels routed in turn: the
 %% spindle up to speed, then per cut a rapid move from where the last one ended (the
-%% rear fixture lies further back), the bit down, the cut at its feed, the bit up.
+%% rear fixture lies further back), the bit down, the cut at its feed, the bit up; each
+%% move the trapezoidal profile the robot's channel plans for it.
 routing(Dual, Router, Sim) ->
     Demo = router_recipes:demo(),
     Cuts = fun(Recipe, Offset) ->
@@ -105,9 +106,15 @@ routing(Dual, Router, Sim) ->
     Plunge = maps:get(plunge_ms, Sim),
     {Ms, _} = lists:foldl(
                 fun(#{from := {X, Y}, to := To, length := L, feed := F}, {Acc, {Px, Py}}) ->
-                        Move = math:sqrt((X - Px) * (X - Px) + (Y - Py) * (Y - Py)) / Rapid,
-                        {Acc + 1000 * (Move + L / F) + 2 * Plunge, To}
+                        Move = move_s(rapid, math:sqrt((X - Px) * (X - Px) + (Y - Py) * (Y - Py)),
+                                      Rapid),
+                        {Acc + 1000 * (Move + move_s(feed, L, F)) + 2 * Plunge, To}
                 end, {0.0, Start}, lists:append(Panels)),
     Ms / length(Panels) + maps:get(spindle_ramp_ms, Sim).
+
+%% The seconds a path of `L' mm takes from rest to rest.
+move_s(Kind, L, Speed) ->
+    Profile = cell_hal_axis_profile:move({0.0, 0.0}, L, router_lower_task:path_params(Kind, Speed)),
+    cell_hal_axis_profile:duration(Profile).
 
 fmt(X) -> float_to_list(X, [{decimals, 2}]).

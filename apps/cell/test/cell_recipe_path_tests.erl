@@ -68,3 +68,19 @@ refused_test() ->
                  cell_recipe_path:from_drawing(
                    ?D:new([?D:polyface([{0, 0}, {1, 0}, {0, 1}], [[1, 2, 3]], cut(1))]),
                    <<"Cut">>)).
+
+%% One item on its own (a cut followed by itself): a container's lines in tree order,
+%% as the drawing places them; a mesh or an empty container is no path.
+of_item_test() ->
+    Drawing = ?D:new([?D:container(cut(1), [?D:line({0, 0}, {10, 0}),
+                                            ?D:line({10, 0}, {10, 5})]),
+                      ?D:line({0, 0}, {0, 10}, cut(2))]),
+    [First, Second] = cell_recipe_drawing:items_by_type(Drawing, <<"Cut">>),
+    ?assertEqual({ok, [{line, {0.0, 0.0, 0.0}, {10.0, 0.0, 0.0}},
+                       {line, {10.0, 0.0, 0.0}, {10.0, 5.0, 0.0}}]},
+                 cell_recipe_path:of_item(First)),
+    ?assertEqual({ok, [{line, {0.0, 0.0, 0.0}, {0.0, 10.0, 0.0}}]},
+                 cell_recipe_path:of_item(Second)),
+    ?assertEqual({error, no_items}, cell_recipe_path:of_item(?D:container(cut(3), []))),
+    ?assertMatch({error, {not_a_path, _}},
+                 cell_recipe_path:of_item(?D:polyface([{0, 0}, {1, 0}, {0, 1}], [[1, 2, 3]]))).

@@ -51,7 +51,9 @@ init_per_testcase(the_router_cell_in_real_mode = Case, Config) ->
                                                                  magazine_low_s => 0}}),
     #{tcp := Port} = Vplc = start_vplc(VplcRoot, 0),
     CellRoot = filename:join(Root, "cell"),
+    %% The lower robot's simulated NC runs in the cell, at the physics' pace.
     ok = cell_testkit:write_settings(CellRoot, #{machine => #{simulation_mode => false},
+                                                 router_sim => #{time_scale => 0.02},
                                                  router => #{plc_host => <<"127.0.0.1">>,
                                                              plc_port => Port,
                                                              hal_poll_ms => 5,
@@ -90,13 +92,13 @@ end_per_testcase(_Case, Config) ->
 %% Cases
 %%--------------------------------------------------------------------
 
-%% A motion of the lower robot commanded over Modbus (64-bit floats over four
-%% registers, a 32-bit command number over two) ends with its position and the
-%% command number in the robot's input registers; the spindle's coil brings up its
-%% at-speed input.
+%% A move of the upper robot commanded over Modbus (a 16-bit position number in one
+%% register, a 32-bit command number over two) ends with the command number in the
+%% robot's input registers; the spindle's coil brings up its at-speed input; the air
+%% pressure reads as a 64-bit float over four input registers.
 outputs_move_the_physics(_Config) ->
-    move(12.5, -7.25, 7),
-    {ok, -7.25} = cell_hal:read(lower_io, pos_y),
+    move(1, 7),
+    {ok, 6.0} = cell_hal:read(general_io, air_pressure),
     ok = cell_hal:write(lower_io, spindle_run, true),
     wait(lower_io, spindle_at_speed, {eq, true}),
     ok = cell_hal:write(lower_io, spindle_run, false),
@@ -106,14 +108,14 @@ outputs_move_the_physics(_Config) ->
 %% is down; the virtual PLC started again on the same port: the HAL is back on its
 %% own and the physics answers again.
 killed_and_started_again(Config) ->
-    move(1.0, 2.0, 3),
+    move(1, 3),
     #{tcp := Port} = Vplc = ?config(vplc, Config),
     ok = kill_vplc(Vplc),
     receive {cell_hal_conn, ?CONN, down} -> ok after ?WAIT -> ct:fail(connection_not_down) end,
-    ?assertMatch({error, _}, cell_hal:read(lower_io, done)),
+    ?assertMatch({error, _}, cell_hal:read(upper_io, done)),
     Again = start_vplc(?config(root, Config), Port),
     receive {cell_hal_conn, ?CONN, up} -> ok after ?WAIT -> ct:fail(connection_not_back) end,
-    move(4.0, 5.0, 4),
+    move(0, 4),
     stop_vplc(Again).
 
 %% Frames that are not Modbus close their connection, refused requests get their
@@ -135,7 +137,7 @@ bad_input(Config) ->
     ?assertEqual(<<16#82, 2>>, ask(S, 1, <<2, 0:16, 100:16>>)),
     %% The low word of the 32-bit command written alone is a command (the high word
     %% kept); a quantity of 0 coils is refused.
-    ?assertEqual(<<6, 217:16, 9:16>>, ask(S, 1, <<6, 217:16, 9:16>>)),
+    ?assertEqual(<<6, 262:16, 9:16>>, ask(S, 1, <<6, 262:16, 9:16>>)),
     ?assertEqual(<<16#81, 3>>, ask(S, 1, <<1, 0:16, 0:16>>)),
     %% A function the PLC does not offer, a unit it does not serve.
     ?assertEqual(<<16#C1, 1>>, ask(S, 1, <<16#41, 1, 2, 3>>)),
@@ -143,15 +145,15 @@ bad_input(Config) ->
     %% A coil written with a value other than on or off.
     ?assertEqual(<<16#85, 3>>, ask(S, 1, <<5, 200:16, 16#1234:16>>)),
     %% Still up, for this client and for the HAL.
-    ?assertEqual(<<3, 4, 0:16, 9:16>>, ask(S, 1, <<3, 216:16, 2:16>>)),
+    ?assertEqual(<<3, 4, 0:16, 9:16>>, ask(S, 1, <<3, 261:16, 2:16>>)),
     ok = gen_tcp:close(S),
     up = cell_hal:status(?CONN),
-    move(3.0, 3.0, 10).
+    move(3, 10).
 
 %% pymodbus, a client written by others, reads what the HAL wrote and what the physics
 %% set at the same addresses.
 pymodbus_reads_the_same_registers(Config) ->
-    move(-3.5, 1.0, 42),
+    move(2, 42),
     ok = cell_hal:write(lower_io, spindle_run, true),
     wait(lower_io, spindle_at_speed, {eq, true}),
     #{tcp := Port} = ?config(vplc, Config),
@@ -160,8 +162,8 @@ pymodbus_reads_the_same_registers(Config) ->
                   [{args, [Script, integer_to_list(Port)]}, {line, 1024}, exit_status,
                    use_stdio, binary, stderr_to_stdout]),
     Lines = lines(P, []),
-    ?assertEqual([<<"target_x -3.5">>, <<"command 42">>, <<"spindle_run 1">>,
-                  <<"done 42">>, <<"end">>], Lines).
+    ?assertEqual([<<"target 2">>, <<"command 42">>, <<"spindle_run 1">>,
+                  <<"done 42">>, <<"air_pressure 6.0">>, <<"end">>], Lines).
 
 %% The physics runs on the settings saved in the virtual PLC's root: a panel always
 %% waiting at the previous machine (arrival_ms 0) is offered before the first read,
@@ -225,14 +227,13 @@ connect(Port) ->
         down -> receive {cell_hal_conn, ?CONN, up} -> ok after ?WAIT -> ct:fail(not_up) end
     end.
 
-move(X, Y, Command) ->
-    ok = cell_hal:write(lower_io, target_x, X),
-    ok = cell_hal:write(lower_io, target_y, Y),
-    ok = cell_hal:write(lower_io, path_mm, 1.0),
-    ok = cell_hal:write(lower_io, feed, 100.0),
-    ok = cell_hal:write(lower_io, command, Command),
-    wait(lower_io, done, {eq, Command}),
-    {ok, X} = cell_hal:read(lower_io, pos_x),
+%% The upper robot to a taught position (router_upper_io:position/2), the move's end
+%% seen as its command number in `done'.
+move(Position, Command) ->
+    ok = cell_hal:write(upper_io, target, Position),
+    ok = cell_hal:write(upper_io, command, Command),
+    wait(upper_io, done, {eq, Command}),
+    {ok, Position} = cell_hal:read(upper_io, target),
     ok.
 
 wait(G, P, Cond) ->

@@ -12,10 +12,11 @@ router_test() ->
     {ok, #{conn := router_plc, points := Points, hal := Hal}} =
         cell_vplc:setup(router(#{dual_lane => false}), undefined),
     %% Every point of the front lane's three segments and its fixture's clamps, the
-    %% two robots, the general IO and the three drives (the front conveyors', the
-    %% robots'); the lane's inspection block's S7 UDT and the PLC program's side of it;
-    %% its code reader's.
-    ?assertEqual(6 + 3 + 5 + 8 + 12 + 6 + 12 + 3 * 4 + 34 + 18 + 5, length(Points)),
+    %% two robots (of the lower one, the spindle and the bit: its X and Y are NC axes),
+    %% the general IO and the three drives (the front conveyors', the robots'); the
+    %% lane's inspection block's S7 UDT and the PLC program's side of it; its code
+    %% reader's.
+    ?assertEqual(6 + 3 + 5 + 8 + 4 + 6 + 12 + 3 * 4 + 34 + 18 + 5, length(Points)),
     ?assertMatch({{clamps_front_io, a_is_closed}, bool,
                   #{table := discrete_input, address := 440}},
                  lists:keyfind({clamps_front_io, a_is_closed}, 1, Points)),
@@ -26,9 +27,9 @@ router_test() ->
     ?assertMatch({{inspect_front, trigger_inspection}, bool,
                   #{table := holding_register, address := 567, bit := 8}},
                  lists:keyfind({inspect_front, trigger_inspection}, 1, Points)),
-    ?assertMatch({{lower_io, target_x}, lreal,
-                  #{unit := 1, table := holding_register, address := 200, word_order := big}},
-                 lists:keyfind({lower_io, target_x}, 1, Points)),
+    ?assertMatch({{general_io, air_pressure}, lreal,
+                  #{unit := 1, table := input_register, address := 300, word_order := big}},
+                 lists:keyfind({general_io, air_pressure}, 1, Points)),
     ?assertMatch({{upper_io, done}, int32, #{table := input_register, address := 260}},
                  lists:keyfind({upper_io, done}, 1, Points)),
     %% The same connection and groups, on the simulated PLC.

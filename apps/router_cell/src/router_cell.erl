@@ -27,7 +27,7 @@
 %% helpers every cell spec uses ({@link cell_spec_helpers}).
 -module(router_cell).
 
--export([cell_spec/0, cell_spec/2, hal/2, monitor/1, lanes/1, group/2, task/2, reader/1,
+-export([cell_spec/0, cell_spec/2, hal/2, hal/3, monitor/1, lanes/1, group/2, task/2, reader/1,
          router_settings/0, simulation/1, machine_actions/1, inspect_blocks/1]).
 
 -define(CONN, router_plc).
@@ -95,13 +95,22 @@ lane_tasks(L, Router) ->
        settings => router,
        args => #{lane => L, prev => link(pick_unload, L)}}].
 
-%% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
-%% TCP), the IO group instances bound to it, and the code readers, wired through the
-%% PLC's IO in simulation and on the real machine alike.
+%% @doc The HAL configuration of the cell, with the physics' time scale as saved.
 -spec hal(map(), map()) -> #{connections := [cell_hal:connection_spec()],
                              groups := [cell_hal:group_spec()],
                              hardware := [cell_hal_hw:spec()]}.
 hal(Machine, Router) ->
+    hal(Machine, Router, cell_spec_helpers:saved_settings(router_sim_settings)).
+
+%% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
+%% TCP), the IO group instances bound to it, the code readers, wired through the PLC's
+%% IO in simulation and on the real machine alike, and the lower robot's NC: its X and
+%% Y axes and the interpolation channel over them, simulated, at the physics' time scale
+%% (`Sim': the router_sim settings).
+-spec hal(map(), map(), map()) -> #{connections := [cell_hal:connection_spec()],
+                                    groups := [cell_hal:group_spec()],
+                                    hardware := [cell_hal_hw:spec()]}.
+hal(Machine, Router, Sim) ->
     Conn = cell_spec_helpers:connection(
              ?CONN, Machine,
              #{real => {cell_hal_modbus, #{host => binary_to_list(maps:get(plc_host, Router)),
@@ -145,7 +154,22 @@ hal(Machine, Router) ->
                  opts => #{group => group(reader, L), count => read_count,
                            deadline_ms => maps:get(reader_deadline_ms, Router, 2000)}}
                || L <- lanes(Machine)],
-    #{connections => [Conn], groups => Groups, hardware => Readers}.
+    #{connections => [Conn], groups => Groups, hardware => Readers ++ lower_nc(Sim)}.
+
+%% The lower robot's NC: the gantry's X along the transport, Y across it to the rear
+%% lane's fixture, both homed at 0 (the front fixture's corner), and the channel that
+%% routes the cut lines over them. The NC is simulated (cell_hal_axis_sim) in both
+%% modes: the router's PLC has no NC of its own to reach.
+lower_nc(Sim) ->
+    Scale = maps:get(time_scale, Sim, 1.0),
+    Axis = fun(Id, Max) ->
+                   #{id => Id, kind => axis, type => sim,
+                     opts => #{limits => {-10.0, Max}, home_ms => 1500,
+                               time_scale => max(Scale, 0.001)}}
+           end,
+    [Axis(lower_x, 600.0), Axis(lower_y, 900.0),
+     #{id => lower_xy, kind => channel, type => sim,
+       opts => #{axes => [lower_x, lower_y], time_scale => max(Scale, 0.001)}}].
 
 %% @doc The inspection blocks of the machine (seed 004, {@link cell_inspect}), one per
 %% lane, on the router's PLC: for the `cell_inspect' application's `blocks'.

@@ -7,11 +7,11 @@
 %%  idle      a work segment's offer (STARVED)               commit (phase 2) → taking
 %%  taking    the segment's Available off (phase 3)          complete (phase 4, ItemTransferIn);
 %%                                                           the recipe from the buffer → routing
-%%  routing   per cut (EXECUTING): the spindle at speed,     after each cut the count of cuts
-%%            a rapid move to the cut's start, the bit        done is saved with the product, so
-%%            plunged, the feed along the cut, the bit        a restart goes on at the next cut;
-%%            lifted; each with a watchdog                    all done: spindle off,
-%%                                                           ItemWorkComplete → routed
+%%  routing   the bit lifted, the axes ready, the spindle     after each cut the count of cuts
+%%            at speed; per cut (EXECUTING): a rapid move     done is saved with the product, so
+%%            to the cut's start, the bit plunged, the cut    a restart goes on at the next cut;
+%%            followed, the bit lifted; each with a           all done: spindle off,
+%%            watchdog                                        ItemWorkComplete → routed
 %%  routed    -                                              offer to the upper robot (phase 1,
 %%                                                           BLOCKED) → offered
 %%  offered   the upper robot's NotBusy                      release at once: the modules lie in
@@ -19,9 +19,16 @@
 %%  released  the upper robot's NotBusy off                  ItemTransferOut → idle
 %% </pre>
 %%
-%% A move takes the time its path needs at its feed (the robot's controller
-%% interpolates); the task writes the target, the path length and the feed, then a new
-%% command number, and waits for the controller to report that number done.
+%% The robot's X and Y are NC axes (seed 000 §2.1: `LowerRobotTask.Axes'), and its moves
+%% are paths of their interpolation channel (§2.3.7): the rapid move a line from where
+%% the axes stand to the cut's start, the cut its recipe's own lines and arcs
+%% (cell_recipe_path) at its feed, shifted across to the rear lane's fixture for a panel
+%% there. Each move is started in a step and its end waited for as a reply. Before the
+%% first cut the axes are made ready, one command at a time: a path the channel still
+%% follows (a predecessor's, or one cut short by a watchdog) halted, an axis in error
+%% reset, its drive powered, the axis homed. An axis's fault (a following error) is the
+%% task's error naming the axis and the NC's code; RETRY makes the axes ready again and
+%% does the stage again.
 %%
 %% Restarted (reconcile), the product says how far routing got: all cuts done, routed
 %% (spindle off); otherwise routing goes on at the next cut after the bit is lifted,
@@ -30,13 +37,19 @@
 -behaviour(cell_task).
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
+-export([path_params/2]).
+
+%% Path accelerations, mm/s²: between cuts, and along a cut.
+-define(RAPID_ACC, 2000.0).
+-define(FEED_ACC, 1000.0).
+%% How the channel stops its axes when the task is stopped or gives up on a move.
+-define(HALT_DEC, 5000.0).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
     {_, T} = cell_handover:reset_chosen(T0),
-    %% Go on counting commands from the controller's last answer.
     %% The cut list is made again from the recipe: a stage cut short is done again.
-    {ok, cell_task:put(cell_task:put(T, command, cell_task:in(T, done)), cuts, undefined)}.
+    {ok, cell_task:put(cell_task:put(T, cuts, undefined), resume, undefined)}.
 
 %% How far routing got is saved with the product (cuts done); the robot's own state
 %% (bit down, spindle running) is not trusted: routing goes on by lifting the bit first.
@@ -52,9 +65,10 @@ reconcile(_Held, T) ->
             {ok, phase(cell_handshake:confirm_here(T), routing)}
     end.
 
-%% The spindle stops and the bit is lifted; the panel stays clamped.
+%% The spindle stops, the bit is lifted and the axes halt; the panel stays clamped.
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
+    _ = cell_hal_channel:halt(channel(T), ?HALT_DEC),
     cell_task:out(cell_task:out(T, spindle_run, false), plunge, false).
 
 -spec step(cell_task:task()) -> cell_task:step_result().
@@ -84,6 +98,8 @@ step(taking, _Woken, T) ->
     {wait, {handshake, cell_task:get(T, from), available, false}, T};
 %% -- routing ------------------------------------------------------------------------------
 step(routing, {timer, _}, T) ->
+    %% A path still under way is given up: the stage starts again on Retry.
+    _ = cell_hal_channel:halt(channel(T), ?HALT_DEC),
     {error, cell_task:error_spec(
               <<"motion">>, "Routing robot fault",
               io_lib:format("The routing robot did not finish \"~ts\" in time (panel ~ts).~n"
@@ -91,12 +107,14 @@ step(routing, {timer, _}, T) ->
                             "again.", [cell_task:get(T, stage), serial(T)]),
               [retry]),
      T};
+step(routing, {reply, _, Failed}, T) when Failed =/= done ->
+    axis_fault(Failed, T);
 step(routing, Woken, T) ->
     case {cell_task:get(T, cuts, undefined), Woken} of
         {undefined, {answer, ignore}} -> unrouted(T);
         {undefined, _} -> load_recipe(T);
-        %% After a fault: the stage again, from its start.
-        {_, {answer, retry}} -> stage(cell_task:get(T, stage), T);
+        %% After a fault: the axes made ready again, then the stage from its start.
+        {_, {answer, retry}} -> stage(axes, cell_task:put(T, resume, cell_task:get(T, stage)));
         {_, _} -> next_stage(cell_task:get(T, stage), T)
     end;
 step(routed, _Woken, T) ->
@@ -146,7 +164,9 @@ unrouted(T) ->
     {continue, phase(cell_task:work_abort(T1, <<"recipe not available">>), routed)}.
 
 %% What follows a stage that is done.
-next_stage(retract_first, T) -> stage(spindle, T);
+next_stage(retract_first, T) -> stage(axes, T);
+%% One command to the axes done: what else do they need?
+next_stage(axes, T) -> stage(axes, T);
 next_stage(spindle, T) -> next_cut(T);
 next_stage(rapid, T) -> stage(plunge, T);
 next_stage(plunge, T) -> stage(feed, T);
@@ -171,26 +191,122 @@ stage(retract_first, T) ->
     wait_io(cell_task:out(T, plunge, false), retract_first, plunged, false);
 stage(spindle, T) ->
     wait_io(cell_task:out(T, spindle_run, true), spindle, spindle_at_speed, true);
+stage(axes, T) ->
+    case next_preparation(T) of
+        ready ->
+            case cell_task:get(T, resume) of
+                undefined -> stage(spindle, T);
+                Stage -> stage(Stage, cell_task:put(T, resume, undefined))
+            end;
+        {Who, Started} ->
+            motion(T, axes, Who, Started)
+    end;
 stage(rapid, T) ->
     #{from := Start} = cut(T),
-    Here = {cell_task:in(T, pos_x), cell_task:in(T, pos_y)},
-    Target = machine(T, Start),
-    move(T, rapid, Target, dist(Here, Target), cell_task:setting(T, rapid_speed, 400.0));
+    case here(T) of
+        {ok, Here} ->
+            {X, Y} = machine(T, Start),
+            case dist(Here, {X, Y}) < 0.001 of
+                true ->
+                    next_stage(rapid, T);
+                false ->
+                    {ok, Path} = cell_hal_path:new([{line, xyz(Here), {X, Y, 0.0}}]),
+                    Speed = cell_task:setting(T, rapid_speed, 400.0),
+                    follow(T, rapid, Path, Speed)
+            end;
+        {error, Who, Why} ->
+            axis_fault({error, {Who, Why}}, T)
+    end;
 stage(plunge, T) ->
     wait_io(cell_task:out(T, plunge, true), plunge, plunged, true);
 stage(feed, T) ->
-    #{to := End, length := Length, feed := Feed} = cut(T),
-    move(T, feed, machine(T, End), Length, Feed);
+    #{segments := Segments, feed := Feed} = cut(T),
+    {ok, Path} = cell_hal_path:new([shift(T, Segment) || Segment <- Segments]),
+    follow(T, feed, Path, Feed);
 stage(retract, T) ->
     wait_io(cell_task:out(T, plunge, false), retract, plunged, false).
 
-move(T, Stage, {X, Y}, Path, Feed) ->
-    Command = cell_task:get(T, command) + 1,
-    T1 = lists:foldl(fun({Point, V}, Acc) -> cell_task:out(Acc, Point, V) end, T,
-                     [{target_x, X}, {target_y, Y}, {path_mm, float(Path)},
-                      {feed, float(Feed)}, {command, Command}]),
-    {wait, [{io, done, {eq, Command}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
-     cell_task:put(cell_task:put(T1, command, Command), stage, Stage)}.
+%% @doc The path velocity, acceleration and deceleration of a rapid move between cuts or
+%% of a cut, at `Speed' (mm/s).
+-spec path_params(rapid | feed, float()) -> cell_hal_axis_fsm:params().
+path_params(rapid, Speed) -> #{velocity => Speed, acceleration => ?RAPID_ACC, deceleration => ?RAPID_ACC};
+path_params(feed, Speed) -> #{velocity => Speed, acceleration => ?FEED_ACC, deceleration => ?FEED_ACC}.
+
+%% The channel follows `Path'; the stage waits for its end.
+follow(T, Stage, Path, Speed) ->
+    Params = path_params(Stage, Speed),
+    motion(T, Stage, channel(T), cell_hal_channel:follow(channel(T), Path, Params)).
+
+motion(T, Stage, _Who, {ok, Ref}) ->
+    {wait, [{reply, Ref}, router_task:watchdog(T, motion_timeout_ms, 30000)],
+     cell_task:put(T, stage, Stage)};
+motion(T, Stage, Who, {error, Why}) ->
+    %% The channel names the axis that refused its path.
+    Failed = case Why of
+                 {Axis, Reason} when is_atom(Axis) ->
+                     case lists:member(Axis, axes(T)) of
+                         true -> {error, {Axis, Reason}};
+                         false -> {error, {Who, Why}}
+                     end;
+                 _ ->
+                     {error, {Who, Why}}
+             end,
+    axis_fault(Failed, cell_task:put(T, stage, Stage)).
+
+%% What the axes still need before the robot moves, one command at a time: the channel
+%% idle, then each axis out of error, powered and homed.
+next_preparation(T) ->
+    C = channel(T),
+    case cell_hal_channel:status(C) of
+        {ok, #{state := idle}} -> next_axis(axes(T));
+        {ok, #{}} -> {C, cell_hal_channel:halt(C, ?HALT_DEC)};
+        {error, _} = Error -> {C, Error}
+    end.
+
+next_axis([]) ->
+    ready;
+next_axis([A | Rest]) ->
+    case cell_hal_axis:status(A) of
+        {ok, #{state := error_stop}} -> {A, cell_hal_axis:reset(A)};
+        {ok, #{powered := false}} -> {A, cell_hal_axis:power(A, true)};
+        {ok, #{homed := false}} -> {A, cell_hal_axis:home(A, 0.0)};
+        {ok, #{state := standstill}} -> next_axis(Rest);
+        {ok, #{}} -> {A, cell_hal_axis:halt(A, ?HALT_DEC)};
+        {error, _} = Error -> {A, Error}
+    end.
+
+%% A move refused, failed or aborted: the task's error, naming the axis.
+axis_fault(Failed, T) ->
+    {What, Axis} = case Failed of
+                       {error, {A, Code}} when is_atom(A) -> {words(Code), A};
+                       {error, Code} -> {words(Code), channel(T)};
+                       aborted -> {"commanded elsewhere", channel(T)}
+                   end,
+    {error, cell_task:error_spec(
+              <<"axis">>, "Routing robot axis fault",
+              io_lib:format("Axis ~ts of the routing robot stopped \"~ts\" (panel ~ts): "
+                            "~ts.~nCheck the robot, then select RETRY: the axes are made "
+                            "ready again and the move is made again.",
+                            [Axis, cell_task:get(T, stage), serial(T), What]),
+              [retry]),
+     T}.
+
+words(Code) when is_integer(Code) -> io_lib:format("NC error 16#~.16B", [Code]);
+words({error_stop, Code}) -> io_lib:format("it is in error (NC error 16#~.16B)", [Code]);
+words(not_present) -> "it is not available";
+words(not_connected) -> "its NC is not connected";
+words(Why) -> io_lib:format("~tp", [Why]).
+
+%% Where the axes stand.
+here(T) ->
+    [X, Y] = axes(T),
+    case {cell_hal_axis:status(X), cell_hal_axis:status(Y)} of
+        {{ok, #{position := Px}}, {ok, #{position := Py}}} -> {ok, {Px, Py}};
+        {{error, Why}, _} -> {error, X, Why};
+        {_, {error, Why}} -> {error, Y, Why}
+    end.
+
+xyz({X, Y}) -> {X, Y, 0.0}.
 
 wait_io(T, Stage, Point, Value) ->
     {wait, [{io, Point, {eq, Value}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
@@ -202,9 +318,19 @@ cut(T) ->
 
 %% A point of the panel in the robot's coordinates: the rear fixture lies further back.
 machine(T, {X, Y}) ->
+    {X, Y + offset(T)}.
+
+%% A cut's segment in the robot's coordinates, on the tool's plane (Z 0).
+shift(T, {line, {X1, Y1, _}, {X2, Y2, _}}) ->
+    {line, {X1, Y1 + offset(T), 0.0}, {X2, Y2 + offset(T), 0.0}};
+shift(T, Arc) when element(1, Arc) =:= arc ->
+    {Cx, Cy, _} = element(2, Arc),
+    setelement(2, Arc, {Cx, Cy + offset(T), 0.0}).
+
+offset(T) ->
     case cell_task:product(T) of
-        #{lane := rear} -> {X, Y + cell_task:setting(T, rear_lane_offset, 350.0)};
-        _ -> {X, Y}
+        #{lane := rear} -> cell_task:setting(T, rear_lane_offset, 350.0);
+        _ -> 0.0
     end.
 
 dist({X1, Y1}, {X2, Y2}) ->
@@ -217,6 +343,8 @@ serial(T) ->
     end.
 
 prevs(T) -> cell_task:arg(T, prevs, []).
+axes(T) -> cell_task:arg(T, axes, [lower_x, lower_y]).
+channel(T) -> cell_task:arg(T, channel, lower_xy).
 next(T) -> cell_task:arg(T, next, undefined).
 
 phase(T, Phase) -> cell_handover:phase(T, Phase).

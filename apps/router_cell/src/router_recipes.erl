@@ -13,13 +13,15 @@
 -export_type([cut/0]).
 
 -type xy() :: {float(), float()}.
--type cut() :: #{from := xy(), to := xy(), length := float(), feed := float()}.
+-type cut() :: #{from := xy(), to := xy(), length := float(), feed := float(),
+                 segments := [cell_hal_path:segment(), ...]}.
 
 -define(AUTHOR, <<"router_cell">>).
 -define(TAB, 5.0).          %% the width of the routed channels, mm
 
 %% @doc The cut lines of a drawing in ExecOrder: where each starts and ends, how long
-%% its path is (arcs and bulged polylines by their arc length) and at what feed.
+%% its path is (arcs and bulged polylines by their arc length), at what feed, and its
+%% lines and arcs for an interpolation channel to follow.
 -spec cuts(cell_recipe_drawing:drawing(), float()) -> [cut()].
 cuts(Drawing, DefaultFeed) ->
     [cut(Item, DefaultFeed) || Item <- cell_recipe_drawing:items_by_type(Drawing, <<"Cut">>),
@@ -36,7 +38,8 @@ cut(Item, DefaultFeed) ->
                    end
            end,
     {From, To, Length} = path(Item),
-    #{from => From, to => To, length => Length, feed => Feed}.
+    {ok, Segments} = cell_recipe_path:of_item(Item),
+    #{from => From, to => To, length => Length, feed => Feed, segments => Segments}.
 
 path(#{kind := line, from := {X1, Y1, _}, to := {X2, Y2, _}}) ->
     {{X1, Y1}, {X2, Y2}, dist({X1, Y1}, {X2, Y2})};

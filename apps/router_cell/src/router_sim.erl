@@ -6,8 +6,8 @@
 %% the sensors would see it, with timers for everything that takes time; it never
 %% polls. The world: panels waiting at the previous machine's output, a panel on each
 %% loading segment, in each fixture (whole, or its frame once the modules are lifted),
-%% modules in the upper robot's gripper and on each unloading segment, the robots'
-%% positions, and what was delivered to the next machine or dropped into the scrap bin.
+%% modules in the upper robot's gripper and on each unloading segment, the upper robot's
+%% position, and what was delivered to the next machine or dropped into the scrap bin.
 %% The world is saved in `Data/router_sim.world' whenever a panel moves, so a
 %% restarted machine finds its panels where they were, as a real one would. It is saved
 %% before the sensors show the move: whatever the tasks saw of the machine is in the
@@ -31,8 +31,9 @@
 %%   `upstream_capacity'; the previous machine offers one (SMEMA) while it has any.</li>
 %% <li>A conveyor move runs only while the belts it needs run: stopped, the panel
 %%   stops, and goes on when they run again.</li>
-%% <li>The routing robot's moves take their path length at their feed; the upper
-%%   robot's a fixed time; spindle, bit, clamps and gripper their own times.</li>
+%% <li>The upper robot's moves take a fixed time; spindle, bit, clamps and gripper their
+%%   own times. The routing robot's X and Y are not the PLC's: they are NC axes
+%%   (router_cell's HAL), which simulate their own motion.</li>
 %% <li>The fixture's clamps (two per lane, {@link router_clamps_io}): each a cylinder on
 %%   a bistable valve, which goes where its coil last put it (both coils off: it
 %%   holds). A clamp leaves its end (both its sensors off) when its valve changes and
@@ -437,20 +438,6 @@ output({lower, _}, plunge, _V, _Old, S) ->
           fun(#{outs := Outs} = S1) ->
                   set(S1, lower, none, plunged, maps:get({lower_io, plunge}, Outs, false))
           end, S);
-output({lower, _}, command, Command, _Old, #{outs := Outs} = S) ->
-    X = maps:get({lower_io, target_x}, Outs, 0.0),
-    Y = maps:get({lower_io, target_y}, Outs, 0.0),
-    Path = maps:get({lower_io, path_mm}, Outs, 0.0),
-    Feed = max(maps:get({lower_io, feed}, Outs, 1.0), 0.001),
-    Ms = round(Path / Feed * 1000 * scale(S)),
-    later(Ms, fun(S1) ->
-                      when_ready(lower,
-                                 fun(S2) ->
-                                         S3 = set(set(S2, lower, none, pos_x, X), lower, none,
-                                                  pos_y, Y),
-                                         set(S3, lower, none, done, Command)
-                                 end, S1)
-              end, S);
 output({upper, _}, command, Command, _Old, #{outs := Outs} = S) ->
     To = position(maps:get({upper_io, target}, Outs, 0)),
     later(delay(upper_move_ms, S),
@@ -1073,7 +1060,7 @@ release_held(#{held := Held} = S) ->
 empty_world(Lanes) ->
     Empty = maps:from_list([{L, empty} || L <- Lanes]),
     #{upstream => maps:from_list([{L, []} || L <- Lanes]), loading => Empty, work => Empty,
-      unloading => Empty, gripper => empty, upper_at => home, lower_at => {0.0, 0.0},
+      unloading => Empty, gripper => empty, upper_at => home,
       clamps => maps:from_list(lists:append([clamps_at(L, open) || L <- Lanes])),
       general => #{estop => released, service_key => false,
                    doors => #{loading => closed, unloading => closed}, air => true,
@@ -1121,7 +1108,6 @@ holding(W) ->
 image(W, Outs, Lanes) ->
     Holding = maps:get(gripper, W) =/= empty,
     Out = fun(Key) -> maps:get(Key, Outs) end,
-    {X, Y} = maps:get(lower_at, W),
     maps:from_list(
       lists:append(
         [[{{router_cell:group(loading, L), upstream_available}, maps:get(L, maps:get(upstream, W)) =/= []},
@@ -1138,10 +1124,8 @@ image(W, Outs, Lanes) ->
       ++ [{{upper_io, gripper_closed}, Out({upper_io, gripper_close})},
           {{upper_io, product_present}, Holding},
           {{upper_io, done}, Out({upper_io, command})},
-          {{lower_io, done}, Out({lower_io, command})},
           {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
-          {{lower_io, plunged}, Out({lower_io, plunge})},
-          {{lower_io, pos_x}, X}, {{lower_io, pos_y}, Y}]
+          {{lower_io, plunged}, Out({lower_io, plunge})}]
       ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)
       ++ inspect_image(Outs, Lanes)
       ++ reader_image(W, Lanes)).

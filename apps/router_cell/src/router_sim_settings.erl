@@ -13,7 +13,8 @@ name() -> router_sim.
 -spec fields() -> [cell_settings_schema:field()].
 fields() ->
     [#{name => time_scale, type => {float, 0.0, 100.0}, default => 1.0,
-       doc => <<"Every physical delay is multiplied by this (0: none).">>},
+       doc => <<"Every physical delay is multiplied by this (0: none); the lower robot's "
+                "simulated axes take it when the cell boots.">>},
      #{name => arrival_ms, type => {integer, 0, 3600000}, default => 15000, unit => <<"ms">>,
        doc => <<"Mean time between two panels reaching the previous machine's output, per "
                 "lane (0: a panel is always waiting).">>},

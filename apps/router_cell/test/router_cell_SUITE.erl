@@ -9,7 +9,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([panels_pass_the_line/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
+-export([panels_pass_the_line/1, routes_along_the_cut_lines/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
          reset_clears_the_nest/1,
          jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
@@ -22,7 +22,7 @@
 -define(EVENTS, [item_transfer_out, item_transfer_in, alarm_raised, alarm_cleared, cell_state]).
 
 all() ->
-    [panels_pass_the_line, product_lost_answers, reset_scrap_survives_a_stop,
+    [panels_pass_the_line, routes_along_the_cut_lines, product_lost_answers, reset_scrap_survives_a_stop,
      reset_clears_the_nest,
      jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
@@ -84,6 +84,57 @@ stats_settings(_) ->
     #{}.
 
 %% -------------------------------------------------------------------------------------
+
+%% The lower robot routes a panel along its recipe's cut lines with its axes: for each
+%% cut in ExecOrder, a path of its interpolation channel to the cut's start at the
+%% rapid speed (none where the last cut ended there), then the cut itself, from its
+%% start to its end at the cut's feed, as long as the cut.
+routes_along_the_cut_lines(_Config) ->
+    {_, #{drawing := Drawing}} = lists:keyfind(<<"demo-2x2">>, 1, router_recipes:demo()),
+    Cuts = router_recipes:cuts(Drawing, 25.0),
+    {module, _} = code:ensure_loaded(cell_hal_channel),
+    Lower = cell_task_proc:whereis(lower),
+    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
+    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    try
+        _ = collect_out(1, fun never_answer/1)
+    after
+        erlang:trace_pattern({cell_hal_channel, follow, 3}, false, [])
+    end,
+    ok = stop_cell(),
+    Follows = follows(Lower, []),
+    ct:log("~b cuts, ~b paths followed", [length(Cuts), length(Follows)]),
+    %% The first panel's cuts, in order; what follows is the next panel's, if it began.
+    _ = lists:foldl(fun followed_cut/2, Follows, Cuts),
+    ok.
+
+%% The channel's paths as the lower task started them: start, finish, length, velocity.
+follows(Lower, Acc) ->
+    receive
+        {trace, Lower, call, {cell_hal_channel, follow, [lower_xy, Path, #{velocity := V}]}} ->
+            follows(Lower, [{cell_hal_path:start(Path), cell_hal_path:finish(Path),
+                             cell_hal_path:length(Path), V} | Acc])
+    after 0 ->
+        lists:reverse(Acc)
+    end.
+
+%% One cut routed: a rapid path to its start (unless the axes stood there), then the cut.
+followed_cut(#{from := {X0, Y0}, to := {X1, Y1}, length := L, feed := Feed} = Cut, Follows) ->
+    Rest = case Follows of
+               [{_, To, _, 400.0} | More] -> assert_near({X0, Y0, 0.0}, To, Cut), More;
+               _ -> Follows
+           end,
+    [{From, End, Length, V} | Rest1] = Rest,
+    assert_near({X0, Y0, 0.0}, From, Cut),
+    assert_near({X1, Y1, 0.0}, End, Cut),
+    ?assert(abs(Length - L) < 1.0e-6, {Cut, Length}),
+    ?assertEqual(Feed, V),
+    Rest1.
+
+assert_near({X, Y, Z}, {A, B, C}, Cut) ->
+    ?assert(abs(X - A) + abs(Y - B) + abs(Z - C) < 1.0e-6, {Cut, {X, Y, Z}, {A, B, C}}).
 
 %% Twenty panels enter, pass every station and leave; the counts agree with the
 %% physics, each serial's history runs from its entry to its exit, and the time of

@@ -230,7 +230,8 @@ panel_forgotten_in_the_fixture(_Config) ->
     ?assertEqual(1, maps:get(removed, maps:get(counters, W))),
     assert_books_agree().
 
-%% The simulated PLC killed the moment the routing robot's move command reaches it:
+%% The simulated PLC killed the moment the routing robot's bit is commanded down into
+%% the panel, between two paths of its axes:
 %% the PLC comes back at once with its memory and the machine's physics still attached,
 %% every task is told its IO connection was lost (one Retry each, given once the
 %% connection is back, as an operator who sees the PLC up again; the cell's own error
@@ -238,7 +239,7 @@ panel_forgotten_in_the_fixture(_Config) ->
 %% the panel's routing and the line goes on; nothing else is asked (no "did not finish
 %% in time").
 plc_killed_during_a_routing_move(_Config) ->
-    plc_killed_during({lower_io, command}, fun(_) -> true end, lower, routed).
+    plc_killed_during({lower_io, plunge}, fun(V) -> V =:= true end, lower, routed).
 
 %% The same the moment the fixture's clamps are commanded closed on a panel (their
 %% unit, ordered by the work segment, drives the valve of clamp A): the unit stops on

@@ -8,16 +8,26 @@
 %% tree order. A mesh (polyface) is not a path: refused, naming it.
 -module(cell_recipe_path).
 
--export([from_drawing/2]).
+-export([from_drawing/2, of_item/1]).
 
 %% @doc The segments for `cell_hal_path:new/1' of the drawing's items of `Type';
 %% `{error, no_items}' when it has none.
 -spec from_drawing(cell_recipe_drawing:drawing(), binary()) ->
           {ok, [cell_hal_path:segment(), ...]} | {error, no_items | {not_a_path, term()}}.
 from_drawing(Drawing, Type) ->
-    Prims = lists:append([prims(Item) || Item <- cell_recipe_drawing:items_by_type(Drawing, Type)]),
+    path_of(lists:append([prims(Item) || Item <- cell_recipe_drawing:items_by_type(Drawing, Type)])).
+
+%% @doc The segments of one item of a drawing (a cut line of a recipe), a container's
+%% primitives in tree order; a mesh (polyface) or an item without primitives is refused.
+-spec of_item(cell_recipe_drawing:item()) ->
+          {ok, [cell_hal_path:segment(), ...]} | {error, no_items | {not_a_path, term()}}.
+of_item(Item) ->
+    path_of(prims(Item)).
+
+path_of([]) ->
+    {error, no_items};
+path_of(Prims) ->
     case [P || #{kind := polyface} = P <- Prims] of
-        [] when Prims =:= [] -> {error, no_items};
         [] -> {ok, lists:append([segments(P) || P <- Prims])};
         [P | _] -> {error, {not_a_path, maps:get(attrs, P)}}
     end.
