@@ -39,7 +39,7 @@
 -include_lib("kernel/include/file.hrl").
 
 -export([start_link/0, register_client/1, alive/0, close_clients/0, settings/0, items/0, points/0,
-         time_series/4, refresh_assets/0, clients/0, sync/0, log_tables/0]).
+         time_series/4, axes/0, axis/2, refresh_assets/0, clients/0, sync/0, log_tables/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -89,6 +89,9 @@
                 %% started (`undefined' until read).
                 base :: #{atom() => non_neg_integer()} | undefined,
                 points = [] :: [map()],
+                %% The cell's axes (its spec's hardware objects of kind axis), by id,
+                %% the name of each.
+                axes = #{} :: #{atom() => binary()},
                 messages = #{} :: #{binary() => true},   %% keys of MESSAGE points
                 watched = #{} :: #{reference() => atom()},
                 attached = false :: boolean(),
@@ -152,6 +155,16 @@ points() ->
 -spec time_series(binary(), {integer(), integer()}, number(), [number()]) -> ok.
 time_series(Key, {LastMs, LastMono}, Rate, Values) ->
     gen_server:cast(?MODULE, {time_series, Key, {LastMs, LastMono}, Rate, Values}).
+
+%% @doc The cell's axes, as the cache read them from the cell's spec.
+-spec axes() -> [atom()].
+axes() ->
+    gen_server:call(?MODULE, axes).
+
+%% @doc An axis's status as it was read (cell_shdr_axes), or why it cannot be.
+-spec axis(atom(), {ok, map()} | {error, term()}) -> ok.
+axis(Id, Status) ->
+    gen_server:cast(?MODULE, {axis, Id, Status}).
 
 %% @doc Reads the recipes again and sends the assets that changed.
 -spec refresh_assets() -> ok.
@@ -218,6 +231,8 @@ handle_call(refresh_assets, _From, State) ->
     {reply, ok, assets(State)};
 handle_call(clients, _From, State) ->
     {reply, maps:keys(State#state.clients), State};
+handle_call(axes, _From, #state{axes = Axes} = State) ->
+    {reply, lists:sort(maps:keys(Axes)), State};
 handle_call(sync, _From, State) ->
     {reply, ok, flush(State)};
 handle_call(close_clients, _From, #state{retry = Retry} = State0) ->
@@ -241,6 +256,14 @@ handle_cast({alive, Pid}, #state{clients = Clients} = State) ->
     case Clients of
         #{Pid := C} -> {noreply, State#state{clients = Clients#{Pid => C#client{alive = true}}}};
         _ -> {noreply, State}   %% gone, or given its place meanwhile
+    end;
+handle_cast({axis, Id, Status}, #state{axes = Axes} = State) ->
+    case Axes of
+        #{Id := Name} ->
+            {noreply, set(cell_shdr_items:axis_values(Name, Status), now_stamp(), State)};
+        #{} ->
+            %% An axis the cell no longer has.
+            {noreply, State}
     end;
 handle_cast({time_series, Key, {Ms, Mono}, Rate, Values}, State) ->
     Line = cell_shdr_codec:time_series_line(stamp(Ms, Mono, State), Key, length(Values),
@@ -392,7 +415,7 @@ load_settings(State) ->
             _ ->
                 S0
         end,
-    Points = usable_points(maps:get(points, S)),
+    Points = usable_points(maps:get(points, S), State#state.axes),
     State#state{settings = S, points = Points,
                 messages = maps:from_list([{N, true} || #{name := N} = P <- Points,
                                                         cell_shdr_items:is_message(P)])}.
@@ -425,9 +448,9 @@ identity_fields() ->
 setting(Key, #state{settings = S}) ->
     maps:get(Key, S).
 
-%% Points whose names meet a cell item are left out, with a log line.
-usable_points(Points) ->
-    Taken = maps:from_list([{K, true} || #{key := K} <- cell_shdr_items:items([], [])]),
+%% Points whose names meet a cell item or an axis's are left out, with a log line.
+usable_points(Points, Axes) ->
+    Taken = maps:from_list([{K, true} || #{key := K} <- cell_shdr_items:items([], [], [], Axes)]),
     [P || #{name := N} = P <- Points,
           case Taken of
               #{N := _} ->
@@ -448,8 +471,9 @@ uuid4() ->
 %% Recomputing everything from the cell
 %%====================================================================
 
-resync(State00) ->
+resync(State000) ->
     Stamp = now_stamp(),
+    State00 = axes_of_the_cell(State000),
     State0 = load_counts(State00),
     Rows = cell_registry:tasks(),
     Ids = [Id || #{id := Id} <- Rows],
@@ -476,6 +500,14 @@ resync(State00) ->
     hal_subscribe(State4#state.points),
     State5 = resync_points(State4),
     assets(State5).
+
+%% The axes of the cell's spec, each named as an item may be; they are watched (by
+%% cell_shdr_axes), and a configured point named like one of their items is left out.
+axes_of_the_cell(#state{settings = Settings} = State) ->
+    #{hal := #{hardware := Hw}} = cell_spec:running(),
+    Axes = cell_shdr_items:prefixes([Id || #{id := Id, kind := axis} <- Hw]),
+    ok = cell_shdr_axes:watch(maps:keys(Axes)),
+    State#state{axes = Axes, points = usable_points(maps:get(points, Settings), Axes)}.
 
 %% The part counts go on from the statistics the cell keeps (work completed and
 %% aborted, per task, in total), read once when the adapter starts: an agent must not
@@ -509,7 +541,7 @@ task(Task, #state{tasks = Tasks, base = Base}) ->
     end.
 
 %% Items that start UNAVAILABLE or at zero until something happens, set once.
-initial(#state{prefixes = P, counts = {Good, Bad}, idle = Idle} = State) ->
+initial(#state{prefixes = P, counts = {Good, Bad}, idle = Idle, axes = Axes} = State) ->
     Keys = [{<<"program">>, unavailable}, {<<"cycle_time">>, unavailable},
             {<<"part_count">>, Good + Bad}, {<<"part_count_good">>, Good},
             {<<"part_count_bad">>, Bad}]
@@ -520,7 +552,9 @@ initial(#state{prefixes = P, counts = {Good, Bad}, idle = Idle} = State) ->
                      false -> [{key(P, T, <<"cycle_time">>), unavailable},
                                {key(P, T, <<"part_count">>), (task(T, State))#task.count}]
                  end]
-              || T <- maps:keys(P)]),
+              || T <- maps:keys(P)])
+        ++ lists:append([cell_shdr_items:axis_values(Name, {error, not_read})
+                         || Name <- maps:values(Axes)]),
     [KV || {K, _} = KV <- Keys, ets:lookup(?VALUES, K) =:= []].
 
 resync_points(#state{points = Points} = State) ->
@@ -898,8 +932,8 @@ adapter_version() ->
         undefined -> <<"0">>
     end.
 
-all_items(#state{prefixes = P, idle = Idle, points = Points}) ->
-    cell_shdr_items:items(lists:sort(maps:keys(P)), Idle, Points).
+all_items(#state{prefixes = P, idle = Idle, points = Points, axes = Axes}) ->
+    cell_shdr_items:items(lists:sort(maps:keys(P)), Idle, Points, Axes).
 
 %%====================================================================
 %% The log

@@ -3,14 +3,15 @@
 %% faults (`{cell_hal_fault, {Group, Point}, Why | cleared}') and to its connection's
 %% status (`{cell_hal_conn, Conn, up | down}'), so that a point that cannot be read
 %% is shown UNAVAILABLE as soon as the HAL knows; and names points from the settings
-%% without making atoms.
+%% without making atoms; and watches and reads the cell's axes (hardware objects of
+%% `cell_hal', whichever HAL module serves the points).
 %%
 %% The HAL module is the `cell_shdr' environment key `hal_module' (default
 %% `cell_hal'), so the adapter's tests can stand a scripted HAL in its place. While no
 %% HAL module is loaded, every configured point reads as unavailable.
 -module(cell_shdr_hal).
 
--export([read/2, subscribe/2, same_point/3]).
+-export([read/2, subscribe/2, same_point/3, watch_axis/1, axis_status/1]).
 
 %% @doc Reads a point named in the settings.
 -spec read(binary(), binary()) -> {ok, term()} | {error, term()}.
@@ -39,6 +40,17 @@ subscribe_connection(Mod, Group) ->
         {error, _} = E ->
             E
     end.
+
+%% @doc Watches an axis (`{cell_hal_hw_changed, Id}' when it may have changed): its
+%% process, to monitor, or `not_present'.
+-spec watch_axis(atom()) -> {ok, pid()} | {error, not_present}.
+watch_axis(Id) ->
+    cell_hal_hw:watch(Id).
+
+%% @doc An axis's status as its NC has it now.
+-spec axis_status(atom()) -> {ok, cell_hal_axis:status()} | {error, term()}.
+axis_status(Id) ->
+    cell_hal_axis:status(Id).
 
 %% @doc Whether a configured point (names as binaries) is the HAL's `{Group, Point}'.
 -spec same_point(#{group := binary(), point := binary(), atom() => term()}, atom(),

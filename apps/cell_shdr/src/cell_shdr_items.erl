@@ -4,7 +4,8 @@
 %%
 %% The cell is one MTConnect Device with a Controller; each device task is a Path of
 %% that Controller (an independent function with its own execution); configured HAL
-%% points sit on the Device.
+%% points sit on the Device; each axis of the cell's spec (a hardware object of kind
+%% `axis', seed 000's NcAxis) is a Linear component of the Device's Axes.
 %%
 %% <table>
 %% <tr><th>key</th><th>type (sub-type)</th><th>from</th></tr>
@@ -39,6 +40,12 @@
 %%   start to complete (likewise)</td></tr>
 %% <tr><td>`T_system'</td><td>SYSTEM condition</td><td>T's errors, alarms,
 %%   warnings</td></tr>
+%% <tr><td>`A_position'</td><td>POSITION (ACTUAL), millimetres</td><td>axis A's actual
+%%   position</td></tr>
+%% <tr><td>`A_feedrate'</td><td>AXIS_FEEDRATE (ACTUAL), millimetres a second</td><td>the
+%%   speed of axis A (its velocity's size)</td></tr>
+%% <tr><td>`A_state'</td><td>AXIS_STATE</td><td>TRAVEL while axis A homes, moves or
+%%   stops, STOPPED otherwise</td></tr>
 %% </table>
 %%
 %% IPC-2541 state to EXECUTION and WAIT_STATE. The idle states say why the task
@@ -67,7 +74,8 @@
 %% kind (`error', `alarm', `warning'); the text is the caption and the description.
 -module(cell_shdr_items).
 
--export([items/2, items/3, prefixes/1, task_key/3, valid_name/1]).
+-export([items/2, items/3, items/4, prefixes/1, task_key/3, valid_name/1]).
+-export([axis_items/1, axis_values/2, axis_moving/1]).
 -export([execution/1, wait_state/1, part_state/1, controller_mode/1, estop/1,
          condition/1, native_code/1, condition_owner/2, is_message/1, point_value/2]).
 
@@ -91,6 +99,12 @@ items(Tasks, Points) ->
 %% cycle time, which would never carry data.
 -spec items([atom()], [atom()], [map()]) -> [item()].
 items(Tasks, Idle, Points) ->
+    items(Tasks, Idle, Points, #{}).
+
+%% @doc Every data item for these tasks, configured points and axes (by id, the name
+%% of each, from {@link prefixes/1}).
+-spec items([atom()], [atom()], [map()], #{atom() => binary()}) -> [item()].
+items(Tasks, Idle, Points, Axes) ->
     Prefixes = prefixes(Tasks),
     [ev(<<"avail">>, <<"AVAILABILITY">>, device),
      ev(<<"estop">>, <<"EMERGENCY_STOP">>, controller),
@@ -105,7 +119,41 @@ items(Tasks, Idle, Points) ->
      condition_item(<<"system">>, controller)]
         ++ lists:append([task_items(T, maps:get(T, Prefixes), not lists:member(T, Idle))
                          || T <- Tasks])
-        ++ [point_item(P) || P <- Points].
+        ++ [point_item(P) || P <- Points]
+        ++ axis_items(Axes).
+
+%% @doc The items of the axes (by id, the name of each): a Linear component each.
+-spec axis_items(#{atom() => binary()}) -> [item()].
+axis_items(Axes) ->
+    lists:append(
+      [begin
+           C = {axis, linear, Name},
+           [#{key => <<Name/binary, "_position">>, type => <<"POSITION">>,
+              sub_type => <<"ACTUAL">>, category => sample, units => <<"MILLIMETER">>,
+              component => C},
+            #{key => <<Name/binary, "_feedrate">>, type => <<"AXIS_FEEDRATE">>,
+              sub_type => <<"ACTUAL">>, category => sample,
+              units => <<"MILLIMETER/SECOND">>, component => C},
+            ev(<<Name/binary, "_state">>, <<"AXIS_STATE">>, C)]
+       end || {_, Name} <- lists:sort(maps:to_list(Axes))]).
+
+%% @doc The values of an axis's items (named `Name') for its status as it reads, or
+%% UNAVAILABLE when it cannot be read (the object not there, its NC not connected).
+-spec axis_values(binary(), {ok, map()} | {error, term()}) -> [{binary(), term()}].
+axis_values(Name, {ok, #{position := X, velocity := V, state := State}}) ->
+    [{<<Name/binary, "_position">>, X}, {<<Name/binary, "_feedrate">>, abs(V)},
+     {<<Name/binary, "_state">>, case axis_moving(State) of
+                                     true -> <<"TRAVEL">>;
+                                     false -> <<"STOPPED">>
+                                 end}];
+axis_values(Name, _) ->
+    [{<<Name/binary, Suffix/binary>>, unavailable}
+     || Suffix <- [<<"_position">>, <<"_feedrate">>, <<"_state">>]].
+
+%% @doc Whether an axis in this PLCopen state may be moving (its position changing).
+-spec axis_moving(atom()) -> boolean().
+axis_moving(State) ->
+    lists:member(State, [homing, discrete_motion, synchronized_motion, stopping]).
 
 task_items(Task, Prefix, Works) ->
     C = {path, Task, Prefix},

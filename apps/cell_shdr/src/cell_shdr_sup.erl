@@ -1,6 +1,6 @@
 %% @doc The adapter's supervisor, rest_for_one in dependency order: the cache (the
 %% values and the log every client reads), the sampler (feeds time series into the
-%% cache), the listener (its clients register with the cache). A cache that restarts
+%% cache), the axes' watcher (feeds the cell's axes into it), the listener (its clients register with the cache). A cache that restarts
 %% takes the listener and every client with it: agents reconnect and start from a
 %% fresh snapshot, never from a log that no longer matches.
 %%
@@ -26,5 +26,6 @@ init([]) ->
     Flags = #{strategy => rest_for_one, intensity => 10, period => 60},
     Children = [#{id => cell_shdr_cache, start => {cell_shdr_cache, start_link, []}},
                 #{id => cell_shdr_sampler, start => {cell_shdr_sampler, start_link, []}},
+                #{id => cell_shdr_axes, start => {cell_shdr_axes, start_link, []}},
                 #{id => cell_shdr_listener, start => {cell_shdr_listener, start_link, []}}],
     {ok, {Flags, Children}}.

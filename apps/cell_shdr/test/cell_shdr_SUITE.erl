@@ -29,7 +29,7 @@
          closed_socket_in_words/1, node_stop_streams_the_cell_stop/1,
          two_cells_one_agent/1, part_counts_go_on_after_restart/1,
          points_unavailable_while_link_down/1, faulted_point_unavailable/1,
-         work_items_for_working_tasks_only/1]).
+         work_items_for_working_tasks_only/1, axes_streamed/1]).
 -export([peer_tasks/0]).
 
 -define(TASKS, [load, robot]).
@@ -49,7 +49,7 @@ all() ->
      idle_client_closed, assets_sent_as_they_are, stop_streamed, same_millisecond_coalesced,
      closed_socket_in_words, node_stop_streams_the_cell_stop, two_cells_one_agent,
      part_counts_go_on_after_restart, points_unavailable_while_link_down,
-     faulted_point_unavailable, work_items_for_working_tasks_only].
+     faulted_point_unavailable, work_items_for_working_tasks_only, axes_streamed].
 
 init_per_testcase(Case, Config) ->
     %% A root of its own: settings saved by one case never reach the next.
@@ -67,7 +67,8 @@ init_per_testcase(Case, Config) ->
     ok = application:set_env(cell_base, root, Root),
     %% cell_base may be running from an earlier case: make this case's folders.
     ok = cell_config:ensure_root(),
-    ok = application:set_env(cell, cell_spec, #{name => <<"suite">>, tasks => Specs}),
+    ok = application:set_env(cell, cell_spec, (hal_spec(Case))#{name => <<"suite">>,
+                                                              tasks => Specs}),
     ok = application:set_env(cell_shdr, port, 0),
     ok = application:set_env(cell_shdr, hal_module, hal_module(Case)),
     {ok, _} = application:ensure_all_started(cell_shdr),
@@ -90,6 +91,15 @@ end_per_testcase(Case, _Config) ->
     _ = application:stop(mnesia),
     cell_shdr_test_hal:stop(),
     ok.
+
+%% The cell's spec for a case: an axis among its hardware for the cases that stream one.
+hal_spec(Case) when Case =:= axes_streamed; Case =:= devices_xml_matches_stream;
+                    Case =:= stream_reads_as_agent ->
+    #{hal => #{connections => [], groups => [],
+               hardware => [#{id => gantry, kind => axis, type => sim,
+                              opts => #{home_ms => 1, limits => {-10.0, 500.0}}}]}};
+hal_spec(_Case) ->
+    #{}.
 
 %% -------------------------------------------------------------------------------------
 %% Cases
@@ -618,6 +628,11 @@ devices_xml_matches_stream(Config) ->
                            "//Axes/Components/Linear[@name='X']/DataItems/DataItem", Doc)),
     ?assertMatch([_], xmerl_xpath:string("//Axes/Components/Rotary[@name='C']/DataItems/"
                                          "DataItem[@name='c_angle']", Doc)),
+    %% The cell's own axis, beside the configured points' ones.
+    ?assertEqual(["gantry_position", "gantry_feedrate", "gantry_state"],
+                 [attr(E, name) || E <- xmerl_xpath:string(
+                                          "//Axes/Components/Linear[@name='gantry']/DataItems/"
+                                          "DataItem", Doc)]),
     {ok, Xml} = file:read_file(File),
     schema_check("MTConnectDevices_2.0_1.0.xsd", Xml, Config),
     ok = gen_tcp:close(S).
@@ -1072,6 +1087,38 @@ await_pairs(S, Expected) ->
     true = ets:delete(Seen),
     Result.
 
+%% An axis of the cell's spec streams its position, feedrate and state: at rest where it
+%% stands, STOPPED; moving, TRAVEL with its position read again while it moves (a move
+%% of 2.5 s, read every 100 ms), and where it ends, STOPPED at its target.
+axes_streamed(_Config) ->
+    S = connect(),
+    Snap = snapshot(S),
+    case maps:get(<<"gantry_state">>, values(Snap)) of
+        <<"STOPPED">> -> ok;
+        _ -> _ = read_until(S, fun(L) -> has_pair(L, <<"gantry_state">>, <<"STOPPED">>) end,
+                            deadline())
+    end,
+    ok = axis_done(cell_hal_axis:power(gantry, true)),
+    ok = axis_done(cell_hal_axis:home(gantry, 0.0)),
+    {ok, _} = cell_hal_axis:move_absolute(gantry, 50.0, #{velocity => 20, acceleration => 200,
+                                                         deceleration => 200}),
+    {Before, Last} = read_until(S, fun(L) -> has_pair(L, <<"gantry_state">>, <<"STOPPED">>) end,
+                                deadline()),
+    Seen = pairs(Before ++ [Last]),
+    ?assert(lists:member({<<"gantry_state">>, <<"TRAVEL">>}, Seen), Seen),
+    %% Read while it moved: positions on the way, in order, at a speed above zero.
+    Between = [X || {<<"gantry_position">>, P} <- Seen, X <- [num(P)], X > 0.0, X < 50.0],
+    ?assertNotEqual([], Between, Seen),
+    ?assertEqual(lists:sort(Between), Between),
+    ?assertNotEqual([], [F || {<<"gantry_feedrate">>, F} <- Seen, num(F) > 0.0]),
+    %% At rest at its target, with nothing after.
+    V = values(Before ++ [Last]),
+    ?assertEqual([], [P || {<<"gantry_", _/binary>>, _} = P <- pairs(barrier(S))]),
+    ?assertEqual({50.0, 0.0, <<"STOPPED">>},
+                 {num(maps:get(<<"gantry_position">>, V)), num(maps:get(<<"gantry_feedrate">>, V)),
+                  maps:get(<<"gantry_state">>, V)}),
+    ok = gen_tcp:close(S).
+
 %% -------------------------------------------------------------------------------------
 %% Helpers
 %% -------------------------------------------------------------------------------------
@@ -1192,6 +1239,24 @@ barrier(S) ->
 
 read_until(S, Done, Deadline) ->
     read_until(S, Done, Deadline, []).
+
+%% Whether a line sets item `Key' to `Value'.
+has_pair(Line, Key, Value) ->
+    lists:member({Key, Value}, pairs([Line])).
+
+%% A sample's number as the adapter writes it.
+num(B) ->
+    try binary_to_float(B)
+    catch error:badarg -> float(binary_to_integer(B))
+    end.
+
+%% An axis's command accepted and its job done.
+axis_done({ok, Ref}) ->
+    receive {Ref, done} -> ok; {Ref, Other} -> ct:fail({axis_job, Other})
+    after ?WAIT -> ct:fail(axis_job_not_done)
+    end;
+axis_done(Refused) ->
+    ct:fail({axis_refused, Refused}).
 
 read_until(S, Done, Deadline, Acc) ->
     case gen_tcp:recv(S, 0, left(Deadline)) of

@@ -142,3 +142,34 @@ axis_point_test_() ->
                    Check(Point#{component => linear})),
      ?_assertEqual({error, [axis], {an_axis_needs_a_name, <<"X Y">>}},
                    Check(Point#{component => rotary, axis => <<"X Y">>}))].
+
+%% An axis of the cell is a Linear component with its position, feedrate and state;
+%% its values follow its status, UNAVAILABLE when it cannot be read.
+cell_axis_test_() ->
+    Axes = cell_shdr_items:prefixes([lower_x, 'y axis']),
+    Items = cell_shdr_items:items([], [], [], Axes),
+    Of = fun(Name) -> [{K, T, C} || #{key := K, type := T, category := C,
+                                      component := {axis, linear, N}} <- Items, N =:= Name]
+         end,
+    Moving = #{state => synchronized_motion, position => 12.5, velocity => -40.0},
+    [?_assertEqual([{<<"lower_x_position">>, <<"POSITION">>, sample},
+                    {<<"lower_x_feedrate">>, <<"AXIS_FEEDRATE">>, sample},
+                    {<<"lower_x_state">>, <<"AXIS_STATE">>, event}], Of(<<"lower_x">>)),
+     %% A name an item may have.
+     ?_assertEqual(3, length(Of(<<"y_axis">>))),
+     ?_assertMatch([#{sub_type := <<"ACTUAL">>, units := <<"MILLIMETER">>}],
+                   [I || #{key := <<"lower_x_position">>} = I <- Items]),
+     ?_assertEqual([{<<"x_position">>, 12.5}, {<<"x_feedrate">>, 40.0},
+                    {<<"x_state">>, <<"TRAVEL">>}],
+                   cell_shdr_items:axis_values(<<"x">>, {ok, Moving})),
+     ?_assertEqual([{<<"x_position">>, 0.0}, {<<"x_feedrate">>, 0.0},
+                    {<<"x_state">>, <<"STOPPED">>}],
+                   cell_shdr_items:axis_values(<<"x">>, {ok, Moving#{state => standstill,
+                                                                    position => 0.0,
+                                                                    velocity => 0.0}})),
+     ?_assertEqual([{<<"x_position">>, unavailable}, {<<"x_feedrate">>, unavailable},
+                    {<<"x_state">>, unavailable}],
+                   cell_shdr_items:axis_values(<<"x">>, {error, not_present})),
+     ?_assert(cell_shdr_items:axis_moving(homing)),
+     ?_assertNot(cell_shdr_items:axis_moving(disabled)),
+     ?_assertNot(cell_shdr_items:axis_moving(error_stop))].
