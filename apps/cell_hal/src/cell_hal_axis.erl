@@ -28,6 +28,7 @@
 -export([power/2, home/2, move_absolute/3, move_relative/3, halt/2, stop/3, reset/1,
          set_override/2, status/1]).
 -export([follow/2]).
+-export([moving/1]).
 
 -export_type([status/0]).
 
@@ -103,6 +104,13 @@ follow(Id, Motion) ->
 -spec set_override(atom(), number()) -> ok | {error, term()}.
 set_override(Id, Pct) ->
     cell_hal_hw:call(Id, {axis, {override, Pct}}, ?TIMEOUT).
+
+%% @doc Whether an axis whose status reads so may be moving: homing, in a move, following
+%% a path or stopping, or still at speed (an error stop coming to rest). A display or an
+%% adapter reads a moving axis again at its own pace, and a resting one only when told.
+-spec moving(status()) -> boolean().
+moving(#{state := State, velocity := V}) ->
+    lists:member(State, [homing, discrete_motion, synchronized_motion, stopping]) orelse V /= 0.
 
 %% @doc The axis as its NC has it now.
 -spec status(atom()) -> {ok, status()} | {error, term()}.

@@ -106,8 +106,8 @@ read(Id, Axes) ->
             Axes
     end.
 
-again(Id, {ok, #{state := State, velocity := V}}, #axis{timer = undefined} = A) ->
-    case cell_shdr_items:axis_moving(State) orelse V /= 0 of
+again(Id, {ok, Status}, #axis{timer = undefined} = A) ->
+    case cell_shdr_hal:axis_moving(Status) of
         true -> A#axis{timer = erlang:start_timer(?PERIOD_MS, self(), {read, Id})};
         false -> A
     end;

@@ -11,7 +11,7 @@
 %% HAL module is loaded, every configured point reads as unavailable.
 -module(cell_shdr_hal).
 
--export([read/2, subscribe/2, same_point/3, watch_axis/1, axis_status/1]).
+-export([read/2, subscribe/2, same_point/3, watch_axis/1, axis_status/1, axis_moving/1]).
 
 %% @doc Reads a point named in the settings.
 -spec read(binary(), binary()) -> {ok, term()} | {error, term()}.
@@ -51,6 +51,11 @@ watch_axis(Id) ->
 -spec axis_status(atom()) -> {ok, cell_hal_axis:status()} | {error, term()}.
 axis_status(Id) ->
     cell_hal_axis:status(Id).
+
+%% @doc Whether an axis whose status reads so may be moving (see cell_hal_axis:moving/1).
+-spec axis_moving(map()) -> boolean().
+axis_moving(Status) ->
+    cell_hal_axis:moving(Status).
 
 %% @doc Whether a configured point (names as binaries) is the HAL's `{Group, Point}'.
 -spec same_point(#{group := binary(), point := binary(), atom() => term()}, atom(),

@@ -44,8 +44,8 @@
 %%   position</td></tr>
 %% <tr><td>`A_feedrate'</td><td>AXIS_FEEDRATE (ACTUAL), millimetres a second</td><td>the
 %%   speed of axis A (its velocity's size)</td></tr>
-%% <tr><td>`A_state'</td><td>AXIS_STATE</td><td>TRAVEL while axis A homes, moves or
-%%   stops, STOPPED otherwise</td></tr>
+%% <tr><td>`A_state'</td><td>AXIS_STATE</td><td>TRAVEL while axis A may be moving
+%%   (cell_hal_axis:moving/1), STOPPED otherwise</td></tr>
 %% </table>
 %%
 %% IPC-2541 state to EXECUTION and WAIT_STATE. The idle states say why the task
@@ -75,7 +75,7 @@
 -module(cell_shdr_items).
 
 -export([items/2, items/3, items/4, prefixes/1, task_key/3, valid_name/1]).
--export([axis_items/1, axis_values/2, axis_moving/1]).
+-export([axis_items/1, axis_values/2]).
 -export([execution/1, wait_state/1, part_state/1, controller_mode/1, estop/1,
          condition/1, native_code/1, condition_owner/2, is_message/1, point_value/2]).
 
@@ -140,20 +140,15 @@ axis_items(Axes) ->
 %% @doc The values of an axis's items (named `Name') for its status as it reads, or
 %% UNAVAILABLE when it cannot be read (the object not there, its NC not connected).
 -spec axis_values(binary(), {ok, map()} | {error, term()}) -> [{binary(), term()}].
-axis_values(Name, {ok, #{position := X, velocity := V, state := State}}) ->
+axis_values(Name, {ok, #{position := X, velocity := V} = Status}) ->
     [{<<Name/binary, "_position">>, X}, {<<Name/binary, "_feedrate">>, abs(V)},
-     {<<Name/binary, "_state">>, case axis_moving(State) of
+     {<<Name/binary, "_state">>, case cell_shdr_hal:axis_moving(Status) of
                                      true -> <<"TRAVEL">>;
                                      false -> <<"STOPPED">>
                                  end}];
 axis_values(Name, _) ->
     [{<<Name/binary, Suffix/binary>>, unavailable}
      || Suffix <- [<<"_position">>, <<"_feedrate">>, <<"_state">>]].
-
-%% @doc Whether an axis in this PLCopen state may be moving (its position changing).
--spec axis_moving(atom()) -> boolean().
-axis_moving(State) ->
-    lists:member(State, [homing, discrete_motion, synchronized_motion, stopping]).
 
 task_items(Task, Prefix, Works) ->
     C = {path, Task, Prefix},

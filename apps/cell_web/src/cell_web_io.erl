@@ -13,7 +13,10 @@
 %% cell_hal_hw:watch/1}): when one may have changed (a move began or ended, it
 %% published its position while moving, it faulted, its override changed) it is read
 %% again at the next flush and sent as `{"type": "hardware", "hardware": [Object]}',
-%% each as `GET /api/io' has it ({@link hardware_json/1}).
+%% each as `GET /api/io' has it ({@link hardware_json/1}). An axis that may be moving
+%% (cell_hal_axis:moving/1) or a channel following or halting a path is read again at
+%% every flush until it rests, so the pages follow a move whether or not the axis
+%% publishes its position; one at rest costs nothing.
 %%
 %% The subscriptions live in the HAL's tables, so a restart of a HAL process keeps
 %% them; a restart of this process subscribes again at the next page. A hardware
@@ -77,32 +80,40 @@ quality({error, _}) -> {null, <<"unknown">>}.
 %% @doc A hardware object as the IO page shows it: id, kind, status (`up', `down',
 %% `absent') and, for an axis or a channel, its motion as its NC has it now.
 -spec hardware_json({atom(), cell_hal_hw:kind(), module()}) -> map().
-hardware_json({Id, Kind, _Mod}) ->
+hardware_json(Object) ->
+    element(1, hardware(Object)).
+
+%% The object as the page shows it, and whether it may be moving.
+hardware({Id, Kind, _Mod}) ->
     Base = #{<<"id">> => atom_to_binary(Id, utf8), <<"kind">> => atom_to_binary(Kind, utf8),
              <<"status">> => case cell_hal_hw:status(Id) of
                                  S when is_atom(S) -> atom_to_binary(S, utf8);
                                  {error, _} -> <<"absent">>
                              end},
-    maps:merge(Base, motion(Kind, Id)).
+    {Motion, Moving} = motion(Kind, Id),
+    {maps:merge(Base, Motion), Moving}.
 
 %% An axis's or a channel's state as its NC has it now (PLCopen's state, position,
 %% velocity, error code; a channel's progress along its path).
 motion(axis, Id) ->
     case cell_hal_axis:status(Id) of
-        {ok, St} -> #{<<"axis">> => cell_web_json:term(maps:with([state, position, velocity,
-                                                                  error, homed, powered,
-                                                                  override], St))};
-        {error, _} -> #{}
+        {ok, St} -> {#{<<"axis">> => cell_web_json:term(maps:with([state, position, velocity,
+                                                                   error, homed, powered,
+                                                                   override], St))},
+                     cell_hal_axis:moving(St)};
+        {error, _} -> {#{}, false}
     end;
 motion(channel, Id) ->
     case cell_hal_channel:status(Id) of
-        {ok, St} -> #{<<"channel">> => cell_web_json:term(maps:with([state, along, length,
-                                                                     segment, segments],
-                                                                    St))};
-        {error, _} -> #{}
+        {ok, #{state := State} = St} ->
+            {#{<<"channel">> => cell_web_json:term(maps:with([state, along, length,
+                                                              segment, segments], St))},
+             State =/= idle};
+        {error, _} ->
+            {#{}, false}
     end;
 motion(_Kind, _Id) ->
-    #{}.
+    {#{}, false}.
 
 %%--------------------------------------------------------------------
 
@@ -154,15 +165,19 @@ handle_info({timeout, TRef, flush}, #state{timer = TRef, pending = Pending,
                                            hw_pending = HwPending} = State) ->
     Points = [point_json(G, P) || {G, P} <- maps:keys(Pending)],
     Objects = maps:from_list([{Id, O} || {Id, _, _} = O <- cell_hal_hw:list()]),
-    Hardware = [case Objects of
-                    #{Id := O} -> hardware_json(O);
-                    #{} -> #{<<"id">> => atom_to_binary(Id, utf8), <<"status">> => <<"absent">>}
-                end || Id <- lists:sort(maps:keys(HwPending))],
+    Read = [{Id, case Objects of
+                     #{Id := O} -> hardware(O);
+                     #{} -> {#{<<"id">> => atom_to_binary(Id, utf8),
+                               <<"status">> => <<"absent">>}, false}
+                 end} || Id <- lists:sort(maps:keys(HwPending))],
+    Hardware = [Json || {_, {Json, _}} <- Read],
     ok = cell_web_feed:publish([#{<<"type">> => <<"io">>, <<"points">> => Points}
                                 || Points =/= []]
                                ++ [#{<<"type">> => <<"hardware">>, <<"hardware">> => Hardware}
                                    || Hardware =/= []]),
-    {noreply, State#state{timer = undefined, pending = #{}, hw_pending = #{}}}.
+    %% What moves is read again at the next flush.
+    Moving = maps:from_list([{Id, true} || {Id, {_, true}} <- Read]),
+    {noreply, arm(State#state{timer = undefined, pending = #{}, hw_pending = Moving})}.
 
 changed(Key, #state{pending = Pending} = State) ->
     arm(State#state{pending = Pending#{Key => true}}).

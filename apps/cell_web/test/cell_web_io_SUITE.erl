@@ -392,8 +392,14 @@ websocket_carries_axes(Config) ->
     ok = await_reply(H),
     Slow = #{velocity => 20, acceleration => 200, deceleration => 200},
     {ok, M} = cell_hal_axis:move_absolute(x, 30.0, Slow),
-    {_, Ws2} = next_axis(<<"x">>, fun(#{<<"state">> := S}) -> S =:= <<"discrete_motion">> end,
-                         Ws1),
+    {_, Ws1a} = next_axis(<<"x">>, fun(#{<<"state">> := S}) -> S =:= <<"discrete_motion">> end,
+                          Ws1),
+    %% On its way: read again while it moves, though it publishes nothing (a move of
+    %% 1.6 s, read every 50 ms).
+    {_, Ws2} = next_axis(<<"x">>, fun(#{<<"state">> := S, <<"position">> := P}) ->
+                                          S =:= <<"discrete_motion">> andalso P > 0
+                                              andalso P < 30
+                                  end, Ws1a),
     ok = await_reply(M),
     {#{<<"axis">> := Done}, Ws3} =
         next_axis(<<"x">>, fun(#{<<"state">> := S, <<"position">> := P}) ->
