@@ -1,11 +1,13 @@
 %% A device task that moves axes as seed 000's robot tasks do (`LowerRobotTask.Axes'):
 %% it powers and homes its axes (each a step, waited for as IO is), then cycles: a point-to-point move of its
 %% first axis to a taught position, a cut along a path by its interpolation channel, and
-%% back. Every move is started in one step and waited for in the next, as IO is; an
+%% back. Without a channel (axes of an NC reached over ADS) the cycle is two
+%% point-to-point moves of its first axis, to the taught position and to `far'. Every move is started in one step and waited for in the next, as IO is; an
 %% axis's fault becomes the task's error, its text naming the axis and the code, with
 %% Retry (the axis is reset and the move made again).
 %%
-%% Args: #{axes => [X, Y], channel => C, path => cell_hal_path:path(), notify => Pid}.
+%% Args: #{axes => [X, Y], channel => C, path => cell_hal_path:path(), notify => Pid}, or
+%% #{axes => [X, ...], far => Position, notify => Pid}.
 %% `notify' gets `{axis_task, Id, cycle, N}' after each cycle and `{axis_task, Id,
 %% fault, Axis, Code}' when one is raised.
 -module(cell_axis_task).
@@ -50,8 +52,13 @@ step(start, _Woken, T) ->
     [X | _] = arg(T, axes),
     move(to_start, X, cell_hal_axis:move_absolute(X, 0.0, ?PTP), T);
 step(to_start, {reply, _, done}, T) ->
-    move(cutting, arg(T, channel),
-         cell_hal_channel:follow(arg(T, channel), arg(T, path), ?CUT), T);
+    case arg(T, channel) of
+        undefined ->
+            [X | _] = arg(T, axes),
+            move(cutting, X, cell_hal_axis:move_absolute(X, arg(T, far), ?PTP), T);
+        C ->
+            move(cutting, C, cell_hal_channel:follow(C, arg(T, path), ?CUT), T)
+    end;
 step(cutting, {reply, _, done}, T) ->
     N = cell_task:get(T, cycles, 0) + 1,
     notify(T, {axis_task, cell_task:id(T), cycle, N}),

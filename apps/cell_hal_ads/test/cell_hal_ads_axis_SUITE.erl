@@ -90,7 +90,10 @@ power_home_move(Config) ->
                  cell_hal_axis:status(x)),
     ?assertMatch(#{position := 250.0, job := none}, nc(Config)),
     ok = done(cell_hal_axis:move_relative(x, -50.0, ?FAST)),
-    ?assertMatch({ok, #{position := 200.0}}, cell_hal_axis:status(x)).
+    ?assertMatch({ok, #{position := 200.0}}, cell_hal_axis:status(x)),
+    %% A move to where the axis stands is done too.
+    ok = done(cell_hal_axis:move_absolute(x, 200.0, ?FAST)),
+    ?assertMatch({ok, #{state := standstill, position := 200.0}}, cell_hal_axis:status(x)).
 
 halt_aborts_move(Config) ->
     ok = ready(),

@@ -671,7 +671,8 @@ class NcAxis:
             else:
                 speed = min(cap, speed + self.acc * dt)
             speed = min(speed, (2 * self.dec * abs(dist)) ** 0.5)
-        if speed > 0 and speed * dt >= abs(dist):
+        # There (a move to where the axis stands is done at once, as on a real NC).
+        if dist == 0 or (speed > 0 and speed * dt >= abs(dist)):
             self.pos, self.vel, self.job = self.target, 0.0, None
             return
         self.vel = speed * way

@@ -1,0 +1,128 @@
+%% A device task moving the axes of TwinCAT NC over ADS in a running cell, as seed
+%% 000's robot tasks move theirs: cell_axis_task (the cell's tests) over two axes of
+%% type `ads' against the fake PLC's NC (peers/fake_plc.py, axes 1 and 2). The task
+%% powers and homes its axes, then cycles through point-to-point moves, each started
+%% in one step and waited for as a reply; an NC error is the operator's error naming
+%% the axis and the NC's code, and Retry resets the axis on the NC and the cycle goes
+%% on; the monitor connects the axes with the cell and applies the machine's speed
+%% override to them on the NC.
+-module(cell_hal_ads_axis_task_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([cycles_on_the_nc/1, nc_error_is_the_operators_error/1, override_on_the_nc/1]).
+
+-define(WAIT, 20000).
+-define(NET, "127.0.0.1.1.1").
+
+all() ->
+    [cycles_on_the_nc, nc_error_is_the_operators_error, override_on_the_nc].
+
+init_per_testcase(Case, Config) ->
+    Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    {Fake, Port} = start_fake(),
+    Task = #{id => robot, module => cell_axis_task, zone => <<"robot">>, lane => <<"Test">>,
+             args => #{axes => [x, y], far => 150.0, notify => self()}},
+    Hardware = [#{id => Id, kind => axis, type => ads,
+                  opts => #{host => "127.0.0.1", port => Port, target_net_id => ?NET,
+                            axis => N, limits => {-100.0, 1000.0}, reconnect_ms => 100,
+                            max_reconnect_ms => 400}}
+                || {Id, N} <- [{x, 1}, {y, 2}]],
+    Spec = #{name => <<"ads axis suite">>, tasks => [Task],
+             hal => #{connections => [], groups => [], hardware => Hardware},
+             monitor => #{io => #{}, drives => []}},
+    _ = application:load(cell_base),
+    _ = application:load(cell),
+    ok = application:set_env(cell_base, root, Root),
+    ok = application:set_env(cell, cell_spec, Spec),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_events:subscribe(),
+    ok = cell_log:subscribe(),
+    [{fake, Fake} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = application:unset_env(cell, cell_spec),
+    _ = cell_hal_ads_peer:stop(?config(fake, Config)),
+    ok.
+
+start_fake() ->
+    case cell_hal_ads_peer:start("fake_plc.py", ["--port", "0"]) of
+        {ok, Fake, {ready, Bound, _}} ->
+            ok = cell_hal_ads_peer:cmd(Fake, "nc_axis 1 -100 1000 50"),
+            ok = cell_hal_ads_peer:cmd(Fake, "nc_axis 2 -100 1000 50"),
+            {Fake, Bound};
+        {error, Reason} ->
+            ct:fail("the fake PLC did not start: ~tp", [Reason])
+    end.
+
+%% -------------------------------------------------------------------------------------
+
+%% Three cycles on the NC; the axes were powered and homed there by the task.
+cycles_on_the_nc(Config) ->
+    ok = cell_controller:start(),
+    ok = cycle(3),
+    [?assertMatch(#{enabled := true, referenced := true}, nc(Config, N)) || N <- [1, 2]],
+    {ok, #{position := P}} = cell_hal_axis:status(x),
+    ?assert(P >= 0.0 andalso P =< 150.0).
+
+%% A following error on the NC fails the move: the task's error names the axis and the
+%% code; Retry resets the axis on the NC, and the cycle goes on.
+nc_error_is_the_operators_error(Config) ->
+    ok = cell_controller:start(),
+    ok = cycle(1),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "nc_fail 1 0x4550"),
+    receive {axis_task, robot, fault, x, 16#4550} -> ok
+    after ?WAIT -> ct:fail({no_fault, cell_hal_axis:status(x)})
+    end,
+    #{id := Id, solutions := [retry], description := Text} = await_alarm(),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"Axis x stopped: NC error 16#4550">>)),
+    ?assertMatch(#{error := 16#4550}, nc(Config, 1)),
+    ok = cell_alarms:answer(Id, retry, <<"suite">>),
+    ok = cycle(2),
+    ?assertMatch(#{error := 0}, nc(Config, 1)).
+
+%% The machine's speed override, changed while the task runs, is the NC's.
+override_on_the_nc(Config) ->
+    ok = cell_controller:start(),
+    ok = cycle(1),
+    ok = cell_settings:put(machine, #{speed_override => 40}, <<"suite">>),
+    ok = await_override(Config, 400000),
+    ok = cycle(1).
+
+%% -------------------------------------------------------------------------------------
+
+%% N more cycles done.
+cycle(0) ->
+    ok;
+cycle(N) ->
+    receive {axis_task, robot, cycle, _} -> cycle(N - 1)
+    after ?WAIT -> ct:fail({no_cycle, cell_hal_axis:status(x), cell_alarms:list()})
+    end.
+
+await_alarm() ->
+    case [A || #{kind := error} = A <- cell_alarms:list()] of
+        [A | _] -> A;
+        [] ->
+            receive {cell_event, _} -> await_alarm();
+                    {cell_log, _} -> await_alarm()
+            after ?WAIT -> ct:fail(no_alarm)
+            end
+    end.
+
+%% The monitor's override reached both axes on the NC (its log line comes after).
+await_override(Config, Nc) ->
+    case [N || N <- [1, 2], #{override := O} <- [nc(Config, N)], O =:= Nc] of
+        [1, 2] -> ok;
+        _ ->
+            receive {cell_log, _} -> await_override(Config, Nc)
+            after ?WAIT -> ct:fail({override_not_on_the_nc, Nc})
+            end
+    end.
+
+%% The fake NC's own view of axis N.
+nc(Config, N) ->
+    {ok, Axis} = cell_hal_ads_peer:cmd(?config(fake, Config), "nc_get " ++ integer_to_list(N)),
+    Axis.
