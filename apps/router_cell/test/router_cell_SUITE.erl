@@ -9,7 +9,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([panels_pass_the_line/1, routes_along_the_cut_lines/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
+-export([panels_pass_the_line/1, routes_along_the_cut_lines/1, axis_killed_while_routing/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
          reset_clears_the_nest/1,
          jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
@@ -22,7 +22,7 @@
 -define(EVENTS, [item_transfer_out, item_transfer_in, alarm_raised, alarm_cleared, cell_state]).
 
 all() ->
-    [panels_pass_the_line, routes_along_the_cut_lines, product_lost_answers, reset_scrap_survives_a_stop,
+    [panels_pass_the_line, routes_along_the_cut_lines, axis_killed_while_routing, product_lost_answers, reset_scrap_survives_a_stop,
      reset_clears_the_nest,
      jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
@@ -109,6 +109,45 @@ routes_along_the_cut_lines(_Config) ->
     %% The first panel's cuts, in order; what follows is the next panel's, if it began.
     _ = lists:foldl(fun followed_cut/2, Follows, Cuts),
     ok.
+
+%% An axis's process killed as the robot starts a cut (its drive and NC gone and back,
+%% not powered, not homed): either the cut never ends and the robot's watchdog says so,
+%% or, the cut done first, the next path is refused by the axis ("Routing robot axis
+%% fault"). Either way one question, and the operator's Retry makes the axes ready
+%% again (the new axis powered and homed) and the robot cuts on; the panels leave, and
+%% nothing else is asked.
+axis_killed_while_routing(_Config) ->
+    {module, _} = code:ensure_loaded(cell_hal_channel),
+    Lower = cell_task_proc:whereis(lower),
+    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
+    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    %% The first cut under way (the rapid move to it went first).
+    receive {trace, Lower, call, {cell_hal_channel, follow, [_, _, #{velocity := 400.0}]}} -> ok
+    after ?DEADLINE_MS -> ct:fail(no_rapid_move)
+    end,
+    receive {trace, Lower, call, {cell_hal_channel, follow, _}} -> ok
+    after ?DEADLINE_MS -> ct:fail(no_cut)
+    end,
+    _ = erlang:trace(Lower, false, [call]),
+    erlang:trace_pattern({cell_hal_channel, follow, 3}, false, []),
+    {ok, Axis} = cell_hal_hw:watch(lower_x),
+    exit(Axis, kill),
+    Self = self(),
+    Answer = fun(#{id := Id}) when Id =:= <<"lower:motion">>; Id =:= <<"lower:axis">> ->
+                     Self ! {answered, Id},
+                     ok = cell_alarms:answer(Id, retry, <<"suite">>);
+                (#{kind := error} = A) ->
+                     ct:fail({unexpected_error, A});
+                (_) ->
+                     ok
+             end,
+    [_, _] = collect_out(2, Answer),
+    receive {answered, _} -> ok after 0 -> ct:fail(no_question) end,
+    receive {answered, Again} -> ct:fail({asked_again, Again}) after 0 -> ok end,
+    ?assertMatch({ok, #{homed := true, powered := true}}, cell_hal_axis:status(lower_x)),
+    ok = stop_cell().
 
 %% The channel's paths as the lower task started them: start, finish, length, velocity.
 follows(Lower, Acc) ->
