@@ -4,14 +4,18 @@
 %% prop_cell_monitor_proc.
 -module(cell_monitor_test_cell).
 
--export([hal/1, monitor/0]).
+-export([hal/1, hal/2, monitor/0]).
 
 %% The HAL's part of the cell spec; `Extra' connections besides `plc1'.
 -spec hal([map()]) -> map().
 hal(Extra) ->
-    Conns = [#{id => plc1, driver => cell_hal_sim,
-               opts => #{poll_ms => 10, reconnect_ms => 50, max_reconnect_ms => 200,
-                         timeout_ms => 500}}
+    hal(Extra, #{}).
+
+%% The same, with `plc1''s options changed by `PlcOpts' (its poll period, say).
+-spec hal([map()], map()) -> map().
+hal(Extra, PlcOpts) ->
+    Opts = #{poll_ms => 10, reconnect_ms => 50, max_reconnect_ms => 200, timeout_ms => 500},
+    Conns = [#{id => plc1, driver => cell_hal_sim, opts => maps:merge(Opts, PlcOpts)}
              | Extra],
     #{connections => Conns,
       groups => [#{id => general, module => cell_monitor_test_io, connection => plc1,

@@ -37,11 +37,17 @@
 %% Sequential only: the monitor's view is a function of the latest inputs, one PLC
 %% image; commands racing from two processes would leave the model no state to check
 %% each one against but the last, which the sequential runs already check after every
-%% command. Each run costs real time: its start from a healthy machine (the tasks
-%% started again after an emergency stop), a drive's resets (a 10 ms pulse, then the
-%% 100 ms the settings allow at least, three times a round), a monitor's restart (it
-%% takes the HAL over piece by piece). 300 runs took about two minutes on a busy
-%% machine of two cores, 150 about 80 s, so 100 (about a minute) rather than 1,000.
+%% command.
+%%
+%% Each run costs real time, most of it a drive's resets (a pulse, then a wait that
+%% doubles, three times a round: with the 100 ms wait the settings once allowed at
+%% least, a round took 730 ms and a run 0.45 s) and, for every other command, the PLC's
+%% poll. Both are set short through the monitor's settings and the connection's
+%% options, no shorter than leaves the check sure on a busy machine: the PLC is polled
+%% every 2 ms, a pulse lasts 10 ms and the first wait 20 ms, ten polls to see the error
+%% a pulse cleared before the next pulse.
+%% 1,000 runs take about two minutes on a machine of two cores (470 s before), about
+%% five with both cores kept busy by other work.
 -module(prop_cell_monitor_proc).
 -include_lib("proper/include/proper.hrl").
 -include_lib("eunit/include/eunit.hrl").
@@ -54,6 +60,10 @@
 -define(TAB, prop_cell_monitor_proc).
 -define(WAIT, 10000).
 -define(ATTEMPTS, 3).
+%% The PLC's poll period and the drive's first wait after a reset (see the module's
+%% doc).
+-define(POLL_MS, 2).
+-define(RESET_WAIT_MS, 20).
 
 -record(m, {circuit = true :: boolean(),
             key = false :: boolean(),
@@ -68,7 +78,7 @@ monitor_proc_test_() ->
     {setup, fun setup/0, fun cleanup/1,
      fun(_) ->
              [{timeout, 600, ?_assert(proper:quickcheck(prop_monitor(),
-                                                        [{to_file, user}, {numtests, 100}]))}]
+                                                        [{to_file, user}, {numtests, 1000}]))}]
      end}.
 
 prop_monitor() ->
@@ -329,7 +339,8 @@ setup() ->
     Sink = spawn(fun Sink() -> receive _ -> Sink() end end),
     Tasks = [cell_test_task:spec(Id, ?TAB, Sink) || Id <- ?IDS],
     Spec = #{name => <<"monitor model">>, tasks => Tasks,
-             hal => cell_monitor_test_cell:hal([]), monitor => cell_monitor_test_cell:monitor()},
+             hal => cell_monitor_test_cell:hal([], #{poll_ms => ?POLL_MS}),
+             monitor => cell_monitor_test_cell:monitor()},
     _ = application:load(lager),
     ok = application:set_env(lager, handlers, [{lager_console_backend, [{level, critical}]}]),
     _ = application:load(cell_base),
@@ -337,8 +348,8 @@ setup() ->
     ok = application:set_env(cell_base, root, Root),
     ok = application:set_env(cell, cell_spec, Spec),
     {ok, _} = application:ensure_all_started(cell),
-    ok = cell_settings:put(monitor, #{drive_reset_pulse_ms => 10, drive_reset_wait_ms => 100},
-                           <<"model">>),
+    ok = cell_settings:put(monitor, #{drive_reset_pulse_ms => 10,
+                                      drive_reset_wait_ms => ?RESET_WAIT_MS}, <<"model">>),
     %% A blank PLC opens the circuit and the monitor stops the cell: closed again, and
     %% released, before the monitor is replaced. (Replaced at once, the cell once
     %% stayed stopped with the circuit closed and no alarm. Likely: the first monitor

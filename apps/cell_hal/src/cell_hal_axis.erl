@@ -49,7 +49,10 @@
 -callback set_override(number(), State :: term()) -> {reply, ok | {error, term()}, State :: term()}.
 -callback status(State :: term()) -> {reply, status(), State :: term()}.
 -callback handle_call(term(), State :: term()) -> {reply, term(), State :: term()}.
--callback handle_info(term(), State :: term()) -> {noreply, State :: term()}.
+%% `unchanged': nothing its status shows changed, so the object's watchers are not told
+%% (see cell_hal_hw:watch/1).
+-callback handle_info(term(), State :: term()) ->
+    {noreply, State :: term()} | {noreply, State :: term(), unchanged}.
 
 -define(TIMEOUT, 5000).
 

@@ -153,7 +153,9 @@ subscribe(Id) ->
 %% @doc Sends `{cell_hal_hw_changed, Id}' to the caller whenever the object may have
 %% changed: a command or operation it took (not a question of its status), the end of
 %% a job, anything its implementation handled (an axis publishing its position as it
-%% moves, a fault), its connection. The caller reads what it shows (an axis's {@link
+%% moves, a fault) unless the implementation says nothing it shows changed (its
+%% `handle_info/2' answers `{noreply, State, unchanged}': an axis whose poll at rest
+%% read what it had), its connection. The caller reads what it shows (an axis's {@link
 %% cell_hal_axis:status/1}) when it is ready to: a panel shows a moving axis at its own
 %% pace, never falling behind. Answers the object's process, for the caller to monitor
 %% (a restarted object has watchers no more).
@@ -386,6 +388,8 @@ handle_info(Msg, #state{mod = Mod, impl = Impl, busy = Busy} = S) ->
     case Mod:handle_info(Msg, Impl) of
         {noreply, Impl1} ->
             {noreply, changed(S#state{impl = Impl1})};
+        {noreply, Impl1, unchanged} ->
+            {noreply, S#state{impl = Impl1}};
         {reply, Reply, Impl1} when Busy =/= undefined ->
             reply(Busy, Reply),
             next(changed(S#state{impl = Impl1}))

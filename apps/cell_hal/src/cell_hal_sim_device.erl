@@ -5,7 +5,8 @@
 %%
 %% The link has three states: `up' (answers), `down' (every client is dropped and new
 %% ones are refused, as when a cable is pulled), `silent' (accepts connections but
-%% answers nothing, as a PLC stuck in a long cycle; requests time out).
+%% answers nothing, as a PLC stuck in a long cycle; requests time out). A request on a
+%% connection the PLC dropped is never taken, however soon after the drop it comes.
 %%
 %% The PLC's memory (its image, its rules and its link) is kept in the HAL's table of
 %% simulated PLCs, which the HAL's top supervisor owns, as well as in the process: a
@@ -191,11 +192,16 @@ handle_cast({disconnect, Ref}, #state{clients = Cs} = S) ->
 handle_cast(Req, #state{link = silent} = S) when element(1, Req) =:= read;
                                                   element(1, Req) =:= write ->
     {noreply, S};
-handle_cast({read, Ref, Tag, Points}, S) ->
+handle_cast({read, Ref, Tag, Points}, #state{clients = Cs} = S) when is_map_key(Ref, Cs) ->
     Values = [{K, value(K, Type, S)} || {K, Type} <- Points],
     {noreply, answer(Ref, {reply, Tag, {ok, Values}}, S)};
-handle_cast({write, Ref, Tag, Key, V}, S) ->
-    {noreply, answer(Ref, {reply, Tag, ok}, change(Key, V, S))}.
+handle_cast({write, Ref, Tag, Key, V}, #state{clients = Cs} = S) when is_map_key(Ref, Cs) ->
+    {noreply, answer(Ref, {reply, Tag, ok}, change(Key, V, S))};
+handle_cast(Req, S) when element(1, Req) =:= read; element(1, Req) =:= write ->
+    %% On a connection this PLC dropped (its cable pulled, a momentary loss, a PLC
+    %% started again): sent before the client learnt of the loss, it never arrives, as
+    %% nothing reaches a real PLC over a pulled cable or a closed socket.
+    {noreply, S}.
 
 %% @private
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.

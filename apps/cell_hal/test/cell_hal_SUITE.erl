@@ -21,7 +21,8 @@
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
          io_while_a_worker_restarts/1, logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1,
-         device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1, initial_image/1]).
+         device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1, initial_image/1,
+         dropped_connection_takes_nothing/1]).
 
 -define(WAIT, 5000).
 
@@ -38,7 +39,7 @@ all() ->
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators,
      backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory,
-     told_when_the_server_is_back, initial_image].
+     told_when_the_server_is_back, initial_image, dropped_connection_takes_nothing].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -588,6 +589,42 @@ device_killed_comes_back_with_its_memory(_Config) ->
     ok = cell_hal_sim:set({io, int16_out}, 3),
     ?assertEqual({ok, 3}, cell_hal_sim:get({io, int16_out})),
     ?assertEqual({error, not_set}, cell_hal_sim:get({io, int16_in})).
+
+%% A simulated PLC takes nothing on a connection it dropped (a momentary loss, a cable
+%% pulled), however soon after the drop a request comes: a client of the test's own
+%% speaks the driver's protocol to it, next to the HAL's worker.
+dropped_connection_takes_nothing(_Config) ->
+    ok = sim(s31),
+    Dev = cell_hal_sim_device:whereis(s31),
+    Out = {io, int16_out},
+    R1 = connect_to(Dev),
+    ok = write_to(Dev, R1, 1, 5),
+    ok = cell_hal_sim:drop(s31),
+    receive {cell_hal_sim, R1, closed} -> ok after ?WAIT -> ct:fail(not_dropped) end,
+    gen_server:cast(Dev, {write, R1, 2, Out, 6}),
+    %% Asked after the write, by the same process: the PLC has had it.
+    ?assertEqual({ok, 5}, cell_hal_sim:get(Out)),
+    R2 = connect_to(Dev),
+    ok = cell_hal_sim:link(s31, down),
+    receive {cell_hal_sim, R2, closed} -> ok after ?WAIT -> ct:fail(not_pulled) end,
+    gen_server:cast(Dev, {write, R2, 3, Out, 7}),
+    gen_server:cast(Dev, {read, R2, 4, [{Out, int16}]}),
+    ?assertEqual({ok, 5}, cell_hal_sim:get(Out)),
+    receive {cell_hal_sim, _, {reply, Tag, _}} when Tag > 1 -> ct:fail({answered, Tag})
+    after 0 -> ok
+    end,
+    ok = cell_hal_sim:link(s31, up).
+
+connect_to(Dev) ->
+    Ref = make_ref(),
+    gen_server:cast(Dev, {connect, self(), Ref}),
+    receive {cell_hal_sim, Ref, connected} -> Ref after ?WAIT -> ct:fail(not_connected) end.
+
+write_to(Dev, Ref, Tag, V) ->
+    gen_server:cast(Dev, {write, Ref, Tag, {io, int16_out}, V}),
+    receive {cell_hal_sim, Ref, {reply, Tag, Result}} -> Result
+    after ?WAIT -> ct:fail({no_answer, Tag})
+    end.
 
 worker_crash_goes_down_and_recovers(_Config) ->
     ok = sim(s17),

@@ -30,8 +30,19 @@
 %%   (cell_hal_test_worker_sup): a thousand runs kill it far more often than the
 %%   product's ten restarts a minute allow.</li>
 %% </ul>
-%% Parallel runs race the PLC's side against the HAL's; at the end the cable is in, the
-%% connection up, the inputs read the PLC's values and a reconnect reads its outputs.
+%% Parallel runs race the PLC's side, the HAL's and the kills; at the end the cable is
+%% in, the connection up, the inputs read the PLC's values and a reconnect reads its
+%% outputs. Each command's answer is one the contract allows, and what the PLC took of
+%% its outputs (the simulated PLC notes each value as it takes it, on the run's record
+%% of marks that the writes also take before and after) agrees with how every write was
+%% answered: a confirmed one was taken while it ran, once; one answered `disconnected'
+%% was not taken, or, if a kill came while it ran (the worker killed with the write on
+%% its way), taken while it ran and never after; a kill's own write never. To tell
+%% whose write the PLC took, the HAL's writes of the integer output in a parallel run,
+%% and the kills', write values no other command writes. The kills take turns (a lock
+%% of the run's own): a kill that resumed the supervisor while another still held it
+%% suspended let a successor start and confirm the other's write, which looked like a
+%% write confirmed with no worker running; the model's error, not the worker's.
 -module(prop_cell_hal_worker).
 -include_lib("proper/include/proper.hrl").
 -include_lib("eunit/include/eunit.hrl").
@@ -86,10 +97,12 @@ prop_parallel() ->
                 Conn = start_conn(parallel),
                 {Seq, Par, Result} = run_parallel_commands(?MODULE, Cmds),
                 Final = final_check(),
+                Taken = taken_as_answered(Cmds, Seq, Par),
                 stop_conn(Conn),
-                ?WHENFAIL(io:format(user, "Seq: ~p~nPar: ~p~nResult: ~p~nFinal: ~p~n",
-                                    [Seq, Par, Result, Final]),
-                          Result =:= ok andalso Final =:= ok)
+                ?WHENFAIL(io:format(user, "Seq: ~p~nPar: ~p~nResult: ~p~nFinal: ~p~n"
+                                    "Taken: ~p~n", [Seq, Par, Result, Final, Taken]),
+                          aggregate(command_names(Cmds),
+                                    Result =:= ok andalso Final =:= ok andalso Taken =:= ok))
             end).
 
 %% -------------------------------------------------------------------------------------
@@ -107,19 +120,28 @@ zero(_) -> 0.
 value(P) when P =:= bool_in; P =:= bool_out -> boolean();
 value(_) -> integer(0, 3).
 
+%% What the HAL writes. In a parallel run the integer output takes a value no other
+%% command writes (`fresh', drawn as the command runs), so that the PLC's record of
+%% what it took tells whose write it was (see taken_as_answered/3); the boolean output
+%% keeps its two values, and with them writes that watches see.
+written(parallel, int16_out) -> fresh;
+written(_, P) -> value(P).
+
+%% A parallel run's kill writes a fresh value, which nobody else writes, so that it is
+%% seen never to reach the PLC.
+kill_outputs(sequential) -> ?OUTPUTS;
+kill_outputs(parallel) -> [int16_out].
+
 command(#m{mode = Mode, cable = Cable, up = Up} = M) ->
     frequency([{4, ?LET(P, oneof(?INPUTS), {call, ?MODULE, set_input, [P, value(P)]})},
                {2, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, plc_sets_output, [P, value(P)]})},
-               {4, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, write, [P, value(P)]})},
+               {4, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, write, [P, written(Mode, P)]})},
                {3, {call, ?MODULE, read, [oneof(?INPUTS ++ ?OUTPUTS)]}},
                {3, ?LET(P, oneof(?INPUTS ++ ?OUTPUTS), {call, ?MODULE, watch, [P, value(P)]})},
                {case Cable of true -> 2; false -> 4 end, {call, ?MODULE, cable, [not Cable]}},
-               {1, {call, ?MODULE, drop, []}}]
-              %% Kills in sequential runs only: in a parallel run a write racing a kill
-              %% was once confirmed with no worker running, which this model cannot yet
-              %% tell apart from a kill that met a worker its successor had replaced.
-              ++ [{2, ?LET(P, oneof(?OUTPUTS), {call, ?MODULE, kill, [P, value(P), Cable]})}
-                  || Mode =:= sequential]
+               {1, {call, ?MODULE, drop, []}},
+               {2, ?LET(P, oneof(kill_outputs(Mode)),
+                        {call, ?MODULE, kill, [P, written(Mode, P), Cable]})}]
               ++ [{2, {call, ?MODULE, attempts, [range(1, 4)]}}
                   || Mode =:= sequential, not Cable, not Up, M#m.wait =/= unknown]).
 
@@ -263,12 +285,15 @@ unfired_as_modelled(#m{watches = Ws}) ->
 
 allowed({call, _, set_input, _}, Res) -> element(1, Res) =:= ok orelse Res =:= {error, disconnected}
                                             orelse element(1, Res) =:= timeout;
-allowed({call, _, write, _}, {ok, _, _}) -> true;
-allowed({call, _, write, _}, {{error, disconnected}, _, _}) -> true;
+allowed({call, _, write, _}, {ok, _, _, #{}}) -> true;
+allowed({call, _, write, _}, {{error, disconnected}, _, _, #{}}) -> true;
 allowed({call, _, read, _}, {ok, _}) -> true;
 allowed({call, _, read, _}, {error, disconnected}) -> true;
 allowed({call, _, watch, _}, Res) -> is_reference(Res);
-allowed({call, _, kill, _}, {Write, _, _, _}) -> Write =:= {error, disconnected};
+allowed({call, _, kill, _}, #{write := Write, down := Why}) ->
+    %% The worker it killed was running (the kills take turns), and no other ran
+    %% while it wrote.
+    Write =:= {error, disconnected} andalso Why =:= killed;
 allowed(_, Res) -> Res =:= ok orelse element(1, Res) =:= ok.
 
 %% -------------------------------------------------------------------------------------
@@ -287,15 +312,17 @@ plc_sets_output(P, V) ->
     ok = cell_hal_sim:set({io, P}, V),
     cell_hal:read(io, P).
 
-%% A write confirmed by the PLC, or refused; then what the HAL and the PLC read.
+%% A write confirmed by the PLC, or refused; then what the HAL and the PLC read. In a
+%% parallel run also the value written and the span of the PLC's record it ran in (the
+%% PLC's read is a call to it: what it took of the write is recorded before).
 write(P, V) ->
-    R = case cell_hal:write_sync(io, P, V, ?WAIT) of
-            ok -> ok;
-            Error -> Error
-        end,
-    case R of
-        ok -> {ok, cell_hal:read(io, P), cell_hal_sim:get({io, P})};
-        _ -> {R, cell_hal:read(io, P), cell_hal_sim:get({io, P})}
+    V1 = resolve(V),
+    From = tick(),
+    R = cell_hal:write_sync(io, P, V1, ?WAIT),
+    Seen = {R, cell_hal:read(io, P), cell_hal_sim:get({io, P})},
+    case mode() of
+        sequential -> Seen;
+        parallel -> erlang:append_element(Seen, #{value => V1, from => From, to => tick()})
     end.
 
 read(P) ->
@@ -334,30 +361,70 @@ drop() ->
     end.
 
 %% Kills the worker and at once writes an output: a write the worker never confirmed
-%% (it is gone, or its successor is not up yet). Then, in a sequential run with the
-%% cable in (as the model knows it), the connection's news until it is up again, what the PLC holds of that
-%% output and what every point reads.
+%% (it is gone, its successor not started). Then, in a sequential run with the cable in
+%% (as the model knows it), the connection's news until it is up again, what the PLC
+%% holds of that output and what every point reads; in a parallel run how the worker
+%% ended, the value written and the marks on the run's record the kill came between.
 kill(P, V, CableIn) ->
-    Sup = ets:lookup_element(?TAB, sup, 2),
-    Old = cell_hal_test_worker_sup:worker(Sup),
-    %% Its supervisor held back (suspended, it leaves the worker's exit in its mailbox),
-    %% so the write surely comes while no worker runs.
-    ok = sys:suspend(Sup),
-    Ref = monitor(process, Old),
-    exit(Old, kill),
-    receive {'DOWN', Ref, process, Old, _} -> ok end,
-    Write = cell_hal:write_sync(io, P, V, ?WAIT),
-    ok = sys:resume(Sup),
-    case mode() =:= sequential andalso CableIn of
-        true ->
+    V1 = resolve(V),
+    {Killed, Why, Write} = kill_and_write(P, V1),
+    case mode() of
+        sequential when CableIn ->
             Told = told_until_up([]),
             forget_logs(),
             Reads = [{Q, settled_read(Q, element(2, cell_hal_sim:get({io, Q})))}
                      || Q <- ?INPUTS] ++ [{Q, cell_hal:read(io, Q)} || Q <- ?OUTPUTS],
             {Write, Told, cell_hal_sim:get({io, P}), Reads};
-        _ ->
-            {Write, [], cell_hal_sim:get({io, P}), []}
+        sequential ->
+            {Write, [], cell_hal_sim:get({io, P}), []};
+        parallel ->
+            #{write => Write, down => Why, value => V1, killed => Killed}
     end.
+
+%% The worker's supervisor is held back (suspended, it leaves the worker's exit in its
+%% mailbox) from before the worker is looked up until after the write, so the write
+%% surely comes while no worker runs. The kills of a parallel run take turns: one that
+%% resumed the supervisor while another held it would let a successor start under the
+%% other's write, and one could look up a worker the other had just killed.
+kill_and_write(P, V) ->
+    Sup = ets:lookup_element(?TAB, sup, 2),
+    Lock = ets:lookup_element(?TAB, lock, 2),
+    Lock ! {lock, self()},
+    receive {locked, Lock} -> ok end,
+    Old = cell_hal_test_worker_sup:worker(Sup),
+    ok = sys:suspend(Sup),
+    Ref = monitor(process, Old),
+    Before = tick(),
+    exit(Old, kill),
+    Why = receive {'DOWN', Ref, process, Old, W} -> W end,
+    Killed = {Before, tick()},
+    Write = cell_hal:write_sync(io, P, V, ?WAIT),
+    ok = sys:resume(Sup),
+    Lock ! {unlock, self()},
+    {Killed, Why, Write}.
+
+%% One process at a time holds it, until it unlocks or ends.
+lock() ->
+    receive
+        {lock, Pid} ->
+            Ref = monitor(process, Pid),
+            Pid ! {locked, self()},
+            receive
+                {unlock, Pid} -> demonitor(Ref, [flush]);
+                {'DOWN', Ref, process, Pid, _} -> ok
+            end,
+            lock();
+        stop ->
+            ok
+    end.
+
+%% A value of the run's own (see written/2).
+resolve(fresh) -> 100 + ets:update_counter(?TAB, fresh, 1);
+resolve(V) -> V.
+
+%% The next mark on the run's record: every value the PLC takes on an output is noted
+%% with one, as the PLC takes it.
+tick() -> ets:update_counter(?TAB, tick, 1).
 
 %% The connection's news in order, until it is up.
 told_until_up(Acc) ->
@@ -433,6 +500,48 @@ final_check() ->
         _ -> {not_settled, Up, Wrong}
     end.
 
+%% What the PLC took of the outputs in the run (each value recorded as it took it)
+%% agrees with what every write was answered, as the HAL's contract has it:
+%% <ul>
+%% <li>a confirmed write was taken while it ran, once;</li>
+%% <li>a write answered `disconnected' was never taken, unless the worker it was sent
+%%   to was killed with it on its way (a kill while it ran): then it may have been
+%%   taken while it ran, never after, as a real PLC takes what was on the wire when
+%%   the sender died. (The simulated PLC answers at once and takes nothing on a
+%%   connection it dropped, so no other answer can be lost);</li>
+%% <li>a kill's own write, made while no worker runs, was never taken.</li>
+%% </ul>
+%% Only fresh values tell whose write the PLC took; of the boolean output, a confirmed
+%% write is checked by its value alone.
+taken_as_answered({SeqCmds, _ParCmds}, Seq, Par) ->
+    Calls = [Call || {set, _, Call} <- SeqCmds],
+    Answered = lists:zip(Calls, [Res || {_, Res} <- Seq])
+        ++ [{Call, Res} || {{set, _, Call}, Res} <- lists:append(Par)],
+    Took = [{T, P, V} || {{took, T}, P, V} <- ets:tab2list(?TAB)],
+    Kills = [Killed || {{call, _, kill, _}, #{killed := Killed}} <- Answered],
+    Wrong = [{Call, Res} || {Call, Res} <- Answered, not taken_as(Call, Res, Took, Kills)],
+    case Wrong of
+        [] -> ok;
+        _ -> {not_as_answered, Wrong, lists:sort(Took)}
+    end.
+
+taken_as({call, _, write, [P, fresh]}, {R, _, _, #{value := V, from := From, to := To}},
+         Took, Kills) ->
+    KilledMeanwhile = lists:any(fun({K0, K1}) -> K0 < To andalso K1 > From end, Kills),
+    case [T || {T, Q, W} <- Took, Q =:= P, W =:= V] of
+        [] -> R =:= {error, disconnected};
+        [T] -> T > From andalso T < To andalso (R =:= ok orelse KilledMeanwhile);
+        _ -> false
+    end;
+taken_as({call, _, write, [P, _]}, {ok, _, _, #{value := V, from := From, to := To}}, Took,
+         _Kills) ->
+    lists:any(fun({T, Q, W}) -> Q =:= P andalso W =:= V andalso T > From andalso T < To end,
+              Took);
+taken_as({call, _, kill, [P, _, _]}, #{value := V}, Took, _Kills) ->
+    not lists:any(fun({_, Q, W}) -> Q =:= P andalso W =:= V end, Took);
+taken_as(_, _, _, _) ->
+    true.
+
 %% After the drop: down, then up (a status message may repeat the status in force).
 await_up() ->
     case cell_hal:status(conn()) of
@@ -471,6 +580,10 @@ start_conn(Mode) ->
                               opts => #{only => ?INPUTS ++ ?OUTPUTS}}),
     true = ets:insert(?TAB, {sup, cell_hal_test_worker_sup:adopt(Conn)}),
     ok = cell_hal_sim:preset(Conn, maps:from_list([{{io, P}, zero(P)} || P <- ?INPUTS ++ ?OUTPUTS])),
+    %% The run's record of what the PLC takes on its outputs, each noted as it takes it.
+    _ = ets:match_delete(?TAB, {{took, '_'}, '_', '_'}),
+    true = ets:insert(?TAB, [{tick, 0}, {fresh, 0}, {lock, spawn_link(fun lock/0)}]),
+    [ok = cell_hal_sim:on_change({io, P}, fun(V) -> took(P, V) end) || P <- ?OUTPUTS],
     %% Up, and the outputs read back from the PLC's preset image.
     ok = case cell_hal:subscribe_connection(Conn) of
              {ok, up} -> ok;
@@ -484,7 +597,12 @@ start_conn(Mode) ->
     ok = cell_log:subscribe(),
     Conn.
 
+took(P, V) ->
+    true = ets:insert(?TAB, {{took, tick()}, P, V}),
+    [].
+
 stop_conn(Conn) ->
+    ets:lookup_element(?TAB, lock, 2) ! stop,
     _ = cell_log:unsubscribe(),
     ok = cell_hal:unsubscribe_connection(Conn),
     ok = cell_hal_test_worker_sup:release(ets:lookup_element(?TAB, sup, 2)),

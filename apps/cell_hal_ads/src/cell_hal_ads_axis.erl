@@ -18,7 +18,9 @@
 %% index group of port 500 without symbols; a notification by index group and offset
 %% is not in the client yet. A poll is sent without waiting ({@link
 %% cell_hal_ads_client:send_request/5}): the object answers status and commands
-%% meanwhile.
+%% meanwhile. The object's watchers ({@link cell_hal_hw:watch/1}) hear of a poll only
+%% when what the status shows changed, as of the simulated axis: an axis at rest tells
+%% them nothing.
 %%
 %% == The connection ==
 %% The axis holds its own ADS client to the NC's port 500 (`host', `target_net_id',
@@ -186,8 +188,21 @@ handle_call(Request, _S) ->
     error({unknown_call, Request}).
 
 %% @private
--spec handle_info(term(), #s{}) -> {noreply, #s{}}.
-handle_info({?MODULE, connect}, #s{opts = Opts} = S) ->
+%% Watchers hear only of what shows: a poll that reads the axis as it was (an axis at
+%% rest, polled every `idle_poll_ms') tells them nothing.
+-spec handle_info(term(), #s{}) -> {noreply, #s{}} | {noreply, #s{}, unchanged}.
+handle_info(Msg, S) ->
+    S1 = info(Msg, S),
+    case shown(S1) =:= shown(S) of
+        true -> {noreply, S1, unchanged};
+        false -> {noreply, S1}
+    end.
+
+shown(S) ->
+    {reply, Status, _} = status(S),
+    Status.
+
+info({?MODULE, connect}, #s{opts = Opts} = S) ->
     {ok, Client} = cell_hal_ads_client:start_link(client_opts(Opts)),
     Mon = erlang:monitor(process, Client),
     try
@@ -196,30 +211,30 @@ handle_info({?MODULE, connect}, #s{opts = Opts} = S) ->
         %% It could not connect and ended already: its monitor says so.
         exit:{_, {gen_statem, call, _}} -> ok
     end,
-    {noreply, S#s{client = Client, monitor = Mon}};
-handle_info({cell_hal_ads, Client, up}, #s{client = Client} = S) ->
-    {noreply, came_up(S)};
-handle_info({cell_hal_ads, Client, {down, Reason}}, #s{client = Client, up = true} = S) ->
-    {noreply, lost(Reason, S)};
-handle_info({cell_hal_ads, _Client, _}, S) ->
+    S#s{client = Client, monitor = Mon};
+info({cell_hal_ads, Client, up}, #s{client = Client} = S) ->
+    came_up(S);
+info({cell_hal_ads, Client, {down, Reason}}, #s{client = Client, up = true} = S) ->
+    lost(Reason, S);
+info({cell_hal_ads, _Client, _}, S) ->
     %% A client of an earlier connection, the present state told on subscribing (down
     %% while it connects: its end, if it fails, comes by the monitor), or news the
     %% axis has no use for.
-    {noreply, S};
-handle_info({'DOWN', Mon, process, _, Reason}, #s{monitor = Mon} = S) ->
-    {noreply, lost(Reason, S#s{client = undefined, monitor = undefined})};
-handle_info({timeout, Ref, poll}, #s{poll_timer = Ref} = S) ->
-    {noreply, poll(S#s{poll_timer = undefined})};
-handle_info({timeout, _Stale, poll}, S) ->
-    {noreply, S};
-handle_info(Msg, #s{reqs = Reqs, client = Client} = S) ->
+    S;
+info({'DOWN', Mon, process, _, Reason}, #s{monitor = Mon} = S) ->
+    lost(Reason, S#s{client = undefined, monitor = undefined});
+info({timeout, Ref, poll}, #s{poll_timer = Ref} = S) ->
+    poll(S#s{poll_timer = undefined});
+info({timeout, _Stale, poll}, S) ->
+    S;
+info(Msg, #s{reqs = Reqs, client = Client} = S) ->
     case cell_hal_ads_client:check_response(Msg, Reqs) of
         {_Early, {poll, Client}, Rest} when S#s.stale ->
-            {noreply, poll(S#s{reqs = Rest, polling = false, stale = false})};
+            poll(S#s{reqs = Rest, polling = false, stale = false});
         {Result, {poll, Client}, Rest} ->
-            {noreply, polled(Result, S#s{reqs = Rest, polling = false})};
+            polled(Result, S#s{reqs = Rest, polling = false});
         {_Stale, {poll, _Earlier}, Rest} ->
-            {noreply, S#s{reqs = Rest}};
+            S#s{reqs = Rest};
         _ ->
             error({unexpected_message, Msg})
     end.

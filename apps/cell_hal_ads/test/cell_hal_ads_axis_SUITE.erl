@@ -3,7 +3,8 @@
 %% power, home and moves run on the NC and end when its state says so; a newer
 %% command, halt or stop aborts what runs; an NC error fails the move and reset
 %% clears it on the NC; the override is the NC's; a lost connection makes the object
-%% down and refuses commands until the NC is back.
+%% down and refuses commands until the NC is back; a watcher hears of the axis only
+%% when what it shows changed, not at each poll.
 %%
 %% Each case has a fake PLC of its own with NC axis 1 (limits -100 to 1000, homing
 %% in 50 ms), and the object `x' connected to it.
@@ -16,7 +17,7 @@
 -export([power_home_move/1, halt_aborts_move/1, stop_holds_until_released/1,
          newer_move_aborts/1, nc_error_fails_move/1, override_is_the_ncs/1,
          power_off_aborts/1, connection_lost_and_back/1, refused_commands/1,
-         bad_options/1]).
+         bad_options/1, watchers_hear_only_changes/1]).
 
 -define(WAIT, 15000).
 -define(NET, "127.0.0.1.1.1").
@@ -27,7 +28,7 @@
 all() ->
     [power_home_move, halt_aborts_move, stop_holds_until_released, newer_move_aborts,
      nc_error_fails_move, override_is_the_ncs, power_off_aborts, connection_lost_and_back,
-     refused_commands, bad_options].
+     refused_commands, bad_options, watchers_hear_only_changes].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -225,7 +226,38 @@ bad_options(Config) ->
     ?assertEqual({error, {bad_option, speed}}, Add((opts(Port))#{speed => 1})),
     ?assertEqual({error, not_present}, cell_hal_axis:status(y)).
 
+%% A watcher of an axis at rest hears nothing of the polls that read it as it was
+%% (counted on the fake NC: the object is polled, and says nothing); it hears of the
+%% axis pushed to another position, which its status then shows.
+watchers_hear_only_changes(Config) ->
+    Fake = ?config(fake, Config),
+    {ok, _} = cell_hal_hw:watch(x),
+    %% What the object may have said before its first poll after the watch is past.
+    ok = polls(Fake, 1),
+    _ = flush_changes(),
+    %% Three polls more: the two before the last surely answered and handled (one poll
+    %% at a time, the next sent after the answer).
+    ok = polls(Fake, 3),
+    ?assertEqual(0, flush_changes()),
+    ok = cell_hal_ads_peer:cmd(Fake, "nc_pos 1 42.5"),
+    receive {cell_hal_hw_changed, x} -> ok
+    after ?WAIT -> ct:fail(no_change_told)
+    end,
+    ?assertMatch({ok, #{state := disabled, position := 42.5}}, cell_hal_axis:status(x)).
+
 %% -------------------------------------------------------------------------------------
+
+%% Returns once the fake NC has been asked for an axis's state N times more.
+polls(Fake, N) ->
+    {ok, #{nc_reads := Now}} = cell_hal_ads_peer:cmd(Fake, "stats"),
+    Line = io_lib:format("wait_stat nc_reads ~b ~b", [Now + N, ?WAIT]),
+    cell_hal_ads_peer:cmd(Fake, Line).
+
+%% How many change messages of the axis came.
+flush_changes() ->
+    receive {cell_hal_hw_changed, x} -> 1 + flush_changes()
+    after 0 -> 0
+    end.
 
 ready() ->
     ok = done(cell_hal_axis:power(x, true)),

@@ -44,10 +44,15 @@ fields() ->
        doc => <<"How long a drive's reset output is held on.">>},
      #{name => drive_reset_attempts, type => {integer, 1, 10}, default => 3,
        doc => <<"Resets tried before a drive error is handed to the operator.">>},
-     #{name => drive_reset_wait_ms, type => {integer, 100, 60000}, default => 1000,
+     %% As short as a pulse: a drive that clears in a few ms need not wait longer. What
+     %% bounds it from below is how soon the cell sees the error bit change (the
+     %% connection's poll period or notification), which the doc tells the owner.
+     #{name => drive_reset_wait_ms, type => {integer, 10, 60000}, default => 1000,
        unit => <<"ms">>,
        doc => <<"Wait after the first reset before checking the drive; doubled after "
-                "each further reset.">>},
+                "each further reset. Keep it longer than the PLC connection takes to "
+                "report the drive's error bit (its poll period): an error the reset "
+                "cleared but not yet seen is reset again.">>},
      #{name => connect_grace_ms, type => {integer, 0, 600000}, default => 5000,
        unit => <<"ms">>,
        doc => <<"At start, how long a connection or hardware object may take to come "

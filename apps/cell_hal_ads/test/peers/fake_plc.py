@@ -47,6 +47,8 @@ An NC with axes answers on AMS port 500 (see Nc below):
     nc_axis ID [MIN MAX [HOME_MS]] -> ok     (an axis, with software limits)
     nc_fail ID CODE  -> ok   (the axis's next move faults halfway with NC error CODE)
     nc_fault ID CODE -> ok   (the axis faults now)
+    nc_pos ID POS    -> ok   (the axis's actual position is POS now: one at rest
+                              pushed by hand)
     nc_get ID        -> {ok, #{...}}  (the axis as the NC has it)
 
 Names with spaces are written with %20 for each space.
@@ -382,6 +384,7 @@ class Conn(asyncio.Protocol):
     def nc_dispatch(self, cmd, data):
         nc = self.plc.nc
         if cmd == 2:
+            self.plc.count("nc_reads")
             group, offset, length = struct.unpack_from("<III", data)
             err, value = nc.read(group, offset, length)
             return struct.pack("<II", err, len(value)) + value, None
@@ -959,13 +962,15 @@ def control(plc, line, loop, answer):
             home_s = int(args[3]) / 1000 if len(args) >= 4 else 0.1
             plc.nc.axes[axis_id] = NcAxis(axis_id, limits, home_s)
             return "ok"
-        if cmd in ("nc_fail", "nc_fault", "nc_get"):
+        if cmd in ("nc_fail", "nc_fault", "nc_get", "nc_pos"):
             axis = plc.nc.axes[int(args[0])]
             axis.advance()
             if cmd == "nc_get":
                 return ("ok", axis.describe())
             if cmd == "nc_fail":
                 axis.fail_next = int(args[1], 0)
+            elif cmd == "nc_pos":
+                axis.pos = float(args[1])
             else:
                 axis.fault(int(args[1], 0))
             return "ok"
