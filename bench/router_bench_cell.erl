@@ -96,10 +96,11 @@ await_out(N, Timeout, Acc) ->
     end.
 
 %% @doc The settings of a machine that passes panels as fast as it can: a panel always
-%% waiting upstream, no faults, physical delays at `Scale' of the real machine's.
+%% waiting upstream, no faults, physical delays at `Scale' of the real machine's, its
+%% axes at their full speed (a speed override of 100 %).
 -spec settings(#{scale := float(), dual_lane := boolean()}) -> #{atom() => map()}.
 settings(#{scale := Scale, dual_lane := Dual}) ->
-    #{machine => #{dual_lane => Dual},
+    #{machine => #{dual_lane => Dual, speed_override => 100},
       router_sim => #{time_scale => Scale, arrival_ms => 0, product_lost_rate => 0.0,
                       jam_rate => 0.0, no_read_rate => 0.0, magazine_low_s => 0}}.
 
