@@ -363,6 +363,10 @@ answer(_Config, _Which, _Alarm) ->
 %% Every product fed in is out, waiting in the feed, or owned by exactly one task of
 %% the line: on disk (the highest generation, across both nodes' folders) and in memory.
 check_conservation(Config, Serials) ->
+    %% Each task done with the step it was in (the last product sent out is cleared
+    %% from memory and from its file when that step returns), so disk and memory are
+    %% read at the same point of its work.
+    [ok = peer_call(Config, C, cell_task_proc, sync, [T]) || {C, T} <- [{up, src}, {down, sink}]],
     Cells = ?config(cells, Config),
     Stored = lists:append(
                [[{S, G} || F <- filelib:wildcard(filename:join([Root, "Data", "*.product"])),
