@@ -14,6 +14,7 @@
 -behaviour(cell_task).
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
+-export([await_cycles/3, await_error/1]).
 
 -define(PTP, #{velocity => 2000, acceleration => 20000, deceleration => 20000}).
 -define(CUT, #{velocity => 1000, acceleration => 10000, deceleration => 10000}).
@@ -118,3 +119,28 @@ notify(T, Msg) ->
 
 arg(T, Key) ->
     cell_task:arg(T, Key, undefined).
+
+%% -- for the suites that run it --------------------------------------------------------
+
+%% @doc Returns once task `Id' (notifying the caller) has done `N' more cycles; fails
+%% the case after `Ms' without one.
+-spec await_cycles(atom(), non_neg_integer(), pos_integer()) -> ok.
+await_cycles(_Id, 0, _Ms) ->
+    ok;
+await_cycles(Id, N, Ms) ->
+    receive {axis_task, Id, cycle, _} -> await_cycles(Id, N - 1, Ms)
+    after Ms -> ct:fail({no_cycle, Id, cell_alarms:list()})
+    end.
+
+%% @doc The first error raised in the cell, waited for (the caller subscribed to the
+%% cell's events and log) at most `Ms' between two of them.
+-spec await_error(pos_integer()) -> cell_alarms:alarm().
+await_error(Ms) ->
+    case [A || #{kind := error} = A <- cell_alarms:list()] of
+        [A | _] -> A;
+        [] ->
+            receive {cell_event, _} -> await_error(Ms);
+                    {cell_log, _} -> await_error(Ms)
+            after Ms -> ct:fail(no_alarm)
+            end
+    end.

@@ -47,56 +47,38 @@ end_per_testcase(_Case, _Config) ->
 cycles(_Config) ->
     ok = start(),
     %% Three cycles: each a move to the start and the cut along the path.
-    ok = cycle(3),
+    ok = cell_axis_task:await_cycles(robot, 3, ?WAIT),
     {ok, #{state := S, position := P}} = cell_hal_axis:status(y),
     ?assert(lists:member(S, [standstill, discrete_motion, synchronized_motion])),
     ?assert(P >= 0.0 andalso P =< 40.0).
 
 fault_is_the_operators_error(_Config) ->
     ok = start(),
-    ok = cycle(1),
+    ok = cell_axis_task:await_cycles(robot, 1, ?WAIT),
     %% The next move of x faults: the task raises its error, naming the axis.
     ok = cell_hal_axis_sim:fault_next(x),
     receive {axis_task, robot, fault, x, _} -> ok after ?WAIT -> ct:fail(no_fault) end,
-    Alarm = await_alarm(),
+    Alarm = cell_axis_task:await_error(?WAIT),
     #{id := Id, solutions := [retry], description := Text} = Alarm,
     ?assertNotEqual(nomatch, binary:match(Text, <<"Axis x stopped">>)),
     ?assertMatch({ok, #{state := error_stop}}, cell_hal_axis:status(x)),
     %% Retry: the axis is reset and the cycle goes on.
     ok = cell_alarms:answer(Id, retry, <<"suite">>),
-    ok = cycle(2),
+    ok = cell_axis_task:await_cycles(robot, 2, ?WAIT),
     ?assertMatch({ok, #{error := 0}}, cell_hal_axis:status(x)).
 
 override_while_running(_Config) ->
     ok = start(),
-    ok = cycle(1),
+    ok = cell_axis_task:await_cycles(robot, 1, ?WAIT),
     ok = cell_settings:put(machine, #{speed_override => 30}, <<"suite">>),
     ok = await_override(30),
-    ok = cycle(2).
+    ok = cell_axis_task:await_cycles(robot, 2, ?WAIT).
 
 %% -------------------------------------------------------------------------------------
 
 start() ->
     ok = cell_controller:start(),
     ok.
-
-%% N more cycles done.
-cycle(0) ->
-    ok;
-cycle(N) ->
-    receive {axis_task, robot, cycle, _} -> cycle(N - 1)
-    after ?WAIT -> ct:fail({no_cycle, cell_hal_axis:status(x), cell_alarms:list()})
-    end.
-
-await_alarm() ->
-    case [A || #{kind := error} = A <- cell_alarms:list()] of
-        [A | _] -> A;
-        [] ->
-            receive {cell_event, _} -> await_alarm();
-                    {cell_log, _} -> await_alarm()
-            after ?WAIT -> ct:fail(no_alarm)
-            end
-    end.
 
 %% The monitor told both axes the new override (its log line comes after).
 await_override(Pct) ->

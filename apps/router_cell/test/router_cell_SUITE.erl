@@ -92,16 +92,13 @@ stats_settings(_) ->
 routes_along_the_cut_lines(_Config) ->
     {_, #{drawing := Drawing}} = lists:keyfind(<<"demo-2x2">>, 1, router_recipes:demo()),
     Cuts = router_recipes:cuts(Drawing, 25.0),
-    {module, _} = code:ensure_loaded(cell_hal_channel),
-    Lower = cell_task_proc:whereis(lower),
-    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
-    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    Lower = trace_follows(),
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
     try
         _ = collect_out(1, fun never_answer/1)
     after
-        erlang:trace_pattern({cell_hal_channel, follow, 3}, false, [])
+        untrace_follows(Lower)
     end,
     ok = stop_cell(),
     Follows = follows(Lower, []),
@@ -117,10 +114,7 @@ routes_along_the_cut_lines(_Config) ->
 %% again (the new axis powered and homed) and the robot cuts on; the panels leave, and
 %% nothing else is asked.
 axis_killed_while_routing(_Config) ->
-    {module, _} = code:ensure_loaded(cell_hal_channel),
-    Lower = cell_task_proc:whereis(lower),
-    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
-    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    Lower = trace_follows(),
     ok = cell_events:subscribe(?EVENTS),
     ok = cell_controller:start(<<"suite">>),
     %% The first cut under way (the rapid move to it went first).
@@ -130,8 +124,7 @@ axis_killed_while_routing(_Config) ->
     receive {trace, Lower, call, {cell_hal_channel, follow, _}} -> ok
     after ?DEADLINE_MS -> ct:fail(no_cut)
     end,
-    _ = erlang:trace(Lower, false, [call]),
-    erlang:trace_pattern({cell_hal_channel, follow, 3}, false, []),
+    untrace_follows(Lower),
     {ok, Axis} = cell_hal_hw:watch(lower_x),
     exit(Axis, kill),
     Self = self(),
@@ -148,6 +141,19 @@ axis_killed_while_routing(_Config) ->
     receive {answered, Again} -> ct:fail({asked_again, Again}) after 0 -> ok end,
     ?assertMatch({ok, #{homed := true, powered := true}}, cell_hal_axis:status(lower_x)),
     ok = stop_cell().
+
+%% The lower task's calls to start a channel path, traced to this process; returns the
+%% task's process.
+trace_follows() ->
+    {module, _} = code:ensure_loaded(cell_hal_channel),
+    Lower = cell_task_proc:whereis(lower),
+    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
+    1 = erlang:trace(Lower, true, [call, {tracer, self()}]),
+    Lower.
+
+untrace_follows(Lower) ->
+    _ = erlang:trace(Lower, false, [call]),
+    erlang:trace_pattern({cell_hal_channel, follow, 3}, false, []).
 
 %% The channel's paths as the lower task started them: start, finish, length, velocity.
 follows(Lower, Acc) ->
