@@ -39,7 +39,8 @@ run_answer_stop_restart(Config) ->
            {"CELLRT_SHDR_PORT", "0"}],
     %% A fast machine that makes mistakes: every third carry slips, a conveyor move
     %% in twenty sticks (for longer than the tasks' watchdog), the magazine runs low.
-    ok = router_test_settings:write(Root, #{router_sim => #{time_scale => 0.05, arrival_ms => 0,
+    ok = router_test_settings:write(Root, #{machine => #{speed_override => 100},
+                                           router_sim => #{time_scale => 0.05, arrival_ms => 0,
                                                 product_lost_rate => 0.3, reseat_ms => 2000,
                                                 jam_rate => 0.05, jam_ms => 80000,
                                                 %% Serials checked against the machine's
