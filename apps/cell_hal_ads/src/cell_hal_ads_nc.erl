@@ -10,18 +10,21 @@
 %%   TwinCAT 3: error code, actual and set position, actual and set velocity,
 %%   override, following error, the axis's status double word ...);</li>
 %% <li>`16#4200 + Axis' functions: 1 reset, 2 stop (the NC's own deceleration),
-%%   4 stop with a given deceleration and jerk, 16#10 reference (homing), and the
-%%   start of a move and the setting of the actual position (offsets
-%%   `?START' and `?SET_POSITION' below);</li>
+%%   4 stop with a given deceleration and jerk, 16#10 reference (homing), 16#1A set
+%%   the actual position `{type UINT32 (1 absolute), reserved UINT32, position
+%%   LREAL}', 16#21 the extended start of a move `{type UINT32 (1 absolute),
+%%   reserved UINT32, target LREAL, velocity LREAL}' followed by the acceleration,
+%%   the deceleration and the jerk, each `{use the axis's own UINT32 (1 yes, 0 no),
+%%   reserved UINT32, value LREAL}' (72 bytes);</li>
 %% <li>`16#4300 + Axis' the cyclic axis interface PLC to NC: 2 controller enable,
 %%   3 feed enable plus, 4 feed enable minus (UINT16 each), 16#21 velocity override
 %%   (UINT32, 1000000 = 100 %).</li>
 %% </ul>
-%% The layouts of reset, stop, reference, the online structure, the enables and the
-%% override follow Beckhoff's "ADS interface NC" tables. The start of a move and the
-%% setting of the actual position are written as `{type UINT32, reserved UINT32,
-%% LREAL ...}' at the offsets below, as the project's fake NC serves them: they are
-%% to be checked against a real TwinCAT NC before first use on a machine.
+%% The offsets and layouts follow Beckhoff's "ADS interface NC" tables (the
+%% specification of the axis's state, functions and cyclic data). The layouts of the
+%% set position and the extended start are as published ADS clients of the NC write
+%% them, since the rows of the table that give them were not at hand: check a first
+%% move on a new machine at a low velocity.
 %%
 %% Writes to the cyclic interface reach the NC only where the PLC program does not
 %% write the same axis interface every cycle (an axis commanded over ADS is not also
@@ -46,9 +49,8 @@
 -define(STOP, 16#2).
 -define(STOP_RAMP, 16#4).
 -define(REFERENCE, 16#10).
-%% Not confirmed against a real NC (see the module's doc).
--define(START, 16#0).
--define(SET_POSITION, 16#8).
+-define(SET_POSITION, 16#1A).
+-define(START, 16#21).
 %% 0x4300 + Axis.
 -define(CONTROLLER_ENABLE, 16#2).
 -define(FEED_PLUS, 16#3).
@@ -56,7 +58,10 @@
 -define(OVERRIDE, 16#21).
 
 -define(START_ABSOLUTE, 1).
--define(SET_ABSOLUTE, 0).
+-define(SET_ABSOLUTE, 1).
+%% The extended start's flag for a value given (0) or the axis's own (1).
+-define(GIVEN, 0).
+-define(OWN, 1).
 
 %% Bits of the axis's status double word (as PLCopen's MC library decodes it).
 -define(ST_READY, 0).
@@ -132,8 +137,13 @@ request({start, To, #{velocity := V, acceleration := Acc, deceleration := Dec}},
         #{jerk := J} = Ctx) ->
     [function(?START, <<?START_ABSOLUTE:32/little, 0:32,
                         (float(To)):64/float-little, (float(V)):64/float-little,
-                        (float(Acc)):64/float-little, (float(Dec)):64/float-little,
-                        (float(J)):64/float-little>>, Ctx)].
+                        (given(Acc))/binary, (given(Dec))/binary, (given(J))/binary>>, Ctx)].
+
+%% A value of the extended start: the one given, or the axis's own where none is (0).
+given(X) when X > 0 ->
+    <<?GIVEN:32/little, 0:32, (float(X)):64/float-little>>;
+given(_) ->
+    <<?OWN:32/little, 0:32, 0.0:64/float-little>>.
 
 function(Offset, Data, #{axis := A}) ->
     {write, ?IG_FUNCTIONS + A, Offset, Data}.

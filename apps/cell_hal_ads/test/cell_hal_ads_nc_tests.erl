@@ -28,12 +28,20 @@ requests_test_() ->
      ?_assertEqual([{write, 16#4303, 16#21, <<1000000:32/little>>}], R({override, 100})),
      ?_assertEqual([{write, 16#4303, 16#21, <<0:32/little>>}], R({override, 0})),
      ?_assertEqual([{write, 16#4303, 16#21, <<125000:32/little>>}], R({override, 12.5})),
-     ?_assertEqual([{write, 16#4203, 8, <<0:32/little, 0:32, -2.5:64/float-little>>}],
+     %% Set actual position (0x1A): absolute (1), reserved, the position.
+     ?_assertEqual([{write, 16#4203, 16#1A, <<1:32/little, 0:32, -2.5:64/float-little>>}],
                    R({set_position, -2.5})),
-     ?_assertEqual([{write, 16#4203, 0, <<1:32/little, 0:32, 250.0:64/float-little,
-                                          100.0:64/float-little, 1000.0:64/float-little,
-                                          2000.0:64/float-little, 5000.0:64/float-little>>}],
-                   R({start, 250, ?PARAMS}))].
+     %% Extended start (0x21): absolute (1), reserved, target, velocity, then the
+     %% acceleration, deceleration and jerk, each flagged as given (0).
+     ?_assertEqual([{write, 16#4203, 16#21, <<1:32/little, 0:32, 250.0:64/float-little,
+                                             100.0:64/float-little,
+                                             0:32, 0:32, 1000.0:64/float-little,
+                                             0:32, 0:32, 2000.0:64/float-little,
+                                             0:32, 0:32, 5000.0:64/float-little>>}],
+                   R({start, 250, ?PARAMS})),
+     %% No jerk given: the axis's own (flag 1).
+     ?_assertMatch([{write, 16#4203, 16#21, <<_:56/binary, 1:32/little, 0:32, _:8/binary>>}],
+                   cell_hal_ads_nc:request({start, 250, ?PARAMS}, ?CTX#{jerk => 0}))].
 
 %% What each of the state machine's effects writes to the NC, and the job watched.
 effect_writes_test_() ->

@@ -607,6 +607,9 @@ NC_NOT_READY = 0x4260
 NC_BEYOND_LIMITS = 0x4358
 NC_BAD_PARAMETER = 0x4221
 ERR_INVALID_DATA = 0x706
+START_ABSOLUTE = 1              # the start type of an absolute move
+POSITION_ABSOLUTE = 1           # the type of an absolute actual position
+NC_DEFAULT_ACC = 1000.0         # the axis's own acceleration and deceleration
 STEP = 0.001                    # s, the model's integration step
 QUICK_STOP = 1e9                # the deceleration of a stop on a fault: at once
 
@@ -742,8 +745,17 @@ class NcAxis:
             self.vel = 0.0
             self.home_end = self.t + self.home_s
             return 0
-        if offset == 0x0:              # start {type, reserved, target, v, acc, dec, jerk}
-            _type, _res, target, v, acc, dec, _jerk = struct.unpack_from("<II5d", data)
+        if offset == 0x21:             # extended start: {type, reserved, target, velocity,
+            #                            then {use the NC's own?, reserved, value} for the
+            #                            acceleration, the deceleration and the jerk}
+            if len(data) < 72:
+                return ERR_SIZE
+            (start_type, _res, target, v, own_acc, _r1, acc, own_dec, _r2, dec,
+             _own_jerk, _r3, _jerk) = struct.unpack_from("<IIddIIdIIdIId", data)
+            if start_type != START_ABSOLUTE:
+                return NC_BAD_PARAMETER
+            acc = NC_DEFAULT_ACC if own_acc else acc
+            dec = NC_DEFAULT_ACC if own_dec else dec
             if not self.ready():
                 return NC_NOT_READY
             if min(v, acc, dec) <= 0:
@@ -756,8 +768,12 @@ class NcAxis:
                 self.fail = (self.fail_next, (self.pos + target) / 2)
                 self.fail_next = None
             return 0
-        if offset == 0x8:              # set actual position {type, reserved, position}
-            _type, _res, pos = struct.unpack_from("<IId", data)
+        if offset == 0x1A:             # set actual position {type, reserved, position}
+            if len(data) < 16:
+                return ERR_SIZE
+            pos_type, _res, pos = struct.unpack_from("<IId", data)
+            if pos_type != POSITION_ABSOLUTE:
+                return NC_BAD_PARAMETER
             self.pos = pos
             return 0
         return ERR_OFFSET
