@@ -18,7 +18,9 @@
 %%                                                   deceleration => 2000})
 %% '''
 %%
-%% Implementations: `sim' ({@link cell_hal_channel_sim}, over the axes' simulated NC).
+%% Implementations: `sim' ({@link cell_hal_channel_sim}, over the axes' simulated NC)
+%% and `ads' (cell_hal_ads_channel in the cell_hal_ads application, a TwinCAT NC I
+%% channel that runs the path in the NC).
 -module(cell_hal_channel).
 
 -export([follow/3, halt/2, set_override/2, status/1]).
@@ -43,7 +45,10 @@
 -callback set_override(number(), State :: term()) -> {reply, ok | {error, term()}, State :: term()}.
 -callback status(State :: term()) -> {reply, status(), State :: term()}.
 -callback handle_call(term(), State :: term()) -> {reply, term(), State :: term()}.
--callback handle_info(term(), State :: term()) -> {noreply, State :: term()}.
+%% `unchanged': nothing its status shows changed, so the object's watchers are not told
+%% (see cell_hal_hw:watch/1).
+-callback handle_info(term(), State :: term()) ->
+    {noreply, State :: term()} | {noreply, State :: term(), unchanged}.
 
 -define(TIMEOUT, 5000).
 

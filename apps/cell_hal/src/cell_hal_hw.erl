@@ -62,7 +62,8 @@
                     %% TwinCAT NC over ADS, where the cell_hal_ads application is
                     %% in the release (else the type is refused as unknown).
                     {axis, ads} => cell_hal_ads_axis,
-                    {channel, sim} => cell_hal_channel_sim}).
+                    {channel, sim} => cell_hal_channel_sim,
+                    {channel, ads} => cell_hal_ads_channel}).
 
 -record(state, {id :: atom(),
                 kind :: kind(),

@@ -20,12 +20,17 @@
 %% segments costs a few comparisons per sample.
 -module(cell_hal_path).
 
--export([new/1, from/2, length/1, at/2, segment_at/2, segments/1, start/1, finish/1]).
+-export([new/1, from/2, length/1, at/2, segment_at/2, segments/1, moves/1, start/1,
+         finish/1]).
 -compile({no_auto_import, [length/1]}).
 
--export_type([path/0, segment/0, point/0]).
+-export_type([path/0, segment/0, point/0, move/0]).
 
 -type point() :: {number(), number(), number()}.
+%% A segment as an NC program says it, from where the one before ended: a line to a
+%% point, or an arc to a point round a centre, clockwise or counter-clockwise.
+-type move() :: {line, To :: point(), path | connecting}
+              | {arc, To :: point(), Center :: point(), cw | ccw, path | connecting}.
 -type segment() :: {line, point(), point()}
                  | {arc, point(), number(), number(), number()}
                  | {arc, point(), number(), number(), number(), cw | ccw}.
@@ -92,6 +97,18 @@ segment_at(#path{segs = Segs}, S) ->
 -spec segments(path()) -> [{line | arc, path | connecting, float()}].
 segments(#path{segs = Segs}) ->
     [{element(1, Kind), Role, Len} || {_, Len, Kind, Role} <- tuple_to_list(Segs)].
+
+%% @doc The segments as moves from the path's start ({@link start/1}), in order,
+%% connecting lines included: what an NC's part program is written from.
+-spec moves(path()) -> [move()].
+moves(#path{segs = Segs}) ->
+    [move(Kind, Role) || {_, _, Kind, Role} <- tuple_to_list(Segs)].
+
+move({line, _, B}, Role) ->
+    {line, B, Role};
+move({arc, Center, _, _, Sweep} = Arc, Role) ->
+    Dir = case Sweep < 0 of true -> cw; false -> ccw end,
+    {arc, last(Arc), Center, Dir, Role}.
 
 %%--------------------------------------------------------------------
 

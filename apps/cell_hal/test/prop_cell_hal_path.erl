@@ -38,6 +38,13 @@ examples_test_() ->
      ?_assertEqual(14.0, ?P:length(Two)),
      ?_assertEqual([{line, path, 5.0}, {line, connecting, 5.0}, {line, path, 4.0}],
                    ?P:segments(Two)),
+     %% As moves from the start: each to its end, arcs with centre and direction.
+     ?_assertEqual([{line, {5.0, 0.0, 0.0}, path}, {line, {5.0, 5.0, 0.0}, connecting},
+                    {line, {9.0, 5.0, 0.0}, path}], ?P:moves(Two)),
+     ?_assertMatch([{arc, {X, Y, 0.0}, {0.0, 0.0, 0.0}, ccw, path}]
+                       when abs(X) < ?EPS andalso abs(Y - 10) < ?EPS, ?P:moves(Quarter)),
+     ?_assertMatch([{arc, {X, Y, 0.0}, {0.0, 0.0, 0.0}, cw, path}]
+                       when abs(X - 10) < ?EPS andalso abs(Y) < ?EPS, ?P:moves(Cw)),
      ?_assertEqual({2, 3, connecting}, ?P:segment_at(Two, 7)),
      ?_assert(near({0.0, 10.0, 0.0}, ?P:at(Cw, 0))),
      ?_assert(near({10.0, 0.0, 0.0}, ?P:at(Cw, ?P:length(Cw)))),

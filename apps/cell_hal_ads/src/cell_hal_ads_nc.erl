@@ -94,7 +94,9 @@
 
 %% The axis's NC id, the jerk of stops and the distance to the target within which a
 %% move counts as arrived.
--type ctx() :: #{axis := 1..255, jerk := number(), in_position := number()}.
+%% The axis's id; the jerk of its moves and the window of its in-position check where
+%% a request or a state's news needs them.
+-type ctx() :: #{axis := 1..255, jerk => number(), in_position => number()}.
 
 %% @doc The index groups of an NC axis: parameters, state, functions, cyclic interface.
 -spec groups(1..255) -> #{parameters | state | functions | cyclic => u32()}.

@@ -50,6 +50,15 @@ An NC with axes answers on AMS port 500 (see Nc below):
     nc_pos ID POS    -> ok   (the axis's actual position is POS now: one at rest
                               pushed by hand)
     nc_get ID        -> {ok, #{...}}  (the axis as the NC has it)
+    nc_channel ID AXIS_X AXIS_Y [AXIS_Z] -> ok   (an NC I interpolation channel
+                              over those axes, its interpreter running DIN 66025
+                              programs the system service's files hold)
+    nc_channel_fail ID CODE -> ok   (the channel's next program faults halfway: its
+                              axes stop there, the channel's error is CODE)
+    nc_channel_get ID -> {ok, #{...}}  (the channel: its interpreter's state, error,
+                              the program loaded and how many it ran)
+    file_get NAME    -> {ok, <<...>>} | {error, no_file}   (a file the system
+                              service (AMS port 10000) holds)
 
 Names with spaces are written with %20 for each space.
 `nested` marks a structure field: found by name like TwinCAT finds them, not listed
@@ -58,6 +67,7 @@ in the uploaded table (which holds top-level symbols only).
 
 import argparse
 import asyncio
+import math
 import os
 import socket
 import struct
@@ -340,6 +350,8 @@ class Conn(asyncio.Protocol):
         plc = self.plc
         if server[1] == NC_PORT and cmd in (2, 3):
             return self.nc_dispatch(cmd, data)
+        if server[1] == SYSTEM_SERVICE_PORT and cmd == 9:
+            return self.file_dispatch(data)
         if cmd == 1:
             plc.count("device_info")
             return struct.pack("<IBBH16s", 0, 3, 1, 4024, b"Fake PLC"), None
@@ -393,6 +405,31 @@ class Conn(asyncio.Protocol):
         if len(payload) != length:
             return struct.pack("<I", ERR_SIZE), None
         return struct.pack("<I", nc.write(group, offset, payload)), None
+
+    def file_dispatch(self, data):
+        """The system service's files: FOPEN (read-write: the name in, a handle out),
+        FWRITE and FCLOSE (read-write by handle), as ADS clients use them."""
+        files = self.plc.nc.files
+        group, offset, rlen, wlen = struct.unpack_from("<IIII", data)
+        wdata = data[16: 16 + wlen]
+        if len(wdata) != wlen:
+            return struct.pack("<II", ERR_SIZE, 0), None
+        self.plc.count("file_requests")
+        if group == IG_FOPEN:
+            if not offset & FOPEN_WRITE or offset >> 16 != PATH_GENERIC or rlen < 4:
+                return struct.pack("<II", ERR_INVALID_DATA, 0), None
+            name = wdata.split(b"\0", 1)[0].decode("latin-1")
+            handle = files.open(name)
+            return struct.pack("<III", 0, 4, handle), None
+        if group == IG_FWRITE:
+            if not files.write(offset, wdata):
+                return struct.pack("<II", ERR_INVALID_DATA, 0), None
+            return struct.pack("<II", 0, 0), None
+        if group == IG_FCLOSE:
+            if not files.close(offset):
+                return struct.pack("<II", ERR_INVALID_DATA, 0), None
+            return struct.pack("<II", 0, 0), None
+        return struct.pack("<II", ERR_GROUP, 0), None
 
     # --- the index groups ------------------------------------------------------------
 
@@ -598,6 +635,17 @@ class Conn(asyncio.Protocol):
 # --- an NC with axes, on AMS port 500 ------------------------------------------------
 
 NC_PORT = 500
+SYSTEM_SERVICE_PORT = 10000
+IG_FOPEN, IG_FCLOSE, IG_FWRITE = 120, 121, 123
+FOPEN_WRITE = 0x2
+PATH_GENERIC = 1
+IG_NCI_STATE = 0x2100
+IG_NCI_FUNCTIONS = 0x2200
+# The interpreter's states as the NC numbers them.
+ITP_IDLE, ITP_READY, ITP_RUNNING, ITP_ABORTED = 1, 2, 5, 12
+NCI_NO_PROGRAM = 0x4101         # the fake's own codes for a program it cannot run
+NCI_BAD_PROGRAM = 0x4102
+NCI_AXIS_NOT_READY = 0x4103
 IG_NC_STATE = 0x4100
 IG_NC_FUNCTIONS = 0x4200
 IG_NC_CYCLIC = 0x4300
@@ -810,9 +858,232 @@ class NcAxis:
                 "job": self.job or "none"}
 
 
+class Files:
+    """The target's files, as the system service opens, writes and closes them."""
+
+    def __init__(self):
+        self.files = {}
+        self.open_files = {}            # handle -> (name, bytes so far)
+        self.next_handle = 1
+
+    def open(self, name):
+        handle = self.next_handle
+        self.next_handle += 1
+        self.open_files[handle] = (name, b"")
+        return handle
+
+    def write(self, handle, data):
+        if handle not in self.open_files:
+            return False
+        name, body = self.open_files[handle]
+        self.open_files[handle] = (name, body + data)
+        return True
+
+    def close(self, handle):
+        if handle not in self.open_files:
+            return False
+        name, body = self.open_files.pop(handle)
+        self.files[name] = body
+        return True
+
+
+class NciChannel:
+    """An NC I channel: its interpreter loads a DIN 66025 program by name (lines G01,
+    arcs G02/G03 with I and J, in the XY plane, absolute, feed F in mm/min) and runs
+    it, its axes following the path at the feed times the first axis's override. A
+    program ends READY; one that faults (nc_channel_fail) stops its axes halfway,
+    ABORTED with the channel's error, until a reset."""
+
+    def __init__(self, channel_id, axes):
+        self.id = channel_id
+        self.axes = axes                # NcAxis, X Y [Z]
+        self.state = ITP_IDLE
+        self.error = 0
+        self.loaded = ""
+        self.program = None             # the path: [(kind, start, end, centre, feed)]
+        self.runs = 0
+        self.fail_next = None
+        self.fail_at = None
+        self.along = 0.0
+        self.t = time.monotonic()
+
+    def read(self, offset, length):
+        self.advance()
+        if offset == 1:
+            return 0, struct.pack("<i", self.error)[:length]
+        if offset == 3:
+            return 0, struct.pack("<I", self.state)[:length]
+        if offset == 7:
+            return 0, self.loaded.encode("latin-1")[:100].ljust(length, b"\0")[:length]
+        return ERR_OFFSET, b""
+
+    def function(self, offset, data, files):
+        self.advance()
+        if offset == 0x4:               # load by name
+            name = data.split(b"\0", 1)[0].decode("latin-1")
+            if self.state == ITP_RUNNING:
+                return NCI_AXIS_NOT_READY
+            if name not in files.files:
+                self.error = NCI_NO_PROGRAM
+                return NCI_NO_PROGRAM
+            program = parse_din(files.files[name].decode("latin-1"), self.position())
+            if program is None:
+                self.error = NCI_BAD_PROGRAM
+                return NCI_BAD_PROGRAM
+            self.loaded, self.program, self.state = name, program, ITP_READY
+            return 0
+        if offset == 0x2:               # start the interpreter
+            if self.state != ITP_READY or self.program is None or self.error:
+                return NCI_AXIS_NOT_READY
+            if not all(a.ready() and a.job is None for a in self.axes):
+                return NCI_AXIS_NOT_READY
+            self.state, self.along, self.runs = ITP_RUNNING, 0.0, self.runs + 1
+            self.fail_at = None
+            if self.fail_next is not None:
+                self.fail_at = (self.fail_next, path_length(self.program) / 2)
+                self.fail_next = None
+            return 0
+        if offset == 0x10:              # reset
+            self.error, self.state, self.program = 0, ITP_IDLE, None
+            for a in self.axes:
+                a.vel = 0.0
+            return 0
+        if offset == 0x11:              # stop: the axes stand where they are
+            if self.state == ITP_RUNNING:
+                self.state = ITP_IDLE
+            for a in self.axes:
+                a.vel = 0.0
+            return 0
+        return ERR_OFFSET
+
+    def position(self):
+        return tuple(a.pos for a in self.axes) + (0.0,) * (3 - len(self.axes))
+
+    def advance(self):
+        now = time.monotonic()
+        dt, self.t = now - self.t, now
+        if self.state != ITP_RUNNING:
+            return
+        override = self.axes[0].override / 1000000
+        self.along += dt * override * self.feed_at(self.along)
+        total = path_length(self.program)
+        if self.fail_at is not None and self.along >= self.fail_at[1]:
+            self.along = self.fail_at[1]
+            self.place(self.along, 0.0)
+            self.error, self.state, self.fail_at = self.fail_at[0], ITP_ABORTED, None
+            return
+        if self.along >= total:
+            self.place(total, 0.0)
+            self.state = ITP_READY
+            return
+        self.place(self.along, self.feed_at(self.along) * override)
+
+    def feed_at(self, along):
+        for seg in self.program:
+            if along < seg["s"] + seg["len"]:
+                return seg["feed"]
+        return self.program[-1]["feed"]
+
+    def place(self, along, speed):
+        point = path_point(self.program, along)
+        for i, a in enumerate(self.axes):
+            a.pos, a.vel = point[i], speed
+
+    def describe(self):
+        self.advance()
+        return {"state": self.state, "error": self.error,
+                "loaded": self.loaded.encode("latin-1"), "runs": self.runs,
+                "along": self.along}
+
+
+def parse_din(text, start):
+    """A DIN 66025 program's path: absolute X Y Z, G01 lines and G02/G03 arcs (I J
+    the centre from the segment's start), F the feed in mm/min, modal; None for a
+    word the fake does not know."""
+    segs, here, feed, s = [], start, None, 0.0
+    for raw in text.splitlines():
+        line = raw.split(";", 1)[0].strip()
+        if not line:
+            continue
+        words = line.split()
+        g = None
+        coords = {}
+        for w in words:
+            letter, value = w[0].upper(), w[1:]
+            try:
+                if letter == "N":
+                    continue
+                if letter == "G":
+                    code = int(value)
+                    if code in (1, 2, 3):
+                        g = code
+                    elif code not in (17, 71, 90):
+                        return None
+                elif letter == "M":
+                    if int(value) not in (2, 30):
+                        return None
+                elif letter in "XYZIJF":
+                    coords[letter] = float(value)
+                else:
+                    return None
+            except ValueError:
+                return None
+        if "F" in coords:
+            feed = coords["F"] / 60.0
+        if g is None:
+            continue
+        if feed is None or feed <= 0:
+            return None
+        end = (coords.get("X", here[0]), coords.get("Y", here[1]), coords.get("Z", here[2]))
+        if g == 1:
+            length = math.dist(here, end)
+            segs.append({"kind": 1, "start": here, "end": end, "s": s, "len": length,
+                         "feed": feed})
+        else:
+            centre = (here[0] + coords.get("I", 0.0), here[1] + coords.get("J", 0.0))
+            r = math.dist(here[:2], centre)
+            if r <= 0:
+                return None
+            a0 = math.atan2(here[1] - centre[1], here[0] - centre[0])
+            a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+            sweep = a1 - a0
+            if g == 3:                  # counter-clockwise
+                while sweep <= 1e-12:
+                    sweep += 2 * math.pi
+            else:
+                while sweep >= -1e-12:
+                    sweep -= 2 * math.pi
+            length = abs(sweep) * r
+            segs.append({"kind": g, "start": here, "end": end, "s": s, "len": length,
+                         "feed": feed, "centre": centre, "r": r, "a0": a0, "sweep": sweep})
+        s += length
+        here = end
+    return segs if segs else None
+
+
+def path_length(segs):
+    return segs[-1]["s"] + segs[-1]["len"]
+
+
+def path_point(segs, along):
+    for seg in segs:
+        if along <= seg["s"] + seg["len"]:
+            f = 0.0 if seg["len"] == 0 else (along - seg["s"]) / seg["len"]
+            z = seg["start"][2] + f * (seg["end"][2] - seg["start"][2])
+            if seg["kind"] == 1:
+                return tuple(seg["start"][i] + f * (seg["end"][i] - seg["start"][i])
+                             for i in range(2)) + (z,)
+            angle = seg["a0"] + f * seg["sweep"]
+            return (seg["centre"][0] + seg["r"] * math.cos(angle),
+                    seg["centre"][1] + seg["r"] * math.sin(angle), z)
+    return segs[-1]["end"]
+
+
 class Nc:
     def __init__(self):
         self.axes = {}
+        self.channels = {}
+        self.files = Files()
 
     def axis(self, group, base):
         axis = self.axes.get(group - base)
@@ -820,19 +1091,39 @@ class Nc:
             axis.advance()
         return axis
 
+    def channel(self, group, base):
+        channel = self.channels.get(group - base)
+        if channel is not None:
+            for a in channel.axes:
+                a.advance()
+        return channel
+
     def read(self, group, offset, length):
         if IG_NC_STATE < group <= IG_NC_STATE + 0xFF:
             axis = self.axis(group, IG_NC_STATE)
             if axis is None:
                 return ERR_GROUP, b""
+            for channel in self.channels.values():
+                if axis in channel.axes:
+                    channel.advance()
             if offset == 0:
                 return 0, axis.online()[:length]
             if offset == 1:
                 return 0, struct.pack("<I", axis.error)[:length]
             return ERR_OFFSET, b""
+        if IG_NCI_STATE < group <= IG_NCI_STATE + 0xFF:
+            channel = self.channel(group, IG_NCI_STATE)
+            if channel is None:
+                return ERR_GROUP, b""
+            return channel.read(offset, length)
         return ERR_GROUP, b""
 
     def write(self, group, offset, data):
+        if IG_NCI_FUNCTIONS < group <= IG_NCI_FUNCTIONS + 0xFF:
+            channel = self.channel(group, IG_NCI_FUNCTIONS)
+            if channel is None:
+                return ERR_GROUP
+            return channel.function(offset, data, self.files)
         for base, handler in ((IG_NC_FUNCTIONS, NcAxis.function),
                               (IG_NC_CYCLIC, NcAxis.cyclic)):
             if base < group <= base + 0xFF:
@@ -990,6 +1281,21 @@ def control(plc, line, loop, answer):
             else:
                 axis.fault(int(args[1], 0))
             return "ok"
+        if cmd == "nc_channel":
+            axes = [plc.nc.axes[int(a)] for a in args[1:]]
+            if not 2 <= len(axes) <= 3:
+                return ("error", "bad_arguments")
+            plc.nc.channels[int(args[0])] = NciChannel(int(args[0]), axes)
+            return "ok"
+        if cmd in ("nc_channel_fail", "nc_channel_get"):
+            channel = plc.nc.channels[int(args[0])]
+            if cmd == "nc_channel_get":
+                return ("ok", channel.describe())
+            channel.fail_next = int(args[1], 0)
+            return "ok"
+        if cmd == "file_get":
+            body = plc.nc.files.files.get(unquote(args[0]))
+            return ("error", "no_file") if body is None else ("ok", body)
         if cmd == "quit":
             loop.stop()
             return "ok"
