@@ -214,7 +214,7 @@ command(Key, Value, Mode) ->
             case cell_hal_type:check(T, Value) of
                 {ok, V} ->
                     %% A forced output keeps the value for its release.
-                    case cell_hal_force:held(Key, V) orelse up_worker(C) of
+                    case cell_hal_force:held(Key, V) orelse cell_hal_store:up_worker(C) of
                         true ->
                             ok;
                         {ok, Pid} ->
@@ -352,7 +352,7 @@ info(Conn) ->
 %% `{Unit, Request}' for another unit). Only while the connection is up.
 -spec request(atom(), term(), pos_integer()) -> {ok, term()} | error(term()).
 request(Conn, Request, Timeout) when is_integer(Timeout), Timeout > 0 ->
-    case up_worker(Conn) of
+    case cell_hal_store:up_worker(Conn) of
         {ok, Pid} ->
             served(fun() -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000) end,
                    timeout);
@@ -402,10 +402,4 @@ served(Call, Lapse) ->
             {error, Lapse};
         exit:{_Gone, {Behaviour, call, _}} when ?HAL_PROCESS(Behaviour) ->
             {error, disconnected}
-    end.
-
-up_worker(Conn) ->
-    case cell_hal_store:conn(Conn) of
-        {ok, #hal_conn{status = up, pid = Pid}} when is_pid(Pid) -> {ok, Pid};
-        _ -> error
     end.

@@ -22,7 +22,7 @@
 
 -export([create_tables/0]).
 -export([conn/1, conns/0, group/1, groups/0, groups_of/1, point/1, points_of_conn/1,
-         points_of_group/1, value/1, is_up/1, as_seen/1, read/1]).
+         points_of_group/1, value/1, is_up/1, as_seen/1, up_worker/1, read/1]).
 -export([put_conn/1, delete_conn/1, put_group/2, delete_group/1]).
 -export([set_worker/3, mark/3, announce/2, put_value/2, notify/2, fire_watches/2,
          set_fault/2, faults_of_conn/1]).
@@ -153,6 +153,20 @@ as_seen(#hal_conn{status = up, pid = Pid} = C) ->
     end;
 as_seen(#hal_conn{} = C) ->
     C.
+
+%% @doc The worker of a connection that is up (see {@link is_up/1}), to hand it a
+%% write or a request.
+-spec up_worker(atom()) -> {ok, pid()} | error.
+up_worker(Conn) ->
+    case ets:lookup(?CONNS, Conn) of
+        [C] ->
+            case as_seen(C) of
+                #hal_conn{status = up, pid = Pid} when is_pid(Pid) -> {ok, Pid};
+                #hal_conn{} -> error
+            end;
+        [] ->
+            error
+    end.
 
 %% @doc A point's value as a task may see it: an input only while its connection is
 %% up (a stale input is never presented as fresh; see {@link is_up/1}), an output as last commanded or read
@@ -499,12 +513,16 @@ as_seen_test_() ->
               ?assertEqual(Down, as_seen(Down)),
               ?assertEqual(Down#hal_conn{pid = Dead}, as_seen(Down#hal_conn{pid = Dead})),
               ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c)),
               ok = put_conn(Up),
               ?assert(is_up(c)),
+              ?assertEqual({ok, self()}, up_worker(c)),
               ok = put_conn(Up#hal_conn{pid = Dead}),
               ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c)),
               ok = put_conn(Down),
-              ?assertNot(is_up(c))
+              ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c))
       end).
 
 samples_test_() ->
