@@ -14,9 +14,10 @@
 %% '''
 %%
 %% Reads come straight from a table, without a process hop: an input only while its
-%% connection is up, so a stale input is never presented as fresh. Writes are checked
-%% at once and queued to the connection's worker in order; `write/3' never waits for
-%% the device. Waiting is a subscription, never polling.
+%% connection is up, so a stale input is never presented as fresh. A connection whose
+%% worker is gone (killed, not started again yet) is down, whatever its worker last
+%% marked. Writes are checked at once and queued to the connection's worker in order;
+%% `write/3' never waits for the device. Waiting is a subscription, never polling.
 %%
 %% Messages:
 %% <ul>
@@ -29,7 +30,7 @@
 %%   Why}}'), and `{cell_hal_fault, {Group, Point}, cleared}' when it is usable again
 %%   (a read gives its value);</li>
 %% <li>`{cell_hal_conn, ConnId, up | down}' when a connection goes up (after its first
-%%   complete read) or down.</li>
+%%   complete read) or down (for a worker killed, when its successor starts).</li>
 %% </ul>
 %% Subscriptions and watches end when their process exits.
 %%
@@ -213,7 +214,7 @@ command(Key, Value, Mode) ->
             case cell_hal_type:check(T, Value) of
                 {ok, V} ->
                     %% A forced output keeps the value for its release.
-                    case cell_hal_force:held(Key, V) orelse up_worker(C) of
+                    case cell_hal_force:held(Key, V) orelse cell_hal_store:up_worker(C) of
                         true ->
                             ok;
                         {ok, Pid} ->
@@ -314,21 +315,25 @@ notify_back() ->
         end,
     Ref.
 
-%% @doc Whether a connection is up (its inputs are fresh).
+%% @doc Whether a connection is up (its inputs are fresh). A connection whose worker
+%% is gone (killed, not started again yet) is down.
 -spec status(atom()) -> up | down | error(unknown_connection).
 status(Conn) ->
     case cell_hal_store:conn(Conn) of
-        {ok, #hal_conn{status = Status}} -> Status;
+        {ok, C} -> (cell_hal_store:as_seen(C))#hal_conn.status;
         error -> {error, unknown_connection}
     end.
 
 %% @doc A connection for the operator's panel: status, since when (system time, ms),
-%% why it is down in words, where it goes, the groups bound to it.
+%% why it is down in words, where it goes, the groups bound to it. A connection whose
+%% worker is gone is down; its `since' is then when it was last marked up (the moment
+%% the worker died is not recorded).
 -spec info(atom()) -> {ok, conn_info()} | error(unknown_connection).
 info(Conn) ->
     case cell_hal_store:conn(Conn) of
-        {ok, #hal_conn{status = Status, driver = Driver, endpoint = Ep, since = Since,
-                       reason = Why}} ->
+        {ok, C} ->
+            #hal_conn{status = Status, driver = Driver, endpoint = Ep, since = Since,
+                      reason = Why} = cell_hal_store:as_seen(C),
             Reason = case Status of
                          up -> <<>>;
                          down -> iolist_to_binary(cell_hal_worker:reason_text(Driver, Why))
@@ -347,7 +352,7 @@ info(Conn) ->
 %% `{Unit, Request}' for another unit). Only while the connection is up.
 -spec request(atom(), term(), pos_integer()) -> {ok, term()} | error(term()).
 request(Conn, Request, Timeout) when is_integer(Timeout), Timeout > 0 ->
-    case up_worker(Conn) of
+    case cell_hal_store:up_worker(Conn) of
         {ok, Pid} ->
             served(fun() -> cell_hal_worker:request(Pid, Request, Timeout, Timeout + 1000) end,
                    timeout);
@@ -397,10 +402,4 @@ served(Call, Lapse) ->
             {error, Lapse};
         exit:{_Gone, {Behaviour, call, _}} when ?HAL_PROCESS(Behaviour) ->
             {error, disconnected}
-    end.
-
-up_worker(Conn) ->
-    case cell_hal_store:conn(Conn) of
-        {ok, #hal_conn{status = up, pid = Pid}} when is_pid(Pid) -> {ok, Pid};
-        _ -> error
     end.

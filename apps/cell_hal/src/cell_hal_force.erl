@@ -210,8 +210,8 @@ input_value(Key) ->
     end.
 
 write(Conn, Key, V) ->
-    case cell_hal_store:conn(Conn) of
-        {ok, #hal_conn{status = up, pid = Pid}} when is_pid(Pid) ->
+    case cell_hal_store:up_worker(Conn) of
+        {ok, Pid} ->
             try cell_hal_worker:write(Pid, Key, V, {sync, ?WRITE_TIMEOUT})
             catch
                 exit:{timeout, _} -> {error, timeout};

@@ -22,7 +22,7 @@
 
 -export([create_tables/0]).
 -export([conn/1, conns/0, group/1, groups/0, groups_of/1, point/1, points_of_conn/1,
-         points_of_group/1, value/1, is_up/1, read/1]).
+         points_of_group/1, value/1, is_up/1, as_seen/1, up_worker/1, read/1]).
 -export([put_conn/1, delete_conn/1, put_group/2, delete_group/1]).
 -export([set_worker/3, mark/3, announce/2, put_value/2, notify/2, fire_watches/2,
          set_fault/2, faults_of_conn/1]).
@@ -127,18 +127,49 @@ value(Key) ->
         [] -> error
     end.
 
-%% @doc Whether a connection's inputs are fresh.
+%% @doc Whether a connection's inputs are fresh: it is marked up and the worker that
+%% marked it so still runs. A worker killed leaves its connection marked up (it cannot
+%% say otherwise); until its successor starts and marks it down the connection is down
+%% all the same, so that nothing the dead worker read is presented as fresh. See
+%% {@link as_seen/1}.
 -spec is_up(atom()) -> boolean().
 is_up(Conn) ->
-    try ets:lookup_element(?CONNS, Conn, #hal_conn.status) of
-        up -> true;
-        down -> false
-    catch
-        error:badarg -> false
+    case ets:lookup(?CONNS, Conn) of
+        [C] -> (as_seen(C))#hal_conn.status =:= up;
+        [] -> false
+    end.
+
+%% @doc A connection's row as readers must see it: one marked up whose worker is gone
+%% (killed; its successor not started yet) is down, for `worker_gone'. Its worker's
+%% process is the one in the row: a worker marks its connection down before it
+%% records itself there, so a row marked up names the worker that marked it. Asking
+%% whether a local process is alive takes a fraction of a microsecond, which every read
+%% of an input can afford.
+-spec as_seen(#hal_conn{}) -> #hal_conn{}.
+as_seen(#hal_conn{status = up, pid = Pid} = C) ->
+    case is_pid(Pid) andalso is_process_alive(Pid) of
+        true -> C;
+        false -> C#hal_conn{status = down, reason = worker_gone}
+    end;
+as_seen(#hal_conn{} = C) ->
+    C.
+
+%% @doc The worker of a connection that is up (see {@link is_up/1}), to hand it a
+%% write or a request.
+-spec up_worker(atom()) -> {ok, pid()} | error.
+up_worker(Conn) ->
+    case ets:lookup(?CONNS, Conn) of
+        [C] ->
+            case as_seen(C) of
+                #hal_conn{status = up, pid = Pid} when is_pid(Pid) -> {ok, Pid};
+                #hal_conn{} -> error
+            end;
+        [] ->
+            error
     end.
 
 %% @doc A point's value as a task may see it: an input only while its connection is
-%% up (a stale input is never presented as fresh), an output as last commanded or read
+%% up (a stale input is never presented as fresh; see {@link is_up/1}), an output as last commanded or read
 %% back; neither while the driver reports it unusable.
 -spec read(key()) -> {ok, cell_hal_type:value()}
                      | {error, disconnected | unknown_point | not_yet_read
@@ -198,7 +229,8 @@ delete_group(Id) ->
 %% Worker side
 %%====================================================================
 
-%% @doc Records the worker process of a connection and where it connects to.
+%% @doc Records the worker process of a connection and where it connects to. The
+%% connection must be marked down first (see {@link as_seen/1}).
 -spec set_worker(atom(), pid(), binary()) -> ok.
 set_worker(Conn, Pid, Endpoint) ->
     true = ets:update_element(?CONNS, Conn, [{#hal_conn.pid, Pid},
@@ -464,6 +496,34 @@ with_tables(Tests) ->
              receive {'DOWN', Ref, process, Owner, _} -> ok end
      end,
      Tests}.
+
+%% Up only while the worker that marked it so runs; a row marked down stays down.
+as_seen_test_() ->
+    with_tables(
+      fun() ->
+              Dead = spawn(fun() -> ok end),
+              Ref = monitor(process, Dead),
+              receive {'DOWN', Ref, process, Dead, _} -> ok end,
+              Up = #hal_conn{id = c, driver = cell_hal_sim, opts = #{}, worker_opts = #{},
+                             status = up, pid = self(), since = 1},
+              ?assertEqual(Up, as_seen(Up)),
+              [?assertEqual(Gone#hal_conn{status = down, reason = worker_gone}, as_seen(Gone))
+               || Gone <- [Up#hal_conn{pid = Dead}, Up#hal_conn{pid = undefined}]],
+              Down = Up#hal_conn{status = down, reason = stopped},
+              ?assertEqual(Down, as_seen(Down)),
+              ?assertEqual(Down#hal_conn{pid = Dead}, as_seen(Down#hal_conn{pid = Dead})),
+              ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c)),
+              ok = put_conn(Up),
+              ?assert(is_up(c)),
+              ?assertEqual({ok, self()}, up_worker(c)),
+              ok = put_conn(Up#hal_conn{pid = Dead}),
+              ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c)),
+              ok = put_conn(Down),
+              ?assertNot(is_up(c)),
+              ?assertEqual(error, up_worker(c))
+      end).
 
 samples_test_() ->
     K = {g, p},

@@ -23,7 +23,9 @@
 %% wait goes back to `reconnect_ms' only then, so a device that accepts connections
 %% and then fails is retried ever more slowly. A stale input is never presented as
 %% fresh: values are stored before the connection is marked up, and it is marked down
-%% before anyone is told.
+%% before anyone is told. A worker killed cannot mark it down: readers take a
+%% connection whose worker is gone for down ({@link cell_hal_store:is_up/1}) until its
+%% successor marks it so and tells the subscribers.
 %%
 %% A point the driver reports unusable (a symbol the PLC lacks, or of another type; an
 %% address a Modbus PLC refuses) reads as `{error, {unavailable, Why}}' while the rest
@@ -123,9 +125,11 @@ init(Id) ->
         cell_hal_store:conn(Id),
     DS = Driver:init(Id, Opts),
     Endpoint = iolist_to_binary(Driver:endpoint(DS)),
-    ok = cell_hal_store:set_worker(Id, self(), Endpoint),
-    %% A worker that crashed while up: nothing it read is fresh any more.
+    %% A worker that crashed while up: nothing it read is fresh any more. Marked down
+    %% before this worker records itself, so that the row never names a live worker
+    %% with its predecessor's `up' (cell_hal_store:as_seen/1).
     ok = cell_hal_store:mark(Id, down, restarted),
+    ok = cell_hal_store:set_worker(Id, self(), Endpoint),
     _ = Old =:= up andalso cell_hal_store:announce(Id, down),
     D = #data{id = Id, source = <<"hal/", (atom_to_binary(Id))/binary>>,
               driver = Driver, ds = DS, endpoint = Endpoint,
@@ -640,6 +644,8 @@ reason_text(_, starting) ->
     "not connected yet";
 reason_text(_, restarted) ->
     "reconnecting after a restart of the connection's worker";
+reason_text(_, worker_gone) ->
+    "the connection's worker is gone; it is being started again";
 reason_text(_, stopped) ->
     "the connection was stopped";
 reason_text(Driver, Why) ->

@@ -19,7 +19,8 @@
          group_added_during_the_first_read/1, remove_group_and_connection/1,
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
-         io_while_a_worker_restarts/1, logs_speak_to_operators/1,
+         io_while_a_worker_restarts/1, killed_worker_reads_down_until_replaced/1,
+         logs_speak_to_operators/1,
          backoff_grows_then_resets/1, connection_info/1,
          device_killed_comes_back_with_its_memory/1, told_when_the_server_is_back/1, initial_image/1,
          dropped_connection_takes_nothing/1]).
@@ -37,7 +38,8 @@ all() ->
      groups_added_back_to_back, group_added_during_the_first_read,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
-     io_while_the_server_restarts, io_while_a_worker_restarts, logs_speak_to_operators,
+     io_while_the_server_restarts, io_while_a_worker_restarts,
+     killed_worker_reads_down_until_replaced, logs_speak_to_operators,
      backoff_grows_then_resets, connection_info, device_killed_comes_back_with_its_memory,
      told_when_the_server_is_back, initial_image, dropped_connection_takes_nothing].
 
@@ -720,11 +722,11 @@ told_when_the_server_is_back(_Config) ->
     ?assertEqual([io], cell_hal:groups()),
     ?assertEqual(ok, cell_hal:subscribe(io, int16_in)).
 
-%% A worker killed, its supervisor held so that it has not come back: its connection
-%% still reads as up, and a write finds no worker: `disconnected', as a lost
-%% connection does, never an exit; a raw request the same. A worker that does not take
-%% a write in time (suspended) is the same to `write/3'; `write_sync/4' says
-%% `timeout', the device's confirmation being what did not come.
+%% A worker killed, its supervisor held so that it has not come back: a write finds no
+%% worker: `disconnected', as a lost connection does, never an exit; a raw request the
+%% same. A worker that does not take a write in time (suspended) is the same to
+%% `write/3'; `write_sync/4' says `timeout', the device's confirmation being what did
+%% not come.
 io_while_a_worker_restarts(_Config) ->
     ok = sim(s25),
     Worker = worker(s25),
@@ -740,6 +742,39 @@ io_while_a_worker_restarts(_Config) ->
     ok = sys:resume(cell_hal_conn_sup),
     ok = await_restart(s25),
     ok = cell_hal:write_sync(io, int16_out, 4, ?WAIT).
+
+%% A worker killed, its supervisor held so that no successor has started: nothing it
+%% read is fresh any more though its connection's row still says up. The connection
+%% reads as down (to `status/1', `info/1' and a new connection subscriber), its inputs
+%% as `disconnected' and a watch placed meanwhile waits; an output reads what was last
+%% commanded, as while down. Once the successor is up, every input reads fresh again
+%% and the watch fires on the first read.
+killed_worker_reads_down_until_replaced(_Config) ->
+    ok = sim(s32),
+    ok = cell_hal_sim:set({io, int16_in}, 8),
+    8 = await_value(int16_in, 8),
+    ok = cell_hal:write_sync(io, int16_out, 5, ?WAIT),
+    Worker = worker(s32),
+    ok = sys:suspend(cell_hal_conn_sup),
+    kill(Worker),
+    ?assertEqual(down, cell_hal:status(s32)),
+    ?assertMatch({ok, #{status := down,
+                        reason := <<"the connection's worker is gone; it is being started again">>}},
+                 cell_hal:info(s32)),
+    ?assertEqual({ok, down}, cell_hal:subscribe_connection(s32)),
+    ?assertEqual({error, disconnected}, cell_hal:read(io, int16_in)),
+    ?assertEqual({error, disconnected}, cell_hal_store:read({io, int16_in})),
+    ?assertEqual({error, disconnected}, cell_hal:samples(io, int16_in, 0)),
+    ?assertEqual({ok, 5}, cell_hal:read(io, int16_out)),
+    {ok, Ref} = cell_hal:watch(io, int16_in, {eq, 8}),
+    %% A watch that holds is fired while the server places it, before it answers.
+    receive {cell_hal_watch, Ref, _} = Fired -> ct:fail({stale_fire, Fired}) after 0 -> ok end,
+    ok = sys:resume(cell_hal_conn_sup),
+    ok = await_restart(s32),
+    receive {cell_hal_watch, Ref, 8} -> ok after ?WAIT -> ct:fail(watch_lost) end,
+    ?assertEqual(up, cell_hal:status(s32)),
+    ?assertEqual({ok, 8}, cell_hal:read(io, int16_in)),
+    ?assertNotEqual(Worker, worker(s32)).
 
 worker(Conn) ->
     [Worker] = [P || {Id, P, _, _} <- supervisor:which_children(cell_hal_conn_sup), Id =:= Conn],

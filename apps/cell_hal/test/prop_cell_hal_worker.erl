@@ -21,8 +21,9 @@
 %% <li>a watch fires exactly once, as soon as its condition holds while up (at once if
 %%   it holds when placed), never on an input while down, and is checked again after a
 %%   reconnect.</li>
-%% <li>the worker killed (its supervisor starts it again): a write in the moment it is
-%%   gone is refused with `disconnected' and never reaches the PLC later; if it was up,
+%% <li>the worker killed (its supervisor starts it again): in the moment it is gone the
+%%   connection reads as down and its inputs as `disconnected', and a write is refused
+%%   with `disconnected' and never reaches the PLC later; if it was up,
 %%   connection subscribers are told of the loss and then of the connection again, the
 %%   outputs read what the PLC holds and every watch is checked again; while the cable
 %%   is out it stays down, its backoff not known to the model until the cable is back.
@@ -245,10 +246,11 @@ check(_, M1, {call, _, cable, _}, Res) ->
     Res =:= ok andalso outputs_read(M1);
 check(_, M1, {call, _, drop, []}, Res) ->
     Res =:= ok andalso outputs_read(M1);
-check(M, M1, {call, _, kill, [P, _, _]}, {Write, Told, Plc, Reads}) ->
+check(M, M1, {call, _, kill, [P, _, _]}, {Write, Gone, Told, Plc, Reads}) ->
     %% The write in the moment the worker was gone: refused, and not replayed once up
     %% (the PLC holds what the model says, read after the reconnect).
     Write =:= {error, disconnected}
+        andalso Gone =:= gone()
         andalso Plc =:= {ok, maps:get(P, M#m.plc)}
         andalso Told =:= case M#m.cable of
                              true -> [down, up];
@@ -290,10 +292,10 @@ allowed({call, _, write, _}, {{error, disconnected}, _, _, #{}}) -> true;
 allowed({call, _, read, _}, {ok, _}) -> true;
 allowed({call, _, read, _}, {error, disconnected}) -> true;
 allowed({call, _, watch, _}, Res) -> is_reference(Res);
-allowed({call, _, kill, _}, #{write := Write, down := Why}) ->
+allowed({call, _, kill, _}, #{write := Write, gone := Gone, down := Why}) ->
     %% The worker it killed was running (the kills take turns), and no other ran
-    %% while it wrote.
-    Write =:= {error, disconnected} andalso Why =:= killed;
+    %% while it wrote and read.
+    Write =:= {error, disconnected} andalso Gone =:= gone() andalso Why =:= killed;
 allowed(_, Res) -> Res =:= ok orelse element(1, Res) =:= ok.
 
 %% -------------------------------------------------------------------------------------
@@ -361,29 +363,35 @@ drop() ->
     end.
 
 %% Kills the worker and at once writes an output: a write the worker never confirmed
-%% (it is gone, its successor not started). Then, in a sequential run with the cable in
+%% (it is gone, its successor not started); then asks the connection's status and
+%% reads the inputs, in the same moment. Then, in a sequential run with the cable in
 %% (as the model knows it), the connection's news until it is up again, what the PLC
 %% holds of that output and what every point reads; in a parallel run how the worker
 %% ended, the value written and the marks on the run's record the kill came between.
 kill(P, V, CableIn) ->
     V1 = resolve(V),
-    {Killed, Why, Write} = kill_and_write(P, V1),
+    {Killed, Why, Write, Gone} = kill_and_write(P, V1),
     case mode() of
         sequential when CableIn ->
             Told = told_until_up([]),
             forget_logs(),
             Reads = [{Q, settled_read(Q, element(2, cell_hal_sim:get({io, Q})))}
                      || Q <- ?INPUTS] ++ [{Q, cell_hal:read(io, Q)} || Q <- ?OUTPUTS],
-            {Write, Told, cell_hal_sim:get({io, P}), Reads};
+            {Write, Gone, Told, cell_hal_sim:get({io, P}), Reads};
         sequential ->
-            {Write, [], cell_hal_sim:get({io, P}), []};
+            {Write, Gone, [], cell_hal_sim:get({io, P}), []};
         parallel ->
-            #{write => Write, down => Why, value => V1, killed => Killed}
+            #{write => Write, gone => Gone, down => Why, value => V1, killed => Killed}
     end.
 
+%% What the connection says while no worker runs, whatever the cable: down, and no
+%% input read.
+gone() ->
+    {down, [{error, disconnected} || _ <- ?INPUTS]}.
+
 %% The worker's supervisor is held back (suspended, it leaves the worker's exit in its
-%% mailbox) from before the worker is looked up until after the write, so the write
-%% surely comes while no worker runs. The kills of a parallel run take turns: one that
+%% mailbox) from before the worker is looked up until after the write and the reads,
+%% so they surely come while no worker runs. The kills of a parallel run take turns: one that
 %% resumed the supervisor while another held it would let a successor start under the
 %% other's write, and one could look up a worker the other had just killed.
 kill_and_write(P, V) ->
@@ -399,9 +407,10 @@ kill_and_write(P, V) ->
     Why = receive {'DOWN', Ref, process, Old, W} -> W end,
     Killed = {Before, tick()},
     Write = cell_hal:write_sync(io, P, V, ?WAIT),
+    Gone = {cell_hal:status(conn()), [cell_hal:read(io, Q) || Q <- ?INPUTS]},
     ok = sys:resume(Sup),
     Lock ! {unlock, self()},
-    {Killed, Why, Write}.
+    {Killed, Why, Write, Gone}.
 
 %% One process at a time holds it, until it unlocks or ends.
 lock() ->
