@@ -169,8 +169,8 @@ up_worker(Conn) ->
     end.
 
 %% @doc A point's value as a task may see it: an input only while its connection is
-%% up (a stale input is never presented as fresh; see {@link is_up/1}), an output as last commanded or read
-%% back; neither while the driver reports it unusable.
+%% up (a stale input is never presented as fresh; see {@link is_up/1}), an output as
+%% last commanded or read back; neither while the driver reports it unusable.
 -spec read(key()) -> {ok, cell_hal_type:value()}
                      | {error, disconnected | unknown_point | not_yet_read
                                | {unavailable, binary()}}.
