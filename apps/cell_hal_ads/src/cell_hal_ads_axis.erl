@@ -68,50 +68,16 @@
             %% Who is told of each job's end: {Pid, Ref} by job id.
             owners = #{} :: #{pos_integer() => {pid(), reference()}}}).
 
--define(CLIENT_KEYS, [host, target_net_id, port, source_net_id, source_port]).
-
 %% @private
 -spec check_opts(map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 check_opts(Opts) ->
-    Known = #{host => {undefined, fun(H) -> is_list(H) orelse is_binary(H)
-                                                orelse is_tuple(H) end},
-              target_net_id => {undefined, fun(_) -> true end},
-              port => {48898, fun port/1},
-              source_net_id => {auto, fun(_) -> true end},
-              source_port => {32905, fun port/1},
-              axis => {undefined, fun(A) -> is_integer(A) andalso A >= 1 andalso A =< 255 end},
+    cell_hal_ads_nc_conn:check_opts(
+      Opts, #{axis => {undefined, fun(A) -> is_integer(A) andalso A >= 1 andalso A =< 255 end},
               limits => {none, fun limits/1},
               jerk => {100000, fun positive/1},
-              in_position => {0.01, fun(V) -> is_number(V) andalso V >= 0 end},
-              timeout_ms => {1000, fun pos_int/1},
-              poll_ms => {20, fun pos_int/1},
-              idle_poll_ms => {200, fun pos_int/1},
-              reconnect_ms => {1000, fun pos_int/1},
-              max_reconnect_ms => {10000, fun pos_int/1}},
-    case cell_hal_hw:check_opts(Opts, Known) of
-        {ok, Full} ->
-            case [K || K <- [host, target_net_id, axis], maps:get(K, Full) =:= undefined] of
-                [] -> client_opts_ok(Full);
-                [K | _] -> {error, {bad_option, K}}
-            end;
-        {error, _} = Error ->
-            Error
-    end.
+              in_position => {0.01, fun(V) -> is_number(V) andalso V >= 0 end}},
+      [axis]).
 
-%% The client's own check of what it is given.
-client_opts_ok(Full) ->
-    case cell_hal_ads_client:check_opts(client_opts(Full)) of
-        {ok, _} -> {ok, Full};
-        {error, _} = Error -> Error
-    end.
-
-client_opts(#{timeout_ms := T} = Opts) ->
-    (maps:with(?CLIENT_KEYS, Opts))#{target_port => 500, request_timeout => T,
-                                     connect_timeout => max(T, 1000),
-                                     symbol_version => ignore}.
-
-port(P) -> is_integer(P) andalso P >= 1 andalso P =< 65535.
-pos_int(V) -> is_integer(V) andalso V > 0.
 positive(V) -> is_number(V) andalso V > 0.
 limits(none) -> true;
 limits({Min, Max}) -> is_number(Min) andalso is_number(Max) andalso Min < Max;
@@ -203,14 +169,7 @@ shown(S) ->
     Status.
 
 info({?MODULE, connect}, #s{opts = Opts} = S) ->
-    {ok, Client} = cell_hal_ads_client:start_link(client_opts(Opts)),
-    Mon = erlang:monitor(process, Client),
-    try
-        ok = cell_hal_ads_client:subscribe_status(Client)
-    catch
-        %% It could not connect and ended already: its monitor says so.
-        exit:{_, {gen_statem, call, _}} -> ok
-    end,
+    {Client, Mon} = cell_hal_ads_nc_conn:connect(Opts, 500),
     S#s{client = Client, monitor = Mon};
 info({cell_hal_ads, Client, up}, #s{client = Client} = S) ->
     came_up(S);
@@ -285,10 +244,7 @@ restart(Why, S) ->
 stop_client(#s{client = undefined} = S) ->
     S;
 stop_client(#s{client = C, monitor = Mon} = S) ->
-    erlang:demonitor(Mon, [flush]),
-    %% Its parent's exit signal ends it, alive or already ending, without waiting.
-    unlink(C),
-    exit(C, shutdown),
+    ok = cell_hal_ads_nc_conn:disconnect(C, Mon),
     S#s{client = undefined, monitor = undefined}.
 
 %%--------------------------------------------------------------------
@@ -344,20 +300,15 @@ read_online(#s{client = C, ctx = Ctx, opts = #{timeout_ms := T}}) ->
 decoded({ok, Bin}) -> cell_hal_ads_nc:decode_online(Bin);
 decoded({error, _} = Error) -> Error.
 
-poll_soon(S) ->
-    arm(0, cancel_poll(S)).
+poll_soon(#s{poll_timer = T, opts = Opts} = S) ->
+    S#s{poll_timer = cell_hal_ads_nc_conn:rearm_poll(T, now, Opts)}.
 
-schedule(#s{watch = #{job := Job}, opts = #{poll_ms := Fast, idle_poll_ms := Slow}} = S) ->
-    arm(case Job of undefined -> Slow; _ -> Fast end, cancel_poll(S)).
+schedule(#s{watch = #{job := Job}, poll_timer = T, opts = Opts} = S) ->
+    When = case Job of undefined -> idle; _ -> running end,
+    S#s{poll_timer = cell_hal_ads_nc_conn:rearm_poll(T, When, Opts)}.
 
-arm(Ms, S) ->
-    S#s{poll_timer = erlang:start_timer(Ms, self(), poll)}.
-
-cancel_poll(#s{poll_timer = undefined} = S) ->
-    S;
 cancel_poll(#s{poll_timer = T} = S) ->
-    _ = erlang:cancel_timer(T),
-    S#s{poll_timer = undefined}.
+    S#s{poll_timer = cell_hal_ads_nc_conn:cancel_poll(T)}.
 
 %%--------------------------------------------------------------------
 

@@ -44,7 +44,6 @@
 -export([check_opts/1, init/2, follow/4, halt/3, set_override/2, status/1, handle_call/2,
          handle_info/2]).
 
--define(CLIENT_KEYS, [host, target_net_id, port, source_net_id, source_port]).
 -define(NC_PORT, 500).
 -define(SYSTEM_SERVICE_PORT, 10000).
 -define(SAMPLES, 2000).
@@ -72,45 +71,11 @@
 %% @private
 -spec check_opts(map()) -> {ok, map()} | {error, {bad_option, atom()}}.
 check_opts(Opts) ->
-    Known = #{host => {undefined, fun(H) -> is_list(H) orelse is_binary(H)
-                                                orelse is_tuple(H) end},
-              target_net_id => {undefined, fun(_) -> true end},
-              port => {48898, fun port/1},
-              source_net_id => {auto, fun(_) -> true end},
-              source_port => {32905, fun port/1},
-              channel => {undefined, fun id/1},
-              axes => {undefined, fun axes/1},
-              program => {undefined, fun program/1},
-              timeout_ms => {1000, fun pos_int/1},
-              poll_ms => {20, fun pos_int/1},
-              idle_poll_ms => {200, fun pos_int/1},
-              reconnect_ms => {1000, fun pos_int/1},
-              max_reconnect_ms => {10000, fun pos_int/1}},
-    case cell_hal_hw:check_opts(Opts, Known) of
-        {ok, Full} ->
-            case [K || K <- [host, target_net_id, channel, axes, program],
-                       maps:get(K, Full) =:= undefined] of
-                [] -> client_opts_ok(Full);
-                [K | _] -> {error, {bad_option, K}}
-            end;
-        {error, _} = Error ->
-            Error
-    end.
+    cell_hal_ads_nc_conn:check_opts(Opts, #{channel => {undefined, fun id/1},
+                                            axes => {undefined, fun axes/1},
+                                            program => {undefined, fun program/1}},
+                                    [channel, axes, program]).
 
-client_opts_ok(Full) ->
-    case cell_hal_ads_client:check_opts(client_opts(nc, Full)) of
-        {ok, _} -> {ok, Full};
-        {error, _} = Error -> Error
-    end.
-
-client_opts(Role, #{timeout_ms := T} = Opts) ->
-    Port = case Role of nc -> ?NC_PORT; files -> ?SYSTEM_SERVICE_PORT end,
-    (maps:with(?CLIENT_KEYS, Opts))#{target_port => Port, request_timeout => T,
-                                     connect_timeout => max(T, 1000),
-                                     symbol_version => ignore}.
-
-port(P) -> is_integer(P) andalso P >= 1 andalso P =< 65535.
-pos_int(V) -> is_integer(V) andalso V > 0.
 id(V) -> is_integer(V) andalso V >= 1 andalso V =< 255.
 axes(Ids) when is_list(Ids), length(Ids) >= 2, length(Ids) =< 3 ->
     lists:all(fun id/1, Ids) andalso length(lists:usort(Ids)) =:= length(Ids);
@@ -295,14 +260,8 @@ info(Msg, _S) ->
     error({unexpected_message, Msg}).
 
 connect(Role, #s{opts = Opts, clients = Clients} = S) ->
-    {ok, Client} = cell_hal_ads_client:start_link(client_opts(Role, Opts)),
-    Mon = erlang:monitor(process, Client),
-    try
-        ok = cell_hal_ads_client:subscribe_status(Client)
-    catch
-        %% It could not connect and ended already: its monitor says so.
-        exit:{_, {gen_statem, call, _}} -> ok
-    end,
+    Port = case Role of nc -> ?NC_PORT; files -> ?SYSTEM_SERVICE_PORT end,
+    {Client, Mon} = cell_hal_ads_nc_conn:connect(Opts, Port),
     S#s{clients = Clients#{Role => {Client, Mon, false}}}.
 
 role(Client, #s{clients = Clients}) ->
@@ -341,12 +300,8 @@ lost(Reason, #s{id = Id, up = Up} = S) ->
          backoff = min(Backoff * 2, maps:get(max_reconnect_ms, S1#s.opts))}.
 
 stop_clients(#s{clients = Clients} = S) ->
-    maps:foreach(fun(_, {C, Mon, _}) ->
-                         erlang:demonitor(Mon, [flush]),
-                         %% Its parent's exit signal ends it without waiting.
-                         unlink(C),
-                         exit(C, shutdown)
-                 end, Clients),
+    maps:foreach(fun(_, {C, Mon, _}) -> ok = cell_hal_ads_nc_conn:disconnect(C, Mon) end,
+                 Clients),
     S#s{clients = #{}}.
 
 %%--------------------------------------------------------------------
@@ -429,22 +384,17 @@ samples(Path) ->
 dist2({X0, Y0, Z0}, {X1, Y1, Z1}) ->
     (X1 - X0) * (X1 - X0) + (Y1 - Y0) * (Y1 - Y0) + (Z1 - Z0) * (Z1 - Z0).
 
-poll_soon(S) ->
-    arm(0, cancel_poll(S)).
+poll_soon(#s{poll_timer = T, opts = Opts} = S) ->
+    S#s{poll_timer = cell_hal_ads_nc_conn:rearm_poll(T, now, Opts)}.
 
 schedule(#s{up = false} = S) ->
     S;
-schedule(#s{job = Job, opts = #{poll_ms := Fast, idle_poll_ms := Slow}} = S) ->
-    arm(case Job of undefined -> Slow; _ -> Fast end, cancel_poll(S)).
+schedule(#s{job = Job, poll_timer = T, opts = Opts} = S) ->
+    When = case Job of undefined -> idle; _ -> running end,
+    S#s{poll_timer = cell_hal_ads_nc_conn:rearm_poll(T, When, Opts)}.
 
-arm(Ms, S) ->
-    S#s{poll_timer = erlang:start_timer(Ms, self(), poll)}.
-
-cancel_poll(#s{poll_timer = undefined} = S) ->
-    S;
 cancel_poll(#s{poll_timer = T} = S) ->
-    _ = erlang:cancel_timer(T),
-    S#s{poll_timer = undefined}.
+    S#s{poll_timer = cell_hal_ads_nc_conn:cancel_poll(T)}.
 
 %%--------------------------------------------------------------------
 

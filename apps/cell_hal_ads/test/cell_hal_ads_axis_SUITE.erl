@@ -266,32 +266,14 @@ ready() ->
 home() ->
     done(cell_hal_axis:home(x, 0.0)).
 
-done({ok, Ref}) ->
-    await(Ref, done);
-done(Other) ->
-    ct:fail({refused, Other}).
+done(Result) ->
+    cell_hal_ads_nc_await:done(Result).
 
 await(Ref, What) ->
-    receive {Ref, Got} -> ?assertEqual(What, Got), ok
-    after ?WAIT -> ct:fail({no_end, What})
-    end.
+    cell_hal_ads_nc_await:await(Ref, What).
 
-%% Waits for the object's status: the present one, or the change to it.
 await_status(Id, Want) ->
-    flush_status(Id),
-    case cell_hal_hw:subscribe(Id) of
-        {ok, Want} ->
-            ok;
-        {ok, _} ->
-            receive {cell_hal_hw, Id, Want} -> ok
-            after ?WAIT -> ct:fail({status_not, Want})
-            end
-    end.
-
-flush_status(Id) ->
-    receive {cell_hal_hw, Id, _} -> flush_status(Id)
-    after 0 -> ok
-    end.
+    cell_hal_ads_nc_await:status(Id, Want).
 
 %% The axis as the fake's NC has it.
 nc(Config) ->

@@ -233,32 +233,14 @@ ready() ->
     [ok = done(cell_hal_axis:home(A, 0.0)) || A <- [x, y]],
     ok.
 
-done({ok, Ref}) ->
-    await(Ref, done);
-done(Other) ->
-    ct:fail({refused, Other}).
+done(Result) ->
+    cell_hal_ads_nc_await:done(Result).
 
 await(Ref, What) ->
-    receive {Ref, Got} -> ?assertEqual(What, Got), ok
-    after ?WAIT -> ct:fail({no_end, What})
-    end.
+    cell_hal_ads_nc_await:await(Ref, What).
 
-%% Waits for the object's status: the present one, or the change to it.
 await_status(Id, Want) ->
-    flush_status(Id),
-    case cell_hal_hw:subscribe(Id) of
-        {ok, Want} ->
-            ok;
-        {ok, _} ->
-            receive {cell_hal_hw, Id, Want} -> ok
-            after ?WAIT -> ct:fail({status_not, Id, Want})
-            end
-    end.
-
-flush_status(Id) ->
-    receive {cell_hal_hw, Id, _} -> flush_status(Id)
-    after 0 -> ok
-    end.
+    cell_hal_ads_nc_await:status(Id, Want).
 
 nc_axis(Config, Id) ->
     {ok, Axis} = cell_hal_ads_peer:cmd(?config(fake, Config), "nc_get " ++ integer_to_list(Id)),
