@@ -5,30 +5,45 @@
 %% in one step and waited for as a reply; an NC error is the operator's error naming
 %% the axis and the NC's code, and Retry resets the axis on the NC and the cycle goes
 %% on; the monitor connects the axes with the cell and applies the machine's speed
-%% override to them on the NC.
+%% override to them on the NC. With an NC I channel over the two axes (type `ads' of
+%% kind `channel'), the task's cycle cuts along a path the NC runs as its program, and
+%% an NC error on the path is the operator's error naming the channel and the code.
 -module(cell_hal_ads_axis_task_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([cycles_on_the_nc/1, nc_error_is_the_operators_error/1, override_on_the_nc/1]).
+-export([cycles_on_the_nc/1, nc_error_is_the_operators_error/1, override_on_the_nc/1,
+         cuts_on_the_nc_channel/1, channel_error_is_the_operators_error/1]).
 
 -define(WAIT, 20000).
 -define(NET, "127.0.0.1.1.1").
 
 all() ->
-    [cycles_on_the_nc, nc_error_is_the_operators_error, override_on_the_nc].
+    [cycles_on_the_nc, nc_error_is_the_operators_error, override_on_the_nc,
+     cuts_on_the_nc_channel, channel_error_is_the_operators_error].
+
+%% The cases whose cell has the NC I channel `xy' over the two axes.
+-define(CHANNEL_CASES, [cuts_on_the_nc_channel, channel_error_is_the_operators_error]).
+-define(PROGRAM, "C:\\TwinCAT\\Mc\\Nci\\robot.nc").
 
 init_per_testcase(Case, Config) ->
     Root = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     {Fake, Port} = start_fake(),
+    Channel = lists:member(Case, ?CHANNEL_CASES),
+    Conn = #{host => "127.0.0.1", port => Port, target_net_id => ?NET, reconnect_ms => 100,
+             max_reconnect_ms => 400},
+    Args = case Channel of
+               true -> #{axes => [x, y], channel => xy, path => cut(), notify => self()};
+               false -> #{axes => [x, y], far => 150.0, notify => self()}
+           end,
     Task = #{id => robot, module => cell_axis_task, zone => <<"robot">>, lane => <<"Test">>,
-             args => #{axes => [x, y], far => 150.0, notify => self()}},
+             args => Args},
     Hardware = [#{id => Id, kind => axis, type => ads,
-                  opts => #{host => "127.0.0.1", port => Port, target_net_id => ?NET,
-                            axis => N, limits => {-100.0, 1000.0}, reconnect_ms => 100,
-                            max_reconnect_ms => 400}}
-                || {Id, N} <- [{x, 1}, {y, 2}]],
+                  opts => Conn#{axis => N, limits => {-100.0, 1000.0}}}
+                || {Id, N} <- [{x, 1}, {y, 2}]]
+        ++ [#{id => xy, kind => channel, type => ads,
+              opts => Conn#{channel => 1, axes => [1, 2], program => ?PROGRAM}} || Channel],
     Spec = #{name => <<"ads axis suite">>, tasks => [Task],
              hal => #{connections => [], groups => [], hardware => Hardware},
              monitor => #{io => #{}, drives => []}},
@@ -41,7 +56,7 @@ init_per_testcase(Case, Config) ->
     %% operator, as it should: not this suite's subject).
     %% The monitor adds the hardware as its first event: answered after it.
     _ = sys:get_state(cell_monitor),
-    ok = await_up([x, y]),
+    ok = await_up([x, y] ++ [xy || Channel]),
     ok = cell_events:subscribe(),
     ok = cell_log:subscribe(),
     [{fake, Fake} | Config].
@@ -58,6 +73,7 @@ start_fake() ->
         {ok, Fake, {ready, Bound, _}} ->
             ok = cell_hal_ads_peer:cmd(Fake, "nc_axis 1 -100 1000 50"),
             ok = cell_hal_ads_peer:cmd(Fake, "nc_axis 2 -100 1000 50"),
+            ok = cell_hal_ads_peer:cmd(Fake, "nc_channel 1 1 2"),
             {Fake, Bound};
         {error, Reason} ->
             ct:fail("the fake PLC did not start: ~tp", [Reason])
@@ -98,7 +114,43 @@ override_on_the_nc(Config) ->
     ok = await_override(Config, 400000),
     ok = cell_axis_task:await_cycles(robot, 1, ?WAIT).
 
+%% Three cycles with the NC's channel: each a point-to-point move to the start and the
+%% cut along the path, which the NC ran as its program (three runs at least, no
+%% error): the path's arc among its blocks.
+cuts_on_the_nc_channel(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_axis_task:await_cycles(robot, 3, ?WAIT),
+    ?assertMatch(#{runs := Runs, error := 0, loaded := <<?PROGRAM>>} when Runs >= 3,
+                 nc_channel(Config)),
+    {ok, Program} = cell_hal_ads_peer:cmd(?config(fake, Config), "file_get " ++ ?PROGRAM),
+    ?assertNotEqual(nomatch, binary:match(Program, <<" G03 X60.0000 Y40.0000 I0.0000 "
+                                                     "J20.0000 F60000.0000\n">>)).
+
+%% A fault of the NC's channel halfway along the path: the task's error names the
+%% channel and the NC's code; Retry and the next cut runs (the channel reset first).
+channel_error_is_the_operators_error(Config) ->
+    ok = cell_controller:start(),
+    ok = cell_axis_task:await_cycles(robot, 1, ?WAIT),
+    ok = cell_hal_ads_peer:cmd(?config(fake, Config), "nc_channel_fail 1 0x4650"),
+    receive {axis_task, robot, fault, xy, 16#4650} -> ok
+    after ?WAIT -> ct:fail({no_fault, cell_hal_channel:status(xy)})
+    end,
+    #{id := Id, solutions := [retry], description := Text} =
+        cell_axis_task:await_error(?WAIT),
+    ?assertNotEqual(nomatch, binary:match(Text, <<"Axis xy stopped: NC error 16#4650">>)),
+    ?assertMatch(#{error := 16#4650}, nc_channel(Config)),
+    ok = cell_alarms:answer(Id, retry, <<"suite">>),
+    ok = cell_axis_task:await_cycles(robot, 2, ?WAIT),
+    ?assertMatch(#{error := 0}, nc_channel(Config)).
+
 %% -------------------------------------------------------------------------------------
+
+%% The cut: a line and a half circle back, from (0, 0) to (0, 40).
+cut() ->
+    {ok, Path} = cell_hal_path:new([{line, {0, 0}, {60, 0}},
+                                    {arc, {60, 20}, 20, -90, 90},
+                                    {line, {60, 40}, {0, 40}}]),
+    Path.
 
 %% Each axis object (the monitor adds them as the cell starts) up on the NC.
 await_up([]) ->
@@ -122,6 +174,11 @@ await_override(Config, Nc) ->
             after ?WAIT -> ct:fail({override_not_on_the_nc, Nc})
             end
     end.
+
+%% The fake NC's own view of its channel 1.
+nc_channel(Config) ->
+    {ok, Channel} = cell_hal_ads_peer:cmd(?config(fake, Config), "nc_channel_get 1"),
+    Channel.
 
 %% The fake NC's own view of axis N.
 nc(Config, N) ->
