@@ -32,7 +32,9 @@ reconcile(_Held, T) ->
 
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
-    %% Stop or emergency stop: whatever moves is halted.
+    %% Stop or emergency stop: whatever moves is halted, a path the channel follows
+    %% first (an NC's channel runs its program until told).
+    _ = [cell_hal_channel:halt(C, 20000) || C <- [arg(T, channel)], C =/= undefined],
     _ = [cell_hal_axis:halt(A, 20000) || A <- arg(T, axes)],
     T.
 

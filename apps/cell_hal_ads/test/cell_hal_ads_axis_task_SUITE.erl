@@ -14,17 +14,20 @@
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
 -export([cycles_on_the_nc/1, nc_error_is_the_operators_error/1, override_on_the_nc/1,
-         cuts_on_the_nc_channel/1, channel_error_is_the_operators_error/1]).
+         cuts_on_the_nc_channel/1, channel_error_is_the_operators_error/1,
+         estop_halts_the_nc_channel/1]).
 
 -define(WAIT, 20000).
 -define(NET, "127.0.0.1.1.1").
 
 all() ->
     [cycles_on_the_nc, nc_error_is_the_operators_error, override_on_the_nc,
-     cuts_on_the_nc_channel, channel_error_is_the_operators_error].
+     cuts_on_the_nc_channel, channel_error_is_the_operators_error,
+     estop_halts_the_nc_channel].
 
 %% The cases whose cell has the NC I channel `xy' over the two axes.
--define(CHANNEL_CASES, [cuts_on_the_nc_channel, channel_error_is_the_operators_error]).
+-define(CHANNEL_CASES, [cuts_on_the_nc_channel, channel_error_is_the_operators_error,
+                        estop_halts_the_nc_channel]).
 -define(PROGRAM, "C:\\TwinCAT\\Mc\\Nci\\robot.nc").
 
 init_per_testcase(Case, Config) ->
@@ -34,7 +37,7 @@ init_per_testcase(Case, Config) ->
     Conn = #{host => "127.0.0.1", port => Port, target_net_id => ?NET, reconnect_ms => 100,
              max_reconnect_ms => 400},
     Args = case Channel of
-               true -> #{axes => [x, y], channel => xy, path => cut(), notify => self()};
+               true -> #{axes => [x, y], channel => xy, path => cut(Case), notify => self()};
                false -> #{axes => [x, y], far => 150.0, notify => self()}
            end,
     Task = #{id => robot, module => cell_axis_task, zone => <<"robot">>, lane => <<"Test">>,
@@ -143,14 +146,42 @@ channel_error_is_the_operators_error(Config) ->
     ok = cell_axis_task:await_cycles(robot, 2, ?WAIT),
     ?assertMatch(#{error := 0}, nc_channel(Config)).
 
+%% The emergency stop while the NC runs the cut: once it is raised (every task has
+%% secured its outputs) the NC's channel is stopped and reset, and its axes stand.
+estop_halts_the_nc_channel(Config) ->
+    {ok, _} = cell_hal_hw:watch(xy),
+    ok = cell_controller:start(),
+    ok = await_following(),
+    ?assertMatch(#{state := 5}, nc_channel(Config)),
+    ok = cell_controller:estop(true),
+    ?assertMatch(#{state := 1, error := 0}, nc_channel(Config)),
+    [?assertMatch(#{velocity := 0.0}, nc(Config, N)) || N <- [1, 2]].
+
 %% -------------------------------------------------------------------------------------
 
-%% The cut: a line and a half circle back, from (0, 0) to (0, 40).
-cut() ->
+%% The cut: a line and a half circle back, from (0, 0) to (0, 40); for the emergency
+%% stop, a long one (back and forth over 900 mm, four seconds at the task's speed).
+cut(estop_halts_the_nc_channel) ->
+    {ok, Path} = cell_hal_path:new([{line, {0, 0}, {900, 0}}, {line, {900, 0}, {0, 0}},
+                                    {line, {0, 0}, {900, 0}}, {line, {900, 0}, {0, 0}}]),
+    Path;
+cut(_) ->
     {ok, Path} = cell_hal_path:new([{line, {0, 0}, {60, 0}},
                                     {arc, {60, 20}, 20, -90, 90},
                                     {line, {60, 40}, {0, 40}}]),
     Path.
+
+%% The channel following a path (told of each change of the channel object).
+await_following() ->
+    receive
+        {cell_hal_hw_changed, xy} ->
+            case cell_hal_channel:status(xy) of
+                {ok, #{state := following}} -> ok;
+                _ -> await_following()
+            end
+    after ?WAIT ->
+        ct:fail({not_following, cell_hal_channel:status(xy)})
+    end.
 
 %% Each axis object (the monitor adds them as the cell starts) up on the NC.
 await_up([]) ->
