@@ -86,7 +86,8 @@ check_opts(Opts) ->
                                    quick_deceleration => {10000, fun positive/1},
                                    position => {0.0, fun erlang:is_number/1},
                                    time_scale => {1.0, fun positive/1},
-                                   publish => {none, fun publish/1}}).
+                                   publish => {none, fun publish/1},
+                                   rotary => {false, fun erlang:is_boolean/1}}).
 
 publish(none) ->
     true;

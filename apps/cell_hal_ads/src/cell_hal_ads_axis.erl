@@ -75,7 +75,8 @@ check_opts(Opts) ->
       Opts, #{axis => {undefined, fun(A) -> is_integer(A) andalso A >= 1 andalso A =< 255 end},
               limits => {none, fun limits/1},
               jerk => {100000, fun positive/1},
-              in_position => {0.01, fun(V) -> is_number(V) andalso V >= 0 end}},
+              in_position => {0.01, fun(V) -> is_number(V) andalso V >= 0 end},
+              rotary => {false, fun erlang:is_boolean/1}},
       [axis]).
 
 positive(V) -> is_number(V) andalso V > 0.

@@ -91,7 +91,7 @@
                 points = [] :: [map()],
                 %% The cell's axes (its spec's hardware objects of kind axis), by id,
                 %% the name of each.
-                axes = #{} :: #{atom() => binary()},
+                axes = #{} :: #{atom() => {binary(), linear | rotary}},
                 messages = #{} :: #{binary() => true},   %% keys of MESSAGE points
                 watched = #{} :: #{reference() => atom()},
                 attached = false :: boolean(),
@@ -259,7 +259,7 @@ handle_cast({alive, Pid}, #state{clients = Clients} = State) ->
     end;
 handle_cast({axis, Id, Status}, #state{axes = Axes} = State) ->
     case Axes of
-        #{Id := Name} ->
+        #{Id := {Name, _Kind}} ->
             {noreply, set(cell_shdr_items:axis_values(Name, Status), now_stamp(), State)};
         #{} ->
             %% An axis the cell no longer has.
@@ -505,7 +505,13 @@ resync(State000) ->
 %% cell_shdr_axes), and a configured point named like one of their items is left out.
 axes_of_the_cell(#state{settings = Settings} = State) ->
     #{hal := #{hardware := Hw}} = cell_spec:running(),
-    Axes = cell_shdr_items:prefixes([Id || #{id := Id, kind := axis} <- Hw]),
+    Kinds = maps:from_list([{Id, case Opts of
+                                     #{rotary := true} -> rotary;
+                                     _ -> linear
+                                 end} || #{id := Id, kind := axis} = A <- Hw,
+                                         Opts <- [maps:get(opts, A, #{})]]),
+    Axes = maps:map(fun(Id, Name) -> {Name, maps:get(Id, Kinds)} end,
+                    cell_shdr_items:prefixes(maps:keys(Kinds))),
     ok = cell_shdr_axes:watch(maps:keys(Axes)),
     State#state{axes = Axes, points = usable_points(maps:get(points, Settings), Axes)}.
 
@@ -554,7 +560,7 @@ initial(#state{prefixes = P, counts = {Good, Bad}, idle = Idle, axes = Axes} = S
                  end]
               || T <- maps:keys(P)])
         ++ lists:append([cell_shdr_items:axis_values(Name, {error, not_read})
-                         || Name <- maps:values(Axes)]),
+                         || {Name, _Kind} <- maps:values(Axes)]),
     [KV || {K, _} = KV <- Keys, ets:lookup(?VALUES, K) =:= []].
 
 resync_points(#state{points = Points} = State) ->

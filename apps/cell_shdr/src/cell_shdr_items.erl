@@ -5,7 +5,8 @@
 %% The cell is one MTConnect Device with a Controller; each device task is a Path of
 %% that Controller (an independent function with its own execution); configured HAL
 %% points sit on the Device; each axis of the cell's spec (a hardware object of kind
-%% `axis', seed 000's NcAxis) is a Linear component of the Device's Axes.
+%% `axis', seed 000's NcAxis) is a Linear component of the Device's Axes, or a Rotary
+%% one for an axis that turns (its option `rotary').
 %%
 %% <table>
 %% <tr><th>key</th><th>type (sub-type)</th><th>from</th></tr>
@@ -102,8 +103,9 @@ items(Tasks, Idle, Points) ->
     items(Tasks, Idle, Points, #{}).
 
 %% @doc Every data item for these tasks, configured points and axes (by id, the name
-%% of each, from {@link prefixes/1}).
--spec items([atom()], [atom()], [map()], #{atom() => binary()}) -> [item()].
+%% of each, from {@link prefixes/1}, and whether it moves along a line or turns).
+-spec items([atom()], [atom()], [map()], #{atom() => {binary(), linear | rotary}}) ->
+          [item()].
 items(Tasks, Idle, Points, Axes) ->
     Prefixes = prefixes(Tasks),
     [ev(<<"avail">>, <<"AVAILABILITY">>, device),
@@ -122,20 +124,33 @@ items(Tasks, Idle, Points, Axes) ->
         ++ [point_item(P) || P <- Points]
         ++ axis_items(Axes).
 
-%% @doc The items of the axes (by id, the name of each): a Linear component each.
--spec axis_items(#{atom() => binary()}) -> [item()].
+%% @doc The items of the axes (by id, the name of each and whether it moves along a
+%% line or turns): a Linear component each (position in millimetres, feedrate in
+%% millimetres a second), or a Rotary one (angle in degrees, angular velocity in
+%% degrees a second); each with its AXIS_STATE.
+-spec axis_items(#{atom() => {binary(), linear | rotary}}) -> [item()].
 axis_items(Axes) ->
     lists:append(
       [begin
-           C = {axis, linear, Name},
-           [#{key => <<Name/binary, "_position">>, type => <<"POSITION">>,
-              sub_type => <<"ACTUAL">>, category => sample, units => <<"MILLIMETER">>,
+           C = {axis, Kind, Name},
+           Velocity = #{key => <<Name/binary, "_feedrate">>, category => sample,
+                        component => C},
+           {PosType, PosUnits, Vel} =
+               case Kind of
+                   linear -> {<<"POSITION">>, <<"MILLIMETER">>,
+                              Velocity#{type => <<"AXIS_FEEDRATE">>, sub_type => <<"ACTUAL">>,
+                                        units => <<"MILLIMETER/SECOND">>}};
+                   %% ANGULAR_VELOCITY has no sub-types.
+                   rotary -> {<<"ANGLE">>, <<"DEGREE">>,
+                              Velocity#{type => <<"ANGULAR_VELOCITY">>,
+                                        units => <<"DEGREE/SECOND">>}}
+               end,
+           [#{key => <<Name/binary, "_position">>, type => PosType,
+              sub_type => <<"ACTUAL">>, category => sample, units => PosUnits,
               component => C},
-            #{key => <<Name/binary, "_feedrate">>, type => <<"AXIS_FEEDRATE">>,
-              sub_type => <<"ACTUAL">>, category => sample,
-              units => <<"MILLIMETER/SECOND">>, component => C},
+            Vel,
             ev(<<Name/binary, "_state">>, <<"AXIS_STATE">>, C)]
-       end || {_, Name} <- lists:sort(maps:to_list(Axes))]).
+       end || {_, {Name, Kind}} <- lists:sort(maps:to_list(Axes))]).
 
 %% @doc The values of an axis's items (named `Name') for its status as it reads, or
 %% UNAVAILABLE when it cannot be read (the object not there, its NC not connected).

@@ -97,7 +97,10 @@ hal_spec(Case) when Case =:= axes_streamed; Case =:= devices_xml_matches_stream;
                     Case =:= stream_reads_as_agent ->
     #{hal => #{connections => [], groups => [],
                hardware => [#{id => gantry, kind => axis, type => sim,
-                              opts => #{home_ms => 1, limits => {-10.0, 500.0}}}]}};
+                              opts => #{home_ms => 1, limits => {-10.0, 500.0}}},
+                            %% A turning table: a Rotary component.
+                            #{id => table, kind => axis, type => sim,
+                              opts => #{home_ms => 1, rotary => true}}]}};
 hal_spec(_Case) ->
     #{}.
 
@@ -633,6 +636,12 @@ devices_xml_matches_stream(Config) ->
                  [attr(E, name) || E <- xmerl_xpath:string(
                                           "//Axes/Components/Linear[@name='gantry']/DataItems/"
                                           "DataItem", Doc)]),
+    ?assertEqual([{"table_position", "ANGLE", "DEGREE"},
+                  {"table_feedrate", "ANGULAR_VELOCITY", "DEGREE/SECOND"},
+                  {"table_state", "AXIS_STATE", undefined}],
+                 [{attr(E, name), attr(E, type), attr_or(E, units)}
+                  || E <- xmerl_xpath:string("//Axes/Components/Rotary[@name='table']/"
+                                             "DataItems/DataItem", Doc)]),
     {ok, Xml} = file:read_file(File),
     schema_check("MTConnectDevices_2.0_1.0.xsd", Xml, Config),
     ok = gen_tcp:close(S).
@@ -1520,6 +1529,13 @@ read_until_series(S, Key) ->
 attr(E, Name) ->
     [#xmlAttribute{value = V}] = xmerl_xpath:string("@" ++ atom_to_list(Name), E),
     V.
+
+%% An attribute an element may lack.
+attr_or(E, Name) ->
+    case xmerl_xpath:string("@" ++ atom_to_list(Name), E) of
+        [#xmlAttribute{value = V}] -> V;
+        [] -> undefined
+    end.
 
 stats(Samples) ->
     Sorted = lists:sort(Samples),

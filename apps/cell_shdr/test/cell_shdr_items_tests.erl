@@ -143,11 +143,13 @@ axis_point_test_() ->
      ?_assertEqual({error, [axis], {an_axis_needs_a_name, <<"X Y">>}},
                    Check(Point#{component => rotary, axis => <<"X Y">>}))].
 
-%% An axis of the cell is a Linear component with its position, feedrate and state;
-%% its values follow its status, UNAVAILABLE when it cannot be read.
+%% An axis of the cell is a Linear component with its position, feedrate and state (a
+%% Rotary one, for an axis that turns, with its angle and angular velocity); its
+%% values follow its status, UNAVAILABLE when it cannot be read.
 cell_axis_test_() ->
-    Axes = cell_shdr_items:prefixes([lower_x, 'y axis']),
-    Items = cell_shdr_items:items([], [], [], Axes),
+    Axes = maps:map(fun(_, Name) -> {Name, linear} end,
+                    cell_shdr_items:prefixes([lower_x, 'y axis'])),
+    Items = cell_shdr_items:items([], [], [], Axes#{table => {<<"table">>, rotary}}),
     Of = fun(Name) -> [{K, T, C} || #{key := K, type := T, category := C,
                                       component := {axis, linear, N}} <- Items, N =:= Name]
          end,
@@ -159,6 +161,13 @@ cell_axis_test_() ->
      ?_assertEqual(3, length(Of(<<"y_axis">>))),
      ?_assertMatch([#{sub_type := <<"ACTUAL">>, units := <<"MILLIMETER">>}],
                    [I || #{key := <<"lower_x_position">>} = I <- Items]),
+     ?_assertMatch([#{type := <<"ANGLE">>, sub_type := <<"ACTUAL">>, units := <<"DEGREE">>,
+                      component := {axis, rotary, <<"table">>}},
+                    #{type := <<"ANGULAR_VELOCITY">>, units := <<"DEGREE/SECOND">>,
+                      component := {axis, rotary, <<"table">>}},
+                    #{type := <<"AXIS_STATE">>, component := {axis, rotary, <<"table">>}}],
+                   [I || #{key := <<"table_", _/binary>>} = I <- Items]),
+     ?_assertEqual([], [I || #{key := <<"table_feedrate">>, sub_type := _} = I <- Items]),
      ?_assertEqual([{<<"x_position">>, 12.5}, {<<"x_feedrate">>, 40.0},
                     {<<"x_state">>, <<"TRAVEL">>}],
                    cell_shdr_items:axis_values(<<"x">>, {ok, Moving})),
