@@ -21,12 +21,16 @@
 %% or at once (`fault/2'); the axis then stops with `quick_deceleration' in ErrorStop
 %% until reset.
 %%
-%% With `publish' the axis writes its actual position (and velocity) into inputs of a
-%% simulated PLC's image, as an NC does into the PLC's axis structure every cycle: every
-%% `period_ms' while it moves, and once where it comes to rest. The HAL then reads
-%% them as any input, so the panel's IO page, the SHDR adapter's configured points and
-%% the latch's samples see the axis move. (A real axis's position is the PLC's own
-%% point; nothing is published.)
+%% With `publish' the axis writes its actual position (and velocity) into the PLC's
+%% image, as an NC does into the PLC's axis structure every cycle: every `period_ms'
+%% while it moves, and once where it comes to rest. Into inputs of a simulated PLC, set
+%% as a sensor would: the HAL then reads them as any input, so the panel's IO page, the
+%% SHDR adapter's configured points and the latch's samples see the axis move. Into
+%% outputs of any PLC, written through the HAL like any output: a PLC whose NC is not
+%% its own (the simulated axes of a machine whose PLC has none) learns so where its
+%% axes are, in the order of the cell's other writes: a job's end is told after the
+%% position it ended at was written. (A real axis's position is the PLC's own point;
+%% nothing is published.)
 %%
 %% ```
 %% #{id => x, kind => axis, type => sim,
@@ -291,7 +295,7 @@ publish_now(#s{id = Id, opts = #{publish := #{group := G} = Pub}, rate = Rate} =
     {X, V} = actual(S),
     Writes = [{maps:get(position, Pub), X}]
         ++ [{P, V * Rate} || P <- [maps:get(velocity, Pub, none)], P =/= none],
-    case [R || {P, Value} <- Writes, R <- [cell_hal_sim:set({G, P}, Value)], R =/= ok] of
+    case [R || {P, Value} <- Writes, R <- [put_point(G, P, Value)], R =/= ok] of
         [] ->
             S#s{publish_error = undefined};
         [Error | _] when Error =:= S#s.publish_error ->
@@ -301,6 +305,13 @@ publish_now(#s{id = Id, opts = #{publish := #{group := G} = Pub}, rate = Rate} =
             cell_log:warning(Id, "axis ~s cannot publish its position to ~s: ~tp",
                              [Id, G, Error]),
             S#s{publish_error = Error}
+    end.
+
+%% An input is set in the simulated PLC's image, an output written through the HAL.
+put_point(G, P, Value) ->
+    case cell_hal:describe(G, P) of
+        {ok, #{dir := out}} -> cell_hal:write(G, P, Value);
+        _ -> cell_hal_sim:set({G, P}, Value)
     end.
 
 cancel(#s{timer = T, fault_timer = F, publish_timer = P} = S) ->
