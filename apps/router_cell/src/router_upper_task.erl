@@ -95,6 +95,7 @@
 -behaviour(cell_task).
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
+-export([path_params/1]).
 
 %% The phases that move the robot to a taught position.
 -define(MOVE(Phase), (Phase =:= to_nest orelse Phase =:= carrying orelse Phase =:= to_scrap
@@ -538,10 +539,8 @@ go(T, Phase) ->
                              phase(T, Phase)};
                         {false, _} ->
                             Speed = cell_task:setting(T, upper_speed, 1000.0),
-                            motion(T, Phase, router_axes:line(
-                                               channel(T), Here, To,
-                                               #{velocity => Speed, acceleration => ?ACC,
-                                                 deceleration => ?ACC}))
+                            motion(T, Phase, router_axes:line(channel(T), Here, To,
+                                                              path_params(Speed)))
                     end;
                 Failed ->
                     axis_fault(Failed, Phase, T)
@@ -549,6 +548,12 @@ go(T, Phase) ->
         Started ->
             motion(T, Phase, Started)
     end.
+
+%% @doc The path velocity, acceleration and deceleration of a move between taught
+%% positions at `Speed' (mm/s).
+-spec path_params(float()) -> cell_hal_axis_fsm:params().
+path_params(Speed) ->
+    #{velocity => Speed, acceleration => ?ACC, deceleration => ?ACC}.
 
 motion(T, Phase, {ok, Ref}) ->
     {wait, [{reply, Ref}, router_task:watchdog(T, motion_timeout_ms, 30000)],
