@@ -73,18 +73,20 @@ theoretical(Dual, Router, Sim) ->
 %% until the frame is out: transfer, clamp, routing, the upper robot reaching the nest
 %% and gripping, unclamp, eject. The routing robot routes, then waits for the upper
 %% robot to grip (it takes over the modules from the routing robot's nest then). The
-%% upper robot moves to the nest, grips, moves to the unloading segment, lets go.
+%% upper robot moves to the nest (of the other lane, with two lanes), grips, moves to
+%% the unloading segment, lets go.
 -spec busy(boolean(), map(), map()) -> [{string(), float()}].
 busy(Dual, Router, Sim) ->
     D = fun(K) -> maps:get(K, Sim) * 1.0 end,
     Routing = routing(Dual, Router, Sim),
     Share = case Dual of true -> 0.5; false -> 1.0 end,
-    Pick = D(upper_move_ms) + D(gripper_ms),
+    {ToNest, ToUnloading} = upper(Dual, Router),
+    Pick = ToNest + D(gripper_ms),
     [{"loading segment", Share * (D(intake_ms) + D(transfer_ms))},
      {"work segment", Share * (D(transfer_ms) + D(clamp_ms) + Routing + Pick + D(clamp_ms)
                                + D(eject_ms))},
      {"routing robot", Routing + Pick},
-     {"upper robot", 2 * (D(upper_move_ms) + D(gripper_ms))},
+     {"upper robot", ToNest + ToUnloading + 2 * D(gripper_ms)},
      {"unloading segment", Share * (D(unload_ms) + D(handout_ms))}].
 
 %% The routing robot's time for one panel, the lanes' panels routed in turn: the
@@ -111,6 +113,22 @@ routing(Dual, Router, Sim) ->
                         {Acc + 1000 * (Move + move_s(feed, L, F)) + 2 * Plunge, To}
                 end, {0.0, Start}, lists:append(Panels)),
     Ms / length(Panels) + maps:get(spindle_ramp_ms, Sim).
+
+%% The upper robot's moves for one panel, in ms: from the unloading segment it last
+%% served to the next panel's nest (across to the other lane with two lanes), and on to
+%% the unloading segment; each the trapezoidal profile its channel plans for the line.
+upper(Dual, Router) ->
+    Dx = maps:get(upper_unloading_x, Router) - maps:get(upper_nest_x, Router),
+    Dy = case Dual of
+             true -> maps:get(rear_lane_offset, Router);
+             false -> 0.0
+         end,
+    Params = router_upper_task:path_params(maps:get(upper_speed, Router)),
+    Ms = fun(L) ->
+                 1000 * cell_hal_axis_profile:duration(
+                          cell_hal_axis_profile:move({0.0, 0.0}, L, Params))
+         end,
+    {Ms(math:sqrt(Dx * Dx + Dy * Dy)), Ms(abs(Dx))}.
 
 %% The seconds a path of `L' mm takes from rest to rest.
 move_s(Kind, L, Speed) ->

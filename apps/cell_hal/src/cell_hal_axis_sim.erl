@@ -21,12 +21,17 @@
 %% or at once (`fault/2'); the axis then stops with `quick_deceleration' in ErrorStop
 %% until reset.
 %%
-%% With `publish' the axis writes its actual position (and velocity) into inputs of a
-%% simulated PLC's image, as an NC does into the PLC's axis structure every cycle: every
-%% `period_ms' while it moves, and once where it comes to rest. The HAL then reads
-%% them as any input, so the panel's IO page, the SHDR adapter's configured points and
-%% the latch's samples see the axis move. (A real axis's position is the PLC's own
-%% point; nothing is published.)
+%% With `publish' the axis writes its actual position (and velocity) into the PLC's
+%% image, as an NC does into the PLC's axis structure every cycle: every `period_ms'
+%% while it moves, and once where it comes to rest. Into inputs of a simulated PLC, set
+%% as a sensor would: the HAL then reads them as any input, so the panel's IO page, the
+%% SHDR adapter's configured points and the latch's samples see the axis move. Into
+%% outputs of any PLC, written through the HAL like any output: a PLC whose NC is not
+%% its own (the simulated axes of a machine whose PLC has none) learns so where its
+%% axes are, in the order of the cell's other writes: a job's end is told after the
+%% position it ended at was written; and again each time the PLC's connection comes up
+%% (a PLC restarted holds its outputs at zero). (A real axis's position is the PLC's own point;
+%% nothing is published.)
 %%
 %% ```
 %% #{id => x, kind => axis, type => sim,
@@ -62,6 +67,8 @@
             publish_timer :: reference() | undefined,
             %% The last failure to publish, logged once.
             publish_error :: term(),
+            %% The connection of the outputs it publishes into, once subscribed to.
+            publish_conn :: atom() | undefined,
             %% Who is told of each job's end: {Pid, Ref} by job id.
             owners = #{} :: #{pos_integer() => {pid(), reference()}},
             opts :: map()}).
@@ -164,6 +171,12 @@ handle_info({timeout, Ref, publish}, #s{publish_timer = Ref} = S) ->
     {noreply, published(S#s{publish_timer = undefined})};
 handle_info({timeout, Ref, fault}, #s{fault_timer = Ref} = S) ->
     {noreply, event({fault, ?FOLLOWING_ERROR}, S#s{fault_timer = undefined})};
+handle_info({cell_hal_conn, _Conn, up}, S) ->
+    %% A PLC connected again may hold other values (restarted, its outputs at zero):
+    %% told where the axis stands, as an NC's cyclic write would tell it.
+    {noreply, publish_now(S#s{publish_error = undefined})};
+handle_info({cell_hal_conn, _Conn, down}, S) ->
+    {noreply, S};
 handle_info({timeout, _Stale, _}, S) ->
     %% A timer cancelled after it fired.
     {noreply, S}.
@@ -292,9 +305,9 @@ publish_now(#s{id = Id, opts = #{publish := #{group := G} = Pub}, rate = Rate} =
     {X, V} = actual(S),
     Writes = [{maps:get(position, Pub), X}]
         ++ [{P, V * Rate} || P <- [maps:get(velocity, Pub, none)], P =/= none],
-    case [R || {P, Value} <- Writes, R <- [cell_hal_sim:set({G, P}, Value)], R =/= ok] of
+    case [R || {P, Value} <- Writes, R <- [put_point(G, P, Value)], R =/= ok] of
         [] ->
-            S#s{publish_error = undefined};
+            subscribed(G, S#s{publish_error = undefined});
         [Error | _] when Error =:= S#s.publish_error ->
             S;
         [Error | _] ->
@@ -302,6 +315,28 @@ publish_now(#s{id = Id, opts = #{publish := #{group := G} = Pub}, rate = Rate} =
             cell_log:warning(Id, "axis ~s cannot publish its position to ~s: ~tp",
                              [Id, G, Error]),
             S#s{publish_error = Error}
+    end.
+
+%% Publishing into outputs, the axis hears when their connection comes up again, to
+%% write them anew.
+subscribed(_G, #s{publish_conn = C} = S) when C =/= undefined ->
+    S;
+subscribed(G, #s{opts = #{publish := #{position := P}}} = S) ->
+    case cell_hal:describe(G, P) of
+        {ok, #{dir := out, connection := C}} ->
+            case cell_hal:subscribe_connection(C) of
+                {ok, _} -> S#s{publish_conn = C};
+                {error, _} -> S
+            end;
+        _ ->
+            S
+    end.
+
+%% An input is set in the simulated PLC's image, an output written through the HAL.
+put_point(G, P, Value) ->
+    case cell_hal:describe(G, P) of
+        {ok, #{dir := out}} -> cell_hal:write(G, P, Value);
+        _ -> cell_hal_sim:set({G, P}, Value)
     end.
 
 cancel(#s{timer = T, fault_timer = F, publish_timer = P} = S) ->

@@ -12,7 +12,7 @@
          end_per_testcase/2]).
 -export([power_home_move/1, refused_commands/1, newer_move_aborts/1, halt_mid_move/1,
          stop_holds_until_released/1, fault_fails_the_move/1, override_is_a_time_base/1,
-         power_off_aborts/1, publishes_its_position/1, time_scale_speeds_the_machine/1,
+         power_off_aborts/1, publishes_its_position/1, publishes_into_outputs/1, time_scale_speeds_the_machine/1,
          bad_options/1]).
 
 -define(WAIT, 10000).
@@ -23,7 +23,7 @@
 all() ->
     [power_home_move, refused_commands, newer_move_aborts, halt_mid_move,
      stop_holds_until_released, fault_fails_the_move, override_is_a_time_base,
-     power_off_aborts, publishes_its_position, time_scale_speeds_the_machine, bad_options].
+     power_off_aborts, publishes_its_position, publishes_into_outputs, time_scale_speeds_the_machine, bad_options].
 
 init_per_suite(Config) ->
     _ = application:load(cell_base),
@@ -193,6 +193,38 @@ publishes_its_position(_Config) ->
         _ = cell_hal_hw:remove(px),
         ok = cell_hal:remove_group(axes_io),
         ok = cell_hal:remove_connection(nc)
+    end.
+
+%% Published into an output, the position is written through the HAL as the tasks'
+%% outputs are: the PLC sees it follow the move and come to rest at its target.
+publishes_into_outputs(_Config) ->
+    ok = cell_hal:add_connection(#{id => nc, driver => cell_hal_sim, opts => #{poll_ms => 10}}),
+    ok = cell_hal:add_group(#{id => axes_io, module => cell_hal_test_axis_io, connection => nc}),
+    Self = self(),
+    ok = cell_hal_sim:on_change({axes_io, x_told}, fun(V) -> Self ! {told, V}, [] end),
+    try
+        ok = cell_hal_hw:add(#{id => px, kind => axis, type => sim,
+                               opts => #{home_ms => 1,
+                                         publish => #{group => axes_io, position => x_told,
+                                                      period_ms => 10}}}),
+        ok = done(cell_hal_axis:power(px, true)),
+        ok = done(cell_hal_axis:home(px, 0.0)),
+        {ok, M} = cell_hal_axis:move_absolute(px, 300.0, ?SLOW#{velocity => 200}),
+        ok = await(M, done),
+        Told = told(300.0, []),
+        ?assert(lists:any(fun(V) -> V > 0.0 andalso V < 300.0 end, Told), Told)
+    after
+        _ = cell_hal_hw:remove(px),
+        ok = cell_hal:remove_group(axes_io),
+        ok = cell_hal:remove_connection(nc)
+    end.
+
+%% What the PLC was told, oldest first, up to `Last'.
+told(Last, Acc) ->
+    receive
+        {told, Last} -> lists:reverse([Last | Acc]);
+        {told, V} -> told(Last, [V | Acc])
+    after ?WAIT -> ct:fail({not_told, Last, lists:reverse(Acc)})
     end.
 
 await_point(P, Cond) ->

@@ -10,4 +10,8 @@ points(_Opts) ->
     [#{name => x_pos, dir => in, type => lreal, address => <<"NcToPlc.ActPos">>,
        caption => <<"X: actual position">>, unit => <<"mm">>, field => {input_register, 0}},
      #{name => x_vel, dir => in, type => lreal, address => <<"NcToPlc.ActVelo">>,
-       caption => <<"X: actual velocity">>, unit => <<"mm/s">>, field => {input_register, 4}}].
+       caption => <<"X: actual velocity">>, unit => <<"mm/s">>, field => {input_register, 4}},
+     %% Where a PLC without an NC of its own is told its axis's position.
+     #{name => x_told, dir => out, type => real, address => <<"PlcFromNc.ActPos">>,
+       caption => <<"X: actual position, as told">>, unit => <<"mm">>,
+       field => {holding_register, 0}}].

@@ -92,12 +92,14 @@ end_per_testcase(_Case, Config) ->
 %% Cases
 %%--------------------------------------------------------------------
 
-%% A move of the upper robot commanded over Modbus (a 16-bit position number in one
-%% register, a 32-bit command number over two) ends with the command number in the
-%% robot's input registers; the spindle's coil brings up its at-speed input; the air
-%% pressure reads as a 64-bit float over four input registers.
+%% The upper robot's axes told to stand over the front module nest (their positions
+%% written over Modbus as an NC writes them, 32-bit floats over two holding registers
+%% each) bring up the machine's in-position signal for the nest; the spindle's coil
+%% brings up its at-speed input; the air pressure reads as a 64-bit float over four
+%% input registers.
 outputs_move_the_physics(_Config) ->
-    move(1, 7),
+    place(250.0, 150.0, at_nest_front),
+    {ok, false} = cell_hal:read(upper_io, at_home),
     {ok, 6.0} = cell_hal:read(general_io, air_pressure),
     ok = cell_hal:write(lower_io, spindle_run, true),
     wait(lower_io, spindle_at_speed, {eq, true}),
@@ -108,14 +110,14 @@ outputs_move_the_physics(_Config) ->
 %% is down; the virtual PLC started again on the same port: the HAL is back on its
 %% own and the physics answers again.
 killed_and_started_again(Config) ->
-    move(1, 3),
+    place(250.0, 150.0, at_nest_front),
     #{tcp := Port} = Vplc = ?config(vplc, Config),
     ok = kill_vplc(Vplc),
     receive {cell_hal_conn, ?CONN, down} -> ok after ?WAIT -> ct:fail(connection_not_down) end,
-    ?assertMatch({error, _}, cell_hal:read(upper_io, done)),
+    ?assertMatch({error, _}, cell_hal:read(upper_io, at_nest_front)),
     Again = start_vplc(?config(root, Config), Port),
     receive {cell_hal_conn, ?CONN, up} -> ok after ?WAIT -> ct:fail(connection_not_back) end,
-    move(0, 4),
+    place(1100.0, 150.0, at_unloading_front),
     stop_vplc(Again).
 
 %% Frames that are not Modbus close their connection, refused requests get their
@@ -135,9 +137,9 @@ bad_input(Config) ->
     ?assertEqual(<<16#82, 2>>, ask(S, 1, <<2, 5000:16, 1:16>>)),
     %% A span running past the last point of the loading segment's inputs.
     ?assertEqual(<<16#82, 2>>, ask(S, 1, <<2, 0:16, 100:16>>)),
-    %% The low word of the 32-bit command written alone is a command (the high word
-    %% kept); a quantity of 0 coils is refused.
-    ?assertEqual(<<6, 262:16, 9:16>>, ask(S, 1, <<6, 262:16, 9:16>>)),
+    %% The high word of the Y position's 32-bit float written alone is a position (the
+    %% low word kept: 150.0); a quantity of 0 coils is refused.
+    ?assertEqual(<<6, 262:16, 16#4316:16>>, ask(S, 1, <<6, 262:16, 16#4316:16>>)),
     ?assertEqual(<<16#81, 3>>, ask(S, 1, <<1, 0:16, 0:16>>)),
     %% A function the PLC does not offer, a unit it does not serve.
     ?assertEqual(<<16#C1, 1>>, ask(S, 1, <<16#41, 1, 2, 3>>)),
@@ -145,15 +147,15 @@ bad_input(Config) ->
     %% A coil written with a value other than on or off.
     ?assertEqual(<<16#85, 3>>, ask(S, 1, <<5, 200:16, 16#1234:16>>)),
     %% Still up, for this client and for the HAL.
-    ?assertEqual(<<3, 4, 0:16, 9:16>>, ask(S, 1, <<3, 261:16, 2:16>>)),
+    ?assertEqual(<<3, 4, 16#4316:16, 0:16>>, ask(S, 1, <<3, 262:16, 2:16>>)),
     ok = gen_tcp:close(S),
     up = cell_hal:status(?CONN),
-    move(3, 10).
+    place(250.0, 150.0, at_nest_front).
 
 %% pymodbus, a client written by others, reads what the HAL wrote and what the physics
 %% set at the same addresses.
 pymodbus_reads_the_same_registers(Config) ->
-    move(2, 42),
+    place(1100.0, 150.0, at_unloading_front),
     ok = cell_hal:write(lower_io, spindle_run, true),
     wait(lower_io, spindle_at_speed, {eq, true}),
     #{tcp := Port} = ?config(vplc, Config),
@@ -162,8 +164,8 @@ pymodbus_reads_the_same_registers(Config) ->
                   [{args, [Script, integer_to_list(Port)]}, {line, 1024}, exit_status,
                    use_stdio, binary, stderr_to_stdout]),
     Lines = lines(P, []),
-    ?assertEqual([<<"target 2">>, <<"command 42">>, <<"spindle_run 1">>,
-                  <<"done 42">>, <<"air_pressure 6.0">>, <<"end">>], Lines).
+    ?assertEqual([<<"x_actual 1100.0">>, <<"y_actual 150.0">>, <<"spindle_run 1">>,
+                  <<"at_unloading_front 1">>, <<"air_pressure 6.0">>, <<"end">>], Lines).
 
 %% The physics runs on the settings saved in the virtual PLC's root: a panel always
 %% waiting at the previous machine (arrival_ms 0) is offered before the first read,
@@ -227,14 +229,12 @@ connect(Port) ->
         down -> receive {cell_hal_conn, ?CONN, up} -> ok after ?WAIT -> ct:fail(not_up) end
     end.
 
-%% The upper robot to a taught position (router_upper_io:position/2), the move's end
-%% seen as its command number in `done'.
-move(Position, Command) ->
-    ok = cell_hal:write(upper_io, target, Position),
-    ok = cell_hal:write(upper_io, command, Command),
-    wait(upper_io, done, {eq, Command}),
-    {ok, Position} = cell_hal:read(upper_io, target),
-    ok.
+%% The upper robot's NC tells the PLC its axes stand at X, Y (mm), a station of the
+%% machine: its in-position signal `At' comes up.
+place(X, Y, At) ->
+    ok = cell_hal:write(upper_io, x_actual, X),
+    ok = cell_hal:write(upper_io, y_actual, Y),
+    wait(upper_io, At, {eq, true}).
 
 wait(G, P, Cond) ->
     {ok, Ref} = cell_hal:watch(G, P, Cond),

@@ -12,11 +12,12 @@ router_test() ->
     {ok, #{conn := router_plc, points := Points, hal := Hal}} =
         cell_vplc:setup(router(#{dual_lane => false}), undefined),
     %% Every point of the front lane's three segments and its fixture's clamps, the
-    %% two robots (of the lower one, the spindle and the bit: its X and Y are NC axes),
-    %% the general IO and the three drives (the front conveyors', the robots'); the
-    %% lane's inspection block's S7 UDT and the PLC program's side of it; its code
-    %% reader's.
-    ?assertEqual(6 + 3 + 5 + 8 + 4 + 6 + 12 + 3 * 4 + 34 + 18 + 5, length(Points)),
+    %% two robots (of the lower one, the spindle and the bit: its X and Y are NC axes;
+    %% of the upper one, the gripper, its five in-position signals and its NC axes'
+    %% positions), the general IO and the three drives (the front conveyors', the
+    %% robots'); the lane's inspection block's S7 UDT and the PLC program's side of it;
+    %% its code reader's.
+    ?assertEqual(6 + 3 + 5 + 8 + 4 + 10 + 12 + 3 * 4 + 34 + 18 + 5, length(Points)),
     ?assertMatch({{clamps_front_io, a_is_closed}, bool,
                   #{table := discrete_input, address := 440}},
                  lists:keyfind({clamps_front_io, a_is_closed}, 1, Points)),
@@ -30,8 +31,10 @@ router_test() ->
     ?assertMatch({{general_io, air_pressure}, lreal,
                   #{unit := 1, table := input_register, address := 300, word_order := big}},
                  lists:keyfind({general_io, air_pressure}, 1, Points)),
-    ?assertMatch({{upper_io, done}, int32, #{table := input_register, address := 260}},
-                 lists:keyfind({upper_io, done}, 1, Points)),
+    ?assertMatch({{upper_io, x_actual}, real, #{table := holding_register, address := 260}},
+                 lists:keyfind({upper_io, x_actual}, 1, Points)),
+    ?assertMatch({{upper_io, at_nest_front}, bool, #{table := discrete_input, address := 263}},
+                 lists:keyfind({upper_io, at_nest_front}, 1, Points)),
     %% The same connection and groups, on the simulated PLC.
     ?assertMatch(#{connections := [#{id := router_plc, driver := cell_hal_sim}]}, Hal),
     ?assertMatch({{general_io, estop_ok}, bool, #{table := discrete_input, address := 300}},

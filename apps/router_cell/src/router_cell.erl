@@ -104,8 +104,8 @@ hal(Machine, Router) ->
 
 %% @doc The HAL configuration of the cell: one PLC connection (simulated or Modbus
 %% TCP), the IO group instances bound to it, the code readers, wired through the PLC's
-%% IO in simulation and on the real machine alike, and the lower robot's NC: its X and
-%% Y axes and the interpolation channel over them, simulated, at the physics' time scale
+%% IO in simulation and on the real machine alike, and each robot's NC: its X and Y
+%% axes and the interpolation channel over them, simulated, at the physics' time scale
 %% (`Sim': the router_sim settings).
 -spec hal(map(), map(), map()) -> #{connections := [cell_hal:connection_spec()],
                                     groups := [cell_hal:group_spec()],
@@ -154,22 +154,40 @@ hal(Machine, Router, Sim) ->
                  opts => #{group => group(reader, L), count => read_count,
                            deadline_ms => maps:get(reader_deadline_ms, Router, 2000)}}
                || L <- lanes(Machine)],
-    #{connections => [Conn], groups => Groups, hardware => Readers ++ lower_nc(Sim)}.
+    #{connections => [Conn], groups => Groups,
+      hardware => Readers ++ lower_nc(Sim) ++ upper_nc(Sim)}.
 
 %% The lower robot's NC: the gantry's X along the transport, Y across it to the rear
 %% lane's fixture, both homed at 0 (the front fixture's corner), and the channel that
 %% routes the cut lines over them. The NC is simulated (cell_hal_axis_sim) in both
 %% modes: the router's PLC has no NC of its own to reach.
 lower_nc(Sim) ->
-    Scale = maps:get(time_scale, Sim, 1.0),
-    Axis = fun(Id, Max) ->
-                   #{id => Id, kind => axis, type => sim,
-                     opts => #{limits => {-10.0, Max}, home_ms => 1500,
-                               time_scale => max(Scale, 0.001)}}
+    Axis = fun(Id, Max) -> axis(Id, Max, Sim, #{}) end,
+    [Axis(lower_x, 600.0), Axis(lower_y, 900.0), channel(lower_xy, [lower_x, lower_y], Sim)].
+
+%% The upper robot's NC: the gantry's X along the transport, from home over the scrap
+%% bin to the module nests and on to the unloading segments, and Y across it to the
+%% rear lane, both homed at 0 (home), and the channel that moves the gripper between
+%% its taught positions. Simulated as the lower robot's; the NC writes the axes' actual
+%% positions into the PLC's upper robot IO, where the machine's program reads where
+%% the gripper is (the physics, in the simulated PLC or the virtual one).
+upper_nc(Sim) ->
+    Axis = fun(Id, Max, Point) ->
+                   axis(Id, Max, Sim, #{publish => #{group => upper_io, position => Point,
+                                                     period_ms => 50}})
            end,
-    [Axis(lower_x, 600.0), Axis(lower_y, 900.0),
-     #{id => lower_xy, kind => channel, type => sim,
-       opts => #{axes => [lower_x, lower_y], time_scale => max(Scale, 0.001)}}].
+    [Axis(upper_x, 1300.0, x_actual), Axis(upper_y, 900.0, y_actual),
+     channel(upper_xy, [upper_x, upper_y], Sim)].
+
+axis(Id, Max, Sim, Opts) ->
+    #{id => Id, kind => axis, type => sim,
+      opts => Opts#{limits => {-10.0, Max}, home_ms => 1500, time_scale => scale(Sim)}}.
+
+channel(Id, Axes, Sim) ->
+    #{id => Id, kind => channel, type => sim, opts => #{axes => Axes, time_scale => scale(Sim)}}.
+
+scale(Sim) ->
+    max(maps:get(time_scale, Sim, 1.0), 0.001).
 
 %% @doc The inspection blocks of the machine (seed 004, {@link cell_inspect}), one per
 %% lane, on the router's PLC: for the `cell_inspect' application's `blocks'.

@@ -42,8 +42,6 @@
 %% Path accelerations, mm/s²: between cuts, and along a cut.
 -define(RAPID_ACC, 2000.0).
 -define(FEED_ACC, 1000.0).
-%% How the channel stops its axes when the task is stopped or gives up on a move.
--define(HALT_DEC, 5000.0).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
 init(T0) ->
@@ -68,7 +66,7 @@ reconcile(_Held, T) ->
 %% The spindle stops, the bit is lifted and the axes halt; the panel stays clamped.
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
-    _ = cell_hal_channel:halt(channel(T), ?HALT_DEC),
+    ok = router_axes:halt(channel(T)),
     cell_task:out(cell_task:out(T, spindle_run, false), plunge, false).
 
 -spec step(cell_task:task()) -> cell_task:step_result().
@@ -99,7 +97,7 @@ step(taking, _Woken, T) ->
 %% -- routing ------------------------------------------------------------------------------
 step(routing, {timer, _}, T) ->
     %% A path still under way is given up: the stage starts again on Retry.
-    _ = cell_hal_channel:halt(channel(T), ?HALT_DEC),
+    ok = router_axes:halt(channel(T)),
     {error, cell_task:error_spec(
               <<"motion">>, "Routing robot fault",
               io_lib:format("The routing robot did not finish \"~ts\" in time (panel ~ts).~n"
@@ -192,30 +190,30 @@ stage(retract_first, T) ->
 stage(spindle, T) ->
     wait_io(cell_task:out(T, spindle_run, true), spindle, spindle_at_speed, true);
 stage(axes, T) ->
-    case next_preparation(T) of
+    case router_axes:prepare(channel(T), axes(T)) of
         ready ->
             case cell_task:get(T, resume) of
                 undefined -> stage(spindle, T);
                 Stage -> stage(Stage, cell_task:put(T, resume, undefined))
             end;
-        {Who, Started} ->
-            motion(T, axes, Who, Started)
+        Started ->
+            motion(T, axes, Started)
     end;
 stage(rapid, T) ->
     #{from := Start} = cut(T),
-    case here(T) of
+    case router_axes:position(axes(T)) of
         {ok, Here} ->
-            {X, Y} = machine(T, Start),
-            case dist(Here, {X, Y}) < 0.001 of
+            To = machine(T, Start),
+            case dist(Here, To) < 0.001 of
                 true ->
                     next_stage(rapid, T);
                 false ->
-                    {ok, Path} = cell_hal_path:new([{line, xyz(Here), {X, Y, 0.0}}]),
                     Speed = cell_task:setting(T, rapid_speed, 400.0),
-                    follow(T, rapid, Path, Speed)
+                    motion(T, rapid, router_axes:line(channel(T), Here, To,
+                                                      path_params(rapid, Speed)))
             end;
-        {error, Who, Why} ->
-            axis_fault({error, {Who, Why}}, T)
+        Failed ->
+            axis_fault(Failed, T)
     end;
 stage(plunge, T) ->
     wait_io(cell_task:out(T, plunge, true), plunge, plunged, true);
@@ -235,53 +233,17 @@ path_params(feed, Speed) -> #{velocity => Speed, acceleration => ?FEED_ACC, dece
 %% The channel follows `Path'; the stage waits for its end.
 follow(T, Stage, Path, Speed) ->
     Params = path_params(Stage, Speed),
-    motion(T, Stage, channel(T), cell_hal_channel:follow(channel(T), Path, Params)).
+    motion(T, Stage, cell_hal_channel:follow(channel(T), Path, Params)).
 
-motion(T, Stage, _Who, {ok, Ref}) ->
+motion(T, Stage, {ok, Ref}) ->
     {wait, [{reply, Ref}, router_task:watchdog(T, motion_timeout_ms, 30000)],
      cell_task:put(T, stage, Stage)};
-motion(T, Stage, Who, {error, Why}) ->
-    %% The channel names the axis that refused its path.
-    Failed = case Why of
-                 {Axis, Reason} when is_atom(Axis) ->
-                     case lists:member(Axis, axes(T)) of
-                         true -> {error, {Axis, Reason}};
-                         false -> {error, {Who, Why}}
-                     end;
-                 _ ->
-                     {error, {Who, Why}}
-             end,
-    axis_fault(Failed, cell_task:put(T, stage, Stage)).
-
-%% What the axes still need before the robot moves, one command at a time: the channel
-%% idle, then each axis out of error, powered and homed.
-next_preparation(T) ->
-    C = channel(T),
-    case cell_hal_channel:status(C) of
-        {ok, #{state := idle}} -> next_axis(axes(T));
-        {ok, #{}} -> {C, cell_hal_channel:halt(C, ?HALT_DEC)};
-        {error, _} = Error -> {C, Error}
-    end.
-
-next_axis([]) ->
-    ready;
-next_axis([A | Rest]) ->
-    case cell_hal_axis:status(A) of
-        {ok, #{state := error_stop}} -> {A, cell_hal_axis:reset(A)};
-        {ok, #{powered := false}} -> {A, cell_hal_axis:power(A, true)};
-        {ok, #{homed := false}} -> {A, cell_hal_axis:home(A, 0.0)};
-        {ok, #{state := standstill}} -> next_axis(Rest);
-        {ok, #{}} -> {A, cell_hal_axis:halt(A, ?HALT_DEC)};
-        {error, _} = Error -> {A, Error}
-    end.
+motion(T, Stage, Refused) ->
+    axis_fault(Refused, cell_task:put(T, stage, Stage)).
 
 %% A move refused, failed or aborted: the task's error, naming the axis.
 axis_fault(Failed, T) ->
-    {What, Axis} = case Failed of
-                       {error, {A, Code}} when is_atom(A) -> {words(Code), A};
-                       {error, Code} -> {words(Code), channel(T)};
-                       aborted -> {"commanded elsewhere", channel(T)}
-                   end,
+    {Axis, What} = router_axes:failed(Failed, channel(T), axes(T)),
     {error, cell_task:error_spec(
               <<"axis">>, "Routing robot axis fault",
               io_lib:format("Axis ~ts of the routing robot stopped \"~ts\" (panel ~ts): "
@@ -290,23 +252,6 @@ axis_fault(Failed, T) ->
                             [Axis, cell_task:get(T, stage), serial(T), What]),
               [retry]),
      T}.
-
-words(Code) when is_integer(Code) -> io_lib:format("NC error 16#~.16B", [Code]);
-words({error_stop, Code}) -> io_lib:format("it is in error (NC error 16#~.16B)", [Code]);
-words(not_present) -> "it is not available";
-words(not_connected) -> "its NC is not connected";
-words(Why) -> io_lib:format("~tp", [Why]).
-
-%% Where the axes stand.
-here(T) ->
-    [X, Y] = axes(T),
-    case {cell_hal_axis:status(X), cell_hal_axis:status(Y)} of
-        {{ok, #{position := Px}}, {ok, #{position := Py}}} -> {ok, {Px, Py}};
-        {{error, Why}, _} -> {error, X, Why};
-        {_, {error, Why}} -> {error, Y, Why}
-    end.
-
-xyz({X, Y}) -> {X, Y, 0.0}.
 
 wait_io(T, Stage, Point, Value) ->
     {wait, [{io, Point, {eq, Value}}, router_task:watchdog(T, motion_timeout_ms, 30000)],

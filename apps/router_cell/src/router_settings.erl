@@ -42,7 +42,19 @@ fields() ->
      #{name => rear_lane_offset, type => {float, 0.0, 2000.0}, default => 350.0,
        unit => <<"mm">>,
        doc => <<"Distance from the front lane's fixture to the rear lane's, across the "
-                "transport direction.">>},
+                "transport direction (for both robots).">>},
+     #{name => upper_nest_x, type => {float, 0.0, 2000.0}, default => 250.0, unit => <<"mm">>,
+       doc => <<"The upper robot's taught X over the module nests of the fixtures (its X "
+                "runs along the transport from home, 0).">>},
+     #{name => upper_unloading_x, type => {float, 0.0, 2000.0}, default => 1100.0,
+       unit => <<"mm">>,
+       doc => <<"The upper robot's taught X over the unloading segments.">>},
+     #{name => upper_front_y, type => {float, 0.0, 1000.0}, default => 150.0, unit => <<"mm">>,
+       doc => <<"The upper robot's taught Y over the front lane (its Y runs across the "
+                "transport from home, 0; the rear lane lies `rear_lane_offset' further).">>},
+     #{name => upper_speed, type => {float, 1.0, 3000.0}, default => 1000.0,
+       unit => <<"mm/s">>,
+       doc => <<"Speed of the upper robot between its taught positions.">>},
      #{name => plc_host, type => {string, 255}, default => <<"192.168.0.10">>,
        doc => <<"Address of the router's PLC (Modbus TCP) when simulation mode is off; "
                 "read when the cell boots.">>},

@@ -31,9 +31,13 @@
 %%   `upstream_capacity'; the previous machine offers one (SMEMA) while it has any.</li>
 %% <li>A conveyor move runs only while the belts it needs run: stopped, the panel
 %%   stops, and goes on when they run again.</li>
-%% <li>The upper robot's moves take a fixed time; spindle, bit, clamps and gripper their
-%%   own times. The routing robot's X and Y are not the PLC's: they are NC axes
-%%   (router_cell's HAL), which simulate their own motion.</li>
+%% <li>Spindle, bit, clamps and gripper take their own times. The robots' X and Y are
+%%   not the PLC's: they are NC axes (router_cell's HAL), which simulate their own
+%%   motion. The upper robot's NC writes where its axes stand into the PLC's outputs
+%%   (`x_actual', `y_actual' of its IO), and the physics reads from them which station
+%%   of the machine the gripper is over, if any: it leaves a station (lifting what it
+%%   holds out of a nest) as the axes move away from it, however far the move was
+%%   meant to go.</li>
 %% <li>The fixture's clamps (two per lane, {@link router_clamps_io}): each a cylinder on
 %%   a bistable valve, which goes where its coil last put it (both coils off: it
 %%   holds). A clamp leaves its end (both its sensors off) when its valve changes and
@@ -85,6 +89,13 @@
 -define(RHYTHM, [time_scale, arrival_ms, arrival_jitter, upstream_capacity, magazine_low_s]).
 -define(ATTACH_MIN, 100).
 -define(ATTACH_MAX, 5000).
+%% Where the upper robot's gripper is over each station of the machine, X and Y in mm
+%% from its axes' home, and how near a station it must be to be over it.
+-define(UPPER_STATIONS, [{home, {0.0, 0.0}},
+                         {{nest, front}, {250.0, 150.0}}, {{nest, rear}, {250.0, 500.0}},
+                         {{unloading, front}, {1100.0, 150.0}},
+                         {{unloading, rear}, {1100.0, 500.0}}]).
+-define(AT_MM, 1.0).
 
 -type lane() :: front | rear.
 -type door() :: loading | unloading.
@@ -133,13 +144,13 @@ take_out(Where, Lane) when Where =:= loading; Where =:= work; Where =:= unloadin
 %%--------------------------------------------------------------------
 
 %% @doc Presses the emergency stop: its circuit opens (`estop_ok' off), every drive
-%% loses its ready (conveyors stop under their panels, the robots hold their moves)
-%% until it is released.
+%% loses its ready (conveyors stop under their panels; the cell stops, and with it the
+%% robots' moves) until it is released.
 -spec press_estop() -> ok | {error, not_running}.
 press_estop() -> poke({estop, pressed}).
 
 %% @doc Releases the emergency stop: the circuit closes, the drives without a fault
-%% are ready again and what they held goes on.
+%% are ready again and the conveyors' moves they held go on.
 -spec release_estop() -> ok | {error, not_running}.
 release_estop() -> poke({estop, released}).
 
@@ -251,7 +262,7 @@ init(#{lanes := Lanes}) ->
            rand => rand:seed_s(exsss),
            lost => undefined, busy => #{}, arrival => #{}, magazine => undefined,
            armed => #{}, attached => false, attach_ms => ?ATTACH_MIN, readers => [],
-           epoch => 0, held => #{}, clamp_moves => #{}, no_read => #{}},
+           epoch => 0, clamp_moves => #{}, no_read => #{}},
      {continue, attach}}.
 
 -spec handle_continue(attach, map()) -> {noreply, map()}.
@@ -308,19 +319,22 @@ restore(#{lanes := Lanes, groups := Groups, blocks := Blocks} = S0) ->
     S1 = S0#{world => World, outs := Outs, settings => settings()},
     %% A trigger on when the physics stopped is answered now (its answer, if the
     %% reader had given one, went with the image).
-    S = lists:foldl(fun(L, Acc) ->
-                            case out(Acc, reader, L, trigger) of
-                                true -> read_label(L, Acc);
-                                false -> Acc
-                            end
-                    end, S1, Lanes),
+    S2 = lists:foldl(fun(L, Acc) ->
+                             case out(Acc, reader, L, trigger) of
+                                 true -> read_label(L, Acc);
+                                 false -> Acc
+                             end
+                     end, S1, Lanes),
+    %% The upper robot where its NC last said (a PLC started anew: home, where the
+    %% axes start again too); if that is not where the world had it, it left there.
+    S = upper_moved(S2),
     Armed = maps:with(?RHYTHM, maps:get(settings, S)),
     cell_log:notice(router, "simulated router running: ~b panel(s) in the machine, ~b waiting "
                     "at the previous machine", [length(panels(World)), queued(World)]),
     %% A clamp that was moving when the physics stopped goes on to its valve's end.
-    S2 = lists:foldl(fun(Key, Acc) -> clamp_move(Key, Acc) end, S,
+    S3 = lists:foldl(fun(Key, Acc) -> clamp_move(Key, Acc) end, S,
                      lists:sort(maps:keys(maps:get(clamps, World)))),
-    maps:remove(settings, kick(arrivals(magazine_timer(S2#{armed := Armed})))).
+    maps:remove(settings, kick(arrivals(magazine_timer(S3#{armed := Armed})))).
 
 -spec handle_call(world | groups | {take_out, atom(), atom()} | {poke, poke()},
                   gen_server:from(), map()) ->
@@ -438,11 +452,8 @@ output({lower, _}, plunge, _V, _Old, S) ->
           fun(#{outs := Outs} = S1) ->
                   set(S1, lower, none, plunged, maps:get({lower_io, plunge}, Outs, false))
           end, S);
-output({upper, _}, command, Command, _Old, #{outs := Outs} = S) ->
-    To = position(maps:get({upper_io, target}, Outs, 0)),
-    later(delay(upper_move_ms, S),
-          fun(S1) -> when_ready(upper, fun(S2) -> arrived(To, Command, S2) end, S1) end,
-          lift(S));
+output({upper, _}, Axis, _V, _Old, S) when Axis =:= x_actual; Axis =:= y_actual ->
+    upper_moved(S);
 output({upper, _}, gripper_close, V, _Old, S) ->
     later(delay(gripper_ms, S), fun(S1) -> gripper(V, S1) end, S);
 output({general, _}, door_unlock, _V, _Old, S) ->
@@ -467,6 +478,48 @@ output({drives, _}, Point, true, _Old, #{lanes := Lanes} = S) ->
     end;
 output(_Where, _Point, _V, _Old, S) ->
     S.
+
+%% The NC told where the upper robot's axes stand: the gripper is over the place that
+%% lies there, or between places. Leaving a place, the robot lifts what it holds.
+upper_moved(#{world := #{upper_at := At}, outs := Outs, lanes := Lanes} = S) ->
+    case upper_place(Outs, Lanes) of
+        At ->
+            S;
+        To ->
+            %% Leaving, what it holds comes away before its in-position signal goes:
+            %% whoever sees it gone sees that too.
+            S1 = case At of
+                     between -> S;
+                     _ -> set(lift(S), upper, none, at_point(At), false)
+                 end,
+            #{world := W} = S1,
+            S2 = S1#{world := W#{upper_at := To}},
+            case To of
+                between -> S2;
+                _ -> set(S2, upper, none, at_point(To), true)
+            end
+    end.
+
+station_of({_, L}, Lanes) -> lists:member(L, Lanes);
+station_of(home, _Lanes) -> true.
+
+at_point(home) -> router_upper_io:at(home, front);
+at_point({Where, L}) -> router_upper_io:at(Where, L).
+
+%% Where the gripper is, from the axes' actual positions as the NC wrote them: over a
+%% station of the machine (within ?AT_MM of it on both axes), or between them. The
+%% stations lie where the cell's taught positions put them by default (the router
+%% settings' `upper_*'): the machine's build, not its settings. A machine with one lane
+%% has no rear stations.
+upper_place(Outs, Lanes) ->
+    X = maps:get({upper_io, x_actual}, Outs, 0.0),
+    Y = maps:get({upper_io, y_actual}, Outs, 0.0),
+    Near = fun(A, B) -> abs(A - B) =< ?AT_MM end,
+    case [Place || {Place, {Px, Py}} <- ?UPPER_STATIONS, Near(X, Px), Near(Y, Py),
+                   station_of(Place, Lanes)] of
+        [Place] -> Place;
+        [] -> between
+    end.
 
 %% The upper robot leaves where it is: modules it holds over a nest leave the nest,
 %% and may slip in the gripper on the way.
@@ -504,9 +557,6 @@ reseated(Ref, #{lost := Ref, world := #{gripper := G}} = S) when G =/= empty ->
     set(S#{lost := undefined}, upper, none, product_present, true);
 reseated(_Ref, S) ->
     S.
-
-arrived(To, Command, #{world := W} = S) ->
-    set(S#{world := W#{upper_at := To}}, upper, none, done, Command).
 
 gripper(true, #{world := #{gripper := empty, upper_at := {nest, L}} = W} = S) ->
     %% The part sensor sees the modules before the jaws report closed.
@@ -998,12 +1048,11 @@ reset_drive(D, #{world := #{general := #{faults := F}}} = S) ->
         N -> save(update_general(fun(G) -> G#{faults := F#{D := N - 1}} end, S))
     end.
 
-%% The general inputs set as the world and the outputs say; the moves the drives
-%% held go on once their drive is ready.
+%% The general inputs set as the world and the outputs say (a conveyor's move goes on
+%% once its drive is ready again: kick/1).
 general(#{world := W, lanes := Lanes, outs := Outs} = S) ->
-    S1 = lists:foldl(fun({{_, P}, V}, Acc) -> set_general(Acc, P, V) end, save(S),
-                     general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)),
-    release_held(S1).
+    lists:foldl(fun({{_, P}, V}, Acc) -> set_general(Acc, P, V) end, save(S),
+                general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)).
 
 set_general(S, P, V) ->
     case lists:member(P, [estop_ok, service_key, door_loading_closed, door_unloading_closed,
@@ -1040,18 +1089,6 @@ fault_code(_) -> 2310.
 
 drive_ready(D, #{world := #{general := #{estop := Estop, faults := F}}}) ->
     Estop =:= released andalso not maps:is_key(D, F).
-
-%% A robot's move arrives only while its drive is ready; held until it is again.
-when_ready(D, Fun, #{held := Held} = S) ->
-    case drive_ready(D, S) of
-        true -> Fun(S);
-        false -> S#{held := Held#{D => maps:get(D, Held, []) ++ [Fun]}}
-    end.
-
-release_held(#{held := Held} = S) ->
-    Ready = [D || D <- maps:keys(Held), drive_ready(D, S)],
-    lists:foldl(fun(D, Acc) -> lists:foldl(fun(F, A) -> F(A) end, Acc, maps:get(D, Held)) end,
-                S#{held := maps:without(Ready, Held)}, Ready).
 
 %%====================================================================
 %% The world
@@ -1122,9 +1159,10 @@ image(W, Outs, Lanes) ->
          || L <- Lanes])
       ++ clamps_image(W)
       ++ [{{upper_io, gripper_closed}, Out({upper_io, gripper_close})},
-          {{upper_io, product_present}, Holding},
-          {{upper_io, done}, Out({upper_io, command})},
-          {{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
+          {{upper_io, product_present}, Holding}]
+      ++ [{{upper_io, at_point(Place)}, maps:get(upper_at, W) =:= Place}
+          || {Place, _} <- ?UPPER_STATIONS]
+      ++ [{{lower_io, spindle_at_speed}, Out({lower_io, spindle_run})},
           {{lower_io, plunged}, Out({lower_io, plunge})}]
       ++ general_image(W, fun(Key) -> maps:get(Key, Outs, false) end, Lanes)
       ++ inspect_image(Outs, Lanes)
@@ -1199,13 +1237,6 @@ path() ->
 serial(N) ->
     {{Y, M, D}, _} = calendar:local_time(),
     iolist_to_binary(io_lib:format("P~2..0b~2..0b~2..0b-~6..0b", [Y rem 100, M, D, N])).
-
-position(0) -> home;
-position(1) -> {nest, front};
-position(2) -> {nest, rear};
-position(3) -> {unloading, front};
-position(4) -> {unloading, rear};
-position(_) -> home.
 
 %%====================================================================
 %% The PLC and the settings

@@ -13,7 +13,7 @@ name() -> router_sim.
 -spec fields() -> [cell_settings_schema:field()].
 fields() ->
     [#{name => time_scale, type => {float, 0.0, 100.0}, default => 1.0,
-       doc => <<"Every physical delay is multiplied by this (0: none); the lower robot's "
+       doc => <<"Every physical delay is multiplied by this (0: none); the robots' "
                 "simulated axes take it when the cell boots.">>},
      #{name => arrival_ms, type => {integer, 0, 3600000}, default => 15000, unit => <<"ms">>,
        doc => <<"Mean time between two panels reaching the previous machine's output, per "
@@ -35,8 +35,6 @@ fields() ->
        doc => <<"The spindle reaching its speed.">>},
      #{name => plunge_ms, type => {integer, 0, 60000}, default => 250, unit => <<"ms">>,
        doc => <<"The router bit moving down to cutting depth or back up.">>},
-     #{name => upper_move_ms, type => {integer, 0, 60000}, default => 1200, unit => <<"ms">>,
-       doc => <<"One move of the upper robot between taught positions.">>},
      #{name => gripper_ms, type => {integer, 0, 60000}, default => 300, unit => <<"ms">>,
        doc => <<"The gripper closing or opening.">>},
      #{name => unload_ms, type => {integer, 0, 600000}, default => 2500, unit => <<"ms">>,

@@ -6,6 +6,8 @@
 
 -export([starved/1, unstarved/1, blocked/1, unblocked/1]).
 -export([watch/5, watchdog/3, lane/1, fixture/1, nest_holder/3]).
+-export([upper_position/3]).
+
 
 -export_type([fixture_facts/0, fixture/0]).
 
@@ -56,8 +58,8 @@ watchdog(T, Setting, Default) ->
 %% ({@link cell_task:others_products/1}); which task is the lane's loading segment;
 %% whether that segment's stopper sensor sees a panel; the serial the loading segment
 %% offers on the link to the fixture now (`none'); whether the upper robot's gripper
-%% sensor sees modules, and whether it is away from this lane's module nest (its last
-%% move, to another place, done); whether the machine has had time to settle since an
+%% sensor sees modules, and whether it is away from this lane's module nest (the
+%% machine's in-position signal for that nest off); whether the machine has had time to settle since an
 %% earlier look found the panel in no record (`again': a transfer time later, or the
 %% operator's answer since).
 -type fixture_facts() :: #{lane := front | rear,
@@ -107,10 +109,10 @@ watchdog(T, Setting, Default) ->
 %%     moment later (a Stop that came as the upper robot committed waits for the
 %%     hand-over, while this segment, stopped at once, starts again and
 %%     reconciles);</li>
-%% <li>the upper robot leaves the nest with the modules gripped: its new position is
-%%     written before the command to move there, and between the two the robot looks
-%%     away with the modules (its last move done), while they still lie in the
-%%     nest.</li>
+%% <li>the upper robot leaves the nest with the modules gripped: the modules leave the
+%%     nest as its in-position signal goes, but the nest's sensor and the robot's are
+%%     read one after the other, and between the two the robot can look away with the
+%%     modules while they still lie in the nest.</li>
 %% </ul>
 %%
 %% Neither lasts: so no record found at a first look is `look_again', and only a look
@@ -150,6 +152,25 @@ nest_holder(Lane, Stations, Others) ->
         [] -> ours;
         [{Task, S} | _] -> {other, Task, S}
     end.
+
+%% @doc The upper robot's taught position (X, Y of its axes, mm) at `home' or over a
+%% lane's module `nest' or `unloading' segment, from the router settings (`upper_*',
+%% `rear_lane_offset').
+-spec upper_position(cell_task:task(), home | nest | unloading, front | rear) ->
+          {float(), float()}.
+upper_position(_T, home, _Lane) ->
+    {0.0, 0.0};
+upper_position(T, Where, Lane) ->
+    X = case Where of
+            nest -> cell_task:setting(T, upper_nest_x, 250.0);
+            unloading -> cell_task:setting(T, upper_unloading_x, 1100.0)
+        end,
+    Front = cell_task:setting(T, upper_front_y, 150.0),
+    Y = case Lane of
+            front -> Front;
+            rear -> Front + cell_task:setting(T, rear_lane_offset, 350.0)
+        end,
+    {float(X), float(Y)}.
 
 %% @doc The task's lane: `front' or `rear'.
 -spec lane(cell_task:task()) -> front | rear.

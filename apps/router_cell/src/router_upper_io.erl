@@ -1,26 +1,35 @@
-%% @doc The IO of the upper manipulator robot: taught positions (home, the module nest
-%% of each lane, the unloading conveyor of each lane), the gripper and its sensors. A
-%% move is commanded by writing the position, then a new `command' number; the robot
-%% answers with the same number in `done' once there.
+%% @doc The IO of the upper manipulator robot: the gripper and its sensors, where the
+%% machine sees the gripper (an in-position signal per taught position: home, the
+%% module nest and the unloading segment of each lane), and where its NC axes stand.
+%% The robot's X and Y are NC axes moved through an interpolation channel (see
+%% router_cell's HAL), not through the PLC's IO; as TwinCAT's NC gives the PLC its
+%% axes' actual data, the NC writes their actual positions into the PLC, whose program
+%% (the physics, in simulation) tells from them which position the gripper is at.
 -module(router_upper_io).
 -behaviour(cell_hal_group).
 
--export([points/1, position/2]).
+-export([points/1, at/2]).
 
 -spec points(map()) -> [cell_hal_group:point_def()].
 points(Opts) ->
     router_io:points(maps:get(base, Opts, 0), [
-        {done, in, int32, <<"A4.30.01">>, <<"Move done (command number)">>},
         {gripper_closed, in, bool, <<"A4.01.01">>, <<"Gripper closed">>},
         {product_present, in, bool, <<"A4.01.02">>, <<"Product in gripper">>},
-        {target, out, int16, <<"A4.40.01">>, <<"Position: 0 home, 1/2 nest, 3/4 unloading">>},
-        {command, out, int32, <<"A4.40.02">>, <<"Move command number">>},
+        {at_home, in, bool, <<"A4.02.01">>, <<"In position: home (scrap bin)">>},
+        {at_nest_front, in, bool, <<"A4.02.02">>, <<"In position: front module nest">>},
+        {at_nest_rear, in, bool, <<"A4.02.03">>, <<"In position: rear module nest">>},
+        {at_unloading_front, in, bool, <<"A4.02.04">>,
+         <<"In position: front unloading segment">>},
+        {at_unloading_rear, in, bool, <<"A4.02.05">>,
+         <<"In position: rear unloading segment">>},
+        {x_actual, out, real, <<"A4.40.01">>, <<"X axis actual position (from the NC), mm">>},
+        {y_actual, out, real, <<"A4.40.02">>, <<"Y axis actual position (from the NC), mm">>},
         {gripper_close, out, bool, <<"A4.20.01">>, <<"Close gripper">>}]).
 
-%% @doc The number of a taught position.
--spec position(home | nest | unloading, front | rear) -> 0..4.
-position(home, _) -> 0;
-position(nest, front) -> 1;
-position(nest, rear) -> 2;
-position(unloading, front) -> 3;
-position(unloading, rear) -> 4.
+%% @doc The in-position signal of a taught position.
+-spec at(home | nest | unloading, front | rear) -> atom().
+at(home, _) -> at_home;
+at(nest, front) -> at_nest_front;
+at(nest, rear) -> at_nest_rear;
+at(unloading, front) -> at_unloading_front;
+at(unloading, rear) -> at_unloading_rear.

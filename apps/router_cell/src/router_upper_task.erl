@@ -55,6 +55,22 @@
 %%  reopened  the gripper open, or the watchdog               close the gripper → gripping
 %% </pre>
 %%
+%% The robot's X and Y are NC axes (seed 000 §2.1: `UpperRobotTask.Axes'), and a move
+%% is a line of their interpolation channel (§2.3.7) from where the axes stand to the
+%% taught position: home (0, 0, over the scrap bin), or over the module nest or the
+%% unloading segment of the product's lane (the router settings `upper_nest_x',
+%% `upper_unloading_x', `upper_front_y', and `rear_lane_offset' for the rear lane).
+%% Each move phase (to_nest, carrying, to_scrap, nest_scrap, regrip_at) makes the axes
+%% ready one command a step (router_axes: a path still followed halted, an axis in
+%% error reset, powered, homed), then starts the line and waits for its end as a reply
+%% under the motion watchdog; standing at the taught position, it waits for the
+%% machine's in-position signal there (which comes with what the gripper's sensor saw
+%% on the way) and does what the phase does there. Axes already there are not moved, so
+%% a move made again (RETRY, a restart) starts from wherever the robot stopped. An
+%% axis's refusal or fault is the error "Upper robot axis fault" naming the axis, with
+%% RETRY; the watchdog halts the channel and is "Upper robot fault", with RETRY. A Stop
+%% halts the channel.
+%%
 %% Restarted (reconcile), the robot believes its gripper, not its record: a product
 %% held with the modules seen in the gripper goes on (gripper closed again,
 %% to_unloading), one whose modules are not there is a question for the operator
@@ -79,10 +95,16 @@
 -behaviour(cell_task).
 
 -export([init/1, reconcile/2, step/1, uninit/1]).
+-export([path_params/1]).
+
+%% The phases that move the robot to a taught position.
+-define(MOVE(Phase), (Phase =:= to_nest orelse Phase =:= carrying orelse Phase =:= to_scrap
+                      orelse Phase =:= nest_scrap orelse Phase =:= regrip_at)).
+%% Path acceleration and deceleration between taught positions, mm/s².
+-define(ACC, 2000.0).
 
 -spec init(cell_task:task()) -> {ok, cell_task:task()}.
-init(T0) ->
-    T = cell_task:put(T0, command, cell_task:in(T0, done)),
+init(T) ->
     case cell_handover:reset_chosen(T) of
         {scrap, T1} ->
             %% Seed §2.3.8, RESET: "delete product data and continue with empty gripper".
@@ -138,9 +160,11 @@ reconcile(Held, T) ->
             answered_where(Answer, T)
     end.
 
-%% The robot stops where it is; the gripper keeps hold of what it has.
+%% The robot stops where it is (its axes halted); the gripper keeps hold of what it
+%% has.
 -spec uninit(cell_task:task()) -> cell_task:task().
 uninit(T) ->
+    ok = router_axes:halt(channel(T)),
     T.
 
 -spec step(cell_task:task()) -> cell_task:step_result().
@@ -168,15 +192,9 @@ step(idle, _Woken, T) ->
 step(taking, {handshake, _Prev, interrupted}, T) ->
     cell_handover:interrupted(T, to_nest, idle);
 step(taking, {handshake, _Prev, available, false}, T) ->
-    move(T, nest, to_nest);
+    move(T, to_nest);
 step(taking, _Woken, T) ->
     {wait, {handshake, prev(T), available, false}, T};
-step(to_nest, {timer, _}, T) ->
-    fault(T, "reach the module nest");
-step(to_nest, {answer, retry}, T) ->
-    move(T, nest, to_nest);
-step(to_nest, _Woken, T) ->
-    wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true);
 step(gripping, {timer, _}, T) ->
     fault(T, "close the gripper");
 step(gripping, {answer, retry}, T) ->
@@ -185,7 +203,7 @@ step(gripping, {answer, retry}, T) ->
     %% what the nest holds is not this product's, and where it is is asked.
     case nest_holder(T) of
         ours ->
-            move(T, nest, to_nest);
+            move(T, to_nest);
         {other, Task, Other} ->
             where(T, refused_other(Task, Other))
     end;
@@ -196,7 +214,7 @@ step(gripping, _Woken, T) ->
                      released -> cell_handshake:complete(T, prev(T));
                      _ -> T                      %% after a restart: it is ours already
                  end,
-            move(T1, unloading, carrying);
+            move(T1, carrying);
         {true, false} ->
             {error, cell_task:error_spec(
                       <<"not_gripped">>, "Modules not gripped",
@@ -211,12 +229,6 @@ step(gripping, _Woken, T) ->
             wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true)
     end;
 %% -- after a Reset: what is left in the gripper goes to the scrap bin -------------------
-step(to_scrap, {timer, _}, T) ->
-    fault(T, "reach its home position");
-step(to_scrap, {io, _Group, done, _}, T) ->
-    wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false);
-step(to_scrap, _Woken, T) ->
-    move(T, home, to_scrap);
 step(emptying, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(emptying, _Woken, T) ->
@@ -226,7 +238,7 @@ step(emptying, _Woken, T) ->
                 true ->
                     cell_task:log(T, brief, "modules of panel ~ts still in the module nest: "
                                   "taken from there to the scrap bin", [S]),
-                    move(T, nest, nest_scrap);
+                    move(T, nest_scrap);
                 false ->
                     %% Taken out by hand meanwhile.
                     forget_scrapped(T)
@@ -237,12 +249,6 @@ step(emptying, _Woken, T) ->
             wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false)
     end;
 %% -- after a Reset: modules left in the nest go to the scrap bin as well ----------------
-step(nest_scrap, {timer, _}, T) ->
-    fault(T, "reach the module nest");
-step(nest_scrap, {io, _Group, done, _}, T) ->
-    wait_io(cell_task:out(T, gripper_close, true), nest_gripping, gripper_closed, true);
-step(nest_scrap, _Woken, T) ->
-    move(T, nest, nest_scrap);
 step(nest_gripping, {timer, _}, T) ->
     fault(T, "close the gripper");
 step(nest_gripping, {answer, retry}, T) ->
@@ -286,13 +292,7 @@ step(where, {answer, Answer}, T) ->
         Asked -> Asked
     end;
 step(regrip, _Woken, T) ->
-    move(T, nest, regrip_at);
-step(regrip_at, {timer, _}, T) ->
-    fault(T, "reach the module nest");
-step(regrip_at, {io, _Group, done, _}, T) ->
-    wait_io(cell_task:out(T, gripper_close, false), reopened, gripper_closed, false);
-step(regrip_at, _Woken, T) ->
-    move(T, nest, regrip_at);
+    move(T, regrip_at);
 step(reopened, {timer, _}, T) ->
     fault(T, "open the gripper");
 step(reopened, _Woken, T) ->
@@ -302,13 +302,7 @@ step(reopened, _Woken, T) ->
     end;
 step(to_unloading, _Woken, T) ->
     %% After a restart with modules in the gripper.
-    move(T, unloading, carrying);
-step(carrying, {timer, _}, T) ->
-    fault(T, "reach the unloading segment");
-step(carrying, {answer, retry}, T) ->
-    move(T, unloading, carrying);
-step(carrying, _Woken, T) ->
-    present(T);
+    move(T, carrying);
 %% -- Product lost (seed §2.3.8) ----------------------------------------------------------
 step(lost, {answer, ignore}, T) ->
     %% IGNORE: the sensor is not believed; the modules go on, marked for inspection.
@@ -347,6 +341,15 @@ step(released, _Woken, T) ->
                        fun(aborted, T1) -> cell_task:out(T1, gripper_close, true);
                           (_, T1) -> T1
                        end, fun put_down/1);
+%% -- a move to a taught position, on the axes --------------------------------------------
+step(Phase, {timer, _}, T) when ?MOVE(Phase) ->
+    %% A path still under way is given up: the move starts again on Retry.
+    ok = router_axes:halt(channel(T)),
+    fault(T, "reach " ++ place_words(Phase));
+step(Phase, {reply, _, Failed}, T) when ?MOVE(Phase), Failed =/= done ->
+    axis_fault(Failed, Phase, T);
+step(Phase, _Woken, T) when ?MOVE(Phase) ->
+    go(T, Phase);
 step(in_transit, _Woken, T0) ->
     %% The operator said the modules are at this robot: the gripper says whether in
     %% it; if not, they are where the cut-off transfer had them, in the nest (from the
@@ -508,14 +511,93 @@ put_down(T) ->
 to_scrap(T) ->
     phase(cell_task:out(T, gripper_close, true), to_scrap).
 
-%% A move to a taught position of the product's lane.
-move(T, Where, Phase) ->
-    Lane = lane(T),
-    Command = cell_task:get(T, command) + 1,
-    T1 = cell_task:out(T, target, router_upper_io:position(Where, Lane)),
-    T2 = cell_task:out(T1, command, Command),
-    {wait, [{io, done, {eq, Command}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
-     phase(cell_task:put(T2, command, Command), Phase)}.
+%% A move to the taught position of a phase (its destination, of the product's lane),
+%% then what the phase does there.
+move(T, Phase) ->
+    go(phase(T, Phase), Phase).
+
+%% One step of a move: the next command the axes need to be ready, or, ready, a line of
+%% the channel from where they stand to the taught position; standing there, once the
+%% machine's in-position signal says so too, the phase's next action. Each command's
+%% end, and the signal, wakes the phase's next step.
+go(T, Phase) ->
+    case router_axes:prepare(channel(T), axes(T)) of
+        ready ->
+            Where = destination(Phase),
+            To = router_task:upper_position(T, Where, lane(T)),
+            At = router_upper_io:at(Where, lane(T)),
+            case router_axes:position(axes(T)) of
+                {ok, Here} ->
+                    case {dist(Here, To) < 0.001, cell_task:in(T, At)} of
+                        {true, true} ->
+                            arrived(Phase, T);
+                        {true, false} ->
+                            %% There, as the machine will see: its in-position signal
+                            %% comes with what the gripper's sensor saw on the way.
+                            {wait, [{io, At, {eq, true}},
+                                    router_task:watchdog(T, motion_timeout_ms, 30000)],
+                             phase(T, Phase)};
+                        {false, _} ->
+                            Speed = cell_task:setting(T, upper_speed, 1000.0),
+                            motion(T, Phase, router_axes:line(channel(T), Here, To,
+                                                              path_params(Speed)))
+                    end;
+                Failed ->
+                    axis_fault(Failed, Phase, T)
+            end;
+        Started ->
+            motion(T, Phase, Started)
+    end.
+
+%% @doc The path velocity, acceleration and deceleration of a move between taught
+%% positions at `Speed' (mm/s).
+-spec path_params(float()) -> cell_hal_axis_fsm:params().
+path_params(Speed) ->
+    #{velocity => Speed, acceleration => ?ACC, deceleration => ?ACC}.
+
+motion(T, Phase, {ok, Ref}) ->
+    {wait, [{reply, Ref}, router_task:watchdog(T, motion_timeout_ms, 30000)],
+     phase(T, Phase)};
+motion(T, Phase, Refused) ->
+    axis_fault(Refused, Phase, phase(T, Phase)).
+
+%% Where a move phase goes, and what it does there.
+destination(to_nest) -> nest;
+destination(nest_scrap) -> nest;
+destination(regrip_at) -> nest;
+destination(carrying) -> unloading;
+destination(to_scrap) -> home.
+
+arrived(to_nest, T) ->
+    wait_io(cell_task:out(T, gripper_close, true), gripping, gripper_closed, true);
+arrived(carrying, T) ->
+    present(T);
+arrived(to_scrap, T) ->
+    %% At home, over the scrap bin.
+    wait_io(cell_task:out(T, gripper_close, false), emptying, gripper_closed, false);
+arrived(nest_scrap, T) ->
+    wait_io(cell_task:out(T, gripper_close, true), nest_gripping, gripper_closed, true);
+arrived(regrip_at, T) ->
+    wait_io(cell_task:out(T, gripper_close, false), reopened, gripper_closed, false).
+
+place_words(to_scrap) -> "its home position";
+place_words(carrying) -> "the unloading segment";
+place_words(_ToNest) -> "the module nest".
+
+dist({X1, Y1}, {X2, Y2}) ->
+    math:sqrt((X2 - X1) * (X2 - X1) + (Y2 - Y1) * (Y2 - Y1)).
+
+%% A move refused, failed or aborted: the task's error, naming the axis.
+axis_fault(Failed, Phase, T) ->
+    {Axis, What} = router_axes:failed(Failed, channel(T), axes(T)),
+    {error, cell_task:error_spec(
+              <<"axis">>, "Upper robot axis fault",
+              io_lib:format("Axis ~ts of the upper robot stopped on its way to ~ts "
+                            "(product ~ts): ~ts.~nCheck the robot, then select RETRY: the "
+                            "axes are made ready again and the move is made again.",
+                            [Axis, place_words(Phase), serial(T), What]),
+              [retry]),
+     T}.
 
 wait_io(T, Phase, Point, Value) ->
     {wait, [{io, Point, {eq, Value}}, router_task:watchdog(T, motion_timeout_ms, 30000)],
@@ -545,6 +627,8 @@ serial(T) ->
     end.
 
 prev(T) -> cell_task:arg(T, prev, route_pick).
+axes(T) -> cell_task:arg(T, axes, [upper_x, upper_y]).
+channel(T) -> cell_task:arg(T, channel, upper_xy).
 
 %% The product's lane.
 lane(T) ->

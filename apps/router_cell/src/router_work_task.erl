@@ -212,8 +212,8 @@ step(in_transit, _Woken, T) ->
 %% whose the whole panel is by the records that can explain it there and the sensors
 %% that rule them out (router_task:fixture/1).
 in_fixture(T, Again) ->
-    %% The robots' sensors read before the nest's: modules that left the nest with a
-    %% move now done show in the nest sensor by then.
+    %% The robots' sensors read before the nest's: modules that left the nest with the
+    %% robot show in it by then.
     Facts = fixture_facts(T, Again),
     case cell_task:in(T, nest_empty) of
         true -> frame;
@@ -231,8 +231,7 @@ fixture_facts(T, Again) ->
       stopper => cell_task:in(T, router_cell:group(loading, Lane), panel_at_stop),
       offered => Offered,
       gripper => cell_task:in(T, upper_io, product_present),
-      upper_away => cell_task:in(T, upper_io, target) =/= router_upper_io:position(nest, Lane)
-          andalso cell_task:in(T, upper_io, done) =:= cell_task:in(T, upper_io, command),
+      upper_away => not cell_task:in(T, upper_io, router_upper_io:at(nest, Lane)),
       again => Again}.
 
 %% A first look found the panel in no record: a snapshot of a machine that moves on

@@ -9,7 +9,9 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([panels_pass_the_line/1, routes_along_the_cut_lines/1, axis_killed_while_routing/1, product_lost_answers/1, reset_scrap_survives_a_stop/1,
+-export([panels_pass_the_line/1, routes_along_the_cut_lines/1, axis_killed_while_routing/1,
+         upper_moves_on_its_axes/1, upper_axis_fault_retried/1,
+         product_lost_answers/1, reset_scrap_survives_a_stop/1,
          reset_clears_the_nest/1,
          jams_and_magazine_warning/1,
          dual_lane/1, restart_keeps_every_panel/1, stop_and_start_while_running/1,
@@ -22,7 +24,9 @@
 -define(EVENTS, [item_transfer_out, item_transfer_in, alarm_raised, alarm_cleared, cell_state]).
 
 all() ->
-    [panels_pass_the_line, routes_along_the_cut_lines, axis_killed_while_routing, product_lost_answers, reset_scrap_survives_a_stop,
+    [panels_pass_the_line, routes_along_the_cut_lines, axis_killed_while_routing,
+     upper_moves_on_its_axes, upper_axis_fault_retried,
+     product_lost_answers, reset_scrap_survives_a_stop,
      reset_clears_the_nest,
      jams_and_magazine_warning, dual_lane,
      restart_keeps_every_panel, stop_and_start_while_running, stop_at_any_moment,
@@ -38,7 +42,7 @@ init_per_testcase(Case, Config) ->
     Sim = maps:merge(#{time_scale => 0.02, arrival_ms => 0, product_lost_rate => 0.0,
                        jam_rate => 0.0, magazine_low_s => 0, no_read_rate => 0.0},
                      sim_settings(Case)),
-    Machine = #{dual_lane => Case =:= dual_lane},
+    Machine = #{dual_lane => lists:member(Case, [dual_lane, upper_moves_on_its_axes])},
     ok = router_test_settings:write(Root, #{machine => Machine, router_sim => Sim,
                                             %% The inspection: router_inspect_SUITE's.
                                             router => #{hal_poll_ms => 5,
@@ -140,6 +144,99 @@ axis_killed_while_routing(_Config) ->
     receive {answered, _} -> ok after 0 -> ct:fail(no_question) end,
     receive {answered, Again} -> ct:fail({asked_again, Again}) after 0 -> ok end,
     ?assertMatch({ok, #{homed := true, powered := true}}, cell_hal_axis:status(lower_x)),
+    ok = stop_cell().
+
+%% The upper robot's moves are lines of its axes' channel between its taught positions
+%% (the router settings'), on both lanes: from home to the module nest of the first
+%% panel's lane, on to that lane's unloading segment, where it offers the modules to
+%% the segment, then to the nest of the next panel's lane, and so on, each line from
+%% where the last one ended, at the robot's speed.
+upper_moves_on_its_axes(_Config) ->
+    {module, _} = code:ensure_loaded(cell_hal_channel),
+    {module, _} = code:ensure_loaded(cell_handshake),
+    Upper = cell_task_proc:whereis(upper),
+    1 = erlang:trace_pattern({cell_hal_channel, follow, 3}, true, []),
+    1 = erlang:trace_pattern({cell_handshake, offer, 2}, true, []),
+    1 = erlang:trace(Upper, true, [call, {tracer, self()}]),
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    try
+        _ = collect_out(8, fun never_answer/1)
+    after
+        _ = erlang:trace(Upper, false, [call]),
+        _ = erlang:trace_pattern({cell_hal_channel, follow, 3}, false, []),
+        _ = erlang:trace_pattern({cell_handshake, offer, 2}, false, [])
+    end,
+    ok = stop_cell(),
+    Moves = upper_moves(Upper, []),
+    ct:log("the upper robot's moves and offers: ~p", [Moves]),
+    Router = cell_settings:get(router),
+    Lanes = carried({0.0, 0.0}, Moves, Router),
+    ?assert(length(Lanes) >= 8, Lanes),
+    ?assert(lists:member(front, Lanes) andalso lists:member(rear, Lanes), Lanes).
+
+%% The upper task's lines and offers, in the order it made them.
+upper_moves(Upper, Acc) ->
+    receive
+        {trace, Upper, call, {cell_hal_channel, follow, [upper_xy, Path, #{velocity := V}]}} ->
+            {X0, Y0, _} = cell_hal_path:start(Path),
+            {X1, Y1, _} = cell_hal_path:finish(Path),
+            upper_moves(Upper, [{line, {X0, Y0}, {X1, Y1}, V} | Acc]);
+        {trace, Upper, call, {cell_handshake, offer, [_, Link]}} ->
+            upper_moves(Upper, [{offer, Link} | Acc])
+    after 0 ->
+        lists:reverse(Acc)
+    end.
+
+%% Each carry: a line from where the robot stood to the nest of the lane it then offers
+%% to, a line on to that lane's unloading segment, the offer. Returns the lanes carried
+%% to, in order; what follows the last offer is a carry cut short by the Stop.
+carried(Here, [{line, From, Nest, V}, {line, Nest, Unloading, V}, {offer, Link} | Rest],
+        Router) ->
+    Lane = case Link of
+               pick_unload_front -> front;
+               pick_unload_rear -> rear
+           end,
+    assert_at(Here, From),
+    assert_at(taught(nest, Lane, Router), Nest),
+    assert_at(taught(unloading, Lane, Router), Unloading),
+    ?assertEqual(maps:get(upper_speed, Router), V),
+    [Lane | carried(Unloading, Rest, Router)];
+carried(_Here, Rest, _Router) ->
+    ?assert(length(Rest) < 3 andalso not lists:keymember(offer, 1, Rest), Rest),
+    [].
+
+taught(Where, Lane, Router) ->
+    #{upper_front_y := Front, rear_lane_offset := Rear} = Router,
+    X = maps:get(case Where of nest -> upper_nest_x; unloading -> upper_unloading_x end,
+                 Router),
+    {X, case Lane of front -> Front; rear -> Front + Rear end}.
+
+assert_at({X, Y}, {A, B}) ->
+    ?assert(abs(X - A) + abs(Y - B) < 1.0e-6, {{X, Y}, {A, B}}).
+
+%% An axis of the upper robot faults (a following error) halfway through a move: the
+%% error "Upper robot axis fault" names the axis; the operator's Retry resets it and the
+%% robot goes on from where it stopped; the panels leave, and nothing else is asked.
+upper_axis_fault_retried(_Config) ->
+    ok = cell_events:subscribe(?EVENTS),
+    ok = cell_controller:start(<<"suite">>),
+    _ = collect_out(1, fun never_answer/1),
+    ok = cell_hal_axis_sim:fault_next(upper_x),
+    Self = self(),
+    Answer = fun(#{id := <<"upper:axis">> = Id, description := Text}) ->
+                     Self ! {answered, Text},
+                     ok = cell_alarms:answer(Id, retry, <<"suite">>);
+                (#{kind := error} = A) ->
+                     ct:fail({unexpected_error, A});
+                (_) ->
+                     ok
+             end,
+    _ = collect_out(3, Answer),
+    Text = receive {answered, T} -> T after 0 -> ct:fail(no_question) end,
+    ?assertMatch({match, _}, re:run(Text, <<"Axis upper_x of the upper robot">>)),
+    receive {answered, Again} -> ct:fail({asked_again, Again}) after 0 -> ok end,
+    ?assertMatch({ok, #{state := standstill, homed := true}}, cell_hal_axis:status(upper_x)),
     ok = stop_cell().
 
 %% The lower task's calls to start a channel path, traced to this process; returns the

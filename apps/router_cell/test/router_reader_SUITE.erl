@@ -54,16 +54,18 @@ end_per_testcase(_Case, _Config) ->
 
 %% -------------------------------------------------------------------------------------
 
-%% The spec's reader is a hardware object the monitor added and watches, as are the
-%% lower robot's axes and channel; the reader's IO is a group of its own on the PLC.
+%% The spec's reader is a hardware object the monitor added and watches, as are each
+%% robot's axes and channel; the reader's IO is a group of its own on the PLC.
 monitor_connects_the_reader(_Config) ->
     ?assertEqual([{lower_x, axis, cell_hal_axis_sim}, {lower_xy, channel, cell_hal_channel_sim},
                   {lower_y, axis, cell_hal_axis_sim},
-                  {reader_front, code_reader, cell_hal_code_reader_io}],
+                  {reader_front, code_reader, cell_hal_code_reader_io},
+                  {upper_x, axis, cell_hal_axis_sim}, {upper_xy, channel, cell_hal_channel_sim},
+                  {upper_y, axis, cell_hal_axis_sim}],
                  lists:sort(cell_hal_hw:list())),
     #{devices := Devices} = cell_monitor:info(),
     ?assertMatch(#{reader_front := up, lower_x := up, lower_y := up, lower_xy := up,
-                   router_plc := up}, Devices),
+                   upper_x := up, upper_y := up, upper_xy := up, router_plc := up}, Devices),
     {ok, Points} = cell_hal:points(reader_front_io),
     ?assertEqual([done, no_read, result, read_count, trigger], [P || #{name := P} <- Points]),
     %% The physics answers a read asked by hand, with the serial of the panel at the

@@ -6,11 +6,13 @@ Reads robots' and the air's registers of the router's map (unit 1: the lower rob
 group at base 200, the upper robot's at 260, the general IO at 300) and prints one
 line each:
 
-    target V        holding register 260, the upper robot's position, a 16-bit integer
-    command V       holding registers 261..262, a signed 32-bit integer
-    spindle_run B   coil 200
-    done V          input registers 260..261
-    air_pressure V  input registers 300..303, a 64-bit float, high word first
+    x_actual V              holding registers 260..261, the upper robot's X axis
+                            position from its NC, a 32-bit float, high word first
+    y_actual V              holding registers 262..263, its Y axis, the same
+    spindle_run B           coil 200
+    at_unloading_front B    discrete input 265, the upper robot in position over the
+                            front unloading segment
+    air_pressure V          input registers 300..303, a 64-bit float, high word first
 
 then "end".
 """
@@ -29,14 +31,14 @@ def main():
     if not client.connect():
         print("error cannot connect", flush=True)
         return 1
-    target = client.read_holding_registers(260, 1, slave=1)
-    print("target %d" % words(target.registers, ">h"), flush=True)
-    command = client.read_holding_registers(261, 2, slave=1)
-    print("command %d" % words(command.registers, ">i"), flush=True)
+    x = client.read_holding_registers(260, 2, slave=1)
+    print("x_actual %r" % words(x.registers, ">f"), flush=True)
+    y = client.read_holding_registers(262, 2, slave=1)
+    print("y_actual %r" % words(y.registers, ">f"), flush=True)
     spindle = client.read_coils(200, 1, slave=1)
     print("spindle_run %d" % int(spindle.bits[0]), flush=True)
-    done = client.read_input_registers(260, 2, slave=1)
-    print("done %d" % words(done.registers, ">i"), flush=True)
+    at = client.read_discrete_inputs(265, 1, slave=1)
+    print("at_unloading_front %d" % int(at.bits[0]), flush=True)
     air = client.read_input_registers(300, 4, slave=1)
     print("air_pressure %r" % words(air.registers, ">d"), flush=True)
     client.close()
