@@ -240,7 +240,7 @@ info({cell_hal_ads, Client, up}, S) ->
 info({cell_hal_ads, Client, {down, Reason}}, S) ->
     case role(Client, S) of
         {ok, Role} when element(3, map_get(Role, S#s.clients)) -> lost(Reason, S);
-        _ -> info({cell_hal_ads, Client, ignored}, S)
+        _ -> S
     end;
 info({cell_hal_ads, _Client, _}, S) ->
     %% A client of an earlier connection, the present state told on subscribing (down

@@ -8,7 +8,7 @@
 %% or the axis that refused it and why.
 -module(router_axes).
 
--export([prepare/2, position/1, line/4, failed/3, words/1, halt/1]).
+-export([prepare/2, position/1, there/2, line/4, failed/3, words/1, halt/1]).
 
 -export_type([started/0, failure/0]).
 
@@ -55,6 +55,12 @@ position([X, Y]) ->
         {{error, Why}, _} -> {error, {X, Why}};
         {_, {error, Why}} -> {error, {Y, Why}}
     end.
+
+%% @doc Whether the axes standing at `Here' are at `To' (within a micrometre): a move
+%% there is not made.
+-spec there({float(), float()}, {float(), float()}) -> boolean().
+there({X1, Y1}, {X2, Y2}) ->
+    math:sqrt((X2 - X1) * (X2 - X1) + (Y2 - Y1) * (Y2 - Y1)) < 0.001.
 
 %% @doc The channel follows a line from `From' to `To' (X, Y, on the tool's plane) with
 %% these path parameters.

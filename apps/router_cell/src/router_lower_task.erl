@@ -204,7 +204,7 @@ stage(rapid, T) ->
     case router_axes:position(axes(T)) of
         {ok, Here} ->
             To = machine(T, Start),
-            case dist(Here, To) < 0.001 of
+            case router_axes:there(Here, To) of
                 true ->
                     next_stage(rapid, T);
                 false ->
@@ -277,9 +277,6 @@ offset(T) ->
         #{lane := rear} -> cell_task:setting(T, rear_lane_offset, 350.0);
         _ -> 0.0
     end.
-
-dist({X1, Y1}, {X2, Y2}) ->
-    math:sqrt((X2 - X1) * (X2 - X1) + (Y2 - Y1) * (Y2 - Y1)).
 
 serial(T) ->
     case cell_task:product(T) of

@@ -528,7 +528,7 @@ go(T, Phase) ->
             At = router_upper_io:at(Where, lane(T)),
             case router_axes:position(axes(T)) of
                 {ok, Here} ->
-                    case {dist(Here, To) < 0.001, cell_task:in(T, At)} of
+                    case {router_axes:there(Here, To), cell_task:in(T, At)} of
                         {true, true} ->
                             arrived(Phase, T);
                         {true, false} ->
@@ -583,9 +583,6 @@ arrived(regrip_at, T) ->
 place_words(to_scrap) -> "its home position";
 place_words(carrying) -> "the unloading segment";
 place_words(_ToNest) -> "the module nest".
-
-dist({X1, Y1}, {X2, Y2}) ->
-    math:sqrt((X2 - X1) * (X2 - X1) + (Y2 - Y1) * (Y2 - Y1)).
 
 %% A move refused, failed or aborted: the task's error, naming the axis.
 axis_fault(Failed, Phase, T) ->
