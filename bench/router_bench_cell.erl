@@ -5,10 +5,11 @@
 
 -export([start/1, stop/0, await_out/2, settings/1, write_settings/2, panels_per_hour/2]).
 
--define(APPS, [router_cell, cell_shdr, cell_web]).
+%% The applications of the release, in its order.
+-define(APPS, [router_cell, cell_shdr, cell_web, cell_inspect]).
 
-%% @doc Starts the router cell (and, with `with_panel', the SHDR adapter and the web
-%% panel on ports of their own) on the root folder `CELLRT_ROOT' names, emptied first,
+%% @doc Starts the router cell (and, with `with_panel', the SHDR adapter, the web
+%% panel on ports of their own and the inspection, as the release runs them) on the root folder `CELLRT_ROOT' names, emptied first,
 %% with these settings objects written to `Settings/'; returns when its PLC's points
 %% have been read. With `plc => real' the settings put the cell in real mode (its PLC
 %% elsewhere, a virtual PLC say): no physics runs here, and the connection up is the
@@ -19,7 +20,7 @@ start(#{settings := Objects} = Opts) ->
     quiet(),
     Root = os:getenv("CELLRT_ROOT"),
     ok = write_settings(Root, Objects),
-    _ = [application:load(A) || A <- [cell_base, cell, cell_web, cell_shdr, router_cell]],
+    _ = [application:load(A) || A <- [cell_base, cell | ?APPS]],
     ok = application:set_env(cell_base, root, Root),
     ok = application:set_env(cell, cell_module, router_cell),
     ok = application:set_env(cell_web, port, 0),
@@ -97,10 +98,14 @@ await_out(N, Timeout, Acc) ->
 
 %% @doc The settings of a machine that passes panels as fast as it can: a panel always
 %% waiting upstream, no faults, physical delays at `Scale' of the real machine's, its
-%% axes at their full speed (a speed override of 100 %).
+%% axes at their full speed (a speed override of 100 %). The inspection at the
+%% unloading exit is switched off: these cells run without the inspection application
+%% that answers its block (the block has a bench of its own), and an unanswered block
+%% would hold each panel for the inspection's timeout.
 -spec settings(#{scale := float(), dual_lane := boolean()}) -> #{atom() => map()}.
 settings(#{scale := Scale, dual_lane := Dual}) ->
     #{machine => #{dual_lane => Dual, speed_override => 100},
+      router => #{inspection => false},
       router_sim => #{time_scale => Scale, arrival_ms => 0, product_lost_rate => 0.0,
                       jam_rate => 0.0, no_read_rate => 0.0, magazine_low_s => 0}}.
 
