@@ -92,6 +92,9 @@
 %% How long `write/3' may take to hand a write to the worker (it is never blocked on
 %% the device, so this only bounds a worker that is itself stuck).
 -define(QUEUE_TIMEOUT, 5000).
+%% How long `add_group/1' waits for a new group's first read at most: a worker whose
+%% device does not answer has the connection down well before.
+-define(READ_TIMEOUT, 30000).
 
 %% The behaviours of the processes serving the IO API: the server, the workers.
 -define(HAL_PROCESS(B), (B =:= gen_server orelse B =:= gen_statem)).
@@ -119,10 +122,29 @@ remove_connection(Id) ->
     server({remove_connection, Id}).
 
 %% @doc Adds a group instance bound to a connection: its module lists the points for
-%% its options, and the connection's driver checks every field first.
+%% its options, and the connection's driver checks every field first. On a connection
+%% that is up it returns once the group's inputs have been read (or the connection
+%% went down meanwhile), so that none reads as `not_yet_read' after it; on one that is
+%% down the connection's first read after connecting reads them before it comes up.
 -spec add_group(group_spec()) ->
           ok | error({bad_option, atom()} | {already_exists, atom()}
                      | {bad_point, term(), term()} | {bad_group, term()} | disconnected).
+add_group(#{connection := Conn} = Spec) ->
+    case server({add_group, Spec}) of
+        ok ->
+            case cell_hal_store:up_worker(Conn) of
+                {ok, Pid} ->
+                    %% The group is there whatever this wait ends with (the worker
+                    %% gone: its successor reads every point before it comes up).
+                    _ = served(fun() -> cell_hal_worker:await_read(Pid, ?READ_TIMEOUT) end,
+                               timeout),
+                    ok;
+                error ->
+                    ok
+            end;
+        Error ->
+            Error
+    end;
 add_group(Spec) ->
     server({add_group, Spec}).
 

@@ -19,7 +19,9 @@
 %%   <td>`connecting' when the wait ends</td></tr>
 %% </table>
 %%
-%% Only the first complete read after a (re)connect brings the connection up, and the
+%% Only the first complete read after a (re)connect brings the connection up: points
+%% bound while it was on its way (a group added as the connection came up) are read
+%% before it, so that no input of an up connection reads as not yet read. The
 %% wait goes back to `reconnect_ms' only then, so a device that accepts connections
 %% and then fails is retried ever more slowly. A stale input is never presented as
 %% fresh: values are stored before the connection is marked up, and it is marked down
@@ -39,7 +41,7 @@
 
 -include("cell_hal.hrl").
 
--export([start_link/1, reconfigure/1, write/4, request/4, reason_text/2]).
+-export([start_link/1, reconfigure/1, await_read/2, write/4, request/4, reason_text/2]).
 -export([callback_mode/0, init/1, connecting/3, connected/3, disconnected/3,
          terminate/3]).
 
@@ -70,10 +72,13 @@
                samples_kept :: pos_integer(),          %% time-stamped samples a point keeps
                tag = 0 :: tag(),                       %% the next tag
                sync :: tag() | undefined,              %% the first read after connecting
+               synced = [] :: [{key(), term()}],       %% its values that changed so far
+               asked = #{} :: #{key() => true},        %% the points it read or reads
                poll :: tag() | undefined,              %% the poll in flight
                poll_due = false :: boolean(),          %% the period ended during a poll
                unread = #{} :: #{key() => tag()},      %% outputs being read back, by read
                pending = #{} :: #{tag() => pending()},
+               readers = [] :: [{gen_statem:from(), tag()}], %% waiting for the poll of that tag
                reason :: term(),                       %% why it is not up
                was_up = false :: boolean(),            %% up before this failure
                logged :: term()}).                     %% the failure last logged
@@ -94,6 +99,13 @@ start_link(Id) ->
 -spec reconfigure(pid()) -> ok.
 reconfigure(Pid) ->
     gen_statem:cast(Pid, reconfigure).
+
+%% @doc Returns once every input bound to the connection has been read, or the
+%% connection is not up (then its first read after connecting reads them before it
+%% comes up): for a group just added to a connection that is up.
+-spec await_read(pid(), timeout()) -> ok.
+await_read(Pid, Timeout) ->
+    gen_statem:call(Pid, await_read, Timeout).
 
 %% @doc Queues an output write. `async' returns once the write is queued; `sync'
 %% returns when the device confirmed it. A worker gone or not answering in time exits
@@ -183,6 +195,15 @@ connected({call, From}, {write, Key, V, Mode}, D) ->
         {ok, D1} -> {keep_state, D1};
         {error, _} = Error -> {keep_state_and_data, [{reply, From, Error}]}
     end;
+connected({call, From}, await_read, #data{poll = Polling, poll_due = Due, tag = Next} = D) ->
+    %% New inputs are read by the poll in flight, or by the one due after it (see
+    %% read_new_inputs/1); one that gave no value (a fault) is not waited for again.
+    case unread_inputs(D) of
+        true when Due -> {keep_state, D#data{readers = [{From, Next} | D#data.readers]}};
+        true when Polling =/= undefined ->
+            {keep_state, D#data{readers = [{From, Polling} | D#data.readers]}};
+        _ -> {keep_state_and_data, [{reply, From, ok}]}
+    end;
 connected({call, From}, {request, Req, Timeout}, #data{driver = Driver, ds = DS} = D) ->
     Tag = D#data.tag,
     case Driver:request(Tag, Req, Timeout, DS) of
@@ -211,11 +232,12 @@ disconnected(enter, _Old, #data{id = Id, driver = Driver, ds = DS, reason = Why}
     Keys = maps:keys(D#data.points),
     _ = [cell_hal_store:set_fault(K, undefined) || K <- Keys],
     ok = cell_hal_store:clear_samples(Keys),
-    D1 = fail_pending(D#data{ds = DS1}),
+    D1 = readers_down(fail_pending(D#data{ds = DS1})),
     Wait = D#data.backoff,
     D2 = log_failure(Wait, D1),
     {keep_state, D2#data{backoff = min(2 * Wait, D#data.max_reconnect_ms), was_up = false,
-                         sync = undefined, poll = undefined, poll_due = false,
+                         sync = undefined, synced = [], asked = #{}, poll = undefined,
+                         poll_due = false,
                          unread = #{}},
      [{state_timeout, Wait, reconnect}, {{timeout, poll}, cancel}]};
 disconnected(state_timeout, reconnect, D) ->
@@ -233,6 +255,8 @@ common({call, From}, {write, _, _, _}, _, _) ->
     {keep_state_and_data, [{reply, From, {error, disconnected}}]};
 common({call, From}, {request, _, _}, _, _) ->
     {keep_state_and_data, [{reply, From, {error, disconnected}}]};
+common({call, From}, await_read, _, _) ->
+    {keep_state_and_data, [{reply, From, ok}]};
 common(cast, reconfigure, State, D) ->
     D1 = load_points(D),
     {keep_state, case State of
@@ -280,9 +304,10 @@ event(connected, connecting, D) ->
 event({lost, Why}, State, D) when State =/= disconnected ->
     {disconnected, D#data{reason = Why}};
 event({reply, Tag, {ok, Values}}, connecting, #data{sync = Tag} = D) ->
-    {connected, go_up(Values, D)};
+    sync_read(Values, D);
 event({reply, Tag, {ok, Values}}, connected, #data{poll = Tag} = D) ->
-    D1 = publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end, D#data{poll = undefined}),
+    D1 = readers_done(Tag, publish(Values, fun(#pt{dir = Dir}, _) -> Dir =:= in end,
+                                   D#data{poll = undefined})),
     {connected, case D1#data.poll_due of
                     true -> start_poll(D1#data{poll_due = false});
                     false -> D1
@@ -337,16 +362,31 @@ event(_, State, D) ->
 %% The first read after connecting: every point, so that nothing is presented as fresh
 %% that was not read on this connection.
 start_sync(#data{points = Pts} = D) ->
-    case plan(maps:to_list(Pts), D) of
+    sync(maps:to_list(Pts), D#data{synced = [], asked = #{}}).
+
+sync(Points, D) ->
+    case plan(Points, D) of
         {_, 0, 0} ->
-            {connected, go_up([], D)};
+            {connected, go_up(D)};
         {Plan, _, _} ->
             {Tag, D1} = read(Plan, D),
-            {connecting, D1#data{sync = Tag}}
+            Asked = maps:merge(D#data.asked, maps:from_list([{K, true} || {K, _} <- Points])),
+            {connecting, D1#data{sync = Tag, asked = Asked}}
     end.
 
-go_up(Values, #data{id = Id, points = Pts} = D) ->
+%% A part of the first read answered: its values stored (readers see them once the
+%% connection is up), then the points bound since it was planned read too, before the
+%% connection goes up.
+sync_read(Values, D) ->
     {Changed, D1} = store(Values, fun(_, _) -> true end, D#data{sync = undefined}),
+    D2 = D1#data{synced = D1#data.synced ++ Changed},
+    case [P || {K, _} = P <- maps:to_list(D2#data.points), not is_map_key(K, D2#data.asked)] of
+        [] -> {connected, go_up(D2)};
+        New -> sync(New, D2)
+    end.
+
+go_up(#data{id = Id, points = Pts, synced = Changed} = D) ->
+    D1 = D#data{synced = [], asked = #{}},
     ok = cell_hal_store:mark(Id, up, undefined),
     ChangedKeys = maps:from_list(Changed),
     lists:foreach(fun({K, V}) -> cell_hal_store:notify(K, V) end, Changed),
@@ -367,7 +407,7 @@ go_up(Values, #data{id = Id, points = Pts} = D) ->
                     [Id, D#data.endpoint, plural(maps:size(Pts), "point"),
                      plural(D#data.requests, "request"), Pushed]),
     D2 = release_ended(D1),
-    %% A group added while the first read was on its way: its outputs are read now.
+    %% Outputs the first read gave no value of are read back now.
     start_readback(D2#data{backoff = D#data.reconnect_ms, reason = undefined, was_up = true,
                            logged = undefined, unread = #{}}).
 
@@ -416,6 +456,20 @@ read_new_inputs(#data{poll = Polling} = D) ->
         true -> D#data{poll_due = true};
         false -> D
     end.
+
+%% The poll of tag `Tag' answered: those waiting for it (or an earlier one) are told.
+readers_done(_Tag, #data{readers = []} = D) ->
+    D;
+readers_done(Tag, #data{readers = Readers} = D) ->
+    {Done, Waiting} = lists:partition(fun({_, T}) -> T =< Tag end, Readers),
+    _ = [gen_statem:reply(From, ok) || {From, _} <- Done],
+    D#data{readers = Waiting}.
+
+%% Those waiting for a poll are told when the connection goes down: its first read
+%% after connecting reads every input.
+readers_down(D) ->
+    _ = [gen_statem:reply(From, ok) || {From, _} <- D#data.readers],
+    D#data{readers = []}.
 
 unread_inputs(#data{points = Pts}) ->
     lists:any(fun(#pt{dir = Dir, value = V}) -> Dir =:= in andalso V =:= none end,

@@ -16,7 +16,8 @@
          watch_placed_while_down_fires_after_reconnect/1, outputs_read_back_after_reconnect/1,
          writes_keep_their_order/1, write_sync_waits_for_the_device/1,
          group_added_while_up/1, groups_added_back_to_back/1,
-         group_added_during_the_first_read/1, remove_group_and_connection/1,
+         group_added_during_the_first_read/1, inputs_read_once_a_group_is_added/1,
+         inputs_of_a_group_added_during_the_first_read/1, remove_group_and_connection/1,
          subscribers_are_cleaned_up/1, worker_crash_goes_down_and_recovers/1,
          server_crash_keeps_configuration/1, io_while_the_server_restarts/1,
          io_while_a_worker_restarts/1, killed_worker_reads_down_until_replaced/1,
@@ -36,6 +37,7 @@ all() ->
      watch_placed_while_down_fires_after_reconnect, outputs_read_back_after_reconnect,
      writes_keep_their_order, write_sync_waits_for_the_device, group_added_while_up,
      groups_added_back_to_back, group_added_during_the_first_read,
+     inputs_read_once_a_group_is_added, inputs_of_a_group_added_during_the_first_read,
      remove_group_and_connection, subscribers_are_cleaned_up,
      worker_crash_goes_down_and_recovers, server_crash_keeps_configuration,
      io_while_the_server_restarts, io_while_a_worker_restarts,
@@ -211,12 +213,9 @@ reads_before_the_first_poll(_Config) ->
     receive {cell_hal_watch, Ref, 0} -> ok after ?WAIT -> ct:fail(never_read) end,
     ?assertEqual(up, cell_hal:status(s2)),
     ?assertEqual({ok, 0}, cell_hal:read(io, int16_in)),
-    %% A group added while up reads `not_yet_read' until the next poll answers.
+    %% A group added while up is read before add_group returns, however slow the PLC.
     ok = cell_hal:add_group(#{id => io2, module => cell_hal_test_io, connection => s2,
                               opts => #{only => [int16_in]}}),
-    ?assertEqual({error, not_yet_read}, cell_hal:read(io2, int16_in)),
-    {ok, Ref2} = cell_hal:watch(io2, int16_in, {eq, 0}),
-    receive {cell_hal_watch, Ref2, 0} -> ok after ?WAIT -> ct:fail(never_read) end,
     ?assertEqual({ok, 0}, cell_hal:read(io2, int16_in)).
 
 subscribers_see_every_change(_Config) ->
@@ -522,6 +521,43 @@ group_added_during_the_first_read(_Config) ->
                               opts => #{only => [int16_out]}}),
     {ok, R} = cell_hal:watch(late, int16_out, {eq, 24}),
     receive {cell_hal_watch, R, 24} -> ok after ?WAIT -> ct:fail(not_read_back) end.
+
+%% A group added to a connection that is up (a PLC that takes 200 ms to answer) can be
+%% read as soon as it is added: its inputs were read first, none is "not yet read".
+inputs_read_once_a_group_is_added(_Config) ->
+    ok = sim(s26, #{latency_ms => 200}),
+    ok = cell_hal_sim:preset(s26, #{{io2, int16_in} => 66, {io2, bool_in} => true}),
+    ok = cell_hal:add_group(#{id => io2, module => cell_hal_test_io, connection => s26,
+                              opts => #{only => [int16_in, bool_in, int16_out]}}),
+    ?assertEqual({ok, 66}, cell_hal:read(io2, int16_in)),
+    ?assertEqual({ok, true}, cell_hal:read(io2, bool_in)).
+
+%% A group added while the first read after connecting is on its way (a PLC that takes
+%% a second to answer) is read before the connection comes up: a task that starts on
+%% the news that it is up finds every input read. The test adds the group once the
+%% PLC has been asked for the first read (seen by tracing its process).
+inputs_of_a_group_added_during_the_first_read(_Config) ->
+    Device = cell_hal_sim_sup:ensure_device(s27, #{latency_ms => 1000}),
+    ok = gen_server:call(Device, {preset, #{{io, int16_in} => 1, {late, int16_in} => 27,
+                                            {late, bool_in} => true}}),
+    erlang:trace(Device, true, ['receive']),
+    ok = cell_hal:add_connection(#{id => s27, driver => cell_hal_sim,
+                                   opts => #{latency_ms => 1000, timeout_ms => 3000,
+                                             poll_ms => 10}}),
+    ok = cell_hal:add_group(#{id => io, module => cell_hal_test_io, connection => s27,
+                              opts => #{only => [int16_in]}}),
+    receive {trace, Device, 'receive', {'$gen_cast', {read, _, _, _}}} -> ok
+    after ?WAIT -> ct:fail(no_first_read)
+    end,
+    erlang:trace(Device, false, ['receive']),
+    ok = cell_hal:add_group(#{id => late, module => cell_hal_test_io, connection => s27,
+                              opts => #{only => [int16_in, bool_in]}}),
+    {ok, Status} = cell_hal:subscribe_connection(s27),
+    _ = Status =:= up orelse
+        receive {cell_hal_conn, s27, up} -> ok after ?WAIT -> ct:fail(not_up) end,
+    ?assertEqual({ok, 27}, cell_hal:read(late, int16_in)),
+    ?assertEqual({ok, true}, cell_hal:read(late, bool_in)),
+    ?assertEqual({ok, 1}, cell_hal:read(io, int16_in)).
 
 remove_group_and_connection(_Config) ->
     ok = sim(s15),
