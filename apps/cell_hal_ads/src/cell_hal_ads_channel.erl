@@ -12,8 +12,9 @@
 %%
 %% `axes' are the NC ids of the channel's interpolation group, its X, Y and (for
 %% three) Z: their online state gives the position and, from it, the progress along the
-%% path (the nearest of the path's sample points ahead of the last one found), and the
-%% speed override is written to them. The axes are the NC's to power and home (or a
+%% path (the nearest of the path's sample points ahead of the last one found). The
+%% speed override is the channel's path override (its cyclic interface), which the NC
+%% applies to the path at once. The axes are the NC's to power and home (or a
 %% task's, through `ads' axis objects of the same ids); the channel only follows.
 %%
 %% == How a path runs ==
@@ -162,8 +163,8 @@ halt(_Owner, Dec, S) ->
     {reply, {error, {bad_deceleration, Dec}}, S}.
 
 %% @private
-%% The override reaches the channel's axes (their cyclic interface, as for an ADS
-%% axis); refused while down, and kept to be written on connecting.
+%% The override is the channel's path override (its cyclic interface); kept while
+%% down, to be written on connecting.
 -spec set_override(number(), #s{}) -> {reply, ok | {error, term()}, #s{}}.
 set_override(Pct, S) when is_number(Pct), Pct >= 0, Pct =< 100 ->
     case S#s.up of
@@ -178,9 +179,8 @@ set_override(Pct, S) when is_number(Pct), Pct >= 0, Pct =< 100 ->
 set_override(Pct, S) ->
     {reply, {error, {bad_override, Pct}}, S}.
 
-write_override(Pct, #s{opts = #{axes := Axes}} = S) ->
-    requests(lists:append([cell_hal_ads_nc:request({override, Pct}, #{axis => A})
-                           || A <- Axes]), S).
+write_override(Pct, #s{ctx = Ctx} = S) ->
+    requests([cell_hal_ads_nci:request({override, Pct}, Ctx)], S).
 
 %% @private
 -spec status(#s{}) -> {reply, cell_hal_channel:status(), #s{}}.

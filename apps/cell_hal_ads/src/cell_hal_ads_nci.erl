@@ -8,7 +8,10 @@
 %% <li>`16#2100 + Ch' state: 1 the channel's error code (INT32), 3 the interpreter's
 %%   state (UINT32);</li>
 %% <li>`16#2200 + Ch' functions: 4 load a program by name (the file's path, a
-%%   string), 2 start the interpreter, 16#10 reset the channel, 16#11 stop it.</li>
+%%   string), 2 start the interpreter, 16#10 reset the channel, 16#11 stop it;</li>
+%% <li>`16#2300 + Ch' cyclic process data: 2 the path's speed override (UINT32,
+%%   1000000 = 100 %), which the NC applies to the path at once, a program running or
+%%   not.</li>
 %% </ul>
 %% The program is written as a file by the system service (AMS port 10000): 120 FOPEN
 %% (read-write, the open mode and the path kind in the index offset, the name written,
@@ -28,6 +31,7 @@
 
 -define(IG_STATE, 16#2100).
 -define(IG_FUNCTIONS, 16#2200).
+-define(IG_CYCLIC, 16#2300).
 %% 0x2100 + channel
 -define(ERROR_CODE, 16#1).
 -define(ITP_STATE, 16#3).
@@ -36,6 +40,8 @@
 -define(LOAD_BY_NAME, 16#4).
 -define(RESET, 16#10).
 -define(STOP, 16#11).
+%% 0x2300 + channel
+-define(OVERRIDE, 16#2).
 %% The system service (AMS port 10000).
 -define(FOPEN, 120).
 -define(FCLOSE, 121).
@@ -96,13 +102,15 @@ file_writes({close, Handle}, _Name, _Ctx) ->
     {read_write, ?FCLOSE, Handle, 0, <<>>}.
 
 %% @doc One operation of the channel as an ADS request.
--spec request(reset | stop | start | {load, binary()} | state | error_code, ctx()) ->
-          request().
+-spec request(reset | stop | start | {load, binary()} | {override, number()} | state
+              | error_code, ctx()) -> request().
 request(reset, #{channel := C}) -> {write, ?IG_FUNCTIONS + C, ?RESET, <<>>};
 request(stop, #{channel := C}) -> {write, ?IG_FUNCTIONS + C, ?STOP, <<>>};
 request(start, #{channel := C}) -> {write, ?IG_FUNCTIONS + C, ?START, <<>>};
 request({load, Name}, #{channel := C}) ->
     {write, ?IG_FUNCTIONS + C, ?LOAD_BY_NAME, <<Name/binary, 0>>};
+request({override, Pct}, #{channel := C}) ->
+    {write, ?IG_CYCLIC + C, ?OVERRIDE, <<(round(Pct * 10000)):32/little>>};
 request(state, #{channel := C}) -> {read, ?IG_STATE + C, ?ITP_STATE, 4};
 request(error_code, #{channel := C}) -> {read, ?IG_STATE + C, ?ERROR_CODE, 4}.
 

@@ -127,7 +127,11 @@ cuts_on_the_nc_channel(Config) ->
                  nc_channel(Config)),
     {ok, Program} = cell_hal_ads_peer:cmd(?config(fake, Config), "file_get " ++ ?PROGRAM),
     ?assertNotEqual(nomatch, binary:match(Program, <<" G03 X60.0000 Y40.0000 I0.0000 "
-                                                     "J20.0000 F60000.0000\n">>)).
+                                                     "J20.0000 F60000.0000\n">>)),
+    %% The machine's speed override, changed while it cuts, is the path's override.
+    ok = cell_settings:put(machine, #{speed_override => 40}, <<"suite">>),
+    ok = await_override(Config, 400000, [1, 2, channel]),
+    ok = cell_axis_task:await_cycles(robot, 1, ?WAIT).
 
 %% A fault of the NC's channel halfway along the path: the task's error names the
 %% channel and the NC's code; Retry and the next cut runs (the channel reset first).
@@ -196,12 +200,21 @@ await_up([Id | Rest]) ->
             end
     end.
 
-%% The monitor's override reached both axes on the NC (its log line comes after).
+%% The monitor's override reached both axes on the NC (its log line comes after), and
+%% the channel's path override where the cell has the channel.
 await_override(Config, Nc) ->
-    case [N || N <- [1, 2], #{override := O} <- [nc(Config, N)], O =:= Nc] of
-        [1, 2] -> ok;
+    await_override(Config, Nc, [1, 2]).
+
+await_override(Config, Nc, Want) ->
+    Axes = [N || N <- [1, 2], #{override := O} <- [nc(Config, N)], O =:= Nc],
+    Channel = case nc_channel(Config) of
+                  #{override := Nc} -> [channel];
+                  _ -> []
+              end,
+    case lists:sort(Want) =:= lists:sort(Axes ++ Channel) of
+        true -> ok;
         _ ->
-            receive {cell_log, _} -> await_override(Config, Nc)
+            receive {cell_log, _} -> await_override(Config, Nc, Want)
             after ?WAIT -> ct:fail({override_not_on_the_nc, Nc})
             end
     end.

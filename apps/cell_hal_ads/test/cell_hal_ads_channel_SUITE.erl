@@ -190,10 +190,11 @@ refused(Config) ->
     ok = done(cell_hal_channel:halt(xy, 1000)),
     ok = await(Ref, aborted),
     ?assertMatch({error, {bad_override, _}}, cell_hal_channel:set_override(xy, 120)),
-    %% The override reaches the channel's axes.
+    %% The override is the channel's path override; its axes keep their own.
     ok = cell_hal_channel:set_override(xy, 50),
-    ?assertMatch(#{override := 500000}, nc_axis(Config, 1)),
-    ?assertMatch(#{override := 500000}, nc_axis(Config, 2)).
+    ?assertMatch(#{override := 500000}, nc_channel(Config)),
+    ?assertMatch(#{override := 1000000}, nc_axis(Config, 1)),
+    ?assertMatch(#{override := 1000000}, nc_axis(Config, 2)).
 
 connection_lost_and_back(Config) ->
     ok = ready(),

@@ -39,6 +39,10 @@ requests_test_() ->
      ?_assertEqual({write, 16#2202, 4, <<"C:\\p.nc", 0>>}, R({load, <<"C:\\p.nc">>})),
      ?_assertEqual({read, 16#2102, 3, 4}, R(state)),
      ?_assertEqual({read, 16#2102, 1, 4}, R(error_code)),
+     %% The path override in the cyclic interface, 1000000 = 100 %.
+     ?_assertEqual({write, 16#2302, 2, <<500000:32/little>>}, R({override, 50})),
+     ?_assertEqual({write, 16#2302, 2, <<1000000:32/little>>}, R({override, 100})),
+     ?_assertEqual({write, 16#2302, 2, <<125000:32/little>>}, R({override, 12.5})),
      %% The system service: FOPEN for writing, binary, by a generic path.
      ?_assertEqual({read_write, 120, 16#10012, 4, <<"C:\\p.nc", 0>>},
                    cell_hal_ads_nci:file_writes(open, <<"C:\\p.nc">>, ?CTX)),

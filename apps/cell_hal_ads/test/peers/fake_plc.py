@@ -56,7 +56,8 @@ An NC with axes answers on AMS port 500 (see Nc below):
     nc_channel_fail ID CODE -> ok   (the channel's next program faults halfway: its
                               axes stop there, the channel's error is CODE)
     nc_channel_get ID -> {ok, #{...}}  (the channel: its interpreter's state, error,
-                              the program loaded and how many it ran)
+                              the program loaded, how many it ran, its path
+                              override)
     file_get NAME    -> {ok, <<...>>} | {error, no_file}   (a file the system
                               service (AMS port 10000) holds)
 
@@ -641,6 +642,8 @@ FOPEN_WRITE = 0x2
 PATH_GENERIC = 1
 IG_NCI_STATE = 0x2100
 IG_NCI_FUNCTIONS = 0x2200
+IG_NCI_CYCLIC = 0x2300
+NCI_OVERRIDE = 0x2             # the channel's path override, UINT32, 1000000 = 100 %
 # The interpreter's states as the NC numbers them.
 ITP_IDLE, ITP_READY, ITP_RUNNING, ITP_ABORTED = 1, 2, 5, 12
 NCI_NO_PROGRAM = 0x4101         # the fake's own codes for a program it cannot run
@@ -890,7 +893,7 @@ class Files:
 class NciChannel:
     """An NC I channel: its interpreter loads a DIN 66025 program by name (lines G01,
     arcs G02/G03 with I and J, in the XY plane, absolute, feed F in mm/min) and runs
-    it, its axes following the path at the feed times the first axis's override. A
+    it, its axes following the path at the feed times the channel's override. A
     program ends READY; one that faults (nc_channel_fail) stops its axes halfway,
     ABORTED with the channel's error, until a reset."""
 
@@ -905,6 +908,7 @@ class NciChannel:
         self.fail_next = None
         self.fail_at = None
         self.along = 0.0
+        self.override = 1000000
         self.t = time.monotonic()
 
     def read(self, offset, length):
@@ -956,6 +960,17 @@ class NciChannel:
             return 0
         return ERR_OFFSET
 
+    def cyclic(self, offset, data):
+        """The cyclic interface (0x2300 + id): the path override."""
+        if offset != NCI_OVERRIDE:
+            return ERR_OFFSET
+        self.advance()
+        (value,) = struct.unpack_from("<I", data)
+        if value > 1000000:
+            return ERR_INVALID_DATA
+        self.override = value
+        return 0
+
     def position(self):
         return tuple(a.pos for a in self.axes) + (0.0,) * (3 - len(self.axes))
 
@@ -964,7 +979,7 @@ class NciChannel:
         dt, self.t = now - self.t, now
         if self.state != ITP_RUNNING:
             return
-        override = self.axes[0].override / 1000000
+        override = self.override / 1000000
         self.along += dt * override * self.feed_at(self.along)
         total = path_length(self.program)
         if self.fail_at is not None and self.along >= self.fail_at[1]:
@@ -993,7 +1008,7 @@ class NciChannel:
         self.advance()
         return {"state": self.state, "error": self.error,
                 "loaded": self.loaded.encode("latin-1"), "runs": self.runs,
-                "along": self.along}
+                "along": self.along, "override": self.override}
 
 
 def parse_din(text, start):
@@ -1124,6 +1139,14 @@ class Nc:
             if channel is None:
                 return ERR_GROUP
             return channel.function(offset, data, self.files)
+        if IG_NCI_CYCLIC < group <= IG_NCI_CYCLIC + 0xFF:
+            channel = self.channel(group, IG_NCI_CYCLIC)
+            if channel is None:
+                return ERR_GROUP
+            try:
+                return channel.cyclic(offset, data)
+            except struct.error:
+                return ERR_SIZE
         for base, handler in ((IG_NC_FUNCTIONS, NcAxis.function),
                               (IG_NC_CYCLIC, NcAxis.cyclic)):
             if base < group <= base + 0xFF:
