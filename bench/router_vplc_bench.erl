@@ -88,9 +88,9 @@ measure(Plc, Scale, Panels) ->
     end.
 
 %% The cell's settings pointed at the virtual PLC on loopback.
-real_mode(#{machine := Machine} = Settings, Port) ->
+real_mode(#{machine := Machine, router := Router} = Settings, Port) ->
     Settings#{machine => Machine#{simulation_mode => false},
-              router => #{plc_host => <<"127.0.0.1">>, plc_port => Port}}.
+              router => Router#{plc_host => <<"127.0.0.1">>, plc_port => Port}}.
 
 %% Starts `scripts/vplc' for the router on a port the OS picks, on a fresh root of its
 %% own holding the same settings as the cell's; returns once it listens.
