@@ -16,11 +16,14 @@
 %%     ({@link setup/1}); whether a crash is the operator's question
 %%     ({@link ask_after_crash/1}); what the operator's answer leads to
 %%     ({@link answer/3}).</li>
+%% <li>Waits: which armed wait a timer, a HAL watch or a reply ends, and what the step
+%%     is told woke it ({@link wait_news/2}).</li>
 %% <li>Transfers: which armed wait a link's news ends ({@link woken/3}), what a
 %%     transfer that ended while the task was DOWN changes ({@link ended_while_down/2}),
 %%     the IPC-2541 events the seed raises when a wait on a link ends
 %%     ({@link wake_event/2}) or starts ({@link starves/4}); a copy of a product
-%%     another task holds in a newer record ({@link newer_holder/3}).</li>
+%%     another task holds in a newer record ({@link newer_holder/3}), and what the task
+%%     does once the registry found its copy old ({@link stale_copy/4}).</li>
 %% </ul>
 %%
 %% It also gives {@link cell_handshake} the task's fields the handshake keeps
@@ -32,12 +35,13 @@
 
 -export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, woken_by/2, clean/1,
          down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
-         ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1]).
+         ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
+         wait_news/2, stale_copy/4]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
--export_type([why/0, origin/0, answer_action/0, setup_event/0, armed/0]).
+-export_type([why/0, origin/0, answer_action/0, setup_event/0, armed/0, news/0]).
 
 -define(LINK_RETRY_MIN_MS, 50).
 -define(LINK_RETRY_MAX_MS, 1000).
@@ -61,6 +65,11 @@
                        | {confirm_here, term()}    %% the product is here, setup again
                        | set_aside_product | reload_product
                        | set_aside_retained | reload_retained.
+%% What a message means to a READY task's armed waits (see wait_news/2).
+-type news() :: {wake, term()}                          %% the step runs, told this woke it
+              | {unavailable, atom(), atom(), term()}   %% a point waited for cannot be served
+              | late                                    %% a reply nobody waits for
+              | none.                                   %% a wait it has since left
 -type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
                | {reply, reference()}
                | {io, reference(), atom(), atom()}
@@ -239,6 +248,35 @@ woken([{wake, Link, Outcome} | Rest], Armed, Sig) ->
         [] -> woken(Rest, Armed, Sig)
     end.
 
+%% @doc What a message that may end one of a READY task's waits means, given what it
+%% armed (`Armed'): a timer that elapsed (one armed while a link was down is that
+%% link's transfer interrupted), a watched point that took its value, a point
+%% waited for that the device cannot serve, an answer waited for. A timer, a watch or
+%% an answer of a wait the task has since left is nothing (`none'; an answer the task
+%% never waited for is `late').
+-spec wait_news(term(), [armed()]) -> news().
+wait_news({timeout, TRef, _}, Armed) ->
+    case lists:keyfind(TRef, 2, Armed) of
+        {timer, TRef, {link_down, Link}} -> {wake, {handshake, Link, interrupted}};
+        {timer, TRef, Ms} -> {wake, {timer, Ms}};
+        _ -> none
+    end;
+wait_news({cell_hal_watch, Ref, Value}, Armed) ->
+    case lists:keyfind(Ref, 2, Armed) of
+        {io, Ref, Group, Point} -> {wake, {io, Group, Point, Value}};
+        _ -> none
+    end;
+wait_news({cell_hal_unavailable, Ref, Why}, Armed) ->
+    case lists:keyfind(Ref, 2, Armed) of
+        {io, Ref, Group, Point} -> {unavailable, Group, Point, Why};
+        _ -> none
+    end;
+wait_news({Ref, Term}, Armed) when is_reference(Ref) ->
+    case lists:member({reply, Ref}, Armed) of
+        true -> {wake, {reply, Ref, Term}};
+        false -> late
+    end.
+
 %% @doc Paused (or stopped), a transfer on a link the task will wait on again has
 %% ended: at resume its step runs and sees that, instead of waiting for something the
 %% link can no longer send.
@@ -275,6 +313,20 @@ newer_holder(Id, Gen, Holders) ->
         [] -> none;
         [Other | _] -> {ok, Other}
     end.
+
+%% @doc What a task does once the registry found its copy of a product old (another
+%% task took the product on in a newer record) and the copy was dropped (`Dropped':
+%% it held it until now). READY, it reconciles again, for what it does rests on a
+%% product it no longer holds; unless it dropped the same serial before (`Again': read
+%% again on a part its sensors see), when the operator is asked rather than going
+%% round for ever. Paused, it reconciles when started. Otherwise (OFF, setup, an error
+%% waiting for the operator, nothing dropped) the copy is simply gone.
+-spec stale_copy(cell_ipc:state(), boolean(), boolean(), paused | error | undefined) ->
+          reconcile | ask | reconcile_at_start | keep.
+stale_copy({ready, _, _}, true, false, _Down) -> reconcile;
+stale_copy({ready, _, _}, true, true, _Down) -> ask;
+stale_copy(down, true, _Again, paused) -> reconcile_at_start;
+stale_copy(_State, _Dropped, _Again, _Down) -> keep.
 
 %% -------------------------------------------------------------------------------------
 %% The task's handshake fields
@@ -445,6 +497,40 @@ crash_test_() ->
      ?_assert(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => true})),
      ?_assertNot(ask_after_crash(#{crashed_in => {ready, idle, starved}, resumed => false})),
      ?_assertNot(ask_after_crash(#{}))].
+
+stale_copy_test_() ->
+    Ready = {ready, processing, active},
+    [?_assertEqual(reconcile, stale_copy(Ready, true, false, undefined)),
+     ?_assertEqual(ask, stale_copy(Ready, true, true, undefined)),
+     ?_assertEqual(reconcile_at_start, stale_copy(down, true, false, paused)),
+     ?_assertEqual(reconcile_at_start, stale_copy(down, true, true, paused)),
+     %% An error waiting for the operator: the answer is acted on without the copy.
+     ?_assertEqual(keep, stale_copy(down, true, false, error)),
+     ?_assertEqual(keep, stale_copy(setup, true, false, undefined)),
+     ?_assertEqual(keep, stale_copy(off, true, false, undefined)),
+     %% Nothing dropped (an older copy than the one it holds, or none held).
+     ?_assertEqual(keep, stale_copy(Ready, false, false, undefined)),
+     ?_assertEqual(keep, stale_copy(down, false, false, paused))].
+
+wait_news_test_() ->
+    T = make_ref(), L = make_ref(), W = make_ref(), R = make_ref(), Other = make_ref(),
+    Armed = [{timer, T, 500}, {timer, L, {link_down, in}}, {io, W, io, part},
+             {reply, R}],
+    [?_assertEqual({wake, {timer, 500}}, wait_news({timeout, T, x}, Armed)),
+     ?_assertEqual({wake, {handshake, in, interrupted}}, wait_news({timeout, L, x}, Armed)),
+     ?_assertEqual({wake, {io, io, part, true}}, wait_news({cell_hal_watch, W, true}, Armed)),
+     ?_assertEqual({unavailable, io, part, <<"gone">>},
+                   wait_news({cell_hal_unavailable, W, <<"gone">>}, Armed)),
+     ?_assertEqual({wake, {reply, R, ok}}, wait_news({R, ok}, Armed)),
+     %% Waits left since: nothing, or a reply nobody waits for.
+     ?_assertEqual(none, wait_news({timeout, Other, x}, Armed)),
+     ?_assertEqual(none, wait_news({cell_hal_watch, Other, true}, Armed)),
+     ?_assertEqual(none, wait_news({cell_hal_unavailable, Other, <<"gone">>}, Armed)),
+     ?_assertEqual(late, wait_news({Other, ok}, Armed)),
+     %% A reference is only what it was armed as: a timer's is no watch, a watch's no
+     %% reply.
+     ?_assertEqual(none, wait_news({cell_hal_watch, T, true}, Armed)),
+     ?_assertEqual(late, wait_news({W, ok}, Armed))].
 
 newer_holder_test_() ->
     [?_assertEqual(none, newer_holder(a, 3, [])),

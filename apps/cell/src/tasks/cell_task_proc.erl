@@ -228,34 +228,18 @@ handle_event(info, ?STEP(Gen), {ready, _, _} = S, #data{gen = Gen, pending = {st
     run_step(S, D);
 handle_event(internal, step, {ready, _, _} = S, D) ->
     run_step(S, D);
-handle_event(info, {timeout, TRef, ?WAIT(Gen)}, {ready, _, _}, #data{gen = Gen, armed = Armed} = D) ->
-    case lists:keyfind(TRef, 2, Armed) of
-        {timer, TRef, {link_down, Link}} -> wake({handshake, Link, interrupted}, D);
-        {timer, TRef, Ms} -> wake({timer, Ms}, D);
-        false -> keep_state_and_data
-    end;
-handle_event(info, {cell_hal_watch, Ref, Value}, {ready, _, _}, #data{armed = Armed} = D) ->
-    case lists:keyfind(Ref, 2, Armed) of
-        {io, Ref, Group, Point} -> wake({io, Group, Point, Value}, D);
-        _ -> keep_state_and_data
-    end;
-handle_event(info, {cell_hal_unavailable, Ref, Why}, {ready, _, _} = S, #data{armed = Armed} = D) ->
-    %% The point waited for cannot be served (a PLC refusing its address): DOWN with
-    %% the error naming it; Retry arms the wait again.
-    case lists:keyfind(Ref, 2, Armed) of
-        {io, Ref, Group, Point} -> raise(S, point_error(Group, Point, Why), io, D#data{resume = S});
-        _ -> keep_state_and_data
-    end;
+handle_event(info, {timeout, _, ?WAIT(Gen)} = Msg, {ready, _, _} = S, #data{gen = Gen} = D) ->
+    wait_news(Msg, S, D);
+handle_event(info, {cell_hal_watch, _, _} = Msg, {ready, _, _} = S, D) ->
+    wait_news(Msg, S, D);
+handle_event(info, {cell_hal_unavailable, _, _} = Msg, {ready, _, _} = S, D) ->
+    wait_news(Msg, S, D);
 handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
     %% The task's IO is gone: nothing it reads can be trusted. DOWN until the operator
     %% retries with the connection back.
     raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = S});
-handle_event(info, {Ref, Term}, {ready, _, _}, #data{armed = Armed} = D)
-  when is_reference(Ref) ->
-    case lists:member({reply, Ref}, Armed) of
-        true -> wake({reply, Ref, Term}, D);
-        false -> late_reply({Ref, Term}, D)
-    end;
+handle_event(info, {Ref, _} = Msg, {ready, _, _} = S, D) when is_reference(Ref) ->
+    wait_news(Msg, S, D);
 handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
   when Request =:= pause; Request =:= stop ->
     hold_or_pause(S, member(request, Request, D));
@@ -338,27 +322,27 @@ handle_event(info, {cell_hal_unavailable, _Ref, _Why}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} = D) ->
     T = drop_stale(T0, Serial, Gen),
-    case State of
-        {ready, _, _} when T#task.product =:= undefined, T0#task.product =/= undefined ->
-            case D#data.handed_on =:= Serial of
-                false ->
-                    %% Running on a copy found old (another task took the product on in
-                    %% a newer record after this one restarted): what it does rests on a
-                    %% product it does not hold. Its transfers end, and it reconciles
-                    %% again.
-                    reconcile_dropped(2, D#data{task = T, handed_on = Serial});
-                true ->
-                    %% The same serial back again (read again on a part its sensors
-                    %% see): dropping it once more would go round for ever. The
-                    %% operator sees to the part.
-                    handed_on_again(State, Serial, D#data{task = T})
-            end;
-        down when T#task.product =:= undefined, T0#task.product =/= undefined,
-                  element(1, D#data.down) =:= paused ->
+    Dropped = T#task.product =:= undefined andalso T0#task.product =/= undefined,
+    Down = case D#data.down of
+               undefined -> undefined;
+               Why -> element(1, Why)
+           end,
+    case cell_task_core:stale_copy(State, Dropped, D#data.handed_on =:= Serial, Down) of
+        reconcile ->
+            %% Running on a copy found old (another task took the product on in a
+            %% newer record after this one restarted): what it does rests on a product
+            %% it does not hold. Its transfers end, and it reconciles again.
+            reconcile_dropped(2, D#data{task = T, handed_on = Serial});
+        ask ->
+            %% The same serial back again (read again on a part its sensors see):
+            %% dropping it once more would go round for ever. The operator sees to the
+            %% part.
+            handed_on_again(State, Serial, D#data{task = T});
+        reconcile_at_start ->
             %% Paused: it reconciles again when started (an error waiting for the
             %% operator is answered first, the answer acted on without the copy).
             {keep_state, D#data{task = T, dropped = true}};
-        _ ->
+        keep ->
             {keep_state, D#data{task = T}}
     end;
 handle_event(info, {cell_registry, sole_holder, _} = Msg, State, D) ->
@@ -729,6 +713,22 @@ disarm(#data{armed = Armed, gen = Gen} = D) ->
 
 wake(Woken, D) ->
     {keep_state, (disarm(D))#data{pending = {step, Woken}}, [{next_event, internal, step}]}.
+
+%% A timer, a HAL watch or an answer reached a READY task: what it means to its waits
+%% is cell_task_core's to say.
+wait_news(Msg, State, #data{armed = Armed} = D) ->
+    case cell_task_core:wait_news(Msg, Armed) of
+        {wake, Woken} ->
+            wake(Woken, D);
+        {unavailable, Group, Point, Why} ->
+            %% The point waited for cannot be served (a PLC refusing its address):
+            %% DOWN with the error naming it; Retry arms the wait again.
+            raise(State, point_error(Group, Point, Why), io, D#data{resume = State});
+        late ->
+            late_reply(Msg, D);
+        none ->
+            keep_state_and_data
+    end.
 
 %% --------------------------------------------------------------------------------------
 %% Pause, resume, stop, errors
