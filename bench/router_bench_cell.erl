@@ -9,8 +9,9 @@
 -define(APPS, [router_cell, cell_shdr, cell_web, cell_inspect]).
 
 %% @doc Starts the router cell (and, with `with_panel', the SHDR adapter, the web
-%% panel on ports of their own and the inspection, as the release runs them) on the root folder `CELLRT_ROOT' names, emptied first,
-%% with these settings objects written to `Settings/'; returns when its PLC's points
+%% panel on ports of their own and the inspection, as the release runs them) on the
+%% root folder `CELLRT_ROOT' names, emptied first, with these settings objects written
+%% to `Settings/'; returns when its PLC's points
 %% have been read. With `plc => real' the settings put the cell in real mode (its PLC
 %% elsewhere, a virtual PLC say): no physics runs here, and the connection up is the
 %% PLC's points read.

@@ -78,7 +78,8 @@
                poll_due = false :: boolean(),          %% the period ended during a poll
                unread = #{} :: #{key() => tag()},      %% outputs being read back, by read
                pending = #{} :: #{tag() => pending()},
-               readers = [] :: [{gen_statem:from(), tag()}], %% waiting for the poll of that tag
+               %% callers of await_read/2, each waiting for the poll of that tag
+               readers = [] :: [{gen_statem:from(), tag()}],
                reason :: term(),                       %% why it is not up
                was_up = false :: boolean(),            %% up before this failure
                logged :: term()}).                     %% the failure last logged
@@ -195,7 +196,8 @@ connected({call, From}, {write, Key, V, Mode}, D) ->
         {ok, D1} -> {keep_state, D1};
         {error, _} = Error -> {keep_state_and_data, [{reply, From, Error}]}
     end;
-connected({call, From}, await_read, #data{poll = Polling, poll_due = Due, tag = Next} = D) ->
+connected({call, From}, await_read,
+          #data{poll = Polling, poll_due = Due, tag = Next} = D) ->
     %% New inputs are read by the poll in flight, or by the one due after it (see
     %% read_new_inputs/1); one that gave no value (a fault) is not waited for again.
     case unread_inputs(D) of
@@ -370,7 +372,7 @@ sync(Points, D) ->
             {connected, go_up(D)};
         {Plan, _, _} ->
             {Tag, D1} = read(Plan, D),
-            Asked = maps:merge(D#data.asked, maps:from_list([{K, true} || {K, _} <- Points])),
+            Asked = maps:merge(D#data.asked, maps:from_keys([K || {K, _} <- Points], true)),
             {connecting, D1#data{sync = Tag, asked = Asked}}
     end.
 
@@ -380,7 +382,8 @@ sync(Points, D) ->
 sync_read(Values, D) ->
     {Changed, D1} = store(Values, fun(_, _) -> true end, D#data{sync = undefined}),
     D2 = D1#data{synced = D1#data.synced ++ Changed},
-    case [P || {K, _} = P <- maps:to_list(D2#data.points), not is_map_key(K, D2#data.asked)] of
+    #data{points = Pts, asked = Asked} = D2,
+    case [P || {K, _} = P <- maps:to_list(Pts), not is_map_key(K, Asked)] of
         [] -> {connected, go_up(D2)};
         New -> sync(New, D2)
     end.

@@ -66,10 +66,10 @@
                        | set_aside_product | reload_product
                        | set_aside_retained | reload_retained.
 %% What a message means to a READY task's armed waits (see wait_news/2).
--type news() :: {wake, term()}                          %% the step runs, told this woke it
-              | {unavailable, atom(), atom(), term()}   %% a point waited for cannot be served
-              | late                                    %% a reply nobody waits for
-              | none.                                   %% a wait it has since left
+-type news() :: {wake, term()}                         %% the step runs, told this woke it
+              | {unavailable, atom(), atom(), term()}  %% its point cannot be served
+              | late                                   %% a reply nobody waits for
+              | none.                                  %% a wait it has since left
 -type armed() :: {timer, reference(), non_neg_integer() | {link_down, atom()}}
                | {reply, reference()}
                | {io, reference(), atom(), atom()}
@@ -518,7 +518,8 @@ wait_news_test_() ->
              {reply, R}],
     [?_assertEqual({wake, {timer, 500}}, wait_news({timeout, T, x}, Armed)),
      ?_assertEqual({wake, {handshake, in, interrupted}}, wait_news({timeout, L, x}, Armed)),
-     ?_assertEqual({wake, {io, io, part, true}}, wait_news({cell_hal_watch, W, true}, Armed)),
+     ?_assertEqual({wake, {io, io, part, true}},
+                   wait_news({cell_hal_watch, W, true}, Armed)),
      ?_assertEqual({unavailable, io, part, <<"gone">>},
                    wait_news({cell_hal_unavailable, W, <<"gone">>}, Armed)),
      ?_assertEqual({wake, {reply, R, ok}}, wait_news({R, ok}, Armed)),

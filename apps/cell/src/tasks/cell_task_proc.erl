@@ -228,7 +228,8 @@ handle_event(info, ?STEP(Gen), {ready, _, _} = S, #data{gen = Gen, pending = {st
     run_step(S, D);
 handle_event(internal, step, {ready, _, _} = S, D) ->
     run_step(S, D);
-handle_event(info, {timeout, _, ?WAIT(Gen)} = Msg, {ready, _, _} = S, #data{gen = Gen} = D) ->
+handle_event(info, {timeout, _, ?WAIT(Gen)} = Msg, {ready, _, _} = S,
+             #data{gen = Gen} = D) ->
     wait_news(Msg, S, D);
 handle_event(info, {cell_hal_watch, _, _} = Msg, {ready, _, _} = S, D) ->
     wait_news(Msg, S, D);
