@@ -612,10 +612,9 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
 
 after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
     D1 = D#data{task = cell_task_core:clean(T), pending = {step, undefined}},
-    Next = next_step(D1),
     case T#task.ipc of
-        Ipc -> {keep_state, D1, Next};
-        New -> {next_state, New, D1, Next}
+        Ipc -> next_step(Ipc, D1);
+        New -> {next_state, New, D1, next_step(D1)}
     end;
 after_step({wait, Waits, T}, D) ->
     case arm(Waits, waited(D#data{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
@@ -651,6 +650,15 @@ next_step(#data{gen = Gen}) ->
     case erlang:process_info(self(), message_queue_len) of
         {message_queue_len, 0} -> [{next_event, internal, step}];
         _ -> self() ! ?STEP(Gen), []
+    end.
+
+%% As next_step/1, the task staying in `State': with nothing waiting, the next step
+%% runs within this event, without a turn through gen_statem (nothing could come
+%% between the two: no message is there, and the state is the same).
+next_step(State, #data{gen = Gen} = D) ->
+    case erlang:process_info(self(), message_queue_len) of
+        {message_queue_len, 0} -> run_step(State, D);
+        _ -> self() ! ?STEP(Gen), {keep_state, D}
     end.
 
 %% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
