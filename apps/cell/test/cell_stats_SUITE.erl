@@ -16,7 +16,8 @@
          a_long_outage_of_the_database/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
-         a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
+         a_product_left_across_a_crash/1, a_failed_product_left_across_a_crash/1,
+         an_answer_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
          books_across_crashes/1, a_journal_at_its_bound/1]).
@@ -30,6 +31,7 @@ all() ->
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
      a_product_left_across_a_crash,
+     a_failed_product_left_across_a_crash,
      an_answer_across_a_crash,
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
@@ -42,6 +44,7 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
                                      Case =:= a_product_in_the_cell_and_after;
                                      Case =:= a_product_left_across_a_crash;
+                                     Case =:= a_failed_product_left_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
@@ -316,12 +319,88 @@ a_product_left_across_a_crash(Config) ->
     ?assertEqual(#{in => 2, out => 2, good => 2, scrapped => 0}, counted_since(Before)),
     ?assertEqual(0, cell_stats:in_cell()).
 
+%% A product marked failed in the cell (its inspection failed: a save of its fields,
+%% which is not in the trace journal) leaves; the statistics take its exit record and
+%% write its history, then are killed before their periodic write, so the books still
+%% have it as it entered (not failed) and the exit record is applied again at their
+%% restart. It left once: one `left' entry, as failed, and counted once, as failed.
+a_failed_product_left_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The statistics' tables are there once they answer.
+    ok = cell_stats:flush(),
+    {ok, _} = mnesia:subscribe({table, cell_trace_event, simple}),
+    {Serial, Lock, Before} = failed_out_before_the_write(Ref, 1),
+    %% Their periodic write, if it came, waits for the lock and dies with them.
+    ok = kill_stats(),
+    Lock ! release,
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual([entered, changed, item_transfer_out, left], history(Serial)),
+    {ok, #{status := out, failed := true, events := Events}} = cell_stats:product(Serial),
+    ?assertMatch([#{quality := failed}], [E || #{event := left} = E <- Events]),
+    ?assertEqual(#{in => 1, out => 1, good => 0, failed => 1, scrapped => 0},
+                 counted_since(Before)).
+
+%% The product enters and its entry is written; with the statistics suspended it is
+%% marked failed, sent out and let go; then, the counters' table locked so that no
+%% periodic write can record what follows, they take all that and write its history.
+%% A periodic write already asked for among those events would record them: the
+%% product then went its way unharmed, and the next one is tried.
+failed_out_before_the_write(_Ref, 10) ->
+    ct:fail(periodic_write_in_every_try);
+failed_out_before_the_write(Ref, Try) ->
+    Serial = iolist_to_binary(io_lib:format("F-~b", [Try])),
+    Product = cell_product:new(Serial, <<"rf">>),
+    ok = cell_stats:flush(),
+    Before = maps:put(failed, maps:get(failed, maps:get(cell, cell_stats:summary(total))),
+                      cell_counts()),
+    ok = cell_test_task:command(waits_a, Ref, {product, Product}),
+    await_event(product_saved, Serial),
+    ok = cell_stats:flush(),
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {product, Product#{failed => true}}),
+    await_event(product_saved, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    {messages, Queued} = process_info(whereis(cell_stats), messages),
+    case lists:member(flush, Queued) of
+        true ->
+            ok = sys:resume(cell_stats),
+            failed_out_before_the_write(Ref, Try + 1);
+        false ->
+            Me = self(),
+            Lock = spawn_link(fun() -> hold_counters(Me) end),
+            receive {counters_locked, Lock} -> ok end,
+            ok = sys:resume(cell_stats),
+            receive
+                {mnesia_table_event, {write, {cell_trace_event, Serial, _, _, #{event := left}},
+                                      _}} -> ok
+            after ?RETRY_WAIT_MS -> ct:fail(left_not_written)
+            end,
+            {Serial, Lock, Before}
+    end.
+
+%% Holds the counters' table locked until told to let it go.
+hold_counters(Owner) ->
+    {atomic, ok} = mnesia:transaction(fun() ->
+                                               ok = mnesia:write_lock_table(cell_stats_counter),
+                                               Owner ! {counters_locked, self()},
+                                               receive release -> ok end
+                                       end).
+
 cell_counts() ->
     #{cell := Cell} = cell_stats:summary(total),
     maps:with([in, out, good, scrapped], Cell).
 
 counted_since(Before) ->
-    maps:map(fun(K, V) -> V - maps:get(K, Before) end, cell_counts()).
+    #{cell := #{failed := Failed}} = cell_stats:summary(total),
+    maps:map(fun(K, V) -> V - maps:get(K, Before) end,
+             maps:with(maps:keys(Before), (cell_counts())#{failed => Failed})).
 
 %% An operator's answer to an error of a task holding a product, given while the
 %% statistics took nothing and lost with them, is in the product's history after their
