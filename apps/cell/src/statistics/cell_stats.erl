@@ -19,9 +19,12 @@
 %% crash leaves both as they were at the same record. When the
 %% database opens (at every start of the process) the records after that id are
 %% applied again, before any event: each gives the same history entries (a record's
-%% entries are keyed by its id, and the history keeps one copy of an entry) and is
-%% counted once, so after any crash a product that left is recorded as left, once,
-%% with its whole history. Who holds a product is then taken from the registry; a
+%% entries are keyed by its id and made of the record alone, and the history keeps one
+%% copy of an entry) and is counted once, so after any crash a product that left is
+%% recorded as left, once, with its whole history. Made of the record alone: a product
+%% leaves good or failed as its exit record says, not as the statistics knew it (the
+%% saves that marked it failed are not in the journal, and a crash may have taken them
+%% from the statistics). Who holds a product is then taken from the registry; a
 %% product a task holds whose entry was never recorded enters with what its product
 %% file says, and the log says so. A product counted as scrapped that then leaves
 %% (see {@link cell_stats_trace:left_after_scrap/1}) is counted as left instead.
@@ -42,7 +45,8 @@
 %%
 %% <b>Products.</b> A serial first saved by a task enters the cell (`in'); a
 %% transfer out of a task that hands to no other task of this cell takes it out
-%% (`out', `good' or `failed' by its failed flag); a product no task holds any more
+%% (`out', `good' or `failed' by the failed flag its exit record carries, see
+%% {@link cell_stats_trace:left_failed/2}); a product no task holds any more
 %% for two writes in a row (about two seconds: a handshake hands over in far less) was
 %% forgotten inside the cell (`scrapped': an operator's Reset, say). So at every
 %% moment `in = out + scrapped + in_cell'. Per task: items in and out, work completed
@@ -352,7 +356,7 @@ event(#{type := item_transfer_out, task := T, item := S} = E, St) ->
     St3 = timing({T, cycle}, maps:get(T, St2#st.last_out, undefined), At, St2),
     St4 = St3#st{last_out = maps:put(T, At, St3#st.last_out)},
     case exit_task(T, St4) of
-        true -> leave(S, T, At, St4);
+        true -> leave(S, T, At, maps:get(failed, E, undefined), St4);
         false -> St4
     end;
 event(#{type := item_work_start, item := S, task := T} = E, St) ->
@@ -463,13 +467,17 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
             trace(Serial, At, T, #{event => changed, changes => Changes}, St2)
     end.
 
-%% The product left the cell through an exit task. One the statistics no longer
+%% The product left the cell through an exit task, failed or not as its exit record
+%% says (`Failed', see cell_stats_trace:left_failed/2). One the statistics no longer
 %% hold was counted before: taken for scrapped (its hand-out took longer than a
 %% hand-over may), it is counted as left instead; already out, it is not counted again.
-leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
+leave(Serial, T, At, Failed, #st{products = Ps, stale = Stale} = St) ->
+    As = fun(#prod{failed = Known} = P) ->
+                 P#prod{failed = cell_stats_trace:left_failed(Failed, Known)}
+         end,
     case {maps:find(Serial, Ps), Stale} of
         {{ok, P}, _} ->
-            left(Serial, T, At, P, St);
+            left(Serial, T, At, As(P), St);
         {error, #{Serial := T}} ->
             %% Its stale copy sent out again: it left once.
             St#st{stale = maps:remove(Serial, Stale)};
@@ -477,7 +485,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
             Summary = left_summary(Serial, St),
             case cell_stats_trace:left_after_scrap(Summary) of
                 count ->
-                    left(Serial, T, At, #prod{entered = At, entry = T}, St);
+                    left(Serial, T, At, As(#prod{entered = At, entry = T}), St);
                 already_out ->
                     St;
                 {uncount_scrap, By} ->
@@ -489,7 +497,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
                                             undefined -> St;
                                             _ -> count_by([{By, scrapped}], -1, At, St)
                                         end),
-                    left(Serial, T, At, summary_prod(Summary, At, T), St1)
+                    left(Serial, T, At, As(summary_prod(Summary, At, T)), St1)
             end
     end.
 
@@ -984,8 +992,8 @@ trace(undefined, _At, _Task, _Entry, St) ->
 %% An entry's sequence orders the entries of one millisecond by their microsecond and
 %% then as they were taken (journal records and events come by different ways).
 trace(Serial, At, Task, Entry, #st{applying = {Id, K}} = St) ->
-    %% Of a journal record: the same entry each time it is applied, which the bag
-    %% keeps once.
+    %% Of a journal record: the same entry each time it is applied (made of the
+    %% record alone), which the bag keeps once.
     E = Entry#{task => Task},
     db(fun() -> cell_stats_db:write_history(Serial, At, {Id, K}, E) end,
        St#st{applying = {Id, K + 1}});
