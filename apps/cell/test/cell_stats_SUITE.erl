@@ -17,7 +17,7 @@
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
          a_product_left_across_a_crash/1, a_failed_product_left_across_a_crash/1,
-         an_answer_across_a_crash/1,
+         an_answer_across_a_crash/1, an_answer_without_a_product_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
          books_across_crashes/1, a_journal_at_its_bound/1]).
@@ -33,6 +33,7 @@ all() ->
      a_product_left_across_a_crash,
      a_failed_product_left_across_a_crash,
      an_answer_across_a_crash,
+     an_answer_without_a_product_across_a_crash,
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
      a_product_left_but_still_in_its_file,
@@ -46,6 +47,7 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= a_product_left_across_a_crash;
                                      Case =:= a_failed_product_left_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
+                                     Case =:= an_answer_without_a_product_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
                                      Case =:= a_product_left_but_still_in_its_file;
@@ -430,6 +432,35 @@ an_answer_across_a_crash(Config) ->
     ?assertMatch([#{event := alarm_answered, id := Id, solution := retry,
                     who := <<"operator 7">>, task := waits_a}],
                  [E || #{event := alarm_answered} = E <- Events]).
+
+%% An answer to an error of a task that held no product, given while the statistics
+%% took nothing and lost with them; then the task takes a product. Applied from the
+%% trace journal after their restart, the answer is in no product's history: not in
+%% the one the task holds by then.
+an_answer_without_a_product_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, alarm_raised, alarm_cleared]),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    ok = cell_stats:flush(),
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {error, [retry, reset]}),
+    Id = receive {cell_event, #{type := alarm_raised, task := waits_a, alarm := #{id := I}}} -> I
+         after ?RETRY_WAIT_MS -> ct:fail(no_error_raised)
+         end,
+    ok = cell_alarms:answer(Id, retry, <<"operator 8">>),
+    receive {cell_event, #{type := alarm_cleared, task := waits_a}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(error_not_cleared)
+    end,
+    Serial = <<"S-83">>,
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, <<"r13">>)}),
+    await_event(product_saved, Serial),
+    ok = kill_stats(),
+    ok = cell_stats:flush(),
+    ?assertEqual([entered], history(Serial)).
 
 %% A node that died after its journal took a product's entry and exit, and in the
 %% middle of writing a third record, before the statistics wrote anything: at boot the

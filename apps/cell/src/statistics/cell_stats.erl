@@ -24,7 +24,8 @@
 %% recorded as left, once, with its whole history. Made of the record alone: a product
 %% leaves good or failed as its exit record says, not as the statistics knew it (the
 %% saves that marked it failed are not in the journal, and a crash may have taken them
-%% from the statistics). Who holds a product is then taken from the registry; a
+%% from the statistics); an answer goes to the product its record names, or to none.
+%% Who holds a product is then taken from the registry; a
 %% product a task holds whose entry was never recorded enters with what its product
 %% file says, and the log says so. A product counted as scrapped that then leaves
 %% (see {@link cell_stats_trace:left_after_scrap/1}) is counted as left instead.
@@ -375,7 +376,9 @@ event(#{type := alarm_answered, task := T} = E, St) ->
               who => maps:get(who, E, <<>>)},
     case E of
         #{item := S} when is_binary(S) -> trace(S, event_us(E), T, Entry, St);
-        _ -> held_trace(T, event_us(E), Entry, St)
+        %% Its task held no product when it was answered (the record says so): not the
+        %% one the statistics have it holding when the record is applied again.
+        _ -> St
     end;
 event(#{item := S} = E, St) when is_binary(S) ->
     %% identifier read, work pause and resume: history only.
