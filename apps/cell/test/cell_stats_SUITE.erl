@@ -16,7 +16,9 @@
          a_long_outage_of_the_database/1, writer_crash/1,
          time_in_a_state_across_a_crash/1,
          shifts_split_the_time/1, a_product_in_the_cell_and_after/1,
-         a_product_left_across_a_crash/1, an_answer_across_a_crash/1,
+         a_product_left_across_a_crash/1, a_failed_product_left_across_a_crash/1,
+         a_product_taken_again_across_a_crash/1,
+         an_answer_across_a_crash/1, an_answer_without_a_product_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
          books_across_crashes/1, a_journal_at_its_bound/1]).
@@ -30,7 +32,10 @@ all() ->
      shifts_split_the_time,
      a_product_in_the_cell_and_after,
      a_product_left_across_a_crash,
+     a_failed_product_left_across_a_crash,
+     a_product_taken_again_across_a_crash,
      an_answer_across_a_crash,
+     an_answer_without_a_product_across_a_crash,
      a_journal_cut_short_at_boot,
      a_product_held_but_never_recorded,
      a_product_left_but_still_in_its_file,
@@ -42,7 +47,10 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
                                      Case =:= a_product_in_the_cell_and_after;
                                      Case =:= a_product_left_across_a_crash;
+                                     Case =:= a_failed_product_left_across_a_crash;
+                                     Case =:= a_product_taken_again_across_a_crash;
                                      Case =:= an_answer_across_a_crash;
+                                     Case =:= an_answer_without_a_product_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
                                      Case =:= a_product_left_but_still_in_its_file;
@@ -316,12 +324,148 @@ a_product_left_across_a_crash(Config) ->
     ?assertEqual(#{in => 2, out => 2, good => 2, scrapped => 0}, counted_since(Before)),
     ?assertEqual(0, cell_stats:in_cell()).
 
+%% A product marked failed in the cell (its inspection failed: a save of its fields,
+%% which is not in the trace journal) leaves; the statistics take its exit record and
+%% write its history, then are killed before their periodic write, so the books still
+%% have it as it entered (not failed) and the exit record is applied again at their
+%% restart. It left once: one `left' entry, as failed, and counted once, as failed.
+a_failed_product_left_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    %% The statistics' tables are there once they answer.
+    ok = cell_stats:flush(),
+    {ok, _} = mnesia:subscribe({table, cell_trace_event, simple}),
+    {Serial, Lock, Before} = failed_out_before_the_write(Ref),
+    %% Their periodic write, if it came, waits for the lock and dies with them.
+    ok = kill_stats(),
+    Lock ! release,
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual([entered, changed, item_transfer_out, left], history(Serial)),
+    {ok, #{status := out, failed := true, events := Events}} = cell_stats:product(Serial),
+    ?assertMatch([#{quality := failed}], [E || #{event := left} = E <- Events]),
+    ?assertEqual(#{in => 1, out => 1, good => 0, failed => 1, scrapped => 0},
+                 counted_since(Before)).
+
+%% A product the cell knows is taken by another task after saves of its fields that
+%% the trace journal does not keep (taking it is a record: that task did not hold it);
+%% the statistics take it all and write its history, then are killed before their
+%% periodic write, and the records are applied again at their restart, without those
+%% saves. What changed when the second task took it is in the history once, as the
+%% statistics saw it the first time.
+a_product_taken_again_across_a_crash(Config) ->
+    #{waits_a := RefA, waits_b := RefB} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved]),
+    ok = cell_stats:flush(),
+    {ok, _} = mnesia:subscribe({table, cell_trace_event, simple}),
+    Name = fun(Try) -> iolist_to_binary(io_lib:format("T-~b", [Try])) end,
+    Steps = fun(Serial) ->
+                    P = (cell_product:new(Serial, <<"rt">>))#{stage => 0},
+                    ok = cell_test_task:command(waits_a, RefA, {product, P}),
+                    await_event(product_saved, Serial),
+                    ok = cell_test_task:command(waits_a, RefA, {product, P#{stage => 1}}),
+                    await_event(product_saved, Serial),
+                    ok = cell_test_task:command(waits_a, RefA, {product, undefined}),
+                    await_event(product_saved, undefined),
+                    ok = cell_test_task:command(waits_b, RefB,
+                                                {product, P#{stage => 1, station => <<"b">>}}),
+                    await_event(waits_b, product_saved, Serial)
+            end,
+    ByB = fun(#{event := changed, task := waits_b}) -> true;
+             (_) -> false
+          end,
+    {Serial, Lock, _Before} = unwritten(Name, Steps, ByB, 1),
+    ok = kill_stats(),
+    Lock ! release,
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    {ok, #{status := in_cell, events := Events}} = cell_stats:product(Serial),
+    ?assertEqual([#{station => <<"b">>}],
+                 [Changes || #{changes := Changes} = E <- Events, ByB(E)]).
+
+%% The product enters and its entry is written; with the statistics suspended it is
+%% marked failed, sent out and let go; then they take all that and write its history,
+%% and none of it is in their periodic write (see unwritten/4).
+failed_out_before_the_write(Ref) ->
+    Enter = fun(Try) ->
+                    Serial = iolist_to_binary(io_lib:format("F-~b", [Try])),
+                    ok = cell_test_task:command(waits_a, Ref,
+                                                {product, cell_product:new(Serial, <<"rf">>)}),
+                    await_event(product_saved, Serial),
+                    ok = cell_stats:flush(),
+                    Serial
+            end,
+    Out = fun(Serial) ->
+                  Failed = (cell_product:new(Serial, <<"rf">>))#{failed => true},
+                  ok = cell_test_task:command(waits_a, Ref, {product, Failed}),
+                  await_event(product_saved, Serial),
+                  ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+                  await_event(item_transfer_out, Serial),
+                  ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+                  await_event(product_saved, undefined)
+          end,
+    unwritten(Enter, Out, fun(#{event := E}) -> E =:= left end, 1).
+
+%% `Prepare' (given the try's number, it answers a serial), then, with the statistics
+%% suspended, `Steps' on that serial; then, the counters' table locked so that no
+%% periodic write can record what follows, the statistics take it all, until the
+%% serial's history entry `Written' picks is written. Answers the serial, the lock's
+%% holder and the counters before. A periodic write already asked for among those
+%% events would record them: the product then went its way unharmed, and the next try
+%% is made. The caller subscribed to the history table's events.
+unwritten(_Prepare, _Steps, _Written, 10) ->
+    ct:fail(periodic_write_in_every_try);
+unwritten(Prepare, Steps, Written, Try) ->
+    ok = cell_stats:flush(),
+    Before = maps:put(failed, maps:get(failed, maps:get(cell, cell_stats:summary(total))),
+                      cell_counts()),
+    Serial = Prepare(Try),
+    ok = sys:suspend(cell_stats),
+    ok = Steps(Serial),
+    {messages, Queued} = process_info(whereis(cell_stats), messages),
+    case lists:member(flush, Queued) of
+        true ->
+            ok = sys:resume(cell_stats),
+            unwritten(Prepare, Steps, Written, Try + 1);
+        false ->
+            Me = self(),
+            Lock = spawn_link(fun() -> hold_counters(Me) end),
+            receive {counters_locked, Lock} -> ok end,
+            ok = sys:resume(cell_stats),
+            ok = await_history(Serial, Written),
+            {Serial, Lock, Before}
+    end.
+
+await_history(Serial, Written) ->
+    receive
+        {mnesia_table_event, {write, {cell_trace_event, Serial, _, _, Entry}, _}} ->
+            case Written(Entry) of
+                true -> ok;
+                false -> await_history(Serial, Written)
+            end
+    after ?RETRY_WAIT_MS -> ct:fail({not_written, Serial})
+    end.
+
+%% Holds the counters' table locked until told to let it go.
+hold_counters(Owner) ->
+    {atomic, ok} = mnesia:transaction(fun() ->
+                                               ok = mnesia:write_lock_table(cell_stats_counter),
+                                               Owner ! {counters_locked, self()},
+                                               receive release -> ok end
+                                       end).
+
 cell_counts() ->
     #{cell := Cell} = cell_stats:summary(total),
     maps:with([in, out, good, scrapped], Cell).
 
 counted_since(Before) ->
-    maps:map(fun(K, V) -> V - maps:get(K, Before) end, cell_counts()).
+    #{cell := #{failed := Failed}} = cell_stats:summary(total),
+    maps:map(fun(K, V) -> V - maps:get(K, Before) end,
+             maps:with(maps:keys(Before), (cell_counts())#{failed => Failed})).
 
 %% An operator's answer to an error of a task holding a product, given while the
 %% statistics took nothing and lost with them, is in the product's history after their
@@ -351,6 +495,35 @@ an_answer_across_a_crash(Config) ->
     ?assertMatch([#{event := alarm_answered, id := Id, solution := retry,
                     who := <<"operator 7">>, task := waits_a}],
                  [E || #{event := alarm_answered} = E <- Events]).
+
+%% An answer to an error of a task that held no product, given while the statistics
+%% took nothing and lost with them; then the task takes a product. Applied from the
+%% trace journal after their restart, the answer is in no product's history: not in
+%% the one the task holds by then.
+an_answer_without_a_product_across_a_crash(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, alarm_raised, alarm_cleared]),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    ok = cell_stats:flush(),
+    ok = sys:suspend(cell_stats),
+    ok = cell_test_task:command(waits_a, Ref, {error, [retry, reset]}),
+    Id = receive {cell_event, #{type := alarm_raised, task := waits_a, alarm := #{id := I}}} -> I
+         after ?RETRY_WAIT_MS -> ct:fail(no_error_raised)
+         end,
+    ok = cell_alarms:answer(Id, retry, <<"operator 8">>),
+    receive {cell_event, #{type := alarm_cleared, task := waits_a}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail(error_not_cleared)
+    end,
+    Serial = <<"S-83">>,
+    ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, <<"r13">>)}),
+    await_event(product_saved, Serial),
+    ok = kill_stats(),
+    ok = cell_stats:flush(),
+    ?assertEqual([entered], history(Serial)).
 
 %% A node that died after its journal took a product's entry and exit, and in the
 %% middle of writing a third record, before the statistics wrote anything: at boot the
@@ -673,8 +846,11 @@ in_and_out(Ref, Serial, Recipe) ->
     await_event(product_saved, undefined).
 
 await_event(Type, Serial) ->
-    receive {cell_event, #{type := Type, task := waits_a, item := Serial}} -> ok
-    after ?RETRY_WAIT_MS -> ct:fail({no_event, Type, Serial})
+    await_event(waits_a, Type, Serial).
+
+await_event(Task, Type, Serial) ->
+    receive {cell_event, #{type := Type, task := Task, item := Serial}} -> ok
+    after ?RETRY_WAIT_MS -> ct:fail({no_event, Task, Type, Serial})
     end.
 
 %% Kills the statistics and returns once their supervisor has started them again.

@@ -203,9 +203,9 @@ unsettled(T0, Link, P, G) ->
 finish(T, Link) ->
     case maps:get(outcome, link_view(T, Link), undefined) of
         completed ->
-            #{serial := S} = maps:get(last_product, link_view(T, Link)),
+            #{serial := S} = P = maps:get(last_product, link_view(T, Link)),
             T1 = view(T, Link, #{outcome => undefined}),
-            {completed, cell_task:transfer_out(T1, S)};
+            {completed, cell_task:transfer_out(T1, S, P)};
         undefined ->
             {pending, T};
         Outcome ->

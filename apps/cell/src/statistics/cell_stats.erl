@@ -19,9 +19,15 @@
 %% crash leaves both as they were at the same record. When the
 %% database opens (at every start of the process) the records after that id are
 %% applied again, before any event: each gives the same history entries (a record's
-%% entries are keyed by its id, and the history keeps one copy of an entry) and is
-%% counted once, so after any crash a product that left is recorded as left, once,
-%% with its whole history. Who holds a product is then taken from the registry; a
+%% entries are keyed by its id and made of the record alone, and the history keeps one
+%% copy of an entry) and is counted once, so after any crash a product that left is
+%% recorded as left, once, with its whole history. Made of the record alone: a product
+%% leaves good or failed as its exit record says, not as the statistics knew it (the
+%% saves that marked it failed are not in the journal, and a crash may have taken them
+%% from the statistics); an answer goes to the product its record names, or to none;
+%% what changed in a product's fields since its task last saved it is written only
+%% when the record is applied as it is made, never when it is applied again.
+%% Who holds a product is then taken from the registry; a
 %% product a task holds whose entry was never recorded enters with what its product
 %% file says, and the log says so. A product counted as scrapped that then leaves
 %% (see {@link cell_stats_trace:left_after_scrap/1}) is counted as left instead.
@@ -42,7 +48,8 @@
 %%
 %% <b>Products.</b> A serial first saved by a task enters the cell (`in'); a
 %% transfer out of a task that hands to no other task of this cell takes it out
-%% (`out', `good' or `failed' by its failed flag); a product no task holds any more
+%% (`out', `good' or `failed' by the failed flag its exit record carries, see
+%% {@link cell_stats_trace:left_failed/2}); a product no task holds any more
 %% for two writes in a row (about two seconds: a handshake hands over in far less) was
 %% forgotten inside the cell (`scrapped': an operator's Reset, say). So at every
 %% moment `in = out + scrapped + in_cell'. Per task: items in and out, work completed
@@ -122,12 +129,14 @@
              %% The trace journal (see cell_trace_journal): read once the database is
              %% open; the last record applied, the last whose effects are durable, and
              %% the record being applied now with a count of its history entries (so a
-             %% record applied again writes the very same entries).
+             %% record applied again writes the very same entries) and whether a run
+             %% before this one may have applied it (see apply_record/4).
              attached = false :: boolean(),
              seen = #{} :: #{cell_trace_journal:id() => true},  %% applied before attach
              applied :: cell_trace_journal:id() | undefined,
              saved :: cell_trace_journal:id() | undefined,
-             applying :: {cell_trace_journal:id(), non_neg_integer()} | undefined,
+             applying :: {cell_trace_journal:id(), non_neg_integer(), live | replay}
+                       | undefined,
              unsynced = false :: boolean(),     %% histories written since the last flush
              %% The journal's warning is up (unknown at start: set or reset at once).
              journal_warned = unknown :: boolean() | unknown,
@@ -305,11 +314,11 @@ handle_info({cell_event, #{journal := _}}, #st{attached = true} = St) ->
     %% Its record came from the journal before it (see cell_trace_journal).
     {noreply, St};
 handle_info({cell_event, #{journal := Id} = Event}, #st{seen = Seen} = St) ->
-    {noreply, apply_record(Id, Event, St#st{seen = Seen#{Id => true}})};
+    {noreply, apply_record(Id, Event, replay, St#st{seen = Seen#{Id => true}})};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info({cell_trace_journal, Records}, St) ->
-    {noreply, lists:foldl(fun journal_record/2, St, Records)};
+    {noreply, lists:foldl(fun(R, Acc) -> journal_record(R, live, Acc) end, St, Records)};
 handle_info(flush, St) ->
     _ = erlang:send_after(?FLUSH_MS, self(), flush),
     {noreply, flush(St)};
@@ -352,7 +361,7 @@ event(#{type := item_transfer_out, task := T, item := S} = E, St) ->
     St3 = timing({T, cycle}, maps:get(T, St2#st.last_out, undefined), At, St2),
     St4 = St3#st{last_out = maps:put(T, At, St3#st.last_out)},
     case exit_task(T, St4) of
-        true -> leave(S, T, At, St4);
+        true -> leave(S, T, At, maps:get(failed, E, undefined), St4);
         false -> St4
     end;
 event(#{type := item_work_start, item := S, task := T} = E, St) ->
@@ -371,7 +380,9 @@ event(#{type := alarm_answered, task := T} = E, St) ->
               who => maps:get(who, E, <<>>)},
     case E of
         #{item := S} when is_binary(S) -> trace(S, event_us(E), T, Entry, St);
-        _ -> held_trace(T, event_us(E), Entry, St)
+        %% Its task held no product when it was answered (the record says so): not the
+        %% one the statistics have it holding when the record is applied again.
+        _ -> St
     end;
 event(#{item := S} = E, St) when is_binary(S) ->
     %% identifier read, work pause and resume: history only.
@@ -460,16 +471,32 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
                       true -> write_open(Serial, P, St1);
                       false -> St1
                   end,
-            trace(Serial, At, T, #{event => changed, changes => Changes}, St2)
+            changed(Serial, At, T, Changes, St2)
     end.
 
-%% The product left the cell through an exit task. One the statistics no longer
+%% What changed since the task last saved the product. A record of the trace journal
+%% (a task took a product the cell already knew) applied again after a crash knows
+%% the product's fields only as the records and the books have them, not as its task
+%% last saved them (those saves are not in the journal): its changes would differ
+%% from those of its application as it was made, and the history would hold both.
+%% What changed is written by that application alone; if the crash took it before it
+%% was written, it is lost, as every save the journal does not keep.
+changed(_Serial, _At, _T, _Changes, #st{applying = {_, _, replay}} = St) ->
+    St;
+changed(Serial, At, T, Changes, St) ->
+    trace(Serial, At, T, #{event => changed, changes => Changes}, St).
+
+%% The product left the cell through an exit task, failed or not as its exit record
+%% says (`Failed', see cell_stats_trace:left_failed/2). One the statistics no longer
 %% hold was counted before: taken for scrapped (its hand-out took longer than a
 %% hand-over may), it is counted as left instead; already out, it is not counted again.
-leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
+leave(Serial, T, At, Failed, #st{products = Ps, stale = Stale} = St) ->
+    As = fun(#prod{failed = Known} = P) ->
+                 P#prod{failed = cell_stats_trace:left_failed(Failed, Known)}
+         end,
     case {maps:find(Serial, Ps), Stale} of
         {{ok, P}, _} ->
-            left(Serial, T, At, P, St);
+            left(Serial, T, At, As(P), St);
         {error, #{Serial := T}} ->
             %% Its stale copy sent out again: it left once.
             St#st{stale = maps:remove(Serial, Stale)};
@@ -477,7 +504,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
             Summary = left_summary(Serial, St),
             case cell_stats_trace:left_after_scrap(Summary) of
                 count ->
-                    left(Serial, T, At, #prod{entered = At, entry = T}, St);
+                    left(Serial, T, At, As(#prod{entered = At, entry = T}), St);
                 already_out ->
                     St;
                 {uncount_scrap, By} ->
@@ -489,7 +516,7 @@ leave(Serial, T, At, #st{products = Ps, stale = Stale} = St) ->
                                             undefined -> St;
                                             _ -> count_by([{By, scrapped}], -1, At, St)
                                         end),
-                    left(Serial, T, At, summary_prod(Summary, At, T), St1)
+                    left(Serial, T, At, As(summary_prod(Summary, At, T)), St1)
             end
     end.
 
@@ -837,19 +864,22 @@ attach(St) ->
                                 "database (made before the statistics started, or cut off "
                                 "from it by a crash); they are taken from the journal",
                                 [length(Fresh)]),
-            St2 = lists:foldl(fun journal_record/2, St1, Fresh),
+            St2 = lists:foldl(fun(R, Acc) -> journal_record(R, replay, Acc) end, St1, Fresh),
             St2#st{attached = true, seen = #{}}
     end.
 
 %% A record of the journal, or an event carrying the id of its record, applied once.
-journal_record(#{id := Id} = R, #st{saved = Saved, seen = Seen} = St) ->
+journal_record(#{id := Id} = R, Mode, #st{saved = Saved, seen = Seen} = St) ->
     case cell_stats_trace:fresh(Id, Saved, Seen) of
-        true -> apply_record(Id, R, St);
+        true -> apply_record(Id, R, Mode, St);
         false -> St
     end.
 
-apply_record(Id, Event, #st{applied = Applied} = St) ->
-    St1 = event(Event, St#st{applying = {Id, 0}}),
+%% `replay': a record taken from the journal at a start, or from its event before
+%% that; a run before this one may have applied it and written its history entries,
+%% its counts lost with that run. `live': a record the journal sent as it was made.
+apply_record(Id, Event, Mode, #st{applied = Applied} = St) ->
+    St1 = event(Event, St#st{applying = {Id, 0, Mode}}),
     St1#st{applying = undefined, applied = cell_stats_trace:latest(Id, Applied)}.
 
 %% Who holds what is the registry's to say: after the records are applied, each
@@ -983,12 +1013,12 @@ trace(undefined, _At, _Task, _Entry, St) ->
     St;
 %% An entry's sequence orders the entries of one millisecond by their microsecond and
 %% then as they were taken (journal records and events come by different ways).
-trace(Serial, At, Task, Entry, #st{applying = {Id, K}} = St) ->
-    %% Of a journal record: the same entry each time it is applied, which the bag
-    %% keeps once.
+trace(Serial, At, Task, Entry, #st{applying = {Id, K, Mode}} = St) ->
+    %% Of a journal record: the same entry each time it is applied (made of the
+    %% record alone), which the bag keeps once.
     E = Entry#{task => Task},
     db(fun() -> cell_stats_db:write_history(Serial, At, {Id, K}, E) end,
-       St#st{applying = {Id, K + 1}});
+       St#st{applying = {Id, K + 1, Mode}});
 trace(Serial, At, Task, Entry, #st{seq = Seq} = St) ->
     E = Entry#{task => Task},
     db(fun() -> cell_stats_db:write_history(Serial, At, Seq, E) end, St#st{seq = Seq + 1}).

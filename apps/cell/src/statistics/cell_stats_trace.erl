@@ -8,7 +8,7 @@
 %% is never applied again. Ids grow in the order of the journal, across restarts.
 -module(cell_stats_trace).
 
--export([fresh/3, latest/2, unheld/2, left_after_scrap/1, journal_level/3,
+-export([fresh/3, latest/2, unheld/2, left_after_scrap/1, left_failed/2, journal_level/3,
          from_history/2]).
 
 -export_type([unheld/0]).
@@ -45,6 +45,16 @@ unheld(_N, []) -> scrap.
 left_after_scrap(#{status := scrapped, exit_task := By}) -> {uncount_scrap, By};
 left_after_scrap(#{status := out}) -> already_out;
 left_after_scrap(_) -> count.
+
+%% @doc Whether a product left failed: as its exit record says (`Record', the failed
+%% flag of the product its task sent out), whatever the statistics know of it
+%% (`Known'); that record applied again after a crash then gives the same `left' entry
+%% and the same count, though the saves that marked the product failed are not in the
+%% journal and the statistics may have lost them. `Known' only for a record without the
+%% flag (made before records had it).
+-spec left_failed(boolean() | undefined, boolean()) -> boolean().
+left_failed(Record, _Known) when is_boolean(Record) -> Record;
+left_failed(undefined, Known) -> Known.
 
 %% @doc The trace journal holds `Bytes' of its bound `Max' (see {@link
 %% cell_trace_journal:bound/1}); `Warned' tells whether the warning is up (`unknown'
@@ -149,6 +159,12 @@ from_history_test_() ->
      %% Marked failed at its entry, still in the cell.
      ?_assertMatch(#{status := in_cell, failed := true},
                    from_history(<<"S">>, [In#{product => #{failed => true}}]))].
+
+left_failed_test_() ->
+    [?_assert(left_failed(true, false)),
+     ?_assertNot(left_failed(false, true)),
+     ?_assert(left_failed(undefined, true)),
+     ?_assertNot(left_failed(undefined, false))].
 
 left_after_scrap_test_() ->
     [?_assertEqual(count, left_after_scrap(undefined)),

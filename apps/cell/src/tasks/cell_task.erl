@@ -94,7 +94,7 @@
 -export([error_spec/4, warning/4, warning/5, reset_warning/2, log/4]).
 -export([in/2, in/3, read/2, read/3, out/3, out/4]).
 %% For the engine and the handshake.
--export([new/1, set_state/3, publish/3, store/5, load_retained/1]).
+-export([new/1, set_state/3, publish/3, store/5, load_retained/1, transfer_out/3]).
 
 -export_type([task/0, wait/0, step_result/0, spec/0, held/0, cause/0]).
 
@@ -424,8 +424,22 @@ work_abort(T, AbortId) -> event(T, item_work_abort, (item(T))#{abort_id => Abort
 
 %% @doc The product has left the task's zone. No state change.
 -spec transfer_out(task(), binary()) -> task().
-transfer_out(T, Serial) ->
-    event(T, item_transfer_out, journaled(T, item_transfer_out, #{item => Serial})).
+transfer_out(#task{product = Product} = T, Serial) ->
+    transfer_out(T, Serial, Product).
+
+%% @private As {@link transfer_out/2}, for the product that left (the handshake lets its
+%% task's product go before the transfer ends). Its exit record says whether it left
+%% failed: applied again after a crash, the record tells the statistics the same as the
+%% first time, whatever they then know of the product's fields (their changes are not
+%% in the journal).
+-spec transfer_out(task(), binary(), cell_product:product() | undefined) -> task().
+transfer_out(T, Serial, Product) ->
+    Fields = case Product of
+                 #{serial := Serial} -> #{item => Serial,
+                                          failed => maps:get(failed, Product, false) =:= true};
+                 _ -> #{item => Serial}
+             end,
+    event(T, item_transfer_out, journaled(T, item_transfer_out, Fields)).
 
 %% The fields of an event of the product's way, with the id of its record in the trace
 %% journal: the record is durable when this returns (see cell_trace_journal).
