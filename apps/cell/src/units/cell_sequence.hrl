@@ -1,14 +1,15 @@
 %% The records behind a unit's step sequences: opaque to sequence modules, which use the
 %% functions of cell_sequence on the seq() their steps are given.
 
-%% One running sequence: the unit's state's own, or a sub-sequence it called.
+%% One running sequence: the unit's state's own, or a sub-sequence it called. When and
+%% whether its step was entered live in the #seq: only the innermost sequence has a
+%% step under way, and a step then costs one update of the #seq and none of a #frame
+%% besides its step.
 -record(frame, {
     module :: module(),
     args = #{} :: map(),
     mode = several :: several | one,      %% several steps in one go, or one per cycle
-    step :: term(),
-    fresh = true :: boolean(),            %% the step's body has not run since it was entered
-    entered = 0 :: integer(),             %% when the step was entered (monotonic ms)
+    step :: term(),                       %% a caller's: the step that called
     vars = #{} :: map(),                  %% the sequence's own variables
     return :: term(),                     %% the caller's next step once this one is done
     timers = [] :: [atom()]               %% the timers this sequence started
@@ -34,5 +35,9 @@
     read :: fun((atom(), atom()) -> {ok, term()} | {error, term()}),
     estop :: fun(() -> boolean()),
     now = 0 :: integer(),
-    on_entry = false :: boolean()
+    %% The innermost sequence's step: its body has not yet returned since the step was
+    %% entered (while the body runs, this is its first run: on_entry/1), and when the
+    %% step was entered (monotonic ms; await timeouts count from there).
+    fresh = true :: boolean(),
+    entered = 0 :: integer()
 }).

@@ -106,12 +106,11 @@ set_halt(Seq0, true, Now) ->
 set_halt(Seq0, false, Now) ->
     Seq = Seq0#seq{halt = false, now = Now},
     case Seq of
-        #seq{held = true, frames = [F | Rest]} ->
-            F1 = case F#frame.fresh of
-                     true -> F;
-                     false -> F#frame{entered = Now}
-                 end,
-            finish(go(Seq#seq{held = false, frames = [F1 | Rest]}, []));
+        #seq{held = true, fresh = true} ->
+            finish(go(Seq#seq{held = false}, []));
+        #seq{held = true} ->
+            %% Held while it waited: its await timeout counts from here.
+            finish(go(Seq#seq{held = false, entered = Now}, []));
         _ ->
             finish({quiet(Seq), Seq})
     end.
@@ -187,26 +186,31 @@ where(#seq{frames = [#frame{module = M, step = S} | Rest]}) ->
 %% The step that is due runs, and in several-steps mode the ones after it while their
 %% conditions hold, until one waits or comes round a second time (the seed's
 %% `IsNotRepeatable'). Before each, the emergency stop is checked.
+%%
+%% This is the path every step takes, so it is kept lean: the body is given the #seq
+%% as it is (its `fresh' is on_entry/1's answer), a step entered is one update of the
+%% #seq, and `Burst', the steps run in this go as `{Depth, Step}', is a plain list:
+%% a go is a handful of steps, and lists:member/2 on it is cheaper than a map.
 go(#seq{estop = Estop} = Seq, Burst) ->
     case Estop() of
         true -> {estop, Seq};
         false -> run_body(Seq, Burst)
     end.
 
-run_body(#seq{frames = [#frame{module = Mod, step = Step, fresh = Fresh} = F | Rest]} = Seq0,
+run_body(#seq{frames = [#frame{module = Mod, step = Step} = F | Rest], fresh = Fresh} = Seq,
          Burst) ->
-    case Fresh andalso Seq0#seq.halt andalso Seq0#seq.haltable andalso resumable(F) of
+    case Fresh andalso Seq#seq.halt andalso Seq#seq.haltable andalso resumable(F) of
         true ->
-            {wait, Seq0#seq{held = true}};
+            {wait, Seq#seq{held = true}};
         false ->
-            Seq = Seq0#seq{frames = [F#frame{fresh = false} | Rest], on_entry = Fresh,
-                           waiting = undefined},
             Result = try Mod:step(Step, Seq)
                      catch throw:{cell_sequence, abort, Why} -> {abort, Why, Seq}
                      end,
             result(Result, [{length(Rest), Step} | Burst])
     end.
 
+%% Every result but `wait' leaves the step (see leave_step/1); `wait' keeps it, its
+%% body having run (wait/3).
 result({next, Next, #seq{} = Seq}, Burst) ->
     continue_or_go(enter(Seq, Next), Burst);
 result({wait, Pending, Deadline, #seq{} = Seq}, _Burst) ->
@@ -223,17 +227,19 @@ result({call, Mod, Args, Next, #seq{} = Seq}, Burst) ->
 result(Other, [{_, Step} | _]) ->
     erlang:error({bad_step_result, Step, Other}).
 
-continue_or_go(#seq{frames = [#frame{mode = Mode, step = Step} | Rest]} = Seq, Burst) ->
-    case Mode =:= several andalso not lists:member({length(Rest), Step}, Burst) of
-        true -> go(Seq, Burst);
-        false -> {continue, Seq}
-    end.
+continue_or_go(#seq{frames = [#frame{mode = several, step = Step} | Rest]} = Seq, Burst) ->
+    case lists:member({length(Rest), Step}, Burst) of
+        false -> go(Seq, Burst);
+        true -> {continue, Seq}
+    end;
+continue_or_go(Seq, _Burst) ->
+    {continue, Seq}.
 
 %% A step is entered: the previous step's watches and deadline go.
-enter(#seq{frames = [F | Rest], now = Now} = Seq0, Step) ->
-    Seq = leave_step(Seq0),
-    cell_sequence:effect(Seq#seq{frames = [F#frame{step = Step, fresh = true, entered = Now} | Rest]},
-                         {step, length(Rest) + 1, F#frame.module, Step}).
+enter(Seq0, Step) ->
+    #seq{frames = [F | Rest], now = Now, effects = Effects} = Seq = leave_step(Seq0),
+    Seq#seq{frames = [F#frame{step = Step} | Rest], fresh = true, entered = Now,
+            effects = [{step, length(Rest) + 1, F#frame.module, Step} | Effects]}.
 
 leave_step(#seq{armed = Armed, latched = Latched, waiting = undefined, held = false} = Seq)
   when map_size(Armed) =:= 0, map_size(Latched) =:= 0 ->
@@ -315,7 +321,7 @@ wait(#seq{armed = Armed0, now = Now} = Seq0, Pending, Deadline) ->
                    cell_sequence:effect(Seq1#seq{armed = (Seq1#seq.armed)#{deadline => At}},
                                         {timer, deadline, max(0, At - Now)})
            end,
-    Seq = Seq2#seq{waiting = {Pending, Deadline}},
+    Seq = Seq2#seq{waiting = {Pending, Deadline}, fresh = false},
     case Seq#seq.halt andalso Seq#seq.haltable andalso io_only(Pending)
         andalso resumable(hd(Seq#seq.frames)) of
         true -> {wait, hold_waiting(Seq)};
