@@ -20,7 +20,7 @@
 
 -export([log/4, error/3, warning/3, notice/3, info/3, debug/3, trace/3]).
 -export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2,
-         set_default_level/1]).
+         set_default_level/1, levels_version/0, levels_changed/0]).
 -export([subscribe/0, unsubscribe/0, flush/0]).
 -export([format_line/1, parse_line/1, file_name/2, query/1, default_level/0]).
 
@@ -43,6 +43,7 @@
 -define(LEVELS_TAB, cell_log_levels).
 -define(SUBS_KEY, '$subscribers').
 -define(DEFAULT_KEY, '$default').
+-define(VERSION_KEY, {?MODULE, levels_version}).
 
 %% @doc Logs a message of the seed's levels for `Source', if its threshold allows.
 -spec log(level(), source(), io:format(), [term()]) -> ok.
@@ -82,6 +83,37 @@ trace(Source, Format, Args) ->
 -spec enabled(level(), source()) -> boolean().
 enabled(Level, Source) ->
     loggable(Level, Source).
+
+%% @doc A number that changes whenever a threshold may have changed. A caller asking
+%% {@link enabled/2} on a hot path (a unit, once a cycle) keeps the answer with this
+%% number and asks again only when it differs: reading it costs a read of an atomic,
+%% where enabled/2 costs two table lookups. 0 until the log server first starts.
+%%
+%% The log server changes it after it has changed the table, so an answer kept with a
+%% number is never older than that number. One case it does not see: between the
+%% server's crash and its restart, when enabled/2 falls back to the application's
+%% default, a kept answer stays as the table had it.
+-spec levels_version() -> non_neg_integer().
+levels_version() ->
+    case persistent_term:get(?VERSION_KEY, undefined) of
+        undefined -> 0;
+        Counter -> atomics:get(Counter, 1)
+    end.
+
+%% @private The log server has changed the thresholds (or made their table anew). Its
+%% counter is made once and never replaced: a persistent term that never changes costs
+%% the node nothing.
+-spec levels_changed() -> ok.
+levels_changed() ->
+    Counter = case persistent_term:get(?VERSION_KEY, undefined) of
+                  undefined ->
+                      C = atomics:new(1, [{signed, false}]),
+                      ok = persistent_term:put(?VERSION_KEY, C),
+                      C;
+                  C ->
+                      C
+              end,
+    atomics:add(Counter, 1, 1).
 
 %% @doc Sets the threshold of every source without one of its own (the machine
 %% settings' log level, applied at each Start).
