@@ -132,7 +132,7 @@ on_entry(Seq, _Fun) -> Seq.
 
 %% @doc The step the sequence is in.
 -spec step(seq()) -> term().
-step(#seq{frames = [#frame{step = S} | _]}) -> S.
+step(#seq{step = S}) -> S.
 
 %% @doc The unit's id (the source of its log lines).
 -spec unit(seq()) -> atom().
@@ -211,7 +211,7 @@ await_all(Seq0, Ops, Next, Timeout) ->
                 [] ->
                     {next, Next, Seq};
                 Pending ->
-                    #seq{now = Now, entered = Entered, frames = [#frame{step = Step} | _]} = Seq,
+                    #seq{now = Now, entered = Entered, step = Step} = Seq,
                     case Timeout of
                         infinity ->
                             {wait, Pending, infinity, Seq};

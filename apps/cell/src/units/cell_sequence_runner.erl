@@ -72,7 +72,7 @@ start(Seq0, Mod, Args, Opts) ->
             finish({estop, Seq});
         false ->
             case push(Seq, Mod, Args, undefined) of
-                {ok, Seq2} -> finish(go(Seq2, []));
+                {ok, Seq2} -> finish(go(Seq2));
                 Aborted -> finish(Aborted)
             end
     end.
@@ -81,7 +81,7 @@ start(Seq0, Mod, Args, Opts) ->
 -spec cycle(cell_sequence:seq(), integer()) -> ret().
 cycle(#seq{frames = []} = Seq, _Now) -> finish({idle, Seq});
 cycle(#seq{held = true} = Seq, _Now) -> finish({wait, Seq});
-cycle(Seq, Now) -> finish(go(Seq#seq{now = Now}, [])).
+cycle(Seq, Now) -> finish(go(Seq#seq{now = Now})).
 
 %% @doc A watch fired, a timer elapsed, an answer came.
 -spec event(cell_sequence:seq(), event(), integer()) -> ret().
@@ -95,8 +95,8 @@ event(Seq, Event, Now) ->
 set_halt(Seq0, true, Now) ->
     Seq = Seq0#seq{halt = true, now = Now},
     case Seq of
-        #seq{frames = [F | _], held = false, haltable = true, waiting = {Pending, _}} ->
-            case io_only(Pending) andalso resumable(F) of
+        #seq{frames = [_ | _], held = false, haltable = true, waiting = {Pending, _}} ->
+            case io_only(Pending) andalso resumable(Seq) of
                 true -> finish({wait, hold_waiting(Seq)});
                 false -> finish({wait, Seq})
             end;
@@ -107,10 +107,10 @@ set_halt(Seq0, false, Now) ->
     Seq = Seq0#seq{halt = false, now = Now},
     case Seq of
         #seq{held = true, fresh = true} ->
-            finish(go(Seq#seq{held = false}, []));
+            finish(go(Seq#seq{held = false}));
         #seq{held = true} ->
             %% Held while it waited: its await timeout counts from here.
-            finish(go(Seq#seq{held = false, entered = Now}, []));
+            finish(go(Seq#seq{held = false, entered = Now}));
         _ ->
             finish({quiet(Seq), Seq})
     end.
@@ -162,10 +162,14 @@ expects(#seq{replies = R}, Ref) -> maps:get(Ref, R, none) =:= expected.
 %% @doc The running sequences, outermost first, with their steps; what the running
 %% step waits for; the actuators; the standing orders the unit was given.
 -spec describe(cell_sequence:seq()) -> map().
-describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
+describe(#seq{frames = Frames, step = Step, waiting = Waiting, held = Held, halt = Halt,
               actuators = Acts, orders = Orders}) ->
+    Steps = case Frames of
+                [] -> [];
+                [F | Callers] -> lists:reverse([F#frame{step = Step} | Callers])
+            end,
     #{sequences => [#{module => M, step => S, mode => Mode}
-                    || #frame{module = M, step = S, mode = Mode} <- lists:reverse(Frames)],
+                    || #frame{module = M, step = S, mode = Mode} <- Steps],
       waiting => case Waiting of
                      undefined -> [];
                      {Ops, _} -> Ops
@@ -176,8 +180,8 @@ describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
 %% @doc Where the running sequence is.
 -spec where(cell_sequence:seq()) -> where().
 where(#seq{frames = []}) -> #{module => undefined, step => undefined, depth => 0};
-where(#seq{frames = [#frame{module = M, step = S} | Rest]}) ->
-    #{module => M, step => S, depth => length(Rest) + 1}.
+where(#seq{frames = [#frame{module = M, depth = Depth} | _], step = S}) ->
+    #{module => M, step => S, depth => Depth}.
 
 %% -------------------------------------------------------------------------------------
 %% Steps
@@ -189,46 +193,60 @@ where(#seq{frames = [#frame{module = M, step = S} | Rest]}) ->
 %%
 %% This is the path every step takes, so it is kept lean: the body is given the #seq
 %% as it is (its `fresh' is on_entry/1's answer), a step entered is one update of the
-%% #seq, and `Burst', the steps run in this go as `{Depth, Step}', is a plain list:
-%% a go is a handful of steps, and lists:member/2 on it is cheaper than a map.
+%% #seq, and `Burst', the steps run in this go, is a plain list: a go is a handful of
+%% steps, and lists:member/2 on it is cheaper than a map. It holds the state's own
+%% sequence's steps as they are (compared at once when they are atoms or integers)
+%% and a sub-sequence's as `{Depth, Step}', which a step of the state's own sequence
+%% could equal: so these are kept apart, `{Steps, SubSteps}'.
+go(Seq) ->
+    go(Seq, {[], []}).
+
 go(#seq{estop = Estop} = Seq, Burst) ->
     case Estop() of
         true -> {estop, Seq};
         false -> run_body(Seq, Burst)
     end.
 
-run_body(#seq{frames = [#frame{module = Mod, step = Step} = F | Rest], fresh = Fresh} = Seq,
-         Burst) ->
-    case Fresh andalso Seq#seq.halt andalso Seq#seq.haltable andalso resumable(F) of
+run_body(#seq{frames = [#frame{body = Body, depth = Depth} | _], step = Step,
+              fresh = Fresh} = Seq, Burst) ->
+    case Fresh andalso Seq#seq.halt andalso Seq#seq.haltable andalso resumable(Seq) of
         true ->
             {wait, Seq#seq{held = true}};
         false ->
-            Result = try Mod:step(Step, Seq)
+            Result = try Body(Step, Seq)
                      catch throw:{cell_sequence, abort, Why} -> {abort, Why, Seq}
                      end,
-            result(Result, [{length(Rest), Step} | Burst])
+            result(Result, Depth, Step, Burst)
     end.
 
-%% Every result but `wait' leaves the step (see leave_step/1); `wait' keeps it, its
-%% body having run (wait/3).
-result({next, Next, #seq{} = Seq}, Burst) ->
-    continue_or_go(enter(Seq, Next), Burst);
-result({wait, Pending, Deadline, #seq{} = Seq}, _Burst) ->
+%% `Step' at `Depth' has run in this go; had it run before (see go/2)?
+ran(1, Step, {Steps, SubSteps}) -> {[Step | Steps], SubSteps};
+ran(Depth, Step, {Steps, SubSteps}) -> {Steps, [{Depth, Step} | SubSteps]}.
+
+ran_before(1, Step, {Steps, _}) -> lists:member(Step, Steps);
+ran_before(Depth, Step, {_, SubSteps}) -> lists:member({Depth, Step}, SubSteps).
+
+%% What the body of `Step' (at `Depth') returned. Every result but `wait' leaves the
+%% step (see leave_step/1); `wait' keeps it, its body having run (wait/3).
+result({next, Next, #seq{} = Seq}, Depth, Step, Burst) ->
+    continue_or_go(enter(Seq, Next), ran(Depth, Step, Burst));
+result({wait, Pending, Deadline, #seq{} = Seq}, _Depth, _Step, _Burst) ->
     wait(Seq, Pending, Deadline);
-result({done, #seq{} = Seq}, Burst) ->
-    pop(Seq, Burst);
-result({abort, Why, #seq{} = Seq}, _Burst) ->
+result({done, #seq{} = Seq}, Depth, Step, Burst) ->
+    pop(Seq, ran(Depth, Step, Burst));
+result({abort, Why, #seq{} = Seq}, _Depth, _Step, _Burst) ->
     abort(Seq, Why);
-result({call, Mod, Args, Next, #seq{} = Seq}, Burst) ->
+result({call, Mod, Args, Next, #seq{} = Seq}, Depth, Step, Burst) ->
     case push(leave_step(Seq), Mod, Args, Next) of
-        {ok, Seq2} -> continue_or_go(Seq2, Burst);
+        {ok, Seq2} -> continue_or_go(Seq2, ran(Depth, Step, Burst));
         Aborted -> Aborted
     end;
-result(Other, [{_, Step} | _]) ->
+result(Other, _Depth, Step, _Burst) ->
     erlang:error({bad_step_result, Step, Other}).
 
-continue_or_go(#seq{frames = [#frame{mode = several, step = Step} | Rest]} = Seq, Burst) ->
-    case lists:member({length(Rest), Step}, Burst) of
+continue_or_go(#seq{frames = [#frame{mode = several, depth = Depth} | _], step = Step} = Seq,
+               Burst) ->
+    case ran_before(Depth, Step, Burst) of
         false -> go(Seq, Burst);
         true -> {continue, Seq}
     end;
@@ -237,9 +255,10 @@ continue_or_go(Seq, _Burst) ->
 
 %% A step is entered: the previous step's watches and deadline go.
 enter(Seq0, Step) ->
-    #seq{frames = [F | Rest], now = Now, effects = Effects} = Seq = leave_step(Seq0),
-    Seq#seq{frames = [F#frame{step = Step} | Rest], fresh = true, entered = Now,
-            effects = [{step, length(Rest) + 1, F#frame.module, Step} | Effects]}.
+    #seq{frames = [#frame{module = Mod, depth = Depth} | _], now = Now,
+         effects = Effects} = Seq = leave_step(Seq0),
+    Seq#seq{step = Step, fresh = true, entered = Now,
+            effects = [{step, Depth, Mod, Step} | Effects]}.
 
 leave_step(#seq{armed = Armed, latched = Latched, waiting = undefined, held = false} = Seq)
   when map_size(Armed) =:= 0, map_size(Latched) =:= 0 ->
@@ -253,8 +272,15 @@ leave_step(#seq{armed = Armed} = Seq) ->
 
 %% A (sub-)sequence starts, its first step entered; `Next' is where its caller goes
 %% on when it is done.
-push(#seq{frames = Frames} = Seq0, Mod, Args, Next) ->
-    Seq = Seq0#seq{frames = [#frame{module = Mod, args = Args, return = Next} | Frames]},
+push(#seq{frames = Frames, step = Calling} = Seq0, Mod, Args, Next) ->
+    Callers = case Frames of
+                  [] -> [];
+                  [Caller | Older] -> [Caller#frame{step = Calling} | Older]
+              end,
+    %% No step until init/2 names the first.
+    Seq = Seq0#seq{frames = [#frame{module = Mod, body = fun Mod:step/2, args = Args,
+                                    return = Next, depth = length(Frames) + 1} | Callers],
+                   step = undefined},
     try Mod:init(Args, Seq) of
         {ok, First, #seq{frames = [F | Rest]} = Seq1} ->
             {ok, enter(Seq1#seq{frames = [F#frame{mode = mode(Mod, Args)} | Rest]}, First)}
@@ -323,7 +349,7 @@ wait(#seq{armed = Armed0, now = Now} = Seq0, Pending, Deadline) ->
            end,
     Seq = Seq2#seq{waiting = {Pending, Deadline}, fresh = false},
     case Seq#seq.halt andalso Seq#seq.haltable andalso io_only(Pending)
-        andalso resumable(hd(Seq#seq.frames)) of
+        andalso resumable(Seq) of
         true -> {wait, hold_waiting(Seq)};
         false -> {wait, Seq}
     end.
@@ -355,7 +381,7 @@ handle({watch, {act, Name, Tag}, V}, Seq) ->
 handle({timer, {act, Name, Tag}}, Seq) ->
     actuator(Seq, Name, {timer, Tag});
 handle({timer, deadline}, #seq{waiting = {Pending, {_, Ms}}, held = false,
-                               frames = [#frame{step = Step} | _], armed = A} = Seq) ->
+                               frames = [_ | _], step = Step, armed = A} = Seq) ->
     abort(Seq#seq{armed = maps:remove(deadline, A)}, {await_timeout, Step, Pending, Ms});
 handle({timer, deadline}, Seq) ->
     {quiet(Seq), Seq};
@@ -384,7 +410,7 @@ actuator(#seq{actuators = Acts} = Seq, Name, Event) ->
     end.
 
 %% Something the waiting step may be waiting for has happened: its body runs again.
-rerun(#seq{waiting = {_, _}, held = false} = Seq) -> go(Seq, []);
+rerun(#seq{waiting = {_, _}, held = false} = Seq) -> go(Seq);
 rerun(Seq) -> {quiet(Seq), Seq}.
 
 quiet(#seq{frames = []}) -> idle;
@@ -395,7 +421,8 @@ quiet(_) -> wait.
 finish({Outcome, #seq{effects = E} = Seq}) ->
     {Outcome, Seq#seq{effects = []}, lists:reverse(E)}.
 
-resumable(#frame{module = Mod, step = Step}) ->
+%% Whether the sequence may hold before the step it is in.
+resumable(#seq{frames = [#frame{module = Mod} | _], step = Step}) ->
     case erlang:function_exported(Mod, resumable, 1) of
         true -> Mod:resumable(Step);
         false -> true
