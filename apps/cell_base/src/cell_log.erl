@@ -43,7 +43,8 @@
 -define(LEVELS_TAB, cell_log_levels).
 -define(SUBS_KEY, '$subscribers').
 -define(DEFAULT_KEY, '$default').
--define(VERSION_KEY, {?MODULE, levels_version}).
+%% An atom: every read of a persistent term hashes its key, and an atom keeps its hash.
+-define(VERSION_KEY, cell_log_levels_version).
 
 %% @doc Logs a message of the seed's levels for `Source', if its threshold allows.
 -spec log(level(), source(), io:format(), [term()]) -> ok.
@@ -86,8 +87,8 @@ enabled(Level, Source) ->
 
 %% @doc A number that changes whenever a threshold may have changed. A caller asking
 %% {@link enabled/2} on a hot path (a unit, once a cycle) keeps the answer with this
-%% number and asks again only when it differs: reading it costs a read of an atomic,
-%% where enabled/2 costs two table lookups. 0 until the log server first starts.
+%% number and asks again only when it differs: reading it costs a persistent-term
+%% read, where enabled/2 costs two table lookups. 0 until the log server first starts.
 %%
 %% The log server changes it after it has changed the table, so an answer kept with a
 %% number is never older than that number. One case it does not see: between the
@@ -95,25 +96,15 @@ enabled(Level, Source) ->
 %% default, a kept answer stays as the table had it.
 -spec levels_version() -> non_neg_integer().
 levels_version() ->
-    case persistent_term:get(?VERSION_KEY, undefined) of
-        undefined -> 0;
-        Counter -> atomics:get(Counter, 1)
-    end.
+    persistent_term:get(?VERSION_KEY, 0).
 
-%% @private The log server has changed the thresholds (or made their table anew). Its
-%% counter is made once and never replaced: a persistent term that never changes costs
-%% the node nothing.
+%% @private The log server has changed the thresholds (or made their table anew). The
+%% number is a small integer: replacing it costs the node no scan of every process,
+%% as replacing a compound term would (see persistent_term), and thresholds change
+%% seldom (at a Start, an operator's choice).
 -spec levels_changed() -> ok.
 levels_changed() ->
-    Counter = case persistent_term:get(?VERSION_KEY, undefined) of
-                  undefined ->
-                      C = atomics:new(1, [{signed, false}]),
-                      ok = persistent_term:put(?VERSION_KEY, C),
-                      C;
-                  C ->
-                      C
-              end,
-    atomics:add(Counter, 1, 1).
+    persistent_term:put(?VERSION_KEY, levels_version() + 1).
 
 %% @doc Sets the threshold of every source without one of its own (the machine
 %% settings' log level, applied at each Start).
