@@ -81,6 +81,7 @@ start(Seq0, Mod, Args, Opts) ->
 -spec cycle(cell_sequence:seq(), integer()) -> ret().
 cycle(#seq{frames = []} = Seq, _Now) -> finish({idle, Seq});
 cycle(#seq{held = true} = Seq, _Now) -> finish({wait, Seq});
+cycle(#seq{now = Now} = Seq, Now) -> finish(go(Seq));     %% the same millisecond: as it is
 cycle(Seq, Now) -> finish(go(Seq#seq{now = Now})).
 
 %% @doc A watch fired, a timer elapsed, an answer came.

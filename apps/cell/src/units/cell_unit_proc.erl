@@ -396,22 +396,35 @@ run(State, {Outcome, Seq, Effects}, D) ->
     {Outcome1, D1} = carry_out(Outcome, Effects, State, D#data{seq = Seq}),
     outcome(Outcome1, State, D1).
 
-%% A cycle message: the step that is due runs. Most cycles leave another step due
-%% (one step per cycle, or a step coming round again in one go), and such a cycle is
-%% the unit's hot path: it goes straight on to the next cycle. Nothing the IPC-2541
-%% state follows from has changed then (Halt has not taken hold, a sequence still runs,
-%% and the sequence's IPC events were reported as they were carried out), and nobody
-%% waiting for the unit to settle can be answered while a cycle is due: no report and
-%% no keep/2.
-cycle(State, #data{seq = Seq, gen = Gen} = D0) ->
+%% A cycle message: the step that is due runs. This is the unit's hot path: most
+%% cycles leave another step due (one step per cycle, or a step coming round again in
+%% one go), and carry out nothing but the steps they entered, none of them logged.
+%% Such a cycle sets the unit's step and its sequences in one update and sends the
+%% next cycle, nothing more: the IPC-2541 state cannot have changed (Halt has not
+%% taken hold, a sequence still runs, and IPC events report themselves), and nobody
+%% waiting for the unit to settle can be answered while a cycle is due, so neither
+%% report/3 nor keep/2 has anything to do.
+cycle(State, #data{seq = Seq} = D0) ->
     {Outcome, Seq1, Effects} = cell_sequence_runner:cycle(Seq, now_ms()),
-    case carry_out(Outcome, Effects, State, D0#data{seq = Seq1}) of
-        {continue, D} ->
-            self() ! ?CYCLE(Gen),
-            {keep_state, D};
-        {Outcome1, D} ->
-            outcome(Outcome1, State, D#data{cycle = false})
+    {Verbose, D} = verbose(D0),
+    case {Outcome, Verbose, last_step(Effects)} of
+        {continue, false, {_, _, _} = Step} ->
+            next_cycle(D#data{seq = Seq1, step = Step});
+        _ ->
+            case carry_out(Outcome, Effects, State, D#data{seq = Seq1}) of
+                {continue, D1} -> next_cycle(D1);
+                {Outcome1, D1} -> outcome(Outcome1, State, D1#data{cycle = false})
+            end
     end.
+
+next_cycle(#data{gen = Gen} = D) ->
+    self() ! ?CYCLE(Gen),
+    {keep_state, D}.
+
+%% The step entered last, when steps entered are all there is to carry out.
+last_step([{step, Depth, Mod, Step}]) -> {Depth, Mod, Step};
+last_step([{step, _, _, _} | Rest]) -> last_step(Rest);
+last_step(_) -> other.
 
 carry_out(Outcome, Effects, State, D) ->
     case exec(Effects, State, D) of
