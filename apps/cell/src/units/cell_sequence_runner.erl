@@ -194,13 +194,15 @@ where(#seq{frames = [#frame{module = M, depth = Depth} | _], step = S}) ->
 %%
 %% This is the path every step takes, so it is kept lean: the body is given the #seq
 %% as it is (its `fresh' is on_entry/1's answer), a step entered is one update of the
-%% #seq, and `Burst', the steps run in this go, is a plain list: a go is a handful of
-%% steps, and lists:member/2 on it is cheaper than a map. It holds the state's own
-%% sequence's steps as they are (compared at once when they are atoms or integers)
-%% and a sub-sequence's as `{Depth, Step}', which a step of the state's own sequence
-%% could equal: so these are kept apart, `{Steps, SubSteps}'.
-go(Seq) ->
-    go(Seq, {[], []}).
+%% #seq, and `Burst', the steps this go has run or is to run, is a pair of plain lists:
+%% a go is a handful of steps, and lists:member/2 on them is cheaper than a map. The
+%% state's own sequence's steps are kept as they are (compared at once when they are
+%% atoms or integers), a sub-sequence's as `{Depth, Step}', which a step of the state's
+%% own sequence could equal: so these are kept apart, `{Steps, SubSteps}'.
+go(#seq{frames = [#frame{depth = 1} | _], step = Step} = Seq) ->
+    go(Seq, {[Step], []});
+go(#seq{frames = [#frame{depth = Depth} | _], step = Step} = Seq) ->
+    go(Seq, {[], [{Depth, Step}]}).
 
 go(#seq{estop = Estop} = Seq, Burst) ->
     case Estop() of
@@ -208,8 +210,7 @@ go(#seq{estop = Estop} = Seq, Burst) ->
         false -> run_body(Seq, Burst)
     end.
 
-run_body(#seq{frames = [#frame{body = Body, depth = Depth} | _], step = Step,
-              fresh = Fresh} = Seq, Burst) ->
+run_body(#seq{frames = [#frame{body = Body} | _], step = Step, fresh = Fresh} = Seq, Burst) ->
     case Fresh andalso Seq#seq.halt andalso Seq#seq.haltable andalso resumable(Seq) of
         true ->
             {wait, Seq#seq{held = true}};
@@ -217,38 +218,38 @@ run_body(#seq{frames = [#frame{body = Body, depth = Depth} | _], step = Step,
             Result = try Body(Step, Seq)
                      catch throw:{cell_sequence, abort, Why} -> {abort, Why, Seq}
                      end,
-            result(Result, Depth, Step, Burst)
+            result(Result, Step, Burst)
     end.
 
-%% `Step' at `Depth' has run in this go; had it run before (see go/2)?
-ran(1, Step, {Steps, SubSteps}) -> {[Step | Steps], SubSteps};
-ran(Depth, Step, {Steps, SubSteps}) -> {Steps, [{Depth, Step} | SubSteps]}.
-
-ran_before(1, Step, {Steps, _}) -> lists:member(Step, Steps);
-ran_before(Depth, Step, {_, SubSteps}) -> lists:member({Depth, Step}, SubSteps).
-
-%% What the body of `Step' (at `Depth') returned. Every result but `wait' leaves the
-%% step (see leave_step/1); `wait' keeps it, its body having run (wait/3).
-result({next, Next, #seq{} = Seq}, Depth, Step, Burst) ->
-    continue_or_go(enter(Seq, Next), ran(Depth, Step, Burst));
-result({wait, Pending, Deadline, #seq{} = Seq}, _Depth, _Step, _Burst) ->
+%% What the body of `Step' returned. Every result but `wait' leaves the step (see
+%% leave_step/1); `wait' keeps it, its body having run (wait/3).
+result({next, Next, #seq{} = Seq}, _Step, Burst) ->
+    continue_or_go(enter(Seq, Next), Burst);
+result({wait, Pending, Deadline, #seq{} = Seq}, _Step, _Burst) ->
     wait(Seq, Pending, Deadline);
-result({done, #seq{} = Seq}, Depth, Step, Burst) ->
-    pop(Seq, ran(Depth, Step, Burst));
-result({abort, Why, #seq{} = Seq}, _Depth, _Step, _Burst) ->
+result({done, #seq{} = Seq}, _Step, Burst) ->
+    pop(Seq, Burst);
+result({abort, Why, #seq{} = Seq}, _Step, _Burst) ->
     abort(Seq, Why);
-result({call, Mod, Args, Next, #seq{} = Seq}, Depth, Step, Burst) ->
+result({call, Mod, Args, Next, #seq{} = Seq}, _Step, Burst) ->
     case push(leave_step(Seq), Mod, Args, Next) of
-        {ok, Seq2} -> continue_or_go(Seq2, ran(Depth, Step, Burst));
+        {ok, Seq2} -> continue_or_go(Seq2, Burst);
         Aborted -> Aborted
     end;
-result(Other, _Depth, Step, _Burst) ->
+result(Other, Step, _Burst) ->
     erlang:error({bad_step_result, Step, Other}).
 
+%% A step was entered: in several-steps mode it runs now, unless this go has run it.
+continue_or_go(#seq{frames = [#frame{mode = several, depth = 1} | _], step = Step} = Seq,
+               {Steps, SubSteps}) ->
+    case lists:member(Step, Steps) of
+        false -> go(Seq, {[Step | Steps], SubSteps});
+        true -> {continue, Seq}
+    end;
 continue_or_go(#seq{frames = [#frame{mode = several, depth = Depth} | _], step = Step} = Seq,
-               Burst) ->
-    case ran_before(Depth, Step, Burst) of
-        false -> go(Seq, Burst);
+               {Steps, SubSteps}) ->
+    case lists:member({Depth, Step}, SubSteps) of
+        false -> go(Seq, {Steps, [{Depth, Step} | SubSteps]});
         true -> {continue, Seq}
     end;
 continue_or_go(Seq, _Burst) ->
