@@ -144,7 +144,7 @@ args(#seq{frames = [#frame{args = A} | _]}) -> A.
 
 %% @doc An argument of the running sequence, or `Default'.
 -spec arg(seq(), term(), term()) -> term().
-arg(Seq, Key, Default) -> maps:get(Key, args(Seq), Default).
+arg(#seq{frames = [#frame{args = A} | _]}, Key, Default) -> maps:get(Key, A, Default).
 
 %% @doc A variable of the running sequence (the seed's VAR section).
 -spec get(seq(), term()) -> term().
