@@ -7,8 +7,9 @@
 %% none of a #frame. A caller's frame keeps the step it called from.
 -record(frame, {
     module :: module(),
-    %% fun Module:step/2, made once: calling it skips the lookup of Module:step(...)
-    body :: fun((term(), cell_sequence:seq()) -> cell_sequence:result()),
+    %% fun Module:step/2, made once: calling it skips the lookup of Module:step(...).
+    %% What it returns is the sequence's word, checked by the runner: any term.
+    body :: fun((term(), cell_sequence:seq()) -> term()),
     args = #{} :: map(),
     mode = several :: several | one,      %% several steps in one go, or one per cycle
     depth = 1 :: pos_integer(),           %% 1 for the state's sequence, 2 for one it called ...
