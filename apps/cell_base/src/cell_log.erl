@@ -20,7 +20,7 @@
 
 -export([log/4, error/3, warning/3, notice/3, info/3, debug/3, trace/3]).
 -export([set_level/2, level/1, reset_level/1, verbose_for/2, enabled/2,
-         set_default_level/1]).
+         set_default_level/1, levels_version/0, levels_changed/0]).
 -export([subscribe/0, unsubscribe/0, flush/0]).
 -export([format_line/1, parse_line/1, file_name/2, query/1, default_level/0]).
 
@@ -43,6 +43,8 @@
 -define(LEVELS_TAB, cell_log_levels).
 -define(SUBS_KEY, '$subscribers').
 -define(DEFAULT_KEY, '$default').
+%% An atom: every read of a persistent term hashes its key, and an atom keeps its hash.
+-define(VERSION_KEY, cell_log_levels_version).
 
 %% @doc Logs a message of the seed's levels for `Source', if its threshold allows.
 -spec log(level(), source(), io:format(), [term()]) -> ok.
@@ -82,6 +84,27 @@ trace(Source, Format, Args) ->
 -spec enabled(level(), source()) -> boolean().
 enabled(Level, Source) ->
     loggable(Level, Source).
+
+%% @doc A number that changes whenever a threshold may have changed. A caller asking
+%% {@link enabled/2} on a hot path (a unit, once a cycle) keeps the answer with this
+%% number and asks again only when it differs: reading it costs a persistent-term
+%% read, where enabled/2 costs two table lookups. 0 until the log server first starts.
+%%
+%% The log server changes it after it has changed the table, so an answer kept with a
+%% number is never older than that number. One case it does not see: between the
+%% server's crash and its restart, when enabled/2 falls back to the application's
+%% default, a kept answer stays as the table had it.
+-spec levels_version() -> non_neg_integer().
+levels_version() ->
+    persistent_term:get(?VERSION_KEY, 0).
+
+%% @private The log server has changed the thresholds (or made their table anew). The
+%% number is a small integer: replacing it costs the node no scan of every process,
+%% as replacing a compound term would (see persistent_term), and thresholds change
+%% seldom (at a Start, an operator's choice).
+-spec levels_changed() -> ok.
+levels_changed() ->
+    persistent_term:put(?VERSION_KEY, levels_version() + 1).
 
 %% @doc Sets the threshold of every source without one of its own (the machine
 %% settings' log level, applied at each Start).

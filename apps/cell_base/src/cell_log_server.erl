@@ -40,15 +40,19 @@ init([]) ->
     process_flag(trap_exit, true),
     ?TAB = ets:new(?TAB, [named_table, protected, {read_concurrency, true}]),
     true = ets:insert(?TAB, [{?SUBS_KEY, []}, {'$default', cell_log:default_level()}]),
+    %% A new table: what callers kept of the old one's thresholds is out of date.
+    ok = cell_log:levels_changed(),
     ok = install_handlers(),
     {ok, #state{}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, ok, #state{}}.
 handle_call({set_level, Source, Level}, _From, State) ->
     true = ets:insert(?TAB, {Source, Level}),
+    ok = cell_log:levels_changed(),
     {reply, ok, cancel_timer(Source, State)};
 handle_call({reset_level, Source}, _From, State) ->
     true = ets:delete(?TAB, Source),
+    ok = cell_log:levels_changed(),
     {reply, ok, cancel_timer(Source, State)};
 handle_call({verbose_for, Source, Ms}, _From, State0) ->
     %% Asked again while at Verbose for a while: the new time counts, and afterwards
@@ -60,6 +64,7 @@ handle_call({verbose_for, Source, Ms}, _From, State0) ->
                end,
     State = cancel_timer(Source, State0),
     true = ets:insert(?TAB, {Source, verbose}),
+    ok = cell_log:levels_changed(),
     Ref = erlang:start_timer(Ms, self(), {restore, Source}),
     {reply, ok, State#state{timers = maps:put(Source, {Ref, Previous}, State#state.timers)}};
 handle_call({subscribe, Pid}, _From, #state{monitors = Mons} = State) ->
@@ -86,6 +91,7 @@ handle_info({timeout, Ref, {restore, Source}}, #state{timers = Timers} = State) 
                        default -> ets:delete(?TAB, Source);
                        Level -> ets:insert(?TAB, {Source, Level})
                    end,
+            ok = cell_log:levels_changed(),
             {noreply, State#state{timers = maps:remove(Source, Timers)}};
         _ ->
             {noreply, State}
@@ -98,7 +104,9 @@ handle_info({gen_event_EXIT, _Handler, _Reason}, State) ->
 -spec terminate(term(), #state{}) -> ok.
 terminate(_Reason, _State) ->
     _ = [gen_event:delete_handler(lager_event, Id, remove) || {Id, _} <- ?HANDLERS],
-    ok.
+    %% The table goes with this process: callers fall back to the default threshold.
+    true = ets:delete(?TAB),
+    cell_log:levels_changed().
 
 install_handlers() ->
     Dir = cell_config:dir(logs),

@@ -117,7 +117,7 @@
 %% @doc True the first time a step's body runs after the step was entered (the seed's
 %% `_step.OnEntry()'): start the step's operations here.
 -spec on_entry(seq()) -> boolean().
-on_entry(#seq{on_entry = E}) -> E.
+on_entry(#seq{fresh = F}) -> F.
 
 %% @doc `IF _step.OnEntry() THEN ... END_IF': applies `Fun' to the sequence the first
 %% time the step's body runs, and gives the sequence back unchanged after that.
@@ -127,12 +127,12 @@ on_entry(#seq{on_entry = E}) -> E.
 %%     cell_sequence:await(Seq1, vertical_lift, wait_part_at_end);
 %% '''
 -spec on_entry(seq(), fun((seq()) -> seq())) -> seq().
-on_entry(#seq{on_entry = true} = Seq, Fun) -> Fun(Seq);
+on_entry(#seq{fresh = true} = Seq, Fun) -> Fun(Seq);
 on_entry(Seq, _Fun) -> Seq.
 
 %% @doc The step the sequence is in.
 -spec step(seq()) -> term().
-step(#seq{frames = [#frame{step = S} | _]}) -> S.
+step(#seq{step = S}) -> S.
 
 %% @doc The unit's id (the source of its log lines).
 -spec unit(seq()) -> atom().
@@ -144,7 +144,7 @@ args(#seq{frames = [#frame{args = A} | _]}) -> A.
 
 %% @doc An argument of the running sequence, or `Default'.
 -spec arg(seq(), term(), term()) -> term().
-arg(Seq, Key, Default) -> maps:get(Key, args(Seq), Default).
+arg(#seq{frames = [#frame{args = A} | _]}, Key, Default) -> maps:get(Key, A, Default).
 
 %% @doc A variable of the running sequence (the seed's VAR section).
 -spec get(seq(), term()) -> term().
@@ -211,7 +211,7 @@ await_all(Seq0, Ops, Next, Timeout) ->
                 [] ->
                     {next, Next, Seq};
                 Pending ->
-                    #seq{now = Now, frames = [#frame{entered = Entered, step = Step} | _]} = Seq,
+                    #seq{now = Now, entered = Entered, step = Step} = Seq,
                     case Timeout of
                         infinity ->
                             {wait, Pending, infinity, Seq};

@@ -72,7 +72,7 @@ start(Seq0, Mod, Args, Opts) ->
             finish({estop, Seq});
         false ->
             case push(Seq, Mod, Args, undefined) of
-                {ok, Seq2} -> finish(go(Seq2, []));
+                {ok, Seq2} -> finish(go(Seq2));
                 Aborted -> finish(Aborted)
             end
     end.
@@ -81,7 +81,8 @@ start(Seq0, Mod, Args, Opts) ->
 -spec cycle(cell_sequence:seq(), integer()) -> ret().
 cycle(#seq{frames = []} = Seq, _Now) -> finish({idle, Seq});
 cycle(#seq{held = true} = Seq, _Now) -> finish({wait, Seq});
-cycle(Seq, Now) -> finish(go(Seq#seq{now = Now}, [])).
+cycle(#seq{now = Now} = Seq, Now) -> finish(go(Seq));     %% the same millisecond: as it is
+cycle(Seq, Now) -> finish(go(Seq#seq{now = Now})).
 
 %% @doc A watch fired, a timer elapsed, an answer came.
 -spec event(cell_sequence:seq(), event(), integer()) -> ret().
@@ -95,8 +96,8 @@ event(Seq, Event, Now) ->
 set_halt(Seq0, true, Now) ->
     Seq = Seq0#seq{halt = true, now = Now},
     case Seq of
-        #seq{frames = [F | _], held = false, haltable = true, waiting = {Pending, _}} ->
-            case io_only(Pending) andalso resumable(F) of
+        #seq{frames = [_ | _], held = false, haltable = true, waiting = {Pending, _}} ->
+            case io_only(Pending) andalso resumable(Seq) of
                 true -> finish({wait, hold_waiting(Seq)});
                 false -> finish({wait, Seq})
             end;
@@ -106,12 +107,11 @@ set_halt(Seq0, true, Now) ->
 set_halt(Seq0, false, Now) ->
     Seq = Seq0#seq{halt = false, now = Now},
     case Seq of
-        #seq{held = true, frames = [F | Rest]} ->
-            F1 = case F#frame.fresh of
-                     true -> F;
-                     false -> F#frame{entered = Now}
-                 end,
-            finish(go(Seq#seq{held = false, frames = [F1 | Rest]}, []));
+        #seq{held = true, fresh = true} ->
+            finish(go(Seq#seq{held = false}));
+        #seq{held = true} ->
+            %% Held while it waited: its await timeout counts from here.
+            finish(go(Seq#seq{held = false, entered = Now}));
         _ ->
             finish({quiet(Seq), Seq})
     end.
@@ -163,10 +163,14 @@ expects(#seq{replies = R}, Ref) -> maps:get(Ref, R, none) =:= expected.
 %% @doc The running sequences, outermost first, with their steps; what the running
 %% step waits for; the actuators; the standing orders the unit was given.
 -spec describe(cell_sequence:seq()) -> map().
-describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
+describe(#seq{frames = Frames, step = Step, waiting = Waiting, held = Held, halt = Halt,
               actuators = Acts, orders = Orders}) ->
+    Steps = case Frames of
+                [] -> [];
+                [F | Callers] -> lists:reverse([F#frame{step = Step} | Callers])
+            end,
     #{sequences => [#{module => M, step => S, mode => Mode}
-                    || #frame{module = M, step = S, mode = Mode} <- lists:reverse(Frames)],
+                    || #frame{module = M, step = S, mode = Mode} <- Steps],
       waiting => case Waiting of
                      undefined -> [];
                      {Ops, _} -> Ops
@@ -177,8 +181,8 @@ describe(#seq{frames = Frames, waiting = Waiting, held = Held, halt = Halt,
 %% @doc Where the running sequence is.
 -spec where(cell_sequence:seq()) -> where().
 where(#seq{frames = []}) -> #{module => undefined, step => undefined, depth => 0};
-where(#seq{frames = [#frame{module = M, step = S} | Rest]}) ->
-    #{module => M, step => S, depth => length(Rest) + 1}.
+where(#seq{frames = [#frame{module = M, depth = Depth} | _], step = S}) ->
+    #{module => M, step => S, depth => Depth}.
 
 %% -------------------------------------------------------------------------------------
 %% Steps
@@ -187,53 +191,76 @@ where(#seq{frames = [#frame{module = M, step = S} | Rest]}) ->
 %% The step that is due runs, and in several-steps mode the ones after it while their
 %% conditions hold, until one waits or comes round a second time (the seed's
 %% `IsNotRepeatable'). Before each, the emergency stop is checked.
+%%
+%% This is the path every step takes, so it is kept lean: the body is given the #seq
+%% as it is (its `fresh' is on_entry/1's answer), a step entered is one update of the
+%% #seq, and `Burst', the steps this go has run or is to run, is a pair of plain lists:
+%% a go is a handful of steps, and lists:member/2 on them is cheaper than a map. The
+%% state's own sequence's steps are kept as they are (compared at once when they are
+%% atoms or integers), a sub-sequence's as `{Depth, Step}', which a step of the state's
+%% own sequence could equal: so these are kept apart, `{Steps, SubSteps}'.
+go(#seq{frames = [#frame{depth = 1} | _], step = Step} = Seq) ->
+    go(Seq, {[Step], []});
+go(#seq{frames = [#frame{depth = Depth} | _], step = Step} = Seq) ->
+    go(Seq, {[], [{Depth, Step}]}).
+
 go(#seq{estop = Estop} = Seq, Burst) ->
     case Estop() of
         true -> {estop, Seq};
         false -> run_body(Seq, Burst)
     end.
 
-run_body(#seq{frames = [#frame{module = Mod, step = Step, fresh = Fresh} = F | Rest]} = Seq0,
-         Burst) ->
-    case Fresh andalso Seq0#seq.halt andalso Seq0#seq.haltable andalso resumable(F) of
+run_body(#seq{frames = [#frame{body = Body} | _], step = Step, fresh = Fresh} = Seq, Burst) ->
+    case Fresh andalso Seq#seq.halt andalso Seq#seq.haltable andalso resumable(Seq) of
         true ->
-            {wait, Seq0#seq{held = true}};
+            {wait, Seq#seq{held = true}};
         false ->
-            Seq = Seq0#seq{frames = [F#frame{fresh = false} | Rest], on_entry = Fresh,
-                           waiting = undefined},
-            Result = try Mod:step(Step, Seq)
+            Result = try Body(Step, Seq)
                      catch throw:{cell_sequence, abort, Why} -> {abort, Why, Seq}
                      end,
-            result(Result, [{length(Rest), Step} | Burst])
+            result(Result, Step, Burst)
     end.
 
-result({next, Next, #seq{} = Seq}, Burst) ->
+%% What the body of `Step' returned. Every result but `wait' leaves the step (see
+%% leave_step/1); `wait' keeps it, its body having run (wait/3).
+result({next, Next, #seq{} = Seq}, _Step, Burst) ->
     continue_or_go(enter(Seq, Next), Burst);
-result({wait, Pending, Deadline, #seq{} = Seq}, _Burst) ->
+result({wait, Pending, Deadline, #seq{} = Seq}, _Step, _Burst) ->
     wait(Seq, Pending, Deadline);
-result({done, #seq{} = Seq}, Burst) ->
+result({done, #seq{} = Seq}, _Step, Burst) ->
     pop(Seq, Burst);
-result({abort, Why, #seq{} = Seq}, _Burst) ->
+result({abort, Why, #seq{} = Seq}, _Step, _Burst) ->
     abort(Seq, Why);
-result({call, Mod, Args, Next, #seq{} = Seq}, Burst) ->
+result({call, Mod, Args, Next, #seq{} = Seq}, _Step, Burst) ->
     case push(leave_step(Seq), Mod, Args, Next) of
         {ok, Seq2} -> continue_or_go(Seq2, Burst);
         Aborted -> Aborted
     end;
-result(Other, [{_, Step} | _]) ->
+result(Other, Step, _Burst) ->
     erlang:error({bad_step_result, Step, Other}).
 
-continue_or_go(#seq{frames = [#frame{mode = Mode, step = Step} | Rest]} = Seq, Burst) ->
-    case Mode =:= several andalso not lists:member({length(Rest), Step}, Burst) of
-        true -> go(Seq, Burst);
-        false -> {continue, Seq}
-    end.
+%% A step was entered: in several-steps mode it runs now, unless this go has run it.
+continue_or_go(#seq{frames = [#frame{mode = several, depth = 1} | _], step = Step} = Seq,
+               {Steps, SubSteps}) ->
+    case lists:member(Step, Steps) of
+        false -> go(Seq, {[Step | Steps], SubSteps});
+        true -> {continue, Seq}
+    end;
+continue_or_go(#seq{frames = [#frame{mode = several, depth = Depth} | _], step = Step} = Seq,
+               {Steps, SubSteps}) ->
+    case lists:member({Depth, Step}, SubSteps) of
+        false -> go(Seq, {Steps, [{Depth, Step} | SubSteps]});
+        true -> {continue, Seq}
+    end;
+continue_or_go(Seq, _Burst) ->
+    {continue, Seq}.
 
 %% A step is entered: the previous step's watches and deadline go.
-enter(#seq{frames = [F | Rest], now = Now} = Seq0, Step) ->
-    Seq = leave_step(Seq0),
-    cell_sequence:effect(Seq#seq{frames = [F#frame{step = Step, fresh = true, entered = Now} | Rest]},
-                         {step, length(Rest) + 1, F#frame.module, Step}).
+enter(Seq0, Step) ->
+    #seq{frames = [#frame{module = Mod, depth = Depth} | _], now = Now,
+         effects = Effects} = Seq = leave_step(Seq0),
+    Seq#seq{step = Step, fresh = true, entered = Now,
+            effects = [{step, Depth, Mod, Step} | Effects]}.
 
 leave_step(#seq{armed = Armed, latched = Latched, waiting = undefined, held = false} = Seq)
   when map_size(Armed) =:= 0, map_size(Latched) =:= 0 ->
@@ -247,8 +274,15 @@ leave_step(#seq{armed = Armed} = Seq) ->
 
 %% A (sub-)sequence starts, its first step entered; `Next' is where its caller goes
 %% on when it is done.
-push(#seq{frames = Frames} = Seq0, Mod, Args, Next) ->
-    Seq = Seq0#seq{frames = [#frame{module = Mod, args = Args, return = Next} | Frames]},
+push(#seq{frames = Frames, step = Calling} = Seq0, Mod, Args, Next) ->
+    Callers = case Frames of
+                  [] -> [];
+                  [Caller | Older] -> [Caller#frame{step = Calling} | Older]
+              end,
+    %% No step until init/2 names the first.
+    Seq = Seq0#seq{frames = [#frame{module = Mod, body = fun Mod:step/2, args = Args,
+                                    return = Next, depth = length(Frames) + 1} | Callers],
+                   step = undefined},
     try Mod:init(Args, Seq) of
         {ok, First, #seq{frames = [F | Rest]} = Seq1} ->
             {ok, enter(Seq1#seq{frames = [F#frame{mode = mode(Mod, Args)} | Rest]}, First)}
@@ -315,9 +349,9 @@ wait(#seq{armed = Armed0, now = Now} = Seq0, Pending, Deadline) ->
                    cell_sequence:effect(Seq1#seq{armed = (Seq1#seq.armed)#{deadline => At}},
                                         {timer, deadline, max(0, At - Now)})
            end,
-    Seq = Seq2#seq{waiting = {Pending, Deadline}},
+    Seq = Seq2#seq{waiting = {Pending, Deadline}, fresh = false},
     case Seq#seq.halt andalso Seq#seq.haltable andalso io_only(Pending)
-        andalso resumable(hd(Seq#seq.frames)) of
+        andalso resumable(Seq) of
         true -> {wait, hold_waiting(Seq)};
         false -> {wait, Seq}
     end.
@@ -349,7 +383,7 @@ handle({watch, {act, Name, Tag}, V}, Seq) ->
 handle({timer, {act, Name, Tag}}, Seq) ->
     actuator(Seq, Name, {timer, Tag});
 handle({timer, deadline}, #seq{waiting = {Pending, {_, Ms}}, held = false,
-                               frames = [#frame{step = Step} | _], armed = A} = Seq) ->
+                               frames = [_ | _], step = Step, armed = A} = Seq) ->
     abort(Seq#seq{armed = maps:remove(deadline, A)}, {await_timeout, Step, Pending, Ms});
 handle({timer, deadline}, Seq) ->
     {quiet(Seq), Seq};
@@ -378,7 +412,7 @@ actuator(#seq{actuators = Acts} = Seq, Name, Event) ->
     end.
 
 %% Something the waiting step may be waiting for has happened: its body runs again.
-rerun(#seq{waiting = {_, _}, held = false} = Seq) -> go(Seq, []);
+rerun(#seq{waiting = {_, _}, held = false} = Seq) -> go(Seq);
 rerun(Seq) -> {quiet(Seq), Seq}.
 
 quiet(#seq{frames = []}) -> idle;
@@ -389,7 +423,8 @@ quiet(_) -> wait.
 finish({Outcome, #seq{effects = E} = Seq}) ->
     {Outcome, Seq#seq{effects = []}, lists:reverse(E)}.
 
-resumable(#frame{module = Mod, step = Step}) ->
+%% Whether the sequence may hold before the step it is in.
+resumable(#seq{frames = [#frame{module = Mod} | _], step = Step}) ->
     case erlang:function_exported(Mod, resumable, 1) of
         true -> Mod:resumable(Step);
         false -> true

@@ -98,7 +98,9 @@
     away = [] :: [atom()],                   %% connections the HAL's server, away, did
     back :: reference() | undefined,         %% not subscribe: again when it is back
     settings = #{} :: map(),                 %% the snapshot for the next GoHome
-    in_force = #{} :: map()                  %% the settings the sequences run on
+    in_force = #{} :: map(),                 %% the settings the sequences run on
+    %% Whether steps are logged, as the log thresholds stood at a version of theirs.
+    verbose :: undefined | {non_neg_integer(), boolean()}
 }).
 
 %% -------------------------------------------------------------------------------------
@@ -172,38 +174,40 @@ handle_event(internal, fault, stopped, D) ->
     %% A Stop that was aborted has ended: the fault follows from Stopped.
     transition(aborted, stopped, D);
 handle_event(info, ?CYCLE(Gen), State, #data{gen = Gen} = D) ->
-    run(State, fun(S) -> cell_sequence_runner:cycle(S, now_ms()) end, D#data{cycle = false});
+    cycle(State, D);
 handle_event(info, ?CYCLE(_), _State, _D) ->
     keep_state_and_data;
-handle_event(info, {timeout, TRef, ?TIMER(Key)}, State, #data{timers = Timers} = D) ->
+handle_event(info, {timeout, TRef, ?TIMER(Key)}, State, #data{timers = Timers, seq = Seq} = D) ->
     case maps:find(Key, Timers) of
         {ok, TRef} ->
-            run(State, fun(S) -> cell_sequence_runner:event(S, {timer, Key}, now_ms()) end,
+            run(State, cell_sequence_runner:event(Seq, {timer, Key}, now_ms()),
                 D#data{timers = maps:remove(Key, Timers)});
         _ ->
             keep_state_and_data
     end;
-handle_event(info, {cell_hal_watch, Ref, Value}, State, #data{refs = Refs, watches = W} = D) ->
+handle_event(info, {cell_hal_watch, Ref, Value}, State,
+             #data{refs = Refs, watches = W, seq = Seq} = D) ->
     case maps:take(Ref, Refs) of
         {{Key, _Point}, Refs1} ->
-            run(State, fun(S) -> cell_sequence_runner:event(S, {watch, Key, Value}, now_ms()) end,
+            run(State, cell_sequence_runner:event(Seq, {watch, Key, Value}, now_ms()),
                 D#data{refs = Refs1, watches = maps:remove(Key, W)});
         error ->
             keep_state_and_data
     end;
-handle_event(info, {cell_hal_unavailable, Ref, Why}, State, #data{refs = Refs, watches = W} = D) ->
+handle_event(info, {cell_hal_unavailable, Ref, Why}, State,
+             #data{refs = Refs, watches = W, seq = Seq} = D) ->
     %% The point a step waits for cannot be read (the PLC refuses its address): the
     %% sequence is aborted as for a watch the HAL could not place, never left waiting.
     case maps:take(Ref, Refs) of
         {{Key, Point}, Refs1} ->
-            run(State, fun(S) -> cell_sequence_runner:fail(S, {io, Point, {unavailable, Why}}) end,
+            run(State, cell_sequence_runner:fail(Seq, {io, Point, {unavailable, Why}}),
                 D#data{refs = Refs1, watches = maps:remove(Key, W)});
         error ->
             keep_state_and_data
     end;
 handle_event(info, {Ref, Term} = Msg, State, #data{seq = Seq} = D) when is_reference(Ref) ->
     case cell_sequence_runner:expects(Seq, Ref) of
-        true -> run(State, fun(S) -> cell_sequence_runner:event(S, {reply, Ref, Term}, now_ms()) end, D);
+        true -> run(State, cell_sequence_runner:event(Seq, {reply, Ref, Term}, now_ms()), D);
         false -> late_reply(Msg, D)
     end;
 handle_event(info, {cell_hal_conn, Conn, Status}, State, D) ->
@@ -235,10 +239,11 @@ handle_event(info, {control, Key, Value}, State, D) ->
     control(Key, Value, State, D);
 handle_event({call, From}, {button, Button}, State, D) ->
     button(Button, From, State, D);
-handle_event({call, From}, {order, Key, Value}, State, D) when is_atom(Key) ->
+handle_event({call, From}, {order, Key, Value}, State, #data{seq = Seq} = D)
+  when is_atom(Key) ->
     %% A standing order for the sequences, in any state: the one waiting for it runs.
-    with_reply(From, ok, run(State, fun(S) -> cell_sequence_runner:set_order(S, Key, Value,
-                                                                            now_ms()) end, D));
+    with_reply(From, ok, run(State, cell_sequence_runner:set_order(Seq, Key, Value, now_ms()),
+                             D));
 handle_event({call, From}, {halt, On}, State, D) when is_boolean(On) ->
     {Outcome, D1} = halt_flag(On, State, D),
     with_reply(From, ok, outcome(Outcome, State, D1));
@@ -369,13 +374,13 @@ start_sequence(go_home, #data{conns = Conns0} = D) when Conns0 =/= #{} ->
 start_sequence(State, D) ->
     begin_sequence(State, D).
 
-begin_sequence(State, #data{decl = #{sequences := Seqs}} = D) ->
+begin_sequence(State, #data{decl = #{sequences := Seqs}, seq = Seq} = D) ->
     case maps:find(key(State), Seqs) of
         {ok, {Mod, Args}} ->
             Opts = #{now => now_ms(), haltable => cell_unit_fsm:haltable(State),
                      halt => D#data.halt, service => D#data.service,
                      settings => D#data.in_force},
-            run(State, fun(S) -> cell_sequence_runner:start(S, Mod, Args, Opts) end, D);
+            run(State, cell_sequence_runner:start(Seq, Mod, Args, Opts), D);
         error ->
             case cell_unit_fsm:is_active(State) of
                 true -> outcome(done, State, D);
@@ -386,11 +391,40 @@ begin_sequence(State, #data{decl = #{sequences := Seqs}} = D) ->
 key({action, A, _From}) -> {action, A};
 key(State) -> State.
 
-%% Runs the sequences with one event and carries out what they return.
-run(State, Fun, #data{seq = Seq} = D) ->
-    {Outcome, Seq1, Effects} = Fun(Seq),
-    {Outcome1, D1} = carry_out(Outcome, Effects, State, D#data{seq = Seq1}),
+%% What the sequences answered to one event (see cell_sequence_runner): carried out.
+run(State, {Outcome, Seq, Effects}, D) ->
+    {Outcome1, D1} = carry_out(Outcome, Effects, State, D#data{seq = Seq}),
     outcome(Outcome1, State, D1).
+
+%% A cycle message: the step that is due runs. This is the unit's hot path: most
+%% cycles leave another step due (one step per cycle, or a step coming round again in
+%% one go), and carry out nothing but the steps they entered, none of them logged.
+%% Such a cycle sets the unit's step and its sequences in one update and sends the
+%% next cycle, nothing more: the IPC-2541 state cannot have changed (Halt has not
+%% taken hold, a sequence still runs, and IPC events report themselves), and nobody
+%% waiting for the unit to settle can be answered while a cycle is due, so neither
+%% report/3 nor keep/2 has anything to do.
+cycle(State, #data{seq = Seq} = D0) ->
+    {Outcome, Seq1, Effects} = cell_sequence_runner:cycle(Seq, now_ms()),
+    {Verbose, D} = verbose(D0),
+    case {Outcome, Verbose, last_step(Effects)} of
+        {continue, false, {_, _, _} = Step} ->
+            next_cycle(D#data{seq = Seq1, step = Step});
+        _ ->
+            case carry_out(Outcome, Effects, State, D#data{seq = Seq1}) of
+                {continue, D1} -> next_cycle(D1);
+                {Outcome1, D1} -> outcome(Outcome1, State, D1#data{cycle = false})
+            end
+    end.
+
+next_cycle(#data{gen = Gen} = D) ->
+    self() ! ?CYCLE(Gen),
+    {keep_state, D}.
+
+%% The step entered last, when steps entered are all there is to carry out.
+last_step([{step, Depth, Mod, Step}]) -> {Depth, Mod, Step};
+last_step([{step, _, _, _} | Rest]) -> last_step(Rest);
+last_step(_) -> other.
 
 carry_out(Outcome, Effects, State, D) ->
     case exec(Effects, State, D) of
@@ -741,12 +775,16 @@ connection(_Conn, _Status, _State, _D) ->
 %% refuses stops there: the sequence is aborted with the reason.
 exec([], _State, D) ->
     {ok, D};
-exec(Effects, State, #data{id = Id} = D) ->
-    %% Whether steps are logged, asked once for all of them.
-    exec(Effects, State, cell_log:enabled(verbose, Id), D).
+exec(Effects, State, D0) ->
+    {Verbose, D} = verbose(D0),
+    exec(Effects, State, Verbose, D).
 
 exec([], _State, _Verbose, D) ->
     {ok, D};
+exec([{step, _, _, _}, {step, _, _, _} = Next | Rest], State, false, D) ->
+    %% Steps entered one after another in one go, none logged: only the last one is
+    %% the unit's step once they are carried out, the others need no update of #data.
+    exec([Next | Rest], State, false, D);
 exec([{step, Depth, Mod, Step} | Rest], State, Verbose, #data{id = Id} = D) ->
     case Verbose of
         true -> cell_log:debug(Id, "~ts~ts: step ~ts",
@@ -786,6 +824,19 @@ exec1({ipc, Event}, State, #data{ready = Ready, task = T} = D) ->
         automatic -> {ok, ipc_event(Event, Ready, T, State, D)};
         {user, _} -> {ok, ipc_event(Event, Ready, T, State, D)};
         _ -> {error, {not_ready, Event, State}, D}
+    end.
+
+%% Whether steps are logged, asked once for all the effects of an event. The answer is
+%% kept: the question comes with every cycle, and cell_log is asked again only once
+%% a threshold has changed.
+verbose(#data{id = Id, verbose = Kept} = D) ->
+    Version = cell_log:levels_version(),
+    case Kept of
+        {Version, On} ->
+            {On, D};
+        _ ->
+            On = cell_log:enabled(verbose, Id),
+            {On, D#data{verbose = {Version, On}}}
     end.
 
 %% An IPC-2541 event of the sequence: published, and the state it leads to reported at
