@@ -5,7 +5,7 @@
 %% <ul>
 %% <li>the protocol alone: products kept on a RAM-backed folder, beside a raw message
 %%     round trip between two processes measured in the same run. The cell's statistics
-%%     are detached from its events here (they are not the protocol); a line of 2 is
+%%     are stopped here (they are not the protocol); a line of 2 is
 %%     measured again with them, the whole cell;</li>
 %% <li>durable: products on the disk, flushed at every commit point, beside the disk's
 %%     own rate of the same small write + fsync + rename (+ folder fsync) in the same
@@ -50,7 +50,7 @@ run() ->
                "owner, completion, the product sent out and forgotten at the last, and "
                "the cell state kept (the controller hears of its changes only): about "
                "20 messages between processes (one of them to the benchmark) and five "
-               "record writes. The statistics are detached from the events (the next "
+               "record writes. The statistics are stopped (the next "
                "figure has them). Each figure on the RAM folder is the median of five "
                "rounds through one running cell."},
      #{title => "Transfers per second, line of 2, RAM folder, beside the protocol's floor",
@@ -114,7 +114,7 @@ run() ->
 
 %% Transfers per second through `Lines' lines of `Len' segments, `Per' products each
 %% round, the median of `Rounds' rounds through one running cell; the statistics
-%% attached to the cell's events or detached, or attached with the trace journal
+%% running (`attached') or stopped (`detached'), or running with the trace journal
 %% stopped (`unjournaled').
 line_rate(Root, Lines, Len, {Rounds, Per}, Stats) ->
     {Specs, Feeds, Refs} = lines(Lines, Len),
@@ -308,7 +308,9 @@ disk_rate(Root, N) ->
 %% A cell of lines started and running, its statistics attached to its events or not.
 start_line(Root, Specs, Stats) ->
     start_cell(Root, Specs),
-    _ = Stats =:= detached andalso cell_events:unsubscribe(whereis(cell_stats)),
+    %% Detached: no statistics at all. Neither the events nor the trace journal's
+    %% records reach them (the journal keeps its records until a reader attaches).
+    _ = Stats =:= detached andalso supervisor:terminate_child(cell_controller_sup, cell_stats),
     %% The tasks go on without the journal when it does not run.
     _ = Stats =:= unjournaled andalso
         supervisor:terminate_child(cell_controller_sup, cell_trace_journal),
