@@ -409,17 +409,26 @@ cycle(State, #data{seq = Seq} = D0) ->
     {Verbose, D} = verbose(D0),
     case {Outcome, Verbose, last_step(Effects)} of
         {continue, false, {_, _, _} = Step} ->
-            next_cycle(D#data{seq = Seq1, step = Step});
+            next_cycle(State, D#data{seq = Seq1, step = Step});
         _ ->
             case carry_out(Outcome, Effects, State, D#data{seq = Seq1}) of
-                {continue, D1} -> next_cycle(D1);
+                {continue, D1} -> next_cycle(State, D1);
                 {Outcome1, D1} -> outcome(Outcome1, State, D1#data{cycle = false})
             end
     end.
 
-next_cycle(#data{gen = Gen} = D) ->
-    self() ! ?CYCLE(Gen),
-    {keep_state, D}.
+%% The next cycle comes behind whatever reached the unit meanwhile (a button, an
+%% order, a HAL watch, a settle call): a message to itself, behind them. With nothing
+%% waiting it runs at once, within this event: the same order, without a trip through
+%% the mailbox.
+next_cycle(State, #data{gen = Gen} = D) ->
+    case erlang:process_info(self(), message_queue_len) of
+        {message_queue_len, 0} ->
+            cycle(State, D);
+        _ ->
+            self() ! ?CYCLE(Gen),
+            {keep_state, D}
+    end.
 
 %% The step entered last, when steps entered are all there is to carry out.
 last_step([{step, Depth, Mod, Step}]) -> {Depth, Mod, Step};
