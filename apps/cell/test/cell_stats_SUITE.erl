@@ -21,7 +21,8 @@
          an_answer_across_a_crash/1, an_answer_without_a_product_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
-         books_across_crashes/1, a_journal_at_its_bound/1]).
+         books_across_crashes/1, a_journal_at_its_bound/1,
+         a_read_back_without_the_database/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -41,7 +42,8 @@ all() ->
      a_product_left_but_still_in_its_file,
      the_journal_alone,
      books_across_crashes,
-     a_journal_at_its_bound].
+     a_journal_at_its_bound,
+     a_read_back_without_the_database].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -783,6 +785,18 @@ a_journal_at_its_bound(Config) ->
     ok = application:stop(cell),
     _ = application:stop(mnesia),
     ok = file:del_dir_r(Databases).
+
+%% What the statistics read back when they open their database (the last write, the
+%% products in the cell, the id of the last journal record applied) is read whole or
+%% not at all: without the database it is an error, never an empty database (taken for
+%% one, the statistics counted with no mark and never trimmed the journal, and a crash
+%% then counted its records again).
+a_read_back_without_the_database(_Config) ->
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:flush(),
+    ?assertMatch({ok, #{products := _, mark := _}}, cell_stats_db:at_open()),
+    stopped = mnesia:stop(),
+    ?assertMatch({error, _}, cell_stats_db:at_open()).
 
 %% The trace journal by itself: writers at once each get their own id; its reader gets
 %% every record once, in the order of the ids, before the writers are answered; the

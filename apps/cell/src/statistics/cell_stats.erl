@@ -70,7 +70,9 @@
 %% `trace_max_records'), shift counters after `shift_days'.
 %%
 %% If the database cannot be opened the statistics go on in memory, say why in the
-%% log, and try again every ten seconds.
+%% log, and try again every ten seconds. Reading back what they wrote (the products
+%% in the cell, the id of the last record applied) is part of opening it: a read that
+%% fails leaves the database closed, never taken for an empty one.
 -module(cell_stats).
 -behaviour(gen_server).
 
@@ -756,14 +758,21 @@ write_pending(_Now, _Mark, St) ->
 %% now is new to the cell or one it held before a restart is only known once the
 %% products in the cell have been read back. mnesia itself is normally running
 %% already (the `cell' application starts it before the controller); if it could
-%% not be, this tries again.
+%% not be, this tries again. What is read back (with the id of the last journal
+%% record applied) is part of opening: if it cannot be read the database is not open
+%% and this tries again, so the statistics never count with an unknown mark.
 open(#st{db = closed} = St) ->
     Result = case cell_db:start() of
-                 ok -> cell_db:ensure_tables(cell_stats_db:tables(), ?LOAD_MS);
-                 {error, _} = E -> E
+                 ok ->
+                     case cell_db:ensure_tables(cell_stats_db:tables(), ?LOAD_MS) of
+                         ok -> cell_stats_db:at_open();
+                         {error, _} = E -> E
+                     end;
+                 {error, _} = E ->
+                     E
              end,
     case Result of
-        ok -> opened(St#st{db = open});
+        {ok, Read} -> opened(Read, St#st{db = open});
         {error, Why} -> closed(Why, St)
     end;
 open(St) ->
@@ -787,8 +796,8 @@ closed(Why, #st{db = Was} = St) ->
 %% before a stop or crash is closed there, the time the runtime was not running is OFF;
 %% the products the cell held are known again; what was kept in memory meanwhile is
 %% written.
-opened(#st{started = Started} = St0) ->
-    {Flushed, OpenRows, Firsts} = cell_stats_db:at_open(),
+opened(#{flushed := Flushed, open := OpenRows, firsts := Firsts, products := Open,
+         mark := Saved}, #st{started = Started} = St0) ->
     Closed = lists:foldl(fun({T, Was}, Acc) ->
                                  Acc1 = until_down(T, Was, Flushed, Acc),
                                  case maps:is_key(T, cell_stats_clock:tasks(Acc1#st.clock)) of
@@ -813,7 +822,6 @@ opened(#st{started = Started} = St0) ->
                                     Acc
                             end
                     end, Closed, cell_stats_clock:tasks(Closed#st.clock)),
-    Open = cell_stats_db:open_products(),
     %% A product the books are still to write (one that left while the database was
     %% away, say) is as the statistics have it, not as its row was.
     Known = lists:foldl(
@@ -827,7 +835,7 @@ opened(#st{started = Started} = St0) ->
               end, St1#st.products, Open),
     %% What the journal holds that the database may not, then the holders now, as the
     %% registry knows them.
-    St2 = holders_now(attach(St1#st{products = Known}), Started),
+    St2 = holders_now(attach(Saved, St1#st{products = Known}), Started),
     Backlog = lists:reverse(St2#st.backlog),
     _ = Backlog =:= [] orelse
         cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
@@ -843,17 +851,16 @@ opened(#st{started = Started} = St0) ->
 %% The records of the trace journal not yet durable in the database are applied (the
 %% others are skipped by their ids, so none is counted twice), in the order of the
 %% journal; from now on each new record comes from the journal as soon as it is
-%% durable, and its event is skipped.
-attach(#st{attached = true} = St) ->
+%% durable, and its event is skipped. `Saved': the id of the last record applied, as
+%% the database has it.
+attach(_Saved, #st{attached = true} = St) ->
     St;
-attach(St) ->
-    case {whereis(cell_trace_journal), cell_stats_db:journal_mark()} of
-        {undefined, _} ->
+attach(Saved, St) ->
+    case whereis(cell_trace_journal) of
+        undefined ->
             %% No journal (the statistics started alone): the events are all there is.
             St;
-        {_, {error, _}} ->
-            St;
-        {_, {ok, Saved}} ->
+        _ ->
             Records = cell_trace_journal:attach(),
             St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
             Fresh = [R || #{id := Id} = R <- Records,
