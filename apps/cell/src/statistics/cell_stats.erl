@@ -10,7 +10,9 @@
 %% <b>The product's way survives any crash.</b> What a task does with a product
 %% (takes it, transfers it in or out) and an operator's answers are first made durable
 %% by their writer in the trace journal ({@link cell_trace_journal}); the statistics
-%% take those from the journal, in its order, and skip the events that follow them.
+%% take those from the journal, in its order, and skip the events that follow them;
+%% while the database is closed too (the journal is read once it opens, then older
+%% records come first, whichever way each record reached the statistics).
 %% Once a second, when records were applied or histories written, the histories
 %% handed over are written and their tables flushed to the disk, then the counters
 %% are written together with the books (which products are in the cell, how each one
@@ -134,7 +136,6 @@
              %% record applied again writes the very same entries) and whether a run
              %% before this one may have applied it (see apply_record/4).
              attached = false :: boolean(),
-             seen = #{} :: #{cell_trace_journal:id() => true},  %% applied before attach
              applied :: cell_trace_journal:id() | undefined,
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer(), live | replay}
@@ -312,11 +313,12 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}} | {stop, term(), #st{}}.
-handle_info({cell_event, #{journal := _}}, #st{attached = true} = St) ->
-    %% Its record came from the journal before it (see cell_trace_journal).
+handle_info({cell_event, #{journal := _}}, St) ->
+    %% Its record is taken from the journal, in the journal's order: it came before
+    %% the event, or it comes with the older records once the database is open (an
+    %% exit applied before the entry the journal holds would count the product as
+    %% left, then entered, then scrapped).
     {noreply, St};
-handle_info({cell_event, #{journal := Id} = Event}, #st{seen = Seen} = St) ->
-    {noreply, apply_record(Id, Event, replay, St#st{seen = Seen#{Id => true}})};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info({cell_trace_journal, Records}, St) ->
@@ -863,8 +865,7 @@ attach(Saved, St) ->
         _ ->
             Records = cell_trace_journal:attach(),
             St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
-            Fresh = [R || #{id := Id} = R <- Records,
-                          cell_stats_trace:fresh(Id, Saved, St#st.seen)],
+            Fresh = [R || #{id := Id} = R <- Records, cell_stats_trace:fresh(Id, Saved, #{})],
             _ = Fresh =:= [] orelse
                 cell_log:notice(cell, "statistics: ~b records of the products' way through "
                                 "the cell were in the trace journal but not yet in the "
@@ -872,18 +873,18 @@ attach(Saved, St) ->
                                 "from it by a crash); they are taken from the journal",
                                 [length(Fresh)]),
             St2 = lists:foldl(fun(R, Acc) -> journal_record(R, replay, Acc) end, St1, Fresh),
-            St2#st{attached = true, seen = #{}}
+            St2#st{attached = true}
     end.
 
-%% A record of the journal, or an event carrying the id of its record, applied once.
-journal_record(#{id := Id} = R, Mode, #st{saved = Saved, seen = Seen} = St) ->
-    case cell_stats_trace:fresh(Id, Saved, Seen) of
+%% A record of the journal applied once: none at or before the last durable one.
+journal_record(#{id := Id} = R, Mode, #st{saved = Saved} = St) ->
+    case cell_stats_trace:fresh(Id, Saved, #{}) of
         true -> apply_record(Id, R, Mode, St);
         false -> St
     end.
 
-%% `replay': a record taken from the journal at a start, or from its event before
-%% that; a run before this one may have applied it and written its history entries,
+%% `replay': a record taken from the journal when the database opens; a run before
+%% this one may have applied it and written its history entries,
 %% its counts lost with that run. `live': a record the journal sent as it was made.
 apply_record(Id, Event, Mode, #st{applied = Applied} = St) ->
     St1 = event(Event, St#st{applying = {Id, 0, Mode}}),
