@@ -21,7 +21,8 @@
          an_answer_across_a_crash/1, an_answer_without_a_product_across_a_crash/1,
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
-         books_across_crashes/1, a_journal_at_its_bound/1]).
+         books_across_crashes/1, a_journal_at_its_bound/1,
+         a_read_back_without_the_database/1, records_in_order_while_closed/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -41,7 +42,9 @@ all() ->
      a_product_left_but_still_in_its_file,
      the_journal_alone,
      books_across_crashes,
-     a_journal_at_its_bound].
+     a_journal_at_its_bound,
+     a_read_back_without_the_database,
+     records_in_order_while_closed].
 
 init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= shifts_split_the_time;
@@ -54,7 +57,8 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
                                      Case =:= a_product_held_but_never_recorded;
                                      Case =:= a_product_left_but_still_in_its_file;
-                                     Case =:= books_across_crashes ->
+                                     Case =:= books_across_crashes;
+                                     Case =:= records_in_order_while_closed ->
     Config1 = init_per_testcase({Case, common}, Config),
     Tab = ets:new(stats_suite_tasks, [public]),
     Tasks = [cell_test_task:spec(Id, Tab, self()) || Id <- [waits_a, waits_b]],
@@ -620,6 +624,53 @@ a_product_left_but_still_in_its_file(Config) ->
     ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
                  cell_stats:summary(total)).
 
+%% A product entered before a crash (its record is in the journal only) and leaves
+%% while the statistics cannot open their database: its exit, which reaches them as an
+%% event, is applied after its entry, as the journal has them, once the database is
+%% open. It entered and left, once; it is never taken for scrapped.
+records_in_order_while_closed(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    Root = ?config(root, Config),
+    Databases = filename:join(Root, "Databases"),
+    _ = file:del_dir_r(Databases),
+    _ = file:del_dir_r(filename:join(Root, "Data")),
+    _ = cell_test_db:foreign(Databases),
+    Serial = <<"S-85">>,
+    Product = cell_product:new(Serial, <<"r15">>),
+    Path = cell_product:path(<<"waits_a">>, <<"Test">>),
+    ok = filelib:ensure_dir(Path),
+    ok = cell_product:save(Path, cell_product:stored(Product, 1, undefined)),
+    Entry = #{id => {1, 1}, at => erlang:system_time(microsecond) - 5000000,
+              type => product_saved, task => waits_a, zone => <<"waits_a">>,
+              lane => <<"Test">>, item => Serial, in_transit => false, product => Product},
+    ok = file:write_file(filename:join(Databases, "cell_trace.journal"),
+                         cell_trace_journal:encode(Entry)),
+    ok = cell_log:subscribe(),
+    {ok, _} = application:ensure_all_started(cell),
+    _ = await_log(<<"statistics: the database cannot be opened">>),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
+    await_event(item_transfer_out, Serial),
+    ok = cell_test_task:command(waits_a, Ref, {product, undefined}),
+    await_event(product_saved, undefined),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    %% The other node's database moved aside (the journal stays): the statistics start
+    %% a new one at their next try.
+    Aside = Databases ++ ".other",
+    ok = file:make_dir(Aside),
+    [ok = file:rename(filename:join(Databases, F), filename:join(Aside, F))
+     || F <- element(2, file:list_dir(Databases)), F =/= "cell_trace.journal"],
+    _ = await_log(<<"database table cell_trace_event created">>),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual([entered, item_transfer_out, left], history(Serial)),
+    ?assertMatch(#{cell := #{in := 1, out := 1, scrapped := 0}, in_cell := 0},
+                 cell_stats:summary(total)),
+    ok = application:stop(cell),
+    _ = application:stop(mnesia),
+    ok = file:del_dir_r(Aside).
+
 %% The books after crashes of the statistics at any point of products' way: each
 %% product enters and leaves, and the statistics are killed (once, or twice in a row,
 %% replaying the journal again before they wrote) right after they took a record and
@@ -783,6 +834,18 @@ a_journal_at_its_bound(Config) ->
     ok = application:stop(cell),
     _ = application:stop(mnesia),
     ok = file:del_dir_r(Databases).
+
+%% What the statistics read back when they open their database (the last write, the
+%% products in the cell, the id of the last journal record applied) is read whole or
+%% not at all: without the database it is an error, never an empty database (taken for
+%% one, the statistics counted with no mark and never trimmed the journal, and a crash
+%% then counted its records again).
+a_read_back_without_the_database(_Config) ->
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_stats:flush(),
+    ?assertMatch({ok, #{products := _, mark := _}}, cell_stats_db:at_open()),
+    stopped = mnesia:stop(),
+    ?assertMatch({error, _}, cell_stats_db:at_open()).
 
 %% The trace journal by itself: writers at once each get their own id; its reader gets
 %% every record once, in the order of the ids, before the writers are answered; the

@@ -10,7 +10,9 @@
 %% <b>The product's way survives any crash.</b> What a task does with a product
 %% (takes it, transfers it in or out) and an operator's answers are first made durable
 %% by their writer in the trace journal ({@link cell_trace_journal}); the statistics
-%% take those from the journal, in its order, and skip the events that follow them.
+%% take those from the journal, in its order, and skip the events that follow them;
+%% while the database is closed too (the journal is read once it opens, then older
+%% records come first, whichever way each record reached the statistics).
 %% Once a second, when records were applied or histories written, the histories
 %% handed over are written and their tables flushed to the disk, then the counters
 %% are written together with the books (which products are in the cell, how each one
@@ -70,7 +72,9 @@
 %% `trace_max_records'), shift counters after `shift_days'.
 %%
 %% If the database cannot be opened the statistics go on in memory, say why in the
-%% log, and try again every ten seconds.
+%% log, and try again every ten seconds. Reading back what they wrote (the products
+%% in the cell, the id of the last record applied) is part of opening it: a read that
+%% fails leaves the database closed, never taken for an empty one.
 -module(cell_stats).
 -behaviour(gen_server).
 
@@ -132,7 +136,6 @@
              %% record applied again writes the very same entries) and whether a run
              %% before this one may have applied it (see apply_record/4).
              attached = false :: boolean(),
-             seen = #{} :: #{cell_trace_journal:id() => true},  %% applied before attach
              applied :: cell_trace_journal:id() | undefined,
              saved :: cell_trace_journal:id() | undefined,
              applying :: {cell_trace_journal:id(), non_neg_integer(), live | replay}
@@ -310,11 +313,12 @@ handle_cast({record, Serial, What, Detail, At}, St) ->
     {noreply, trace(Serial, At, Task, #{event => What, detail => Detail}, St)}.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}} | {stop, term(), #st{}}.
-handle_info({cell_event, #{journal := _}}, #st{attached = true} = St) ->
-    %% Its record came from the journal before it (see cell_trace_journal).
+handle_info({cell_event, #{journal := _}}, St) ->
+    %% Its record is taken from the journal, in the journal's order: it came before
+    %% the event, or it comes with the older records once the database is open (an
+    %% exit applied before the entry the journal holds would count the product as
+    %% left, then entered, then scrapped).
     {noreply, St};
-handle_info({cell_event, #{journal := Id} = Event}, #st{seen = Seen} = St) ->
-    {noreply, apply_record(Id, Event, replay, St#st{seen = Seen#{Id => true}})};
 handle_info({cell_event, Event}, St) ->
     {noreply, event(Event, St)};
 handle_info({cell_trace_journal, Records}, St) ->
@@ -756,14 +760,21 @@ write_pending(_Now, _Mark, St) ->
 %% now is new to the cell or one it held before a restart is only known once the
 %% products in the cell have been read back. mnesia itself is normally running
 %% already (the `cell' application starts it before the controller); if it could
-%% not be, this tries again.
+%% not be, this tries again. What is read back (with the id of the last journal
+%% record applied) is part of opening: if it cannot be read the database is not open
+%% and this tries again, so the statistics never count with an unknown mark.
 open(#st{db = closed} = St) ->
     Result = case cell_db:start() of
-                 ok -> cell_db:ensure_tables(cell_stats_db:tables(), ?LOAD_MS);
-                 {error, _} = E -> E
+                 ok ->
+                     case cell_db:ensure_tables(cell_stats_db:tables(), ?LOAD_MS) of
+                         ok -> cell_stats_db:at_open();
+                         {error, _} = E -> E
+                     end;
+                 {error, _} = E ->
+                     E
              end,
     case Result of
-        ok -> opened(St#st{db = open});
+        {ok, Read} -> opened(Read, St#st{db = open});
         {error, Why} -> closed(Why, St)
     end;
 open(St) ->
@@ -787,8 +798,8 @@ closed(Why, #st{db = Was} = St) ->
 %% before a stop or crash is closed there, the time the runtime was not running is OFF;
 %% the products the cell held are known again; what was kept in memory meanwhile is
 %% written.
-opened(#st{started = Started} = St0) ->
-    {Flushed, OpenRows, Firsts} = cell_stats_db:at_open(),
+opened(#{flushed := Flushed, open := OpenRows, firsts := Firsts, products := Open,
+         mark := Saved}, #st{started = Started} = St0) ->
     Closed = lists:foldl(fun({T, Was}, Acc) ->
                                  Acc1 = until_down(T, Was, Flushed, Acc),
                                  case maps:is_key(T, cell_stats_clock:tasks(Acc1#st.clock)) of
@@ -813,7 +824,6 @@ opened(#st{started = Started} = St0) ->
                                     Acc
                             end
                     end, Closed, cell_stats_clock:tasks(Closed#st.clock)),
-    Open = cell_stats_db:open_products(),
     %% A product the books are still to write (one that left while the database was
     %% away, say) is as the statistics have it, not as its row was.
     Known = lists:foldl(
@@ -827,7 +837,7 @@ opened(#st{started = Started} = St0) ->
               end, St1#st.products, Open),
     %% What the journal holds that the database may not, then the holders now, as the
     %% registry knows them.
-    St2 = holders_now(attach(St1#st{products = Known}), Started),
+    St2 = holders_now(attach(Saved, St1#st{products = Known}), Started),
     Backlog = lists:reverse(St2#st.backlog),
     _ = Backlog =:= [] orelse
         cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
@@ -843,21 +853,19 @@ opened(#st{started = Started} = St0) ->
 %% The records of the trace journal not yet durable in the database are applied (the
 %% others are skipped by their ids, so none is counted twice), in the order of the
 %% journal; from now on each new record comes from the journal as soon as it is
-%% durable, and its event is skipped.
-attach(#st{attached = true} = St) ->
+%% durable, and its event is skipped. `Saved': the id of the last record applied, as
+%% the database has it.
+attach(_Saved, #st{attached = true} = St) ->
     St;
-attach(St) ->
-    case {whereis(cell_trace_journal), cell_stats_db:journal_mark()} of
-        {undefined, _} ->
+attach(Saved, St) ->
+    case whereis(cell_trace_journal) of
+        undefined ->
             %% No journal (the statistics started alone): the events are all there is.
             St;
-        {_, {error, _}} ->
-            St;
-        {_, {ok, Saved}} ->
+        _ ->
             Records = cell_trace_journal:attach(),
             St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
-            Fresh = [R || #{id := Id} = R <- Records,
-                          cell_stats_trace:fresh(Id, Saved, St#st.seen)],
+            Fresh = [R || #{id := Id} = R <- Records, cell_stats_trace:fresh(Id, Saved, #{})],
             _ = Fresh =:= [] orelse
                 cell_log:notice(cell, "statistics: ~b records of the products' way through "
                                 "the cell were in the trace journal but not yet in the "
@@ -865,18 +873,18 @@ attach(St) ->
                                 "from it by a crash); they are taken from the journal",
                                 [length(Fresh)]),
             St2 = lists:foldl(fun(R, Acc) -> journal_record(R, replay, Acc) end, St1, Fresh),
-            St2#st{attached = true, seen = #{}}
+            St2#st{attached = true}
     end.
 
-%% A record of the journal, or an event carrying the id of its record, applied once.
-journal_record(#{id := Id} = R, Mode, #st{saved = Saved, seen = Seen} = St) ->
-    case cell_stats_trace:fresh(Id, Saved, Seen) of
+%% A record of the journal applied once: none at or before the last durable one.
+journal_record(#{id := Id} = R, Mode, #st{saved = Saved} = St) ->
+    case cell_stats_trace:fresh(Id, Saved, #{}) of
         true -> apply_record(Id, R, Mode, St);
         false -> St
     end.
 
-%% `replay': a record taken from the journal at a start, or from its event before
-%% that; a run before this one may have applied it and written its history entries,
+%% `replay': a record taken from the journal when the database opens; a run before
+%% this one may have applied it and written its history entries,
 %% its counts lost with that run. `live': a record the journal sent as it was made.
 apply_record(Id, Event, Mode, #st{applied = Applied} = St) ->
     St1 = event(Event, St#st{applying = {Id, 0, Mode}}),

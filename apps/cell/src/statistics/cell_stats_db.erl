@@ -15,7 +15,7 @@
 
 -export([tables/0, summary/2, counters/2, time_check/0, periods/0, product/1, products_out/2,
          in_cell/0]).
--export([at_open/0, journal_mark/0, open_products/0, left_summary/1, product_summary/4]).
+-export([at_open/0, left_summary/1, product_summary/4]).
 -export([write_counters/5, merge/3, sync_histories/0, write_history/4, delete_counter/1,
          forget/1, expired/3, over_limit/1, to_drop/4]).
 
@@ -241,28 +241,33 @@ meta(Key, Default) ->
 %% What the statistics process reads back
 %%====================================================================
 
-%% @doc When the counters were last written, each task's state then and since when,
-%% each task's first time seen; read together.
--spec at_open() -> {integer() | undefined, [{atom(), {atom(), integer()}}],
-                    #{atom() => integer()}}.
+%% @doc What the statistics read back when they open the database, in one transaction:
+%% when the counters were last written (`flushed'), each task's state then and since
+%% when (`open'), each task's first time seen (`firsts'), the products in the cell with
+%% their rows (`products') and the id of the last journal record whose effects the
+%% counters hold (`mark'). All or nothing: a read that fails is an error, never taken
+%% for an empty database (the statistics would count products in the cell again, and
+%% count with no mark, so that the journal's records are counted again after a crash).
+-spec at_open() -> {ok, #{flushed := integer() | undefined,
+                          open := [{atom(), {atom(), integer()}}],
+                          firsts := #{atom() => integer()},
+                          products := [{binary(), map()}],
+                          mark := cell_trace_journal:id() | undefined}}
+                 | {error, term()}.
 at_open() ->
-    view(fun() -> {meta(flushed, undefined), open_rows(), maps:from_list(firsts())} end,
-         {undefined, [], #{}}).
-
-%% @doc The id of the last journal record whose effects the counters hold.
--spec journal_mark() -> {ok, cell_trace_journal:id() | undefined} | {error, term()}.
-journal_mark() ->
-    case mnesia:transaction(fun() -> meta(journal, undefined) end) of
-        {atomic, Saved} -> {ok, Saved};
+    Read = fun() ->
+                   #{flushed => meta(flushed, undefined), open => open_rows(),
+                     firsts => maps:from_list(firsts()),
+                     products => [{Serial, Row} || {?OPEN, Serial, Row}
+                                                       <- mnesia:select(?OPEN, [{'_', [], ['$_']}])],
+                     mark => meta(journal, undefined)}
+           end,
+    %% mnesia stopping in the middle of a transaction exits rather than answers.
+    try mnesia:transaction(Read) of
+        {atomic, Books} -> {ok, Books};
         {aborted, Why} -> {error, Why}
+    catch exit:{aborted, Why} -> {error, Why}
     end.
-
-%% @doc The products in the cell, each with its row.
--spec open_products() -> [{binary(), map()}].
-open_products() ->
-    [{Serial, Row} || {?OPEN, Serial, Row}
-                          <- safe(fun() -> mnesia:dirty_select(?OPEN, [{'_', [], ['$_']}]) end,
-                                  [])].
 
 %% @doc How a product that left did, as written.
 -spec left_summary(binary()) -> map() | undefined.

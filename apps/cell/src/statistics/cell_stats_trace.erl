@@ -16,7 +16,8 @@
 -type unheld() :: held | {wait, pos_integer()} | scrap.
 
 %% @doc Whether the record `Id' is still to apply: after the last durable one, and not
-%% applied already from its event (`Seen').
+%% among those `Seen' applied already (the statistics take every record from the
+%% journal, once each, and pass none).
 -spec fresh(cell_trace_journal:id(), cell_trace_journal:id() | undefined,
             #{cell_trace_journal:id() => true}) -> boolean().
 fresh(Id, Saved, Seen) ->
