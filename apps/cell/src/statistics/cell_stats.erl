@@ -72,7 +72,9 @@
 %% `trace_max_records'), shift counters after `shift_days'.
 %%
 %% If the database cannot be opened the statistics go on in memory, say why in the
-%% log, and try again every ten seconds. Reading back what they wrote (the products
+%% log, and try again every ten seconds. A product's way (taken, transferred, left)
+%% is counted only once it opens: which of the journal's records the database already
+%% holds is known then, and they are applied in the journal's order. Reading back what they wrote (the products
 %% in the cell, the id of the last record applied) is part of opening it: a read that
 %% fails leaves the database closed, never taken for an empty one.
 -module(cell_stats).
