@@ -399,8 +399,8 @@ run(State, {Outcome, Seq, Effects}, D) ->
 %% A cycle message: the step that is due runs. This is the unit's hot path: most
 %% cycles leave another step due (one step per cycle, or a step coming round again in
 %% one go), and carry out nothing but the steps they entered, none of them logged.
-%% Such a cycle sets the unit's step and its sequences in one update and sends the
-%% next cycle, nothing more: the IPC-2541 state cannot have changed (Halt has not
+%% Such a cycle sets the unit's step and its sequences in one update and goes on to
+%% the next cycle (see next_cycle/2), nothing more: the IPC-2541 state cannot have changed (Halt has not
 %% taken hold, a sequence still runs, and IPC events report themselves), and nobody
 %% waiting for the unit to settle can be answered while a cycle is due, so neither
 %% report/3 nor keep/2 has anything to do.
