@@ -59,7 +59,7 @@ prop_replay_counts_each_record_once() ->
 %% One run from the durable books {Saved, Counted}: applies the fresh records and saves
 %% after SaveAt of them, unless it crashes first (after CrashAt).
 run(Ids, {Saved, Counted}, SaveAt, CrashAt) ->
-    Fresh = [Id || Id <- Ids, cell_stats_trace:fresh(Id, Saved, #{})],
+    Fresh = [Id || Id <- Ids, cell_stats_trace:fresh(Id, Saved)],
     case lists:sublist(Fresh, SaveAt) of
         Applied when SaveAt =< CrashAt, Applied =/= [] ->
             {lists:foldl(fun cell_stats_trace:latest/2, Saved, Applied), Counted ++ Applied};

@@ -867,7 +867,7 @@ attach(Saved, St) ->
         _ ->
             Records = cell_trace_journal:attach(),
             St1 = St#st{saved = Saved, applied = cell_stats_trace:latest(Saved, St#st.applied)},
-            Fresh = [R || #{id := Id} = R <- Records, cell_stats_trace:fresh(Id, Saved, #{})],
+            Fresh = [R || #{id := Id} = R <- Records, cell_stats_trace:fresh(Id, Saved)],
             _ = Fresh =:= [] orelse
                 cell_log:notice(cell, "statistics: ~b records of the products' way through "
                                 "the cell were in the trace journal but not yet in the "
@@ -880,14 +880,14 @@ attach(Saved, St) ->
 
 %% A record of the journal applied once: none at or before the last durable one.
 journal_record(#{id := Id} = R, Mode, #st{saved = Saved} = St) ->
-    case cell_stats_trace:fresh(Id, Saved, #{}) of
+    case cell_stats_trace:fresh(Id, Saved) of
         true -> apply_record(Id, R, Mode, St);
         false -> St
     end.
 
 %% `replay': a record taken from the journal when the database opens; a run before
-%% this one may have applied it and written its history entries,
-%% its counts lost with that run. `live': a record the journal sent as it was made.
+%% this one may have applied it and written its history entries, its counts lost with
+%% that run. `live': a record the journal sent as it was made.
 apply_record(Id, Event, Mode, #st{applied = Applied} = St) ->
     St1 = event(Event, St#st{applying = {Id, 0, Mode}}),
     St1#st{applying = undefined, applied = cell_stats_trace:latest(Id, Applied)}.

@@ -8,20 +8,18 @@
 %% is never applied again. Ids grow in the order of the journal, across restarts.
 -module(cell_stats_trace).
 
--export([fresh/3, latest/2, unheld/2, left_after_scrap/1, left_failed/2, journal_level/3,
+-export([fresh/2, latest/2, unheld/2, left_after_scrap/1, left_failed/2, journal_level/3,
          from_history/2]).
 
 -export_type([unheld/0]).
 
 -type unheld() :: held | {wait, pos_integer()} | scrap.
 
-%% @doc Whether the record `Id' is still to apply: after the last durable one, and not
-%% among those `Seen' applied already (the statistics take every record from the
-%% journal, once each, and pass none).
--spec fresh(cell_trace_journal:id(), cell_trace_journal:id() | undefined,
-            #{cell_trace_journal:id() => true}) -> boolean().
-fresh(Id, Saved, Seen) ->
-    (Saved =:= undefined orelse Id > Saved) andalso not maps:is_key(Id, Seen).
+%% @doc Whether the record `Id' is still to apply: after `Saved', the last durable one
+%% (the statistics take every record from the journal, in its order, once each).
+-spec fresh(cell_trace_journal:id(), cell_trace_journal:id() | undefined) -> boolean().
+fresh(Id, Saved) ->
+    Saved =:= undefined orelse Id > Saved.
 
 %% @doc The later of two ids (either may be none yet).
 -spec latest(cell_trace_journal:id() | undefined, cell_trace_journal:id() | undefined) ->
@@ -105,13 +103,12 @@ from_history(Serial, History) ->
 -include_lib("eunit/include/eunit.hrl").
 
 fresh_test_() ->
-    [?_assert(fresh({1, 1}, undefined, #{})),
-     ?_assertNot(fresh({1, 1}, {1, 1}, #{})),
-     ?_assertNot(fresh({1, 1}, {1, 2}, #{})),
-     ?_assert(fresh({1, 3}, {1, 2}, #{})),
+    [?_assert(fresh({1, 1}, undefined)),
+     ?_assertNot(fresh({1, 1}, {1, 1})),
+     ?_assertNot(fresh({1, 1}, {1, 2})),
+     ?_assert(fresh({1, 3}, {1, 2})),
      %% A later incarnation's ids come after every id of an earlier one.
-     ?_assert(fresh({2, 1}, {1, 900}, #{})),
-     ?_assertNot(fresh({1, 3}, {1, 2}, #{{1, 3} => true}))].
+     ?_assert(fresh({2, 1}, {1, 900}))].
 
 latest_test_() ->
     [?_assertEqual(undefined, latest(undefined, undefined)),
