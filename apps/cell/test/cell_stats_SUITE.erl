@@ -22,7 +22,8 @@
          a_journal_cut_short_at_boot/1, a_product_held_but_never_recorded/1,
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
          books_across_crashes/1, a_journal_at_its_bound/1,
-         a_read_back_without_the_database/1, records_in_order_while_closed/1]).
+         a_read_back_without_the_database/1, records_in_order_while_closed/1,
+         a_product_failed_after_a_restart/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -35,6 +36,7 @@ all() ->
      a_product_left_across_a_crash,
      a_failed_product_left_across_a_crash,
      a_product_taken_again_across_a_crash,
+     a_product_failed_after_a_restart,
      an_answer_across_a_crash,
      an_answer_without_a_product_across_a_crash,
      a_journal_cut_short_at_boot,
@@ -52,6 +54,7 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= a_product_left_across_a_crash;
                                      Case =:= a_failed_product_left_across_a_crash;
                                      Case =:= a_product_taken_again_across_a_crash;
+                                     Case =:= a_product_failed_after_a_restart;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= an_answer_without_a_product_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
@@ -390,6 +393,26 @@ a_product_taken_again_across_a_crash(Config) ->
     {ok, #{status := in_cell, events := Events}} = cell_stats:product(Serial),
     ?assertEqual([#{station => <<"b">>}],
                  [Changes || #{changes := Changes} = E <- Events, ByB(E)]).
+
+%% A product in the cell is marked failed (its inspection failed) after the statistics
+%% restarted: they know it from its row in the cell, without the fields its task last
+%% saved. The row says failed from then on, as the cell's page and the product's
+%% record show it, before the product leaves, and its history has the change.
+a_product_failed_after_a_restart(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved]),
+    P = cell_product:new(<<"R-1">>, <<"rf">>),
+    ok = save(Ref, P),
+    ?assertMatch({ok, #{status := in_cell, failed := false}}, cell_stats:product(<<"R-1">>)),
+    ok = kill_stats(),
+    ok = save(Ref, P#{failed => true}),
+    {ok, #{status := in_cell, failed := true, recipe := <<"rf">>, events := Events}} =
+        cell_stats:product(<<"R-1">>),
+    %% What changed, as far as the row tells: the verdict, not the recipe it kept.
+    ?assertEqual([#{failed => true}], [C || #{event := changed, changes := C} <- Events]).
 
 %% The product enters and its entry is written; with the statistics suspended it is
 %% marked failed, sent out and let go; then they take all that and write its history,

@@ -464,20 +464,21 @@ claim(Serial, T, #prod{last = Last} = P0, Product, At, St) ->
                 failed = maps:get(failed, Product, P0#prod.failed) =:= true,
                 recipe = text(maps:get(recipe, Product, P0#prod.recipe))},
     St1 = St#st{products = maps:put(Serial, P, St#st.products)},
-    Changes = case Last of
-                  undefined -> #{};      %% restored after a restart: nothing to compare
-                  _ -> maps:filter(fun(K, V) -> maps:get(K, Last, '$none') =/= V end,
-                                   maps:without([serial], Product))
-              end,
+    %% The product's row in the cell follows its verdict and recipe, also when the
+    %% statistics restarted and have no saved fields to compare with.
+    St2 = case P#prod.failed =/= P0#prod.failed orelse P#prod.recipe =/= P0#prod.recipe of
+              true -> write_open(Serial, P, St1);
+              false -> St1
+          end,
+    %% Restored after a restart, the product is known by what its row keeps.
+    {Before, Fields} = case Last of
+                           undefined -> {open_row(P0), maps:with([failed, recipe], Product)};
+                           _ -> {Last, maps:without([serial], Product)}
+                       end,
+    Changes = maps:filter(fun(K, V) -> maps:get(K, Before, '$none') =/= V end, Fields),
     case map_size(Changes) of
-        0 ->
-            St1;
-        _ ->
-            St2 = case P#prod.failed =/= P0#prod.failed orelse P#prod.recipe =/= P0#prod.recipe of
-                      true -> write_open(Serial, P, St1);
-                      false -> St1
-                  end,
-            changed(Serial, At, T, Changes, St2)
+        0 -> St2;
+        _ -> changed(Serial, At, T, Changes, St2)
     end.
 
 %% What changed since the task last saved the product. A record of the trace journal
