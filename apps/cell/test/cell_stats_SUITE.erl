@@ -23,7 +23,7 @@
          a_product_left_but_still_in_its_file/1, the_journal_alone/1,
          books_across_crashes/1, a_journal_at_its_bound/1,
          a_read_back_without_the_database/1, records_in_order_while_closed/1,
-         a_product_failed_after_a_restart/1]).
+         a_product_failed_after_a_restart/1, a_product_saved_again_while_closed/1]).
 
 -define(RETRY_WAIT_MS, 30000).
 
@@ -37,6 +37,7 @@ all() ->
      a_failed_product_left_across_a_crash,
      a_product_taken_again_across_a_crash,
      a_product_failed_after_a_restart,
+     a_product_saved_again_while_closed,
      an_answer_across_a_crash,
      an_answer_without_a_product_across_a_crash,
      a_journal_cut_short_at_boot,
@@ -55,6 +56,7 @@ init_per_testcase(Case, Config) when Case =:= time_in_a_state_across_a_crash;
                                      Case =:= a_failed_product_left_across_a_crash;
                                      Case =:= a_product_taken_again_across_a_crash;
                                      Case =:= a_product_failed_after_a_restart;
+                                     Case =:= a_product_saved_again_while_closed;
                                      Case =:= an_answer_across_a_crash;
                                      Case =:= an_answer_without_a_product_across_a_crash;
                                      Case =:= a_journal_cut_short_at_boot;
@@ -403,7 +405,7 @@ a_product_failed_after_a_restart(Config) ->
     {ok, _} = application:ensure_all_started(cell),
     ok = cell_controller:start(),
     ok = cell_controller:sync(),
-    ok = cell_events:subscribe([product_saved]),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
     P = cell_product:new(<<"R-1">>, <<"rf">>),
     ok = save(Ref, P),
     ?assertMatch({ok, #{status := in_cell, failed := false}}, cell_stats:product(<<"R-1">>)),
@@ -412,7 +414,43 @@ a_product_failed_after_a_restart(Config) ->
     {ok, #{status := in_cell, failed := true, recipe := <<"rf">>, events := Events}} =
         cell_stats:product(<<"R-1">>),
     %% What changed, as far as the row tells: the verdict, not the recipe it kept.
-    ?assertEqual([#{failed => true}], [C || #{event := changed, changes := C} <- Events]).
+    ?assertEqual([#{failed => true}], [C || #{event := changed, changes := C} <- Events]),
+    sent_out(Ref, <<"R-1">>).
+
+%% A product in the cell is saved again by its task (a save the trace journal does not
+%% keep: the task took it before) while the statistics, restarted, cannot open the
+%% database. When the same database opens, the product is the one it had in the cell:
+%% it entered once, and is counted in once.
+a_product_saved_again_while_closed(Config) ->
+    #{waits_a := Ref} = ?config(refs, Config),
+    Databases = filename:join(?config(root, Config), "Databases"),
+    {ok, _} = application:ensure_all_started(cell),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ok = cell_events:subscribe([product_saved, item_transfer_out]),
+    ok = cell_stats:flush(),
+    Before = cell_counts(),
+    InCell = cell_stats:in_cell(),
+    P = cell_product:new(<<"C-1">>, <<"rc">>),
+    ok = save(Ref, P),
+    %% The database's folder refuses the write test made before opening it: the
+    %% statistics restarted cannot open it.
+    ok = cell_log:subscribe(),
+    stopped = mnesia:stop(),
+    Probe = filename:join(Databases, ".cellrt-write-test"),
+    ok = file:make_dir(Probe),
+    ok = kill_stats(),
+    _ = await_log(<<"statistics: the database cannot be opened">>),
+    ok = cell_test_task:command(waits_a, Ref, {product, P#{stage => 1}}),
+    await_event(product_saved, <<"C-1">>),
+    ?assertEqual({error, database_closed}, cell_stats:flush()),
+    ok = file:del_dir(Probe),
+    _ = await_log(<<"statistics: the database is open">>),
+    [ok = cell_stats:flush() || _ <- [1, 2, 3]],
+    ?assertEqual(#{in => 1, out => 0, good => 0, scrapped => 0}, counted_since(Before)),
+    ?assertEqual(InCell + 1, cell_stats:in_cell()),
+    ?assertEqual([entered], history(<<"C-1">>)),
+    sent_out(Ref, <<"C-1">>).
 
 %% The product enters and its entry is written; with the statistics suspended it is
 %% marked failed, sent out and let go; then they take all that and write its history,
@@ -924,6 +962,10 @@ in_and_out(Ref, Serial, Recipe) ->
     ok = sys:suspend(cell_stats),
     ok = cell_test_task:command(waits_a, Ref, {product, cell_product:new(Serial, Recipe)}),
     await_event(product_saved, Serial),
+    sent_out(Ref, Serial).
+
+%% The task sends its product out and lets it go: the next case finds it gone.
+sent_out(Ref, Serial) ->
     ok = cell_test_task:command(waits_a, Ref, {event, {transfer_out, Serial}}),
     await_event(item_transfer_out, Serial),
     ok = cell_test_task:command(waits_a, Ref, {product, undefined}),

@@ -74,7 +74,8 @@
 %% If the database cannot be opened the statistics go on in memory, say why in the
 %% log, and try again every ten seconds. A product's way (taken, transferred, left)
 %% is counted only once it opens: which of the journal's records the database already
-%% holds is known then, and they are applied in the journal's order. Reading back what they wrote (the products
+%% holds, and which products it had in the cell, is known then, and the records are
+%% applied in the journal's order. Reading back what they wrote (the products
 %% in the cell, the id of the last record applied) is part of opening it: a read that
 %% fails leaves the database closed, never taken for an empty one.
 -module(cell_stats).
@@ -150,6 +151,7 @@
              %% (a crash between its record and its file): its copy until it lets go.
              gone = #{} :: #{binary() => atom()},
              stale = #{} :: #{binary() => atom()},
+             %% When to try opening the database again; 0 until it could not be.
              retry_at = 0 :: integer() | infinity,
              purge_at = 0 :: integer()}).
 
@@ -427,6 +429,10 @@ saved(T, Serial, Product, At, #st{holding = Holding} = St) ->
             St2 = St1#st{holding = maps:put(T, Serial, Holding)},
             case {maps:find(Serial, St2#st.products), St2#st.stale} of
                 {error, #{Serial := T}} -> St2;           %% its stale copy: not again
+                %% Whether the cell had it before is known once the database opens
+                %% (see holders_now/2); a product taken is a record of the journal,
+                %% applied then too.
+                {error, _} when St2#st.db =:= closed -> St2;
                 {error, _} -> enter(Serial, T, product_map(Product), At, St2);
                 {{ok, P}, _} -> claim(Serial, T, P, product_map(Product), At, St2)
             end
@@ -842,15 +848,23 @@ opened(#{flushed := Flushed, open := OpenRows, firsts := Firsts, products := Ope
     %% registry knows them.
     St2 = holders_now(attach(Saved, St1#st{products = Known}), Started),
     Backlog = lists:reverse(St2#st.backlog),
-    _ = Backlog =:= [] orelse
-        cell_log:notice(cell, "statistics: the database is open; the ~b records kept in "
-                        "memory meanwhile are written~ts",
-                        [length(Backlog), case St2#st.backlog_dropped of
-                                              0 -> "";
-                                              D -> io_lib:format(" (the ~b oldest were "
-                                                                 "dropped)", [D])
-                                          end]),
-    St3 = St2#st{backlog = [], backlog_len = 0, backlog_dropped = 0},
+    case {Backlog, St0#st.retry_at} of
+        {[_ | _], _} ->
+            cell_log:notice(cell, "statistics: the database is open; the ~b records kept "
+                            "in memory meanwhile are written~ts",
+                            [length(Backlog), case St2#st.backlog_dropped of
+                                                  0 -> "";
+                                                  D -> io_lib:format(" (the ~b oldest were "
+                                                                     "dropped)", [D])
+                                              end]);
+        {[], 0} ->
+            ok;
+        {[], _} ->
+            %% It could not be opened before: the log said so.
+            cell_log:notice(cell, "statistics: the database is open; counting goes on "
+                            "there", [])
+    end,
+    St3 = St2#st{backlog = [], backlog_len = 0, backlog_dropped = 0, retry_at = 0},
     lists:foldl(fun(F, Acc) -> db(F, Acc) end, St3, Backlog).
 
 %% The records of the trace journal not yet durable in the database are applied (the
