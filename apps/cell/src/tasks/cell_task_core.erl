@@ -5,11 +5,11 @@
 %% arguments and tested without processes.
 %%
 %% <ul>
-%% <li>Pause, Stop and service mode at a step boundary ({@link pause_asked/2},
-%%     {@link pause_plan/3}, {@link withdrawn/2}): the seed allows stopping only before
-%%     downstream commits, so a transfer under way holds the request back, and open
-%%     offers are withdrawn first (TryAbortOffering) unless downstream has just begun
-%%     to take one.</li>
+%% <li>Pause, Stop and service mode at a step boundary ({@link pause/4}): the seed
+%%     allows stopping only before downstream commits, so a transfer under way holds
+%%     the request back, and open offers are withdrawn first (TryAbortOffering, which
+%%     the engine makes and whose answers it tells back) unless downstream has just
+%%     begun to take one.</li>
 %% <li>What a step returned ({@link step_result/2}), and what it is told woke it
 %%     ({@link woken_by/2}, {@link clean/1}).</li>
 %% <li>Errors: the arrow into DOWN ({@link down_arrow/1}); what setup does first
@@ -33,7 +33,7 @@
 
 -include("cell_task.hrl").
 
--export([pause_asked/2, pause_plan/3, withdrawn/2, step_result/2, woken_by/2, clean/1,
+-export([pause/4, step_result/2, woken_by/2, clean/1,
          down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
          ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, stale_copy/4]).
@@ -79,28 +79,47 @@
 %% Pause, Stop, service mode
 %% -------------------------------------------------------------------------------------
 
-%% @doc Whether a Pause, Stop or service mode is to be honoured at this step
-%% boundary: the request is not Start, or a transfer held one back (`Deferred').
--spec pause_asked(start | pause | stop, why() | undefined) -> false | {true, why()}.
+%% @doc What a Pause, Stop or service mode asked of a READY task (the request not Start,
+%% or one a transfer held back, `Deferred') does, as a transition: at a step boundary
+%% or as the request comes (`boundary'), and when the engine tells the answers of the
+%% TryAbortOffering it was asked to make (`{withdrawn, Results}', link by link, `true'
+%% where the offer was withdrawn).
+%%
+%% Seed 000 allows stopping only before downstream commits: while a transfer is under
+%% way the request is held back (`{go_on, Why}': the task goes on, and is asked again
+%% at its next boundary), else its open offers are withdrawn first (`{withdraw,
+%% Links}'). Then the task pauses (`{pause, Why, Reoffer}', arrow 6), to offer again at
+%% resume what it withdrew; or, if downstream began to take one, that transfer goes
+%% on and holds the request back. `{go_on, undefined}': nothing is asked.
+-spec pause(boundary | {withdrawn, [{atom(), boolean()}]}, start | pause | stop,
+            why() | undefined, cell_task:task()) ->
+          {go_on, why() | undefined} | {withdraw, [atom()]} | {pause, why(), [atom()]}.
+pause(boundary, Request, Deferred, T) ->
+    case pause_asked(Request, Deferred) of
+        false ->
+            {go_on, undefined};
+        {true, Why} ->
+            case cell_handshake:holding(T) of
+                true ->
+                    {go_on, Why};
+                false ->
+                    case cell_handshake:active_offers(T) of
+                        [] -> {pause, Why, []};
+                        Offers -> {withdraw, Offers}
+                    end
+            end
+    end;
+pause({withdrawn, Results}, Request, Deferred, _T) ->
+    %% Told at once, with nothing between: still asked.
+    {true, Why} = pause_asked(Request, Deferred),
+    case lists:all(fun({_, Ok}) -> Ok end, Results) of
+        true -> {pause, Why, [L || {L, _} <- Results]};
+        false -> {go_on, Why}
+    end.
+
 pause_asked(start, undefined) -> false;
 pause_asked(_Request, undefined) -> {true, pause};
 pause_asked(_Request, Deferred) -> {true, Deferred}.
-
-%% @doc A pause asked for: held back while a transfer is under way (`Holding'), else
-%% the open offers (`Offers', maybe none) are to be withdrawn first.
--spec pause_plan(boolean(), [atom()], why()) -> {hold, why()} | {withdraw, [atom()]}.
-pause_plan(true, _Offers, Why) -> {hold, Why};
-pause_plan(false, Offers, _Why) -> {withdraw, Offers}.
-
-%% @doc The offers' withdrawal, link by link (`true': withdrawn): the task pauses, to
-%% offer again at resume what it withdrew, or, if downstream began to take one, the
-%% transfer goes on and holds the pause back.
--spec withdrawn([{atom(), boolean()}], why()) -> {pause, why(), [atom()]} | {hold, why()}.
-withdrawn(Results, Why) ->
-    case lists:all(fun({_, Ok}) -> Ok end, Results) of
-        true -> {pause, Why, [L || {L, _} <- Results]};
-        false -> {hold, Why}
-    end.
 
 %% -------------------------------------------------------------------------------------
 %% Steps
@@ -381,18 +400,39 @@ link_retry_ms(Last) -> min(2 * Last, ?LINK_RETRY_MAX_MS).
 -ifdef(TEST).
 -include_lib("eunit/include/eunit.hrl").
 
+%% Seed 000 §2.2, arrow 6, and §2.3.6: Pause, Stop and service mode are honoured at a
+%% step boundary, only before downstream commits, an open offer withdrawn first.
 pause_test_() ->
-    [?_assertEqual(false, pause_asked(start, undefined)),
-     ?_assertEqual({true, pause}, pause_asked(pause, undefined)),
-     ?_assertEqual({true, pause}, pause_asked(stop, undefined)),
-     ?_assertEqual({true, service}, pause_asked(start, service)),
-     ?_assertEqual({true, service}, pause_asked(pause, service)),
-     ?_assertEqual({hold, pause}, pause_plan(true, [out], pause)),
-     ?_assertEqual({withdraw, [out]}, pause_plan(false, [out], pause)),
-     ?_assertEqual({withdraw, []}, pause_plan(false, [], service)),
-     ?_assertEqual({pause, pause, []}, withdrawn([], pause)),
-     ?_assertEqual({pause, service, [a, b]}, withdrawn([{a, true}, {b, true}], service)),
-     ?_assertEqual({hold, pause}, withdrawn([{a, true}, {b, false}], pause))].
+    Offering = #task{links = #{out => #{role => up, phase => offered}}},
+    Link = fun(Role, Phase) -> #task{links = #{l => #{role => Role, phase => Phase}}} end,
+    Two = #task{links = #{a => #{role => up, phase => offered},
+                          b => #{role => up, phase => offered}}},
+    [%% Running, nothing asked.
+     ?_assertEqual({go_on, undefined}, pause(boundary, start, undefined, #task{})),
+     %% Nothing under way: at once.
+     ?_assertEqual({pause, pause, []}, pause(boundary, pause, undefined, #task{})),
+     ?_assertEqual({pause, pause, []}, pause(boundary, stop, undefined, #task{})),
+     %% Service mode, held back before, is still asked after a Start.
+     ?_assertEqual({pause, service, []}, pause(boundary, start, service, #task{})),
+     %% A transfer past the commit, either side: held back, asked again next time.
+     [?_assertEqual({go_on, pause}, pause(boundary, pause, undefined, Link(Role, Phase)))
+      || {Role, Phase} <- [{up, committed}, {up, released}, {up, aborting},
+                           {down, committed}, {down, released}]],
+     ?_assertEqual({go_on, service}, pause(boundary, start, service, Link(down, committed))),
+     %% Downstream taking an offer before its commit does not hold the task.
+     ?_assertEqual({pause, pause, []}, pause(boundary, stop, undefined, Link(down, offered))),
+     %% An open offer: withdrawn first (TryAbortOffering) ...
+     ?_assertEqual({withdraw, [out]},
+                   pause(boundary, pause, undefined, Offering)),
+     ?_assertEqual({withdraw, [a, b]}, pause(boundary, stop, undefined, Two)),
+     %% ... then paused, to offer again at resume; held back if downstream committed.
+     ?_assertEqual({pause, pause, [a, b]},
+                   pause({withdrawn, [{a, true}, {b, true}]}, pause, undefined, Two)),
+     ?_assertEqual({pause, service, [a]}, pause({withdrawn, [{a, true}]}, start, service, Two)),
+     ?_assertEqual({go_on, pause},
+                   pause({withdrawn, [{a, true}, {b, false}]}, stop, undefined, Two)),
+     %% The answers come with nothing between: a request gone meanwhile is a bug.
+     ?_assertError({badmatch, false}, pause({withdrawn, [{a, true}]}, start, undefined, Two))].
 
 step_result_test_() ->
     T = #task{},

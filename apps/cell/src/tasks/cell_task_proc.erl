@@ -753,31 +753,25 @@ hold_or_pause(State, D) ->
         {hold, D1} -> {keep_state, D1}
     end.
 
-%% The decisions are cell_task_core's; the calls to the links (TryAbortOffering) are
-%% made here, between them.
-try_pause(State, #data{request = Request, deferred = Deferred, task = T0} = D) ->
-    case cell_task_core:pause_asked(Request, Deferred) of
-        false ->
-            {hold, D};
-        {true, Why} ->
-            case cell_task_core:pause_plan(cell_handshake:holding(T0),
-                                           cell_handshake:active_offers(T0), Why) of
-                {hold, Why} ->
-                    {hold, D#data{deferred = Why}};
-                {withdraw, Offers} ->
-                    {Withdrawn, T} = lists:foldl(
-                                       fun(L, {Acc, TAcc}) ->
-                                               {Ok, TAcc1} = cell_handshake:try_abort_offering(TAcc, L),
-                                               {[{L, Ok} | Acc], TAcc1}
-                                       end, {[], T0}, Offers),
-                    case cell_task_core:withdrawn(Withdrawn, Why) of
-                        {pause, Why, Reoffer} ->
-                            {paused, pause(State, Why, D#data{task = T, reoffer = Reoffer})};
-                        {hold, Why} ->
-                            {hold, D#data{task = T, deferred = Why}}
-                    end
-            end
+%% What a Pause, Stop or service mode does at this boundary is cell_task_core's to
+%% say; the TryAbortOffering it asks for is made here, and its answers told back.
+try_pause(State, D) ->
+    pause_news(boundary, State, D).
+
+pause_news(Event, State, #data{request = Request, deferred = Deferred, task = T} = D) ->
+    case cell_task_core:pause(Event, Request, Deferred, T) of
+        {go_on, Why} ->
+            {hold, D#data{deferred = Why}};
+        {withdraw, Offers} ->
+            {Results, T1} = lists:mapfoldl(fun withdraw/2, T, Offers),
+            pause_news({withdrawn, Results}, State, D#data{task = T1});
+        {pause, Why, Reoffer} ->
+            {paused, pause(State, Why, D#data{reoffer = Reoffer})}
     end.
+
+withdraw(Link, T) ->
+    {Ok, T1} = cell_handshake:try_abort_offering(T, Link),
+    {{Link, Ok}, T1}.
 
 %% Arrow 6, then for Stop arrow 9.
 pause(State, Why, #data{request = Request} = D0) ->
