@@ -34,7 +34,7 @@
 -include("cell_task.hrl").
 
 -export([pause/4, step_result/2, woken_by/2, clean/1,
-         down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
+         from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
          ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, stale_copy/4]).
 %% The task's handshake fields, for cell_handshake.
@@ -152,6 +152,18 @@ clean(T) -> T#task{answer = undefined, woken_by = undefined}.
 %% -------------------------------------------------------------------------------------
 %% Errors and setup
 %% -------------------------------------------------------------------------------------
+
+%% @doc What an OFF task does as it boots or is told Start, given the cell's request,
+%% whether the emergency stop is active, and whether the task was restarted after a
+%% crash: Start leaves OFF for setup (arrow 0), unless the emergency stop is active;
+%% a task restarted after a crash while the cell is paused starts too, so that the
+%% crash is settled as in a running cell (it then holds at its first step boundary,
+%% the request being Pause); otherwise it stays OFF, its product on disk.
+-spec from_off(start | pause | stop, boolean(), boolean()) -> estop | start | stay.
+from_off(start, true, _Crashed) -> estop;
+from_off(start, false, _Crashed) -> start;
+from_off(pause, false, true) -> start;
+from_off(_Request, _Estop, _Crashed) -> stay.
 
 %% @doc The arrow of seed 000 §2.2 an error takes into DOWN.
 -spec down_arrow(setup | cell_ipc:ready()) -> 6 | 7.
@@ -444,6 +456,19 @@ step_result_test_() ->
      ?_assertEqual({error, #{}, T}, step_result(m, {error, #{}, T})),
      ?_assertError({bad_step_result, m, ok}, step_result(m, ok)),
      ?_assertError({bad_step_result, m, {continue, x}}, step_result(m, {continue, x}))].
+
+%% Seed 000 §2.2 arrow 0: Start takes an OFF task into setup; the emergency stop
+%% keeps it OFF.
+from_off_test_() ->
+    [?_assertEqual(start, from_off(start, false, false)),
+     ?_assertEqual(start, from_off(start, false, true)),
+     ?_assertEqual(estop, from_off(start, true, false)),
+     ?_assertEqual(estop, from_off(start, true, true)),
+     ?_assertEqual(start, from_off(pause, false, true)),
+     ?_assertEqual(stay, from_off(pause, false, false)),
+     ?_assertEqual(stay, from_off(pause, true, true)),
+     ?_assertEqual(stay, from_off(stop, false, true)),
+     ?_assertEqual(stay, from_off(stop, false, false))].
 
 arrows_test_() ->
     [?_assertEqual(7, down_arrow(setup)),

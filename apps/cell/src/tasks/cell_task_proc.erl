@@ -443,23 +443,24 @@ crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
                     "needed. If this warning comes back, report it to maintenance with the "
                     "log. Close it once read.", [cell_member:crash_text(Why), serial_text(P)])).
 
-start_from_off(#data{request = start, estop = true, task = #task{id = Id}} = D) ->
-    cell_log:warning(Id, "not started: the emergency stop is active", []),
-    {keep_state, D};
-start_from_off(#data{request = start} = D0) ->
+%% Boot, or Start in OFF: cell_task_core:from_off/3 says whether the task starts.
+start_from_off(#data{request = Request, estop = Estop, crash = Crash,
+                     task = #task{id = Id}} = D) ->
+    case cell_task_core:from_off(Request, Estop, Crash =/= undefined) of
+        estop ->
+            cell_log:warning(Id, "not started: the emergency stop is active", []),
+            {keep_state, D};
+        start ->
+            enter_setup(D);
+        stay ->
+            {keep_state, D#data{crash = undefined, crash_ask = false}}
+    end.
+
+%% Arrow 0, with the settings snapshot taken at Start.
+enter_setup(D0) ->
     D = D0#data{task = (D0#data.task)#task{settings = D0#data.settings}},
     {Event, D1} = setup_event(D),
-    goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]);
-start_from_off(#data{request = pause, estop = false, crash = Why} = D)
-  when Why =/= undefined ->
-    %% Restarted while the cell is paused: the cell runs, so the crash is settled as
-    %% when it runs; the task holds at its first step boundary.
-    case start_from_off(D#data{request = start}) of
-        {next_state, S, D1, Actions} -> {next_state, S, D1#data{request = pause}, Actions}
-    end;
-start_from_off(D) ->
-    %% A task restarted while the cell is stopped stays OFF; its product is on disk.
-    {keep_state, D#data{crash = undefined, crash_ask = false}}.
+    goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]).
 
 %% What setup does first: the operator's question about a file the task's record cannot
 %% be read from (retained data first: nothing runs without them), an interrupted
