@@ -6,6 +6,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
+-export([crash_while_paused_settled_then_held/1]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1,
          crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
@@ -31,7 +32,8 @@ all() ->
      cell_state_follows_tasks, cell_state_settles_under_races, bad_spec_is_refused,
      settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
-     estop_deadline_kills_a_stuck_task, unexpected_message_crashes_a_task].
+     estop_deadline_kills_a_stuck_task, unexpected_message_crashes_a_task,
+     crash_while_paused_settled_then_held].
 
 -define(MANY, 200).
 
@@ -224,6 +226,35 @@ crash_restores_product(Config) ->
     %% The warning is set without waiting, as it booted: listed once the alarms took it.
     ok = cell_alarms:sync(),
     ?assertMatch([#{kind := warning}], cell_alarms:list()).
+
+%% A task that crashes while the cell is paused is settled as in a running cell (its
+%% record held against its sensors, its reconcile agreeing, a warning saying so) and
+%% then holds at its first step boundary: paused, its product kept, until Start.
+crash_while_paused_settled_then_held(Config) ->
+    ok = cell_events:subscribe([task_crashed]),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    P = cell_product:new(<<"PANEL-8">>, <<"recipe-a">>),
+    cmd(Config, work, {product, P}),
+    ok = cell_controller:sync(),
+    ok = cell_controller:pause(),
+    ok = cell_controller:sync(),
+    ?assertEqual([down, down, down, down], states()),
+    #{init := Inits} = counts(Config, work),
+    exit(cell_task_proc:whereis(work), kill),
+    receive {cell_event, #{type := task_crashed, task := work}} -> ok
+    after 5000 -> ct:fail(no_restart)
+    end,
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    ?assertMatch(#{request := pause, product := P}, cell_task_proc:info(work)),
+    ?assertMatch(#{init := I} when I =:= Inits + 1, counts(Config, work)),
+    ok = cell_alarms:sync(),
+    ?assertMatch([#{kind := warning, caption := <<"Task restarted after a crash">>}],
+                 cell_alarms:list()),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, processing, active}, cell_task_proc:state(work)).
 
 %% A message the engine does not know crashes a task whose module takes none
 %% (handle_info/2): it is restarted, and the crash says why in words. A reply the task
