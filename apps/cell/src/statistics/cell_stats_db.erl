@@ -328,6 +328,11 @@ write_counters(Pending, Open, Gone, Mark, Now) ->
 
 %% In the counters' transaction: the books as the counters count them.
 books(Open, Gone) ->
+    %% A lock for each table, as for the counters: a line makes thousands of rows a
+    %% second, and a lock request for each row waited on mnesia's lock manager every
+    %% time (three waits a product).
+    _ = map_size(Gone) =:= 0 orelse mnesia:write_lock_table(?PRODUCT),
+    _ = map_size(Open) =:= 0 orelse mnesia:write_lock_table(?OPEN),
     ok = maps:fold(fun(Serial, Info, ok) -> mnesia:write({?PRODUCT, Serial, Info}) end,
                    ok, Gone),
     maps:fold(fun(Serial, delete, ok) -> mnesia:delete({?OPEN, Serial});
