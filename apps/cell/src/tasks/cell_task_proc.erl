@@ -761,6 +761,8 @@ try_pause(State, D) ->
 
 pause_news(Event, State, #data{request = Request, deferred = Deferred, task = T} = D) ->
     case cell_task_core:pause(Event, Request, Deferred, T) of
+        {go_on, Deferred} ->
+            {hold, D};
         {go_on, Why} ->
             {hold, D#data{deferred = Why}};
         {withdraw, Offers} ->
