@@ -15,6 +15,8 @@
 
 -define(REF, cell_web_http).
 -define(MAX_BACKOFF_MS, 30000).
+%% How long a question waits for the first try to listen (the routes are read then).
+-define(FIRST_TRY_MS, 60000).
 
 -record(state, {ip :: inet:ip_address(), port :: inet:port_number(),
                 backoff = 1000 :: pos_integer(), listening = false :: boolean()}).
@@ -24,10 +26,11 @@ start_link() ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
 
 %% @doc The port the panel listens on (the one the OS picked when configured as 0);
-%% asked after the first try to listen is over.
+%% asked after the first try to listen is over, which may take seconds on a busy
+%% machine.
 -spec port() -> {ok, inet:port_number()} | {error, not_listening}.
 port() ->
-    gen_server:call(?MODULE, port).
+    gen_server:call(?MODULE, port, ?FIRST_TRY_MS).
 
 %% @doc Whether the panel is configured to serve HTTPS.
 -spec https() -> boolean().
@@ -37,7 +40,7 @@ https() ->
 %% @doc Whether the listener is up.
 -spec listening() -> boolean().
 listening() ->
-    gen_server:call(?MODULE, listening).
+    gen_server:call(?MODULE, listening, ?FIRST_TRY_MS).
 
 -spec init([]) -> {ok, #state{}, {continue, listen}} | {stop, term()}.
 init([]) ->
