@@ -16,48 +16,58 @@
 
 %% Every public function is exported and has a -spec.
 public_functions_exported_with_spec_test() ->
-    Doc = doc(),
+    Public = public(doc()),
+    %% Each module's beam read once (a few hundred functions).
     Problems = lists:append(
-                 [[io_lib:format("~ts/~b is listed public but not exported", [Name, Arity])
-                   || not lists:member({F, A}, exports(Beam))]
-                  ++ [io_lib:format("~ts/~b is listed public but has no -spec", [Name, Arity])
-                      || lists:member({F, A}, exports(Beam)),
-                         not maps:is_key({F, A}, specs(Beam))]
-                  || {Mod, F, A} <- public(Doc),
+                 [[io_lib:format("~ts/~b is listed public but not exported", [Name, A])
+                   || not lists:member({F, A}, Exports)]
+                  ++ [io_lib:format("~ts/~b is listed public but has no -spec", [Name, A])
+                      || lists:member({F, A}, Exports), not maps:is_key({F, A}, Specs)]
+                  || Mod <- lists:usort([M || {M, _, _} <- Public]),
                      Beam <- [beam(Mod)],
-                     Name <- [Mod ++ ":" ++ F],
-                     Arity <- [A]]),
+                     Exports <- [exports(Beam)],
+                     Specs <- [specs(Beam)],
+                     {M, F, A} <- Public, M =:= Mod,
+                     Name <- [Mod ++ ":" ++ F]]),
     ?assertEqual([], flat(Problems)).
 
 %% Every public function says what it does for a cell author: a %% @doc comment right
 %% above its -spec.
 public_functions_documented_test() ->
-    Doc = doc(),
+    Public = public(doc()),
+    %% Each module's forms and source read once (a few hundred functions).
     Problems = [io_lib:format("~ts:~ts/~b has no %% @doc above its -spec", [Mod, F, A])
-                || {Mod, F, A} <- public(Doc),
+                || Mod <- lists:usort([M || {M, _, _} <- Public]),
                    Beam <- [beam(Mod)],
-                   #{{F, A} := Line} <- [specs(Beam)],
-                   not documented(source_lines(Beam), Line)],
+                   Specs <- [specs(Beam)],
+                   Lines <- [source_lines(Beam)],
+                   {M, F, A} <- Public, M =:= Mod,
+                   #{{F, A} := Line} <- [Specs],
+                   not documented(Lines, Line)],
     ?assertEqual([], flat(Problems)).
 
 %% An export of a public module that the document neither lists nor marks internal is a
 %% decision not made; an internal entry no longer exported is a stale document.
 every_export_decided_test() ->
     Doc = doc(),
-    Listed = [{M, F, A} || {M, F, A} <- public(Doc) ++ internal(Doc)],
+    Public = public(Doc),
+    Internal = internal(Doc),
+    Modules = public_modules(Doc),
+    Exports = maps:from_list([{Mod, exports(beam(Mod))} || Mod <- Modules]),
+    Listed = Public ++ Internal,
     Undecided = [io_lib:format("~ts:~ts/~b is exported but neither public nor internal in "
                                "docs/api.md", [Mod, F, A])
-                 || Mod <- public_modules(Doc),
-                    {F, A} <- exports(beam(Mod)),
+                 || Mod <- Modules,
+                    {F, A} <- maps:get(Mod, Exports),
                     not lists:member({Mod, F, A}, Listed)],
     Stale = [io_lib:format("~ts:~ts/~b is listed internal but not exported", [Mod, F, A])
-             || {Mod, F, A} <- internal(Doc),
-                not lists:member({F, A}, exports(beam(Mod)))],
+             || {Mod, F, A} <- Internal,
+                not lists:member({F, A}, maps:get(Mod, Exports, []))],
     Twice = [io_lib:format("~ts:~ts/~b is listed both public and internal", [Mod, F, A])
-             || {Mod, F, A} <- public(Doc), lists:member({Mod, F, A}, internal(Doc))],
+             || {Mod, F, A} <- Public, lists:member({Mod, F, A}, Internal)],
     Outside = [io_lib:format("~ts is listed internal but is no public module", [Mod])
-               || Mod <- lists:usort([M || {M, _, _} <- internal(Doc)]),
-                  not lists:member(Mod, public_modules(Doc))],
+               || Mod <- lists:usort([M || {M, _, _} <- Internal]),
+                  not lists:member(Mod, Modules)],
     ?assertEqual([], flat(Undecided ++ Stale ++ Twice ++ Outside)).
 
 %% The generated cell project is what a cell author starts from: it calls cellrt only
