@@ -17,6 +17,7 @@
 %% Every public function is exported and has a -spec.
 public_functions_exported_with_spec_test() ->
     Public = public(doc()),
+    Beams = beams(),
     %% Each module's beam read once (a few hundred functions).
     Problems = lists:append(
                  [[io_lib:format("~ts/~b is listed public but not exported", [Name, A])
@@ -24,7 +25,7 @@ public_functions_exported_with_spec_test() ->
                   ++ [io_lib:format("~ts/~b is listed public but has no -spec", [Name, A])
                       || lists:member({F, A}, Exports), not maps:is_key({F, A}, Specs)]
                   || Mod <- lists:usort([M || {M, _, _} <- Public]),
-                     Beam <- [beam(Mod)],
+                     Beam <- [beam(Mod, Beams)],
                      Exports <- [exports(Beam)],
                      Specs <- [specs(Beam)],
                      {M, F, A} <- Public, M =:= Mod,
@@ -35,10 +36,11 @@ public_functions_exported_with_spec_test() ->
 %% above its -spec.
 public_functions_documented_test() ->
     Public = public(doc()),
+    Beams = beams(),
     %% Each module's forms and source read once (a few hundred functions).
     Problems = [io_lib:format("~ts:~ts/~b has no %% @doc above its -spec", [Mod, F, A])
                 || Mod <- lists:usort([M || {M, _, _} <- Public]),
-                   Beam <- [beam(Mod)],
+                   Beam <- [beam(Mod, Beams)],
                    Specs <- [specs(Beam)],
                    Lines <- [source_lines(Beam)],
                    {M, F, A} <- Public, M =:= Mod,
@@ -53,7 +55,8 @@ every_export_decided_test() ->
     Public = public(Doc),
     Internal = internal(Doc),
     Modules = public_modules(Doc),
-    Exports = maps:from_list([{Mod, exports(beam(Mod))} || Mod <- Modules]),
+    Beams = beams(),
+    Exports = maps:from_list([{Mod, exports(beam(Mod, Beams))} || Mod <- Modules]),
     Listed = Public ++ Internal,
     Undecided = [io_lib:format("~ts:~ts/~b is exported but neither public nor internal in "
                                "docs/api.md", [Mod, F, A])
@@ -96,27 +99,29 @@ template_calls_only_public_test() ->
 %% listed is exported.
 every_type_decided_test() ->
     Doc = doc(),
+    Beams = beams(),
     Public = functions(block(Doc, "api-types")),
     Internal = functions(block(Doc, "api-internal-types")),
     Undecided = [io_lib:format("type ~ts:~ts/~b is exported but neither public nor internal "
                                "in docs/api.md", [Mod, T, A])
                  || Mod <- public_modules(Doc),
-                    {T, A} <- types(beam(Mod)),
+                    {T, A} <- types(beam(Mod, Beams)),
                     not lists:member({Mod, T, A}, Public ++ Internal)],
     Missing = [io_lib:format("type ~ts:~ts/~b is listed but not exported", [Mod, T, A])
                || {Mod, T, A} <- Public ++ Internal,
-                  not lists:member({T, A}, types(beam(Mod)))],
+                  not lists:member({T, A}, types(beam(Mod, Beams)))],
     ?assertEqual([], flat(Undecided ++ Missing)).
 
 %% The behaviours a cell implements have exactly the callbacks listed, optional ones
 %% marked so.
 callbacks_test() ->
     Doc = doc(),
+    Beams = beams(),
     Listed = callbacks(Doc),
     Modules = lists:usort([M || {M, _, _, _} <- Listed]),
     Problems = lists:append(
                  [begin
-                      Forms = forms(beam(Mod)),
+                      Forms = forms(beam(Mod, Beams)),
                       Optional = lists:append([Fs || {attribute, _, optional_callbacks, Fs} <- Forms]),
                       Actual = lists:sort([{Mod, atom_to_list(F), A, lists:member({F, A}, Optional)}
                                            || {attribute, _, callback, {{F, A}, _}} <- Forms]),
@@ -236,10 +241,19 @@ in_blocks([L | Rest], Open, true, Acc) ->
 %% The code, as its beams say
 %% -------------------------------------------------------------------------------------
 
-beam(Mod) ->
-    case code:where_is_file(Mod ++ ".beam") of
-        non_existing -> erlang:error({no_such_module, Mod});
-        Path -> Path
+%% Every beam on the code path by its module's name, the first of a name as the code
+%% server finds it: each directory listed once (looking for each module on its own
+%% listed the whole path again, seconds on a busy machine).
+beams() ->
+    maps:from_list(lists:reverse([{filename:basename(F, ".beam"), filename:join(Dir, F)}
+                                  || Dir <- code:get_path(),
+                                     {ok, Files} <- [file:list_dir(Dir)],
+                                     F <- Files, filename:extension(F) =:= ".beam"])).
+
+beam(Mod, Beams) ->
+    case Beams of
+        #{Mod := Path} -> Path;
+        #{} -> erlang:error({no_such_module, Mod})
     end.
 
 %% The exports, names as strings; what the compiler adds left out, and what eunit
