@@ -5,6 +5,9 @@
 %% arguments and tested without processes.
 %%
 %% <ul>
+%% <li>The controller's commands ({@link control/4}): which of Start, Pause, Stop,
+%%     service mode and the emergency stop acts in which state (seed 000 §2.2, arrows
+%%     0, 5, 6 and 9), and which is only kept for the state that acts on it.</li>
 %% <li>Pause, Stop and service mode at a step boundary ({@link pause/4}): the seed
 %%     allows stopping only before downstream commits, so a transfer under way holds
 %%     the request back, and open offers are withdrawn first (TryAbortOffering, which
@@ -33,7 +36,7 @@
 
 -include("cell_task.hrl").
 
--export([pause/4, step_result/2, woken_by/2, clean/1,
+-export([control/4, pause/4, step_result/2, woken_by/2, clean/1,
          from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
          ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, stale_copy/4]).
@@ -41,7 +44,7 @@
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
--export_type([why/0, origin/0, answer_action/0, setup_event/0, armed/0, news/0]).
+-export_type([why/0, origin/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
 
 -define(LINK_RETRY_MIN_MS, 50).
 -define(LINK_RETRY_MAX_MS, 1000).
@@ -52,6 +55,17 @@
                 | handed_on.
 -type setup_event() :: retain_damaged | in_transit | run_init | product_damaged
                      | {crashed, term()}.
+%% What the engine does with a command of the controller (see control/4).
+-type control_action() :: start                       %% OFF, Start: from_off/3 decides
+                        | {boundary, why() | undefined} %% READY: pause/4, with this held back
+                        | {defer, why() | undefined}  %% READY: goes on, this held back
+                        | resume                      %% paused, Start: arrow 5
+                        | reconcile                   %% paused, Start, its product dropped
+                        | stop                        %% DOWN, Stop: uninit, arrow 9
+                        | {secure, term()}            %% emergency stop: secure, hold
+                        | {secured, term()}           %% emergency stop, OFF already
+                        | {settings, map()}           %% the snapshot for the next start
+                        | keep.                       %% kept for the state that acts on it
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
                        | {resume, term()}          %% READY where it was, woken thus
@@ -76,8 +90,52 @@
                | {handshake, reference(), atom(), atom(), term()}.
 
 %% -------------------------------------------------------------------------------------
-%% Pause, Stop, service mode
+%% The controller's commands; Pause, Stop, service mode
 %% -------------------------------------------------------------------------------------
+
+%% @doc What a command of the controller (`Key', `Value', see
+%% {@link cell_task_proc:control/3}) does to a task in `State', the command already
+%% kept (the request, the emergency stop, service mode as {@link cell_member:controlled/3}
+%% keeps them). `Down' is why a DOWN task is there, `Dropped' whether its product was
+%% dropped as an old copy while it was paused, `Deferred' a Pause, Stop or service
+%% mode a transfer holds back.
+%%
+%% Seed 000 §2.2: Start takes an OFF task into setup (arrow 0) and a paused one back to
+%% READY (5); Pause, Stop and service mode take a READY task DOWN (6) at a step
+%% boundary; Stop takes a DOWN task OFF (9); the emergency stop takes any task OFF
+%% as soon as possible. A paused task whose product was dropped meanwhile reconciles
+%% instead of going back to where it was, which rested on that product. An error
+%% waiting for the operator is left to the operator's answer; in setup a command is
+%% kept for the step boundary after init.
+-spec control(atom(), term(), cell_ipc:state(),
+              #{down := paused | error | undefined, dropped := boolean(),
+                deferred := why() | undefined}) -> control_action().
+control(estop, {true, Barrier}, off, _Facts) ->
+    {secured, Barrier};
+control(estop, {true, Barrier}, _State, _Facts) ->
+    {secure, Barrier};
+control(settings, Settings, _State, _Facts) ->
+    {settings, Settings};
+control(request, start, off, _Facts) ->
+    start;
+control(request, start, {ready, _, _}, _Facts) ->
+    %% A Start cancels whatever a transfer was still holding back, service mode
+    %% included, as Start resumes a task that service mode paused.
+    {defer, undefined};
+control(request, _PauseOrStop, {ready, _, _}, #{deferred := Deferred}) ->
+    {boundary, Deferred};
+control(service_mode, true, {ready, _, _}, _Facts) ->
+    {boundary, service};
+control(service_mode, false, {ready, _, _}, #{deferred := service}) ->
+    {defer, undefined};
+control(request, stop, down, _Facts) ->
+    stop;
+control(request, start, down, #{down := paused, dropped := true}) ->
+    reconcile;
+control(request, start, down, #{down := paused}) ->
+    resume;
+control(_Key, _Value, _State, _Facts) ->
+    keep.
 
 %% @doc What a Pause, Stop or service mode asked of a READY task (the request not Start,
 %% or one a transfer held back, `Deferred') does, as a transition: at a step boundary
@@ -445,6 +503,53 @@ pause_test_() ->
                    pause({withdrawn, [{a, true}, {b, false}]}, stop, undefined, Two)),
      %% The answers come with nothing between: a request gone meanwhile is a bug.
      ?_assertError({badmatch, false}, pause({withdrawn, [{a, true}]}, start, undefined, Two))].
+
+%% Seed 000 §2.2: which command acts in which state. Arrow 0 (OFF, Start → setup),
+%% 5 (DOWN, Start while paused → READY), 6 (READY, Pause → DOWN, at a step boundary),
+%% 9 (DOWN, Stop → OFF); the emergency stop in every state; service mode as a pause.
+control_test_() ->
+    Ready = [{ready, idle, starved}, {ready, idle, blocked}, {ready, processing, active},
+             {ready, processing, executing}],
+    All = [off, setup, down | Ready],
+    F = #{down => undefined, dropped => false, deferred => undefined},
+    Paused = F#{down := paused},
+    Error = F#{down := error},
+    [%% Arrow 0.
+     ?_assertEqual(start, control(request, start, off, F)),
+     %% Arrow 6: asked at once, honoured at the boundary (pause/4), whatever a
+     %% transfer already holds back kept.
+     [?_assertEqual({boundary, undefined}, control(request, R, S, F))
+      || R <- [pause, stop], S <- Ready],
+     ?_assertEqual({boundary, service}, control(request, stop, hd(Ready), F#{deferred := service})),
+     [?_assertEqual({boundary, service}, control(service_mode, true, S, F)) || S <- Ready],
+     %% Start, or service mode ending, takes back what a transfer held back.
+     [?_assertEqual({defer, undefined}, control(request, start, S, F#{deferred := D}))
+      || S <- Ready, D <- [pause, service]],
+     ?_assertEqual({defer, undefined},
+                   control(service_mode, false, hd(Ready), F#{deferred := service})),
+     ?_assertEqual(keep, control(service_mode, false, hd(Ready), F#{deferred := pause})),
+     %% Arrow 5, or reconcile again when the product was dropped meanwhile.
+     ?_assertEqual(resume, control(request, start, down, Paused)),
+     ?_assertEqual(reconcile, control(request, start, down, Paused#{dropped := true})),
+     %% An error waits for the operator's answer, not for Start.
+     ?_assertEqual(keep, control(request, start, down, Error)),
+     %% Arrow 9, paused or in error.
+     ?_assertEqual(stop, control(request, stop, down, Paused)),
+     ?_assertEqual(stop, control(request, stop, down, Error)),
+     %% Kept, for the state that acts on them: Pause and Stop when OFF, in setup
+     %% (honoured at the boundary after init) or paused; service mode outside READY.
+     [?_assertEqual(keep, control(request, R, S, F)) || R <- [pause, stop], S <- [off, setup]],
+     ?_assertEqual(keep, control(request, pause, down, Paused)),
+     ?_assertEqual(keep, control(request, start, setup, F)),
+     [?_assertEqual(keep, control(service_mode, On, S, F))
+      || On <- [true, false], S <- [off, setup, down]],
+     %% The emergency stop: secured at once wherever the task is; OFF has nothing to
+     %% secure. Its release is kept (Start is needed to leave OFF).
+     ?_assertEqual({secured, b}, control(estop, {true, b}, off, F)),
+     [?_assertEqual({secure, b}, control(estop, {true, b}, S, F)) || S <- All -- [off]],
+     [?_assertEqual(keep, control(estop, false, S, F)) || S <- All],
+     [?_assertEqual({settings, #{a => 1}}, control(settings, #{a => 1}, S, F)) || S <- All],
+     [?_assertEqual(keep, control(estop_settled, b, S, F)) || S <- All]].
 
 step_result_test_() ->
     T = #task{},

@@ -202,8 +202,6 @@ handle_event(Type, Msg, _State, #data{held = Held} = D) when Held =/= undefined,
 %% --------------------------------------------------------------------------------------
 handle_event(internal, boot, off, D) ->
     boot(D);
-handle_event(info, {control, request, start}, off, D) ->
-    start_from_off(member(request, start, D));
 
 %% --------------------------------------------------------------------------------------
 %% setup: init runs within the event that entered the state
@@ -241,32 +239,12 @@ handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
     raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = S});
 handle_event(info, {Ref, _} = Msg, {ready, _, _} = S, D) when is_reference(Ref) ->
     wait_news(Msg, S, D);
-handle_event(info, {control, request, Request}, {ready, _, _} = S, D)
-  when Request =:= pause; Request =:= stop ->
-    hold_or_pause(S, member(request, Request, D));
-handle_event(info, {control, service_mode, true}, {ready, _, _} = S, D) ->
-    hold_or_pause(S, (member(service_mode, true, D))#data{deferred = service});
-%% A Start, or service mode ending, cancels a pause a transfer was still holding back.
-handle_event(info, {control, request, start}, {ready, _, _}, D) ->
-    {keep_state, (member(request, start, D))#data{deferred = undefined}};
-handle_event(info, {control, service_mode, false}, {ready, _, _}, #data{deferred = Deferred} = D) ->
-    D1 = case Deferred of service -> D#data{deferred = undefined}; _ -> D end,
-    {keep_state, member(service_mode, false, D1)};
 
 %% --------------------------------------------------------------------------------------
 %% down: paused, or an error waiting for the operator
 %% --------------------------------------------------------------------------------------
 handle_event(internal, stop, down, D) ->
     stop_to_off(D);
-handle_event(info, {control, request, stop}, down, D) ->
-    stop_to_off(member(request, stop, D));
-handle_event(info, {control, request, start}, down, #data{down = {paused, _}, dropped = true} = D) ->
-    %% Its product was dropped as an old copy while it was paused: where it was rests
-    %% on a product it no longer holds, so it reconciles again instead (as a task
-    %% running when its copy is dropped does).
-    reconcile_dropped(8, member(request, start, D));
-handle_event(info, {control, request, start}, down, #data{down = {paused, _}} = D) ->
-    resume(member(request, start, D));
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
              #data{down = {error, Id, Origin}, task = T} = D) ->
     %% A copy found older than another task's record (the registry's word may still be
@@ -288,17 +266,11 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
 %% --------------------------------------------------------------------------------------
 %% every state
 %% --------------------------------------------------------------------------------------
-handle_event(info, {control, estop, {true, Barrier} = Estop}, State, D) ->
-    estop(State, member(estop, Estop, D), Barrier);
-handle_event(info, {control, estop_settled, _}, _State, _D) ->
-    %% The end of a barrier this task did not hold at (it was OFF already).
-    keep_state_and_data;
-handle_event(info, {control, settings, Settings}, _State, D) ->
-    {keep_state, (member(settings, Settings, D))#data{settings = Settings}};
-handle_event(info, {control, Key, Value}, _State, D) ->
-    %% The request, the emergency stop's release, service mode: kept for the next
-    %% state that acts on them.
-    {keep_state, member(Key, Value, D)};
+%% A command of the controller: kept as every member keeps it, then what it does here
+%% is cell_task_core's to say (an `estop_settled' reaching a task not held is the end of
+%% a barrier it did not hold at: it was OFF already).
+handle_event(info, {control, Key, Value}, State, D) ->
+    controlled(cell_task_core:control(Key, Value, State, facts(D)), State, member(Key, Value, D));
 handle_event(info, ?STEP(_), _State, _D) ->
     keep_state_and_data;
 handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
@@ -744,6 +716,44 @@ wait_news(Msg, State, #data{armed = Armed} = D) ->
 %% Pause, resume, stop, errors
 %% --------------------------------------------------------------------------------------
 
+%% What a command does in the task's state (cell_task_core:control/4), carried out.
+controlled(start, _State, D) ->
+    start_from_off(D);
+controlled({boundary, Deferred}, State, D) ->
+    hold_or_pause(State, D#data{deferred = Deferred});
+controlled({defer, Deferred}, _State, D) ->
+    {keep_state, D#data{deferred = Deferred}};
+controlled(resume, _State, D) ->
+    resume(D);
+controlled(reconcile, _State, D) ->
+    %% Its product was dropped as an old copy while it was paused: where it was rests
+    %% on a product it no longer holds, so it reconciles again instead (as a task
+    %% running when its copy is dropped does).
+    reconcile_dropped(8, D);
+controlled(stop, _State, D) ->
+    stop_to_off(D);
+controlled({secure, {Ref, _, _, _} = Barrier}, _State, D0) ->
+    %% The controller's emergency stop: as estop/2, but OFF is announced only when the
+    %% barrier says every task of the fan-out has secured its outputs.
+    D = secure(D0),
+    ok = estop_secured(Barrier),
+    {keep_state, D#data{held = Ref}};
+controlled({secured, Barrier}, _State, D) ->
+    ok = estop_secured(Barrier),
+    {keep_state, D};
+controlled({settings, Settings}, _State, D) ->
+    {keep_state, D#data{settings = Settings}};
+controlled(keep, _State, D) ->
+    {keep_state, D}.
+
+%% What cell_task_core:control/4 is told of the engine's data.
+facts(#data{down = Down, dropped = Dropped, deferred = Deferred}) ->
+    #{down => case Down of
+                  undefined -> undefined;
+                  _ -> element(1, Down)
+              end,
+      dropped => Dropped, deferred => Deferred}.
+
 %% A Pause, Stop or service mode reached a READY task. The seed allows stopping only
 %% before downstream commits: a transfer under way holds it back until it ends; an
 %% open offer is withdrawn first (and made again at resume), unless downstream has
@@ -971,16 +981,6 @@ stop_to_off(#data{down = Down} = D0) ->
 %% The flag seen before a step or an init: leave at once, secure the outputs, OFF.
 estop(_State, D) ->
     announce_off(secure(D)).
-
-%% The controller's emergency stop: as estop/2, but OFF is announced only when the
-%% barrier says every task of the fan-out has secured its outputs.
-estop(off, D, Barrier) ->
-    ok = estop_secured(Barrier),
-    {keep_state, D};
-estop(_State, D0, {Ref, _, _, _} = Barrier) ->
-    D = secure(D0),
-    ok = estop_secured(Barrier),
-    {keep_state, D#data{held = Ref}}.
 
 secure(#data{down = Down} = D0) ->
     case Down of
