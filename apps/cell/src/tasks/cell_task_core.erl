@@ -5,6 +5,11 @@
 %% arguments and tested without processes.
 %%
 %% <ul>
+%% <li>Leaving what the task was doing ({@link leave/3}): the emergency stop, Stop,
+%%     a pause, an error, a way back into setup. These are transitions of the engine's
+%%     data (`cell_task_engine.hrl'): the data as it is after, and the effects the
+%%     engine carries out in order ({@link effect()}): waits cancelled, transfers
+%%     ended, the outputs secured, the state recorded and announced.</li>
 %% <li>The controller's commands ({@link control/4}): which of Start, Pause, Stop,
 %%     service mode and the emergency stop acts in which state (seed 000 §2.2, arrows
 %%     0, 5, 6 and 9), and which is only kept for the state that acts on it.</li>
@@ -35,8 +40,9 @@
 -module(cell_task_core).
 
 -include("cell_task.hrl").
+-include("cell_task_engine.hrl").
 
--export([control/4, pause/4, step_result/2, woken_by/2, clean/1,
+-export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/4, step_result/2, woken_by/2, clean/1,
          from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
          ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, stale_copy/4]).
@@ -44,17 +50,36 @@
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
--export_type([why/0, origin/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
+-export_type([why/0, origin/0, down_reason/0, pending/0, engine/0, leave/0, effect/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
 
 -define(LINK_RETRY_MIN_MS, 50).
 -define(LINK_RETRY_MAX_MS, 1000).
 
 -type why() :: pause | service.
+%% Why a DOWN task is there: paused (Pause, Stop, service mode), or an error the
+%% operator answers (its alarm's id).
+-type down_reason() :: {paused, why()} | {error, binary(), origin()}.
+%% What READY does next: a step, told what woke it, or the waits of the last step.
+-type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
 %% Where an error the operator answers came from.
 -type origin() :: init | reconcile | step | crash | product_file | retain_file | transit | io
                 | handed_on.
 -type setup_event() :: retain_damaged | in_transit | run_init | product_damaged
                      | {crashed, term()}.
+%% The engine's data (cell_task_engine.hrl).
+-type engine() :: #engine{}.
+%% What the task leaves what it was doing for (see leave/3).
+-type leave() :: {secure, cell_member:estop_barrier()} | estop | off | stop | {pause, why()}
+               | {error, binary(), origin()} | {setup, cell_task:cause()} | forget.
+%% What the engine carries out for a transition, in order.
+-type effect() :: {withdraw_alarm, binary()}   %% the error is no longer the operator's
+                | {cancel, [armed()]}          %% waits left: their timers and watches
+                | interrupt_links              %% the task's transfers end
+                | uninit                       %% the task module secures the outputs
+                | forget_product               %% the product is not here: forgotten
+                | {estop_secured, cell_member:estop_barrier()} %% the barrier's slot marked
+                | {state, cell_ipc:state(), cell_ipc:cause()}  %% recorded and announced
+                | {next_event, term()}.        %% what the engine does next
 %% What the engine does with a command of the controller (see control/4).
 -type control_action() :: start                       %% OFF, Start: from_off/3 decides
                         | {boundary, why() | undefined} %% READY: pause/4, with this held back
@@ -88,6 +113,114 @@
                | {reply, reference()}
                | {io, reference(), atom(), atom()}
                | {handshake, reference(), atom(), atom(), term()}.
+
+%% -------------------------------------------------------------------------------------
+%% Leaving what the task was doing
+%% -------------------------------------------------------------------------------------
+
+%% @doc The task leaves what it was doing in `State', for:
+%% <ul>
+%% <li>`{secure, Barrier}': the controller's emergency stop. The outputs are secured at
+%%     once (an error waiting for the operator withdrawn, the transfers ended, uninit)
+%%     and the barrier's slot marked; OFF is recorded and announced (`off') once every
+%%     task of the fan-out has secured its outputs, so that announcements do not take
+%%     the schedulers from tasks still securing theirs.</li>
+%% <li>`estop': the emergency stop's flag seen before a step or an init: secured and
+%%     OFF at once.</li>
+%% <li>`off': the barrier passed: its waits cancelled, OFF.</li>
+%% <li>`stop': Stop while DOWN: the same as securing, then OFF (arrow 9).</li>
+%% <li>`{pause, Why}': Pause, Stop or service mode at a step boundary: DOWN (arrow 6),
+%%     to go back to `State' at Start; for Stop, on to OFF.</li>
+%% <li>`{error, AlarmId, Origin}': an error raised for the operator: DOWN (arrow 7
+%%     from setup, 6 from READY).</li>
+%% <li>`{setup, Cause}': back towards setup for a product it no longer has (a copy
+%%     dropped as old): its waits, a pause held back and the offers to make again are
+%%     cancelled, its transfers end, and its reconcile starts again from `Cause'. The
+%%     state is the caller's to change.</li>
+%% <li>`forget': the operator said its product is not here (the product is in two
+%%     places, see cell_guard): as a Reset that forgets it, an error it waited on
+%%     withdrawn, back to setup (arrow 2 from READY, 8 from DOWN) to init again.</li>
+%% </ul>
+-spec leave(leave(), cell_ipc:state(), engine()) -> {engine(), [effect()]}.
+leave({secure, {Ref, _, _, _} = Barrier}, _State, E) ->
+    {E1, Secured} = secure(E),
+    {E1#engine{held = Ref}, Secured ++ [{estop_secured, Barrier}]};
+leave(estop, State, E) ->
+    {E1, Secured} = secure(E),
+    {E2, Off} = leave(off, State, E1),
+    {E2, Secured ++ Off};
+leave(off, _State, E) ->
+    {E1, Cancel} = disarm(E#engine{held = undefined}),
+    {E2, Off} = to(off, estop, E1),
+    {E2, Cancel ++ [Off]};
+leave(stop, _State, E) ->
+    {E1, Withdraw} = withdraw(E),
+    {E2, Cancel} = disarm(E1),
+    {E3, Uninit} = uninit(clear(E2)),
+    {E4, Off} = to(off, {arrow, 9}, E3),
+    {E4, Withdraw ++ Cancel ++ [interrupt_links | Uninit] ++ [Off]};
+leave({pause, Why}, State, #engine{request = Request} = E) ->
+    {E1, Cancel} = disarm(E),
+    {E2, Down} = to(down, {arrow, 6},
+                    E1#engine{down = {paused, Why}, resume = State, deferred = undefined}),
+    {E2, Cancel ++ [Down | case Request of stop -> [{next_event, stop}]; _ -> [] end]};
+leave({error, AlarmId, Origin}, State, E) ->
+    {E1, Cancel} = disarm(E),
+    {E2, Down} = to(down, {arrow, down_arrow(State)}, E1#engine{down = {error, AlarmId, Origin}}),
+    {E2, Cancel ++ [Down]};
+leave({setup, Cause}, _State, E) ->
+    {E1, Cancel} = disarm(E),
+    {clear(E1#engine{cause = Cause, predecessor = undefined}), Cancel ++ [interrupt_links]};
+leave(forget, State, E) ->
+    {E1, Withdraw} = withdraw(E),
+    {E2, Left} = leave({setup, reset}, State, E1),
+    {E3, Uninit} = uninit(E2),
+    Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
+    {E4, Setup} = to(setup, {arrow, Arrow}, E3),
+    {E4, Withdraw ++ Left ++ Uninit ++ [forget_product, Setup, {next_event, run_init}]}.
+
+%% The outputs secured, whatever the task was doing: an error it waited on withdrawn,
+%% what it would do next forgotten, its transfers ended, uninit.
+secure(E) ->
+    {E1, Withdraw} = withdraw(E),
+    {E2, Uninit} = uninit(clear(E1)),
+    {E2, Withdraw ++ [interrupt_links | Uninit]}.
+
+%% An error waiting for the operator is no longer the operator's to answer.
+withdraw(#engine{down = {error, AlarmId, _}} = E) -> {E, [{withdraw_alarm, AlarmId}]};
+withdraw(E) -> {E, []}.
+
+%% Nothing left of where the task was: no pause, no step or wait to go back to.
+clear(E) ->
+    E#engine{down = undefined, pending = undefined, resume = undefined, deferred = undefined,
+             reoffer = []}.
+
+%% @doc The task's waits are left: its timers and HAL watches cancelled (watches on
+%% links are not: a watch that fires later is no longer armed, and is ignored), and a
+%% new round begun, so that step and timer messages already sent are ignored.
+-spec disarm(engine()) -> {engine(), [effect()]}.
+disarm(#engine{armed = Armed, gen = Gen} = E) ->
+    {E#engine{armed = [], gen = Gen + 1},
+     case Armed of
+         [] -> [];
+         _ -> [{cancel, Armed}]
+     end}.
+
+%% @doc uninit, if init ran and uninit has not since: the outputs are secured, and
+%% what the task commanded before is not written again after a lost connection.
+-spec uninit(engine()) -> {engine(), [effect()]}.
+uninit(#engine{initialized = false} = E) -> {E, []};
+uninit(E) -> {E#engine{initialized = false, lost = []}, [uninit]}.
+
+%% @doc Into `To', for `Cause': recorded and announced. A product dropped while
+%% paused is remembered only while DOWN.
+-spec goto(cell_ipc:state(), cell_ipc:cause(), engine()) -> {engine(), [effect()]}.
+goto(To, Cause, E) ->
+    {E1, Effect} = to(To, Cause, E),
+    {E1, [Effect]}.
+
+to(To, Cause, #engine{dropped = Dropped} = E) ->
+    {E#engine{dropped = Dropped andalso To =:= down}, {state, To, Cause}}.
 
 %% -------------------------------------------------------------------------------------
 %% The controller's commands; Pause, Stop, service mode
@@ -503,6 +636,92 @@ pause_test_() ->
                    pause({withdrawn, [{a, true}, {b, false}]}, stop, undefined, Two)),
      %% The answers come with nothing between: a request gone meanwhile is a bug.
      ?_assertError({badmatch, false}, pause({withdrawn, [{a, true}]}, start, undefined, Two))].
+
+%% Seed 000 §2.2 and §2.3.1: leaving what the task was doing. The emergency stop
+%% secures at once, from any state; Stop leaves DOWN for OFF (arrow 9); Pause and
+%% errors take READY or setup DOWN (arrows 6, 7); uninit runs only after init.
+leave_test_() ->
+    Ready = {ready, processing, active},
+    R = make_ref(), W = make_ref(),
+    Armed = [{timer, R, 500}, {io, W, io, part}],
+    Barrier = {b, 1, 2, self()},
+    E = #engine{task = #task{ipc = Ready}, initialized = true, armed = Armed, gen = 3,
+                pending = {waits, [{timer, 500}]}, resume = undefined, request = start},
+    Error = E#engine{down = {error, <<"a1">>, step}, resume = Ready, armed = []},
+    Paused = E#engine{down = {paused, pause}, resume = Ready, armed = [], dropped = true,
+                      reoffer = [out], request = stop},
+    Cleared = fun(#engine{down = D, pending = P, resume = Re, deferred = De, reoffer = Ro}) ->
+                      {D, P, Re, De, Ro} =:= {undefined, undefined, undefined, undefined, []}
+              end,
+    {Secured, SecureFx} = leave({secure, Barrier}, Ready, E),
+    {Estopped, EstopFx} = leave(estop, Ready, E),
+    {Off, OffFx} = leave(off, Ready, Secured),
+    {Stopped, StopFx} = leave(stop, down, Error),
+    {PausedE, PauseFx} = leave({pause, service}, Ready, E#engine{deferred = service}),
+    {_, PauseStopFx} = leave({pause, pause}, Ready, E#engine{request = stop}),
+    {Raised, RaiseFx} = leave({error, <<"a2">>, step}, Ready, E#engine{dropped = true}),
+    {_, InitErrorFx} = leave({error, <<"a3">>, init}, setup, E#engine{armed = []}),
+    {Dropped, DroppedFx} = leave({setup, dropped}, Ready, E#engine{reoffer = [out]}),
+    {Forgot, ForgotFx} = leave(forget, Ready, E),
+    {_, ForgotDownFx} = leave(forget, down, Error),
+    [%% The controller's emergency stop: outputs secured at once, transfers ended, the
+     %% barrier's slot marked; the waits and OFF wait for the barrier.
+     ?_assertEqual([interrupt_links, uninit, {estop_secured, Barrier}], SecureFx),
+     ?_assertEqual({b, Armed, false}, {Secured#engine.held, Secured#engine.armed,
+                                        Secured#engine.initialized}),
+     ?_assert(Cleared(Secured)),
+     ?_assertEqual([{cancel, Armed}, {state, off, estop}], OffFx),
+     ?_assertEqual({undefined, [], 4}, {Off#engine.held, Off#engine.armed, Off#engine.gen}),
+     %% The flag seen before a step: the same, at once.
+     ?_assertEqual([interrupt_links, uninit, {cancel, Armed}, {state, off, estop}], EstopFx),
+     ?_assert(Cleared(Estopped)),
+     %% An error the operator had to answer is withdrawn: nobody answers it now.
+     ?_assertMatch({_, [{withdraw_alarm, <<"a1">>}, interrupt_links, uninit,
+                        {estop_secured, Barrier}]}, leave({secure, Barrier}, down, Error)),
+     %% uninit only after init: an OFF task, or one whose init has not run, secures
+     %% nothing of its own.
+     ?_assertEqual([interrupt_links, {estop_secured, Barrier}],
+                   element(2, leave({secure, Barrier}, setup, #engine{}))),
+     ?_assertEqual([interrupt_links, {state, off, estop}],
+                   element(2, leave(estop, setup, #engine{}))),
+     %% Arrow 9: Stop while DOWN, the error withdrawn, the outputs secured.
+     ?_assertEqual([{withdraw_alarm, <<"a1">>}, interrupt_links, uninit,
+                    {state, off, {arrow, 9}}], StopFx),
+     ?_assert(Cleared(Stopped)),
+     ?_assertEqual([{cancel, Armed}, interrupt_links, uninit, {state, off, {arrow, 9}}],
+                   element(2, leave(stop, down, Paused#engine{armed = Armed}))),
+     %% Arrow 6 for Pause or service mode: DOWN, back to where it was at Start; for Stop,
+     %% on to OFF.
+     ?_assertEqual([{cancel, Armed}, {state, down, {arrow, 6}}], PauseFx),
+     ?_assertEqual({{paused, service}, Ready, undefined, undefined},
+                   {PausedE#engine.down, PausedE#engine.resume, PausedE#engine.deferred,
+                    PausedE#engine.held}),
+     ?_assertEqual([{cancel, Armed}, {state, down, {arrow, 6}}, {next_event, stop}],
+                   PauseStopFx),
+     %% Errors: arrow 6 from READY, 7 from setup; a product dropped while paused is
+     %% still remembered while DOWN.
+     ?_assertEqual([{cancel, Armed}, {state, down, {arrow, 6}}], RaiseFx),
+     ?_assertEqual({{error, <<"a2">>, step}, true}, {Raised#engine.down, Raised#engine.dropped}),
+     ?_assertEqual([{state, down, {arrow, 7}}], InitErrorFx),
+     %% Back towards setup for a copy dropped as old: nothing to resume, no offer to make
+     %% again, the transfers ended; the state is the caller's.
+     ?_assertEqual([{cancel, Armed}, interrupt_links], DroppedFx),
+     ?_assert(Cleared(Dropped)),
+     ?_assertEqual({dropped, undefined, true},
+                   {Dropped#engine.cause, Dropped#engine.predecessor, Dropped#engine.initialized}),
+     %% The product not here: a Reset that forgets it (arrow 2 from READY, 8 from DOWN).
+     ?_assertEqual([{cancel, Armed}, interrupt_links, uninit, forget_product,
+                    {state, setup, {arrow, 2}}, {next_event, run_init}], ForgotFx),
+     ?_assertEqual({reset, false}, {Forgot#engine.cause, Forgot#engine.initialized}),
+     ?_assertEqual([{withdraw_alarm, <<"a1">>}, interrupt_links, uninit, forget_product,
+                    {state, setup, {arrow, 8}}, {next_event, run_init}], ForgotDownFx),
+     %% The dropped product is forgotten once the task leaves DOWN.
+     ?_assertEqual({true, false},
+                   {(element(1, goto(down, {arrow, 6}, Paused)))#engine.dropped,
+                    (element(1, goto(setup, {arrow, 8}, Paused)))#engine.dropped}),
+     ?_assertEqual({E#engine{initialized = false, lost = []}, [uninit]}, uninit(E#engine{lost = [c]})),
+     ?_assertEqual({#engine{}, []}, uninit(#engine{})),
+     ?_assertEqual({#engine{gen = 1}, []}, disarm(#engine{}))].
 
 %% Seed 000 §2.2: which command acts in which state. Arrow 0 (OFF, Start → setup),
 %% 5 (DOWN, Start while paused → READY), 6 (READY, Pause → DOWN, at a step boundary),

@@ -52,6 +52,7 @@
 -behaviour(gen_statem).
 
 -include("cell_task.hrl").
+-include("cell_task_engine.hrl").
 
 -export([start_link/1, child_spec/1, control/3, estop_secured/1, whereis/1, state/1, info/1,
          info/2, sync/1]).
@@ -61,41 +62,6 @@
 
 %% The controller's emergency stop (see cell_member).
 -type estop_barrier() :: cell_member:estop_barrier().
--type down_reason() :: {paused, pause | service}
-                     | {error, binary(), origin()}.
--type origin() :: cell_task_core:origin().
--type pending() :: undefined | {step, term()} | {waits, [cell_task:wait()]}.
--type armed() :: cell_task_core:armed().
-
--record(data, {
-    task :: #task{},
-    spec :: cell_task:spec(),
-    request = stop :: start | pause | stop,
-    estop = false :: boolean(),
-    initialized = false :: boolean(),    %% init ran, uninit has not yet
-    pending :: pending(),                 %% what READY does next
-    resume :: cell_ipc:ready() | undefined,
-    down :: down_reason() | undefined,
-    gen = 0 :: non_neg_integer(),         %% step messages and timers of older rounds are ignored
-    armed = [] :: [armed()],
-    load_error :: term(),                 %% the product file could not be read
-    retain_error :: term(),               %% the retained-data file could not be read
-    crash :: term(),                      %% how the previous incarnation ended
-    crash_ask = false :: boolean(),       %% the crash is the operator's to answer
-    resumed = false :: boolean(),         %% went on by itself after a crash, not yet waited
-    cause = start :: cell_task:cause(),   %% why the next init runs, for reconcile
-    crash_outputs :: #{atom() => map()} | undefined, %% as the crashed incarnation left them
-    predecessor :: cell_task:held() | undefined, %% what reconcile checks, until it agrees
-    settings = #{} :: map(),              %% the snapshot for the next start
-    deferred :: pause | service | undefined, %% a pause a transfer holds back
-    conns = #{} :: #{atom() => up | down},   %% the HAL connections of the task's IO
-    lost = [] :: [atom()],                %% connections lost since init or the last resume
-    reoffer = [] :: [atom()],             %% offers a pause withdrew, made again at resume
-    dropped = false :: boolean(),         %% its product dropped while paused: Start reconciles
-    handed_on :: binary() | undefined,    %% the serial whose copy it last dropped as old
-    estop_flag :: atomics:atomics_ref(),   %% the node's emergency-stop flag, read before every step
-    held :: atomics:atomics_ref() | undefined %% secured; OFF not yet announced (the barrier)
-}).
 
 -define(STEP(Gen), {'$cell_step', Gen}).
 -define(WAIT(Gen), {'$cell_wait', Gen}).
@@ -177,24 +143,24 @@ callback_mode() ->
 init(Spec) ->
     process_flag(trap_exit, true),
     Task = cell_task:new(Spec),
-    {ok, off, #data{task = Task, spec = Spec, settings = Task#task.settings,
+    {ok, off, #engine{task = Task, spec = Spec, settings = Task#task.settings,
                     estop_flag = cell_registry:estop_flag()},
      [{next_event, internal, boot}]}.
 
--spec handle_event(gen_statem:event_type(), term(), cell_ipc:state(), #data{}) ->
+-spec handle_event(gen_statem:event_type(), term(), cell_ipc:state(), #engine{}) ->
           gen_statem:event_handler_result(cell_ipc:state()).
 
 %% The engine's state is the task's state: every change went through cell_task:set_state/3,
 %% which checked it against the seed's table and told the cell.
-handle_event(enter, _Old, State, #data{task = #task{ipc = State}}) ->
+handle_event(enter, _Old, State, #engine{task = #task{ipc = State}}) ->
     keep_state_and_data;
 
 %% Secured by the emergency stop, waiting for the others to secure theirs: the
 %% controller's word that they have ends the hold, and so does anything else.
-handle_event(info, {control, estop_settled, Held}, _State, #data{held = Held} = D) ->
-    announce_off(D);
-handle_event(Type, Msg, _State, #data{held = Held} = D) when Held =/= undefined, Type =/= enter ->
-    {next_state, off, D1, Actions} = announce_off(D),
+handle_event(info, {control, estop_settled, Held}, State, #engine{held = Held} = D) ->
+    leave(off, State, D);
+handle_event(Type, Msg, State, #engine{held = Held} = D) when Held =/= undefined, Type =/= enter ->
+    {next_state, off, D1, Actions} = leave(off, State, D),
     {next_state, off, D1, Actions ++ [{next_event, Type, Msg}]};
 
 %% --------------------------------------------------------------------------------------
@@ -222,12 +188,12 @@ handle_event(internal, in_transit, setup, D) ->
 %% --------------------------------------------------------------------------------------
 %% READY: steps, waits, and the requests honoured between steps
 %% --------------------------------------------------------------------------------------
-handle_event(info, ?STEP(Gen), {ready, _, _} = S, #data{gen = Gen, pending = {step, _}} = D) ->
+handle_event(info, ?STEP(Gen), {ready, _, _} = S, #engine{gen = Gen, pending = {step, _}} = D) ->
     run_step(S, D);
 handle_event(internal, step, {ready, _, _} = S, D) ->
     run_step(S, D);
 handle_event(info, {timeout, _, ?WAIT(Gen)} = Msg, {ready, _, _} = S,
-             #data{gen = Gen} = D) ->
+             #engine{gen = Gen} = D) ->
     wait_news(Msg, S, D);
 handle_event(info, {cell_hal_watch, _, _} = Msg, {ready, _, _} = S, D) ->
     wait_news(Msg, S, D);
@@ -236,7 +202,7 @@ handle_event(info, {cell_hal_unavailable, _, _} = Msg, {ready, _, _} = S, D) ->
 handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
     %% The task's IO is gone: nothing it reads can be trusted. DOWN until the operator
     %% retries with the connection back.
-    raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = S});
+    raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#engine{resume = S});
 handle_event(info, {Ref, _} = Msg, {ready, _, _} = S, D) when is_reference(Ref) ->
     wait_news(Msg, S, D);
 
@@ -244,16 +210,16 @@ handle_event(info, {Ref, _} = Msg, {ready, _, _} = S, D) when is_reference(Ref) 
 %% down: paused, or an error waiting for the operator
 %% --------------------------------------------------------------------------------------
 handle_event(internal, stop, down, D) ->
-    stop_to_off(D);
+    leave(stop, down, D);
 handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
-             #data{down = {error, Id, Origin}, task = T} = D) ->
+             #engine{down = {error, Id, Origin}, task = T} = D) ->
     %% A copy found older than another task's record (the registry's word may still be
     %% on its way) is dropped before the answer is acted on, as if that word had come
     %% first: the answer was accepted because this task no longer holds the product.
-    answered(Origin, Solution, Who, D#data{down = undefined, task = drop_if_older(T)});
+    answered(Origin, Solution, Who, D#engine{down = undefined, task = drop_if_older(T)});
 handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
     %% An answer the task will wait for when it resumes: keep it for then.
-    case D#data.pending of
+    case D#engine.pending of
         {waits, Waits} ->
             case lists:member({reply, Ref}, Waits) of
                 true -> {keep_state_and_data, [postpone]};
@@ -293,30 +259,30 @@ handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {cell_hal_unavailable, _Ref, _Why}, _State, _D) ->
     keep_state_and_data;
-handle_event(info, {cell_registry, stale, Serial, Gen}, State, #data{task = T0} = D) ->
+handle_event(info, {cell_registry, stale, Serial, Gen}, State, #engine{task = T0} = D) ->
     T = drop_stale(T0, Serial, Gen),
     Dropped = T#task.product =:= undefined andalso T0#task.product =/= undefined,
-    Down = case D#data.down of
+    Down = case D#engine.down of
                undefined -> undefined;
                Why -> element(1, Why)
            end,
-    case cell_task_core:stale_copy(State, Dropped, D#data.handed_on =:= Serial, Down) of
+    case cell_task_core:stale_copy(State, Dropped, D#engine.handed_on =:= Serial, Down) of
         reconcile ->
             %% Running on a copy found old (another task took the product on in a
             %% newer record after this one restarted): what it does rests on a product
             %% it does not hold. Its transfers end, and it reconciles again.
-            reconcile_dropped(2, D#data{task = T, handed_on = Serial});
+            reconcile_dropped(State, 2, D#engine{task = T, handed_on = Serial});
         ask ->
             %% The same serial back again (read again on a part its sensors see):
             %% dropping it once more would go round for ever. The operator sees to the
             %% part.
-            handed_on_again(State, Serial, D#data{task = T});
+            handed_on_again(State, Serial, D#engine{task = T});
         reconcile_at_start ->
             %% Paused: it reconciles again when started (an error waiting for the
             %% operator is answered first, the answer acted on without the copy).
-            {keep_state, D#data{task = T, dropped = true}};
+            {keep_state, D#engine{task = T, dropped = true}};
         keep ->
-            {keep_state, D#data{task = T}}
+            {keep_state, D#engine{task = T}}
     end;
 handle_event(info, {cell_registry, sole_holder, _} = Msg, State, D) ->
     handshake(Msg, State, D);
@@ -340,17 +306,17 @@ handle_event({call, From}, sync, _State, _D) ->
 handle_event({call, From}, info, State, D) ->
     {keep_state_and_data, [{reply, From, describe(State, D)}]}.
 
--spec terminate(term(), cell_ipc:state(), #data{}) -> ok.
-terminate(Reason, _State, #data{task = #task{id = Id}} = D) ->
+-spec terminate(term(), cell_ipc:state(), #engine{}) -> ok.
+terminate(Reason, _State, #engine{task = #task{id = Id}} = D) ->
     %% Whatever ended the task, its outputs are left safe.
-    _ = uninit(D),
+    _ = carry_out(cell_task_core:uninit(D)),
     cell_member:leave(Id, Reason).
 
 %% --------------------------------------------------------------------------------------
 %% Boot, start and init
 %% --------------------------------------------------------------------------------------
 
-boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
+boot(#engine{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
     {Previous, Controls} = cell_member:join(Spec, #{}),
     D2 = retained(joined(Controls, D0)),
     %% A product's own fields may name atoms only the task's module holds: loaded
@@ -359,12 +325,12 @@ boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
     {module, Mod} = code:ensure_loaded(Mod),
     D = case cell_product:load(T#task.product_path) of
             {ok, Stored} ->
-                D2#data{task = restore(D2#data.task, Stored)};
+                D2#engine{task = restore(D2#engine.task, Stored)};
             {error, Reason} ->
                 cell_log:error(Id, "the product file ~ts cannot be read (~tp); the "
                                "operator is asked when the cell starts",
                                [T#task.product_path, Reason]),
-                D2#data{load_error = Reason, task = cell_handshake:attach_all(D2#data.task)}
+                D2#engine{load_error = Reason, task = cell_handshake:attach_all(D2#engine.task)}
         end,
     case Previous of
         {crashed, Why} ->
@@ -373,8 +339,8 @@ boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
             _ = Ask orelse crash_warning(Why, D),
             %% The outputs of the crashed incarnation may still be set: read as it
             %% left them (for reconcile), then secured.
-            D3 = uninit(D#data{initialized = true, crash = Why, cause = crash, crash_ask = Ask,
-                               crash_outputs = outputs(D#data.task)}),
+            D3 = uninit(D#engine{initialized = true, crash = Why, cause = crash,
+                                 crash_ask = Ask, crash_outputs = outputs(D#engine.task)}),
             start_from_off(D3);
         _ ->
             start_from_off(D)
@@ -382,15 +348,15 @@ boot(#data{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
 
 %% The task's retained data, as its file holds them; a file that cannot be read is the
 %% operator's question before the task runs, never an empty store.
-retained(#data{task = #task{id = Id, retain_path = Path} = T} = D) ->
+retained(#engine{task = #task{id = Id, retain_path = Path} = T} = D) ->
     case cell_task:load_retained(T) of
         {ok, T1} ->
-            D#data{task = T1, retain_error = undefined};
+            D#engine{task = T1, retain_error = undefined};
         {error, Reason} ->
             cell_log:error(Id, "the retained data file ~ts cannot be read: ~ts; the task "
                            "does not run: the operator is asked when the cell starts",
                            [Path, cell_retain:text(Reason)]),
-            D#data{retain_error = Reason}
+            D#engine{retain_error = Reason}
     end.
 
 %% Whether the operator is asked about the crash rather than the task's reconcile: the
@@ -405,7 +371,7 @@ ask_after_crash(Id) ->
 
 %% A crash the task goes on from by itself is never silent: a warning says so until an
 %% operator closes it (and the alarms' history keeps who did).
-crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
+crash_warning(Why, #engine{task = #task{id = Id, product = P}}) ->
     cell_alarms:warning(
       Id, <<"crash_resumed">>, "Task restarted after a crash",
       io_lib:format("The task stopped unexpectedly and was restarted: ~ts.~nIts outputs "
@@ -416,7 +382,7 @@ crash_warning(Why, #data{task = #task{id = Id, product = P}}) ->
                     "log. Close it once read.", [cell_member:crash_text(Why), serial_text(P)])).
 
 %% Boot, or Start in OFF: cell_task_core:from_off/3 says whether the task starts.
-start_from_off(#data{request = Request, estop = Estop, crash = Crash,
+start_from_off(#engine{request = Request, estop = Estop, crash = Crash,
                      task = #task{id = Id}} = D) ->
     case cell_task_core:from_off(Request, Estop, Crash =/= undefined) of
         estop ->
@@ -425,24 +391,24 @@ start_from_off(#data{request = Request, estop = Estop, crash = Crash,
         start ->
             enter_setup(D);
         stay ->
-            {keep_state, D#data{crash = undefined, crash_ask = false}}
+            {keep_state, D#engine{crash = undefined, crash_ask = false}}
     end.
 
 %% Arrow 0, with the settings snapshot taken at Start.
 enter_setup(D0) ->
-    D = D0#data{task = (D0#data.task)#task{settings = D0#data.settings}},
+    D = D0#engine{task = (D0#engine.task)#task{settings = D0#engine.settings}},
     {Event, D1} = setup_event(D),
     goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]).
 
 %% What setup does first: the operator's question about a file the task's record cannot
 %% be read from (retained data first: nothing runs without them), an interrupted
 %% transfer or a crash, or init.
-setup_event(#data{task = T} = D) ->
-    case cell_task_core:setup(#{retain_error => D#data.retain_error, crash => D#data.crash,
-                                crash_ask => D#data.crash_ask, load_error => D#data.load_error,
+setup_event(#engine{task = T} = D) ->
+    case cell_task_core:setup(#{retain_error => D#engine.retain_error, crash => D#engine.crash,
+                                crash_ask => D#engine.crash_ask, load_error => D#engine.load_error,
                                 in_transit => cell_handshake:in_transit(T)}) of
         {Event, none} -> {Event, D};
-        {Event, asked} -> {Event, D#data{crash = undefined, crash_ask = false}};
+        {Event, asked} -> {Event, D#engine{crash = undefined, crash_ask = false}};
         %% The task's reconcile decides (an interrupted transfer's mark included), as
         %% after the operator's Retry.
         {Event, go_on} -> {Event, go_on_after_crash(D)}
@@ -450,50 +416,50 @@ setup_event(#data{task = T} = D) ->
 
 %% Going on by itself after a crash: the registry remembers it until the task first
 %% waits, so that a crash before that is the operator's to answer.
-go_on_after_crash(#data{task = #task{id = Id}} = D) ->
+go_on_after_crash(#engine{task = #task{id = Id}} = D) ->
     ok = cell_registry:update(Id, #{resumed => true}),
-    D#data{crash = undefined, resumed = true}.
+    D#engine{crash = undefined, resumed = true}.
 
-run_init(#data{retain_error = Why} = D) when Why =/= undefined ->
+run_init(#engine{retain_error = Why} = D) when Why =/= undefined ->
     %% However setup was entered (a Reset, a product forgotten), nothing runs without
     %% the task's retained data.
     raise(setup, retain_damaged_error(D), retain_file, D);
-run_init(#data{task = #task{module = Mod} = T0} = D0) ->
+run_init(#engine{task = #task{module = Mod} = T0} = D0) ->
     case estop_raised(D0) of
         true ->
-            estop(setup, D0#data{estop = true});
+            leave(estop, setup, D0#engine{estop = true});
         false ->
             case io_check(D0) of
                 {error, Spec, D} ->
-                    raise(setup, Spec, io, D#data{resume = undefined});
+                    raise(setup, Spec, io, D#engine{resume = undefined});
                 {ok, D} ->
                     %% init commands the outputs afresh.
                     T = T0#task{answer = undefined, woken_by = undefined,
                                 commanded = cell_task_outputs:new()},
                     %% Taken before init writes an output.
-                    D1 = D#data{predecessor = predecessor(D), lost = []},
+                    D1 = D#engine{predecessor = predecessor(D), lost = []},
                     try Mod:init(T) of
                         {ok, T1} ->
                             run_reconcile(undefined, undefined,
-                                          D1#data{task = T1, initialized = true});
+                                          D1#engine{task = T1, initialized = true});
                         {error, Spec, T1} ->
-                            raise(setup, Spec, init, D1#data{task = T1, initialized = true})
+                            raise(setup, Spec, init, D1#engine{task = T1, initialized = true})
                     catch
                         throw:{cell_io_lost, Group, _Point, _Commanded} ->
                             raise(setup, io_error(group_conn(Group)), io,
-                                  D1#data{initialized = true, resume = undefined});
+                                  D1#engine{initialized = true, resume = undefined});
                         throw:{cell_io_unavailable, Group, Point, Why} ->
                             raise(setup, point_error(Group, Point, Why), io,
-                                  D1#data{initialized = true, resume = undefined})
+                                  D1#engine{initialized = true, resume = undefined})
                     end
             end
     end.
 
 %% What the task's predecessor left (cell_task:held()): taken once per way into setup,
 %% kept while reconcile asks the operator.
-predecessor(#data{predecessor = #{} = Held}) ->
+predecessor(#engine{predecessor = #{} = Held}) ->
     Held;
-predecessor(#data{cause = Cause, crash_outputs = Crashed, task = T}) ->
+predecessor(#engine{cause = Cause, crash_outputs = Crashed, task = T}) ->
     #{cause => Cause, product => T#task.product, marker => T#task.marker,
       links => maps:map(fun(_, View) -> maps:get(phase, View, idle) end, T#task.links),
       outputs => case Crashed of
@@ -511,10 +477,10 @@ outputs(#task{io = Groups}) ->
 
 %% The task's reconcile, after init and after each answer to the question it asked;
 %% `Then' is what the first step is told woke it.
-run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = Held} = D) ->
+run_reconcile(Woken, Then, #engine{task = #task{module = Mod} = T0, predecessor = Held} = D) ->
     case estop_raised(D) of
         true ->
-            estop(setup, D#data{estop = true});
+            leave(estop, setup, D#engine{estop = true});
         false ->
             T = cell_task_core:woken_by(Woken, T0),
             try Mod:reconcile(Held, T) of
@@ -524,27 +490,27 @@ run_reconcile(Woken, Then, #data{task = #task{module = Mod} = T0, predecessor = 
                         cell_log:notice(T#task.id, "after the crash its record and its "
                                         "sensors agree: it goes on (product ~ts)",
                                         [serial_text(T1#task.product)]),
-                    ready_after_init(Then, D#data{task = cell_task_core:clean(T1),
+                    ready_after_init(Then, D#engine{task = cell_task_core:clean(T1),
                                                   predecessor = undefined, cause = start,
                                                   crash_outputs = undefined});
                 {error, Spec, T1} ->
-                    raise(setup, Spec, reconcile, D#data{task = cell_task_core:clean(T1)});
+                    raise(setup, Spec, reconcile, D#engine{task = cell_task_core:clean(T1)});
                 Other ->
                     erlang:error({bad_reconcile_result, Mod, Other})
             catch
                 throw:{cell_io_lost, Group, _Point, _Commanded} ->
-                    raise(setup, io_error(group_conn(Group)), io, D#data{resume = undefined});
+                    raise(setup, io_error(group_conn(Group)), io, D#engine{resume = undefined});
                 throw:{cell_io_unavailable, Group, Point, Why} ->
-                    raise(setup, point_error(Group, Point, Why), io, D#data{resume = undefined})
+                    raise(setup, point_error(Group, Point, Why), io, D#engine{resume = undefined})
             end
     end.
 
 %% Arrow 1 (or 5 when an init error was ignored): READY-PROCESSING-ACTIVE with a
 %% product, READY-IDLE-STARVED without; the task's first events say more.
-ready_after_init(Woken, #data{task = T} = D) ->
+ready_after_init(Woken, #engine{task = T} = D) ->
     {Ready, Arrow} = cell_task_core:ready(T#task.product, T#task.ipc),
     ok = headroom(),
-    goto(Ready, {arrow, Arrow}, D#data{pending = {step, Woken}, resume = undefined},
+    goto(Ready, {arrow, Arrow}, D#engine{pending = {step, Woken}, resume = undefined},
          [{next_event, internal, step}]).
 
 %% --------------------------------------------------------------------------------------
@@ -554,8 +520,8 @@ ready_after_init(Woken, #data{task = T} = D) ->
 run_step(State, D0) ->
     case estop_raised(D0) of
         true ->
-            estop(State, D0#data{estop = true});
-        false when D0#data.request =:= start, D0#data.deferred =:= undefined ->
+            leave(estop, State, D0#engine{estop = true});
+        false when D0#engine.request =:= start, D0#engine.deferred =:= undefined ->
             %% Running, nothing held back: the common case, at every step.
             do_step(D0);
         false ->
@@ -568,7 +534,7 @@ run_step(State, D0) ->
             end
     end.
 
-do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
+do_step(#engine{task = #task{module = Mod, ipc = State} = T0, pending = {step, Woken}} = D) ->
     T = cell_task_core:woken_by(Woken, T0),
     try Mod:step(T) of
         Result -> after_step(cell_task_core:step_result(Mod, Result), D)
@@ -577,49 +543,49 @@ do_step(#data{task = #task{module = Mod, ipc = State} = T0, pending = {step, Wok
         %% dropped and runs again, as it was woken, after Retry; what it commanded
         %% before is what is written again then (see reassert/2).
         throw:{cell_io_lost, Group, _Point, Commanded} ->
-            io_lost(State, Group, D#data{task = commanded(Commanded, D#data.task)});
+            io_lost(State, Group, D#engine{task = commanded(Commanded, D#engine.task)});
         %% A point its device cannot serve: the same, the connection itself being up.
         throw:{cell_io_unavailable, Group, Point, Why} ->
-            raise(State, point_error(Group, Point, Why), io, D#data{resume = State})
+            raise(State, point_error(Group, Point, Why), io, D#engine{resume = State})
     end.
 
-after_step({continue, T}, #data{task = #task{ipc = Ipc}} = D) ->
-    D1 = D#data{task = cell_task_core:clean(T), pending = {step, undefined}},
+after_step({continue, T}, #engine{task = #task{ipc = Ipc}} = D) ->
+    D1 = D#engine{task = cell_task_core:clean(T), pending = {step, undefined}},
     case T#task.ipc of
         Ipc -> next_step(Ipc, D1);
         New -> {next_state, New, D1, next_step(D1)}
     end;
 after_step({wait, Waits, T}, D) ->
-    case arm(Waits, waited(D#data{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
+    case arm(Waits, waited(D#engine{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
         {ok, D1} ->
-            State = (D1#data.task)#task.ipc,
+            State = (D1#engine.task)#task.ipc,
             case try_pause(State, D1) of
                 {paused, Result} -> Result;
                 {hold, D2} -> {next_state, State, D2}
             end;
         {io_lost, Group, D1} ->
             %% The step's work stands; its wait is armed again after Retry.
-            io_lost((D1#data.task)#task.ipc, Group, D1)
+            io_lost((D1#engine.task)#task.ipc, Group, D1)
     end;
 after_step({reset, T}, D) ->
     %% The seed's ResetException: uninit, then arrow 2 to init again.
-    goto(setup, {arrow, 2}, uninit(D#data{task = cell_task_core:clean(T), cause = reset}),
+    goto(setup, {arrow, 2}, uninit(D#engine{task = cell_task_core:clean(T), cause = reset}),
          [{next_event, internal, run_init}]);
 after_step({error, Spec, T}, D) ->
-    raise(T#task.ipc, Spec, step, D#data{task = cell_task_core:clean(T), resume = T#task.ipc}).
+    raise(T#task.ipc, Spec, step, D#engine{task = cell_task_core:clean(T), resume = T#task.ipc}).
 
 %% The first wait after going on by itself from a crash: a crash from here on is the
 %% task's reconcile's to decide again.
-waited(#data{resumed = false} = D) ->
+waited(#engine{resumed = false} = D) ->
     D;
-waited(#data{resumed = true, task = #task{id = Id}} = D) ->
+waited(#engine{resumed = true, task = #task{id = Id}} = D) ->
     ok = cell_registry:update(Id, #{resumed => false}),
-    D#data{resumed = false}.
+    D#engine{resumed = false}.
 
 %% The step after a `continue' comes after whatever reached the task meanwhile (a
 %% Pause, a Stop, a link's message): a message to itself, behind them. With nothing
 %% waiting the step runs at once, which is the same order without the message.
-next_step(#data{gen = Gen}) ->
+next_step(#engine{gen = Gen}) ->
     case erlang:process_info(self(), message_queue_len) of
         {message_queue_len, 0} -> [{next_event, internal, step}];
         _ -> self() ! ?STEP(Gen), []
@@ -628,7 +594,7 @@ next_step(#data{gen = Gen}) ->
 %% As next_step/1, the task staying in `State': with nothing waiting, the next step
 %% runs within this event, without a turn through gen_statem (nothing could come
 %% between the two: no message is there, and the state is the same).
-next_step(State, #data{gen = Gen} = D) ->
+next_step(State, #engine{gen = Gen} = D) ->
     case erlang:process_info(self(), message_queue_len) of
         {message_queue_len, 0} -> run_step(State, D);
         _ -> self() ! ?STEP(Gen), {keep_state, D}
@@ -636,15 +602,15 @@ next_step(State, #data{gen = Gen} = D) ->
 
 %% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
 %% connections): what was armed before it is in `D', for the disarm that follows.
-arm(Waits, #data{gen = Gen} = D) ->
+arm(Waits, #engine{gen = Gen} = D) ->
     arm(Waits, Gen, [], D).
 
 arm([], _Gen, Armed, D) ->
-    {ok, D#data{armed = lists:reverse(Armed)}};
-arm([W | Waits], Gen, Armed, #data{task = T} = D) ->
+    {ok, D#engine{armed = lists:reverse(Armed)}};
+arm([W | Waits], Gen, Armed, #engine{task = T} = D) ->
     case arm_one(W, Gen, T) of
-        {io_lost, Group} -> {io_lost, Group, D#data{armed = lists:reverse(Armed)}};
-        {One, T1} -> arm(Waits, Gen, [One | Armed], D#data{task = T1})
+        {io_lost, Group} -> {io_lost, Group, D#engine{armed = lists:reverse(Armed)}};
+        {One, T1} -> arm(Waits, Gen, [One | Armed], D#engine{task = T1})
     end.
 
 arm_one({timer, Ms}, Gen, T) when is_integer(Ms), Ms >= 0 ->
@@ -683,29 +649,20 @@ arm_watch(Ref, Link, Signal, Value, T0) ->
         end,
     {{handshake, Ref, Link, Signal, Value}, T}.
 
-disarm(#data{armed = Armed, gen = Gen} = D) ->
-    %% Not waited for: a timer that fires meanwhile sends a message of an older
-    %% generation, which is ignored.
-    _ = [erlang:cancel_timer(TRef, [{async, true}, {info, false}]) || {timer, TRef, _} <- Armed],
-    _ = [cell_hal:cancel_watch(Ref) || {io, Ref, _, _} <- Armed],
-    %% Watches on links are not cancelled: when one fires later its reference is no
-    %% longer armed and the message is ignored.
-    %% A new generation: step messages and timer messages already sent are ignored.
-    D#data{armed = [], gen = Gen + 1}.
-
 wake(Woken, D) ->
-    {keep_state, (disarm(D))#data{pending = {step, Woken}}, [{next_event, internal, step}]}.
+    {keep_state, (carry_out(cell_task_core:disarm(D)))#engine{pending = {step, Woken}},
+     [{next_event, internal, step}]}.
 
 %% A timer, a HAL watch or an answer reached a READY task: what it means to its waits
 %% is cell_task_core's to say.
-wait_news(Msg, State, #data{armed = Armed} = D) ->
+wait_news(Msg, State, #engine{armed = Armed} = D) ->
     case cell_task_core:wait_news(Msg, Armed) of
         {wake, Woken} ->
             wake(Woken, D);
         {unavailable, Group, Point, Why} ->
             %% The point waited for cannot be served (a PLC refusing its address):
             %% DOWN with the error naming it; Retry arms the wait again.
-            raise(State, point_error(Group, Point, Why), io, D#data{resume = State});
+            raise(State, point_error(Group, Point, Why), io, D#engine{resume = State});
         late ->
             late_reply(Msg, D);
         none ->
@@ -720,34 +677,30 @@ wait_news(Msg, State, #data{armed = Armed} = D) ->
 controlled(start, _State, D) ->
     start_from_off(D);
 controlled({boundary, Deferred}, State, D) ->
-    hold_or_pause(State, D#data{deferred = Deferred});
+    hold_or_pause(State, D#engine{deferred = Deferred});
 controlled({defer, Deferred}, _State, D) ->
-    {keep_state, D#data{deferred = Deferred}};
+    {keep_state, D#engine{deferred = Deferred}};
 controlled(resume, _State, D) ->
     resume(D);
 controlled(reconcile, _State, D) ->
     %% Its product was dropped as an old copy while it was paused: where it was rests
     %% on a product it no longer holds, so it reconciles again instead (as a task
     %% running when its copy is dropped does).
-    reconcile_dropped(8, D);
-controlled(stop, _State, D) ->
-    stop_to_off(D);
-controlled({secure, {Ref, _, _, _} = Barrier}, _State, D0) ->
-    %% The controller's emergency stop: as estop/2, but OFF is announced only when the
-    %% barrier says every task of the fan-out has secured its outputs.
-    D = secure(D0),
-    ok = estop_secured(Barrier),
-    {keep_state, D#data{held = Ref}};
+    reconcile_dropped(down, 8, D);
+controlled(stop, State, D) ->
+    leave(stop, State, D);
+controlled({secure, Barrier}, State, D) ->
+    {keep_state, carry_out(cell_task_core:leave({secure, Barrier}, State, D))};
 controlled({secured, Barrier}, _State, D) ->
     ok = estop_secured(Barrier),
     {keep_state, D};
 controlled({settings, Settings}, _State, D) ->
-    {keep_state, D#data{settings = Settings}};
+    {keep_state, D#engine{settings = Settings}};
 controlled(keep, _State, D) ->
     {keep_state, D}.
 
 %% What cell_task_core:control/4 is told of the engine's data.
-facts(#data{down = Down, dropped = Dropped, deferred = Deferred}) ->
+facts(#engine{down = Down, dropped = Dropped, deferred = Deferred}) ->
     #{down => case Down of
                   undefined -> undefined;
                   _ -> element(1, Down)
@@ -769,34 +722,26 @@ hold_or_pause(State, D) ->
 try_pause(State, D) ->
     pause_news(boundary, State, D).
 
-pause_news(Event, State, #data{request = Request, deferred = Deferred, task = T} = D) ->
+pause_news(Event, State, #engine{request = Request, deferred = Deferred, task = T} = D) ->
     case cell_task_core:pause(Event, Request, Deferred, T) of
         {go_on, Deferred} ->
             {hold, D};
         {go_on, Why} ->
-            {hold, D#data{deferred = Why}};
+            {hold, D#engine{deferred = Why}};
         {withdraw, Offers} ->
             {Results, T1} = lists:mapfoldl(fun withdraw/2, T, Offers),
-            pause_news({withdrawn, Results}, State, D#data{task = T1});
+            pause_news({withdrawn, Results}, State, D#engine{task = T1});
         {pause, Why, Reoffer} ->
-            {paused, pause(State, Why, D#data{reoffer = Reoffer})}
+            {paused, leave({pause, Why}, State, D#engine{reoffer = Reoffer})}
     end.
 
 withdraw(Link, T) ->
     {Ok, T1} = cell_handshake:try_abort_offering(T, Link),
     {{Link, Ok}, T1}.
 
-%% Arrow 6, then for Stop arrow 9.
-pause(State, Why, #data{request = Request} = D0) ->
-    D = (disarm(D0))#data{down = {paused, Why}, resume = State, deferred = undefined},
-    case Request of
-        stop -> goto(down, {arrow, 6}, D, [{next_event, internal, stop}]);
-        _ -> goto(down, {arrow, 6}, D, [])
-    end.
-
 %% Arrow 5: back to the READY sub-state the task left, doing what it was doing, its
 %% withdrawn offers made again.
-resume(#data{conns = Conns} = D0) ->
+resume(#engine{conns = Conns} = D0) ->
     case lists:foldl(fun(C, {Down, Dx}) ->
                              case conn_up(C, Dx) of
                                  {up, Dx1} -> {Down, Dx1};
@@ -807,14 +752,14 @@ resume(#data{conns = Conns} = D0) ->
             do_resume(D);
         {[Conn | _], D} ->
             %% Still DOWN: the IO it would resume with is gone.
-            {ok, AlarmId} = cell_alarms:raise_error((D#data.task)#task.id, io_error(Conn), self()),
-            {keep_state, D#data{down = {error, AlarmId, io}}}
+            {ok, AlarmId} = cell_alarms:raise_error((D#engine.task)#task.id, io_error(Conn), self()),
+            {keep_state, D#engine{down = {error, AlarmId, io}}}
     end.
 
-do_resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
+do_resume(#engine{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
     ok = headroom(),
     T = cell_handshake:reoffer(cell_task:set_state(T0, Ready, {arrow, 5}), Offers),
-    D = D0#data{down = undefined, resume = undefined, reoffer = [], task = T},
+    D = D0#engine{down = undefined, resume = undefined, reoffer = [], task = T},
     %% Outputs first: what the task waits for may follow what it commanded.
     case reassert(Ready, D) of
         {ok, D1} ->
@@ -825,10 +770,10 @@ do_resume(#data{resume = Ready, pending = Pending, task = T0, reoffer = Offers} 
 
 resume_pending(Ready, {waits, Waits}, D) ->
     case arm(Waits, D) of
-        {ok, D1} -> {next_state, (D1#data.task)#task.ipc, D1};
+        {ok, D1} -> {next_state, (D1#engine.task)#task.ipc, D1};
         {io_lost, Group, D1} -> io_lost(Ready, Group, D1)
     end;
-resume_pending(_Ready, {step, _}, #data{task = T} = D) ->
+resume_pending(_Ready, {step, _}, #engine{task = T} = D) ->
     {next_state, T#task.ipc, D, [{next_event, internal, step}]}.
 
 %% Going on after a connection of the task's IO was lost: every output of that
@@ -838,15 +783,15 @@ resume_pending(_Ready, {step, _}, #data{task = T} = D) ->
 %% connections that stayed up, and anything secured since (uninit clears the image),
 %% are left alone. `{ok, D}', or the task DOWN again if a write finds the connection
 %% gone or the point unavailable.
-reassert(_Ready, #data{lost = []} = D) ->
+reassert(_Ready, #engine{lost = []} = D) ->
     {ok, D};
-reassert(Ready, #data{lost = Lost, task = #task{id = Id, io = Groups, commanded = Image}} = D) ->
+reassert(Ready, #engine{lost = Lost, task = #task{id = Id, io = Groups, commanded = Image}} = D) ->
     Ours = [G || G <- Groups, lists:member(group_conn(G), Lost)],
     Now = maps:from_list([{{G, P}, V} || {G, P} <- maps:keys(Image), lists:member(G, Ours),
                                          {ok, V} <- [cell_hal:read(G, P)]]),
     case cell_task_outputs:writes(Image, Ours, Now) of
         [] ->
-            {ok, D#data{lost = []}};
+            {ok, D#engine{lost = []}};
         Writes ->
             case write_all(Writes) of
                 ok ->
@@ -854,11 +799,11 @@ reassert(Ready, #data{lost = Lost, task = #task{id = Id, io = Groups, commanded 
                                     "last commanded them: ~ts",
                                     [lists:join(", ", [atom_to_list(C) || C <- Lost]),
                                      cell_task_outputs:text(Writes)]),
-                    {ok, D#data{lost = []}};
+                    {ok, D#engine{lost = []}};
                 {io_lost, Group} ->
                     io_lost(Ready, Group, D);
                 {unavailable, Group, Point, Why} ->
-                    raise(Ready, point_error(Group, Point, Why), io, D#data{resume = Ready})
+                    raise(Ready, point_error(Group, Point, Why), io, D#engine{resume = Ready})
             end
     end.
 
@@ -881,66 +826,65 @@ write_all([{G, P, V} | Rest]) ->
 %% where it was once the connection is back.
 io_lost(State, Group, D) ->
     Conn = group_conn(Group),
-    raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#data{resume = State}).
+    raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#engine{resume = State}).
 
-raise(State, Spec, Origin, #data{task = #task{id = Id}} = D) ->
+raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
-    Arrow = cell_task_core:down_arrow(State),
-    goto(down, {arrow, Arrow}, (disarm(D))#data{down = {error, AlarmId, Origin}}, []).
+    leave({error, AlarmId, Origin}, State, D).
 
 %% The operator answered an error: cell_task_core decides what follows, carried out
 %% here.
 answered(Origin, Solution, Who, D) ->
-    Context = #{request => D#data.request, deferred => D#data.deferred,
-                resume => D#data.resume},
+    Context = #{request => D#engine.request, deferred => D#engine.deferred,
+                resume => D#engine.resume},
     act(cell_task_core:answer(Origin, Solution, Context), Who, D).
 
 act(reinit, _Who, D) ->
     reinit(D);
 act({resume, Pending}, _Who, D) ->
-    resume(D#data{pending = Pending});
+    resume(D#engine{pending = Pending});
 act(resume, _Who, D) ->
     resume(D);
 act({paused, Pending}, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}, pending = Pending}};
+    {keep_state, D#engine{down = {paused, pause}, pending = Pending}};
 act(paused, _Who, D) ->
-    {keep_state, D#data{down = {paused, pause}}};
+    {keep_state, D#engine{down = {paused, pause}}};
 act({setup, Event}, _Who, D) ->
     goto(setup, {arrow, 8}, D, [{next_event, internal, Event}]);
 act({reconcile, Then}, _Who, D) ->
     run_reconcile(undefined, Then, D);
-act(forget_then_reinit, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+act(forget_then_reinit, Who, #engine{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
                     [Who, serial_text(P)]),
-    reinit(D#data{task = not_here(T)});
-act({forget, Event}, Who, #data{task = #task{id = Id, product = P} = T} = D) ->
+    reinit(D#engine{task = not_here(T)});
+act({forget, Event}, Who, #engine{task = #task{id = Id, product = P} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
                     [Who, serial_text(P)]),
-    goto(setup, {arrow, 8}, D#data{task = not_here(T)},
+    goto(setup, {arrow, 8}, D#engine{task = not_here(T)},
          [{next_event, internal, Event}]);
-act({confirm_here, Event}, Who, #data{task = #task{id = Id, product = P, gen = G} = T} = D) ->
+act({confirm_here, Event}, Who, #engine{task = #task{id = Id, product = P, gen = G} = T} = D) ->
     cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
-    goto(setup, {arrow, 8}, D#data{task = cell_task:store(T, P, G, undefined, #{})},
+    goto(setup, {arrow, 8}, D#engine{task = cell_task:store(T, P, G, undefined, #{})},
          [{next_event, internal, Event}]);
-act(set_aside_product, Who, #data{task = #task{id = Id, product_path = Path}} = D) ->
+act(set_aside_product, Who, #engine{task = #task{id = Id, product_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
-    goto(setup, {arrow, 8}, D#data{load_error = undefined}, [{next_event, internal, run_init}]);
-act(reload_product, _Who, #data{task = #task{product_path = Path} = T} = D) ->
+    goto(setup, {arrow, 8}, D#engine{load_error = undefined}, [{next_event, internal, run_init}]);
+act(reload_product, _Who, #engine{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
             %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
             %% start, so a product marked in transit is the operator's question
             %% before the task can send it on.
-            {Event, D1} = setup_event(D#data{task = restore(T, Stored), load_error = undefined}),
+            {Event, D1} = setup_event(D#engine{task = restore(T, Stored), load_error = undefined}),
             goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]);
         {error, Reason} ->
-            D1 = D#data{load_error = Reason},
+            D1 = D#engine{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
     end;
-act(set_aside_retained, Who, #data{task = #task{id = Id, retain_path = Path}} = D) ->
+act(set_aside_retained, Who, #engine{task = #task{id = Id, retain_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     case file:rename(Path, Aside) of
         ok ->
@@ -965,40 +909,14 @@ retained_again(D0) ->
 
 %% Reset: uninit, then arrow 8 (from DOWN) to init again.
 reinit(D) ->
-    goto(setup, {arrow, 8}, uninit(D#data{cause = reset, predecessor = undefined}),
+    goto(setup, {arrow, 8}, uninit(D#engine{cause = reset, predecessor = undefined}),
          [{next_event, internal, run_init}]).
-
-stop_to_off(#data{down = Down} = D0) ->
-    case Down of
-        {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
-        _ -> ok
-    end,
-    D1 = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
-                           deferred = undefined, reoffer = []},
-    D = uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}),
-    goto(off, {arrow, 9}, D, []).
-
-%% The flag seen before a step or an init: leave at once, secure the outputs, OFF.
-estop(_State, D) ->
-    announce_off(secure(D)).
-
-secure(#data{down = Down} = D0) ->
-    case Down of
-        {error, AlarmId, _} -> ok = cell_alarms:withdraw(AlarmId);
-        _ -> ok
-    end,
-    D1 = D0#data{down = undefined, pending = undefined, resume = undefined,
-                 deferred = undefined, reoffer = []},
-    uninit(D1#data{task = cell_handshake:interrupt_all(D1#data.task)}).
 
 %% @doc Marks the caller's slot of the emergency stop's barrier: its outputs are
 %% secured. The last of the fan-out tells the controller.
 -spec estop_secured(estop_barrier()) -> ok.
 estop_secured(Barrier) ->
     cell_member:estop_secured(Barrier).
-
-announce_off(D) ->
-    goto(off, estop, disarm(D#data{held = undefined}), []).
 
 %% Entering READY, the task collects its heap, which never shrinks below
 %% ?MIN_HEAP_WORDS: securing the outputs at an emergency stop then fits in the free
@@ -1010,14 +928,16 @@ headroom() ->
     ok.
 
 %% The flag is made once per node and never replaced, so the task keeps it.
-estop_raised(#data{estop_flag = Flag}) ->
+estop_raised(#engine{estop_flag = Flag}) ->
     atomics:get(Flag, 1) =:= 1.
+
+%% uninit, if init ran and uninit has not since (see cell_task_core:uninit/1).
+uninit(D) ->
+    carry_out(cell_task_core:uninit(D)).
 
 %% uninit is the seed's "must not fail": an error in it is logged, never raised, so
 %% a failing uninit cannot keep a task from stopping.
-uninit(#data{initialized = false} = D) ->
-    D;
-uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
+secure_outputs(#engine{task = #task{module = Mod, id = Id} = T} = D) ->
     T1 = try
              Mod:uninit(T)
          catch
@@ -1032,32 +952,67 @@ uninit(#data{task = #task{module = Mod, id = Id} = T} = D) ->
              _ -> T
          end,
     %% Secured: what the task commanded before is not written again (see reassert/2).
-    D#data{task = T2#task{commanded = cell_task_outputs:new()}, initialized = false,
-           lost = []}.
+    D#engine{task = T2#task{commanded = cell_task_outputs:new()}}.
 
-goto(To, Cause, #data{task = T, dropped = Dropped} = D, Actions) ->
-    {next_state, To, D#data{task = cell_task:set_state(T, To, Cause),
-                            dropped = Dropped andalso To =:= down}, Actions}.
+goto(To, Cause, D, Actions) ->
+    {next_state, To, carry_out(cell_task_core:goto(To, Cause, D)), Actions}.
+
+%% The task leaves what it was doing (cell_task_core:leave/3): the transition carried
+%% out, the engine in the state it took the task to (the engine's state is always the
+%% task's), its next events next.
+leave(How, State, D0) ->
+    {_, Effects} = Transition = cell_task_core:leave(How, State, D0),
+    D = carry_out(Transition),
+    {next_state, (D#engine.task)#task.ipc, D,
+     [{next_event, internal, Event} || {next_event, Event} <- Effects]}.
+
+%% A transition of cell_task_core carried out: its effects in order (its next events
+%% are the caller's).
+carry_out({D, Effects}) ->
+    lists:foldl(fun effect/2, D, Effects).
+
+effect({withdraw_alarm, AlarmId}, D) ->
+    ok = cell_alarms:withdraw(AlarmId),
+    D;
+effect({cancel, Armed}, D) ->
+    %% Not waited for: a timer that fires meanwhile sends a message of an older
+    %% round, which is ignored.
+    _ = [erlang:cancel_timer(TRef, [{async, true}, {info, false}]) || {timer, TRef, _} <- Armed],
+    _ = [cell_hal:cancel_watch(Ref) || {io, Ref, _, _} <- Armed],
+    D;
+effect(interrupt_links, #engine{task = T} = D) ->
+    D#engine{task = cell_handshake:interrupt_all(T)};
+effect(uninit, D) ->
+    secure_outputs(D);
+effect(forget_product, #engine{task = T} = D) ->
+    D#engine{task = not_here(T)};
+effect({estop_secured, Barrier}, D) ->
+    ok = estop_secured(Barrier),
+    D;
+effect({state, To, Cause}, #engine{task = T} = D) ->
+    D#engine{task = cell_task:set_state(T, To, Cause)};
+effect({next_event, _}, D) ->
+    D.
 
 %% The controller's commands as the task joined the cell.
-joined(#{request := Request, estop := Estop, service_mode := Service}, #data{task = T} = D) ->
-    D#data{request = Request, estop = Estop, task = T#task{service_mode = Service}}.
+joined(#{request := Request, estop := Estop, service_mode := Service}, #engine{task = T} = D) ->
+    D#engine{request = Request, estop = Estop, task = T#task{service_mode = Service}}.
 
 %% A command of the controller, kept as every member keeps it (see cell_member).
-member(Key, Value, #data{request = Request, estop = Estop, task = T} = D) ->
+member(Key, Value, #engine{request = Request, estop = Estop, task = T} = D) ->
     #{request := Request1, estop := Estop1, service_mode := Service} =
         cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
                                              service_mode => T#task.service_mode}),
-    D#data{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
+    D#engine{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
 
 %% A message the engine does not know goes to the task module's handle_info/2; a task
 %% module without one expects none, and the task crashes (it is restarted, and the
 %% operator told, as after any crash).
-stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
+stray(Msg, #engine{task = #task{module = Mod, id = Id} = T} = D) ->
     case erlang:function_exported(Mod, handle_info, 2) of
         true ->
             {ok, T1} = Mod:handle_info(Msg, T),
-            {keep_state, D#data{task = T1}};
+            {keep_state, D#engine{task = T1}};
         false ->
             cell_member:unexpected(Id, Msg)
     end.
@@ -1065,7 +1020,7 @@ stray(Msg, #data{task = #task{module = Mod, id = Id} = T} = D) ->
 %% A reply the task no longer waits for: it came after a timer of the same wait, or
 %% after the task left the wait (Pause, Stop, an error, the emergency stop). The task
 %% module may want it (handle_info/2); otherwise it is dropped, being late, not wrong.
-late_reply(Msg, #data{task = #task{module = Mod, id = Id}} = D) ->
+late_reply(Msg, #engine{task = #task{module = Mod, id = Id}} = D) ->
     case erlang:function_exported(Mod, handle_info, 2) of
         true ->
             stray(Msg, D);
@@ -1080,29 +1035,29 @@ late_reply(Msg, #data{task = #task{module = Mod, id = Id}} = D) ->
 
 %% A message of a link: the bookkeeping is cell_handshake's; a READY task waiting on
 %% that link wakes, with the events the seed raises there.
-handshake(Msg, State, #data{task = T0} = D0) ->
+handshake(Msg, State, #engine{task = T0} = D0) ->
     {T, Wakes} = cell_handshake:handle(Msg, T0),
-    D = D0#data{task = T},
+    D = D0#engine{task = T},
     case State of
         {ready, _, _} ->
             Signal = fun(Link, S) -> cell_handshake:signal(T, Link, S) end,
-            case cell_task_core:woken(Wakes, D#data.armed, Signal) of
+            case cell_task_core:woken(Wakes, D#engine.armed, Signal) of
                 undefined ->
                     %% A transfer that ended may free a Pause it held back.
                     case try_pause(State, D) of
                         {paused, Result} -> Result;
-                        {hold, D1} -> {next_state, (D1#data.task)#task.ipc, D1}
+                        {hold, D1} -> {next_state, (D1#engine.task)#task.ipc, D1}
                     end;
                 Woken ->
                     {keep_state, D1, Actions} = wake(Woken, D),
-                    T1 = wake_events(Woken, D1#data.task),
-                    {next_state, T1#task.ipc, D1#data{task = T1}, Actions}
+                    T1 = wake_events(Woken, D1#engine.task),
+                    {next_state, T1#task.ipc, D1#engine{task = T1}, Actions}
             end;
         _ ->
             %% Paused (or stopped): a transfer on a link the task will wait on again
             %% has ended, so at resume its step runs and sees that, instead of waiting
             %% for something the link can no longer send.
-            {keep_state, D#data{pending = cell_task_core:ended_while_down(Wakes, D#data.pending)}}
+            {keep_state, D#engine{pending = cell_task_core:ended_while_down(Wakes, D#engine.pending)}}
     end.
 
 wake_events(Woken, #task{ipc = State} = T) ->
@@ -1156,20 +1111,13 @@ drop_stale(T, _Serial, _Gen) ->
 %% The operator said the product this task holds, which another task holds too, is
 %% not here (see cell_guard): as a Reset that forgets it, the task secures its outputs,
 %% forgets the product and initialises again; an error it waited on is withdrawn.
-forget(State, S, Who, #data{task = #task{id = Id, product = #{serial := S}}} = D0) ->
+forget(State, S, Who, #engine{task = #task{id = Id, product = #{serial := S}}} = D0) ->
     cell_log:notice(Id, "~ts said product ~ts is not at this task: it is forgotten", [Who, S]),
     case State of
         off ->
-            {keep_state, D0#data{task = not_here(D0#data.task)}};
+            {keep_state, D0#engine{task = not_here(D0#engine.task)}};
         _ ->
-            _ = case D0#data.down of
-                    {error, AlarmId, _} -> cell_alarms:withdraw(AlarmId);
-                    _ -> ok
-                end,
-            D = uninit(leave_for_setup(reset, D0)),
-            Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
-            goto(setup, {arrow, Arrow}, D#data{task = not_here(D#data.task)},
-                 [{next_event, internal, run_init}])
+            leave(forget, State, D0)
     end;
 forget(_State, _Serial, _Who, _D) ->
     keep_state_and_data.
@@ -1182,7 +1130,7 @@ not_here(T) ->
     cell_task:clear_product(T).
 
 handed_on_again(State, Serial, D0) ->
-    D = leave_for_setup(dropped, D0),
+    D = carry_out(cell_task_core:leave({setup, dropped}, State, D0)),
     Spec = cell_task:error_spec(
              <<"handed_on_again">>, "Product handed on before is here again",
              io_lib:format("This station has product ~ts again, but it handed it on to the next "
@@ -1195,20 +1143,10 @@ handed_on_again(State, Serial, D0) ->
     raise(State, Spec, handed_on, D).
 
 %% From READY (arrow 2) or paused (8) to reconcile again, for a copy dropped as old.
-reconcile_dropped(Arrow, D0) ->
-    D = leave_for_setup(dropped, D0),
-    goto(setup, {arrow, Arrow}, D#data{predecessor = predecessor(D)},
+reconcile_dropped(State, Arrow, D0) ->
+    D = carry_out(cell_task_core:leave({setup, dropped}, State, D0)),
+    goto(setup, {arrow, Arrow}, D#engine{predecessor = predecessor(D)},
          [{next_event, internal, {reconcile, undefined}}]).
-
-%% Back to setup from where the task was, for a product it no longer has (an old copy
-%% dropped, or forgotten on the operator's word): its waits, a pause held back and the
-%% offers to make again are cancelled, its transfers end, and its reconcile starts
-%% again from what it holds now (with `Cause').
-leave_for_setup(Cause, D0) ->
-    D = (disarm(D0))#data{down = undefined, pending = undefined, resume = undefined,
-                          deferred = undefined, reoffer = [], cause = Cause,
-                          predecessor = undefined},
-    D#data{task = cell_handshake:interrupt_all(D#data.task)}.
 
 drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
     cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),
@@ -1220,7 +1158,7 @@ drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
 
 %% Before init: every IO group of the task is configured and its connection is up; the
 %% task follows the connections' status from here.
-io_check(#data{task = #task{io = Groups}} = D0) ->
+io_check(#engine{task = #task{io = Groups}} = D0) ->
     lists:foldl(fun(_G, {error, _, _} = E) -> E;
                    (G, {ok, D}) ->
                         case cell_hal:connection_of(G) of
@@ -1239,7 +1177,7 @@ io_check(#data{task = #task{io = Groups}} = D0) ->
 %% restarting takes it for down, and the `up' that ends the restart (or no change at
 %% all) may not have reached the task yet. A subscription the HAL's server could not
 %% take (restarting) is not recorded, so it is asked for again next time.
-conn_up(Conn, #data{conns = Conns} = D) ->
+conn_up(Conn, #engine{conns = Conns} = D) ->
     case Conns of
         #{Conn := up} ->
             {up, D};
@@ -1256,10 +1194,10 @@ conn_up(Conn, #data{conns = Conns} = D) ->
             end
     end.
 
-conn_status(Conn, Status, #data{conns = Conns, lost = Lost} = D) ->
-    D1 = D#data{conns = maps:put(Conn, Status, Conns)},
+conn_status(Conn, Status, #engine{conns = Conns, lost = Lost} = D) ->
+    D1 = D#engine{conns = maps:put(Conn, Status, Conns)},
     case Status of
-        down -> D1#data{lost = lists:usort([Conn | Lost])};
+        down -> D1#engine{lost = lists:usort([Conn | Lost])};
         up -> D1
     end.
 
@@ -1303,7 +1241,7 @@ io_config_error(Group) ->
 %% Errors the engine raises itself
 %% --------------------------------------------------------------------------------------
 
-crash_error(Why, #data{task = #task{product = P}}) ->
+crash_error(Why, #engine{task = #task{product = P}}) ->
     cell_task:error_spec(
       <<"crashed">>, "Task restarted after a crash",
       io_lib:format("The task stopped unexpectedly and was restarted: ~ts.~n"
@@ -1313,7 +1251,7 @@ crash_error(Why, #data{task = #task{product = P}}) ->
                     [cell_member:crash_text(Why), serial_text(P)]),
       [retry, reset]).
 
-damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
+damaged_error(#engine{task = #task{product_path = Path}, load_error = Why}) ->
     cell_task:error_spec(
       <<"product_file">>, "Product file damaged",
       io_lib:format("The product file ~ts cannot be read (~tp).~nSelect RETRY to read it "
@@ -1321,7 +1259,7 @@ damaged_error(#data{task = #task{product_path = Path}, load_error = Why}) ->
                     [Path, Why]),
       [retry, reset]).
 
-retain_damaged_error(#data{task = #task{retain_path = Path}, retain_error = Why}) ->
+retain_damaged_error(#engine{task = #task{retain_path = Path}, retain_error = Why}) ->
     cell_task:error_spec(
       <<"retain_file">>, "Retained data damaged",
       io_lib:format("The task's retained data (its counters, such as the last serial "
@@ -1334,7 +1272,7 @@ retain_damaged_error(#data{task = #task{retain_path = Path}, retain_error = Why}
                     [Path, cell_retain:text(Why)]),
       [retry, reset]).
 
-transit_error(#data{task = #task{product = P, marker = #{link := Link, from := downstream}}}) ->
+transit_error(#engine{task = #task{product = P, marker = #{link := Link, from := downstream}}}) ->
     %% Leaving this task: if the link could be asked it settled this already (its
     %% record says whether the next station took the product), so it could not be.
     cell_task:error_spec(
@@ -1349,7 +1287,7 @@ transit_error(#data{task = #task{product = P, marker = #{link := Link, from := d
                     "here: the task forgets it.",
                     [serial_text(P), Link]),
       [ignore, reset]);
-transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
+transit_error(#engine{task = #task{product = P, marker = #{link := Link}}}) ->
     cell_task:error_spec(
       <<"in_transit">>, "Product transfer interrupted",
       io_lib:format("Product ~ts was moving over the handshake ~ts when the transfer was "
@@ -1362,13 +1300,13 @@ transit_error(#data{task = #task{product = P, marker = #{link := Link}}}) ->
 serial_text(undefined) -> "none";
 serial_text(#{serial := S}) -> S.
 
-describe(State, #data{task = T} = D) ->
-    #{id => T#task.id, state => State, request => D#data.request, estop => D#data.estop,
-      service_mode => T#task.service_mode, down => D#data.down,
-      pending => D#data.pending, product => T#task.product,
-      waits => case D#data.pending of {waits, Ws} when State =/= off -> Ws; _ -> [] end,
+describe(State, #engine{task = T} = D) ->
+    #{id => T#task.id, state => State, request => D#engine.request, estop => D#engine.estop,
+      service_mode => T#task.service_mode, down => D#engine.down,
+      pending => D#engine.pending, product => T#task.product,
+      waits => case D#engine.pending of {waits, Ws} when State =/= off -> Ws; _ -> [] end,
       phase => maps:get(phase, T#task.data, undefined),
-      initialized => D#data.initialized, settings => T#task.settings,
+      initialized => D#engine.initialized, settings => T#task.settings,
       gen => T#task.gen, marker => T#task.marker, data => T#task.data,
       links => maps:map(fun(_, V) -> maps:without([last_product, mref], V) end,
                         T#task.links)}.
