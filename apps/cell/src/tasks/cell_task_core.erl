@@ -13,7 +13,7 @@
 %% <li>The controller's commands ({@link control/4}): which of Start, Pause, Stop,
 %%     service mode and the emergency stop acts in which state (seed 000 §2.2, arrows
 %%     0, 5, 6 and 9), and which is only kept for the state that acts on it.</li>
-%% <li>Pause, Stop and service mode at a step boundary ({@link pause/4}): the seed
+%% <li>Pause, Stop and service mode at a step boundary ({@link pause/3}): the seed
 %%     allows stopping only before downstream commits, so a transfer under way holds
 %%     the request back, and open offers are withdrawn first (TryAbortOffering, which
 %%     the engine makes and whose answers it tells back) unless downstream has just
@@ -42,7 +42,7 @@
 -include("cell_task.hrl").
 -include("cell_task_engine.hrl").
 
--export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/4, step_result/2, woken_by/2, clean/1,
+-export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, step_result/2, woken_by/2, clean/1,
          from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
          ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, stale_copy/4]).
@@ -82,14 +82,12 @@
                 | {next_event, term()}.        %% what the engine does next
 %% What the engine does with a command of the controller (see control/4).
 -type control_action() :: start                       %% OFF, Start: from_off/3 decides
-                        | {boundary, why() | undefined} %% READY: pause/4, with this held back
-                        | {defer, why() | undefined}  %% READY: goes on, this held back
+                        | boundary                    %% READY: pause/3 decides
                         | resume                      %% paused, Start: arrow 5
                         | reconcile                   %% paused, Start, its product dropped
-                        | stop                        %% DOWN, Stop: uninit, arrow 9
-                        | {secure, term()}            %% emergency stop: secure, hold
-                        | {secured, term()}           %% emergency stop, OFF already
-                        | {settings, map()}           %% the snapshot for the next start
+                        | stop                        %% DOWN, Stop: arrow 9
+                        | {secure, cell_member:estop_barrier()}  %% emergency stop
+                        | {secured, cell_member:estop_barrier()} %% the same, OFF already
                         | keep.                       %% kept for the state that acts on it
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
@@ -226,86 +224,92 @@ to(To, Cause, #engine{dropped = Dropped} = E) ->
 %% The controller's commands; Pause, Stop, service mode
 %% -------------------------------------------------------------------------------------
 
-%% @doc What a command of the controller (`Key', `Value', see
-%% {@link cell_task_proc:control/3}) does to a task in `State', the command already
-%% kept (the request, the emergency stop, service mode as {@link cell_member:controlled/3}
-%% keeps them). `Down' is why a DOWN task is there, `Dropped' whether its product was
-%% dropped as an old copy while it was paused, `Deferred' a Pause, Stop or service
-%% mode a transfer holds back.
+%% @doc A command of the controller (`Key', `Value', see
+%% {@link cell_task_proc:control/3}) reached a task in `State': the engine's data with
+%% the command kept as every member keeps it (the request, the emergency stop, service
+%% mode: {@link cell_member:controlled/3}; the settings' snapshot for the next start),
+%% and what the engine does now.
 %%
-%% Seed 000 §2.2: Start takes an OFF task into setup (arrow 0) and a paused one back to
-%% READY (5); Pause, Stop and service mode take a READY task DOWN (6) at a step
-%% boundary; Stop takes a DOWN task OFF (9); the emergency stop takes any task OFF
-%% as soon as possible. A paused task whose product was dropped meanwhile reconciles
-%% instead of going back to where it was, which rested on that product. An error
-%% waiting for the operator is left to the operator's answer; in setup a command is
-%% kept for the step boundary after init.
--spec control(atom(), term(), cell_ipc:state(),
-              #{down := paused | error | undefined, dropped := boolean(),
-                deferred := why() | undefined}) -> control_action().
-control(estop, {true, Barrier}, off, _Facts) ->
-    {secured, Barrier};
-control(estop, {true, Barrier}, _State, _Facts) ->
-    {secure, Barrier};
-control(settings, Settings, _State, _Facts) ->
-    {settings, Settings};
-control(request, start, off, _Facts) ->
-    start;
-control(request, start, {ready, _, _}, _Facts) ->
+%% Seed 000 §2.2: Start takes an OFF task into setup (arrow 0, `start': from_off/3
+%% decides) and a paused one back to READY (5, `resume'); Pause, Stop and service mode
+%% take a READY task DOWN (6) at a step boundary (`boundary', pause/3), a Start or
+%% service mode ending taking back what a transfer was holding back; Stop takes a DOWN
+%% task OFF (9, `stop'); the emergency stop secures any task at once (`{secure,
+%% Barrier}'; `{secured, Barrier}' for an OFF task, which has nothing to secure). A
+%% paused task whose product was dropped meanwhile reconciles instead of going back
+%% to where it was, which rested on that product (`reconcile'). An error waiting for
+%% the operator is left to the operator's answer; in setup a command is kept for the
+%% step boundary after init (`keep').
+-spec control(atom(), term(), cell_ipc:state(), engine()) -> {engine(), control_action()}.
+control(Key, Value, State, #engine{request = Request, estop = Estop, task = T} = E0) ->
+    #{request := Request1, estop := Estop1, service_mode := Service} =
+        cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
+                                             service_mode => T#task.service_mode}),
+    E = E0#engine{request = Request1, estop = Estop1, task = T#task{service_mode = Service}},
+    command(Key, Value, State, E).
+
+command(estop, {true, Barrier}, off, E) ->
+    {E, {secured, Barrier}};
+command(estop, {true, Barrier}, _State, E) ->
+    {E, {secure, Barrier}};
+command(settings, Settings, _State, E) ->
+    {E#engine{settings = Settings}, keep};
+command(request, start, off, E) ->
+    {E, start};
+command(request, start, {ready, _, _}, E) ->
     %% A Start cancels whatever a transfer was still holding back, service mode
     %% included, as Start resumes a task that service mode paused.
-    {defer, undefined};
-control(request, _PauseOrStop, {ready, _, _}, #{deferred := Deferred}) ->
-    {boundary, Deferred};
-control(service_mode, true, {ready, _, _}, _Facts) ->
-    {boundary, service};
-control(service_mode, false, {ready, _, _}, #{deferred := service}) ->
-    {defer, undefined};
-control(request, stop, down, _Facts) ->
-    stop;
-control(request, start, down, #{down := paused, dropped := true}) ->
-    reconcile;
-control(request, start, down, #{down := paused}) ->
-    resume;
-control(_Key, _Value, _State, _Facts) ->
-    keep.
+    {E#engine{deferred = undefined}, keep};
+command(request, _PauseOrStop, {ready, _, _}, E) ->
+    {E, boundary};
+command(service_mode, true, {ready, _, _}, E) ->
+    {E#engine{deferred = service}, boundary};
+command(service_mode, false, {ready, _, _}, #engine{deferred = service} = E) ->
+    {E#engine{deferred = undefined}, keep};
+command(request, stop, down, E) ->
+    {E, stop};
+command(request, start, down, #engine{down = {paused, _}, dropped = true} = E) ->
+    {E, reconcile};
+command(request, start, down, #engine{down = {paused, _}} = E) ->
+    {E, resume};
+command(_Key, _Value, _State, E) ->
+    {E, keep}.
 
-%% @doc What a Pause, Stop or service mode asked of a READY task (the request not Start,
-%% or one a transfer held back, `Deferred') does, as a transition: at a step boundary
-%% or as the request comes (`boundary'), and when the engine tells the answers of the
-%% TryAbortOffering it was asked to make (`{withdrawn, Results}', link by link, `true'
-%% where the offer was withdrawn).
+%% @doc What a Pause, Stop or service mode asked of a READY task in `State' (the
+%% request not Start, or one a transfer held back: `deferred') does, as a transition:
+%% at a step boundary or as the request comes (`boundary'), and when the engine tells
+%% the answers of the TryAbortOffering it was asked to make (`{withdrawn, Results}',
+%% link by link, `true' where the offer was withdrawn).
 %%
 %% Seed 000 allows stopping only before downstream commits: while a transfer is under
-%% way the request is held back (`{go_on, Why}': the task goes on, and is asked again
-%% at its next boundary), else its open offers are withdrawn first (`{withdraw,
-%% Links}'). Then the task pauses (`{pause, Why, Reoffer}', arrow 6), to offer again at
-%% resume what it withdrew; or, if downstream began to take one, that transfer goes
-%% on and holds the request back. `{go_on, undefined}': nothing is asked.
--spec pause(boundary | {withdrawn, [{atom(), boolean()}]}, start | pause | stop,
-            why() | undefined, cell_task:task()) ->
-          {go_on, why() | undefined} | {withdraw, [atom()]} | {pause, why(), [atom()]}.
-pause(boundary, Request, Deferred, T) ->
-    case pause_asked(Request, Deferred) of
+%% way the request is held back (`{go_on, E}', `deferred' naming it: the task goes on,
+%% and is asked again at its next boundary), else its open offers are withdrawn first
+%% (`{withdraw, Links}'). Then the task pauses (`{pause, Transition}': arrow 6, see
+%% leave/3), to offer again at resume what it withdrew; or, if downstream began to
+%% take one, that transfer goes on and holds the request back. Nothing asked: `{go_on,
+%% E}' as it was.
+-spec pause(boundary | {withdrawn, [{atom(), boolean()}]}, cell_ipc:state(), engine()) ->
+          {go_on, engine()} | {withdraw, [atom()]} | {pause, {engine(), [effect()]}}.
+pause(boundary, _State, #engine{request = start, deferred = undefined} = E) ->
+    %% Running, nothing held back: the common case, at every wait.
+    {go_on, E};
+pause(boundary, State, #engine{request = Request, deferred = Deferred, task = T} = E) ->
+    {true, Why} = pause_asked(Request, Deferred),
+    case cell_handshake:holding(T) of
+        true ->
+            {go_on, E#engine{deferred = Why}};
         false ->
-            {go_on, undefined};
-        {true, Why} ->
-            case cell_handshake:holding(T) of
-                true ->
-                    {go_on, Why};
-                false ->
-                    case cell_handshake:active_offers(T) of
-                        [] -> {pause, Why, []};
-                        Offers -> {withdraw, Offers}
-                    end
+            case cell_handshake:active_offers(T) of
+                [] -> {pause, leave({pause, Why}, State, E#engine{reoffer = []})};
+                Offers -> {withdraw, Offers}
             end
     end;
-pause({withdrawn, Results}, Request, Deferred, _T) ->
+pause({withdrawn, Results}, State, #engine{request = Request, deferred = Deferred} = E) ->
     %% Told at once, with nothing between: still asked.
     {true, Why} = pause_asked(Request, Deferred),
     case lists:all(fun({_, Ok}) -> Ok end, Results) of
-        true -> {pause, Why, [L || {L, _} <- Results]};
-        false -> {go_on, Why}
+        true -> {pause, leave({pause, Why}, State, E#engine{reoffer = [L || {L, _} <- Results]})};
+        false -> {go_on, E#engine{deferred = Why}}
     end.
 
 pause_asked(start, undefined) -> false;
@@ -606,36 +610,53 @@ link_retry_ms(Last) -> min(2 * Last, ?LINK_RETRY_MAX_MS).
 %% Seed 000 §2.2, arrow 6, and §2.3.6: Pause, Stop and service mode are honoured at a
 %% step boundary, only before downstream commits, an open offer withdrawn first.
 pause_test_() ->
-    Offering = #task{links = #{out => #{role => up, phase => offered}}},
-    Link = fun(Role, Phase) -> #task{links = #{l => #{role => Role, phase => Phase}}} end,
-    Two = #task{links = #{a => #{role => up, phase => offered},
-                          b => #{role => up, phase => offered}}},
+    Ready = {ready, processing, active},
+    E = fun(Request, Deferred, Links) ->
+                #engine{request = Request, deferred = Deferred, task = #task{links = Links}}
+        end,
+    Offering = #{out => #{role => up, phase => offered}},
+    Link = fun(Role, Phase) -> #{l => #{role => Role, phase => Phase}} end,
+    Two = #{a => #{role => up, phase => offered}, b => #{role => up, phase => offered}},
+    %% What the pause leaves the engine's data as: why it is DOWN, what it offers again
+    %% at resume, what it goes back to.
+    Paused = fun({pause, {#engine{down = Down, reoffer = Re, resume = Res, deferred = De},
+                          Effects}}) ->
+                     {Down, Re, Res, De, Effects}
+             end,
+    Deferred = fun({go_on, #engine{deferred = D}}) -> D end,
+    Fx = [{state, down, {arrow, 6}}],
     [%% Running, nothing asked.
-     ?_assertEqual({go_on, undefined}, pause(boundary, start, undefined, #task{})),
-     %% Nothing under way: at once.
-     ?_assertEqual({pause, pause, []}, pause(boundary, pause, undefined, #task{})),
-     ?_assertEqual({pause, pause, []}, pause(boundary, stop, undefined, #task{})),
+     ?_assertEqual({go_on, E(start, undefined, #{})}, pause(boundary, Ready, E(start, undefined, #{}))),
+     %% Nothing under way: at once; for Stop, on to OFF.
+     ?_assertEqual({{paused, pause}, [], Ready, undefined, Fx},
+                   Paused(pause(boundary, Ready, E(pause, undefined, #{})))),
+     ?_assertEqual({{paused, pause}, [], Ready, undefined, Fx ++ [{next_event, stop}]},
+                   Paused(pause(boundary, Ready, E(stop, undefined, #{})))),
      %% Service mode, held back before, is still asked after a Start.
-     ?_assertEqual({pause, service, []}, pause(boundary, start, service, #task{})),
+     ?_assertEqual({{paused, service}, [], Ready, undefined, Fx},
+                   Paused(pause(boundary, Ready, E(start, service, #{})))),
      %% A transfer past the commit, either side: held back, asked again next time.
-     [?_assertEqual({go_on, pause}, pause(boundary, pause, undefined, Link(Role, Phase)))
+     [?_assertEqual(pause, Deferred(pause(boundary, Ready, E(pause, undefined, Link(Role, Phase)))))
       || {Role, Phase} <- [{up, committed}, {up, released}, {up, aborting},
                            {down, committed}, {down, released}]],
-     ?_assertEqual({go_on, service}, pause(boundary, start, service, Link(down, committed))),
+     ?_assertEqual(service, Deferred(pause(boundary, Ready, E(start, service, Link(down, committed))))),
      %% Downstream taking an offer before its commit does not hold the task.
-     ?_assertEqual({pause, pause, []}, pause(boundary, stop, undefined, Link(down, offered))),
+     ?_assertMatch({{paused, pause}, [], _, _, _},
+                   Paused(pause(boundary, Ready, E(stop, undefined, Link(down, offered))))),
      %% An open offer: withdrawn first (TryAbortOffering) ...
-     ?_assertEqual({withdraw, [out]},
-                   pause(boundary, pause, undefined, Offering)),
-     ?_assertEqual({withdraw, [a, b]}, pause(boundary, stop, undefined, Two)),
+     ?_assertEqual({withdraw, [out]}, pause(boundary, Ready, E(pause, undefined, Offering))),
+     ?_assertEqual({withdraw, [a, b]}, pause(boundary, Ready, E(stop, undefined, Two))),
      %% ... then paused, to offer again at resume; held back if downstream committed.
-     ?_assertEqual({pause, pause, [a, b]},
-                   pause({withdrawn, [{a, true}, {b, true}]}, pause, undefined, Two)),
-     ?_assertEqual({pause, service, [a]}, pause({withdrawn, [{a, true}]}, start, service, Two)),
-     ?_assertEqual({go_on, pause},
-                   pause({withdrawn, [{a, true}, {b, false}]}, stop, undefined, Two)),
+     ?_assertEqual({{paused, pause}, [a, b], Ready, undefined, Fx},
+                   Paused(pause({withdrawn, [{a, true}, {b, true}]}, Ready,
+                                E(pause, undefined, Two)))),
+     ?_assertEqual({{paused, service}, [a], Ready, undefined, Fx},
+                   Paused(pause({withdrawn, [{a, true}]}, Ready, E(start, service, Two)))),
+     ?_assertEqual(pause, Deferred(pause({withdrawn, [{a, true}, {b, false}]}, Ready,
+                                         E(stop, undefined, Two)))),
      %% The answers come with nothing between: a request gone meanwhile is a bug.
-     ?_assertError({badmatch, false}, pause({withdrawn, [{a, true}]}, start, undefined, Two))].
+     ?_assertError({badmatch, false},
+                   pause({withdrawn, [{a, true}]}, Ready, E(start, undefined, Two)))].
 
 %% Seed 000 §2.2 and §2.3.1: leaving what the task was doing. The emergency stop
 %% secures at once, from any state; Stop leaves DOWN for OFF (arrow 9); Pause and
@@ -730,45 +751,64 @@ control_test_() ->
     Ready = [{ready, idle, starved}, {ready, idle, blocked}, {ready, processing, active},
              {ready, processing, executing}],
     All = [off, setup, down | Ready],
-    F = #{down => undefined, dropped => false, deferred => undefined},
-    Paused = F#{down := paused},
-    Error = F#{down := error},
+    F = #engine{task = #task{}, request = start},
+    Paused = F#engine{down = {paused, pause}},
+    Error = F#engine{down = {error, <<"a1">>, step}},
+    Act = fun(K, V, S, E) -> element(2, control(K, V, S, E)) end,
+    Kept = fun(K, V, S, E) ->
+                   #engine{request = Rq, estop = Es, deferred = De, settings = Se,
+                           task = #task{service_mode = Sm}} = element(1, control(K, V, S, E)),
+                   #{request => Rq, estop => Es, deferred => De, settings => Se, service => Sm}
+           end,
     [%% Arrow 0.
-     ?_assertEqual(start, control(request, start, off, F)),
-     %% Arrow 6: asked at once, honoured at the boundary (pause/4), whatever a
+     ?_assertEqual(start, Act(request, start, off, F)),
+     %% Arrow 6: asked at once, honoured at the boundary (pause/3), whatever a
      %% transfer already holds back kept.
-     [?_assertEqual({boundary, undefined}, control(request, R, S, F))
-      || R <- [pause, stop], S <- Ready],
-     ?_assertEqual({boundary, service}, control(request, stop, hd(Ready), F#{deferred := service})),
-     [?_assertEqual({boundary, service}, control(service_mode, true, S, F)) || S <- Ready],
+     [?_assertEqual(boundary, Act(request, R, S, F)) || R <- [pause, stop], S <- Ready],
+     ?_assertMatch(#{request := stop, deferred := service},
+                   Kept(request, stop, hd(Ready), F#engine{deferred = service})),
+     [?_assertEqual(boundary, Act(service_mode, true, S, F)) || S <- Ready],
+     ?_assertMatch(#{service := true, deferred := service}, Kept(service_mode, true, hd(Ready), F)),
      %% Start, or service mode ending, takes back what a transfer held back.
-     [?_assertEqual({defer, undefined}, control(request, start, S, F#{deferred := D}))
+     [?_assertMatch(#{deferred := undefined},
+                    Kept(request, start, S, F#engine{deferred = D, request = pause}))
       || S <- Ready, D <- [pause, service]],
-     ?_assertEqual({defer, undefined},
-                   control(service_mode, false, hd(Ready), F#{deferred := service})),
-     ?_assertEqual(keep, control(service_mode, false, hd(Ready), F#{deferred := pause})),
+     ?_assertEqual(keep, Act(request, start, hd(Ready), F#engine{deferred = pause})),
+     ?_assertMatch(#{deferred := undefined, service := false},
+                   Kept(service_mode, false, hd(Ready), F#engine{deferred = service})),
+     ?_assertMatch(#{deferred := pause},
+                   Kept(service_mode, false, hd(Ready), F#engine{deferred = pause})),
      %% Arrow 5, or reconcile again when the product was dropped meanwhile.
-     ?_assertEqual(resume, control(request, start, down, Paused)),
-     ?_assertEqual(reconcile, control(request, start, down, Paused#{dropped := true})),
+     ?_assertEqual(resume, Act(request, start, down, Paused)),
+     ?_assertEqual(reconcile, Act(request, start, down, Paused#engine{dropped = true})),
      %% An error waits for the operator's answer, not for Start.
-     ?_assertEqual(keep, control(request, start, down, Error)),
+     ?_assertEqual(keep, Act(request, start, down, Error)),
      %% Arrow 9, paused or in error.
-     ?_assertEqual(stop, control(request, stop, down, Paused)),
-     ?_assertEqual(stop, control(request, stop, down, Error)),
+     ?_assertEqual(stop, Act(request, stop, down, Paused)),
+     ?_assertEqual(stop, Act(request, stop, down, Error)),
      %% Kept, for the state that acts on them: Pause and Stop when OFF, in setup
      %% (honoured at the boundary after init) or paused; service mode outside READY.
-     [?_assertEqual(keep, control(request, R, S, F)) || R <- [pause, stop], S <- [off, setup]],
-     ?_assertEqual(keep, control(request, pause, down, Paused)),
-     ?_assertEqual(keep, control(request, start, setup, F)),
-     [?_assertEqual(keep, control(service_mode, On, S, F))
+     [?_assertEqual(keep, Act(request, R, S, F)) || R <- [pause, stop], S <- [off, setup]],
+     [?_assertMatch(#{request := R}, Kept(request, R, S, F))
+      || R <- [pause, stop], S <- [off, setup]],
+     ?_assertEqual(keep, Act(request, pause, down, Paused)),
+     ?_assertEqual(keep, Act(request, start, setup, F)),
+     [?_assertEqual(keep, Act(service_mode, On, S, F))
+      || On <- [true, false], S <- [off, setup, down]],
+     [?_assertMatch(#{service := On}, Kept(service_mode, On, S, F))
       || On <- [true, false], S <- [off, setup, down]],
      %% The emergency stop: secured at once wherever the task is; OFF has nothing to
-     %% secure. Its release is kept (Start is needed to leave OFF).
-     ?_assertEqual({secured, b}, control(estop, {true, b}, off, F)),
-     [?_assertEqual({secure, b}, control(estop, {true, b}, S, F)) || S <- All -- [off]],
-     [?_assertEqual(keep, control(estop, false, S, F)) || S <- All],
-     [?_assertEqual({settings, #{a => 1}}, control(settings, #{a => 1}, S, F)) || S <- All],
-     [?_assertEqual(keep, control(estop_settled, b, S, F)) || S <- All]].
+     %% secure. It is a Stop too. Its release is kept (Start is needed to leave OFF).
+     ?_assertEqual({secured, b}, Act(estop, {true, b}, off, F)),
+     [?_assertEqual({secure, b}, Act(estop, {true, b}, S, F)) || S <- All -- [off]],
+     [?_assertMatch(#{estop := true, request := stop}, Kept(estop, {true, b}, S, F)) || S <- All],
+     [?_assertEqual(keep, Act(estop, false, S, F#engine{estop = true})) || S <- All],
+     [?_assertMatch(#{estop := false}, Kept(estop, false, S, F#engine{estop = true})) || S <- All],
+     %% The settings: a snapshot for the next start, in any state.
+     [?_assertMatch({keep, #{settings := #{a := 1}}},
+                    {Act(settings, #{a => 1}, S, F), Kept(settings, #{a => 1}, S, F)})
+      || S <- All],
+     [?_assertEqual({F, keep}, control(estop_settled, b, S, F)) || S <- All]].
 
 step_result_test_() ->
     T = #task{},

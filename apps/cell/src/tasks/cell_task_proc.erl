@@ -236,7 +236,8 @@ handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
 %% is cell_task_core's to say (an `estop_settled' reaching a task not held is the end of
 %% a barrier it did not hold at: it was OFF already).
 handle_event(info, {control, Key, Value}, State, D) ->
-    controlled(cell_task_core:control(Key, Value, State, facts(D)), State, member(Key, Value, D));
+    {D1, Action} = cell_task_core:control(Key, Value, State, D),
+    controlled(Action, State, D1);
 handle_event(info, ?STEP(_), _State, _D) ->
     keep_state_and_data;
 handle_event(info, {timeout, _, ?WAIT(_)}, _State, _D) ->
@@ -676,10 +677,8 @@ wait_news(Msg, State, #engine{armed = Armed} = D) ->
 %% What a command does in the task's state (cell_task_core:control/4), carried out.
 controlled(start, _State, D) ->
     start_from_off(D);
-controlled({boundary, Deferred}, State, D) ->
-    hold_or_pause(State, D#engine{deferred = Deferred});
-controlled({defer, Deferred}, _State, D) ->
-    {keep_state, D#engine{deferred = Deferred}};
+controlled(boundary, State, D) ->
+    hold_or_pause(State, D);
 controlled(resume, _State, D) ->
     resume(D);
 controlled(reconcile, _State, D) ->
@@ -694,18 +693,8 @@ controlled({secure, Barrier}, State, D) ->
 controlled({secured, Barrier}, _State, D) ->
     ok = estop_secured(Barrier),
     {keep_state, D};
-controlled({settings, Settings}, _State, D) ->
-    {keep_state, D#engine{settings = Settings}};
 controlled(keep, _State, D) ->
     {keep_state, D}.
-
-%% What cell_task_core:control/4 is told of the engine's data.
-facts(#engine{down = Down, dropped = Dropped, deferred = Deferred}) ->
-    #{down => case Down of
-                  undefined -> undefined;
-                  _ -> element(1, Down)
-              end,
-      dropped => Dropped, deferred => Deferred}.
 
 %% A Pause, Stop or service mode reached a READY task. The seed allows stopping only
 %% before downstream commits: a transfer under way holds it back until it ends; an
@@ -722,17 +711,15 @@ hold_or_pause(State, D) ->
 try_pause(State, D) ->
     pause_news(boundary, State, D).
 
-pause_news(Event, State, #engine{request = Request, deferred = Deferred, task = T} = D) ->
-    case cell_task_core:pause(Event, Request, Deferred, T) of
-        {go_on, Deferred} ->
-            {hold, D};
-        {go_on, Why} ->
-            {hold, D#engine{deferred = Why}};
+pause_news(Event, State, D) ->
+    case cell_task_core:pause(Event, State, D) of
+        {go_on, D1} ->
+            {hold, D1};
         {withdraw, Offers} ->
-            {Results, T1} = lists:mapfoldl(fun withdraw/2, T, Offers),
+            {Results, T1} = lists:mapfoldl(fun withdraw/2, D#engine.task, Offers),
             pause_news({withdrawn, Results}, State, D#engine{task = T1});
-        {pause, Why, Reoffer} ->
-            {paused, leave({pause, Why}, State, D#engine{reoffer = Reoffer})}
+        {pause, Transition} ->
+            {paused, transit(Transition)}
     end.
 
 withdraw(Link, T) ->
@@ -957,11 +944,13 @@ secure_outputs(#engine{task = #task{module = Mod, id = Id} = T} = D) ->
 goto(To, Cause, D, Actions) ->
     {next_state, To, carry_out(cell_task_core:goto(To, Cause, D)), Actions}.
 
-%% The task leaves what it was doing (cell_task_core:leave/3): the transition carried
-%% out, the engine in the state it took the task to (the engine's state is always the
-%% task's), its next events next.
-leave(How, State, D0) ->
-    {_, Effects} = Transition = cell_task_core:leave(How, State, D0),
+%% The task leaves what it was doing (cell_task_core:leave/3), or another transition
+%% of the core that moves it: carried out, the engine in the state it took the task to
+%% (the engine's state is always the task's), its next events next.
+leave(How, State, D) ->
+    transit(cell_task_core:leave(How, State, D)).
+
+transit({_, Effects} = Transition) ->
     D = carry_out(Transition),
     {next_state, (D#engine.task)#task.ipc, D,
      [{next_event, internal, Event} || {next_event, Event} <- Effects]}.
@@ -997,13 +986,6 @@ effect({next_event, _}, D) ->
 %% The controller's commands as the task joined the cell.
 joined(#{request := Request, estop := Estop, service_mode := Service}, #engine{task = T} = D) ->
     D#engine{request = Request, estop = Estop, task = T#task{service_mode = Service}}.
-
-%% A command of the controller, kept as every member keeps it (see cell_member).
-member(Key, Value, #engine{request = Request, estop = Estop, task = T} = D) ->
-    #{request := Request1, estop := Estop1, service_mode := Service} =
-        cell_member:controlled(Key, Value, #{request => Request, estop => Estop,
-                                             service_mode => T#task.service_mode}),
-    D#engine{request = Request1, estop = Estop1, task = T#task{service_mode = Service}}.
 
 %% A message the engine does not know goes to the task module's handle_info/2; a task
 %% module without one expects none, and the task crashes (it is restarted, and the
