@@ -26,12 +26,12 @@
 %%     ({@link answer/3}).</li>
 %% <li>Waits: which armed wait a timer, a HAL watch or a reply ends, and what the step
 %%     is told woke it ({@link wait_news/2}).</li>
-%% <li>Transfers: which armed wait a link's news ends ({@link woken/3}), what a
-%%     transfer that ended while the task was DOWN changes ({@link ended_while_down/2}),
-%%     the IPC-2541 events the seed raises when a wait on a link ends
-%%     ({@link wake_event/2}) or starts ({@link starves/4}); a copy of a product
-%%     another task holds in a newer record ({@link newer_holder/3}), and what the task
-%%     does once the registry found its copy old ({@link stale_copy/4}).</li>
+%% <li>Transfers: a link's news ({@link link_news/3}: which armed wait it ends, what
+%%     a transfer that ended while the task was DOWN changes), the IPC-2541 events the
+%%     seed raises when a wait on a link ends ({@link wake/3}) or starts
+%%     ({@link starves/4}); a copy of a product another task holds in a newer record
+%%     ({@link newer_holder/3}), and what the task does once the registry found its
+%%     copy old ({@link stale/4}).</li>
 %% </ul>
 %%
 %% It also gives {@link cell_handshake} the task's fields the handshake keeps
@@ -42,10 +42,10 @@
 -include("cell_task.hrl").
 -include("cell_task_engine.hrl").
 
--export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, step_result/2, woken_by/2, clean/1,
-         from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3, woken/3,
-         ended_while_down/2, wake_event/2, starves/4, newer_holder/3, link_retry_ms/1,
-         wait_news/2, stale_copy/4]).
+-export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, wake/3, link_news/3,
+         stale/4, step_result/2, woken_by/2, clean/1,
+         from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3,
+         starves/4, newer_holder/3, link_retry_ms/1, wait_news/2]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
@@ -70,13 +70,16 @@
 -type engine() :: #engine{}.
 %% What the task leaves what it was doing for (see leave/3).
 -type leave() :: {secure, cell_member:estop_barrier()} | estop | off | stop | {pause, why()}
-               | {error, binary(), origin()} | {setup, cell_task:cause()} | forget.
+               | {error, binary(), origin()} | {setup, cell_task:cause()}
+               | {reconcile, 2 | 8} | forget.
 %% What the engine carries out for a transition, in order.
 -type effect() :: {withdraw_alarm, binary()}   %% the error is no longer the operator's
                 | {cancel, [armed()]}          %% waits left: their timers and watches
                 | interrupt_links              %% the task's transfers end
                 | uninit                       %% the task module secures the outputs
                 | forget_product               %% the product is not here: forgotten
+                | predecessor                  %% what reconcile checks, taken now
+                | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
                 | {estop_secured, cell_member:estop_barrier()} %% the barrier's slot marked
                 | {state, cell_ipc:state(), cell_ipc:cause()}  %% recorded and announced
                 | {next_event, term()}.        %% what the engine does next
@@ -135,6 +138,9 @@
 %%     dropped as old): its waits, a pause held back and the offers to make again are
 %%     cancelled, its transfers end, and its reconcile starts again from `Cause'. The
 %%     state is the caller's to change.</li>
+%% <li>`{reconcile, Arrow}': the same, then into setup (arrow 2 from READY, 8 from
+%%     DOWN) to reconcile again with what it holds now, its predecessor taken
+%%     afresh.</li>
 %% <li>`forget': the operator said its product is not here (the product is in two
 %%     places, see cell_guard): as a Reset that forgets it, an error it waited on
 %%     withdrawn, back to setup (arrow 2 from READY, 8 from DOWN) to init again.</li>
@@ -169,6 +175,10 @@ leave({error, AlarmId, Origin}, State, E) ->
 leave({setup, Cause}, _State, E) ->
     {E1, Cancel} = disarm(E),
     {clear(E1#engine{cause = Cause, predecessor = undefined}), Cancel ++ [interrupt_links]};
+leave({reconcile, Arrow}, State, E) ->
+    {E1, Left} = leave({setup, dropped}, State, E),
+    {E2, Setup} = to(setup, {arrow, Arrow}, E1),
+    {E2, Left ++ [predecessor, Setup, {next_event, {reconcile, undefined}}]};
 leave(forget, State, E) ->
     {E1, Withdraw} = withdraw(E),
     {E2, Left} = leave({setup, reset}, State, E1),
@@ -176,6 +186,59 @@ leave(forget, State, E) ->
     Arrow = case State of {ready, _, _} -> 2; _ -> 8 end,
     {E4, Setup} = to(setup, {arrow, Arrow}, E3),
     {E4, Withdraw ++ Left ++ Uninit ++ [forget_product, Setup, {next_event, run_init}]}.
+
+%% @doc A wait of a READY task in `State' ended (`Woken', what its step is told woke
+%% it): the waits left, the step due; where a wait on a link ends, the event the seed
+%% raises there (§2.3.4: upstream seeing NotBusy is unblocked, downstream seeing
+%% Available unstarved).
+-spec wake(term(), cell_ipc:state(), engine()) -> {engine(), [effect()]}.
+wake(Woken, State, E) ->
+    {E1, Cancel} = disarm(E),
+    Event = case wake_event(Woken, State) of
+                none -> [];
+                Ipc -> [{ipc_event, Ipc}]
+            end,
+    {E1#engine{pending = {step, Woken}}, Cancel ++ Event ++ [{next_event, step}]}.
+
+%% @doc A link's news reached the task in `State' (`Wakes', from
+%% cell_handshake:handle/2; the task's views of its links in `E' already as the news
+%% left them). READY, the wait on that link ends (`{wake, Transition}', see wake/3),
+%% or, if none does, a transfer that ended may free a Pause it held back: what
+%% pause/3 says at a boundary. Paused (or stopped), a transfer on a link the task will
+%% wait on again has ended: at resume its step runs and sees that, instead of waiting
+%% for something the link can no longer send.
+-spec link_news([{wake, atom(), term()}], cell_ipc:state(), engine()) ->
+          {wake, {engine(), [effect()]}} | {go_on, engine()} | {withdraw, [atom()]}
+        | {pause, {engine(), [effect()]}}.
+link_news(Wakes, {ready, _, _} = State, #engine{armed = Armed, task = T} = E) ->
+    Signal = fun(Link, S) -> cell_handshake:signal(T, Link, S) end,
+    case woken(Wakes, Armed, Signal) of
+        undefined -> pause(boundary, State, E);
+        Woken -> {wake, wake(Woken, State, E)}
+    end;
+link_news(Wakes, _State, #engine{pending = Pending} = E) ->
+    {go_on, E#engine{pending = ended_while_down(Wakes, Pending)}}.
+
+%% @doc The registry found the task's copy of product `Serial' old (another task took
+%% the product on in a newer record), and the engine dropped it (`Dropped': the task
+%% held it until now; `E' as after the drop). What follows is stale_copy/4's: READY,
+%% it reconciles again (arrow 2, see leave/3); the same serial dropped before is the
+%% operator's (`{ask, Transition}': its transfers end and it leaves for setup, the
+%% engine raising the error); paused, it reconciles when started; otherwise the copy
+%% is simply gone.
+-spec stale(binary(), boolean(), cell_ipc:state(), engine()) ->
+          {engine(), [effect()]} | {ask, {engine(), [effect()]}}.
+stale(Serial, Dropped, State, #engine{handed_on = HandedOn, down = Down} = E) ->
+    Why = case Down of
+              undefined -> undefined;
+              _ -> element(1, Down)
+          end,
+    case stale_copy(State, Dropped, HandedOn =:= Serial, Why) of
+        reconcile -> leave({reconcile, 2}, State, E#engine{handed_on = Serial});
+        ask -> {ask, leave({setup, dropped}, State, E)};
+        reconcile_at_start -> {E#engine{dropped = true}, []};
+        keep -> {E, []}
+    end.
 
 %% The outputs secured, whatever the task was doing: an error it waited on withdrawn,
 %% what it would do next forgotten, its transfers ended, uninit.
@@ -449,7 +512,7 @@ answer(retain_file, _Retry, _) -> reload_retained.
 %% Transfers
 %% -------------------------------------------------------------------------------------
 
-%% @doc Which armed wait the news of a link ends (`Wakes', from cell_handshake:handle/2),
+%% Which armed wait the news of a link ends (`Wakes', from cell_handshake:handle/2),
 %% and what the step is told woke it; `undefined' if none. `Signal' gives a link's
 %% signal as the task sees it now.
 -spec woken([{wake, atom(), term()}], [armed()],
@@ -503,7 +566,7 @@ wait_news({Ref, Term}, Armed) when is_reference(Ref) ->
         false -> late
     end.
 
-%% @doc Paused (or stopped), a transfer on a link the task will wait on again has
+%% Paused (or stopped), a transfer on a link the task will wait on again has
 %% ended: at resume its step runs and sees that, instead of waiting for something the
 %% link can no longer send.
 -spec ended_while_down([{wake, atom(), term()}], term()) -> term().
@@ -517,7 +580,7 @@ ended_while_down([{wake, Link, Outcome} | Rest], {waits, Waits} = Pending) when 
 ended_while_down([_ | Rest], Pending) ->
     ended_while_down(Rest, Pending).
 
-%% @doc Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
+%% Seed 000 §2.3.4 and §2.3.6: upstream seeing NotBusy is unblocked; downstream
 %% seeing Available is unstarved.
 -spec wake_event(term(), cell_ipc:state()) -> unblocked | unstarved | none.
 wake_event({handshake, _Link, not_busy, true}, {ready, idle, blocked}) -> unblocked;
@@ -540,7 +603,7 @@ newer_holder(Id, Gen, Holders) ->
         [Other | _] -> {ok, Other}
     end.
 
-%% @doc What a task does once the registry found its copy of a product old (another
+%% What a task does once the registry found its copy of a product old (another
 %% task took the product on in a newer record) and the copy was dropped (`Dropped':
 %% it held it until now). READY, it reconciles again, for what it does rests on a
 %% product it no longer holds; unless it dropped the same serial before (`Again': read
@@ -743,6 +806,63 @@ leave_test_() ->
      ?_assertEqual({E#engine{initialized = false, lost = []}, [uninit]}, uninit(E#engine{lost = [c]})),
      ?_assertEqual({#engine{}, []}, uninit(#engine{})),
      ?_assertEqual({#engine{gen = 1}, []}, disarm(#engine{}))].
+
+%% Seed 000 §2.3.4 and §2.3.6: a wait on a link ends with the event the seed raises
+%% there; a transfer that ended while the task was DOWN is seen by its step at resume.
+link_news_test_() ->
+    R = make_ref(), TRef = make_ref(),
+    Starved = {ready, idle, starved},
+    Armed = [{handshake, R, in, available, true}, {timer, TRef, 500}],
+    E = #engine{task = #task{ipc = Starved}, armed = Armed, gen = 3, request = start,
+                pending = {waits, [{handshake, in, available, true}, {timer, 500}]}},
+    Offer = [{wake, in, {watch, R, available, true}}],
+    {wake, {Woken, WokenFx}} = link_news(Offer, Starved, E),
+    Down = E#engine{armed = [], down = {paused, pause}},
+    [?_assertEqual([{cancel, Armed}, {ipc_event, unstarved}, {next_event, step}], WokenFx),
+     ?_assertEqual({{step, {handshake, in, available, true}}, [], 4},
+                   {Woken#engine.pending, Woken#engine.armed, Woken#engine.gen}),
+     %% Not starved any more by then: no event, the step runs.
+     ?_assertMatch({wake, {_, [{cancel, _}, {next_event, step}]}},
+                   link_news(Offer, {ready, processing, active}, E)),
+     %% News of no armed wait: the task goes on, or pauses if a Pause was held back.
+     ?_assertEqual({go_on, E}, link_news([{wake, out, completed}], Starved, E)),
+     ?_assertMatch({pause, {#engine{down = {paused, pause}}, _}},
+                   link_news([{wake, out, completed}], Starved,
+                             E#engine{request = pause, deferred = pause})),
+     %% Paused: the step runs at resume, told the transfer was interrupted.
+     ?_assertEqual({go_on, Down#engine{pending = {step, {handshake, in, interrupted}}}},
+                   link_news([{wake, in, interrupted}], down, Down)),
+     ?_assertEqual({go_on, Down}, link_news([{wake, in, {signals, 4}}], down, Down)),
+     %% A wait that is no handshake's raises nothing.
+     ?_assertEqual([{cancel, Armed}, {next_event, step}],
+                   element(2, wake({timer, 500}, {ready, idle, blocked}, E))),
+     ?_assertEqual([{ipc_event, unblocked}, {next_event, step}],
+                   element(2, wake({handshake, out, not_busy, true}, {ready, idle, blocked},
+                                   E#engine{armed = []})))].
+
+%% A copy found old: READY, the task reconciles again (arrow 2); the same serial
+%% dropped again is the operator's; paused, it reconciles when started.
+stale_test_() ->
+    Ready = {ready, processing, active},
+    E = #engine{task = #task{ipc = Ready}, initialized = true, gen = 2,
+                pending = {step, undefined}},
+    {Again, AgainFx} = stale(<<"S1">>, true, Ready, E),
+    [?_assertEqual([interrupt_links, predecessor, {state, setup, {arrow, 2}},
+                    {next_event, {reconcile, undefined}}], AgainFx),
+     ?_assertEqual({<<"S1">>, dropped, undefined, true},
+                   {Again#engine.handed_on, Again#engine.cause, Again#engine.pending,
+                    Again#engine.initialized}),
+     ?_assertMatch({ask, {#engine{cause = dropped}, [interrupt_links]}},
+                   stale(<<"S1">>, true, Ready, E#engine{handed_on = <<"S1">>})),
+     ?_assertEqual({E#engine{down = {paused, pause}, dropped = true}, []},
+                   stale(<<"S1">>, true, down, E#engine{down = {paused, pause}})),
+     %% An error waiting for the operator: the answer is acted on without the copy.
+     ?_assertEqual({E#engine{down = {error, <<"a">>, step}}, []},
+                   stale(<<"S1">>, true, down, E#engine{down = {error, <<"a">>, step}})),
+     ?_assertEqual({E, []}, stale(<<"S1">>, false, Ready, E)),
+     %% Paused, started: the same, from DOWN (arrow 8).
+     ?_assertMatch({_, [interrupt_links, predecessor, {state, setup, {arrow, 8}}, _]},
+                   leave({reconcile, 8}, down, E#engine{down = {paused, pause}}))].
 
 %% Seed 000 §2.2: which command acts in which state. Arrow 0 (OFF, Start → setup),
 %% 5 (DOWN, Start while paused → READY), 6 (READY, Pause → DOWN, at a step boundary),

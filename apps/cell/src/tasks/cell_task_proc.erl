@@ -261,29 +261,18 @@ handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
 handle_event(info, {cell_hal_unavailable, _Ref, _Why}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {cell_registry, stale, Serial, Gen}, State, #engine{task = T0} = D) ->
+    %% Running on a copy found old (another task took the product on in a newer record
+    %% after this one restarted): what it does rests on a product it does not hold.
     T = drop_stale(T0, Serial, Gen),
     Dropped = T#task.product =:= undefined andalso T0#task.product =/= undefined,
-    Down = case D#engine.down of
-               undefined -> undefined;
-               Why -> element(1, Why)
-           end,
-    case cell_task_core:stale_copy(State, Dropped, D#engine.handed_on =:= Serial, Down) of
-        reconcile ->
-            %% Running on a copy found old (another task took the product on in a
-            %% newer record after this one restarted): what it does rests on a product
-            %% it does not hold. Its transfers end, and it reconciles again.
-            reconcile_dropped(State, 2, D#engine{task = T, handed_on = Serial});
-        ask ->
+    case cell_task_core:stale(Serial, Dropped, State, D#engine{task = T}) of
+        {ask, Transition} ->
             %% The same serial back again (read again on a part its sensors see):
             %% dropping it once more would go round for ever. The operator sees to the
             %% part.
-            handed_on_again(State, Serial, D#engine{task = T});
-        reconcile_at_start ->
-            %% Paused: it reconciles again when started (an error waiting for the
-            %% operator is answered first, the answer acted on without the copy).
-            {keep_state, D#engine{task = T, dropped = true}};
-        keep ->
-            {keep_state, D#engine{task = T}}
+            handed_on_again(State, Serial, carry_out(Transition));
+        Transition ->
+            transit(Transition)
     end;
 handle_event(info, {cell_registry, sole_holder, _} = Msg, State, D) ->
     handshake(Msg, State, D);
@@ -650,16 +639,15 @@ arm_watch(Ref, Link, Signal, Value, T0) ->
         end,
     {{handshake, Ref, Link, Signal, Value}, T}.
 
-wake(Woken, D) ->
-    {keep_state, (carry_out(cell_task_core:disarm(D)))#engine{pending = {step, Woken}},
-     [{next_event, internal, step}]}.
+wake(Woken, State, D) ->
+    transit(cell_task_core:wake(Woken, State, D)).
 
 %% A timer, a HAL watch or an answer reached a READY task: what it means to its waits
 %% is cell_task_core's to say.
 wait_news(Msg, State, #engine{armed = Armed} = D) ->
     case cell_task_core:wait_news(Msg, Armed) of
         {wake, Woken} ->
-            wake(Woken, D);
+            wake(Woken, State, D);
         {unavailable, Group, Point, Why} ->
             %% The point waited for cannot be served (a PLC refusing its address):
             %% DOWN with the error naming it; Retry arms the wait again.
@@ -681,11 +669,11 @@ controlled(boundary, State, D) ->
     hold_or_pause(State, D);
 controlled(resume, _State, D) ->
     resume(D);
-controlled(reconcile, _State, D) ->
+controlled(reconcile, State, D) ->
     %% Its product was dropped as an old copy while it was paused: where it was rests
     %% on a product it no longer holds, so it reconciles again instead (as a task
     %% running when its copy is dropped does).
-    reconcile_dropped(down, 8, D);
+    leave({reconcile, 8}, State, D);
 controlled(stop, State, D) ->
     leave(stop, State, D);
 controlled({secure, Barrier}, State, D) ->
@@ -712,15 +700,18 @@ try_pause(State, D) ->
     pause_news(boundary, State, D).
 
 pause_news(Event, State, D) ->
-    case cell_task_core:pause(Event, State, D) of
-        {go_on, D1} ->
-            {hold, D1};
-        {withdraw, Offers} ->
-            {Results, T1} = lists:mapfoldl(fun withdraw/2, D#engine.task, Offers),
-            pause_news({withdrawn, Results}, State, D#engine{task = T1});
-        {pause, Transition} ->
-            {paused, transit(Transition)}
-    end.
+    paused(cell_task_core:pause(Event, State, D), State, D).
+
+%% What cell_task_core:pause/3 said, carried out: `{hold, D}' (the task goes on) or
+%% `{paused, Result}'. The TryAbortOffering it asks for are made here, and their
+%% answers told back.
+paused({go_on, D1}, _State, _D) ->
+    {hold, D1};
+paused({withdraw, Offers}, State, D) ->
+    {Results, T1} = lists:mapfoldl(fun withdraw/2, D#engine.task, Offers),
+    pause_news({withdrawn, Results}, State, D#engine{task = T1});
+paused({pause, Transition}, _State, _D) ->
+    {paused, transit(Transition)}.
 
 withdraw(Link, T) ->
     {Ok, T1} = cell_handshake:try_abort_offering(T, Link),
@@ -975,6 +966,12 @@ effect(uninit, D) ->
     secure_outputs(D);
 effect(forget_product, #engine{task = T} = D) ->
     D#engine{task = not_here(T)};
+effect(predecessor, D) ->
+    D#engine{predecessor = predecessor(D)};
+effect({ipc_event, unblocked}, #engine{task = T} = D) ->
+    D#engine{task = cell_task:unblocked(T)};
+effect({ipc_event, unstarved}, #engine{task = T} = D) ->
+    D#engine{task = cell_task:unstarved(T)};
 effect({estop_secured, Barrier}, D) ->
     ok = estop_secured(Barrier),
     D;
@@ -1020,33 +1017,14 @@ late_reply(Msg, #engine{task = #task{module = Mod, id = Id}} = D) ->
 handshake(Msg, State, #engine{task = T0} = D0) ->
     {T, Wakes} = cell_handshake:handle(Msg, T0),
     D = D0#engine{task = T},
-    case State of
-        {ready, _, _} ->
-            Signal = fun(Link, S) -> cell_handshake:signal(T, Link, S) end,
-            case cell_task_core:woken(Wakes, D#engine.armed, Signal) of
-                undefined ->
-                    %% A transfer that ended may free a Pause it held back.
-                    case try_pause(State, D) of
-                        {paused, Result} -> Result;
-                        {hold, D1} -> {next_state, (D1#engine.task)#task.ipc, D1}
-                    end;
-                Woken ->
-                    {keep_state, D1, Actions} = wake(Woken, D),
-                    T1 = wake_events(Woken, D1#engine.task),
-                    {next_state, T1#task.ipc, D1#engine{task = T1}, Actions}
-            end;
-        _ ->
-            %% Paused (or stopped): a transfer on a link the task will wait on again
-            %% has ended, so at resume its step runs and sees that, instead of waiting
-            %% for something the link can no longer send.
-            {keep_state, D#engine{pending = cell_task_core:ended_while_down(Wakes, D#engine.pending)}}
-    end.
-
-wake_events(Woken, #task{ipc = State} = T) ->
-    case cell_task_core:wake_event(Woken, State) of
-        unblocked -> cell_task:unblocked(T);
-        unstarved -> cell_task:unstarved(T);
-        none -> T
+    case cell_task_core:link_news(Wakes, State, D) of
+        {wake, Transition} ->
+            transit(Transition);
+        Boundary ->
+            case paused(Boundary, State, D) of
+                {paused, Result} -> Result;
+                {hold, D1} -> {next_state, (D1#engine.task)#task.ipc, D1}
+            end
     end.
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
@@ -1111,8 +1089,7 @@ not_here(#task{product = #{serial := S}} = T) ->
 not_here(T) ->
     cell_task:clear_product(T).
 
-handed_on_again(State, Serial, D0) ->
-    D = carry_out(cell_task_core:leave({setup, dropped}, State, D0)),
+handed_on_again(State, Serial, D) ->
     Spec = cell_task:error_spec(
              <<"handed_on_again">>, "Product handed on before is here again",
              io_lib:format("This station has product ~ts again, but it handed it on to the next "
@@ -1123,12 +1100,6 @@ handed_on_again(State, Serial, D0) ->
                            "see.", [Serial]),
              [reset]),
     raise(State, Spec, handed_on, D).
-
-%% From READY (arrow 2) or paused (8) to reconcile again, for a copy dropped as old.
-reconcile_dropped(State, Arrow, D0) ->
-    D = carry_out(cell_task_core:leave({setup, dropped}, State, D0)),
-    goto(setup, {arrow, Arrow}, D#engine{predecessor = predecessor(D)},
-         [{next_event, internal, {reconcile, undefined}}]).
 
 drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
     cell_log:notice(Id, "dropped an old copy of product ~ts: ~ts", [S, Why]),
