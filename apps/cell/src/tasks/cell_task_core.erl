@@ -43,14 +43,15 @@
 -include("cell_task_engine.hrl").
 
 -export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, wake/3, link_news/3,
-         stale/4, step_result/2, woken_by/2, clean/1,
+         stale/4, answered/4, step_result/2, woken_by/2, clean/1,
          from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3,
          starves/4, newer_holder/3, link_retry_ms/1, wait_news/2]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
--export_type([why/0, origin/0, down_reason/0, pending/0, engine/0, leave/0, effect/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
+-export_type([why/0, origin/0, down_reason/0, pending/0, engine/0, leave/0, effect/0,
+              then/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
 
 -define(LINK_RETRY_MIN_MS, 50).
 -define(LINK_RETRY_MAX_MS, 1000).
@@ -78,6 +79,8 @@
                 | interrupt_links              %% the task's transfers end
                 | uninit                       %% the task module secures the outputs
                 | forget_product               %% the product is not here: forgotten
+                | keep_product                 %% the product is here: kept, its mark cleared
+                | {log, notice, io:format(), [term()]} %% said in the task's log
                 | predecessor                  %% what reconcile checks, taken now
                 | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
                 | {estop_secured, cell_member:estop_barrier()} %% the barrier's slot marked
@@ -92,6 +95,12 @@
                         | {secure, cell_member:estop_barrier()}  %% emergency stop
                         | {secured, cell_member:estop_barrier()} %% the same, OFF already
                         | keep.                       %% kept for the state that acts on it
+%% What the engine goes on with after a transition's effects, where that takes more
+%% than effects: arrow 5 (its connections checked, its outputs set again, its waits
+%% armed again), reconcile at once (woken thus), or a damaged file of the task's
+%% record set aside or read again (the operator's name for the log).
+-type then() :: resume | {reconcile, term()}
+              | {product_file | retain_file, set_aside | reload, binary()}.
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
                        | {resume, term()}          %% READY where it was, woken thus
@@ -507,6 +516,69 @@ answer(product_file, reset, _) -> set_aside_product;
 answer(product_file, _Retry, _) -> reload_product;
 answer(retain_file, reset, _) -> set_aside_retained;
 answer(retain_file, _Retry, _) -> reload_retained.
+
+%% @doc The operator (`Who') answered the task's error with `Solution', the error having
+%% come from `Origin' (answer/3 decides what follows): the data as it is after, the
+%% effects, and what the engine then goes on with if that takes more than effects
+%% (see {@link then()}). Reset after init, reconcile or a step uninitialises and inits
+%% again (arrow 8); Retry and Ignore go back to READY (arrow 5) or stay paused if the
+%% cell was paused meanwhile; after a crash or an interrupted transfer the product is
+%% forgotten or confirmed here, as the operator said, and the log says who did.
+-spec answered(origin(), cell_alarms:solution(), binary(), engine()) ->
+          {engine(), [effect()]} | {engine(), [effect()], then()}.
+answered(Origin, Solution, Who, #engine{request = Request, deferred = Deferred,
+                                        resume = Resume, task = #task{product = P}} = E0) ->
+    E = E0#engine{down = undefined},
+    case answer(Origin, Solution, #{request => Request, deferred => Deferred, resume => Resume}) of
+        reinit ->
+            reinit(E);
+        {resume, Pending} ->
+            {E#engine{pending = Pending}, [], resume};
+        resume ->
+            {E, [], resume};
+        {paused, Pending} ->
+            {E#engine{down = {paused, pause}, pending = Pending}, []};
+        paused ->
+            {E#engine{down = {paused, pause}}, []};
+        {setup, Event} ->
+            again(Event, E);
+        {reconcile, Then} ->
+            {E, [], {reconcile, Then}};
+        forget_then_reinit ->
+            {E1, Reinit} = reinit(E),
+            {E1, [{log, notice, "~ts chose to forget product ~ts after the crash",
+                   [Who, serial_text(P)]}, forget_product | Reinit]};
+        {forget, Event} ->
+            {E1, Again} = again(Event, E),
+            {E1, [{log, notice, "~ts confirmed product ~ts is not here; it is forgotten",
+                   [Who, serial_text(P)]}, forget_product | Again]};
+        {confirm_here, Event} ->
+            {E1, Again} = again(Event, E),
+            {E1, [{log, notice, "~ts confirmed product ~ts is here", [Who, serial_text(P)]},
+                  keep_product | Again]};
+        set_aside_product ->
+            {E, [], {product_file, set_aside, Who}};
+        reload_product ->
+            {E, [], {product_file, reload, Who}};
+        set_aside_retained ->
+            {E, [], {retain_file, set_aside, Who}};
+        reload_retained ->
+            {E, [], {retain_file, reload, Who}}
+    end.
+
+%% Reset from DOWN: uninit, then arrow 8 to init again, from what the task holds now.
+reinit(E) ->
+    {E1, Uninit} = uninit(E#engine{cause = reset, predecessor = undefined}),
+    {E2, Again} = again(run_init, E1),
+    {E2, Uninit ++ Again}.
+
+%% Setup again from DOWN (arrow 8), `Event' first.
+again(Event, E) ->
+    {E1, Setup} = to(setup, {arrow, 8}, E),
+    {E1, [Setup, {next_event, Event}]}.
+
+serial_text(undefined) -> "none";
+serial_text(#{serial := S}) -> S.
 
 %% -------------------------------------------------------------------------------------
 %% Transfers
@@ -995,6 +1067,49 @@ answer_test_() ->
      ?_assertEqual(reload_product, answer(product_file, retry, Running)),
      ?_assertEqual(set_aside_retained, answer(retain_file, reset, Paused)),
      ?_assertEqual(reload_retained, answer(retain_file, retry, Paused))].
+
+%% Seed 000 §2.2: an error cleared goes back to READY (arrow 5) or to setup (arrow 8);
+%% Reset initialises again. The log says who decided about a product.
+answered_test_() ->
+    Ready = {ready, processing, active},
+    P = #{serial => <<"S1">>},
+    E = #engine{task = #task{ipc = down, product = P}, initialized = true, request = start,
+                down = {error, <<"a1">>, step}, resume = Ready, pending = {step, undefined}},
+    Setup8 = fun(Event) -> [{state, setup, {arrow, 8}}, {next_event, Event}] end,
+    {Reset, ResetFx} = answered(step, reset, <<"op">>, E),
+    {Forgot, ForgotFx} = answered(crash, reset, <<"op">>, E),
+    [?_assertEqual([uninit | Setup8(run_init)], ResetFx),
+     ?_assertEqual({undefined, reset, false},
+                   {Reset#engine.down, Reset#engine.cause, Reset#engine.initialized}),
+     %% Retry: back where it was, its step told the answer; paused meanwhile, it stays
+     %% DOWN, paused, and the step is told at Start.
+     ?_assertEqual({E#engine{down = undefined, pending = {step, {answer, retry}}}, [], resume},
+                   answered(step, retry, <<"op">>, E)),
+     ?_assertEqual({E#engine{request = pause, down = {paused, pause},
+                             pending = {step, {answer, ignore}}}, []},
+                   answered(step, ignore, <<"op">>, E#engine{request = pause})),
+     ?_assertEqual({E#engine{down = undefined}, Setup8(run_init)},
+                   answered(init, retry, <<"op">>, E)),
+     ?_assertEqual({E#engine{down = undefined}, [], {reconcile, {answer, ignore}}},
+                   answered(init, ignore, <<"op">>, E)),
+     %% After a crash, Reset forgets the product: the log says who.
+     ?_assertEqual([{log, notice, "~ts chose to forget product ~ts after the crash",
+                     [<<"op">>, <<"S1">>]}, forget_product, uninit | Setup8(run_init)],
+                   ForgotFx),
+     ?_assertEqual(reset, Forgot#engine.cause),
+     %% An interrupted transfer: the product confirmed here, or not here.
+     ?_assertMatch({_, [{log, notice, _, [<<"op">>, <<"S1">>]}, keep_product,
+                        {state, setup, {arrow, 8}}, {next_event, run_init}]},
+                   answered(transit, ignore, <<"op">>, E)),
+     ?_assertMatch({_, [{log, notice, _, [<<"op">>, <<"S1">>]}, forget_product,
+                        {state, setup, {arrow, 8}}, {next_event, run_init}]},
+                   answered(transit, reset, <<"op">>, E)),
+     %% The task's files: set aside or read again, by the engine.
+     ?_assertMatch({_, [], {product_file, set_aside, <<"op">>}},
+                   answered(product_file, reset, <<"op">>, E)),
+     ?_assertMatch({_, [], {retain_file, reload, <<"op">>}},
+                   answered(retain_file, retry, <<"op">>, E)),
+     ?_assertMatch({_, [], resume}, answered(io, retry, <<"op">>, E))].
 
 woken_test_() ->
     R = make_ref(),

@@ -216,7 +216,7 @@ handle_event(info, {cell_alarm, answer, Id, Solution, Who}, down,
     %% A copy found older than another task's record (the registry's word may still be
     %% on its way) is dropped before the answer is acted on, as if that word had come
     %% first: the answer was accepted because this task no longer holds the product.
-    answered(Origin, Solution, Who, D#engine{down = undefined, task = drop_if_older(T)});
+    answered(Origin, Solution, Who, D#engine{task = drop_if_older(T)});
 handle_event(info, {Ref, _} = Msg, down, D) when is_reference(Ref) ->
     %% An answer the task will wait for when it resumes: keep it for then.
     case D#engine.pending of
@@ -810,47 +810,27 @@ raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
     leave({error, AlarmId, Origin}, State, D).
 
-%% The operator answered an error: cell_task_core decides what follows, carried out
-%% here.
+%% The operator answered an error: cell_task_core:answered/4's transition, carried
+%% out, and then what it takes more than effects to go on with.
 answered(Origin, Solution, Who, D) ->
-    Context = #{request => D#engine.request, deferred => D#engine.deferred,
-                resume => D#engine.resume},
-    act(cell_task_core:answer(Origin, Solution, Context), Who, D).
+    case cell_task_core:answered(Origin, Solution, Who, D) of
+        {_, _} = Transition ->
+            transit(Transition);
+        {D1, Effects, Then} ->
+            then(Then, carry_out({D1, Effects}))
+    end.
 
-act(reinit, _Who, D) ->
-    reinit(D);
-act({resume, Pending}, _Who, D) ->
-    resume(D#engine{pending = Pending});
-act(resume, _Who, D) ->
+then(resume, D) ->
     resume(D);
-act({paused, Pending}, _Who, D) ->
-    {keep_state, D#engine{down = {paused, pause}, pending = Pending}};
-act(paused, _Who, D) ->
-    {keep_state, D#engine{down = {paused, pause}}};
-act({setup, Event}, _Who, D) ->
-    goto(setup, {arrow, 8}, D, [{next_event, internal, Event}]);
-act({reconcile, Then}, _Who, D) ->
-    run_reconcile(undefined, Then, D);
-act(forget_then_reinit, Who, #engine{task = #task{id = Id, product = P} = T} = D) ->
-    cell_log:notice(Id, "~ts chose to forget product ~ts after the crash",
-                    [Who, serial_text(P)]),
-    reinit(D#engine{task = not_here(T)});
-act({forget, Event}, Who, #engine{task = #task{id = Id, product = P} = T} = D) ->
-    cell_log:notice(Id, "~ts confirmed product ~ts is not here; it is forgotten",
-                    [Who, serial_text(P)]),
-    goto(setup, {arrow, 8}, D#engine{task = not_here(T)},
-         [{next_event, internal, Event}]);
-act({confirm_here, Event}, Who, #engine{task = #task{id = Id, product = P, gen = G} = T} = D) ->
-    cell_log:notice(Id, "~ts confirmed product ~ts is here", [Who, serial_text(P)]),
-    goto(setup, {arrow, 8}, D#engine{task = cell_task:store(T, P, G, undefined, #{})},
-         [{next_event, internal, Event}]);
-act(set_aside_product, Who, #engine{task = #task{id = Id, product_path = Path}} = D) ->
+then({reconcile, Woken}, D) ->
+    run_reconcile(undefined, Woken, D);
+then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     _ = file:rename(Path, Aside),
     cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
                     "without a product", [Who, Aside]),
     goto(setup, {arrow, 8}, D#engine{load_error = undefined}, [{next_event, internal, run_init}]);
-act(reload_product, _Who, #engine{task = #task{product_path = Path} = T} = D) ->
+then({product_file, reload, _Who}, #engine{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
             %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
@@ -862,7 +842,7 @@ act(reload_product, _Who, #engine{task = #task{product_path = Path} = T} = D) ->
             D1 = D#engine{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
     end;
-act(set_aside_retained, Who, #engine{task = #task{id = Id, retain_path = Path}} = D) ->
+then({retain_file, set_aside, Who}, #engine{task = #task{id = Id, retain_path = Path}} = D) ->
     Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
     case file:rename(Path, Aside) of
         ok ->
@@ -875,7 +855,7 @@ act(set_aside_retained, Who, #engine{task = #task{id = Id, retain_path = Path}} 
                            "~ts", [Path, file:format_error(Why)])
     end,
     retained_again(D);
-act(reload_retained, _Who, D) ->
+then({retain_file, reload, _Who}, D) ->
     retained_again(D).
 
 %% The retained data read again (mended, restored or set aside meanwhile): the task
@@ -884,11 +864,6 @@ retained_again(D0) ->
     D = retained(D0),
     {Event, D1} = setup_event(D),
     goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]).
-
-%% Reset: uninit, then arrow 8 (from DOWN) to init again.
-reinit(D) ->
-    goto(setup, {arrow, 8}, uninit(D#engine{cause = reset, predecessor = undefined}),
-         [{next_event, internal, run_init}]).
 
 %% @doc Marks the caller's slot of the emergency stop's barrier: its outputs are
 %% secured. The last of the fan-out tells the controller.
@@ -966,6 +941,11 @@ effect(uninit, D) ->
     secure_outputs(D);
 effect(forget_product, #engine{task = T} = D) ->
     D#engine{task = not_here(T)};
+effect(keep_product, #engine{task = #task{product = P, gen = G} = T} = D) ->
+    D#engine{task = cell_task:store(T, P, G, undefined, #{})};
+effect({log, notice, Format, Args}, #engine{task = #task{id = Id}} = D) ->
+    cell_log:notice(Id, Format, Args),
+    D;
 effect(predecessor, D) ->
     D#engine{predecessor = predecessor(D)};
 effect({ipc_event, unblocked}, #engine{task = T} = D) ->
