@@ -226,10 +226,9 @@ heal(Config) ->
     Cookie = peer_call(Config, up, erlang, get_cookie, []),
     true = peer_call(Config, up, erlang, set_cookie, [Down, Cookie]),
     %% The cells' own reconnecting (cell_peers) may be trying at this moment from
-    %% either side; an attempt that met it may fail, so each side tries once.
-    #{node := Up} = maps:get(up, ?config(cells, Config)),
-    true = peer_call(Config, up, net_kernel, connect_node, [Down])
-        orelse peer_call(Config, down, net_kernel, connect_node, [Up]),
+    %% either side, and an attempt that meets it may fail: the up node connects, or
+    %% waits for the connection either side's attempt makes.
+    true = peer_call(Config, up, cell_handshake_nodes_SUITE_keeper, connected, [Down, 15000]),
     ok.
 
 %% The first segment waits for `{Ref, fed}' when its feed ran dry.

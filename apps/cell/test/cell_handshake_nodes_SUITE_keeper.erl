@@ -2,7 +2,7 @@
 %% and holds a task at the moment a test cuts the network.
 -module(cell_handshake_nodes_SUITE_keeper).
 
--export([start/0, hold_released/2]).
+-export([start/0, hold_released/2, connected/2]).
 
 -spec start() -> ok.
 start() ->
@@ -41,3 +41,17 @@ hold_released(Task, Test) ->
 released({info, Msg}) -> released(Msg);
 released({cell_handshake, _Link, {released, _, _}, _Status}) -> true;
 released(_) -> false.
+
+%% `true' once this node is connected to `Node', within `Timeout' ms. A connect that
+%% met the cell's own reconnecting (cell_peers tries from either side) may fail; the
+%% node's `nodeup' still comes when either attempt gets through.
+-spec connected(node(), timeout()) -> boolean().
+connected(Node, Timeout) ->
+    ok = net_kernel:monitor_nodes(true),
+    Result = lists:member(Node, nodes()) orelse net_kernel:connect_node(Node)
+        orelse receive
+                   {nodeup, Node} -> true
+               after Timeout -> lists:member(Node, nodes())
+               end,
+    ok = net_kernel:monitor_nodes(false),
+    Result.
