@@ -43,7 +43,7 @@
 -include("cell_task_engine.hrl").
 
 -export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, wake/3, link_news/3,
-         stale/4, answered/4, step_result/2, woken_by/2, clean/1,
+         stale/4, answered/4, stepped/2, step_result/2, woken_by/2, clean/1,
          from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3,
          starves/4, newer_holder/3, link_retry_ms/1, wait_news/2]).
 %% The task's handshake fields, for cell_handshake.
@@ -80,6 +80,7 @@
                 | uninit                       %% the task module secures the outputs
                 | forget_product               %% the product is not here: forgotten
                 | keep_product                 %% the product is here: kept, its mark cleared
+                | {resumed, boolean()}         %% the registry told (see ask_after_crash/1)
                 | {log, notice, io:format(), [term()]} %% said in the task's log
                 | predecessor                  %% what reconcile checks, taken now
                 | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
@@ -97,10 +98,12 @@
                         | keep.                       %% kept for the state that acts on it
 %% What the engine goes on with after a transition's effects, where that takes more
 %% than effects: arrow 5 (its connections checked, its outputs set again, its waits
-%% armed again), reconcile at once (woken thus), or a damaged file of the task's
-%% record set aside or read again (the operator's name for the log).
+%% armed again), reconcile at once (woken thus), a damaged file of the task's record
+%% set aside or read again (the operator's name for the log), the step's waits armed
+%% (then the boundary), an error raised for the operator (then DOWN, leave/3).
 -type then() :: resume | {reconcile, term()}
-              | {product_file | retain_file, set_aside | reload, binary()}.
+              | {product_file | retain_file, set_aside | reload, binary()}
+              | {arm, [cell_task:wait()]} | {raise, cell_alarms:spec(), origin()}.
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
                        | {resume, term()}          %% READY where it was, woken thus
@@ -403,6 +406,28 @@ step_result(_Mod, {wait, Wait, #task{} = T}) -> {wait, [Wait], T};
 step_result(_Mod, {reset, #task{}} = R) -> R;
 step_result(_Mod, {error, _Spec, #task{}} = R) -> R;
 step_result(Mod, Other) -> erlang:error({bad_step_result, Mod, Other}).
+
+%% @doc What a step returned (step_result/2), other than `continue' (the engine's
+%% hot path: the next step runs at once, or behind what came meanwhile): the waits to
+%% arm (`{arm, Waits}'; the first wait after going on by itself from a crash tells the
+%% registry, so that a crash from here on is reconcile's to decide again); the seed's
+%% ResetException (uninit, then arrow 2 to init again); an error for the operator
+%% (`{raise, Spec, step}', DOWN from where the step left the task, to go back there).
+-spec stepped({wait, [cell_task:wait()], cell_task:task()} | {reset, cell_task:task()}
+              | {error, cell_alarms:spec(), cell_task:task()}, engine()) ->
+          {engine(), [effect()]} | {engine(), [effect()], then()}.
+stepped({wait, Waits, T}, E) ->
+    E1 = E#engine{task = clean(T), pending = {waits, Waits}},
+    case E1 of
+        #engine{resumed = true} -> {E1#engine{resumed = false}, [{resumed, false}], {arm, Waits}};
+        #engine{resumed = false} -> {E1, [], {arm, Waits}}
+    end;
+stepped({reset, T}, E) ->
+    {E1, Uninit} = uninit(E#engine{task = clean(T), cause = reset}),
+    {E2, Setup} = to(setup, {arrow, 2}, E1),
+    {E2, Uninit ++ [Setup, {next_event, run_init}]};
+stepped({error, Spec, #task{ipc = Ipc} = T}, E) ->
+    {E#engine{task = clean(T), resume = Ipc}, [], {raise, Spec, step}}.
 
 %% @doc The task as its step sees it: what woke it and, if that was the operator, the
 %% answer. (A step that follows a continue finds the task as it left it.)
@@ -1110,6 +1135,26 @@ answered_test_() ->
      ?_assertMatch({_, [], {retain_file, reload, <<"op">>}},
                    answered(retain_file, retry, <<"op">>, E)),
      ?_assertMatch({_, [], resume}, answered(io, retry, <<"op">>, E))].
+
+%% Seed 000 §2.2 arrow 2 (ResetException) and 6 (an error in a step).
+stepped_test_() ->
+    Ready = {ready, processing, active},
+    T = #task{ipc = Ready, woken_by = {timer, 5}},
+    E = #engine{task = #task{ipc = Ready}, initialized = true, pending = {step, {timer, 5}}},
+    Clean = T#task{woken_by = undefined},
+    {Reset, ResetFx} = stepped({reset, T}, E),
+    [?_assertEqual({E#engine{task = Clean, pending = {waits, [{timer, 9}]}}, [],
+                    {arm, [{timer, 9}]}},
+                   stepped({wait, [{timer, 9}], T}, E)),
+     ?_assertEqual({E#engine{task = Clean, pending = {waits, [{timer, 9}]}},
+                    [{resumed, false}], {arm, [{timer, 9}]}},
+                   stepped({wait, [{timer, 9}], T}, E#engine{resumed = true})),
+     ?_assertEqual([uninit, {state, setup, {arrow, 2}}, {next_event, run_init}], ResetFx),
+     ?_assertEqual({reset, false, Clean},
+                   {Reset#engine.cause, Reset#engine.initialized, Reset#engine.task}),
+     ?_assertEqual({E#engine{task = Clean#task{ipc = {ready, idle, blocked}},
+                             resume = {ready, idle, blocked}}, [], {raise, #{}, step}},
+                   stepped({error, #{}, T#task{ipc = {ready, idle, blocked}}}, E))].
 
 woken_test_() ->
     R = make_ref(),

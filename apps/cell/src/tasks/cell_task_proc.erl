@@ -545,32 +545,11 @@ after_step({continue, T}, #engine{task = #task{ipc = Ipc}} = D) ->
         Ipc -> next_step(Ipc, D1);
         New -> {next_state, New, D1, next_step(D1)}
     end;
-after_step({wait, Waits, T}, D) ->
-    case arm(Waits, waited(D#engine{task = cell_task_core:clean(T), pending = {waits, Waits}})) of
-        {ok, D1} ->
-            State = (D1#engine.task)#task.ipc,
-            case try_pause(State, D1) of
-                {paused, Result} -> Result;
-                {hold, D2} -> {next_state, State, D2}
-            end;
-        {io_lost, Group, D1} ->
-            %% The step's work stands; its wait is armed again after Retry.
-            io_lost((D1#engine.task)#task.ipc, Group, D1)
-    end;
-after_step({reset, T}, D) ->
-    %% The seed's ResetException: uninit, then arrow 2 to init again.
-    goto(setup, {arrow, 2}, uninit(D#engine{task = cell_task_core:clean(T), cause = reset}),
-         [{next_event, internal, run_init}]);
-after_step({error, Spec, T}, D) ->
-    raise(T#task.ipc, Spec, step, D#engine{task = cell_task_core:clean(T), resume = T#task.ipc}).
-
-%% The first wait after going on by itself from a crash: a crash from here on is the
-%% task's reconcile's to decide again.
-waited(#engine{resumed = false} = D) ->
-    D;
-waited(#engine{resumed = true, task = #task{id = Id}} = D) ->
-    ok = cell_registry:update(Id, #{resumed => false}),
-    D#engine{resumed = false}.
+after_step(Result, D) ->
+    case cell_task_core:stepped(Result, D) of
+        {_, _} = Transition -> transit(Transition);
+        {D1, Effects, Then} -> then(Then, carry_out({D1, Effects}))
+    end.
 
 %% The step after a `continue' comes after whatever reached the task meanwhile (a
 %% Pause, a Stop, a link's message): a message to itself, behind them. With nothing
@@ -811,7 +790,7 @@ raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
     leave({error, AlarmId, Origin}, State, D).
 
 %% The operator answered an error: cell_task_core:answered/4's transition, carried
-%% out, and then what it takes more than effects to go on with.
+%% out, and then what it takes more than effects to go on with (then/2).
 answered(Origin, Solution, Who, D) ->
     case cell_task_core:answered(Origin, Solution, Who, D) of
         {_, _} = Transition ->
@@ -822,6 +801,20 @@ answered(Origin, Solution, Who, D) ->
 
 then(resume, D) ->
     resume(D);
+then({arm, Waits}, D0) ->
+    case arm(Waits, D0) of
+        {ok, D} ->
+            State = (D#engine.task)#task.ipc,
+            case try_pause(State, D) of
+                {paused, Result} -> Result;
+                {hold, D1} -> {next_state, State, D1}
+            end;
+        {io_lost, Group, D} ->
+            %% The step's work stands; its wait is armed again after Retry.
+            io_lost((D#engine.task)#task.ipc, Group, D)
+    end;
+then({raise, Spec, Origin}, #engine{task = #task{ipc = State}} = D) ->
+    raise(State, Spec, Origin, D);
 then({reconcile, Woken}, D) ->
     run_reconcile(undefined, Woken, D);
 then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path = Path}} = D) ->
@@ -941,6 +934,9 @@ effect(uninit, D) ->
     secure_outputs(D);
 effect(forget_product, #engine{task = T} = D) ->
     D#engine{task = not_here(T)};
+effect({resumed, Resumed}, #engine{task = #task{id = Id}} = D) ->
+    ok = cell_registry:update(Id, #{resumed => Resumed}),
+    D;
 effect(keep_product, #engine{task = #task{product = P, gen = G} = T} = D) ->
     D#engine{task = cell_task:store(T, P, G, undefined, #{})};
 effect({log, notice, Format, Args}, #engine{task = #task{id = Id}} = D) ->
