@@ -786,7 +786,8 @@ pause_test_() ->
     Deferred = fun({go_on, #engine{deferred = D}}) -> D end,
     Fx = [{state, down, {arrow, 6}}],
     [%% Running, nothing asked.
-     ?_assertEqual({go_on, E(start, undefined, #{})}, pause(boundary, Ready, E(start, undefined, #{}))),
+     ?_assertEqual({go_on, E(start, undefined, #{})},
+                   pause(boundary, Ready, E(start, undefined, #{}))),
      %% Nothing under way: at once; for Stop, on to OFF.
      ?_assertEqual({{paused, pause}, [], Ready, undefined, Fx},
                    Paused(pause(boundary, Ready, E(pause, undefined, #{})))),
@@ -799,7 +800,8 @@ pause_test_() ->
      [?_assertEqual(pause, Deferred(pause(boundary, Ready, E(pause, undefined, Link(Role, Phase)))))
       || {Role, Phase} <- [{up, committed}, {up, released}, {up, aborting},
                            {down, committed}, {down, released}]],
-     ?_assertEqual(service, Deferred(pause(boundary, Ready, E(start, service, Link(down, committed))))),
+     ?_assertEqual(service,
+                   Deferred(pause(boundary, Ready, E(start, service, Link(down, committed))))),
      %% Downstream taking an offer before its commit does not hold the task.
      ?_assertMatch({{paused, pause}, [], _, _, _},
                    Paused(pause(boundary, Ready, E(stop, undefined, Link(down, offered))))),
@@ -900,7 +902,8 @@ leave_test_() ->
      ?_assertEqual({true, false},
                    {(element(1, goto(down, {arrow, 6}, Paused)))#engine.dropped,
                     (element(1, goto(setup, {arrow, 8}, Paused)))#engine.dropped}),
-     ?_assertEqual({E#engine{initialized = false, lost = []}, [uninit]}, uninit(E#engine{lost = [c]})),
+     ?_assertEqual({E#engine{initialized = false, lost = []}, [uninit]},
+                   uninit(E#engine{lost = [c]})),
      ?_assertEqual({#engine{}, []}, uninit(#engine{})),
      ?_assertEqual({#engine{gen = 1}, []}, disarm(#engine{}))].
 

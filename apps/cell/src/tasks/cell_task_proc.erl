@@ -144,7 +144,7 @@ init(Spec) ->
     process_flag(trap_exit, true),
     Task = cell_task:new(Spec),
     {ok, off, #engine{task = Task, spec = Spec, settings = Task#task.settings,
-                    estop_flag = cell_registry:estop_flag()},
+                      estop_flag = cell_registry:estop_flag()},
      [{next_event, internal, boot}]}.
 
 -spec handle_event(gen_statem:event_type(), term(), cell_ipc:state(), #engine{}) ->
@@ -373,7 +373,7 @@ crash_warning(Why, #engine{task = #task{id = Id, product = P}}) ->
 
 %% Boot, or Start in OFF: cell_task_core:from_off/3 says whether the task starts.
 start_from_off(#engine{request = Request, estop = Estop, crash = Crash,
-                     task = #task{id = Id}} = D) ->
+                       task = #task{id = Id}} = D) ->
     case cell_task_core:from_off(Request, Estop, Crash =/= undefined) of
         estop ->
             cell_log:warning(Id, "not started: the emergency stop is active", []),
@@ -481,8 +481,8 @@ run_reconcile(Woken, Then, #engine{task = #task{module = Mod} = T0, predecessor 
                                         "sensors agree: it goes on (product ~ts)",
                                         [serial_text(T1#task.product)]),
                     ready_after_init(Then, D#engine{task = cell_task_core:clean(T1),
-                                                  predecessor = undefined, cause = start,
-                                                  crash_outputs = undefined});
+                                                    predecessor = undefined, cause = start,
+                                                    crash_outputs = undefined});
                 {error, Spec, T1} ->
                     raise(setup, Spec, reconcile, D#engine{task = cell_task_core:clean(T1)});
                 Other ->
@@ -709,7 +709,8 @@ resume(#engine{conns = Conns} = D0) ->
             do_resume(D);
         {[Conn | _], D} ->
             %% Still DOWN: the IO it would resume with is gone.
-            {ok, AlarmId} = cell_alarms:raise_error((D#engine.task)#task.id, io_error(Conn), self()),
+            {ok, AlarmId} = cell_alarms:raise_error((D#engine.task)#task.id, io_error(Conn),
+                                                    self()),
             {keep_state, D#engine{down = {error, AlarmId, io}}}
     end.
 
