@@ -273,6 +273,9 @@ new(N) ->
     _ = case Res of
             ok -> ets:insert(?TAB, {{made, N}, true});
             {ok, _} -> ets:insert(?TAB, {{made, N}, true});
+            %% Killed between saving the new product and answering: it may hold it
+            %% after its restart, as it must once its file has it.
+            killed -> ets:insert(?TAB, {{maybe_made, N}, true});
             _ -> true
         end,
     Res.
@@ -390,13 +393,17 @@ final_check() ->
     _ = sys:get_state(link_pid()),
     ok = settle(observe()),
     #{up := Up, down := Down, disk := Disk} = observe(),
-    Made = lists:sort([S || {{made, S}, _} <- ets:match_object(?TAB, {{made, '_'}, '_'})]),
     Shipped = lists:sort([S || {{shipped, S}, _} <- ets:match_object(?TAB, {{shipped, '_'}, '_'})]),
     Held = lists:sort([{S, Side} || {Side, #{product := S}} <- [{up, Up}, {down, Down}],
                                     S =/= none]),
+    Accounted = lists:sort([S || {S, _} <- Held] ++ Shipped),
+    %% A product whose making was cut off by a kill counts if it was kept.
+    Made = lists:sort([S || {{made, S}, _} <- ets:match_object(?TAB, {{made, '_'}, '_'})]
+                      ++ [S || {{maybe_made, S}, _} <- ets:match_object(?TAB,
+                                                                        {{maybe_made, '_'}, '_'}),
+                               lists:member(S, Accounted)]),
     Problems = [{disk_and_memory, Disk, Held} || Disk =/= Held]
-               ++ [{lost_or_twice, Made, Held, Shipped}
-                   || Made =/= lists:sort([S || {S, _} <- Held] ++ Shipped)],
+               ++ [{lost_or_twice, Made, Held, Shipped} || Made =/= Accounted],
     case Problems of
         [] -> ok;
         _ -> {conservation, Problems}
@@ -479,6 +486,7 @@ start_pair(Mode) ->
     true = ets:insert(?TAB, [{mode, Mode}, {serial, 0}, {link, Link},
                              {files, #{up => file_of(N, "up"), down => file_of(N, "down")}}]),
     ets:match_delete(?TAB, {{made, '_'}, '_'}),
+    ets:match_delete(?TAB, {{maybe_made, '_'}, '_'}),
     ets:match_delete(?TAB, {{shipped, '_'}, '_'}),
     {ok, _} = supervisor:start_child(?SUP,
                                      cell_handshake_link:child_spec(#{id => Link, from => Up,
