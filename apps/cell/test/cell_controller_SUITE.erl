@@ -6,7 +6,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, init_per_testcase/2, end_per_testcase/2]).
--export([crash_while_paused_settled_then_held/1]).
+-export([crash_while_paused_settled_then_held/1, init_ignored_then_reconcile_asks/1]).
 -export([start_pause_resume_stop/1, errors_are_answered/1, estop_stops_every_task/1,
          service_mode_pauses/1, crash_restores_product/1,
          crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
@@ -33,7 +33,7 @@ all() ->
      settings_snapshot_at_start,
      recipe_buffer_cleared_at_start, estop_secures_all_before_any_announces,
      estop_deadline_kills_a_stuck_task, unexpected_message_crashes_a_task,
-     crash_while_paused_settled_then_held].
+     crash_while_paused_settled_then_held, init_ignored_then_reconcile_asks].
 
 -define(MANY, 200).
 
@@ -408,6 +408,59 @@ reconcile_gets_what_was_held(Config) ->
     ok = cell_controller:sync(),
     ?assertMatch([_, _, #{cause := reset, product := P}], cell_test_task:recorded(Tab, work, held)),
     ?assertMatch(#{init := 3}, counts(Config, work)).
+
+%% Seed 000 §2.2: an init error the operator ignores goes on as if init had succeeded,
+%% its reconcile first, from DOWN: where it agrees, READY by arrow 5; where it asks,
+%% its question is asked like any other (the task stays DOWN, it is not restarted),
+%% and its answer takes the task through setup (arrow 8) to READY (1).
+init_ignored_then_reconcile_asks(Config) ->
+    Tab = ?config(tab, Config),
+    true = ets:insert(Tab, {{init_result, work}, {error, [retry, ignore, reset]}}),
+    Pid = cell_task_proc:whereis(work),
+    ok = cell_events:subscribe([task_state]),
+    %% Reconcile agrees.
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    [#{id := Init, caption := <<"Init failed">>}] = cell_alarms:list(),
+    ok = cell_alarms:answer(Init, ignore, <<"op">>),
+    ok = cell_task_proc:sync(work),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),
+    ok = arrows(work, [{off, 0}, {setup, 7}, {down, 5}]),
+    ok = cell_controller:stop(),
+    ok = cell_controller:sync(),
+    ok = arrows(work, [{{ready, idle, starved}, 6}, {down, 9}]),
+    %% Reconcile asks.
+    true = ets:insert(Tab, {{reconcile_result, work}, {error, [retry, ignore, reset]}}),
+    ok = cell_controller:start(),
+    ok = cell_controller:sync(),
+    [#{id := Init2, caption := <<"Init failed">>}] = cell_alarms:list(),
+    ok = cell_alarms:answer(Init2, ignore, <<"op">>),
+    ok = cell_task_proc:sync(work),
+    ok = cell_alarms:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    ?assertEqual(Pid, cell_task_proc:whereis(work)),
+    [#{id := Where, caption := <<"Where is it">>}] = cell_alarms:list(),
+    ok = cell_alarms:answer(Where, retry, <<"op">>),
+    ok = cell_task_proc:sync(work),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),
+    ?assertEqual(Pid, cell_task_proc:whereis(work)),
+    ?assertMatch([{retry, #{cause := start}}], cell_test_task:recorded(Tab, work, reconciled)),
+    ok = arrows(work, [{off, 0}, {setup, 7}, {down, 8}, {setup, 1}]),
+    ?assertEqual([], cell_alarms:list()).
+
+%% The task's next state changes, each from the state and by the arrow given, as its
+%% events tell them.
+arrows(_Id, []) ->
+    ok;
+arrows(Id, [{From, Arrow} | Rest]) ->
+    receive
+        {cell_event, #{type := task_state, task := Id} = Event} ->
+            ?assertMatch({From, {arrow, Arrow}}, {maps:get(from, Event), maps:get(cause, Event)}),
+            arrows(Id, Rest)
+    after 5000 ->
+        ct:fail({no_state_change, Id, From, Arrow})
+    end.
 
 damaged_product_file(Config) ->
     {Path, Id} = start_with_damaged_file(Config),

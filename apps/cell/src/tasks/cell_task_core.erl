@@ -1,31 +1,33 @@
 %% @doc The decisions of a device task's engine, without a process: what the task does
-%% next, given where it is and what happened. {@link cell_task_proc} asks these
-%% functions and carries out what they decide (calls to the task's links and module,
-%% file writes, the HAL, timers, replies); everything here is a function of its
-%% arguments and tested without processes.
+%% next, given where it is and what happened. Most are transitions of the engine's
+%% data (`cell_task_engine.hrl', shared with {@link cell_task_proc} only): the data as
+%% it is after, the effects the engine carries out in order ({@link effect()}: waits
+%% cancelled, an error withdrawn, transfers ended, the outputs secured, the state
+%% recorded and announced, the next event), and where going on takes more than
+%% effects (calls whose answers decide what follows: arming waits, raising an error,
+%% resuming), what the engine goes on with ({@link then()}). Everything here is a
+%% function of its arguments and tested without processes.
 %%
 %% <ul>
-%% <li>Leaving what the task was doing ({@link leave/3}): the emergency stop, Stop,
-%%     a pause, an error, a way back into setup. These are transitions of the engine's
-%%     data (`cell_task_engine.hrl'): the data as it is after, and the effects the
-%%     engine carries out in order ({@link effect()}): waits cancelled, transfers
-%%     ended, the outputs secured, the state recorded and announced.</li>
 %% <li>The controller's commands ({@link control/4}): which of Start, Pause, Stop,
 %%     service mode and the emergency stop acts in which state (seed 000 §2.2, arrows
 %%     0, 5, 6 and 9), and which is only kept for the state that acts on it.</li>
+%% <li>Leaving what the task was doing ({@link leave/3}): the emergency stop, Stop,
+%%     a pause, an error, a way back into setup.</li>
 %% <li>Pause, Stop and service mode at a step boundary ({@link pause/3}): the seed
 %%     allows stopping only before downstream commits, so a transfer under way holds
 %%     the request back, and open offers are withdrawn first (TryAbortOffering, which
 %%     the engine makes and whose answers it tells back) unless downstream has just
 %%     begun to take one.</li>
-%% <li>What a step returned ({@link step_result/2}), and what it is told woke it
-%%     ({@link woken_by/2}, {@link clean/1}).</li>
-%% <li>Errors: the arrow into DOWN ({@link down_arrow/1}); what setup does first
-%%     ({@link setup/1}); whether a crash is the operator's question
-%%     ({@link ask_after_crash/1}); what the operator's answer leads to
-%%     ({@link answer/3}).</li>
-%% <li>Waits: which armed wait a timer, a HAL watch or a reply ends, and what the step
-%%     is told woke it ({@link wait_news/2}).</li>
+%% <li>Setup: whether an OFF task starts ({@link from_off/3}), what setup does first
+%%     ({@link setup/1}), what init and reconcile came to ({@link inited/2},
+%%     {@link reconciled/3}: READY by arrow 1 or 5, or DOWN by arrow 7).</li>
+%% <li>Steps: what a step returned ({@link step_result/2}, {@link stepped/2}), what it
+%%     is told woke it ({@link woken_by/2}, {@link clean/1}), which armed wait a timer,
+%%     a HAL watch or a reply ends ({@link wait_news/2}) and the wait ending
+%%     ({@link wake/3}).</li>
+%% <li>Errors: whether a crash is the operator's question ({@link ask_after_crash/1});
+%%     what the operator's answer leads to ({@link answered/4}).</li>
 %% <li>Transfers: a link's news ({@link link_news/3}: which armed wait it ends, what
 %%     a transfer that ended while the task was DOWN changes), the IPC-2541 events the
 %%     seed raises when a wait on a link ends ({@link wake/3}) or starts
@@ -42,10 +44,10 @@
 -include("cell_task.hrl").
 -include("cell_task_engine.hrl").
 
--export([leave/3, goto/3, disarm/1, uninit/1, control/4, pause/3, wake/3, link_news/3,
-         stale/4, answered/4, stepped/2, step_result/2, woken_by/2, clean/1,
-         from_off/3, down_arrow/1, ready/2, setup/1, ask_after_crash/1, answer/3,
-         starves/4, newer_holder/3, link_retry_ms/1, wait_news/2]).
+-export([leave/3, goto/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
+         answered/4, stepped/2, inited/2, reconciled/3, step_result/2, woken_by/2, clean/1,
+         from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
+         wait_news/2]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
@@ -81,6 +83,7 @@
                 | forget_product               %% the product is not here: forgotten
                 | keep_product                 %% the product is here: kept, its mark cleared
                 | {resumed, boolean()}         %% the registry told (see ask_after_crash/1)
+                | headroom                     %% the heap collected, entering READY
                 | {log, notice, io:format(), [term()]} %% said in the task's log
                 | predecessor                  %% what reconcile checks, taken now
                 | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
@@ -100,10 +103,13 @@
 %% than effects: arrow 5 (its connections checked, its outputs set again, its waits
 %% armed again), reconcile at once (woken thus), a damaged file of the task's record
 %% set aside or read again (the operator's name for the log), the step's waits armed
-%% (then the boundary), an error raised for the operator (then DOWN, leave/3).
+%% (then the boundary), an error raised for the operator (then DOWN, leave/3, by the
+%% arrow from setup or from the READY state named: reconcile's errors are setup's,
+%% also when it runs again from DOWN after an init error was ignored).
 -type then() :: resume | {reconcile, term()}
               | {product_file | retain_file, set_aside | reload, binary()}
-              | {arm, [cell_task:wait()]} | {raise, cell_alarms:spec(), origin()}.
+              | {arm, [cell_task:wait()]}
+              | {raise, cell_alarms:spec(), origin(), setup | cell_ipc:ready()}.
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
                        | {resume, term()}          %% READY where it was, woken thus
@@ -268,7 +274,7 @@ clear(E) ->
     E#engine{down = undefined, pending = undefined, resume = undefined, deferred = undefined,
              reoffer = []}.
 
-%% @doc The task's waits are left: its timers and HAL watches cancelled (watches on
+%% The task's waits are left: its timers and HAL watches cancelled (watches on
 %% links are not: a watch that fires later is no longer armed, and is ignored), and a
 %% new round begun, so that step and timer messages already sent are ignored.
 -spec disarm(engine()) -> {engine(), [effect()]}.
@@ -407,6 +413,49 @@ step_result(_Mod, {reset, #task{}} = R) -> R;
 step_result(_Mod, {error, _Spec, #task{}} = R) -> R;
 step_result(Mod, Other) -> erlang:error({bad_step_result, Mod, Other}).
 
+%% @doc What the task's init came to: `{ok, T}', `{error, Spec, T}' (its own error
+%% for the operator), or `{io, Spec}' (it read or wrote a point whose connection is
+%% down, or that its device cannot serve). Done, reconcile follows (`{reconcile,
+%% undefined}'); otherwise DOWN (arrow 7) with the error. Either way init has run:
+%% uninit follows before the next init.
+-spec inited({ok, cell_task:task()} | {error | io, cell_alarms:spec(), cell_task:task()}
+             | {io, cell_alarms:spec()}, engine()) -> {engine(), [effect()], then()}.
+inited({ok, T}, E) ->
+    {E#engine{task = T, initialized = true}, [], {reconcile, undefined}};
+inited({error, Spec, T}, E) ->
+    {E#engine{task = T, initialized = true}, [], {raise, Spec, init, setup}};
+inited({io, Spec}, E) ->
+    {E#engine{initialized = true, resume = undefined}, [], {raise, Spec, io, setup}}.
+
+%% @doc What the task's reconcile came to (`{ok, T}', `{error, Spec, T}', `{io,
+%% Spec}' as for inited/2), `Woken' being what its first step is told woke it. Agreed,
+%% what its predecessor left is settled and the task enters READY (arrow 1, or 5 from
+%% DOWN when an init error was ignored): READY-PROCESSING-ACTIVE with a product,
+%% READY-IDLE-STARVED without, its first step due; after a crash the log says its
+%% record and its sensors agree. Otherwise DOWN with the error, the predecessor kept
+%% for the next reconcile.
+-spec reconciled({ok | error, _, _} | {io, cell_alarms:spec()}, term(), engine()) ->
+          {engine(), [effect()]} | {engine(), [effect()], then()}.
+reconciled({ok, T0}, Woken, #engine{predecessor = Held} = E) ->
+    #task{product = P, ipc = From} = T = clean(T0),
+    Said = case Held of
+               #{cause := crash} ->
+                   [{log, notice, "after the crash its record and its sensors agree: it "
+                     "goes on (product ~ts)", [serial_text(P)]}];
+               _ ->
+                   []
+           end,
+    {Ready, Arrow} = ready(P, From),
+    {E1, Enter} = to(Ready, {arrow, Arrow},
+                     E#engine{task = T, predecessor = undefined, cause = start,
+                              crash_outputs = undefined, pending = {step, Woken},
+                              resume = undefined}),
+    {E1, Said ++ [headroom, Enter, {next_event, step}]};
+reconciled({error, Spec, T}, _Woken, E) ->
+    {E#engine{task = clean(T)}, [], {raise, Spec, reconcile, setup}};
+reconciled({io, Spec}, _Woken, E) ->
+    {E#engine{resume = undefined}, [], {raise, Spec, io, setup}}.
+
 %% @doc What a step returned (step_result/2), other than `continue' (the engine's
 %% hot path: the next step runs at once, or behind what came meanwhile): the waits to
 %% arm (`{arm, Waits}'; the first wait after going on by itself from a crash tells the
@@ -427,7 +476,7 @@ stepped({reset, T}, E) ->
     {E2, Setup} = to(setup, {arrow, 2}, E1),
     {E2, Uninit ++ [Setup, {next_event, run_init}]};
 stepped({error, Spec, #task{ipc = Ipc} = T}, E) ->
-    {E#engine{task = clean(T), resume = Ipc}, [], {raise, Spec, step}}.
+    {E#engine{task = clean(T), resume = Ipc}, [], {raise, Spec, step, Ipc}}.
 
 %% @doc The task as its step sees it: what woke it and, if that was the operator, the
 %% answer. (A step that follows a continue finds the task as it left it.)
@@ -457,12 +506,12 @@ from_off(start, false, _Crashed) -> start;
 from_off(pause, false, true) -> start;
 from_off(_Request, _Estop, _Crashed) -> stay.
 
-%% @doc The arrow of seed 000 §2.2 an error takes into DOWN.
+%% The arrow of seed 000 §2.2 an error takes into DOWN.
 -spec down_arrow(setup | cell_ipc:ready()) -> 6 | 7.
 down_arrow(setup) -> 7;
 down_arrow({ready, _, _}) -> 6.
 
-%% @doc The READY state a task enters after init and reconcile (with a product it
+%% The READY state a task enters after init and reconcile (with a product it
 %% processes, without one it is starved), and the arrow: 1 from setup, 5 from DOWN
 %% (init's error ignored).
 -spec ready(cell_product:product() | undefined, setup | down) -> {cell_ipc:ready(), 1 | 5}.
@@ -506,7 +555,7 @@ ask_after_crash(#{crashed_in := setup}) -> true;
 ask_after_crash(#{resumed := true}) -> true;
 ask_after_crash(#{}) -> false.
 
-%% @doc What the operator's answer to the task's error leads to, by where the error
+%% What the operator's answer to the task's error leads to, by where the error
 %% came from. `Request' is the controller's, `Deferred' a pause a transfer held back
 %% when the error came, `Resume' the READY state to go back to (`undefined' when the
 %% error came in setup).
@@ -1140,6 +1189,41 @@ answered_test_() ->
      ?_assertMatch({_, [], resume}, answered(io, retry, <<"op">>, E))].
 
 %% Seed 000 §2.2 arrow 2 (ResetException) and 6 (an error in a step).
+%% Seed 000 §2.2 arrows 1 and 7: init, then reconcile, then READY; an error in
+%% either is DOWN with the operator's question.
+setup_results_test_() ->
+    P = #{serial => <<"S1">>},
+    T = #task{ipc = setup, woken_by = {answer, retry}, answer = retry},
+    Clean = T#task{woken_by = undefined, answer = undefined},
+    E = #engine{task = #task{ipc = setup}, predecessor = #{cause => start}, cause = reset,
+                resume = {ready, idle, starved}},
+    {Ready, ReadyFx} = reconciled({ok, T#task{product = P}}, {answer, ignore}, E),
+    [?_assertEqual({E#engine{task = T, initialized = true}, [], {reconcile, undefined}},
+                   inited({ok, T}, E)),
+     ?_assertEqual({E#engine{task = T, initialized = true}, [], {raise, #{}, init, setup}},
+                   inited({error, #{}, T}, E)),
+     ?_assertEqual({E#engine{initialized = true, resume = undefined}, [], {raise, #{}, io, setup}},
+                   inited({io, #{}}, E)),
+     ?_assertEqual([headroom, {state, {ready, processing, active}, {arrow, 1}},
+                    {next_event, step}], ReadyFx),
+     ?_assertEqual({undefined, start, {step, {answer, ignore}}, undefined},
+                   {Ready#engine.predecessor, Ready#engine.cause, Ready#engine.pending,
+                    Ready#engine.resume}),
+     %% From DOWN (an init error ignored): arrow 5; without a product: starved.
+     ?_assertMatch({_, [headroom, {state, {ready, idle, starved}, {arrow, 5}}, _]},
+                   reconciled({ok, T#task{ipc = down}}, undefined, E)),
+     %% After a crash, the log says the record and the sensors agree.
+     ?_assertMatch({_, [{log, notice, _, [<<"S1">>]}, headroom, _, _]},
+                   reconciled({ok, T#task{product = P}}, undefined,
+                              E#engine{predecessor = #{cause => crash}})),
+     ?_assertEqual({E#engine{task = Clean}, [], {raise, #{}, reconcile, setup}},
+                   reconciled({error, #{}, T}, undefined, E)),
+     ?_assertEqual({E#engine{resume = undefined}, [], {raise, #{}, io, setup}},
+                   reconciled({io, #{}}, undefined, E)),
+     %% Run again from DOWN (an init error ignored), its errors are still setup's.
+     ?_assertMatch({_, [], {raise, #{}, reconcile, setup}},
+                   reconciled({error, #{}, T#task{ipc = down}}, undefined, E))].
+
 stepped_test_() ->
     Ready = {ready, processing, active},
     T = #task{ipc = Ready, woken_by = {timer, 5}},
@@ -1156,7 +1240,8 @@ stepped_test_() ->
      ?_assertEqual({reset, false, Clean},
                    {Reset#engine.cause, Reset#engine.initialized, Reset#engine.task}),
      ?_assertEqual({E#engine{task = Clean#task{ipc = {ready, idle, blocked}},
-                             resume = {ready, idle, blocked}}, [], {raise, #{}, step}},
+                             resume = {ready, idle, blocked}}, [],
+                    {raise, #{}, step, {ready, idle, blocked}}},
                    stepped({error, #{}, T#task{ipc = {ready, idle, blocked}}}, E))].
 
 woken_test_() ->

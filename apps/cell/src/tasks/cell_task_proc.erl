@@ -428,20 +428,16 @@ run_init(#engine{task = #task{module = Mod} = T0} = D0) ->
                                 commanded = cell_task_outputs:new()},
                     %% Taken before init writes an output.
                     D1 = D#engine{predecessor = predecessor(D), lost = []},
-                    try Mod:init(T) of
-                        {ok, T1} ->
-                            run_reconcile(undefined, undefined,
-                                          D1#engine{task = T1, initialized = true});
-                        {error, Spec, T1} ->
-                            raise(setup, Spec, init, D1#engine{task = T1, initialized = true})
-                    catch
-                        throw:{cell_io_lost, Group, _Point, _Commanded} ->
-                            raise(setup, io_error(group_conn(Group)), io,
-                                  D1#engine{initialized = true, resume = undefined});
-                        throw:{cell_io_unavailable, Group, Point, Why} ->
-                            raise(setup, point_error(Group, Point, Why), io,
-                                  D1#engine{initialized = true, resume = undefined})
-                    end
+                    Result = try Mod:init(T) of
+                                 {ok, _} = Ok -> Ok;
+                                 {error, _Spec, _} = Error -> Error
+                             catch
+                                 throw:{cell_io_lost, Group, _Point, _Commanded} ->
+                                     {io, io_error(group_conn(Group))};
+                                 throw:{cell_io_unavailable, Group, Point, Why} ->
+                                     {io, point_error(Group, Point, Why)}
+                             end,
+                    proceed(cell_task_core:inited(Result, D1))
             end
     end.
 
@@ -473,35 +469,18 @@ run_reconcile(Woken, Then, #engine{task = #task{module = Mod} = T0, predecessor 
             leave(estop, setup, D#engine{estop = true});
         false ->
             T = cell_task_core:woken_by(Woken, T0),
-            try Mod:reconcile(Held, T) of
-                {ok, T1} ->
-                    %% Agreed: what the predecessor left is settled.
-                    _ = maps:get(cause, Held) =:= crash andalso
-                        cell_log:notice(T#task.id, "after the crash its record and its "
-                                        "sensors agree: it goes on (product ~ts)",
-                                        [serial_text(T1#task.product)]),
-                    ready_after_init(Then, D#engine{task = cell_task_core:clean(T1),
-                                                    predecessor = undefined, cause = start,
-                                                    crash_outputs = undefined});
-                {error, Spec, T1} ->
-                    raise(setup, Spec, reconcile, D#engine{task = cell_task_core:clean(T1)});
-                Other ->
-                    erlang:error({bad_reconcile_result, Mod, Other})
-            catch
-                throw:{cell_io_lost, Group, _Point, _Commanded} ->
-                    raise(setup, io_error(group_conn(Group)), io, D#engine{resume = undefined});
-                throw:{cell_io_unavailable, Group, Point, Why} ->
-                    raise(setup, point_error(Group, Point, Why), io, D#engine{resume = undefined})
-            end
+            Result = try Mod:reconcile(Held, T) of
+                         {ok, _} = Ok -> Ok;
+                         {error, _Spec, _} = Error -> Error;
+                         Other -> erlang:error({bad_reconcile_result, Mod, Other})
+                     catch
+                         throw:{cell_io_lost, Group, _Point, _Commanded} ->
+                             {io, io_error(group_conn(Group))};
+                         throw:{cell_io_unavailable, Group, Point, Why} ->
+                             {io, point_error(Group, Point, Why)}
+                     end,
+            proceed(cell_task_core:reconciled(Result, Then, D))
     end.
-
-%% Arrow 1 (or 5 when an init error was ignored): READY-PROCESSING-ACTIVE with a
-%% product, READY-IDLE-STARVED without; the task's first events say more.
-ready_after_init(Woken, #engine{task = T} = D) ->
-    {Ready, Arrow} = cell_task_core:ready(T#task.product, T#task.ipc),
-    ok = headroom(),
-    goto(Ready, {arrow, Arrow}, D#engine{pending = {step, Woken}, resume = undefined},
-         [{next_event, internal, step}]).
 
 %% --------------------------------------------------------------------------------------
 %% Steps and waits
@@ -546,10 +525,7 @@ after_step({continue, T}, #engine{task = #task{ipc = Ipc}} = D) ->
         New -> {next_state, New, D1, next_step(D1)}
     end;
 after_step(Result, D) ->
-    case cell_task_core:stepped(Result, D) of
-        {_, _} = Transition -> transit(Transition);
-        {D1, Effects, Then} -> then(Then, carry_out({D1, Effects}))
-    end.
+    proceed(cell_task_core:stepped(Result, D)).
 
 %% The step after a `continue' comes after whatever reached the task meanwhile (a
 %% Pause, a Stop, a link's message): a message to itself, behind them. With nothing
@@ -793,12 +769,7 @@ raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
 %% The operator answered an error: cell_task_core:answered/4's transition, carried
 %% out, and then what it takes more than effects to go on with (then/2).
 answered(Origin, Solution, Who, D) ->
-    case cell_task_core:answered(Origin, Solution, Who, D) of
-        {_, _} = Transition ->
-            transit(Transition);
-        {D1, Effects, Then} ->
-            then(Then, carry_out({D1, Effects}))
-    end.
+    proceed(cell_task_core:answered(Origin, Solution, Who, D)).
 
 then(resume, D) ->
     resume(D);
@@ -814,8 +785,8 @@ then({arm, Waits}, D0) ->
             %% The step's work stands; its wait is armed again after Retry.
             io_lost((D#engine.task)#task.ipc, Group, D)
     end;
-then({raise, Spec, Origin}, #engine{task = #task{ipc = State}} = D) ->
-    raise(State, Spec, Origin, D);
+then({raise, Spec, Origin, From}, D) ->
+    raise(From, Spec, Origin, D);
 then({reconcile, Woken}, D) ->
     run_reconcile(undefined, Woken, D);
 then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path = Path}} = D) ->
@@ -910,6 +881,13 @@ goto(To, Cause, D, Actions) ->
 leave(How, State, D) ->
     transit(cell_task_core:leave(How, State, D)).
 
+%% A transition that names what the engine goes on with once its effects are carried
+%% out (cell_task_core:then()): carried out, then that.
+proceed({_, _} = Transition) ->
+    transit(Transition);
+proceed({D, Effects, Then}) ->
+    then(Then, carry_out({D, Effects})).
+
 transit({_, Effects} = Transition) ->
     D = carry_out(Transition),
     {next_state, (D#engine.task)#task.ipc, D,
@@ -935,6 +913,9 @@ effect(uninit, D) ->
     secure_outputs(D);
 effect(forget_product, #engine{task = T} = D) ->
     D#engine{task = not_here(T)};
+effect(headroom, D) ->
+    ok = headroom(),
+    D;
 effect({resumed, Resumed}, #engine{task = #task{id = Id}} = D) ->
     ok = cell_registry:update(Id, #{resumed => Resumed}),
     D;
