@@ -428,15 +428,7 @@ run_init(#engine{task = #task{module = Mod} = T0} = D0) ->
                                 commanded = cell_task_outputs:new()},
                     %% Taken before init writes an output.
                     D1 = D#engine{predecessor = predecessor(D), lost = []},
-                    Result = try Mod:init(T) of
-                                 {ok, _} = Ok -> Ok;
-                                 {error, _Spec, _} = Error -> Error
-                             catch
-                                 throw:{cell_io_lost, Group, _Point, _Commanded} ->
-                                     {io, io_error(group_conn(Group))};
-                                 throw:{cell_io_unavailable, Group, Point, Why} ->
-                                     {io, point_error(Group, Point, Why)}
-                             end,
+                    Result = setup_call(fun() -> Mod:init(T) end, bad_init_result, Mod),
                     proceed(cell_task_core:inited(Result, D1))
             end
     end.
@@ -469,17 +461,23 @@ run_reconcile(Woken, Then, #engine{task = #task{module = Mod} = T0, predecessor 
             leave(estop, setup, D#engine{estop = true});
         false ->
             T = cell_task_core:woken_by(Woken, T0),
-            Result = try Mod:reconcile(Held, T) of
-                         {ok, _} = Ok -> Ok;
-                         {error, _Spec, _} = Error -> Error;
-                         Other -> erlang:error({bad_reconcile_result, Mod, Other})
-                     catch
-                         throw:{cell_io_lost, Group, _Point, _Commanded} ->
-                             {io, io_error(group_conn(Group))};
-                         throw:{cell_io_unavailable, Group, Point, Why} ->
-                             {io, point_error(Group, Point, Why)}
-                     end,
+            Result = setup_call(fun() -> Mod:reconcile(Held, T) end, bad_reconcile_result, Mod),
             proceed(cell_task_core:reconciled(Result, Then, D))
+    end.
+
+%% init or reconcile called: what it returned, or `{io, Spec}' when it read or wrote a
+%% point whose connection is down or that its device cannot serve. Anything else is
+%% the module's bug (`Bad').
+setup_call(Call, Bad, Mod) ->
+    try Call() of
+        {ok, _} = Ok -> Ok;
+        {error, _Spec, _} = Error -> Error;
+        Other -> erlang:error({Bad, Mod, Other})
+    catch
+        throw:{cell_io_lost, Group, _Point, _Commanded} ->
+            {io, io_error(group_conn(Group))};
+        throw:{cell_io_unavailable, Group, Point, Why} ->
+            {io, point_error(Group, Point, Why)}
     end.
 
 %% --------------------------------------------------------------------------------------
