@@ -45,7 +45,7 @@
 -include("cell_task_engine.hrl").
 
 -export([leave/3, goto/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
-         answered/4, stepped/2, inited/2, reconciled/3, step_result/2, woken_by/2, clean/1,
+         answered/4, stepped/2, inited/2, reconciled/3, resume/1, step_result/2, woken_by/2, clean/1,
          from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2]).
 %% The task's handshake fields, for cell_handshake.
@@ -84,6 +84,7 @@
                 | keep_product                 %% the product is here: kept, its mark cleared
                 | {resumed, boolean()}         %% the registry told (see ask_after_crash/1)
                 | headroom                     %% the heap collected, entering READY
+                | {reoffer, [atom()]}          %% offers a pause withdrew, made again
                 | {log, notice, io:format(), [term()]} %% said in the task's log
                 | predecessor                  %% what reconcile checks, taken now
                 | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
@@ -102,13 +103,14 @@
 %% What the engine goes on with after a transition's effects, where that takes more
 %% than effects: arrow 5 (its connections checked, its outputs set again, its waits
 %% armed again), reconcile at once (woken thus), a damaged file of the task's record
-%% set aside or read again (the operator's name for the log), the step's waits armed
+%% set aside or read again (the operator's name for the log), the outputs a lost
+%% connection may have lost set again (then the step or its waits), the step's waits armed
 %% (then the boundary), an error raised for the operator (then DOWN, leave/3, by the
 %% arrow from setup or from the READY state named: reconcile's errors are setup's,
 %% also when it runs again from DOWN after an init error was ignored).
 -type then() :: resume | {reconcile, term()}
               | {product_file | retain_file, set_aside | reload, binary()}
-              | {arm, [cell_task:wait()]}
+              | {arm, [cell_task:wait()]} | {reassert, cell_ipc:ready()}
               | {raise, cell_alarms:spec(), origin(), setup | cell_ipc:ready()}.
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
@@ -412,6 +414,16 @@ step_result(_Mod, {wait, Wait, #task{} = T}) -> {wait, [Wait], T};
 step_result(_Mod, {reset, #task{}} = R) -> R;
 step_result(_Mod, {error, _Spec, #task{}} = R) -> R;
 step_result(Mod, Other) -> erlang:error({bad_step_result, Mod, Other}).
+
+%% @doc Arrow 5, its connections up: back to the READY sub-state the task left, the
+%% offers a pause withdrew made again, the heap collected; then the outputs a lost
+%% connection may have lost set again before the task does what it was doing (its
+%% step, or its waits armed again: what it waits for may follow what it commanded).
+-spec resume(engine()) -> {engine(), [effect()], then()}.
+resume(#engine{resume = Ready, reoffer = Offers} = E) ->
+    {E1, Enter} = to(Ready, {arrow, 5},
+                     E#engine{down = undefined, resume = undefined, reoffer = []}),
+    {E1, [headroom, Enter | [{reoffer, Offers} || Offers =/= []]], {reassert, Ready}}.
 
 %% @doc What the task's init came to: `{ok, T}', `{error, Spec, T}' (its own error
 %% for the operator), or `{io, Spec}' (it read or wrote a point whose connection is
@@ -1223,6 +1235,21 @@ setup_results_test_() ->
      %% Run again from DOWN (an init error ignored), its errors are still setup's.
      ?_assertMatch({_, [], {raise, #{}, reconcile, setup}},
                    reconciled({error, #{}, T#task{ipc = down}}, undefined, E))].
+
+%% Seed 000 §2.2 arrow 5: DOWN, Start while paused or the error cleared: READY where
+%% the task was, the offers a pause withdrew made again.
+resume_test_() ->
+    Active = {ready, processing, active},
+    E = #engine{task = #task{ipc = down}, down = {paused, pause}, resume = Active,
+                reoffer = [out], pending = {waits, [{timer, 5}]}},
+    {Resumed, Fx, Then} = resume(E),
+    [?_assertEqual([headroom, {state, Active, {arrow, 5}}, {reoffer, [out]}], Fx),
+     ?_assertEqual({reassert, Active}, Then),
+     ?_assertEqual({undefined, undefined, [], {waits, [{timer, 5}]}},
+                   {Resumed#engine.down, Resumed#engine.resume, Resumed#engine.reoffer,
+                    Resumed#engine.pending}),
+     ?_assertMatch({_, [headroom, {state, Active, {arrow, 5}}], _},
+                   resume(E#engine{reoffer = [], down = {error, <<"a">>, io}}))].
 
 stepped_test_() ->
     Ready = {ready, processing, active},

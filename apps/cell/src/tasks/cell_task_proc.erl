@@ -680,24 +680,12 @@ resume(#engine{conns = Conns} = D0) ->
                              end
                      end, {[], D0}, maps:keys(Conns)) of
         {[], D} ->
-            do_resume(D);
+            proceed(cell_task_core:resume(D));
         {[Conn | _], D} ->
             %% Still DOWN: the IO it would resume with is gone.
             {ok, AlarmId} = cell_alarms:raise_error((D#engine.task)#task.id, io_error(Conn),
                                                     self()),
             {keep_state, D#engine{down = {error, AlarmId, io}}}
-    end.
-
-do_resume(#engine{resume = Ready, pending = Pending, task = T0, reoffer = Offers} = D0) ->
-    ok = headroom(),
-    T = cell_handshake:reoffer(cell_task:set_state(T0, Ready, {arrow, 5}), Offers),
-    D = D0#engine{down = undefined, resume = undefined, reoffer = [], task = T},
-    %% Outputs first: what the task waits for may follow what it commanded.
-    case reassert(Ready, D) of
-        {ok, D1} ->
-            resume_pending(Ready, Pending, D1);
-        Lost ->
-            Lost
     end.
 
 resume_pending(Ready, {waits, Waits}, D) ->
@@ -771,6 +759,12 @@ answered(Origin, Solution, Who, D) ->
 
 then(resume, D) ->
     resume(D);
+then({reassert, Ready}, D) ->
+    %% Outputs first: what the task waits for may follow what it commanded.
+    case reassert(Ready, D) of
+        {ok, D1} -> resume_pending(Ready, D1#engine.pending, D1);
+        Lost -> Lost
+    end;
 then({arm, Waits}, D0) ->
     case arm(Waits, D0) of
         {ok, D} ->
@@ -911,6 +905,8 @@ effect(uninit, D) ->
     secure_outputs(D);
 effect(forget_product, #engine{task = T} = D) ->
     D#engine{task = not_here(T)};
+effect({reoffer, Offers}, #engine{task = T} = D) ->
+    D#engine{task = cell_handshake:reoffer(T, Offers)};
 effect(headroom, D) ->
     ok = headroom(),
     D;
