@@ -601,7 +601,13 @@ cell_state_follows_tasks(Config) ->
     ?assertEqual({ready, idle, starved}, cell_controller:state()),
     States = [S || #{state := S} <- drain([])],
     ?assertEqual([setup, {ready, idle, starved}, {ready, processing, active},
-                  {ready, idle, starved}], States).
+                  {ready, idle, starved}], States),
+    %% A task's reading that reaches the controller after newer ones (the task was
+    %% descheduled between reading and telling) does not take the cell back.
+    cell_controller ! {cell_state_seen, 0, setup},
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_controller:state()),
+    ?assertEqual([], drain([])).
 
 %% Many tasks changing state at once, each telling the controller only when it sees
 %% the cell state out of date: the cell state ends as the highest state of them all,

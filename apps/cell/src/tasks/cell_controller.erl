@@ -37,6 +37,9 @@
 -define(STOPPED, <<"stopped">>).
 
 -record(state, {cell = off :: cell_ipc:state(),
+                %% how many changes of the counts the cell state above has seen (see
+                %% cell_registry:top_state_seen/0)
+                seen = 0 :: non_neg_integer(),
                 estop_timer :: reference() | undefined,
                 %% the emergency stop's fan-out, until every task secured its outputs
                 barrier :: barrier() | undefined}).
@@ -243,8 +246,13 @@ handle_cast(Msg, _State) ->
     error({unexpected_cast, Msg}).
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({cell_state_seen, Seen}, State) ->
-    {noreply, follow(cell_state(Seen, State))};
+handle_info({cell_state_seen, Version, Seen}, #state{seen = Last} = State)
+  when Version >= Last ->
+    {noreply, follow(cell_state(Seen, State#state{seen = Version}))};
+handle_info({cell_state_seen, _Older, _Seen}, State) ->
+    %% Read before changes the cell state has already followed (its task was
+    %% descheduled between reading and telling): the counts have the last word.
+    {noreply, follow(State)};
 handle_info({estop_secured, Ref}, #state{barrier = {Ref, _, _, _}} = State) ->
     {noreply, settle(State)};
 handle_info({estop_secured, _}, State) ->
@@ -344,24 +352,26 @@ fan_out(Pids, Key, ValueOf) ->
 
 %% @private After a task changed its state (in the registry, and its `task_state'
 %% event sent): the controller is told the highest state the task sees if that is not
-%% the cell state published. The counts are changed before the published state is
+%% the cell state published, with how many changes of the counts that reading saw. Two
+%% tasks' messages may arrive in the other order than they read in (one descheduled in
+%% between): the controller passes over a reading older than one it has followed. The counts are changed before the published state is
 %% read, and the controller publishes before it reads the counts (both full barriers),
 %% so of a task's change and a publication racing it one always sees the other.
 -spec task_state_changed() -> ok.
 task_state_changed() ->
-    Top = cell_registry:top_state(),
+    {Version, Top} = cell_registry:top_state_seen(),
     case cell_registry:published_state() =:= Top orelse whereis(?MODULE) of
         true -> ok;
         undefined -> ok;
-        Pid -> Pid ! {cell_state_seen, Top}, ok
+        Pid -> Pid ! {cell_state_seen, Version, Top}, ok
     end.
 
 %% The state a task saw becomes the cell state (so the cell passes through the states
 %% its tasks showed, in order), then the counts have the last word.
-follow(#state{cell = Cell} = State) ->
-    case cell_registry:top_state() of
-        Cell -> State;
-        Top -> follow(cell_state(Top, State))
+follow(#state{cell = Cell, seen = Seen} = State) ->
+    case cell_registry:top_state_seen() of
+        {Version, Cell} -> State#state{seen = max(Seen, Version)};
+        {Version, Top} -> follow(cell_state(Top, State#state{seen = max(Seen, Version)}))
     end.
 
 cell_state(Same, #state{cell = Same} = State) ->

@@ -22,7 +22,8 @@
 -behaviour(gen_server).
 
 -export([start_link/0, register_task/2, unregister_task/1, update/2, set_state/2, task/1,
-         tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, published_state/0,
+         tasks/0, task_ids/0, pids/0, hold/3, holders/1, states/0, top_state/0, top_state_seen/0,
+         published_state/0,
          control/1, set_control/2, estop_flag/0, estop_active/0]).
 -export([product_count/0, last_progress/0, wake_on_progress/0, stay_asleep/0]).
 -export([new_run/0, stopped_by_fault/1, node_stopped/0, stopped/0, clear_stopped/0]).
@@ -46,9 +47,11 @@
 %% emergency stop reaches a thousand tasks without a scan of their rows first.
 -define(PIDS, cell_task_pids).
 -define(ESTOP_KEY, {?MODULE, estop}).
-%% Tasks per state, and the cell state last published (see top_state/0).
+%% Tasks per state, the cell state last published (see top_state/0), and how many
+%% times the counts changed (see top_state_seen/0).
 -define(COUNTS_KEY, {?MODULE, state_counts}).
 -define(PUBLISHED, 8).
+-define(VERSION, 9).
 %% When a product last moved or work last started or ended (monotonic ms), and
 %% whether the cell's guard asked to be told of the next such change (1): what the
 %% guard against a silent deadlock reads, with no message on the way of a transfer.
@@ -118,7 +121,7 @@ count(Old, New) ->
     Counts = counts(),
     _ = Old =:= off orelse atomics:sub(Counts, slot(Old), 1),
     _ = New =:= off orelse atomics:add(Counts, slot(New), 1),
-    ok.
+    atomics:add(Counts, ?VERSION, 1).
 
 %% @doc The highest state a task is in (the cell state the controller publishes), from
 %% the counts per state: at most six reads, whatever the number of tasks, and nothing
@@ -134,6 +137,17 @@ top_slot(Counts, Slot) ->
         true -> Slot;
         false -> top_slot(Counts, Slot - 1)
     end.
+
+%% @doc As {@link top_state/0}, with how many times the counts had changed before it
+%% was read: of two readings, the one with the higher number saw every change the
+%% other saw. Tasks tell the controller what they read (see
+%% cell_controller:task_state_changed/0); their messages may arrive in another order
+%% than they were read in, and a reading older than one already acted on is stale.
+-spec top_state_seen() -> {non_neg_integer(), cell_ipc:state()}.
+top_state_seen() ->
+    Counts = counts(),
+    Version = atomics:get(Counts, ?VERSION),
+    {Version, cell_ipc:of_priority(top_slot(Counts, slot({ready, processing, executing})) - 1)}.
 
 %% @doc The cell state the controller last published, as top_state/0 compares it.
 -spec published_state() -> cell_ipc:state().
@@ -389,7 +403,7 @@ init([]) ->
     end,
     %% The counts start again with the tables (every task registers anew).
     case persistent_term:get(?COUNTS_KEY, undefined) of
-        undefined -> persistent_term:put(?COUNTS_KEY, atomics:new(?PUBLISHED, []));
+        undefined -> persistent_term:put(?COUNTS_KEY, atomics:new(?VERSION, []));
         _ -> ok
     end,
     _ = [atomics:put(counts(), I, 0) || I <- lists:seq(1, ?PUBLISHED - 1)],
