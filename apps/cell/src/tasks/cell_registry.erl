@@ -145,9 +145,8 @@ top_slot(Counts, Slot) ->
 %% than they were read in, and a reading older than one already acted on is stale.
 -spec top_state_seen() -> {non_neg_integer(), cell_ipc:state()}.
 top_state_seen() ->
-    Counts = counts(),
-    Version = atomics:get(Counts, ?VERSION),
-    {Version, cell_ipc:of_priority(top_slot(Counts, slot({ready, processing, executing})) - 1)}.
+    Version = atomics:get(counts(), ?VERSION),
+    {Version, top_state()}.
 
 %% @doc The cell state the controller last published, as top_state/0 compares it.
 -spec published_state() -> cell_ipc:state().

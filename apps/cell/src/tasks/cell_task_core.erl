@@ -47,7 +47,7 @@
 -export([leave/3, goto/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
          answered/4, stepped/2, inited/2, reconciled/3, resume/1, step_result/2, woken_by/2, clean/1,
          from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
-         wait_news/2]).
+         wait_news/2, serial_text/1]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
@@ -178,11 +178,10 @@ leave(off, _State, E) ->
     {E2, Off} = to(off, estop, E1),
     {E2, Cancel ++ [Off]};
 leave(stop, _State, E) ->
-    {E1, Withdraw} = withdraw(E),
-    {E2, Cancel} = disarm(E1),
-    {E3, Uninit} = uninit(clear(E2)),
-    {E4, Off} = to(off, {arrow, 9}, E3),
-    {E4, Withdraw ++ Cancel ++ [interrupt_links | Uninit] ++ [Off]};
+    {E1, Cancel} = disarm(E),
+    {E2, Secured} = secure(E1),
+    {E3, Off} = to(off, {arrow, 9}, E2),
+    {E3, Cancel ++ Secured ++ [Off]};
 leave({pause, Why}, State, #engine{request = Request} = E) ->
     {E1, Cancel} = disarm(E),
     {E2, Down} = to(down, {arrow, 6},
@@ -663,6 +662,8 @@ again(Event, E) ->
     {E1, Setup} = to(setup, {arrow, 8}, E),
     {E1, [Setup, {next_event, Event}]}.
 
+%% @doc A product's serial as the log and the operator's texts say it.
+-spec serial_text(cell_product:product() | undefined) -> unicode:chardata().
 serial_text(undefined) -> "none";
 serial_text(#{serial := S}) -> S.
 

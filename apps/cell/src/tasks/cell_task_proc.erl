@@ -369,7 +369,8 @@ crash_warning(Why, #engine{task = #task{id = Id, product = P}}) ->
                     "against its sensors: where they agree it goes on by itself, where "
                     "they do not it asks you with an error of its own.~nNothing else is "
                     "needed. If this warning comes back, report it to maintenance with the "
-                    "log. Close it once read.", [cell_member:crash_text(Why), serial_text(P)])).
+                    "log. Close it once read.",
+                    [cell_member:crash_text(Why), cell_task_core:serial_text(P)])).
 
 %% Boot, or Start in OFF: cell_task_core:from_off/3 says whether the task starts.
 start_from_off(#engine{request = Request, estop = Estop, crash = Crash,
@@ -406,9 +407,8 @@ setup_event(#engine{task = T} = D) ->
 
 %% Going on by itself after a crash: the registry remembers it until the task first
 %% waits, so that a crash before that is the operator's to answer.
-go_on_after_crash(#engine{task = #task{id = Id}} = D) ->
-    ok = cell_registry:update(Id, #{resumed => true}),
-    D#engine{crash = undefined, resumed = true}.
+go_on_after_crash(D) ->
+    carry_out({D#engine{crash = undefined, resumed = true}, [{resumed, true}]}).
 
 run_init(#engine{retain_error = Why} = D) when Why =/= undefined ->
     %% However setup was entered (a Reset, a product forgotten), nothing runs without
@@ -642,10 +642,11 @@ controlled(keep, _State, D) ->
 %% open offer is withdrawn first (and made again at resume), unless downstream has
 %% just begun to take it.
 hold_or_pause(State, D) ->
-    case try_pause(State, D) of
-        {paused, Result} -> Result;
-        {hold, D1} -> {keep_state, D1}
-    end.
+    at_boundary(try_pause(State, D)).
+
+%% Paused, or going on where it is.
+at_boundary({paused, Result}) -> Result;
+at_boundary({hold, D}) -> {next_state, (D#engine.task)#task.ipc, D}.
 
 %% What a Pause, Stop or service mode does at this boundary is cell_task_core's to
 %% say; the TryAbortOffering it asks for is made here, and its answers told back.
@@ -768,11 +769,7 @@ then({reassert, Ready}, D) ->
 then({arm, Waits}, D0) ->
     case arm(Waits, D0) of
         {ok, D} ->
-            State = (D#engine.task)#task.ipc,
-            case try_pause(State, D) of
-                {paused, Result} -> Result;
-                {hold, D1} -> {next_state, State, D1}
-            end;
+            at_boundary(try_pause((D#engine.task)#task.ipc, D));
         {io_lost, Group, D} ->
             %% The step's work stands; its wait is armed again after Retry.
             io_lost((D#engine.task)#task.ipc, Group, D)
@@ -973,10 +970,7 @@ handshake(Msg, State, #engine{task = T0} = D0) ->
         {wake, Transition} ->
             transit(Transition);
         Boundary ->
-            case paused(Boundary, State, D) of
-                {paused, Result} -> Result;
-                {hold, D1} -> {next_state, (D1#engine.task)#task.ipc, D1}
-            end
+            at_boundary(paused(Boundary, State, D))
     end.
 
 %% What the task's product file holds becomes the task's product (at boot, and at a
@@ -1153,7 +1147,7 @@ crash_error(Why, #engine{task = #task{product = P}}) ->
                     "Its product (~ts) was restored from its file and its outputs were "
                     "secured.~nCheck the machine, then select RETRY to continue with the "
                     "product as saved, or RESET to forget the product and start empty.",
-                    [cell_member:crash_text(Why), serial_text(P)]),
+                    [cell_member:crash_text(Why), cell_task_core:serial_text(P)]),
       [retry, reset]).
 
 damaged_error(#engine{task = #task{product_path = Path}, load_error = Why}) ->
@@ -1190,7 +1184,7 @@ transit_error(#engine{task = #task{product = P, marker = #{link := Link, from :=
                     "the next station took it after all, the handshake refuses this copy "
                     "when it is back and the task drops it). Select RESET if it is not "
                     "here: the task forgets it.",
-                    [serial_text(P), Link]),
+                    [cell_task_core:serial_text(P), Link]),
       [ignore, reset]);
 transit_error(#engine{task = #task{product = P, marker = #{link := Link}}}) ->
     cell_task:error_spec(
@@ -1199,11 +1193,9 @@ transit_error(#engine{task = #task{product = P, marker = #{link := Link}}}) ->
                     "interrupted.~nCheck where the product is. Select IGNORE if it is on "
                     "this station: the task goes on with it. Select RESET if it is not: "
                     "the task forgets it (take it out of the machine by hand).",
-                    [serial_text(P), Link]),
+                    [cell_task_core:serial_text(P), Link]),
       [ignore, reset]).
 
-serial_text(undefined) -> "none";
-serial_text(#{serial := S}) -> S.
 
 describe(State, #engine{task = T} = D) ->
     #{id => T#task.id, state => State, request => D#engine.request, estop => D#engine.estop,
