@@ -19,9 +19,16 @@
 %%     the request back, and open offers are withdrawn first (TryAbortOffering, which
 %%     the engine makes and whose answers it tells back) unless downstream has just
 %%     begun to take one.</li>
-%% <li>Setup: whether an OFF task starts ({@link from_off/3}), what setup does first
-%%     ({@link setup/1}), what init and reconcile came to ({@link inited/2},
-%%     {@link reconciled/3}: READY by arrow 1 or 5, or DOWN by arrow 7).</li>
+%% <li>Boot and setup: a crash found at boot ({@link crashed/4}), whether an OFF task
+%%     starts ({@link start/1}, {@link from_off/3}), what setup does first
+%%     ({@link setup/1}, {@link setup_again/1}), what init and reconcile came to
+%%     ({@link inited/2}, {@link reconciled/3}: READY by arrow 1 or 5, or DOWN by arrow
+%%     7).</li>
+%% <li>The task's IO: its connections as the engine found them before init and at
+%%     arrow 5 ({@link checked/3}, {@link conn_status/3}), a connection lost or a
+%%     point unavailable under a request ({@link io_lost/3}, {@link unavailable/5}),
+%%     what arming the waits and setting the outputs again came to ({@link armed/3},
+%%     {@link reasserted/3}).</li>
 %% <li>Steps: what a step returned ({@link step_result/2}, {@link stepped/2}), what it
 %%     is told woke it ({@link woken_by/2}, {@link clean/1}), which armed wait a timer,
 %%     a HAL watch or a reply ends ({@link wait_news/2}) and the wait ending
@@ -46,14 +53,16 @@
 
 -export([leave/3, goto/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
          answered/4, stepped/2, inited/2, reconciled/3, resume/1, step_result/2, woken_by/2, clean/1,
-         from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
+         crashed/4, start/1, setup_again/1, checked/3, conn_status/3, io_lost/3, unavailable/5,
+         armed/3, reasserted/3, from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
          wait_news/2, serial_text/1]).
 %% The task's handshake fields, for cell_handshake.
 -export([links/1, set_links/2, gen/1, marker/1, product_path/1, product_file/1,
          take/4, released/1]).
 
 -export_type([why/0, origin/0, down_reason/0, pending/0, engine/0, leave/0, effect/0,
-              then/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0]).
+              then/0, control_action/0, answer_action/0, setup_event/0, armed/0, news/0,
+              found/0, io_spec/0]).
 
 -define(LINK_RETRY_MIN_MS, 50).
 -define(LINK_RETRY_MAX_MS, 1000).
@@ -85,7 +94,9 @@
                 | {resumed, boolean()}         %% the registry told (see ask_after_crash/1)
                 | headroom                     %% the heap collected, entering READY
                 | {reoffer, [atom()]}          %% offers a pause withdrew, made again
-                | {log, notice, io:format(), [term()]} %% said in the task's log
+                | {log, notice | warning, io:format(), [term()]} %% said in the task's log
+                | {crashed, term()}            %% the crash recorded and logged
+                | {crash_warning, term()}      %% the warning that it goes on by itself
                 | predecessor                  %% what reconcile checks, taken now
                 | {ipc_event, unblocked | unstarved} %% seed 000 §2.3.4, as a wait ends
                 | {estop_secured, cell_member:estop_barrier()} %% the barrier's slot marked
@@ -101,17 +112,37 @@
                         | {secured, cell_member:estop_barrier()} %% the same, OFF already
                         | keep.                       %% kept for the state that acts on it
 %% What the engine goes on with after a transition's effects, where that takes more
-%% than effects: arrow 5 (its connections checked, its outputs set again, its waits
-%% armed again), reconcile at once (woken thus), a damaged file of the task's record
-%% set aside or read again (the operator's name for the log), the outputs a lost
-%% connection may have lost set again (then the step or its waits), the step's waits armed
-%% (then the boundary), an error raised for the operator (then DOWN, leave/3, by the
-%% arrow from setup or from the READY state named: reconcile's errors are setup's,
-%% also when it runs again from DOWN after an init error was ignored).
+%% than effects (calls whose answers it tells back to the transition named):
+%% <ul>
+%% <li>`resume': arrow 5, its connections checked first (checked/3);</li>
+%% <li>`{reassert, Ready}': the outputs a lost connection may have lost set again
+%%     (reasserted/3);</li>
+%% <li>`{arm, Waits, After}': the waits armed, after a step or at arrow 5
+%%     (armed/3);</li>
+%% <li>`start': whether an OFF task starts (start/1); `init': the task's init, its
+%%     connections up; `boundary': pause/3 at the step boundary;</li>
+%% <li>`{reconcile, Woken}': reconcile at once, woken thus;</li>
+%% <li>`{File, set_aside | reload, Who}': a damaged file of the task's record set aside
+%%     or read again (the operator's name for the log);</li>
+%% <li>`{raise, Spec, Origin, From}': an error raised for the operator, then DOWN
+%%     (leave/3) by the arrow from setup or from the READY state named: reconcile's
+%%     errors are setup's, also when it runs again from DOWN after an init error was
+%%     ignored;</li>
+%% <li>`{down_again, Spec}': a DOWN task stays DOWN with this error as its new
+%%     one.</li>
+%% </ul>
 -type then() :: resume | {reconcile, term()}
               | {product_file | retain_file, set_aside | reload, binary()}
-              | {arm, [cell_task:wait()]} | {reassert, cell_ipc:ready()}
-              | {raise, cell_alarms:spec(), origin(), setup | cell_ipc:ready()}.
+              | {arm, [cell_task:wait()], step | resume} | {reassert, cell_ipc:ready()}
+              | {raise, cell_alarms:spec() | io_spec(), origin(), setup | cell_ipc:ready()}
+              | start | init | boundary | {down_again, io_spec()}.
+%% The connections of the task's IO as the engine found them (see checked/3): a
+%% connection's status, one whose subscription the HAL's server could not take (it is
+%% restarting: down, and asked for again next time), an IO group the HAL does not know.
+-type found() :: {conn, atom(), up | down | unsubscribed} | {group, atom(), unconfigured}.
+%% An error of the task's IO, which the engine words with what the HAL says of it: a
+%% connection down, a group not configured, a point its device cannot serve.
+-type io_spec() :: {io, atom()} | {io_config, atom()} | {point, atom(), atom(), term()}.
 %% What the engine does with the operator's answer.
 -type answer_action() :: reinit                    %% uninit, then init again (arrow 8)
                        | {resume, term()}          %% READY where it was, woken thus
@@ -429,8 +460,8 @@ resume(#engine{resume = Ready, reoffer = Offers} = E) ->
 %% down, or that its device cannot serve). Done, reconcile follows (`{reconcile,
 %% undefined}'); otherwise DOWN (arrow 7) with the error. Either way init has run:
 %% uninit follows before the next init.
--spec inited({ok, cell_task:task()} | {error | io, cell_alarms:spec(), cell_task:task()}
-             | {io, cell_alarms:spec()}, engine()) -> {engine(), [effect()], then()}.
+-spec inited({ok, cell_task:task()} | {error, cell_alarms:spec(), cell_task:task()}
+             | {io, io_spec()}, engine()) -> {engine(), [effect()], then()}.
 inited({ok, T}, E) ->
     {E#engine{task = T, initialized = true}, [], {reconcile, undefined}};
 inited({error, Spec, T}, E) ->
@@ -445,7 +476,7 @@ inited({io, Spec}, E) ->
 %% READY-IDLE-STARVED without, its first step due; after a crash the log says its
 %% record and its sensors agree. Otherwise DOWN with the error, the predecessor kept
 %% for the next reconcile.
--spec reconciled({ok | error, _, _} | {io, cell_alarms:spec()}, term(), engine()) ->
+-spec reconciled({ok | error, _, _} | {io, io_spec()}, term(), engine()) ->
           {engine(), [effect()]} | {engine(), [effect()], then()}.
 reconciled({ok, T0}, Woken, #engine{predecessor = Held} = E) ->
     #task{product = P, ipc = From} = T = clean(T0),
@@ -469,7 +500,7 @@ reconciled({io, Spec}, _Woken, E) ->
 
 %% @doc What a step returned (step_result/2), other than `continue' (the engine's
 %% hot path: the next step runs at once, or behind what came meanwhile): the waits to
-%% arm (`{arm, Waits}'; the first wait after going on by itself from a crash tells the
+%% arm (`{arm, Waits, step}'; the first wait after going on by itself from a crash tells the
 %% registry, so that a crash from here on is reconcile's to decide again); the seed's
 %% ResetException (uninit, then arrow 2 to init again); an error for the operator
 %% (`{raise, Spec, step}', DOWN from where the step left the task, to go back there).
@@ -479,8 +510,10 @@ reconciled({io, Spec}, _Woken, E) ->
 stepped({wait, Waits, T}, E) ->
     E1 = E#engine{task = clean(T), pending = {waits, Waits}},
     case E1 of
-        #engine{resumed = true} -> {E1#engine{resumed = false}, [{resumed, false}], {arm, Waits}};
-        #engine{resumed = false} -> {E1, [], {arm, Waits}}
+        #engine{resumed = true} ->
+            {E1#engine{resumed = false}, [{resumed, false}], {arm, Waits, step}};
+        #engine{resumed = false} ->
+            {E1, [], {arm, Waits, step}}
     end;
 stepped({reset, T}, E) ->
     {E1, Uninit} = uninit(E#engine{task = clean(T), cause = reset}),
@@ -666,6 +699,154 @@ again(Event, E) ->
 -spec serial_text(cell_product:product() | undefined) -> unicode:chardata().
 serial_text(undefined) -> "none";
 serial_text(#{serial := S}) -> S.
+
+%% -------------------------------------------------------------------------------------
+%% Boot, start, and the task's IO
+%% -------------------------------------------------------------------------------------
+
+%% @doc The task's previous incarnation crashed (`Why'), leaving its outputs as
+%% `Outputs'. The crash is recorded; unless the operator is asked (`Ask',
+%% ask_after_crash/1) a warning says the task goes on by itself. Its outputs, as it
+%% left them, are kept for reconcile, then secured (init ran in that incarnation).
+%% Then start/1 decides whether it starts.
+-spec crashed(term(), boolean(), #{atom() => map()}, engine()) ->
+          {engine(), [effect()], then()}.
+crashed(Why, Ask, Outputs, E) ->
+    {E1, Uninit} = uninit(E#engine{initialized = true, crash = Why, cause = crash,
+                                   crash_ask = Ask, crash_outputs = Outputs}),
+    {E1, [{crashed, Why}] ++ [{crash_warning, Why} || not Ask] ++ Uninit, start}.
+
+%% @doc Boot, or Start in OFF (from_off/3): with the emergency stop active it stays
+%% OFF and says why; started, setup by arrow 0 with the settings snapshot taken at
+%% Start and what setup does first (setup/1); otherwise OFF, its product on disk and a
+%% crash of its last incarnation settled when it next starts, as any start settles one.
+-spec start(engine()) -> {engine(), [effect()]}.
+start(#engine{request = Request, estop = Estop, crash = Crash} = E) ->
+    case from_off(Request, Estop, Crash =/= undefined) of
+        estop ->
+            {E, [{log, warning, "not started: the emergency stop is active", []}]};
+        start ->
+            #engine{task = T, settings = Settings} = E,
+            into_setup({arrow, 0}, E#engine{task = T#task{settings = Settings}});
+        stay ->
+            {E#engine{crash = undefined, crash_ask = false}, []}
+    end.
+
+%% @doc Setup again by arrow 8, a damaged file of the task's record read again or set
+%% aside: what setup does first (setup/1), as at any start.
+-spec setup_again(engine()) -> {engine(), [effect()]}.
+setup_again(E) ->
+    into_setup({arrow, 8}, E).
+
+into_setup(Arrow, #engine{task = T} = E) ->
+    {Event, E1, Effects} =
+        case setup(#{retain_error => E#engine.retain_error, crash => E#engine.crash,
+                     crash_ask => E#engine.crash_ask, load_error => E#engine.load_error,
+                     in_transit => cell_handshake:in_transit(T)}) of
+            {Ev, none} ->
+                {Ev, E, []};
+            {Ev, asked} ->
+                {Ev, E#engine{crash = undefined, crash_ask = false}, []};
+            {Ev, go_on} ->
+                %% Going on by itself after a crash: the registry remembers it until the
+                %% task first waits, so that a crash before then is the operator's to
+                %% answer (ask_after_crash/1).
+                {Ev, E#engine{crash = undefined, resumed = true}, [{resumed, true}]}
+        end,
+    {E2, Setup} = to(setup, Arrow, E1),
+    {E2, Effects ++ [Setup, {next_event, Event}]}.
+
+%% @doc The task's IO connections as the engine found them (`Found', in the order of
+%% its IO groups), before init (`init') or arrow 5 (`resume'). Each status is kept: the
+%% task follows its connections from here, and one found down is among those lost
+%% since init (reasserted/3). Before init every group must be configured and its
+%% connection up, or setup raises the first that is not (arrow 7); all up, init runs.
+%% At arrow 5 all must be up, or the task stays DOWN with the first that is not as its
+%% error; all up, resume/1.
+-spec checked(init | resume, [found()], engine()) -> {engine(), [effect()], then()}.
+checked(For, Found, E0) ->
+    E = lists:foldl(fun({conn, Conn, Status}, Ex) when Status =/= unsubscribed ->
+                            conn_status(Conn, Status, Ex);
+                       (_, Ex) ->
+                            Ex
+                    end, E0, Found),
+    case {For, [F || F <- Found, not is_up(F)]} of
+        {init, []} ->
+            {E, [], init};
+        {init, [{group, Group, unconfigured} | _]} ->
+            {E#engine{resume = undefined}, [], {raise, {io_config, Group}, io, setup}};
+        {init, [{conn, Conn, _} | _]} ->
+            {E#engine{resume = undefined}, [], {raise, {io, Conn}, io, setup}};
+        {resume, []} ->
+            resume(E);
+        {resume, [{conn, Conn, _} | _]} ->
+            {E, [], {down_again, {io, Conn}}}
+    end.
+
+is_up({conn, _, up}) -> true;
+is_up(_) -> false.
+
+%% @doc A connection of the task's IO is `up' or `down' (the HAL's news, or the task's
+%% own look): kept; one down is among those lost since init (reasserted/3).
+-spec conn_status(atom(), up | down, engine()) -> engine().
+conn_status(Conn, Status, #engine{conns = Conns, lost = Lost} = E) ->
+    E1 = E#engine{conns = Conns#{Conn => Status}},
+    case Status of
+        down -> E1#engine{lost = lists:usort([Conn | Lost])};
+        up -> E1
+    end.
+
+%% @doc A request of the task in `State' found the connection `Conn' of its IO lost
+%% (down, or its HAL process restarting), or the HAL said it went down: DOWN with the
+%% error naming the connection (nothing the task reads from there can be trusted);
+%% Retry takes it back to `State' once the connection is up.
+-spec io_lost(atom(), cell_ipc:ready(), engine()) -> {engine(), [effect()], then()}.
+io_lost(Conn, State, E) ->
+    {(conn_status(Conn, down, E))#engine{resume = State}, [], {raise, {io, Conn}, io, State}}.
+
+%% @doc The point `Point' of the IO group `Group' cannot be served by its device
+%% (`Why': a PLC refusing its address, a variable renamed), the connection itself up:
+%% DOWN with the error naming it; Retry takes the task back to `State'.
+-spec unavailable(atom(), atom(), term(), cell_ipc:ready(), engine()) ->
+          {engine(), [effect()], then()}.
+unavailable(Group, Point, Why, State, E) ->
+    {E#engine{resume = State}, [], {raise, {point, Group, Point, Why}, io, State}}.
+
+%% @doc The waits of the task armed (`{ok, Armed}'), or one could not be
+%% (`{io_lost, Conn, Armed}': its connection lost; `Armed', those armed before it, are
+%% left by the error). After a step, pause/3 has its say at the boundary; at arrow 5
+%% the task waits where it was. A wait that could not be armed takes the task DOWN
+%% (io_lost/3); the step's work stands, and its waits are armed again after Retry.
+-spec armed({ok, [armed()]} | {io_lost, atom(), [armed()]}, step | resume, engine()) ->
+          {engine(), [effect()]} | {engine(), [effect()], then()}.
+armed({ok, Armed}, step, E) ->
+    {E#engine{armed = Armed}, [], boundary};
+armed({ok, Armed}, resume, E) ->
+    {E#engine{armed = Armed}, []};
+armed({io_lost, Conn, Armed}, _After, #engine{task = #task{ipc = State}} = E) ->
+    io_lost(Conn, State, E#engine{armed = Armed}).
+
+%% @doc Arrow 5 in `Ready' went on to set again the outputs a lost connection may have
+%% lost (resume/1): `{written, Writes}' (none, if the device held them all), or a
+%% write found the connection lost again, or its point unavailable. Written, the log
+%% says which and the task does what it was doing: its step, or its waits armed
+%% again.
+-spec reasserted({written, [{atom(), atom(), term()}]} | {io_lost, atom()}
+                 | {unavailable, atom(), atom(), term()}, cell_ipc:ready(), engine()) ->
+          {engine(), [effect()]} | {engine(), [effect()], then()}.
+reasserted({written, Writes}, _Ready, #engine{lost = Lost, pending = Pending} = E) ->
+    Said = [{log, notice, "connection ~ts back: outputs set again as the task last "
+             "commanded them: ~ts", [lists:join(", ", [atom_to_list(C) || C <- Lost]),
+                                     cell_task_outputs:text(Writes)]} || Writes =/= []],
+    E1 = E#engine{lost = []},
+    case Pending of
+        {waits, Waits} -> {E1, Said, {arm, Waits, resume}};
+        {step, _} -> {E1, Said ++ [{next_event, step}]}
+    end;
+reasserted({io_lost, Conn}, Ready, E) ->
+    io_lost(Conn, Ready, E);
+reasserted({unavailable, Group, Point, Why}, Ready, E) ->
+    unavailable(Group, Point, Why, Ready, E).
 
 %% -------------------------------------------------------------------------------------
 %% Transfers
@@ -1252,6 +1433,119 @@ resume_test_() ->
      ?_assertMatch({_, [headroom, {state, Active, {arrow, 5}}], _},
                    resume(E#engine{reoffer = [], down = {error, <<"a">>, io}}))].
 
+%% Boot after a crash, and Start in OFF (seed 000 §2.2, arrow 0): the crash recorded,
+%% the outputs as the crashed task left them kept for reconcile and then secured (init
+%% ran in it), a warning unless the operator is asked; setup by arrow 0 with the
+%% settings taken at Start, unless the emergency stop is active.
+start_test_() ->
+    Outputs = #{g => #{valve => true}},
+    E = #engine{task = #task{ipc = off}, request = start},
+    {Crashed, CrashFx, Then} = crashed(boom, false, Outputs, E),
+    {Asked, AskedFx, start} = crashed(boom, true, Outputs, E),
+    Started = fun(Ex) -> {E1, Fx} = start(Ex),
+                         {E1#engine.crash, E1#engine.crash_ask, E1#engine.resumed, Fx}
+              end,
+    Settings = #{speed => 3},
+    {Set, _} = start(E#engine{settings = Settings}),
+    [?_assertEqual([{crashed, boom}, {crash_warning, boom}, uninit], CrashFx),
+     ?_assertEqual(start, Then),
+     ?_assertEqual({boom, false, crash, Outputs, false},
+                   {Crashed#engine.crash, Crashed#engine.crash_ask, Crashed#engine.cause,
+                    Crashed#engine.crash_outputs, Crashed#engine.initialized}),
+     ?_assertEqual([{crashed, boom}, uninit], AskedFx),
+     ?_assertEqual(true, Asked#engine.crash_ask),
+     %% Started after a crash it goes on by itself: reconcile decides after init.
+     ?_assertEqual({undefined, false, true,
+                    [{resumed, true}, {state, setup, {arrow, 0}}, {next_event, run_init}]},
+                   Started(Crashed)),
+     %% The operator is asked: the question is setup's first event.
+     ?_assertEqual({undefined, false, false,
+                    [{state, setup, {arrow, 0}}, {next_event, {crashed, boom}}]},
+                   Started(Asked)),
+     ?_assertEqual({undefined, false, false,
+                    [{state, setup, {arrow, 0}}, {next_event, run_init}]}, Started(E)),
+     ?_assertEqual(Settings, (Set#engine.task)#task.settings),
+     %% An emergency stop: OFF, and the log says why.
+     ?_assertMatch({boom, false, false, [{log, warning, _, []}]},
+                   Started(Crashed#engine{estop = true})),
+     %% Paused, a crashed task starts (to settle the crash); a task not crashed stays.
+     ?_assertMatch({undefined, false, true, [_, {state, setup, _}, _]},
+                   Started(Crashed#engine{request = pause})),
+     ?_assertEqual({undefined, false, false, []},
+                   Started(Crashed#engine{request = stop})),
+     %% A file read again: setup again by arrow 8, its first event as at any start.
+     ?_assertEqual({E, [{state, setup, {arrow, 8}}, {next_event, run_init}]},
+                   setup_again(E)),
+     ?_assertMatch({_, [{state, setup, {arrow, 8}}, {next_event, product_damaged}]},
+                   setup_again(E#engine{load_error = enoent}))].
+
+%% The task's IO before init and at arrow 5: every status kept, one down among those
+%% lost; init only with every group configured and its connection up; resume only
+%% with every connection up, else DOWN again with the connection's error.
+checked_test_() ->
+    Active = {ready, processing, active},
+    E = #engine{task = #task{ipc = setup}, resume = Active},
+    Down = #engine{task = #task{ipc = down}, down = {error, <<"a">>, io}, resume = Active,
+                   conns = #{plc => down, io2 => up}, lost = [plc],
+                   pending = {waits, [{timer, 5}]}},
+    {Init, [], init} = checked(init, [{conn, plc, up}, {conn, io2, up}], E),
+    [?_assertEqual({#{plc => up, io2 => up}, []}, {Init#engine.conns, Init#engine.lost}),
+     ?_assertMatch({#engine{resume = undefined, conns = #{plc := up, io2 := down},
+                            lost = [io2]}, [], {raise, {io, io2}, io, setup}},
+                   checked(init, [{conn, plc, up}, {conn, io2, down}], E)),
+     %% The first group in the task's order that fails is the one the error names.
+     ?_assertMatch({_, [], {raise, {io_config, g2}, io, setup}},
+                   checked(init, [{conn, plc, up}, {group, g2, unconfigured},
+                                  {conn, io2, down}], E)),
+     %% A subscription the HAL could not take: down, but not kept (asked again).
+     ?_assertMatch({_, [], {raise, {io, plc}, io, setup}},
+                   checked(init, [{conn, plc, unsubscribed}], E)),
+     ?_assertEqual({#{}, []}, begin
+                                 {Unsub, _, _} = checked(init, [{conn, plc, unsubscribed}], E),
+                                 {Unsub#engine.conns, Unsub#engine.lost}
+                             end),
+     %% Arrow 5 with its connections up: resume/1, the connection back kept up.
+     ?_assertMatch({#engine{conns = #{plc := up}, lost = [plc], down = undefined},
+                    [headroom, {state, Active, {arrow, 5}}], {reassert, Active}},
+                   checked(resume, [{conn, plc, up}, {conn, io2, up}], Down)),
+     ?_assertEqual({Down, [], {down_again, {io, plc}}},
+                   checked(resume, [{conn, plc, down}, {conn, io2, up}], Down))].
+
+%% A connection lost under a request, a point its device cannot serve, waits that
+%% could not be armed: DOWN from where the task was, to go back there after Retry.
+io_test_() ->
+    Ready = {ready, idle, blocked},
+    E = #engine{task = #task{ipc = Ready}, conns = #{plc => up}},
+    Armed = [{reply, make_ref()}],
+    [?_assertEqual({E#engine{conns = #{plc => down}, lost = [plc], resume = Ready}, [],
+                    {raise, {io, plc}, io, Ready}},
+                   io_lost(plc, Ready, E)),
+     ?_assertEqual({E#engine{resume = Ready}, [], {raise, {point, g, p, refused}, io, Ready}},
+                   unavailable(g, p, refused, Ready, E)),
+     ?_assertEqual({E#engine{armed = Armed}, [], boundary}, armed({ok, Armed}, step, E)),
+     ?_assertEqual({E#engine{armed = Armed}, []}, armed({ok, Armed}, resume, E)),
+     ?_assertEqual({E#engine{armed = Armed, conns = #{plc => down}, lost = [plc],
+                             resume = Ready}, [], {raise, {io, plc}, io, Ready}},
+                   armed({io_lost, plc, Armed}, step, E))].
+
+%% Arrow 5 after a lost connection: the outputs set again are logged, then the task
+%% does what it was doing (its waits armed again, or its step).
+reasserted_test_() ->
+    Ready = {ready, processing, active},
+    E = #engine{task = #task{ipc = Ready}, lost = [plc], pending = {waits, [{timer, 5}]}},
+    [?_assertEqual({E#engine{lost = []}, [], {arm, [{timer, 5}], resume}},
+                   reasserted({written, []}, Ready, E)),
+     ?_assertMatch({#engine{lost = []}, [{log, notice, _, [["plc"], _]}],
+                    {arm, [{timer, 5}], resume}},
+                   reasserted({written, [{g, valve, true}]}, Ready, E)),
+     ?_assertEqual({E#engine{lost = [], pending = {step, x}}, [{next_event, step}]},
+                   reasserted({written, []}, Ready, E#engine{pending = {step, x}})),
+     ?_assertEqual({E#engine{conns = #{plc => down}, resume = Ready}, [],
+                    {raise, {io, plc}, io, Ready}},
+                   reasserted({io_lost, plc}, Ready, E)),
+     ?_assertEqual({E#engine{resume = Ready}, [], {raise, {point, g, p, why}, io, Ready}},
+                   reasserted({unavailable, g, p, why}, Ready, E))].
+
 stepped_test_() ->
     Ready = {ready, processing, active},
     T = #task{ipc = Ready, woken_by = {timer, 5}},
@@ -1259,10 +1553,10 @@ stepped_test_() ->
     Clean = T#task{woken_by = undefined},
     {Reset, ResetFx} = stepped({reset, T}, E),
     [?_assertEqual({E#engine{task = Clean, pending = {waits, [{timer, 9}]}}, [],
-                    {arm, [{timer, 9}]}},
+                    {arm, [{timer, 9}], step}},
                    stepped({wait, [{timer, 9}], T}, E)),
      ?_assertEqual({E#engine{task = Clean, pending = {waits, [{timer, 9}]}},
-                    [{resumed, false}], {arm, [{timer, 9}]}},
+                    [{resumed, false}], {arm, [{timer, 9}], step}},
                    stepped({wait, [{timer, 9}], T}, E#engine{resumed = true})),
      ?_assertEqual([uninit, {state, setup, {arrow, 2}}, {next_event, run_init}], ResetFx),
      ?_assertEqual({reset, false, Clean},

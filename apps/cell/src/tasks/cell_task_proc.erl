@@ -200,9 +200,8 @@ handle_event(info, {cell_hal_watch, _, _} = Msg, {ready, _, _} = S, D) ->
 handle_event(info, {cell_hal_unavailable, _, _} = Msg, {ready, _, _} = S, D) ->
     wait_news(Msg, S, D);
 handle_event(info, {cell_hal_conn, Conn, down}, {ready, _, _} = S, D) ->
-    %% The task's IO is gone: nothing it reads can be trusted. DOWN until the operator
-    %% retries with the connection back.
-    raise(S, io_error(Conn), io, (conn_status(Conn, down, D))#engine{resume = S});
+    %% The task's IO is gone: nothing it reads can be trusted.
+    proceed(cell_task_core:io_lost(Conn, S, D));
 handle_event(info, {Ref, _} = Msg, {ready, _, _} = S, D) when is_reference(Ref) ->
     wait_news(Msg, S, D);
 
@@ -254,7 +253,7 @@ handle_event(info, {cell_handshake_watch, _, _, _, _} = Msg, State, D) ->
 handle_event(info, {{'LINK_DOWN', _}, _, process, _, _} = Msg, State, D) ->
     handshake(Msg, State, D);
 handle_event(info, {cell_hal_conn, Conn, Status}, _State, D) ->
-    {keep_state, conn_status(Conn, Status, D)};
+    {keep_state, cell_task_core:conn_status(Conn, Status, D)};
 handle_event(info, {cell_hal_watch, _Ref, _Value}, _State, _D) ->
     %% A watch of a wait the task has since left.
     keep_state_and_data;
@@ -324,14 +323,10 @@ boot(#engine{task = #task{id = Id, module = Mod} = T, spec = Spec} = D0) ->
         end,
     case Previous of
         {crashed, Why} ->
-            ok = cell_member:crashed(T, "task", "", Why),
-            Ask = ask_after_crash(Id),
-            _ = Ask orelse crash_warning(Why, D),
             %% The outputs of the crashed incarnation may still be set: read as it
-            %% left them (for reconcile), then secured.
-            D3 = uninit(D#engine{initialized = true, crash = Why, cause = crash,
-                                 crash_ask = Ask, crash_outputs = outputs(D#engine.task)}),
-            start_from_off(D3);
+            %% left them, for reconcile.
+            proceed(cell_task_core:crashed(Why, ask_after_crash(Id), outputs(D#engine.task),
+                                           D));
         _ ->
             start_from_off(D)
     end.
@@ -372,66 +367,28 @@ crash_warning(Why, #engine{task = #task{id = Id, product = P}}) ->
                     "log. Close it once read.",
                     [cell_member:crash_text(Why), cell_task_core:serial_text(P)])).
 
-%% Boot, or Start in OFF: cell_task_core:from_off/3 says whether the task starts.
-start_from_off(#engine{request = Request, estop = Estop, crash = Crash,
-                       task = #task{id = Id}} = D) ->
-    case cell_task_core:from_off(Request, Estop, Crash =/= undefined) of
-        estop ->
-            cell_log:warning(Id, "not started: the emergency stop is active", []),
-            {keep_state, D};
-        start ->
-            enter_setup(D);
-        stay ->
-            {keep_state, D#engine{crash = undefined, crash_ask = false}}
-    end.
-
-%% Arrow 0, with the settings snapshot taken at Start.
-enter_setup(D0) ->
-    D = D0#engine{task = (D0#engine.task)#task{settings = D0#engine.settings}},
-    {Event, D1} = setup_event(D),
-    goto(setup, {arrow, 0}, D1, [{next_event, internal, Event}]).
-
-%% What setup does first: the operator's question about a file the task's record cannot
-%% be read from (retained data first: nothing runs without them), an interrupted
-%% transfer or a crash, or init.
-setup_event(#engine{task = T} = D) ->
-    case cell_task_core:setup(#{retain_error => D#engine.retain_error, crash => D#engine.crash,
-                                crash_ask => D#engine.crash_ask, load_error => D#engine.load_error,
-                                in_transit => cell_handshake:in_transit(T)}) of
-        {Event, none} -> {Event, D};
-        {Event, asked} -> {Event, D#engine{crash = undefined, crash_ask = false}};
-        %% The task's reconcile decides (an interrupted transfer's mark included), as
-        %% after the operator's Retry.
-        {Event, go_on} -> {Event, go_on_after_crash(D)}
-    end.
-
-%% Going on by itself after a crash: the registry remembers it until the task first
-%% waits, so that a crash before that is the operator's to answer.
-go_on_after_crash(D) ->
-    carry_out({D#engine{crash = undefined, resumed = true}, [{resumed, true}]}).
+%% Boot, or Start in OFF: cell_task_core:start/1 says whether the task starts.
+start_from_off(D) ->
+    transit(cell_task_core:start(D)).
 
 run_init(#engine{retain_error = Why} = D) when Why =/= undefined ->
     %% However setup was entered (a Reset, a product forgotten), nothing runs without
     %% the task's retained data.
     raise(setup, retain_damaged_error(D), retain_file, D);
-run_init(#engine{task = #task{module = Mod} = T0} = D0) ->
-    case estop_raised(D0) of
-        true ->
-            leave(estop, setup, D0#engine{estop = true});
-        false ->
-            case io_check(D0) of
-                {error, Spec, D} ->
-                    raise(setup, Spec, io, D#engine{resume = undefined});
-                {ok, D} ->
-                    %% init commands the outputs afresh.
-                    T = T0#task{answer = undefined, woken_by = undefined,
-                                commanded = cell_task_outputs:new()},
-                    %% Taken before init writes an output.
-                    D1 = D#engine{predecessor = predecessor(D), lost = []},
-                    Result = setup_call(fun() -> Mod:init(T) end, bad_init_result, Mod),
-                    proceed(cell_task_core:inited(Result, D1))
-            end
+run_init(D) ->
+    case estop_raised(D) of
+        true -> leave(estop, setup, D#engine{estop = true});
+        false -> proceed(io_check(D))
     end.
+
+%% init, every IO group of the task configured and its connection up.
+init_task(#engine{task = #task{module = Mod} = T0} = D) ->
+    %% init commands the outputs afresh.
+    T = T0#task{answer = undefined, woken_by = undefined, commanded = cell_task_outputs:new()},
+    %% Taken before init writes an output.
+    D1 = D#engine{predecessor = predecessor(D), lost = []},
+    Result = setup_call(fun() -> Mod:init(T) end, bad_init_result, Mod),
+    proceed(cell_task_core:inited(Result, D1)).
 
 %% What the task's predecessor left (cell_task:held()): taken once per way into setup,
 %% kept while reconcile asks the operator.
@@ -475,9 +432,9 @@ setup_call(Call, Bad, Mod) ->
         Other -> erlang:error({Bad, Mod, Other})
     catch
         throw:{cell_io_lost, Group, _Point, _Commanded} ->
-            {io, io_error(group_conn(Group))};
+            {io, {io, group_conn(Group)}};
         throw:{cell_io_unavailable, Group, Point, Why} ->
-            {io, point_error(Group, Point, Why)}
+            {io, {point, Group, Point, Why}}
     end.
 
 %% --------------------------------------------------------------------------------------
@@ -510,10 +467,10 @@ do_step(#engine{task = #task{module = Mod, ipc = State} = T0, pending = {step, W
         %% dropped and runs again, as it was woken, after Retry; what it commanded
         %% before is what is written again then (see reassert/2).
         throw:{cell_io_lost, Group, _Point, Commanded} ->
-            io_lost(State, Group, D#engine{task = commanded(Commanded, D#engine.task)});
+            io_lost(Group, State, D#engine{task = commanded(Commanded, D#engine.task)});
         %% A point its device cannot serve: the same, the connection itself being up.
         throw:{cell_io_unavailable, Group, Point, Why} ->
-            raise(State, point_error(Group, Point, Why), io, D#engine{resume = State})
+            proceed(cell_task_core:unavailable(Group, Point, Why, State, D))
     end.
 
 after_step({continue, T}, #engine{task = #task{ipc = Ipc}} = D) ->
@@ -543,17 +500,21 @@ next_step(State, #engine{gen = Gen} = D) ->
         _ -> self() ! ?STEP(Gen), {keep_state, D}
     end.
 
-%% `{io_lost, Group, D}' when an IO wait cannot be placed (the HAL restarting its
-%% connections): what was armed before it is in `D', for the disarm that follows.
-arm(Waits, #engine{gen = Gen} = D) ->
-    arm(Waits, Gen, [], D).
+%% The waits armed, and what that came to told to cell_task_core:armed/3: all armed,
+%% or an IO wait that cannot be placed (the HAL restarting its connections), those
+%% armed before it to be left.
+arm(Waits, After, #engine{gen = Gen} = D) ->
+    arm(Waits, Gen, [], After, D).
 
-arm([], _Gen, Armed, D) ->
-    {ok, D#engine{armed = lists:reverse(Armed)}};
-arm([W | Waits], Gen, Armed, #engine{task = T} = D) ->
+arm([], _Gen, Armed, After, D) ->
+    proceed(cell_task_core:armed({ok, lists:reverse(Armed)}, After, D));
+arm([W | Waits], Gen, Armed, After, #engine{task = T} = D) ->
     case arm_one(W, Gen, T) of
-        {io_lost, Group} -> {io_lost, Group, D#engine{armed = lists:reverse(Armed)}};
-        {One, T1} -> arm(Waits, Gen, [One | Armed], D#engine{task = T1})
+        {io_lost, Group} ->
+            proceed(cell_task_core:armed({io_lost, group_conn(Group), lists:reverse(Armed)},
+                                         After, D));
+        {One, T1} ->
+            arm(Waits, Gen, [One | Armed], After, D#engine{task = T1})
     end.
 
 arm_one({timer, Ms}, Gen, T) when is_integer(Ms), Ms >= 0 ->
@@ -603,8 +564,8 @@ wait_news(Msg, State, #engine{armed = Armed} = D) ->
             wake(Woken, State, D);
         {unavailable, Group, Point, Why} ->
             %% The point waited for cannot be served (a PLC refusing its address):
-            %% DOWN with the error naming it; Retry arms the wait again.
-            raise(State, point_error(Group, Point, Why), io, D#engine{resume = State});
+            %% Retry arms the wait again.
+            proceed(cell_task_core:unavailable(Group, Point, Why, State, D));
         late ->
             late_reply(Msg, D);
         none ->
@@ -671,61 +632,32 @@ withdraw(Link, T) ->
     {Ok, T1} = cell_handshake:try_abort_offering(T, Link),
     {{Link, Ok}, T1}.
 
-%% Arrow 5: back to the READY sub-state the task left, doing what it was doing, its
-%% withdrawn offers made again.
-resume(#engine{conns = Conns} = D0) ->
-    case lists:foldl(fun(C, {Down, Dx}) ->
-                             case conn_up(C, Dx) of
-                                 {up, Dx1} -> {Down, Dx1};
-                                 {down, Dx1} -> {[C | Down], Dx1}
-                             end
-                     end, {[], D0}, maps:keys(Conns)) of
-        {[], D} ->
-            proceed(cell_task_core:resume(D));
-        {[Conn | _], D} ->
-            %% Still DOWN: the IO it would resume with is gone.
-            {ok, AlarmId} = cell_alarms:raise_error((D#engine.task)#task.id, io_error(Conn),
-                                                    self()),
-            {keep_state, D#engine{down = {error, AlarmId, io}}}
-    end.
-
-resume_pending(Ready, {waits, Waits}, D) ->
-    case arm(Waits, D) of
-        {ok, D1} -> {next_state, (D1#engine.task)#task.ipc, D1};
-        {io_lost, Group, D1} -> io_lost(Ready, Group, D1)
-    end;
-resume_pending(_Ready, {step, _}, #engine{task = T} = D) ->
-    {next_state, T#task.ipc, D, [{next_event, internal, step}]}.
+%% Arrow 5 (cell_task_core:checked/3 decides): the task's connections looked at
+%% first, since the IO it would resume with may still be gone.
+resume(#engine{conns = Conns} = D) ->
+    Found = [conn_up(Conn, Conns) || Conn <- maps:keys(Conns)],
+    proceed(cell_task_core:checked(resume, Found, D)).
 
 %% Going on after a connection of the task's IO was lost: every output of that
 %% connection's groups the task commanded and the device does not hold as commanded (a
 %% write lost with the connection, a PLC that took its outputs to safe values; the HAL
-%% read them back at reconnect) is written again, and the log says which. Outputs of
-%% connections that stayed up, and anything secured since (uninit clears the image),
-%% are left alone. `{ok, D}', or the task DOWN again if a write finds the connection
-%% gone or the point unavailable.
-reassert(_Ready, #engine{lost = []} = D) ->
-    {ok, D};
-reassert(Ready, #engine{lost = Lost, task = #task{id = Id, io = Groups, commanded = Image}} = D) ->
+%% read them back at reconnect) is written again (cell_task_outputs:writes/3 says which).
+%% Outputs of connections that stayed up, and anything secured since (uninit clears
+%% the image), are left alone. What that came to is cell_task_core:reasserted/3's.
+reassert(Ready, D) ->
+    proceed(cell_task_core:reasserted(write_again(D), Ready, D)).
+
+write_again(#engine{lost = []}) ->
+    {written, []};
+write_again(#engine{lost = Lost, task = #task{io = Groups, commanded = Image}}) ->
     Ours = [G || G <- Groups, lists:member(group_conn(G), Lost)],
     Now = maps:from_list([{{G, P}, V} || {G, P} <- maps:keys(Image), lists:member(G, Ours),
                                          {ok, V} <- [cell_hal:read(G, P)]]),
-    case cell_task_outputs:writes(Image, Ours, Now) of
-        [] ->
-            {ok, D#engine{lost = []}};
-        Writes ->
-            case write_all(Writes) of
-                ok ->
-                    cell_log:notice(Id, "connection ~ts back: outputs set again as the task "
-                                    "last commanded them: ~ts",
-                                    [lists:join(", ", [atom_to_list(C) || C <- Lost]),
-                                     cell_task_outputs:text(Writes)]),
-                    {ok, D#engine{lost = []}};
-                {io_lost, Group} ->
-                    io_lost(Ready, Group, D);
-                {unavailable, Group, Point, Why} ->
-                    raise(Ready, point_error(Group, Point, Why), io, D#engine{resume = Ready})
-            end
+    Writes = cell_task_outputs:writes(Image, Ours, Now),
+    case write_all(Writes) of
+        ok -> {written, Writes};
+        {io_lost, Group} -> {io_lost, group_conn(Group)};
+        Unavailable -> Unavailable
     end.
 
 %% What a step dropped at a lost connection had commanded until then.
@@ -742,15 +674,13 @@ write_all([{G, P, V} | Rest]) ->
         {error, Reason} -> erlang:error({io, G, P, Reason})
     end.
 
-%% A request of the task's IO found its connection lost (down, or its HAL process
-%% restarting): DOWN with the error naming the connection; Retry takes the task on
-%% where it was once the connection is back.
-io_lost(State, Group, D) ->
-    Conn = group_conn(Group),
-    raise(State, io_error(Conn), io, (conn_status(Conn, down, D))#engine{resume = State}).
+%% A request of the task's IO in `State' found the connection of `Group' lost (down,
+%% or its HAL process restarting): cell_task_core:io_lost/3.
+io_lost(Group, State, D) ->
+    proceed(cell_task_core:io_lost(group_conn(Group), State, D)).
 
 raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
-    {ok, AlarmId} = cell_alarms:raise_error(Id, Spec, self()),
+    {ok, AlarmId} = cell_alarms:raise_error(Id, error_spec(Spec), self()),
     leave({error, AlarmId, Origin}, State, D).
 
 %% The operator answered an error: cell_task_core:answered/4's transition, carried
@@ -761,21 +691,21 @@ answered(Origin, Solution, Who, D) ->
 then(resume, D) ->
     resume(D);
 then({reassert, Ready}, D) ->
-    %% Outputs first: what the task waits for may follow what it commanded.
-    case reassert(Ready, D) of
-        {ok, D1} -> resume_pending(Ready, D1#engine.pending, D1);
-        Lost -> Lost
-    end;
-then({arm, Waits}, D0) ->
-    case arm(Waits, D0) of
-        {ok, D} ->
-            at_boundary(try_pause((D#engine.task)#task.ipc, D));
-        {io_lost, Group, D} ->
-            %% The step's work stands; its wait is armed again after Retry.
-            io_lost((D#engine.task)#task.ipc, Group, D)
-    end;
+    reassert(Ready, D);
+then({arm, Waits, After}, D) ->
+    arm(Waits, After, D);
+then(boundary, D) ->
+    hold_or_pause((D#engine.task)#task.ipc, D);
+then(start, D) ->
+    start_from_off(D);
+then(init, D) ->
+    init_task(D);
 then({raise, Spec, Origin, From}, D) ->
     raise(From, Spec, Origin, D);
+then({down_again, Spec}, #engine{task = #task{id = Id}} = D) ->
+    %% Still DOWN: the error is new, its origin the same.
+    {ok, AlarmId} = cell_alarms:raise_error(Id, error_spec(Spec), self()),
+    {keep_state, D#engine{down = {error, AlarmId, io}}};
 then({reconcile, Woken}, D) ->
     run_reconcile(undefined, Woken, D);
 then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path = Path}} = D) ->
@@ -790,8 +720,8 @@ then({product_file, reload, _Who}, #engine{task = #task{product_path = Path} = T
             %% Mended (or removed) meanwhile: taken as at boot, and set up as at any
             %% start, so a product marked in transit is the operator's question
             %% before the task can send it on.
-            {Event, D1} = setup_event(D#engine{task = restore(T, Stored), load_error = undefined}),
-            goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]);
+            transit(cell_task_core:setup_again(D#engine{task = restore(T, Stored),
+                                                        load_error = undefined}));
         {error, Reason} ->
             D1 = D#engine{load_error = Reason},
             goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
@@ -814,10 +744,8 @@ then({retain_file, reload, _Who}, D) ->
 
 %% The retained data read again (mended, restored or set aside meanwhile): the task
 %% goes on into setup as from OFF, or is asked again.
-retained_again(D0) ->
-    D = retained(D0),
-    {Event, D1} = setup_event(D),
-    goto(setup, {arrow, 8}, D1, [{next_event, internal, Event}]).
+retained_again(D) ->
+    transit(cell_task_core:setup_again(retained(D))).
 
 %% @doc Marks the caller's slot of the emergency stop's barrier: its outputs are
 %% secured. The last of the fan-out tells the controller.
@@ -837,10 +765,6 @@ headroom() ->
 %% The flag is made once per node and never replaced, so the task keeps it.
 estop_raised(#engine{estop_flag = Flag}) ->
     atomics:get(Flag, 1) =:= 1.
-
-%% uninit, if init ran and uninit has not since (see cell_task_core:uninit/1).
-uninit(D) ->
-    carry_out(cell_task_core:uninit(D)).
 
 %% uninit is the seed's "must not fail": an error in it is logged, never raised, so
 %% a failing uninit cannot keep a task from stopping.
@@ -914,6 +838,15 @@ effect(keep_product, #engine{task = #task{product = P, gen = G} = T} = D) ->
     D#engine{task = cell_task:store(T, P, G, undefined, #{})};
 effect({log, notice, Format, Args}, #engine{task = #task{id = Id}} = D) ->
     cell_log:notice(Id, Format, Args),
+    D;
+effect({log, warning, Format, Args}, #engine{task = #task{id = Id}} = D) ->
+    cell_log:warning(Id, Format, Args),
+    D;
+effect({crashed, Why}, #engine{task = T} = D) ->
+    ok = cell_member:crashed(T, "task", "", Why),
+    D;
+effect({crash_warning, Why}, D) ->
+    ok = crash_warning(Why, D),
     D;
 effect(predecessor, D) ->
     D#engine{predecessor = predecessor(D)};
@@ -1055,49 +988,34 @@ drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
 %% IO
 %% --------------------------------------------------------------------------------------
 
-%% Before init: every IO group of the task is configured and its connection is up; the
-%% task follows the connections' status from here.
-io_check(#engine{task = #task{io = Groups}} = D0) ->
-    lists:foldl(fun(_G, {error, _, _} = E) -> E;
-                   (G, {ok, D}) ->
-                        case cell_hal:connection_of(G) of
-                            {ok, Conn} ->
-                                case conn_up(Conn, D) of
-                                    {up, D1} -> {ok, D1};
-                                    {down, D1} -> {error, io_error(Conn), D1}
-                                end;
-                            {error, unknown_group} ->
-                                {error, io_config_error(G), D}
-                        end
-                end, {ok, D0}, Groups).
+%% Before init, each IO group of the task as the HAL knows it, and its connection
+%% (cell_task_core:checked/3 decides).
+io_check(#engine{task = #task{io = Groups}, conns = Conns} = D) ->
+    Found = [case cell_hal:connection_of(G) of
+                 {ok, Conn} -> conn_up(Conn, Conns);
+                 {error, unknown_group} -> {group, G, unconfigured}
+             end || G <- Groups],
+    cell_task_core:checked(init, Found, D).
 
-%% Whether a connection of the task's IO is up, subscribed to first. One the task took
-%% for down is read again from the HAL: a request that found the HAL's process
-%% restarting takes it for down, and the `up' that ends the restart (or no change at
-%% all) may not have reached the task yet. A subscription the HAL's server could not
-%% take (restarting) is not recorded, so it is asked for again next time.
-conn_up(Conn, #engine{conns = Conns} = D) ->
+%% A connection of the task's IO as it is, subscribed to first. One the task took for
+%% down is read again from the HAL: a request that found the HAL's process restarting
+%% takes it for down, and the `up' that ends the restart (or no change at all) may not
+%% have reached the task yet. One whose subscription the HAL's server could not take
+%% (restarting) is asked for again next time.
+conn_up(Conn, Conns) ->
     case Conns of
         #{Conn := up} ->
-            {up, D};
+            {conn, Conn, up};
         #{Conn := down} ->
-            Status = case cell_hal:status(Conn) of
-                         up -> up;
-                         _ -> down
-                     end,
-            {Status, conn_status(Conn, Status, D)};
+            case cell_hal:status(Conn) of
+                up -> {conn, Conn, up};
+                _ -> {conn, Conn, down}
+            end;
         #{} ->
             case cell_hal:subscribe_connection(Conn) of
-                {ok, Status} -> {Status, conn_status(Conn, Status, D)};
-                {error, _} -> {down, D}
+                {ok, Status} -> {conn, Conn, Status};
+                {error, _} -> {conn, Conn, unsubscribed}
             end
-    end.
-
-conn_status(Conn, Status, #engine{conns = Conns, lost = Lost} = D) ->
-    D1 = D#engine{conns = maps:put(Conn, Status, Conns)},
-    case Status of
-        down -> D1#engine{lost = lists:usort([Conn | Lost])};
-        up -> D1
     end.
 
 group_conn(Group) ->
@@ -1105,6 +1023,13 @@ group_conn(Group) ->
         {ok, Conn} -> Conn;
         {error, _} -> Group
     end.
+
+%% The error an IO error of cell_task_core names (cell_task_core:io_spec()), worded
+%% with what the HAL says of it; the task's own errors as they are.
+error_spec({io, Conn}) -> io_error(Conn);
+error_spec({io_config, Group}) -> io_config_error(Group);
+error_spec({point, Group, Point, Why}) -> point_error(Group, Point, Why);
+error_spec(#{} = Spec) -> Spec.
 
 io_error(Conn) ->
     {Where, Why} = case cell_hal:info(Conn) of
