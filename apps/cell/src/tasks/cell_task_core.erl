@@ -229,6 +229,9 @@ leave({reconcile, Arrow}, State, E) ->
     {E1, Left} = leave({setup, dropped}, State, E),
     {E2, Setup} = to(setup, {arrow, Arrow}, E1),
     {E2, Left ++ [predecessor, Setup, {next_event, {reconcile, undefined}}]};
+leave(forget, off, E) ->
+    %% OFF: nothing runs, nothing to secure; it starts without the product.
+    {E, [forget_product]};
 leave(forget, State, E) ->
     {E1, Withdraw} = withdraw(E),
     {E2, Left} = leave({setup, reset}, State, E1),
@@ -1141,6 +1144,8 @@ leave_test_() ->
      ?_assertEqual({reset, false}, {Forgot#engine.cause, Forgot#engine.initialized}),
      ?_assertEqual([{withdraw_alarm, <<"a1">>}, interrupt_links, uninit, forget_product,
                     {state, setup, {arrow, 8}}, {next_event, run_init}], ForgotDownFx),
+     %% OFF: forgotten, nothing else; it starts without it.
+     ?_assertEqual({E, [forget_product]}, leave(forget, off, E)),
      %% The dropped product is forgotten once the task leaves DOWN.
      ?_assertEqual({true, false},
                    {(element(1, goto(down, {arrow, 6}, Paused)))#engine.dropped,

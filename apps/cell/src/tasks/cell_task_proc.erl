@@ -952,12 +952,7 @@ drop_stale(T, _Serial, _Gen) ->
 %% forgets the product and initialises again; an error it waited on is withdrawn.
 forget(State, S, Who, #engine{task = #task{id = Id, product = #{serial := S}}} = D0) ->
     cell_log:notice(Id, "~ts said product ~ts is not at this task: it is forgotten", [Who, S]),
-    case State of
-        off ->
-            {keep_state, D0#engine{task = not_here(D0#engine.task)}};
-        _ ->
-            leave(forget, State, D0)
-    end;
+    leave(forget, State, D0);
 forget(_State, _Serial, _Who, _D) ->
     keep_state_and_data.
 
