@@ -43,6 +43,8 @@
 
 -record(state, {core :: cell_handshake_link_core:core() | undefined,
                 spec :: spec(),
+                %% The fence's file, kept open between writes.
+                fence :: cell_file:record_file() | undefined,
                 %% The monitors of the attached partners.
                 mrefs = #{} :: #{role() => reference()}}).
 
@@ -109,7 +111,8 @@ handle_continue(load, #state{spec = #{id := Id} = Spec} = State) ->
     Fence = load_fence(Id),
     %% A restarted link tells its partners, who attach again.
     {Core, Effects} = cell_handshake_link_core:new(Spec#{fence => Fence}, self()),
-    {noreply, effects(Effects, State#state{core = Core})}.
+    File = cell_file:record_file(fence_path(Id)),
+    {noreply, effects(Effects, State#state{core = Core, fence = File})}.
 
 %% @doc The file of a link's fence.
 -spec fence_path(atom()) -> binary().
@@ -201,11 +204,11 @@ effects([{demonitor, Role} | Rest], #state{mrefs = MRefs} = State) ->
 effects([{hello, Task, Id} | Rest], State) ->
     ok = cell_handshake:hello(Task, Id),
     effects(Rest, State);
-effects([{persist, Fence} | Rest], #state{spec = #{id := Id}} = State) ->
+effects([{persist, Fence} | Rest], #state{fence = File} = State) ->
     %% Nothing that depends on it goes out before it is on disk; a fence that cannot
     %% be written stops the link (its supervisor restarts it) rather than let it go on
     %% promising what it could not keep.
-    ok = cell_file:put_record(fence_path(Id), #{fence => Fence}),
+    ok = cell_file:put_record(File, #{fence => Fence}, #{}),
     effects(Rest, State);
 effects([{phase, Id, Phase, Serial} | Rest], State) ->
     ok = cell_events:publish(link_phase, cell, #{link => Id, phase => Phase, serial => Serial}),

@@ -73,6 +73,7 @@
                                  up := binary()}}.
 
 -record(end_, {task :: task_ref(),
+               key :: binary(),              %% the task as a fence's entry names it
                pid :: pid() | undefined}).
 
 -record(core, {id :: atom(),
@@ -101,7 +102,7 @@
 -spec new(#{id := atom(), from := task_ref(), to := task_ref(), fence => fence(), _ => _},
           pid()) -> {core(), [effect()]}.
 new(#{id := Id, from := From, to := To} = Spec, Self) ->
-    Core = #core{id = Id, self = Self, up = #end_{task = From}, down = #end_{task = To},
+    Core = #core{id = Id, self = Self, up = end_(From), down = end_(To),
                  fence = maps:get(fence, Spec, #{})},
     {Core, [{hello, T, Id} || T <- [From, To], T =/= undefined]}.
 
@@ -320,7 +321,7 @@ attach(Role, Task, Pid, Core) ->
         #end_{pid = Old} when is_pid(Old) ->
             {reply, {error, {attached, End#end_.task}}, Core};
         _ ->
-            Core1 = set_end(Role, End#end_{task = Task, pid = Pid},
+            Core1 = set_end(Role, (end_(Task))#end_{pid = Pid},
                             effect({monitor, Role, Pid}, Core)),
             {reply, {ok, status(Core1)}, Core1}
     end.
@@ -479,5 +480,10 @@ unfence(S, #core{fence = Fence} = Core) ->
             Core
     end.
 
-up_key(#core{up = #end_{task = Task}}) ->
-    iolist_to_binary(io_lib:format("~0tp", [Task])).
+up_key(#core{up = #end_{key = Key}}) ->
+    Key.
+
+%% A partner, named once as a fence's entry names it (an upstream's entry says which
+%% task released its serial).
+end_(Task) ->
+    #end_{task = Task, key = iolist_to_binary(io_lib:format("~0tp", [Task]))}.
