@@ -144,7 +144,7 @@ args(#seq{frames = [#frame{args = A} | _]}) -> A.
 
 %% @doc An argument of the running sequence, or `Default'.
 -spec arg(seq(), term(), term()) -> term().
-arg(#seq{frames = [#frame{args = A} | _]}, Key, Default) -> maps:get(Key, A, Default).
+arg(#seq{frames = [#frame{args = A} | _]}, Key, Default) -> value(Key, A, Default).
 
 %% @doc A variable of the running sequence (the seed's VAR section).
 -spec get(seq(), term()) -> term().
@@ -152,7 +152,7 @@ get(#seq{frames = [#frame{vars = V} | _]}, Key) -> maps:get(Key, V).
 
 %% @doc A variable of the running sequence, or `Default' when it has none.
 -spec get(seq(), term(), term()) -> term().
-get(#seq{frames = [#frame{vars = V} | _]}, Key, Default) -> maps:get(Key, V, Default).
+get(#seq{frames = [#frame{vars = V} | _]}, Key, Default) -> value(Key, V, Default).
 
 %% @doc Sets a variable of the running sequence.
 -spec put(seq(), term(), term()) -> seq().
@@ -174,7 +174,7 @@ settings(#seq{settings = S}) -> S.
 
 %% @doc A field of the unit's settings, or `Default'.
 -spec setting(seq(), term(), term()) -> term().
-setting(#seq{settings = S}, Key, Default) -> maps:get(Key, S, Default).
+setting(#seq{settings = S}, Key, Default) -> value(Key, S, Default).
 
 %% -------------------------------------------------------------------------------------
 %% What comes next
@@ -366,7 +366,7 @@ reply(#seq{replies = R}, Ref) ->
 %% unit keeps it across its states, not across a restart of its process), or `Default'
 %% when none was given.
 -spec order(seq(), atom(), term()) -> term().
-order(#seq{orders = Orders}, Key, Default) -> maps:get(Key, Orders, Default).
+order(#seq{orders = Orders}, Key, Default) -> value(Key, Orders, Default).
 
 %% @doc Keeps the answer to a request made now for a later step to await (answers to
 %% requests nobody awaits or expects are dropped).
@@ -473,6 +473,14 @@ cmp(le) -> "<=".
 
 term(A) when is_atom(A) -> atom_to_list(A);
 term(T) -> io_lib:format("~tp", [T]).
+
+%% A value of a map, or `Default': what a step reads most (its arguments, above all),
+%% matched here rather than through maps:get/3's call.
+value(Key, Map, Default) ->
+    case Map of
+        #{Key := V} -> V;
+        #{} -> Default
+    end.
 
 %% -------------------------------------------------------------------------------------
 %% For the runner and actuators
