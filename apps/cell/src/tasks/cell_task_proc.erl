@@ -983,13 +983,22 @@ drop(#task{id = Id, product = #{serial := S}} = T, Why) ->
 %% IO
 %% --------------------------------------------------------------------------------------
 
-%% Before init, each IO group of the task as the HAL knows it, and its connection
-%% (cell_task_core:checked/3 decides).
+%% Before init, each IO group of the task as the HAL knows it, and its connection,
+%% looked at once however many of the groups it serves (cell_task_core:checked/3
+%% decides).
 io_check(#engine{task = #task{io = Groups}, conns = Conns} = D) ->
-    Found = [case cell_hal:connection_of(G) of
-                 {ok, Conn} -> conn_up(Conn, Conns);
-                 {error, unknown_group} -> {group, G, unconfigured}
-             end || G <- Groups],
+    {Found, _} = lists:mapfoldl(
+                   fun(G, Seen) ->
+                           case cell_hal:connection_of(G) of
+                               {ok, Conn} when is_map_key(Conn, Seen) ->
+                                   {maps:get(Conn, Seen), Seen};
+                               {ok, Conn} ->
+                                   F = conn_up(Conn, Conns),
+                                   {F, Seen#{Conn => F}};
+                               {error, unknown_group} ->
+                                   {{group, G, unconfigured}, Seen}
+                           end
+                   end, #{}, Groups),
     cell_task_core:checked(init, Found, D).
 
 %% A connection of the task's IO as it is, subscribed to first. One the task took for
