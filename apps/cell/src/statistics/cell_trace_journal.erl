@@ -205,11 +205,16 @@ handle_call({append, Record}, From, #st{inc = Inc, n = N, batch = B, bytes = Byt
     Frame = encode(R),
     case Bytes + BB + byte_size(Frame) =< Max of
         true ->
+            St1 = St#st{n = N + 1, batch = [{From, R, Frame} | B],
+                        batch_bytes = BB + byte_size(Frame)},
             %% The commit runs once every append already in the mailbox has joined the
-            %% batch.
-            _ = St#st.commit orelse (self() ! commit),
-            {noreply, St#st{n = N + 1, batch = [{From, R, Frame} | B],
-                            batch_bytes = BB + byte_size(Frame), commit = true}};
+            %% batch: at once when none is there (nothing to wait for), otherwise
+            %% behind them.
+            case St#st.commit orelse erlang:process_info(self(), message_queue_len) of
+                true -> {noreply, St1};
+                {message_queue_len, 0} -> commit(St1);
+                _ -> self() ! commit, {noreply, St1#st{commit = true}}
+            end;
         false ->
             _ = St#st.full orelse
                 cell_log:error(cell, "trace journal ~ts is full (~ts of ~ts): the database "
@@ -250,7 +255,20 @@ handle_cast({trim, Upto}, #st{kept = Kept} = St) ->
     end.
 
 -spec handle_info(term(), #st{}) -> {noreply, #st{}}.
-handle_info(commit, #st{batch = Batch} = St) ->
+handle_info(commit, St) ->
+    commit(St);
+handle_info({'DOWN', Ref, process, _, _}, #st{reader = {_, Ref}} = St) ->
+    {noreply, St#st{reader = undefined}}.
+
+-spec terminate(term(), #st{}) -> ok.
+terminate(_Reason, #st{file = undefined}) ->
+    ok;
+terminate(_Reason, #st{file = File}) ->
+    cell_file:close_append(File).
+
+%% The batch written with one write and one flush, its records sent to the reader, then
+%% each writer answered.
+commit(#st{batch = Batch} = St) ->
     Records = [R || {_, R, _} <- lists:reverse(Batch)],
     Frames = [{Id, F} || {_, #{id := Id}, F} <- lists:reverse(Batch)],
     Result = cell_file:append(St#st.file, [F || {_, F} <- Frames], #{}),
@@ -273,15 +291,7 @@ handle_info(commit, #st{batch = Batch} = St) ->
             ok = cell_file:close_append(St#st.file),
             ok = rewrite(St#st.path, lists:reverse(St#st.kept)),
             {noreply, St1#st{file = open_append(St#st.path)}}
-    end;
-handle_info({'DOWN', Ref, process, _, _}, #st{reader = {_, Ref}} = St) ->
-    {noreply, St#st{reader = undefined}}.
-
--spec terminate(term(), #st{}) -> ok.
-terminate(_Reason, #st{file = undefined}) ->
-    ok;
-terminate(_Reason, #st{file = File}) ->
-    cell_file:close_append(File).
+    end.
 
 %%====================================================================
 %% The file
