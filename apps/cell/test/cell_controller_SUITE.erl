@@ -11,7 +11,7 @@
          service_mode_pauses/1, crash_restores_product/1,
          crash_asked_where_reconcile_cannot_decide/1, older_copy_answer_not_refused/1,
          older_copy_dropped_while_paused/1,
-         damaged_product_file/1,
+         damaged_product_file/1, damaged_product_file_not_set_aside/1,
          reconcile_gets_what_was_held/1,
          damaged_product_file_mended/1, damaged_product_file_mended_in_transit/1,
          product_survives_restart/1, warnings/1, events_have_their_fields/1,
@@ -26,6 +26,7 @@ all() ->
     [start_pause_resume_stop, errors_are_answered, estop_stops_every_task,
      service_mode_pauses, crash_restores_product, crash_asked_where_reconcile_cannot_decide,
      older_copy_answer_not_refused, older_copy_dropped_while_paused, damaged_product_file,
+     damaged_product_file_not_set_aside,
      reconcile_gets_what_was_held,
      damaged_product_file_mended, damaged_product_file_mended_in_transit,
      product_survives_restart, warnings, events_have_their_fields,
@@ -469,6 +470,29 @@ damaged_product_file(Config) ->
     ok = cell_controller:sync(),
     [#{id := Id2, caption := <<"Product file damaged">>}] = cell_alarms:list(),
     %% Reset sets the file aside (never deleted) and starts empty.
+    ok = cell_alarms:answer(Id2, reset, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),
+    ?assertMatch([_], filelib:wildcard(unicode:characters_to_list(Path) ++ ".damaged-*")).
+
+%% Reset cannot set the damaged file aside (here: every name it would take for the
+%% next minute is a folder that is not empty): the file is still there and still
+%% damaged, so the task does not start as if it were gone; the operator is asked
+%% again. Once the way is clear, Reset sets it aside.
+damaged_product_file_not_set_aside(Config) ->
+    {Path, Id} = start_with_damaged_file(Config),
+    Now = os:system_time(second),
+    Blocks = [unicode:characters_to_list(Path) ++ ".damaged-" ++ integer_to_list(S)
+              || S <- lists:seq(Now, Now + 60)],
+    [ok = file:write_file(filename:join(B, "keep"), <<>>)
+     || B <- Blocks, ok =:= filelib:ensure_dir(filename:join(B, "keep"))],
+    ok = cell_alarms:answer(Id, reset, <<"op">>),
+    ok = cell_controller:sync(),
+    ?assertEqual(down, cell_task_proc:state(work)),
+    [#{id := Id2, caption := <<"Product file damaged">>}] = cell_alarms:list(),
+    ?assertEqual({ok, <<"half a produc">>}, file:read_file(Path)),
+    [begin ok = file:delete(filename:join(B, "keep")), ok = file:del_dir(B) end
+     || B <- Blocks],
     ok = cell_alarms:answer(Id2, reset, <<"op">>),
     ok = cell_controller:sync(),
     ?assertEqual({ready, idle, starved}, cell_task_proc:state(work)),

@@ -51,7 +51,7 @@
 -include("cell_task.hrl").
 -include("cell_task_engine.hrl").
 
--export([leave/3, goto/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
+-export([leave/3, uninit/1, control/4, pause/3, wake/3, link_news/3, stale/4,
          answered/4, stepped/2, inited/2, reconciled/3, resume/1, step_result/2, woken_by/2, clean/1,
          crashed/4, start/1, setup_again/1, checked/3, conn_status/3, io_lost/3, unavailable/5,
          armed/3, reasserted/3, from_off/3, setup/1, ask_after_crash/1, starves/4, newer_holder/3, link_retry_ms/1,
@@ -326,13 +326,8 @@ disarm(#engine{armed = Armed, gen = Gen} = E) ->
 uninit(#engine{initialized = false} = E) -> {E, []};
 uninit(E) -> {E#engine{initialized = false, lost = []}, [uninit]}.
 
-%% @doc Into `To', for `Cause': recorded and announced. A product dropped while
-%% paused is remembered only while DOWN.
--spec goto(cell_ipc:state(), cell_ipc:cause(), engine()) -> {engine(), [effect()]}.
-goto(To, Cause, E) ->
-    {E1, Effect} = to(To, Cause, E),
-    {E1, [Effect]}.
-
+%% Into `To', for `Cause': recorded and announced (the effect). A product dropped
+%% while paused is remembered only while DOWN.
 to(To, Cause, #engine{dropped = Dropped} = E) ->
     {E#engine{dropped = Dropped andalso To =:= down}, {state, To, Cause}}.
 
@@ -1148,8 +1143,8 @@ leave_test_() ->
      ?_assertEqual({E, [forget_product]}, leave(forget, off, E)),
      %% The dropped product is forgotten once the task leaves DOWN.
      ?_assertEqual({true, false},
-                   {(element(1, goto(down, {arrow, 6}, Paused)))#engine.dropped,
-                    (element(1, goto(setup, {arrow, 8}, Paused)))#engine.dropped}),
+                   {(element(1, to(down, {arrow, 6}, Paused)))#engine.dropped,
+                    (element(1, to(setup, {arrow, 8}, Paused)))#engine.dropped}),
      ?_assertEqual({E#engine{initialized = false, lost = []}, [uninit]},
                    uninit(E#engine{lost = [c]})),
      ?_assertEqual({#engine{}, []}, uninit(#engine{})),

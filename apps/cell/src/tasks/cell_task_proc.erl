@@ -679,9 +679,13 @@ write_all([{G, P, V} | Rest]) ->
 io_lost(Group, State, D) ->
     proceed(cell_task_core:io_lost(group_conn(Group), State, D)).
 
-raise(State, Spec, Origin, #engine{task = #task{id = Id}} = D) ->
+raise(State, Spec, Origin, D) ->
+    leave({error, alarm(Spec, D), Origin}, State, D).
+
+%% The error raised for the operator; its alarm's id.
+alarm(Spec, #engine{task = #task{id = Id}}) ->
     {ok, AlarmId} = cell_alarms:raise_error(Id, error_spec(Spec), self()),
-    leave({error, AlarmId, Origin}, State, D).
+    AlarmId.
 
 %% The operator answered an error: cell_task_core:answered/4's transition, carried
 %% out, and then what it takes more than effects to go on with (then/2).
@@ -702,18 +706,23 @@ then(init, D) ->
     init_task(D);
 then({raise, Spec, Origin, From}, D) ->
     raise(From, Spec, Origin, D);
-then({down_again, Spec}, #engine{task = #task{id = Id}} = D) ->
+then({down_again, Spec}, D) ->
     %% Still DOWN: the error is new, its origin the same.
-    {ok, AlarmId} = cell_alarms:raise_error(Id, error_spec(Spec), self()),
-    {keep_state, D#engine{down = {error, AlarmId, io}}};
+    {keep_state, D#engine{down = {error, alarm(Spec, D), io}}};
 then({reconcile, Woken}, D) ->
     run_reconcile(undefined, Woken, D);
 then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path = Path}} = D) ->
-    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
-    _ = file:rename(Path, Aside),
-    cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task starts "
-                    "without a product", [Who, Aside]),
-    goto(setup, {arrow, 8}, D#engine{load_error = undefined}, [{next_event, internal, run_init}]);
+    case set_aside(Path) of
+        {ok, Aside} ->
+            cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task "
+                            "starts without a product", [Who, Aside]),
+            transit(cell_task_core:setup_again(D#engine{load_error = undefined}));
+        {error, Why} ->
+            %% Still there and still damaged: asked again.
+            cell_log:error(Id, "the damaged product file ~ts could not be set aside: ~ts",
+                           [Path, file:format_error(Why)]),
+            transit(cell_task_core:setup_again(D))
+    end;
 then({product_file, reload, _Who}, #engine{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
@@ -723,13 +732,11 @@ then({product_file, reload, _Who}, #engine{task = #task{product_path = Path} = T
             transit(cell_task_core:setup_again(D#engine{task = restore(T, Stored),
                                                         load_error = undefined}));
         {error, Reason} ->
-            D1 = D#engine{load_error = Reason},
-            goto(setup, {arrow, 8}, D1, [{next_event, internal, product_damaged}])
+            transit(cell_task_core:setup_again(D#engine{load_error = Reason}))
     end;
 then({retain_file, set_aside, Who}, #engine{task = #task{id = Id, retain_path = Path}} = D) ->
-    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
-    case file:rename(Path, Aside) of
-        ok ->
+    case set_aside(Path) of
+        {ok, Aside} ->
             cell_log:notice(Id, "~ts set the damaged retained data file aside as ~ts; the "
                             "task starts with no retained data, its counters again from "
                             "their defaults", [Who, Aside]);
@@ -741,6 +748,15 @@ then({retain_file, set_aside, Who}, #engine{task = #task{id = Id, retain_path = 
     retained_again(D);
 then({retain_file, reload, _Who}, D) ->
     retained_again(D).
+
+%% A damaged file of the task's record moved out of the way, under a name that says
+%% so and when.
+set_aside(Path) ->
+    Aside = <<Path/binary, ".damaged-", (integer_to_binary(os:system_time(second)))/binary>>,
+    case file:rename(Path, Aside) of
+        ok -> {ok, Aside};
+        {error, _} = Error -> Error
+    end.
 
 %% The retained data read again (mended, restored or set aside meanwhile): the task
 %% goes on into setup as from OFF, or is asked again.
@@ -784,9 +800,6 @@ secure_outputs(#engine{task = #task{module = Mod, id = Id} = T} = D) ->
          end,
     %% Secured: what the task commanded before is not written again (see reassert/2).
     D#engine{task = T2#task{commanded = cell_task_outputs:new()}}.
-
-goto(To, Cause, D, Actions) ->
-    {next_state, To, carry_out(cell_task_core:goto(To, Cause, D)), Actions}.
 
 %% The task leaves what it was doing (cell_task_core:leave/3), or another transition
 %% of the core that moves it: carried out, the engine in the state it took the task to
