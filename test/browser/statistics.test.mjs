@@ -16,8 +16,11 @@ openPages(cell, async (p) => {
 });
 
 // Charts brought by a click, once the cell's answer to it is drawn.
-async function charts(click) {
-  const answer = page.waitForResponse((r) => r.url().includes('/api/statistics/charts'));
+// Clicks, and answers the charts of the choice the click made (`query', a part of its
+// query string): a refresh of the choice before may still be on its way.
+async function charts(click, query) {
+  const answer = page.waitForResponse((r) => r.url().includes('/api/statistics/charts?') &&
+                                              r.url().includes(query));
   await page.click(click);
   const data = await (await answer).json();
   await page.waitForSelector('[data-testid=chart-states] svg');
@@ -52,7 +55,7 @@ test('a shift\'s charts show the numbers of /api/statistics', async () => {
   await page.waitForSelector('[data-task="router"][data-state="OFF"]');
   await cell.cmd('flush');
   await page.click('[data-testid=tab-statistics]');
-  await charts('[data-testid=stats-shift]');
+  await charts('[data-testid=stats-shift]', 'period=shift');
   const api = await fetchJson(page, '/api/statistics?period=shift');
   const prod = api.production;
   // Every task's time in each state but OFF (the state they are all in, still
@@ -92,7 +95,7 @@ test('a shift\'s charts show the numbers of /api/statistics', async () => {
 });
 
 test('a day and a range hold this shift', async () => {
-  const day = await charts('[data-testid=stats-day-show]');
+  const day = await charts('[data-testid=stats-day-show]', 'day=');
   assert.equal(day.selection.kind, 'day');
   assert.equal(day.shifts.length, 1);
   await page.waitForSelector('[data-testid=stats-selection]:has-text("Day ")');
@@ -103,14 +106,14 @@ test('a day and a range hold this shift', async () => {
     return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())}T${p(d.getHours())}:${p(d.getMinutes())}`;
   }));
   await page.fill('[data-testid=stats-to]', '');
-  const range = await charts('[data-testid=stats-range-show]');
+  const range = await charts('[data-testid=stats-range-show]', 'from=');
   assert.equal(range.selection.kind, 'range');
   assert.equal(range.sum.cell.out, 3);
   assert.equal(await page.textContent('[data-testid=figure-out] .v'), '3');
 });
 
 test('a task\'s change on the websocket brings the charts again, with no click', async () => {
-  await charts('[data-testid=stats-shift]');
+  await charts('[data-testid=stats-shift]', 'period=shift');
   const again = page.waitForResponse((r) => r.url().includes('/api/statistics/charts'));
   await page.evaluate(() => window.cellPanel.api('POST', '/api/cell/start'));
   const data = await (await again).json();

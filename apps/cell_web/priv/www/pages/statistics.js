@@ -31,6 +31,9 @@
 
   function choose(q) {
     query = q;
+    // A refresh due for the choice before is not this one's.
+    clearTimeout(pending);
+    pending = null;
     load();
   }
 
@@ -202,7 +205,7 @@
 
   function schedule() {
     if (!visible || !live() || pending) return;
-    pending = setTimeout(() => { pending = null; if (visible) load(); }, REFRESH_MS);
+    pending = setTimeout(() => { pending = null; if (visible && live()) load(); }, REFRESH_MS);
   }
 
   window.cellPanel.register({
