@@ -9,7 +9,7 @@
 %% only prints.
 -module(cell_bench).
 
--export([main/1, stats/1, percentile/2, result/1, alternating_rates/3]).
+-export([main/1, stats/1, percentile/2, result/1, alternating_rates/3, vm_flags/0]).
 -export([build_c/2, start_c_server/1, stop_c_server/1]).
 
 -export_type([result/0]).
@@ -90,6 +90,12 @@ command(Mod) ->
     io_lib:format("make bench BENCH=~s", [Mod]).
 
 %% @doc The ratio, oriented so that above 1 means ours is better.
+%% @doc The emulator flags of a cell's node (config/vm.args.src), as scripts/bench
+%% found them, for the nodes a benchmark starts of its own.
+-spec vm_flags() -> [string()].
+vm_flags() ->
+    string:lexemes(os:getenv("CELLRT_BENCH_VM_FLAGS", "+K true"), " ").
+
 -spec result(result()) -> float() | undefined.
 result(#{peer := undefined}) -> undefined;
 result(#{peer := P}) when P == 0 -> undefined;

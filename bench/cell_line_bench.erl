@@ -112,8 +112,8 @@ start_nodes(Root, Layout) ->
            %% The environment's root would win over the application's.
            {ok, Peer, Node} = peer:start_link(
                                 #{name => Name, host => "localhost",
-                                  args => ["+K", "true", "-setcookie",
-                                           atom_to_list(erlang:get_cookie()) | Paths],
+                                  args => cell_bench:vm_flags() ++
+                                      ["-setcookie", atom_to_list(erlang:get_cookie()) | Paths],
                                   env => [{"CELLRT_ROOT", filename:join(Root, atom_to_list(W))}]}),
            {W, {Peer, Node}}
        end || W <- Whiches]).
