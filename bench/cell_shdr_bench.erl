@@ -201,6 +201,10 @@ start() ->
     _ = [application:load(A) || A <- [cell_base, cell, cell_shdr]],
     ok = application:set_env(cell_shdr, port, 0),
     {ok, _} = application:ensure_all_started(cell_shdr),
+    %% The adapter admits 64 clients by default (its `max_clients'); the widest round
+    %% here has 100.
+    ok = cell_settings:put(shdr, #{max_clients => 100}, <<"bench">>),
+    ok = cell_shdr_cache:sync(),
     _ = sys:get_state(cell_shdr_listener),
     ok.
 
