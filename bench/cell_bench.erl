@@ -234,6 +234,8 @@ machine() ->
                {ok, L} -> hd(binary:split(L, <<" ">>));
                _ -> <<"unknown">>
            end,
-    io_lib:format("~4..0w-~2..0w-~2..0w, ~ts, ~p schedulers, OTP ~s, load average ~ts",
+    io_lib:format("~4..0w-~2..0w-~2..0w, ~ts, ~p schedulers, OTP ~s, load average ~ts; "
+                  "the VMs with the node's flags (config/vm.args.src): `~ts`",
                   [Y, Mo, D, Cpu, erlang:system_info(schedulers_online),
-                   erlang:system_info(otp_release), Load]).
+                   erlang:system_info(otp_release), Load,
+                   string:trim(os:getenv("CELLRT_BENCH_VM_FLAGS", ""))]).

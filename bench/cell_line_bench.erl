@@ -34,7 +34,9 @@ run() ->
                    "on a RAM folder, the median of five rounds of 1000 products through "
                    "one running line. Across the nodes, upstream's offer and release "
                    "are calls to the link on the other node, and the link's signals and "
-                   "answers come back over the distribution."}]
+                   "answers come back over the distribution: each is encoded, sent over "
+                   "TCP and decoded on the other node, a wake-up of both nodes' "
+                   "schedulers, where one node passes it between processes."}]
     after
         _ = os:cmd("rm -rf '" ++ Root ++ "'")
     end.

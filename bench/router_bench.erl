@@ -51,7 +51,13 @@ lane(Dual) ->
                  "runtime's own time (mostly one HAL poll, 20 ms, per sensor change it "
                  "waits for). Run at ~s of the machine's delays that time weighs ~b "
                  "times what it does on the machine: at full length the line would pass "
-                 "about ~b% of its theoretical maximum.",
+                 "about ~b% of its theoretical maximum. Both robots move on axes "
+                 "(paths and lines of their interpolation channels, with the profiles' "
+                 "accelerations, which the theoretical maximum counts too) at a speed "
+                 "override of 100 %. The inspection at the unloading exit is switched "
+                 "off: the cell runs without the application that answers the lanes' "
+                 "inspection blocks (cell_inspect_bench measures the block), and an "
+                 "unanswered block holds each panel for the inspection's timeout.",
                  [Lanes, 3600 / Zero, fmt(?REAL_SCALE), round(1 / ?REAL_SCALE),
                   round(100 * (3600000 / Theory) / (3600000 / Theory + 3600000 / Zero))])}].
 
