@@ -124,7 +124,11 @@ delay(Reps) ->
     #{median := PM, p99 := PP} = cell_bench:stats(Peer),
     [#{title => "Delay from a value change to its bytes on a client's socket, median",
        unit => "µs", ours => OM, peer => PM, better => lower,
-       peer_name => "same line written straight to the socket"},
+       peer_name => "same line written straight to the socket",
+       note => "The adapter holds a value until the millisecond of its timestamp is "
+               "over (1 to 2 ms after the change), so that of an item's changes "
+               "within one millisecond only the last goes out and a value that lasted "
+               "no time is never sent: the delay is that hold, the peer sends at once."},
      #{title => "Delay from a value change to its bytes on a client's socket, p99",
        unit => "µs", ours => OP, peer => PP, better => lower,
        peer_name => "same line written straight to the socket"}].
