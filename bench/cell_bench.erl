@@ -89,13 +89,13 @@ print(R, Mod) ->
 command(Mod) ->
     io_lib:format("make bench BENCH=~s", [Mod]).
 
-%% @doc The ratio, oriented so that above 1 means ours is better.
 %% @doc The emulator flags of a cell's node (config/vm.args.src), as scripts/bench
 %% found them, for the nodes a benchmark starts of its own.
 -spec vm_flags() -> [string()].
 vm_flags() ->
     string:lexemes(os:getenv("CELLRT_BENCH_VM_FLAGS", "+K true"), " ").
 
+%% @doc The ratio, oriented so that above 1 means ours is better.
 -spec result(result()) -> float() | undefined.
 result(#{peer := undefined}) -> undefined;
 result(#{peer := P}) when P == 0 -> undefined;
