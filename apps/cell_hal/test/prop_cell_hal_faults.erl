@@ -224,7 +224,10 @@ final_check(#m{watches = Ws}) ->
                          end,
                     case Ok of
                         true -> false;
-                        false -> {true, {R, V, Ends, Got, Open}}
+                        %% With the messages themselves: an unavailable one says why.
+                        false -> {true, {R, V, Ends, Got, Open,
+                                         [M || M <- Msgs, is_tuple(M), tuple_size(M) > 1,
+                                               element(2, M) =:= R]}}
                     end
             end, Ws),
     case Bad of
