@@ -715,14 +715,13 @@ then({product_file, set_aside, Who}, #engine{task = #task{id = Id, product_path 
     case set_aside(Path) of
         {ok, Aside} ->
             cell_log:notice(Id, "~ts set the damaged product file aside as ~ts; the task "
-                            "starts without a product", [Who, Aside]),
-            transit(cell_task_core:setup_again(D#engine{load_error = undefined}));
+                            "starts without a product", [Who, Aside]);
         {error, Why} ->
-            %% Still there and still damaged: asked again.
+            %% Still there: read again below, and asked again if still damaged.
             cell_log:error(Id, "the damaged product file ~ts could not be set aside: ~ts",
-                           [Path, file:format_error(Why)]),
-            transit(cell_task_core:setup_again(D))
-    end;
+                           [Path, file:format_error(Why)])
+    end,
+    then({product_file, reload, Who}, D);
 then({product_file, reload, _Who}, #engine{task = #task{product_path = Path} = T} = D) ->
     case cell_product:load(Path) of
         {ok, Stored} ->
